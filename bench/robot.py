@@ -1,0 +1,157 @@
+"""A thin wrapper around the robot's MjModel/MjData: names, truth parameters, commands.
+
+The MJCF (mjcf/m900ib700.xml) defines the geometry; everything elastic (joint stiffness, the
+compensator spring) is written here from a scenario's truth, so the file's own stiffness values
+never matter. Controller angles are the model's hinge angles: q3 is the crank of the active
+parallelogram and the passive `elbow` and `rod` hinges follow from the loop (see the MJCF).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+ACTUATED = ("j1", "j2", "j3", "j4", "j5", "j6")
+PASSIVE = ("elbow", "rod")
+COMPENSATOR = "compensator"
+LOOP = "parallelogram"
+PAYLOAD_SITE = "payload"
+FLANGE_SITE = "flange"
+REFLECTOR_PREFIX = "refl_"
+
+
+@dataclass(frozen=True)
+class Params:
+    """Elastostatic parameters in SI: the six actuator compliances (rad/(N*m)) and the
+    compensator spring (K_C in N/m, preload length s0 in m). Paper eqs. (1) and (8)."""
+
+    compliance: np.ndarray
+    compensator_stiffness: float
+    compensator_preload: float
+
+    def as_dict(self) -> dict:
+        return {
+            "compliance": [float(x) for x in self.compliance],
+            "compensator": {
+                "stiffness": float(self.compensator_stiffness),
+                "preload": float(self.compensator_preload),
+            },
+        }
+
+
+@dataclass(frozen=True)
+class CompensatorGeometry:
+    """Geometry of the compensator triangle of paper Fig. 4 read from the MJCF sites.
+
+    l_c: J2 axis to the turret attachment; l_2: J2 axis to the arm attachment;
+    offset: psi - q2, the compensator angle minus the controller's q2 (rad).
+    """
+
+    l_c: float
+    l_2: float
+    offset: float
+
+    def angle(self, q2: float) -> float:
+        return q2 + self.offset
+
+    def length(self, q2: float) -> float:
+        """Spring length s, paper eq. (7)."""
+        psi = self.angle(q2)
+        return float(np.sqrt(self.l_c**2 + self.l_2**2 - 2 * self.l_c * self.l_2 * np.cos(psi)))
+
+
+class Robot:
+    """MjModel + MjData with the robot's named parts resolved once."""
+
+    def __init__(self, model: mujoco.MjModel, source: Path | None = None):
+        self.model = model
+        self.data = mujoco.MjData(model)
+        self.source = source
+        jid = lambda n: mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n)  # noqa: E731
+        self.act_joint = np.array([jid(n) for n in ACTUATED])
+        self.passive_joint = np.array([jid(n) for n in PASSIVE])
+        if (self.act_joint < 0).any() or (self.passive_joint < 0).any():
+            raise ValueError(f"{source}: the MJCF must name joints {ACTUATED + PASSIVE}")
+        self.act_qpos = model.jnt_qposadr[self.act_joint]
+        self.act_dof = model.jnt_dofadr[self.act_joint]
+        self.passive_qpos = model.jnt_qposadr[self.passive_joint]
+        self.tendon = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TENDON, COMPENSATOR)
+        self.loop = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_EQUALITY, LOOP)
+        site = lambda n: mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, n)  # noqa: E731
+        self.payload_site = site(PAYLOAD_SITE)
+        self.flange_site = site(FLANGE_SITE)
+        self.reflector_names = [
+            model.site(i).name for i in range(model.nsite) if model.site(i).name.startswith(REFLECTOR_PREFIX)
+        ]
+        self.reflector_sites = np.array([site(n) for n in self.reflector_names])
+        self.loop_sites = (
+            (site("rod_end"), site("rod_anchor"))
+            if self.loop < 0
+            else (int(model.eq_obj1id[self.loop]), int(model.eq_obj2id[self.loop]))
+        )
+
+    # -- construction -------------------------------------------------------------------
+    @classmethod
+    def from_file(cls, path: str | Path) -> "Robot":
+        path = Path(path)
+        return cls(mujoco.MjModel.from_xml_path(str(path)), source=path)
+
+    @classmethod
+    def from_xml(cls, text: str) -> "Robot":
+        return cls(mujoco.MjModel.from_xml_string(text))
+
+    # -- parameters ---------------------------------------------------------------------
+    def set_params(self, params: Params) -> None:
+        """Write the truth into the model: hinge stiffness 1/k_i and the compensator spring."""
+        k = np.asarray(params.compliance, dtype=float)
+        self.model.jnt_stiffness[self.act_joint] = 1.0 / k
+        if self.tendon >= 0:
+            self.model.tendon_stiffness[self.tendon] = params.compensator_stiffness
+            self.model.tendon_lengthspring[self.tendon] = params.compensator_preload
+
+    def params(self) -> Params:
+        """The parameters the model currently holds (for the simulator's truth only)."""
+        k_c = float(self.model.tendon_stiffness[self.tendon]) if self.tendon >= 0 else 0.0
+        s0 = float(self.model.tendon_lengthspring[self.tendon][0]) if self.tendon >= 0 else 0.0
+        return Params(1.0 / self.model.jnt_stiffness[self.act_joint].copy(), k_c, s0)
+
+    def limits(self) -> np.ndarray:
+        """(6,2) controller joint limits in rad."""
+        return self.model.jnt_range[self.act_joint].copy()
+
+    # -- commands -----------------------------------------------------------------------
+    def set_command(self, q: np.ndarray) -> None:
+        """Commanded angles become the springs' reference (VJM: the spring is at rest there)."""
+        self.model.qpos_spring[self.act_qpos] = q
+
+    def rigid_qpos(self, q: np.ndarray) -> np.ndarray:
+        """The closed-loop configuration at the command with no deflection.
+
+        Parallelogram (MJCF comment): forearm pitch = crank = q3, so elbow = q3 - q2 and the
+        coupler rod stays parallel to the upper arm: rod = q2 - q3.
+        """
+        qpos = self.model.qpos0.copy()
+        qpos[self.act_qpos] = q
+        qpos[self.passive_qpos] = [q[2] - q[1], q[1] - q[2]]
+        return qpos
+
+    def compensator_geometry(self) -> CompensatorGeometry:
+        """Measure l_c, l_2 and the angle offset from the MJCF sites at q = 0 (geometry only)."""
+        m = self.model
+        d = mujoco.MjData(m)
+        d.qpos[:] = self.rigid_qpos(np.zeros(6))
+        mujoco.mj_kinematics(m, d)
+        a, b = m.wrap_objid[m.tendon_adr[self.tendon] : m.tendon_adr[self.tendon] + 2]
+        j2 = self.act_joint[1]
+        axis_pt = d.xanchor[j2]
+        axis = d.xaxis[j2]
+        va = d.site_xpos[a] - axis_pt
+        vb = d.site_xpos[b] - axis_pt
+        va -= axis * (va @ axis)
+        vb -= axis * (vb @ axis)
+        l_c, l_2 = np.linalg.norm(va), np.linalg.norm(vb)
+        # signed angle from the turret attachment to the arm attachment about the J2 axis
+        psi = np.arctan2(np.cross(va, vb) @ axis, va @ vb)
+        return CompensatorGeometry(float(l_c), float(l_2), float(psi))

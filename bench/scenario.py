@@ -1,0 +1,483 @@
+"""Load and validate a calibration campaign scenario (TOML, see CONTRACT.md).
+
+The file speaks degrees for joint angles and the tracker yaw; everything returned here is SI
+(radians, metres). Every bad input raises :class:`bench.errors.InputError` naming the file, the
+key path (0-based for ``[[pose]]`` entries and vector elements, e.g. ``pose[3].q[1]``) and what
+was expected, so the CLI can report it and exit with status 2.
+"""
+from __future__ import annotations
+
+import math
+import os
+import re
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bench.errors import InputError
+
+LINKS = ("forearm", "upper_arm")
+TRACKER_MODELS = ("isotropic", "spec")
+DEFAULT_SIGMA = 20e-6
+DEFAULT_DISTANCE = (10e-6, 0.3e-6)      # Leica AT500 ADM: 10 um + 0.3 um/m
+DEFAULT_TRANSVERSE = (15e-6, 6e-6)      # Leica AT500 angular: 15 um + 6 um/m
+JOINT_LIMIT_TOL = 1e-9                  # rad, absorbs degree->radian round-off at a limit
+
+
+# --------------------------------------------------------------------------- data
+
+def _frozen(a: Any) -> np.ndarray:
+    """A float copy that cannot be modified, so frozen dataclasses stay frozen."""
+    arr = np.array(a, dtype=float)
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True)
+class Compensator:
+    """Spring gravity compensator of axis 2: stiffness K_C (N/m), preload length s0 (m)."""
+    stiffness: float
+    preload: float
+
+
+@dataclass(frozen=True)
+class TrackerSpec:
+    """Laser tracker placement (world frame) and noise model.
+
+    ``model == "isotropic"`` uses ``sigma`` per axis; ``"spec"`` uses the 1-sigma distance and
+    transverse errors ``a + b * range`` of an ISO 10360-10 style specification.
+    """
+    position: np.ndarray
+    yaw: float = 0.0
+    model: str = "isotropic"
+    sigma: float = DEFAULT_SIGMA
+    distance: tuple[float, float] = DEFAULT_DISTANCE
+    transverse: tuple[float, float] = DEFAULT_TRANSVERSE
+
+
+@dataclass(frozen=True)
+class Pose:
+    """One measurement configuration: joint angles (rad), optional world wrench, repeat count."""
+    q: np.ndarray
+    wrench: np.ndarray | None
+    repeats: int = 1
+
+
+@dataclass(frozen=True)
+class Work:
+    """Where the calibrated robot will work: joint angles (rad) and the process wrench."""
+    q: np.ndarray
+    wrench: np.ndarray
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A validated campaign, in SI units, with the exact text it was read from."""
+    path: Path
+    text: str
+    robot: Path
+    seed: int
+    compliance: np.ndarray
+    compensator: Compensator
+    effects: dict[str, dict]
+    tracker: TrackerSpec
+    load_mass: float
+    work: Work | None
+    poses: tuple[Pose, ...]
+
+
+# --------------------------------------------------------------------------- field checks
+
+class _Checker:
+    """Typed access to one TOML table, raising InputError with the full key path."""
+
+    def __init__(self, file: Path, table: Any, prefix: str):
+        self.file = file
+        self.prefix = prefix
+        if not isinstance(table, dict):
+            raise InputError(file, prefix or "(top level)", "a table", _describe(table))
+        self.table = table
+
+    def key(self, name: str) -> str:
+        return f"{self.prefix}.{name}" if self.prefix else name
+
+    def fail(self, name: str, expected: str, got: Any = None) -> InputError:
+        return InputError(self.file, self.key(name), expected, got)
+
+    def only(self, allowed: tuple[str, ...]) -> None:
+        """Reject keys outside ``allowed`` (catches typos that would silently do nothing)."""
+        for name in self.table:
+            if name not in allowed:
+                raise self.fail(name, "no such key; allowed keys here: " + ", ".join(allowed))
+
+    def has(self, name: str) -> bool:
+        return name in self.table
+
+    def raw(self, name: str) -> Any:
+        if name not in self.table:
+            raise InputError(self.file, self.key(name), "this required key to be present")
+        return self.table[name]
+
+    def sub(self, name: str) -> "_Checker":
+        value = self.raw(name)
+        if not isinstance(value, dict):
+            raise self.fail(name, "a table", _describe(value))
+        return _Checker(self.file, value, self.key(name))
+
+    def number(self, name: str, *, positive: bool = False, nonneg: bool = False) -> float:
+        return _number(self.file, self.key(name), self.raw(name), positive, nonneg)
+
+    def integer(self, name: str, lo: int | None = None, hi: int | None = None) -> int:
+        value = self.raw(name)
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self.fail(name, _int_range(lo, hi), _describe(value))
+        if (lo is not None and value < lo) or (hi is not None and value > hi):
+            raise self.fail(name, _int_range(lo, hi), value)
+        return value
+
+    def string(self, name: str, choices: tuple[str, ...] | None = None) -> str:
+        value = self.raw(name)
+        if not isinstance(value, str):
+            raise self.fail(name, "a string", _describe(value))
+        if choices is not None and value not in choices:
+            raise self.fail(name, "one of " + ", ".join(f'"{c}"' for c in choices), value)
+        return value
+
+    def vector(self, name: str, n: int, *, positive: bool = False,
+               nonneg: bool = False) -> np.ndarray:
+        value = self.raw(name)
+        what = f"an array of {n} numbers"
+        if not isinstance(value, list):
+            raise self.fail(name, what, _describe(value))
+        if len(value) != n:
+            raise self.fail(name, what, f"{len(value)} elements")
+        key = self.key(name)
+        return np.array([_number(self.file, f"{key}[{i}]", v, positive, nonneg)
+                         for i, v in enumerate(value)])
+
+
+def _describe(value: Any) -> str:
+    """Short name of a TOML value's type for error messages."""
+    if isinstance(value, bool):
+        return f"boolean {str(value).lower()}"
+    if isinstance(value, dict):
+        return "a table"
+    if isinstance(value, list):
+        return "an array"
+    return f"{type(value).__name__} {value!r}"
+
+
+def _int_range(lo: int | None, hi: int | None) -> str:
+    if lo is not None and hi is not None:
+        return f"an integer in {lo}..{hi}"
+    if lo is not None:
+        return f"an integer >= {lo}"
+    return "an integer"
+
+
+def _number(file: Path, key: str, value: Any, positive: bool, nonneg: bool) -> float:
+    """A finite real number (bool rejected), optionally > 0 or >= 0."""
+    what = "a finite number" + (" > 0" if positive else " >= 0" if nonneg else "")
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InputError(file, key, what, _describe(value))
+    x = float(value)
+    if not math.isfinite(x) or (positive and x <= 0) or (nonneg and x < 0):
+        raise InputError(file, key, what, value)
+    return x
+
+
+# --------------------------------------------------------------------------- sections
+
+TOP_KEYS = ("name", "description", "robot", "seed", "truth", "tracker", "load", "work", "pose")
+EFFECT_KEYS = ("link_compliance", "base_compliance", "joint_nonlinearity")
+
+
+def _effects(c: _Checker) -> dict[str, dict]:
+    """Validate the optional hidden effects present only in the simulated truth."""
+    c.only(EFFECT_KEYS)
+    out: dict[str, dict] = {}
+    if c.has("link_compliance"):
+        e = c.sub("link_compliance")
+        e.only(("link", "compliance"))
+        out["link_compliance"] = {"link": e.string("link", LINKS),
+                                  "compliance": _frozen(e.vector("compliance", 3, nonneg=True))}
+    if c.has("base_compliance"):
+        e = c.sub("base_compliance")
+        e.only(("compliance",))
+        out["base_compliance"] = {"compliance": _frozen(e.vector("compliance", 2, nonneg=True))}
+    if c.has("joint_nonlinearity"):
+        e = c.sub("joint_nonlinearity")
+        e.only(("joint", "cubic"))
+        out["joint_nonlinearity"] = {"joint": e.integer("joint", 1, 6),
+                                     "cubic": e.number("cubic")}
+    return out
+
+
+def _pair(c: _Checker, name: str, default: tuple[float, float]) -> tuple[float, float]:
+    """An ``[a, b]`` error law a + b*range: a > 0 keeps the covariance positive definite."""
+    if not c.has(name):
+        return default
+    a, b = c.vector(name, 2, nonneg=True)
+    if a <= 0:
+        raise c.fail(name, "[a, b] with a > 0 (m) and b >= 0 (m/m)", [a, b])
+    return (float(a), float(b))
+
+
+def _tracker(c: _Checker) -> TrackerSpec:
+    c.only(("sigma", "position", "yaw", "model", "distance", "transverse"))
+    return TrackerSpec(
+        position=_frozen(c.vector("position", 3)),
+        yaw=math.radians(c.number("yaw")) if c.has("yaw") else 0.0,
+        model=c.string("model", TRACKER_MODELS) if c.has("model") else "isotropic",
+        sigma=c.number("sigma", positive=True) if c.has("sigma") else DEFAULT_SIGMA,
+        distance=_pair(c, "distance", DEFAULT_DISTANCE),
+        transverse=_pair(c, "transverse", DEFAULT_TRANSVERSE),
+    )
+
+
+def _poses(file: Path, value: Any) -> tuple[Pose, ...]:
+    if not isinstance(value, list) or not value:
+        raise InputError(file, "pose", "at least one [[pose]] table", _describe(value))
+    poses = []
+    for i, entry in enumerate(value):
+        p = _Checker(file, entry, f"pose[{i}]")
+        p.only(("q", "wrench", "repeats"))
+        poses.append(Pose(
+            q=_frozen(np.radians(p.vector("q", 6))),
+            wrench=_frozen(p.vector("wrench", 6)) if p.has("wrench") else None,
+            repeats=p.integer("repeats", lo=1) if p.has("repeats") else 1,
+        ))
+    return tuple(poses)
+
+
+# --------------------------------------------------------------------------- entry points
+
+_LINE = re.compile(r"line (\d+)")
+
+
+def parse_scenario(text: str, path: str | Path, seed: int | None = None) -> Scenario:
+    """Validate scenario ``text`` read from ``path`` (used for messages and the robot path).
+
+    ``seed`` (when given) overrides the file's seed, which then need not be present.
+    """
+    path = Path(path)
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        m = _LINE.search(str(exc))
+        raise InputError(path, f"line {m.group(1)}" if m else "(syntax)",
+                         "valid TOML", str(exc)) from None
+
+    top = _Checker(path, doc, "")
+    top.only(TOP_KEYS)
+    for name in ("name", "description"):
+        if top.has(name):
+            top.string(name)
+
+    robot_rel = top.string("robot")
+    robot = (path.parent / robot_rel).resolve()
+    if not robot.is_file():
+        raise InputError(path, "robot", f"an existing MJCF file (resolved to {robot})", robot_rel)
+
+    if seed is None:
+        seed = top.integer("seed", lo=0)
+    else:
+        if top.has("seed"):
+            top.integer("seed", lo=0)           # still reject a malformed value in the file
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise InputError("--seed", "seed", "an integer >= 0", seed)
+        seed = int(seed)
+
+    truth = top.sub("truth")
+    truth.only(("compliance", "compensator", "effects"))
+    compliance = _frozen(truth.vector("compliance", 6, positive=True))
+    comp = truth.sub("compensator")
+    comp.only(("stiffness", "preload"))
+    compensator = Compensator(stiffness=comp.number("stiffness", nonneg=True),
+                              preload=comp.number("preload", nonneg=True))
+    effects = _effects(truth.sub("effects")) if truth.has("effects") else {}
+
+    load = top.sub("load")
+    load.only(("mass",))
+
+    work = None
+    if top.has("work"):
+        w = top.sub("work")
+        w.only(("q", "wrench"))
+        work = Work(q=_frozen(np.radians(w.vector("q", 6))), wrench=_frozen(w.vector("wrench", 6)))
+
+    return Scenario(
+        path=path,
+        text=text,
+        robot=robot,
+        seed=seed,
+        compliance=compliance,
+        compensator=compensator,
+        effects=effects,
+        tracker=_tracker(top.sub("tracker")),
+        load_mass=load.number("mass", positive=True),
+        work=work,
+        poses=_poses(path, top.raw("pose")),
+    )
+
+
+def load_scenario(path: str | Path, seed: int | None = None) -> Scenario:
+    """Read and validate the scenario file at ``path``; ``seed`` overrides the file's seed."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(path, "(file)", "a readable UTF-8 scenario file", str(exc)) from None
+    return parse_scenario(text, path, seed)
+
+
+def check_joint_limits(scn: Scenario, limits: np.ndarray) -> None:
+    """Reject poses (and the work pose) outside the robot's joint ``limits`` ((6, 2) rad)."""
+    limits = np.asarray(limits, dtype=float)
+    if limits.shape != (6, 2):
+        raise ValueError(f"limits must have shape (6, 2), got {limits.shape}")
+    named = [(f"pose[{i}].q", p.q) for i, p in enumerate(scn.poses)]
+    if scn.work is not None:
+        named.append(("work.q", scn.work.q))
+    for key, q in named:
+        for j in range(6):
+            lo, hi = limits[j]
+            if not lo - JOINT_LIMIT_TOL <= q[j] <= hi + JOINT_LIMIT_TOL:
+                raise InputError(
+                    scn.path, f"{key}[{j}]",
+                    f"joint {j + 1} within [{math.degrees(lo):.3f}, {math.degrees(hi):.3f}] "
+                    "degrees", round(math.degrees(q[j]), 6))
+
+
+# --------------------------------------------------------------------------- writing
+
+def scenario_as_dict(scn: Scenario, relative_to: str | Path) -> dict:
+    """The scenario in file units (degrees), with ``robot`` relative to directory ``relative_to``.
+
+    Feed it, possibly edited (e.g. new poses), to :func:`scenario_to_toml` to write a plan.
+    Angles are rounded to 1e-10 degree (< 2e-12 rad) so the file reads 30.0, not 29.999...
+    """
+    def deg(q: np.ndarray) -> list[float]:
+        return np.round(np.degrees(q), 10).tolist()
+
+    tr = scn.tracker
+    header = {k: v for k, v in tomllib.loads(scn.text).items() if k in ("name", "description")}
+    doc: dict[str, Any] = {
+        **header,
+        "robot": Path(os.path.relpath(scn.robot, Path(relative_to).resolve())).as_posix(),
+        "seed": scn.seed,
+        "truth": {
+            "compliance": scn.compliance.tolist(),
+            "compensator": {"stiffness": scn.compensator.stiffness,
+                            "preload": scn.compensator.preload},
+        },
+        "tracker": {"sigma": tr.sigma, "position": tr.position.tolist(),
+                    "yaw": round(math.degrees(tr.yaw), 10), "model": tr.model,
+                    "distance": list(tr.distance), "transverse": list(tr.transverse)},
+        "load": {"mass": scn.load_mass},
+    }
+    if scn.effects:
+        doc["truth"]["effects"] = {
+            name: {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in e.items()}
+            for name, e in scn.effects.items()}
+    if scn.work is not None:
+        doc["work"] = {"q": deg(scn.work.q), "wrench": scn.work.wrench.tolist()}
+    poses = []
+    for p in scn.poses:
+        entry: dict[str, Any] = {"q": deg(p.q)}
+        if p.wrench is not None:
+            entry["wrench"] = p.wrench.tolist()
+        entry["repeats"] = p.repeats
+        poses.append(entry)
+    doc["pose"] = poses
+    return doc
+
+
+_BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
+
+
+def _toml_key(key: str) -> str:
+    return key if _BARE_KEY.match(key) else _toml_string(key)
+
+
+def _toml_string(s: str) -> str:
+    """A TOML basic string; control characters and DEL are escaped as TOML requires."""
+    out = ['"']
+    for ch in s:
+        if ch == '"':
+            out.append('\\"')
+        elif ch == "\\":
+            out.append("\\\\")
+        elif ch == "\n":
+            out.append("\\n")
+        elif ch == "\t":
+            out.append("\\t")
+        elif ord(ch) < 0x20 or ord(ch) == 0x7F:
+            out.append(f"\\u{ord(ch):04X}")
+        else:
+            out.append(ch)
+    out.append('"')
+    return "".join(out)
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, np.ndarray):
+        v = v.tolist()
+    if isinstance(v, np.generic):
+        v = v.item()
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if not math.isfinite(v):
+            raise ValueError(f"cannot write non-finite number {v} to a scenario")
+        return repr(v)                          # shortest text that reads back bit-exact
+    if isinstance(v, str):
+        return _toml_string(v)
+    if isinstance(v, Path):
+        return _toml_string(v.as_posix())
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def _is_table_array(v: Any) -> bool:
+    return isinstance(v, (list, tuple)) and len(v) > 0 and all(isinstance(x, dict) for x in v)
+
+
+def _emit(table: dict, path: list[str], lines: list[str]) -> None:
+    """Write scalars first, then sub-tables, then arrays of tables (TOML ordering rules)."""
+    scalars = [(k, v) for k, v in table.items()
+               if v is not None and not isinstance(v, dict) and not _is_table_array(v)]
+    for k, v in scalars:
+        lines.append(f"{_toml_key(k)} = {_toml_value(v)}")
+    for k, v in table.items():
+        if isinstance(v, dict):
+            sub = path + [_toml_key(k)]
+            has_scalars = any(not isinstance(x, dict) and not _is_table_array(x)
+                              for x in v.values())
+            if has_scalars or not v:
+                lines.extend(["", f"[{'.'.join(sub)}]"])
+            _emit(v, sub, lines)
+    for k, v in table.items():
+        if _is_table_array(v):
+            sub = path + [_toml_key(k)]
+            for entry in v:
+                lines.extend(["", f"[[{'.'.join(sub)}]]"])
+                _emit(entry, sub, lines)
+
+
+def scenario_to_toml(scn_like: dict) -> str:
+    """Write a scenario TOML from a plain dict keyed as in CONTRACT.md (file units, degrees).
+
+    ``None`` values are omitted. The result is meant to be read back by :func:`parse_scenario`.
+    """
+    if not isinstance(scn_like, dict):
+        raise TypeError("scenario_to_toml expects a dict")
+    lines: list[str] = []
+    _emit(scn_like, [], lines)
+    return "\n".join(lines).lstrip("\n") + "\n"

@@ -1,0 +1,129 @@
+"""The simulated laser tracker: frames, noise model, line-of-sight visibility, measurement.
+
+The tracker frame has its origin at ``TrackerSpec.position`` and is rotated by ``yaw`` about
+world z. Measurements are reported in that frame, as a real tracker would report them; the
+noise model lives there too (it only depends on the line of sight from the tracker origin).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from bench.scenario import TrackerSpec
+
+OCCLUSION_TOL = 1e-6            # m: a hit closer than the site by more than this occludes it
+BLOCKING_GROUPS = np.array([1, 1, 1, 0, 0, 0], dtype=np.uint8)  # geom groups >= 3 never block
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """One tracker reading of n reflectors, in the tracker frame.
+
+    ``position`` and ``covariance`` rows of reflectors that are not visible are NaN.
+    """
+    position: np.ndarray        # (n, 3) m
+    covariance: np.ndarray      # (n, 3, 3) m^2
+    visible: np.ndarray         # (n,) bool
+
+
+def _points(points: np.ndarray) -> np.ndarray:
+    p = np.asarray(points, dtype=float)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError(f"points must have shape (n, 3), got {p.shape}")
+    return p
+
+
+def tracker_rotation(spec: TrackerSpec) -> np.ndarray:
+    """World-from-tracker rotation: a yaw of ``spec.yaw`` radians about world z."""
+    c, s = np.cos(spec.yaw), np.sin(spec.yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def to_tracker_frame(spec: TrackerSpec, points_world: np.ndarray) -> np.ndarray:
+    """Express world points (n, 3) in the tracker frame: R^T (p - position)."""
+    p = _points(points_world)
+    return (p - spec.position) @ tracker_rotation(spec)
+
+
+def to_world_frame(spec: TrackerSpec, points_tracker: np.ndarray) -> np.ndarray:
+    """Express tracker-frame points (n, 3) in the world frame: R p + position."""
+    p = _points(points_tracker)
+    return p @ tracker_rotation(spec).T + spec.position
+
+
+def noise_covariance(spec: TrackerSpec, points_tracker: np.ndarray) -> np.ndarray:
+    """Measurement covariance (n, 3, 3) at tracker-frame points.
+
+    Isotropic: sigma^2 I. Spec: sd^2 u u^T + st^2 (I - u u^T), with u the unit line of sight,
+    sd = a_d + b_d*range along it (distance meter) and st = a_t + b_t*range across it (angles).
+    """
+    p = _points(points_tracker)
+    n = len(p)
+    eye = np.broadcast_to(np.eye(3), (n, 3, 3))
+    if spec.model == "isotropic":
+        return spec.sigma**2 * eye.copy()
+    if spec.model != "spec":
+        raise ValueError(f"unknown tracker noise model {spec.model!r}")
+    rng = np.linalg.norm(p, axis=1)
+    if np.any(rng == 0):
+        raise ValueError("a point at the tracker origin has no line of sight")
+    u = p / rng[:, None]
+    uu = u[:, :, None] * u[:, None, :]
+    sd = spec.distance[0] + spec.distance[1] * rng
+    st = spec.transverse[0] + spec.transverse[1] * rng
+    return sd[:, None, None] ** 2 * uu + st[:, None, None] ** 2 * (eye - uu)
+
+
+def visible_sites(model: mujoco.MjModel, data: mujoco.MjData, spec: TrackerSpec,
+                  site_ids) -> np.ndarray:
+    """Line-of-sight test (n,) bool from the tracker to each site at the pose held in ``data``.
+
+    Casts ``mj_ray`` from the tracker position toward each site (``data.site_xpos`` must be
+    current). A site is hidden iff a geom in groups 0-2 is hit more than ``OCCLUSION_TOL``
+    before it. Static (world) geoms block; as in ``mj_ray``, fully transparent geoms
+    (alpha 0) do not. A tracker inside a geom is not detected.
+    """
+    ids = np.atleast_1d(np.asarray(site_ids, dtype=int))
+    if np.any((ids < 0) | (ids >= model.nsite)):
+        raise ValueError(f"site ids must be in 0..{model.nsite - 1}, got {ids.tolist()}")
+    origin = np.asarray(spec.position, dtype=float).copy()
+    geomid = np.full(1, -1, dtype=np.int32)
+    out = np.empty(len(ids), dtype=bool)
+    for k, sid in enumerate(ids):
+        d = data.site_xpos[sid] - origin
+        dist = float(np.linalg.norm(d))
+        if dist <= OCCLUSION_TOL:
+            out[k] = True
+            continue
+        hit = mujoco.mj_ray(model, data, origin, d / dist, BLOCKING_GROUPS, 1, -1, geomid)
+        out[k] = hit < 0 or hit >= dist - OCCLUSION_TOL
+    return out
+
+
+def measure(spec: TrackerSpec, points_world: np.ndarray, visible: np.ndarray,
+            rng: np.random.Generator) -> Measurement:
+    """Noisy tracker-frame readings of the true ``points_world``.
+
+    Noise is drawn only for visible points, one standard-normal (m, 3) block for the m visible
+    points in order, coloured by the Cholesky factor of :func:`noise_covariance`. So the
+    generator's consumption depends on how many points are visible, and the same generator
+    state gives identical output. Invisible rows are NaN in position and covariance.
+    """
+    p = to_tracker_frame(spec, points_world)
+    vis = np.asarray(visible)
+    if vis.dtype != bool or vis.shape != (len(p),):
+        raise ValueError(f"visible must be a bool array of shape ({len(p)},)")
+    position = np.full_like(p, np.nan)
+    covariance = np.full((len(p), 3, 3), np.nan)
+    if vis.any():
+        cov = noise_covariance(spec, p[vis])
+        chol = np.linalg.cholesky(cov)
+        z = rng.standard_normal((int(vis.sum()), 3))
+        position[vis] = p[vis] + np.einsum("nij,nj->ni", chol, z)
+        covariance[vis] = cov
+    vis = vis.copy()
+    for a in (position, covariance, vis):
+        a.setflags(write=False)
+    return Measurement(position=position, covariance=covariance, visible=vis)
