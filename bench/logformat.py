@@ -216,7 +216,7 @@ def redact_truth(scenario_text: str) -> str:
                 skipping_value = False
             continue
         m = _HEADER_RE.match(line)
-        if m and "=" not in line:
+        if m and "=" not in line.split("#", 1)[0]:
             name = m.group(1).strip().strip("\"'")
             in_truth = name == "truth" or name.startswith(("truth.", '"truth".', "'truth'."))
             at_top = False
@@ -311,8 +311,24 @@ class LogWriter:
         self._last_time = -1
         self._seq: dict[str, int] = {}
         self._truth_params: dict | None = None
-        self._closed = False
+        self._closed = True  # until the file is open
+        h = header
+        info = {
+            "scenario_name": str(h.scenario_name),
+            "robot": str(h.robot_filename),
+            "n_poses": h.planned_poses(),
+            "reflectors": [str(r) for r in h.reflectors],
+            "payload_site": str(h.payload_site),
+            "tracker": _jsonable(h.tracker),
+            "seed": int(h.seed),
+            "calbench_version": _version(),
+        }
+        problems = validate(info, SCHEMAS["/campaign/info"])
+        if problems:  # checked before the file is created, so a bad header leaves no file
+            raise ValueError(f"/campaign/info: header does not match its schema: {problems}")
+        public_scenario = redact_truth(h.scenario_text)
         self._file = open(self.path, "wb")
+        self._closed = False
         self._writer = Writer(self._file, chunk_size=chunk_size,
                               compression=CompressionType.ZSTD)
         # The library string is the only free-form header field; mcap would put its own
@@ -327,19 +343,7 @@ class LogWriter:
             self._channels[topic] = self._writer.register_channel(
                 topic=topic, message_encoding="json", schema_id=sid)
 
-        h = header
-        info = {
-            "scenario_name": str(h.scenario_name),
-            "robot": str(h.robot_filename),
-            "n_poses": h.planned_poses(),
-            "reflectors": [str(r) for r in h.reflectors],
-            "payload_site": str(h.payload_site),
-            "tracker": _jsonable(h.tracker),
-            "seed": int(h.seed),
-            "calbench_version": _version(),
-        }
         self._write("/campaign/info", info, _time(None, slot=0))
-        public_scenario = redact_truth(h.scenario_text)
         self._writer.add_metadata(SCENARIO_METADATA,
                                   {"name": str(h.scenario_name), "text": public_scenario})
         self._writer.add_attachment(create_time=0, log_time=0,

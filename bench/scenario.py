@@ -87,6 +87,7 @@ class Scenario:
     load_mass: float
     work: Work | None
     poses: tuple[Pose, ...]
+    name: str = ""               # the file's `name`, else its stem
 
 
 # --------------------------------------------------------------------------- field checks
@@ -276,6 +277,7 @@ def parse_scenario(text: str, path: str | Path, seed: int | None = None) -> Scen
     for name in ("name", "description"):
         if top.has(name):
             top.string(name)
+    scenario_name = top.string("name") if top.has("name") else path.stem
 
     robot_rel = top.string("robot")
     robot = (path.parent / robot_rel).resolve()
@@ -321,6 +323,7 @@ def parse_scenario(text: str, path: str | Path, seed: int | None = None) -> Scen
         load_mass=load.number("mass", positive=True),
         work=work,
         poses=_poses(path, top.raw("pose")),
+        name=scenario_name,
     )
 
 

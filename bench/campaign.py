@@ -1,0 +1,166 @@
+"""A calibration campaign: pose the robot unloaded and loaded, measure, log.
+
+All statics are solved and every pose is checked (limits, reach, visibility) BEFORE the log is
+opened, so bad input leaves no output file; then the measurements are drawn and written pose
+by pose, each pose made durable on disk before the next begins (a crash loses at most the pose
+in progress). The noise comes from one generator seeded by the scenario (or --seed), consumed
+in plan order, so the same scenario and seed give the same log, byte for byte.
+"""
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from .errors import InputError
+from .logformat import LogHeader, LogWriter
+from .robot import Params, Robot
+from .scenario import Scenario, check_joint_limits
+from .statics import Equilibrium, Load, StaticsSolver
+from .tracker import measure, to_tracker_frame, visible_sites
+from .progress import Progress
+
+STATES = ("unloaded", "loaded")
+GRAVITY = 9.81
+# The parallelogram degenerates when the crank is parallel to the upper arm; keep this margin.
+PARALLELOGRAM_MARGIN = np.radians(10.0)
+
+
+@dataclass(frozen=True)
+class PosePlan:
+    """One pose's solved physics, before any noise: what the campaign will measure."""
+
+    index: int
+    q: np.ndarray
+    load: Load
+    mass: float | None
+    equilibria: tuple[Equilibrium, Equilibrium]       # unloaded, loaded
+    reflectors_world: np.ndarray                       # (2, n, 3) true positions
+    visible: np.ndarray                                # (2, n) bool
+
+
+def scenario_params(scn: Scenario) -> Params:
+    return Params(np.asarray(scn.compliance, float), scn.compensator.stiffness, scn.compensator.preload)
+
+
+def truth_robot(scn: Scenario) -> Robot:
+    """The simulated (true) robot: the scenario's MJCF with the scenario's truth written in."""
+    try:
+        robot = Robot.from_file(scn.robot)
+    except ValueError as exc:  # MuJoCo compile errors
+        raise InputError(scn.path, "robot", "a loadable MJCF robot", f"{scn.robot}: {exc}") from exc
+    robot.set_params(scenario_params(scn))
+    return robot
+
+
+def parallelogram_angle(q: np.ndarray) -> float:
+    """Angle between crank and upper arm (rad, mod pi); 0 is the degenerate parallelogram."""
+    return float(np.mod(q[2] - q[1] + np.radians(120.0), np.pi))
+
+
+def pose_load(robot: Robot, scn: Scenario, pose) -> tuple[Load, float | None]:
+    if pose.wrench is not None:
+        return Load.wrench(robot, pose.wrench), None
+    return Load.mass(robot, scn.load_mass, GRAVITY), scn.load_mass
+
+
+def plan_campaign(scn: Scenario, robot: Robot | None = None, progress: Progress | None = None) -> list[PosePlan]:
+    """Solve and check every pose; raise InputError naming the first bad one."""
+    robot = robot or truth_robot(scn)
+    check_joint_limits(scn, robot.limits())
+    solver = StaticsSolver(robot)
+    plans = []
+    for i, pose in enumerate(scn.poses):
+        key = f"pose[{i}].q"
+        ang = parallelogram_angle(pose.q)
+        if min(ang, np.pi - ang) < PARALLELOGRAM_MARGIN:
+            raise InputError(
+                scn.path, key,
+                f"q3 - q2 at least {np.degrees(PARALLELOGRAM_MARGIN):.0f} deg away from -120 and 60 deg "
+                "(there the parallelogram's crank is parallel to the upper arm and the loop degenerates)",
+                [round(float(np.degrees(x)), 3) for x in pose.q],
+            )
+        load, mass = pose_load(robot, scn, pose)
+        e0 = solver.solve(pose.q)
+        e1 = solver.solve(pose.q, load, qpos0=e0.qpos)
+        for state, e in zip(STATES, (e0, e1)):
+            if e.residual > 1e-8 * max(e.gravity_scale, 1.0) or e.loop_violation > 1e-9:
+                raise InputError(scn.path, key, f"a pose with a static equilibrium ({state} did not converge)",
+                                 [round(float(np.degrees(x)), 3) for x in pose.q])
+        refl = np.empty((2, len(robot.reflector_sites), 3))
+        vis = np.empty((2, len(robot.reflector_sites)), dtype=bool)
+        for s, e in enumerate((e0, e1)):
+            robot.data.qpos[:] = e.qpos
+            mujoco.mj_kinematics(robot.model, robot.data)
+            refl[s] = robot.data.site_xpos[robot.reflector_sites]
+            vis[s] = visible_sites(robot.model, robot.data, scn.tracker, robot.reflector_sites)
+        if not (vis[0] & vis[1]).any():
+            raise InputError(scn.path, key, "a pose where the tracker sees at least one reflector both unloaded and loaded",
+                             "every reflector hidden by the robot")
+        plans.append(PosePlan(i, pose.q, load, mass, (e0, e1), refl, vis))
+        if progress:
+            progress.update(f"solving pose {i + 1}/{len(scn.poses)}")
+    return plans
+
+
+def _tracker_dict(scn: Scenario) -> dict:
+    t = scn.tracker
+    return {
+        "position": [float(x) for x in t.position], "yaw": float(t.yaw), "model": t.model,
+        "sigma": float(t.sigma), "distance": [float(x) for x in t.distance],
+        "transverse": [float(x) for x in t.transverse],
+    }
+
+
+def truth_record(scn: Scenario) -> dict:
+    d = scenario_params(scn).as_dict()
+    d["effects"] = {
+        name: {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in e.items()}
+        for name, e in scn.effects.items()
+    }
+    return d
+
+
+def run_campaign(scn: Scenario, out: str | Path, show_progress: bool | None = None) -> list[PosePlan]:
+    """Simulate the whole campaign into one MCAP log at `out`. Returns the solved plan."""
+    out = Path(out)
+    robot = truth_robot(scn)
+    n = len(scn.poses)
+    progress = Progress(total=2 * n, enabled=sys.stderr.isatty() if show_progress is None else show_progress)
+    plans = plan_campaign(scn, robot, progress)  # raises before any file exists
+    out.parent.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(scn.seed)
+    header = LogHeader(
+        scenario_name=scn.name,
+        scenario_text=scn.text,
+        scenario_filename=scn.path.name,
+        robot_filename=Path(scn.robot).name,
+        mjcf_text=Path(scn.robot).read_text(),
+        reflectors=list(robot.reflector_names),
+        payload_site="payload",
+        tracker=_tracker_dict(scn),
+        seed=int(scn.seed),
+    )
+    with LogWriter(out, header) as log:
+        log.truth_parameters(truth_record(scn))
+        for plan, pose in zip(plans, scn.poses):
+            log.pose(plan.index, "unloaded", plan.q)
+            log.pose(plan.index, "loaded", plan.q)
+            log.wrench(plan.index, plan.load.force, plan.load.moment, "payload", plan.mass)
+            for s, state in enumerate(STATES):
+                for rep in range(pose.repeats):
+                    m = measure(scn.tracker, plan.reflectors_world[s], plan.visible[s], rng)
+                    log.measurement(plan.index, state, rep, robot.reflector_names, m.position, m.covariance, m.visible)
+                e = plan.equilibria[s]
+                log.truth_reflectors(plan.index, state, robot.reflector_names, plan.reflectors_world[s])
+                log.truth_joints(plan.index, state, e.qpos, e.deflection)
+            log.pose_done(plan.index)
+            progress.update(f"measured pose {plan.index + 1}/{n}")
+    progress.close()
+    return plans
+
+
+__all__ = ["PosePlan", "plan_campaign", "run_campaign", "truth_robot", "scenario_params", "to_tracker_frame"]

@@ -1,0 +1,36 @@
+"""`calbench`: the one console script. Subcommands from both packages (bench: simulate;
+identify: the estimation verbs). Exit status: 0 success, 1 a check failed, 2 bad input."""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from bench.cli import add_simulate
+from bench.errors import InputError
+
+from . import demo
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="calbench", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+    add_simulate(sub)
+    demo.add_demo(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except InputError as exc:
+        print(f"calbench {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("calbench: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
