@@ -137,6 +137,18 @@ class Robot:
         qpos[self.passive_qpos] = [q[2] - q[1], q[1] - q[2]]
         return qpos
 
+    def tendon_moment(self, data: mujoco.MjData | None = None) -> np.ndarray:
+        """(nv,) dense dL/dq of the compensator tendon. MuJoCo 4 stores ten_J sparsely
+        (values in data.ten_J, columns in model.ten_J_colind); position stage must be current."""
+        d = self.data if data is None else data
+        m = self.model
+        out = np.zeros(m.nv)
+        if self.tendon < 0:
+            return out
+        adr, nnz = m.ten_J_rowadr[self.tendon], m.ten_J_rownnz[self.tendon]
+        out[m.ten_J_colind[adr : adr + nnz]] = d.ten_J[adr : adr + nnz]
+        return out
+
     def compensator_geometry(self) -> CompensatorGeometry:
         """Measure l_c, l_2 and the angle offset from the MJCF sites at q = 0 (geometry only)."""
         m = self.model

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
+import scipy.linalg
 
 from .robot import Robot
 
@@ -132,18 +133,39 @@ class StaticsSolver:
         finally:
             m.opt.gravity[:] = saved_gravity
 
-    def _solve(self, q, load, qpos) -> Equilibrium:
-        m = self.robot.model
-        nv = m.nv
+    def _basis(self, qpos) -> np.ndarray:
+        """Orthonormal basis of the loop's independent constraint directions (2 of 3: planar)."""
         self._forward(qpos)
         _, jc = self._loop()
         u, s, _ = np.linalg.svd(jc, full_matrices=False)
-        basis = u[:, s > 1e-9 * s[0]]
-        lam = np.zeros(basis.shape[1])
+        return u[:, s > 1e-9 * s[0]]
+
+    def _kkt(self, qpos, load, lam, basis, r, jc_r) -> np.ndarray:
+        """KKT matrix [[A, J_c^T], [J_c, 0]] with A = d(g + J_c^T lam)/dq by forward differences."""
+        nv = self.robot.model.nv
         nc = basis.shape[1]
+        a = np.empty((nv, nv))
+        for j in range(nv):
+            qp = qpos.copy()
+            qp[j] += self.fd_step
+            rj, _, _ = self._lagrangian_grad(qp, load, lam, basis)
+            a[:, j] = (rj - r) / self.fd_step
         kkt = np.zeros((nv + nc, nv + nc))
+        kkt[:nv, :nv] = a
+        kkt[:nv, nv:] = jc_r.T
+        kkt[nv:, :nv] = jc_r
+        return kkt
+
+    def _solve(self, q, load, qpos) -> Equilibrium:
+        """Chord Newton: one finite-difference KKT matrix, factorised once and reused while the
+        residual falls fast (the stiffness barely changes over a deflection); refreshed if not."""
+        nv = self.robot.model.nv
+        basis = self._basis(qpos)
+        lam = np.zeros(basis.shape[1])
         scale = 1.0
         res_norm = np.inf
+        lu = None
+        prev = np.inf
         it = 0
         for it in range(1, self.max_iter + 1):
             r, c, jc_r = self._lagrangian_grad(qpos, load, lam, basis)
@@ -152,23 +174,15 @@ class StaticsSolver:
             c_r = basis.T @ c
             if res_norm <= self.tol * scale and np.abs(c_r).max() <= 1e-13:
                 break
-            # d(g + J_c^T lam)/dq by forward differences (qpos == qvel space: hinges only)
-            a = np.empty((nv, nv))
-            for j in range(nv):
-                qp = qpos.copy()
-                qp[j] += self.fd_step
-                rj, _, _ = self._lagrangian_grad(qp, load, lam, basis)
-                a[:, j] = (rj - r) / self.fd_step
-            kkt[:nv, :nv] = a
-            kkt[:nv, nv:] = jc_r.T
-            kkt[nv:, :nv] = jc_r
-            step = np.linalg.solve(kkt, -np.concatenate([r, c_r]))
+            if lu is None or res_norm > 0.1 * prev:
+                lu = scipy.linalg.lu_factor(self._kkt(qpos, load, lam, basis, r, jc_r))
+            prev = res_norm
+            step = scipy.linalg.lu_solve(lu, -np.concatenate([r, c_r]))
             qpos = qpos + step[:nv]
             lam = lam + step[nv:]
         self._forward(qpos)
         c, _ = self._loop()
-        # the gravity scale at the solution, for a relative residual
-        grav = self._gravity_scale(qpos)
+        grav = float(np.abs(self.robot.data.qfrc_bias).max())
         return Equilibrium(
             qpos=qpos.copy(),
             command=q.copy(),
@@ -180,6 +194,26 @@ class StaticsSolver:
             iterations=it,
         )
 
-    def _gravity_scale(self, qpos) -> float:
-        self._forward(qpos)
-        return float(np.abs(self.robot.data.qfrc_bias).max())
+    # -- linearization at a solution --------------------------------------------------------
+    def tangent(self, eq: Equilibrium, load: Load | None, dforce: np.ndarray, gravity: bool = True) -> np.ndarray:
+        """dq/dtheta at an equilibrium by the implicit function theorem.
+
+        dforce (nv, p): derivative of the generalized force g with respect to p parameters at
+        fixed q. The loop stays closed: [[A, J_c^T], [J_c, 0]] [dq; dlam] = [-dforce; 0].
+        Returns (nv, p). The robot's command and parameters must be those of `eq`.
+        """
+        m = self.robot.model
+        saved = m.opt.gravity.copy()
+        if not gravity:
+            m.opt.gravity[:] = 0.0
+        try:
+            self.robot.set_command(eq.command)
+            basis = self._basis(eq.qpos)
+            r, _, jc_r = self._lagrangian_grad(eq.qpos, load, eq.lam, basis)
+            kkt = self._kkt(eq.qpos, load, eq.lam, basis, r, jc_r)
+        finally:
+            m.opt.gravity[:] = saved
+        nv = m.nv
+        rhs = np.zeros((kkt.shape[0], dforce.shape[1]))
+        rhs[:nv] = -dforce
+        return np.linalg.solve(kkt, rhs)[:nv]

@@ -1,0 +1,256 @@
+"""The statics held to theory: paper eqs. (1), (9)-(11), (16), loop closure and the residual.
+
+Tolerances come from the physics: the linear VJM formula (1) differs from the exact nonlinear
+equilibrium by terms of order |W| * lever * k (the load's own geometric stiffness), ~1e-4 here,
+well inside the 0.1 % the issue asks for; finite differences carry O(h^2) error.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from bench.loop import motor_jacobian, motor_map
+from bench.robot import Params, Robot
+from bench.statics import Load, StaticsSolver
+
+ROOT = Path(__file__).resolve().parent.parent
+MJCF = ROOT / "mjcf" / "m900ib700.xml"
+K_TRUE = np.array([0.25, 0.12, 0.07, 0.35, 0.40, 0.60]) * 1e-6
+TABLE5 = np.radians([
+    [0, 0, -30, -45, 30, 135], [0, 0, -30, 45, -30, 35], [90, 0, 30, -45, -30, -45],
+    [90, 0, 30, 45, -30, 45], [180, 35, -30, 135, -30, -45], [-180, 35, -30, -45, 30, 135],
+    [-90, 35, 30, 135, 30, 135], [-90, 35, 30, -45, -30, -45], [0, 120, -30, -135, 30, -135],
+    [0, 120, -30, 135, -30, -45], [180, 120, 30, -135, 30, -135], [-180, 120, 30, 135, 30, 135],
+])
+
+
+def make_robot(k_c: float = 2.6e6, s0: float = 0.83) -> Robot:
+    robot = Robot.from_file(MJCF)
+    robot.set_params(Params(K_TRUE, k_c, s0))
+    return robot
+
+
+def site_pose(robot: Robot, qpos: np.ndarray, site: int) -> tuple[np.ndarray, np.ndarray]:
+    robot.data.qpos[:] = qpos
+    mujoco.mj_kinematics(robot.model, robot.data)
+    return robot.data.site_xpos[site].copy(), robot.data.site_xmat[site].reshape(3, 3).copy()
+
+
+def rotation_vector(r: np.ndarray) -> np.ndarray:
+    """Small-angle rotation vector of a rotation matrix close to identity."""
+    return 0.5 * np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+
+
+def deflection_twist(robot, e0, e1, site) -> np.ndarray:
+    p0, r0 = site_pose(robot, e0.qpos, site)
+    p1, r1 = site_pose(robot, e1.qpos, site)
+    return np.concatenate([p1 - p0, rotation_vector(r1 @ r0.T)])
+
+
+@pytest.mark.parametrize("q", TABLE5[[0, 5, 9]])
+def test_eq1_gravity_off_small_load(q):
+    """Eq. (1): dt = sum_i J_i k_i J_i^T W with motor-space (crank) Jacobians, no compensator."""
+    robot = make_robot(k_c=0.0)
+    solver = StaticsSolver(robot)
+    w = np.array([120.0, -80.0, -200.0, 30.0, -25.0, 40.0])
+    load = Load(w[:3], w[3:], robot.flange_site)
+    e0 = solver.solve(q, gravity=False)
+    e1 = solver.solve(q, load, qpos0=e0.qpos, gravity=False)
+    robot.data.qpos[:] = e0.qpos
+    mujoco.mj_kinematics(robot.model, robot.data)
+    mujoco.mj_comPos(robot.model, robot.data)
+    j = motor_jacobian(robot, robot.data, robot.flange_site)
+    predicted = j @ np.diag(K_TRUE) @ j.T @ w
+    measured = deflection_twist(robot, e0, e1, robot.flange_site)
+    assert np.linalg.norm(measured - predicted) < 1e-3 * np.linalg.norm(predicted)
+
+
+def compensator_torque_and_stiffness(robot: Robot, q2: float) -> tuple[float, float]:
+    """Paper eq. (9) as a generalized force on q2 (sign: it acts to shorten a stretched spring)
+    and its derivative with the sin^2 correction of eq. (11)."""
+    g = robot.compensator_geometry()
+    p = robot.params()
+    k_c, s0 = p.compensator_stiffness, p.compensator_preload
+    psi, s = g.angle(q2), g.length(q2)
+    lcl2 = g.l_c * g.l_2
+    torque = -k_c * lcl2 * (1 - s0 / s) * np.sin(psi)
+    eta = (1 - s0 / s) * np.cos(psi) + s0 * lcl2 * np.sin(psi) ** 2 / s**3
+    return torque, k_c * lcl2 * eta
+
+
+def tendon_torque_j2(robot: Robot, q2: float) -> float:
+    """The compensator's generalized force on j2 as MuJoCo computes it (tendon spring only)."""
+    m, d = robot.model, robot.data
+    d.qpos[:] = robot.rigid_qpos(np.array([0.0, q2, 0.0, 0.0, 0.0, 0.0]))
+    mujoco.mj_fwdPosition(m, d)
+    force = -m.tendon_stiffness[robot.tendon] * (d.ten_length[robot.tendon] - m.tendon_lengthspring[robot.tendon][0])
+    return float(robot.tendon_moment(d)[robot.act_dof[1]] * force)
+
+
+@pytest.mark.parametrize("q2_deg", [0.0, 20.0, 35.0, 60.0, 90.0, 120.0])
+def test_compensator_eqs_9_to_11(q2_deg):
+    """Eq. (9) equals MuJoCo's tendon torque; eq. (10)-(11) with sin^2 equals its derivative."""
+    robot = make_robot()
+    q2 = np.radians(q2_deg)
+    torque, stiffness = compensator_torque_and_stiffness(robot, q2)
+    assert tendon_torque_j2(robot, q2) == pytest.approx(torque, rel=1e-9, abs=1e-6)
+    h = 1e-5
+    fd = -(tendon_torque_j2(robot, q2 + h) - tendon_torque_j2(robot, q2 - h)) / (2 * h)
+    # central difference error ~ h^2 * third derivative ~ 1e-10 * K_C l_c l_2: far below 1e-6
+    assert fd == pytest.approx(stiffness, rel=1e-6)
+
+
+def test_printed_eq11_is_a_misprint():
+    """Eq. (11) as printed (sin q2, not sin^2) disagrees with the model's derivative."""
+    robot = make_robot()
+    g = robot.compensator_geometry()
+    p = robot.params()
+    q2 = np.radians(60.0)
+    psi, s = g.angle(q2), g.length(q2)
+    s0, lcl2 = p.compensator_preload, g.l_c * g.l_2
+    printed = p.compensator_stiffness * lcl2 * (np.cos(psi) + s0 * lcl2 * np.sin(psi) / s**3 - s0 / s * np.cos(psi))
+    _, correct = compensator_torque_and_stiffness(robot, q2)
+    assert abs(printed - correct) > 0.05 * abs(correct)
+
+
+def test_compensator_angle_offset_from_geometry():
+    robot = make_robot()
+    g = robot.compensator_geometry()
+    assert g.offset == pytest.approx(np.radians(10.0), abs=1e-4)
+    m, d = robot.model, robot.data
+    for q2 in np.radians([0.0, 47.0, 120.0]):
+        d.qpos[:] = robot.rigid_qpos(np.array([0.3, q2, -0.2, 0.0, 0.0, 0.0]))
+        mujoco.mj_fwdPosition(m, d)
+        assert d.ten_length[robot.tendon] == pytest.approx(g.length(q2), rel=1e-6)
+
+
+def test_motor2_spring_keeps_forearm_orientation():
+    """Paper §3.4: deflecting motor 2 alone translates the forearm without turning it."""
+    robot = make_robot(k_c=0.0)
+    solver = StaticsSolver(robot)
+    q = TABLE5[4]
+    forearm = robot.model.body("forearm").id
+    upper = robot.model.body("upper_arm").id
+    e0 = solver.solve(q, gravity=False)
+    # a torque on motor 2 only: move its spring reference and re-solve (gravity off, no load)
+    q_shift = q.copy()
+    q_shift[1] += 1e-3
+    e1 = solver.solve(q_shift, gravity=False)
+    e1_cmd = e1.qpos.copy()
+    # the same physical state seen with motor 2 deflected from the original command
+    robot.data.qpos[:] = e0.qpos
+    mujoco.mj_kinematics(robot.model, robot.data)
+    r_fore0 = robot.data.xmat[forearm].reshape(3, 3).copy()
+    r_up0 = robot.data.xmat[upper].reshape(3, 3).copy()
+    robot.data.qpos[:] = e1_cmd
+    mujoco.mj_kinematics(robot.model, robot.data)
+    r_fore1 = robot.data.xmat[forearm].reshape(3, 3)
+    r_up1 = robot.data.xmat[upper].reshape(3, 3)
+    assert np.linalg.norm(rotation_vector(r_up1 @ r_up0.T)) == pytest.approx(1e-3, rel=1e-6)
+    assert np.linalg.norm(rotation_vector(r_fore1 @ r_fore0.T)) < 1e-12
+
+
+def test_eq16_equivalent_serial_compliance_is_not_diagonal():
+    """Eq. (15)-(16): mapping diag(k2, k3) in (q2, crank) to serial (q2, elbow) coordinates.
+
+    With elbow = crank - q2 (both measured as the model does), k_S = T k_p T^T with
+    T = [[1, 0], [-1, 1]], i.e. [[k2, -k2], [-k2, k2 + k3]]. The paper prints
+    [[k2, -k3], [-k3, k3]]; direct reasoning (a torque at the elbow is held by motor 3 and
+    reacted by motor 2) gives our form, which the model reproduces: a unit elbow torque
+    rotates the elbow by k2 + k3 and motor 2 by -k2.
+    """
+    robot = make_robot(k_c=0.0)
+    m, d = robot.model, robot.data
+    q = TABLE5[6]
+    d.qpos[:] = robot.rigid_qpos(q)
+    mujoco.mj_kinematics(m, d)
+    mujoco.mj_comPos(m, d)
+    n = motor_map(robot, d)  # dq = N dq_motor on the loop
+    elbow = m.jnt_dofadr[robot.passive_joint[0]]
+    # serial coordinates (q2, elbow) as functions of motor angles: rows of N
+    t = np.vstack([n[robot.act_dof[1], [1, 2]], n[elbow, [1, 2]]])
+    k_s = t @ np.diag(K_TRUE[[1, 2]]) @ t.T
+    k2, k3 = K_TRUE[1], K_TRUE[2]
+    np.testing.assert_allclose(k_s, [[k2, -k2], [-k2, k2 + k3]], rtol=1e-9)
+    assert abs(k_s[0, 1]) > 0.1 * k2  # non-diagonal: no serial 1-dof spring at the elbow
+
+
+@pytest.mark.parametrize("idx", range(len(TABLE5)))
+def test_residual_and_loop_at_full_load(idx):
+    robot = make_robot()
+    solver = StaticsSolver(robot)
+    q = TABLE5[idx]
+    e0 = solver.solve(q)
+    e1 = solver.solve(q, Load.mass(robot, 700.0), qpos0=e0.qpos)
+    for e in (e0, e1):
+        assert e.residual < 1e-9 * e.gravity_scale
+        assert e.loop_violation < 1e-7  # 0.1 um
+    # the loaded flange moves by millimetres: the default truth is in the issue's 0.5-3 mm band
+    d = deflection_twist(robot, e0, e1, robot.flange_site)[:3]
+    assert 0.5e-3 <= np.linalg.norm(d) <= 3e-3
+
+
+def test_eq1_with_compensator_uses_aggregated_k2():
+    """Eq. (10): with the compensator, J2's spring is K2 + K_C l_c l_2 eta at the deflected q2."""
+    robot = make_robot()
+    solver = StaticsSolver(robot)
+    q = TABLE5[9]
+    w = np.array([0.0, 0.0, -300.0, 0.0, 0.0, 0.0])
+    load = Load(w[:3], w[3:], robot.flange_site)
+    e0 = solver.solve(q, gravity=False)
+    e1 = solver.solve(q, load, qpos0=e0.qpos, gravity=False)
+    q2 = e0.qpos[robot.act_qpos[1]]
+    _, s_c = compensator_torque_and_stiffness(robot, q2)
+    k_eff = K_TRUE.copy()
+    k_eff[1] = 1.0 / (1.0 / K_TRUE[1] + s_c)
+    robot.data.qpos[:] = e0.qpos
+    mujoco.mj_kinematics(robot.model, robot.data)
+    mujoco.mj_comPos(robot.model, robot.data)
+    j = motor_jacobian(robot, robot.data, robot.flange_site)
+    predicted = j @ np.diag(k_eff) @ j.T @ w
+    measured = deflection_twist(robot, e0, e1, robot.flange_site)
+    assert np.linalg.norm(measured - predicted) < 1e-3 * np.linalg.norm(predicted)
+    # in joint space: motor 2 turns by k2_eff * tau2; the compensator changes it by > 1 %
+    jl = motor_jacobian(robot, robot.data, load.site)
+    tau = jl.T @ w
+    dtheta = e1.deflection - e0.deflection
+    assert dtheta[1] == pytest.approx(k_eff[1] * tau[1], rel=1e-3)
+    assert abs(dtheta[1] - K_TRUE[1] * tau[1]) > 1e-2 * abs(dtheta[1])
+
+
+def test_apparent_j2_stiffness_varies_over_plan_q2_range():
+    """Default truth: the compensator changes K2 + K_C l_c l_2 eta by >= 15 % over q2 in [0, 120]."""
+    robot = make_robot()
+    k = [1.0 / K_TRUE[1] + compensator_torque_and_stiffness(robot, q2)[1] for q2 in np.radians(np.arange(0, 121))]
+    assert max(k) / min(k) - 1.0 >= 0.15
+
+
+def test_second_solver_time_stepping_relaxation_agrees():
+    """An independent solution: MuJoCo's own soft loop closure relaxed with mj_step.
+
+    With solref -1e6 -2e3 the soft loop opens by < 0.1 um (PHYSICS.md), so the relaxed flange
+    must agree with the Newton solution to a few micrometres once motion has died out.
+    """
+    robot = make_robot()
+    solver = StaticsSolver(robot)
+    q = TABLE5[9]
+    load = Load.mass(robot, 700.0)
+    e = solver.solve(q, load)
+    m, d = robot.model, robot.data
+    m.dof_damping[:] = 4.0e5  # heavy damping to settle quickly; statics ignore it
+    d.qpos[:] = robot.rigid_qpos(q)
+    d.qvel[:] = 0.0
+    mujoco.mj_forward(m, d)
+    for _ in range(4000):
+        d.xfrc_applied[:] = 0.0
+        mujoco.mj_applyFT(m, d, load.force, load.moment, d.site_xpos[load.site], m.site_bodyid[load.site], d.qfrc_applied)
+        mujoco.mj_step(m, d)
+        d.qfrc_applied[:] = 0.0
+        if np.abs(d.qvel).max() < 1e-9 and _ > 100:
+            break
+    relaxed = d.site_xpos[robot.flange_site].copy()
+    newton, _ = site_pose(robot, e.qpos, robot.flange_site)
+    assert np.linalg.norm(relaxed - newton) < 5e-6
