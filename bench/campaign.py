@@ -85,7 +85,7 @@ def plan_campaign(scn: Scenario, robot: Robot | None = None, progress: Progress 
             )
         load, mass = pose_load(robot, scn, pose)
         e0 = solver.solve(pose.q)
-        e1 = solver.solve(pose.q, load, qpos0=e0.qpos)
+        e1 = solver.solve(pose.q, load, warm=e0)
         for state, e in zip(STATES, (e0, e1)):
             if e.residual > 1e-8 * max(e.gravity_scale, 1.0) or e.loop_violation > 1e-9:
                 raise InputError(scn.path, key, f"a pose with a static equilibrium ({state} did not converge)",

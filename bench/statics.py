@@ -18,7 +18,7 @@ by an SVD of J_c at every iteration, so the KKT matrix stays regular.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
@@ -26,7 +26,18 @@ import scipy.linalg
 
 from .robot import Robot
 
-_DISABLE = int(mujoco.mjtDisableBit.mjDSBL_EQUALITY) | int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+# Loop closed by us; contacts and joint-range stops play no part in the statics (ranges are
+# controller limits, checked on the command).
+_DISABLE = (
+    int(mujoco.mjtDisableBit.mjDSBL_EQUALITY)
+    | int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+    | int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
+)
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """3-vector cross product (np.cross costs ~50 us of argument handling per call)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
 @dataclass(frozen=True)
@@ -41,6 +52,8 @@ class Equilibrium:
     gravity_scale: float      # max |gravity generalized force| over dofs at the solution, N*m
     loop_violation: float     # |c(q)|, m
     iterations: int
+    factor: np.ndarray | None = field(default=None, repr=False, compare=False)  # KKT inverse, warm starts
+    stalls: int = 0           # times the cheap matrix stalled and the exact one was used
 
 
 @dataclass(frozen=True)
@@ -64,7 +77,7 @@ class Load:
 class StaticsSolver:
     """Reusable solver bound to one Robot (it owns scratch buffers; not thread-safe)."""
 
-    def __init__(self, robot: Robot, tol: float = 1e-12, max_iter: int = 30, fd_step: float = 1e-7):
+    def __init__(self, robot: Robot, tol: float = 1e-10, max_iter: int = 30, fd_step: float = 1e-7):
         self.robot = robot
         self.tol = tol
         self.max_iter = max_iter
@@ -74,6 +87,7 @@ class StaticsSolver:
         self._jr = np.zeros((3, m.nv))
         self._ja = np.zeros((3, m.nv))
         self._jb = np.zeros((3, m.nv))
+        self._dfdq = np.zeros((m.nv, m.nv))
 
     # -- pieces -------------------------------------------------------------------------
     def _forward(self, qpos: np.ndarray) -> None:
@@ -119,8 +133,15 @@ class StaticsSolver:
         load: Load | None = None,
         qpos0: np.ndarray | None = None,
         gravity: bool = True,
+        warm: Equilibrium | None = None,
     ) -> Equilibrium:
-        """Static equilibrium at command q (rad) under gravity and an optional load."""
+        """Static equilibrium at command q (rad) under gravity and an optional load.
+
+        qpos0 starts the iteration elsewhere than the rigid pose; `warm` (an equilibrium of the
+        same command, e.g. the unloaded one) starts at its qpos AND reuses its factorised KKT
+        matrix, which differs from the new one only by the load's curvature."""
+        if warm is not None:
+            qpos0 = warm.qpos
         robot = self.robot
         m = robot.model
         q = np.asarray(q, dtype=float)
@@ -129,7 +150,8 @@ class StaticsSolver:
         if not gravity:
             m.opt.gravity[:] = 0.0
         try:
-            return self._solve(q, load, robot.rigid_qpos(q) if qpos0 is None else qpos0.copy())
+            return self._solve(q, load, robot.rigid_qpos(q) if qpos0 is None else qpos0.copy(),
+                               warm.factor if warm is not None else None)
         finally:
             m.opt.gravity[:] = saved_gravity
 
@@ -137,8 +159,17 @@ class StaticsSolver:
         """Orthonormal basis of the loop's independent constraint directions (2 of 3: planar)."""
         self._forward(qpos)
         _, jc = self._loop()
-        u, s, _ = np.linalg.svd(jc, full_matrices=False)
-        return u[:, s > 1e-9 * s[0]]
+        gram = jc @ jc.T
+        # rank 2 (planar loop): the null direction is the largest cross product of two rows
+        cands = [_cross(gram[0], gram[1]), _cross(gram[0], gram[2]), _cross(gram[1], gram[2])]
+        n = max(cands, key=lambda v: v @ v)
+        nn = np.sqrt(n @ n)
+        if nn == 0.0 or np.abs(gram @ (n / nn)).max() > 1e-9 * np.abs(gram).max():
+            return np.eye(3)  # a spatial loop: all three rows are independent
+        n /= nn
+        a = _cross(n, np.array([1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0]))
+        a /= np.sqrt(a @ a)
+        return np.column_stack([a, _cross(n, a)])
 
     def _kkt(self, qpos, load, lam, basis, r, jc_r) -> np.ndarray:
         """KKT matrix [[A, J_c^T], [J_c, 0]] with A = d(g + J_c^T lam)/dq by forward differences."""
@@ -156,28 +187,60 @@ class StaticsSolver:
         kkt[nv:, :nv] = jc_r
         return kkt
 
-    def _solve(self, q, load, qpos) -> Equilibrium:
-        """Chord Newton: one finite-difference KKT matrix, factorised once and reused while the
-        residual falls fast (the stiffness barely changes over a deflection); refreshed if not."""
+    def _stiffness_kkt(self, qpos, jc_r) -> np.ndarray:
+        """KKT matrix with A from MuJoCo's own finite-differenced inverse dynamics (one C call):
+        d(bias - passive)/dq holds every spring, the tendon and gravity's geometric stiffness;
+        it lacks only the load's and the loop force's curvature (~1 % here), which the chord
+        iteration absorbs."""
+        m, d = self.robot.model, self.robot.data
+        nv = m.nv
+        d.qpos[:] = qpos
+        d.qvel[:] = 0.0
+        d.qacc[:] = 0.0
+        flags = m.opt.disableflags
+        m.opt.disableflags = flags | _DISABLE
+        try:
+            mujoco.mjd_inverseFD(m, d, self.fd_step, 0, self._dfdq, None, None, None, None, None, None)
+        finally:
+            m.opt.disableflags = flags
+        nc = jc_r.shape[0]
+        kkt = np.zeros((nv + nc, nv + nc))
+        kkt[:nv, :nv] = -self._dfdq.T
+        kkt[:nv, nv:] = jc_r.T
+        kkt[nv:, :nv] = jc_r
+        return kkt
+
+    def _solve(self, q, load, qpos, lu=None) -> Equilibrium:
+        """Newton on the KKT system with MuJoCo's inverse-dynamics derivative as the matrix (one
+        C call), refreshed on the first two iterations and then reused: it lacks only the load's
+        and the loop force's curvature (~1e-3 of the stiffness here), so the steps still gain
+        ~3 digits each. Should it stall, the full finite-difference matrix takes over."""
         nv = self.robot.model.nv
         basis = self._basis(qpos)
         lam = np.zeros(basis.shape[1])
         scale = 1.0
         res_norm = np.inf
-        lu = None
         prev = np.inf
+        fresh = 0 if lu is None else 2  # a warm factor counts as already refreshed
+        stalls = 0
         it = 0
         for it in range(1, self.max_iter + 1):
             r, c, jc_r = self._lagrangian_grad(qpos, load, lam, basis)
             scale = max(scale, float(np.abs(self.robot.data.qfrc_bias).max()))
             res_norm = float(np.abs(r).max())
             c_r = basis.T @ c
-            if res_norm <= self.tol * scale and np.abs(c_r).max() <= 1e-13:
+            if res_norm <= self.tol * scale and np.abs(c_r).max() <= 1e-12:
                 break
-            if lu is None or res_norm > 0.1 * prev:
-                lu = scipy.linalg.lu_factor(self._kkt(qpos, load, lam, basis, r, jc_r))
+            if res_norm > 0.2 * prev:  # stalled: take the exact (finite-difference) matrix
+                lu = np.linalg.inv(self._kkt(qpos, load, lam, basis, r, jc_r))
+                stalls += 1
+            elif fresh < 2:  # the big first steps move the stiffness; later ones barely do
+                lu = np.linalg.inv(self._stiffness_kkt(qpos, jc_r))
+                fresh += 1
             prev = res_norm
-            step = scipy.linalg.lu_solve(lu, -np.concatenate([r, c_r]))
+            # the inverse of a 10x10 KKT matrix (condition ~1e7) is accurate to ~1e-9 relative:
+            # ample for Newton steps, whose errors the next residual corrects
+            step = -(lu @ np.concatenate([r, c_r]))
             qpos = qpos + step[:nv]
             lam = lam + step[nv:]
         self._forward(qpos)
@@ -192,6 +255,8 @@ class StaticsSolver:
             gravity_scale=grav,
             loop_violation=float(np.linalg.norm(c)),
             iterations=it,
+            factor=lu,
+            stalls=stalls,
         )
 
     # -- linearization at a solution --------------------------------------------------------

@@ -7,6 +7,7 @@ import sys
 
 from bench.cli import add_simulate
 from bench.errors import InputError
+from bench.view import add_view
 
 from . import demo
 
@@ -16,6 +17,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     add_simulate(sub)
     demo.add_demo(sub)
+    add_view(sub)
     return parser
 
 
