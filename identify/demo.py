@@ -6,6 +6,7 @@ from pathlib import Path
 
 from bench.campaign import run_campaign
 from bench.scenario import load_scenario
+from bench.view import write_recording
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
@@ -22,4 +23,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     log = args.logs / f"{scn.name}.mcap"
     plans = run_campaign(scn, log)
     print(f"1. simulated {len(plans)} poses of {PAPER.name} -> {log}")
+    rrd = log.with_suffix(".rrd")
+    write_recording(log, rrd)
+    print(f"2. Rerun recording of the deflections -> {rrd}   (open it with: rerun {rrd})")
     return 0
