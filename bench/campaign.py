@@ -15,6 +15,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from .effects import apply_effects, effect_from_truth
 from .errors import InputError
 from .logformat import LogHeader, LogWriter
 from .robot import Params, Robot
@@ -47,11 +48,19 @@ def scenario_params(scn: Scenario) -> Params:
 
 
 def truth_robot(scn: Scenario) -> Robot:
-    """The simulated (true) robot: the scenario's MJCF with the scenario's truth written in."""
+    """The simulated (true) robot: the scenario's MJCF with the scenario's truth written in,
+    including the hidden `[truth.effects.*]` (bench/effects.py edits of the MJCF)."""
     try:
-        robot = Robot.from_file(scn.robot)
+        robot = Robot.from_file(scn.robot)  # the user's model itself must load
     except ValueError as exc:  # MuJoCo compile errors
         raise InputError(scn.path, "robot", "a loadable MJCF robot", f"{scn.robot}: {exc}") from exc
+    if scn.effects:
+        effects = [effect_from_truth(name, table) for name, table in scn.effects.items()]
+        try:
+            robot = apply_effects(Path(scn.robot), effects)
+        except (ValueError, NotImplementedError) as exc:
+            raise InputError(scn.path, "truth.effects", "effects that apply to the robot's MJCF",
+                             f"{scn.robot}: {exc}") from exc
     robot.set_params(scenario_params(scn))
     return robot
 

@@ -1,0 +1,458 @@
+"""A library of hidden physical effects, each a named edit of the robot's MJCF (mujoco.MjSpec).
+
+The bench puts them in the simulated truth (`[truth.effects.*]`, CONTRACT.md); the discovery
+workflow later uses the SAME functions as its library of candidate effects. The library holds
+no selection logic: an :class:`Effect` knows its parameters (SI), how to edit a spec
+(:meth:`Effect.apply`, then compile) and how to write the same values into an already compiled
+model without recompiling (:meth:`Effect.set_params`, the fast path for fitting). Both give the
+same model.
+
+Adding an effect = one factory function decorated with :func:`register` (and, if the scenario
+file may carry it, a `from_truth` parser). Nothing else in the project needs to change.
+
+Every new joint has ref 0 and springref 0, so its qpos0 and qpos_spring are 0 and
+:meth:`bench.robot.Robot.rigid_qpos` leaves it at 0 (only the actuated and passive joints are
+filled, by name). A compliance of exactly 0 in a scenario's truth means "rigid": that hinge is
+not created at all (no dof). A fitting structure that does hold a hinge whose compliance is set
+to 0 locks it with a spring of stiffness 1/RIGID_COMPLIANCE (1e12 N*m/rad, ~1e5 x the drives).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import mujoco
+import numpy as np
+
+from .robot import COMPENSATOR, Robot
+
+RIGID_COMPLIANCE = 1e-12     # rad/(N*m): the lock used for a present hinge set to compliance 0
+AXES = "xyz"
+LINKS = ("upper_arm", "forearm")
+BEAM_SUFFIX = "_beam"
+HUB_MASS_FRACTION = 1e-3      # MuJoCo needs mass on a moving body: the hub keeps this share
+BASE_POINT_MASS = 1.0         # kg at the base's hinge point when the base has no mass of its own
+# Compensator attachment sites (same geometry as mjcf/m900ib700.xml), in the parent body frames
+COMP_SITES = {"comp_base": ("turret", (-0.1685, 0.42, 1.3294)),
+              "comp_arm": ("upper_arm", (0.0, 0.42, 0.45))}
+_TMP_PREFIX = "__effects_move__"
+
+
+# --------------------------------------------------------------------------- the Effect type
+
+@dataclass(frozen=True)
+class Effect:
+    """One candidate physical effect: a structural choice (options) and SI parameters.
+
+    name: the CONTRACT.md effect name; param_names / units: its parameters, in order;
+    options: structural choices (which link, which axes, which joint).
+    """
+
+    name: str
+    param_names: tuple[str, ...]
+    options: dict
+    units: tuple[str, ...] = ()
+    _apply: Callable[[mujoco.MjSpec, np.ndarray, dict], None] = field(default=None, repr=False, compare=False)
+    _set: Callable[[Robot, np.ndarray, dict], None] = field(default=None, repr=False, compare=False)
+
+    def _check(self, params) -> np.ndarray:
+        p = np.atleast_1d(np.asarray(params, dtype=float))
+        if p.shape != (len(self.param_names),):
+            raise ValueError(f"{self.name}: expected {len(self.param_names)} parameters "
+                             f"{self.param_names}, got {p.tolist()}")
+        if not np.isfinite(p).all():
+            raise ValueError(f"{self.name}: parameters must be finite, got {p.tolist()}")
+        return p
+
+    def apply(self, spec: mujoco.MjSpec, params) -> None:
+        """Edit the spec in place (compile afterwards)."""
+        self._apply(spec, self._check(params), self.options)
+
+    def set_params(self, robot: Robot, params) -> None:
+        """Write the parameters into a model that `apply` already built (no recompile)."""
+        self._set(robot, self._check(params), self.options)
+
+    @property
+    def detail(self) -> str:
+        """Short human description of the structural choice, e.g. "forearm" or "j3"."""
+        if "link" in self.options:
+            return str(self.options["link"])
+        if "joint" in self.options:
+            return f"j{self.options['joint']}"
+        return ""
+
+
+REGISTRY: dict[str, Callable[..., Effect]] = {}
+_FROM_TRUTH: dict[str, Callable[[dict], tuple[dict, np.ndarray]]] = {}
+
+
+def register(name: str, from_truth: Callable[[dict], tuple[dict, np.ndarray]] | None = None):
+    """Decorator: add an effect factory (keyword options -> Effect) to the library.
+    from_truth maps a scenario table (bench.scenario, SI) to (factory options, parameters)."""
+    def deco(factory: Callable[..., Effect]) -> Callable[..., Effect]:
+        REGISTRY[name] = factory
+        if from_truth is not None:
+            _FROM_TRUTH[name] = from_truth
+        return factory
+    return deco
+
+
+def effect_from_truth(name: str, table: dict) -> tuple[Effect, np.ndarray]:
+    """The Effect and its true parameters from one `scn.effects[name]` entry (SI values)."""
+    if name not in _FROM_TRUTH:
+        raise KeyError(f"unknown effect {name!r}; known: {sorted(_FROM_TRUTH)}")
+    options, params = _FROM_TRUTH[name](table)
+    effect = REGISTRY[name](**options)
+    return effect, effect._check(params)
+
+
+# --------------------------------------------------------------------------- applying
+
+class EffectRobot(Robot):
+    """A Robot compiled from an edited spec; keeps the effects and the edited MJCF."""
+
+    def __init__(self, model, xml: str, effects, source: Path | None = None):
+        super().__init__(model, source)
+        self.xml = xml
+        self.effects = list(effects)
+
+    def to_xml(self) -> str:
+        """The augmented MJCF (valid, loadable) with the effects' parameters written in."""
+        return self.xml
+
+
+def load_spec(xml_or_path) -> mujoco.MjSpec:
+    """MjSpec from a path (Path, or a str naming an existing file) or from MJCF text."""
+    if isinstance(xml_or_path, mujoco.MjSpec):
+        return xml_or_path.copy()
+    if isinstance(xml_or_path, Path) or (isinstance(xml_or_path, str) and "<mujoco" not in xml_or_path):
+        return mujoco.MjSpec.from_file(str(xml_or_path))
+    return mujoco.MjSpec.from_string(xml_or_path)
+
+
+def apply_effects(xml_or_path, effects: list[tuple[Effect, np.ndarray]]) -> EffectRobot:
+    """Load the MJCF, apply each (effect, params) in order, compile, wrap in a Robot.
+
+    The returned robot's `to_xml()` is the edited MJCF (spec.to_xml()); loading it gives the
+    same model. Raises ValueError (MuJoCo compile errors, unknown links/joints)."""
+    spec = load_spec(xml_or_path)
+    for effect, params in effects:
+        effect.apply(spec, params)
+    model = spec.compile()
+    source = Path(xml_or_path) if isinstance(xml_or_path, Path) or (
+        isinstance(xml_or_path, str) and "<mujoco" not in xml_or_path) else None
+    return EffectRobot(model, augmented_xml(spec, effects), effects, source)
+
+
+def augmented_xml(spec: mujoco.MjSpec, effects: list[tuple[Effect, np.ndarray]]) -> str:
+    """The edited spec as MJCF, every number exact (compiler savecompiled="false"; the default
+    saves compiled values rounded to ~6 digits), headed by a comment naming the effects."""
+    lines = [f"  {e.name} {e.options}: " + ", ".join(
+        f"{n} = {float(v)!r} {u}" for n, v, u in zip(e.param_names, np.atleast_1d(p), e.units))
+        for e, p in effects]
+    if lines:
+        spec.comment = "\n  Augmented by calbench (bench/effects.py) with:\n" + "\n".join(lines) + "\n"
+    spec.compiler.savecompiled = False
+    return spec.to_xml()
+
+
+# --------------------------------------------------------------------------- spec helpers
+
+def _joint_id(robot: Robot, name: str) -> int:
+    jid = mujoco.mj_name2id(robot.model, mujoco.mjtObj.mjOBJ_JOINT, name)
+    if jid < 0:
+        raise ValueError(f"the model has no joint {name!r}: apply the effect (and recompile) first")
+    return jid
+
+
+def _body(spec: mujoco.MjSpec, name: str):
+    b = spec.body(name)
+    if b is None:
+        raise ValueError(f"the MJCF has no body {name!r}")
+    return b
+
+
+def _stiffness(c: float) -> float:
+    """Spring stiffness (N*m/rad) of a compliance c (rad/(N*m)); c = 0 locks the hinge."""
+    if c < 0:
+        raise ValueError(f"a compliance must be >= 0, got {c}")
+    return 1.0 / max(float(c), RIGID_COMPLIANCE)
+
+
+def _add_hinge(body, name: str, axis, compliance: float, pos=(0.0, 0.0, 0.0)):
+    j = body.add_joint(name=name, type=mujoco.mjtJoint.mjJNT_HINGE, axis=list(axis), pos=list(pos))
+    j.ref = 0.0
+    j.springref = 0.0
+    j.stiffness[0] = _stiffness(compliance)
+    j.damping[0] = 0.0
+    j.limited = mujoco.mjtLimited.mjLIMITED_FALSE
+    return j
+
+
+def _children(body) -> list:
+    out, b = [], body.first_body()
+    while b is not None:
+        out.append(b)
+        b = body.next_body(b)
+    return out
+
+
+_EQ_FIELDS = ("name", "type", "objtype", "name1", "name2", "data", "solref", "solimp", "active")
+
+
+def _move_bodies(spec: mujoco.MjSpec, names: list[str], new_parent) -> None:
+    """Reparent the named body subtrees (with everything in them) under `new_parent` at the same
+    local pose. MjSpec has no in-place move: copy, delete, attach the copy, restore the names,
+    and re-create the equality constraints that the deletion removed."""
+    src = spec.copy()
+    for t in list(src.tendons):        # attach would bring the copy's tendons/equalities along
+        src.delete(t)
+    for e in list(src.equalities):
+        src.delete(e)
+    eqs = [{f: getattr(e, f) for f in _EQ_FIELDS} for e in spec.equalities]
+    eqs = [{k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in e.items()} for e in eqs]
+    counts = (len(spec.tendons), len(spec.actuators), len(spec.sensors), len(spec.excludes))
+    for n in names:
+        spec.delete(spec.body(n))
+    if (len(spec.tendons), len(spec.actuators), len(spec.sensors), len(spec.excludes)) != counts:
+        raise NotImplementedError(
+            f"moving {names} would drop tendons/actuators/sensors/excludes that reference them")
+    for n in names:
+        frame = new_parent.add_frame()
+        frame.attach_body(src.body(n), _TMP_PREFIX, "")
+    for kind in (mujoco.mjtObj.mjOBJ_BODY, mujoco.mjtObj.mjOBJ_JOINT, mujoco.mjtObj.mjOBJ_GEOM,
+                 mujoco.mjtObj.mjOBJ_SITE, mujoco.mjtObj.mjOBJ_CAMERA, mujoco.mjtObj.mjOBJ_LIGHT,
+                 mujoco.mjtObj.mjOBJ_FRAME):
+        for el in new_parent.find_all(kind):
+            if el.name.startswith(_TMP_PREFIX):
+                el.name = el.name[len(_TMP_PREFIX):]
+    leftover = spec.find_default(_TMP_PREFIX + "main")   # the copy's (empty) default class
+    if leftover is not None:
+        try:
+            spec.delete(leftover)
+        except Exception:  # noqa: BLE001  (cosmetic only: an unused, empty class)
+            pass
+    have = {e.name for e in spec.equalities}
+    for e in eqs:
+        if e["name"] and e["name"] in have:
+            continue
+        new = spec.add_equality()
+        for f in _EQ_FIELDS:
+            setattr(new, f, e[f])
+
+
+# --------------------------------------------------------------------------- link_compliance
+
+def _link_truth(t: dict) -> tuple[dict, np.ndarray]:
+    c = np.asarray(t["compliance"], dtype=float)
+    axes = "".join(a for a, ci in zip(AXES, c) if ci != 0.0)   # 0 = rigid: no hinge at all
+    return {"link": t["link"], "axes": axes}, c[c != 0.0]
+
+
+def _beam_hinge(link: str, axis: str) -> str:
+    return f"{link}_r{axis}"
+
+
+@register("link_compliance", from_truth=_link_truth)
+def link_compliance(link: str = "forearm", axes: str = AXES, pivot: tuple = (0.0, 0.0, 0.0)) -> Effect:
+    """Bending and torsion springs at the root of a link (upper_arm or forearm).
+
+    Physics: the link is split at its root into a HUB and a BEAM. The hub keeps the link's
+    existing joint (j2 / elbow), its sites (the compensator attachment `comp_arm`; the
+    parallelogram attachment `rod_anchor`) and its jointless child bodies (the rear wrist
+    motors `m2`); a new child body `<link>_beam`, at the link's origin with the link's own
+    frame, holds hinges `<link>_rx/_ry/_rz` about the link frame's x, y, z (stiffness 1/c,
+    springref 0), the link's mass (a 1e-3 share stays on the hub at its origin, mass and first
+    moment preserved) and the rest of the serial chain (forearm / link4). So the root springs
+    carry the moment of everything outboard of the root (beam weight, wrist, payload) about
+    the root point, and deflect the beam by c * moment about each axis (eq. 1 with three more
+    virtual springs). Geoms stay on the hub (drawing and line of sight only).
+
+    Why a hub: a hinge coaxial with the free passive `elbow` (forearm y) carries no moment, and
+    an upper-arm y hinge beyond the compensator attachment is exactly a k2 in series. With the
+    attachments on the hub, the forearm springs lie outside the parallelogram loop (they bend
+    the beam, not the loop) and the upper-arm springs lie inside it (the elbow is on the beam):
+    out-of-plane bending and torsion of the upper arm then make the loop spatial and the rigid
+    coupler rod braces part of them. Link frames of mjcf/m900ib700.xml: upper arm z along the
+    arm (z torsion, y in-plane bending, x lateral bending); forearm x along the forearm
+    (x torsion, y in-plane bending = pitch, z lateral bending).
+
+    What the paper's plan can tell apart (linear projection of the loaded-minus-unloaded
+    reflector motion on k1..k6, K_C, s0): the forearm's y spring at the root is exactly a k3
+    (the parallelogram turns the forearm about the elbow either way) and the upper arm's y
+    spring is ~95 % a k2; the forearm's x/z and the upper arm's x+z springs are not. An upper
+    arm x or z spring ALONE is fully braced by the rigid coupler rod (no motion at all); together
+    they leave one combined mode. `pivot` (link frame, m) moves the hinges off the joint, e.g.
+    towards the beam's pseudo-rigid-body point; the default is the root, the link's origin.
+
+    Parameters cx, cy, cz in rad/(N*m), for the axes listed in `axes` only.
+    """
+    if link not in LINKS:
+        raise ValueError(f"link_compliance: link must be one of {LINKS}, got {link!r}")
+    if not axes or any(a not in AXES for a in axes) or len(set(axes)) != len(axes):
+        raise ValueError(f"link_compliance: axes must be a non-empty subset of 'xyz', got {axes!r}")
+    axes = "".join(a for a in AXES if a in axes)
+
+    def apply(spec, p, o):
+        body = _body(spec, o["link"])
+        if spec.body(o["link"] + BEAM_SUFFIX) is not None:
+            raise ValueError(f"link_compliance on {o['link']} is already applied")
+        beam = body.add_body(name=o["link"] + BEAM_SUFFIX)
+        for a, c in zip(o["axes"], p):
+            _add_hinge(beam, _beam_hinge(o["link"], a), np.eye(3)[AXES.index(a)], c, o["pivot"])
+        # the link's inertia goes to the beam; the hub keeps a small share at its origin
+        m, ipos = float(body.mass), np.array(body.ipos, dtype=float)
+        if m > 0:
+            f = HUB_MASS_FRACTION
+            beam.explicitinertial = True
+            beam.mass = m * (1 - f)
+            beam.ipos = ipos / (1 - f)
+            beam.iquat = np.array(body.iquat)
+            beam.inertia = np.array(body.inertia) * (1 - f)
+            body.mass = m * f
+            body.ipos = [0.0, 0.0, 0.0]
+            body.inertia = np.array(body.inertia) * f
+        moving = [b.name for b in _children(body) if b.name != beam.name and _has_joint(b)]
+        if moving:
+            _move_bodies(spec, moving, beam)
+
+    def set_(robot, p, o):
+        for a, c in zip(o["axes"], p):
+            robot.model.jnt_stiffness[_joint_id(robot, _beam_hinge(o["link"], a))] = _stiffness(c)
+
+    pivot = tuple(float(x) for x in pivot)
+    if len(pivot) != 3:
+        raise ValueError(f"link_compliance: pivot must be a 3-vector, got {pivot!r}")
+    return Effect("link_compliance", tuple(f"c{a}" for a in axes),
+                  {"link": link, "axes": axes, "pivot": pivot},
+                  ("rad/(N*m)",) * len(axes), apply, set_)
+
+
+def _has_joint(body) -> bool:
+    """Does the subtree carry a joint (i.e. is it the rest of the serial chain)?"""
+    return bool(body.find_all(mujoco.mjtObj.mjOBJ_JOINT))
+
+
+# --------------------------------------------------------------------------- base_compliance
+
+def _base_truth(t: dict) -> tuple[dict, np.ndarray]:
+    c = np.asarray(t["compliance"], dtype=float)
+    axes = "".join(a for a, ci in zip("xy", c) if ci != 0.0)
+    return {"axes": axes}, c[c != 0.0]
+
+
+@register("base_compliance", from_truth=_base_truth)
+def base_compliance(axes: str = "xy", body: str = "base") -> Effect:
+    """Tilt of the robot's base on its foundation (anchor bolts, floor plate).
+
+    Physics: the base body, fixed to the world in the MJCF, gets hinges `base_rx`, `base_ry`
+    about its frame's x and y (world x and y for this robot) through its origin (the floor
+    point under axis 1), stiffness 1/c, springref 0. The whole robot then tilts by c times the
+    moment, about that point, of everything it carries (gravity of all links, the load): for a
+    wrench (F at p, M) the tilt is c_x (p x F + M)_x and c_y (p x F + M)_y. If the base has no
+    mass of its own (it needs some to move in MuJoCo) it gets a 1 kg point mass at the hinge
+    point, which exerts no moment about the hinges at any tilt.
+
+    Parameters cx, cy in rad/(N*m), for the axes listed.
+    """
+    if not axes or any(a not in "xy" for a in axes) or len(set(axes)) != len(axes):
+        raise ValueError(f"base_compliance: axes must be a non-empty subset of 'xy', got {axes!r}")
+    axes = "".join(a for a in "xy" if a in axes)
+
+    def apply(spec, p, o):
+        b = _body(spec, o["body"])
+        if b.find_all(mujoco.mjtObj.mjOBJ_JOINT) and any(
+                j.name.startswith(o["body"] + "_r") for j in b.joints):
+            raise ValueError("base_compliance is already applied")
+        for a, c in zip(o["axes"], p):
+            _add_hinge(b, f"{o['body']}_r{a}", np.eye(3)[AXES.index(a)], c)
+        if not (float(b.mass) > 0):
+            b.explicitinertial = True
+            b.mass = BASE_POINT_MASS
+            b.ipos = [0.0, 0.0, 0.0]
+            b.iquat = [1.0, 0.0, 0.0, 0.0]
+            b.inertia = [1.0, 1.0, 1.0]
+
+    def set_(robot, p, o):
+        for a, c in zip(o["axes"], p):
+            robot.model.jnt_stiffness[_joint_id(robot, f"{o['body']}_r{a}")] = _stiffness(c)
+
+    return Effect("base_compliance", tuple(f"c{a}" for a in axes), {"axes": axes, "body": body},
+                  ("rad/(N*m)",) * len(axes), apply, set_)
+
+
+# --------------------------------------------------------------------------- joint_nonlinearity
+
+def _nonlin_truth(t: dict) -> tuple[dict, np.ndarray]:
+    return {"joint": int(t["joint"])}, np.array([float(t["cubic"])])
+
+
+@register("joint_nonlinearity", from_truth=_nonlin_truth)
+def joint_nonlinearity(joint: int = 2) -> Effect:
+    """A hardening (cubic > 0) or softening (< 0) drive spring on actuated axis `joint` (1..6).
+
+    Physics: torque = K theta + cubic theta^3, theta = joint angle - command. MuJoCo's joint
+    stiffness polynomial gives force -(a x + b x^2 + c x^3) with x = qpos - qpos_spring
+    (MJCF stiffness="a b c"; mjModel keeps a in jnt_stiffness and b, c in
+    jnt_stiffnesspoly[j] = [b, c], mjNPOLY = 2 in MuJoCo 4.0.1). The effect writes only c; the
+    linear K (Robot.set_params) is left untouched. Parameter cubic in N*m/rad^3.
+    """
+    if joint not in range(1, 7):
+        raise ValueError(f"joint_nonlinearity: joint must be 1..6, got {joint!r}")
+    name = f"j{joint}"
+
+    def apply(spec, p, o):
+        j = spec.joint(name)
+        if j is None:
+            raise ValueError(f"the MJCF has no joint {name!r}")
+        j.stiffness[2] = p[0]
+
+    def set_(robot, p, o):
+        robot.model.jnt_stiffnesspoly[_joint_id(robot, name), 1] = p[0]
+
+    return Effect("joint_nonlinearity", ("cubic",), {"joint": joint}, ("N*m/rad^3",), apply, set_)
+
+
+# --------------------------------------------------------------------------- compensator
+
+def _comp_truth(t: dict) -> tuple[dict, np.ndarray]:
+    return {}, np.array([float(t["stiffness"]), float(t["preload"])])
+
+
+@register("compensator", from_truth=_comp_truth)
+def compensator() -> Effect:
+    """The spring gravity compensator of axis 2 (paper eqs. 7-11), for a model that lacks one.
+
+    Physics: a linear spring tendon `compensator` between `comp_base` on the turret (l_c = 0.90
+    m from the J2 axis) and `comp_arm` on the upper arm (l_2 = 0.45 m), both in the plane
+    y = +0.42 m, the geometry of mjcf/m900ib700.xml: force K_C (s - s0) along the line between
+    the sites, s its length. Missing sites and the tendon are added; on a model that has them,
+    only K_C and s0 are set. Parameters K_C in N/m, s0 in m.
+    """
+    def apply(spec, p, o):
+        t = spec.tendon(COMPENSATOR)
+        if t is None:
+            for site, (parent, pos) in COMP_SITES.items():
+                if spec.site(site) is None:
+                    _body(spec, parent).add_site(name=site, pos=list(pos))
+            t = spec.add_tendon(name=COMPENSATOR)
+            t.wrap_site(list(COMP_SITES)[0])
+            t.wrap_site(list(COMP_SITES)[1])
+            t.width = 0.03
+            t.rgba = [0.1, 0.6, 0.9, 1.0]
+        t.stiffness[0] = p[0]
+        t.springlength = [p[1], p[1]]
+
+    def set_(robot, p, o):
+        if robot.tendon < 0:
+            raise ValueError("the model has no compensator tendon: apply the effect (and recompile) first")
+        robot.model.tendon_stiffness[robot.tendon] = p[0]
+        robot.model.tendon_lengthspring[robot.tendon] = p[1]
+
+    return Effect("compensator", ("K_C", "s0"), {}, ("N/m", "m"), apply, set_)
+
+
+__all__ = ["Effect", "EffectRobot", "REGISTRY", "register", "effect_from_truth", "apply_effects",
+           "load_spec", "augmented_xml", "link_compliance", "base_compliance", "joint_nonlinearity", "compensator",
+           "RIGID_COMPLIANCE"]
