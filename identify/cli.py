@@ -10,6 +10,8 @@ from bench.errors import InputError
 from bench.view import add_view
 
 from . import demo
+from .montecarlo import add_montecarlo
+from .report import add_identify
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -17,6 +19,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     add_simulate(sub)
     demo.add_demo(sub)
+    add_identify(sub)
+    add_montecarlo(sub)
     add_view(sub)
     return parser
 

@@ -26,4 +26,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     rrd = log.with_suffix(".rrd")
     write_recording(log, rrd)
     print(f"2. Rerun recording of the deflections -> {rrd}   (open it with: rerun {rrd})")
+    from .report import format_table, run_identify
+    rep = run_identify(log)
+    print(f"3. identified (one-step, {rep['seconds']:.2f} s), against the truth in the log:")
+    print(format_table(rep))
     return 0

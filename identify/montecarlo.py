@@ -1,0 +1,261 @@
+"""Monte Carlo of the estimators: the same campaign re-measured with N noise seeds.
+
+The campaign's physics is solved once (bench.campaign.plan_campaign: true reflector positions
+and visibility of every pose); each run redraws the tracker noise with bench.tracker.measure
+(generator seeded by (scenario seed, run)), builds the observations exactly as from a log
+(identify/observations.py) and runs the full estimators on them: the one-step estimator and the
+paper's two-step method, unweighted step 2 (eq. 21) and step-1-covariance-weighted.
+
+Per parameter and method it reports: bias / empirical std (with its sampling error 1/sqrt(N)),
+empirical std / mean reported std, and empirical variance / Cramer-Rao bound, the CRB being the
+inverse Fisher information J^T Sigma^-1 J at the TRUE parameters on the exact model. The
+sampling error of a variance ratio is about sqrt(2/(N-1)).
+
+Speed: every one-step run starts at the noise-free estimate (the one-step estimate of the
+noise-free observations, itself started from their two-step estimate: no truth involved) whose
+model value and Jacobian are evaluated once and reused, so a run costs one evaluation of the
+exact model and its IFT Jacobian when the stopping rule (step < 1e-3 sigma) is met at the second
+step. The truth enters only the CRB and the statistics.
+"""
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bench.campaign import PosePlan, plan_campaign, truth_robot, scenario_params
+from bench.progress import Progress
+from bench.robot import Robot
+from bench.scenario import Scenario, load_scenario
+from bench.tracker import Measurement, measure, noise_covariance, to_tracker_frame
+
+from .forward import NP, PARAM_NAMES, PARAM_UNITS
+from .identifiability import whiten_factors
+from .observations import Observations, pose_observation
+from .onestep import OneStep, generic_start, sanitize_start, to_phi
+from .twostep import linear_plan, two_step
+
+METHODS = ("one-step", "two-step", "two-step-weighted")
+MC_STEP_TOL = 1e-2   # sigma: see identify/onestep.py, stopping rule
+
+
+def true_theta(scn: Scenario) -> np.ndarray:
+    p = scenario_params(scn)
+    return np.concatenate([p.compliance, [p.compensator_stiffness, p.compensator_preload]])
+
+
+def campaign_observations(scn: Scenario, robot: Robot, plans: list[PosePlan],
+                          rng: np.random.Generator | None) -> Observations:
+    """Observations of a solved campaign: noisy readings (rng) or exact ones (rng None, with
+    the tracker's covariances still attached as weights). Same noise consumption order as
+    bench.campaign.run_campaign (pose, state, repeat)."""
+    spec = scn.tracker
+    names = list(robot.reflector_names)
+    poses = []
+    for plan, pose in zip(plans, scn.poses):
+        readings = []
+        for s in range(2):
+            reps = []
+            for _ in range(pose.repeats):
+                if rng is None:
+                    p = to_tracker_frame(spec, plan.reflectors_world[s])
+                    vis = plan.visible[s]
+                    pos = np.where(vis[:, None], p, np.nan)
+                    cov = np.full((len(p), 3, 3), np.nan)
+                    if vis.any():
+                        cov[vis] = noise_covariance(spec, p[vis])
+                    reps.append(Measurement(pos, cov, vis))
+                else:
+                    reps.append(measure(spec, plan.reflectors_world[s], plan.visible[s], rng))
+            readings.append(reps)
+        site = robot.model.site(plan.load.site).name
+        ob = pose_observation(plan.index, plan.q, plan.load.force, plan.load.moment, site, names,
+                              readings[0], readings[1], spec)
+        if len(ob.reflectors):
+            poses.append(ob)
+    return Observations(poses, spec, float(spec.sigma), len(scn.poses), [], False, str(scn.path))
+
+
+@dataclass
+class MonteCarlo:
+    scenario: str
+    runs: int
+    truth: np.ndarray
+    crb: np.ndarray
+    estimates: dict[str, np.ndarray]      # method -> (N, 8), NaN where not identified
+    stds: dict[str, np.ndarray]           # method -> (N, 8) reported
+    times: dict[str, float]
+    noise_free: dict[str, np.ndarray]     # method -> (8,) estimate on exact data (model error)
+    setup_time: float
+
+    def summary(self) -> dict:
+        n = self.runs
+        crb_sd0 = np.sqrt(np.diag(self.crb))
+        model_error = {
+            meth: {name: (None if not np.isfinite(v) else float((v - t) / sd))
+                   for name, v, t, sd in zip(PARAM_NAMES, est, self.truth, crb_sd0)}
+            for meth, est in self.noise_free.items()}
+        out = {"scenario": self.scenario, "runs": n,
+               "sampling_error": {"bias_over_sigma": 1 / np.sqrt(n),
+                                  "variance_ratio": float(np.sqrt(2 / max(n - 1, 1))),
+                                  "std_ratio": float(np.sqrt(1 / (2 * max(n - 1, 1))))},
+               "setup_seconds": self.setup_time,
+               "noise_free_error_over_crb_std": model_error,
+               "crb_std": {n_: float(v) for n_, v in zip(PARAM_NAMES, crb_sd0)},
+               "methods": {}}
+        crb_sd = np.sqrt(np.diag(self.crb))
+        for meth, est in self.estimates.items():
+            sd = self.stds[meth]
+            rows = []
+            for i, name in enumerate(PARAM_NAMES):
+                col = est[:, i]
+                ok = np.isfinite(col)
+                if ok.sum() < 2:
+                    rows.append({"name": name, "unit": PARAM_UNITS[i], "identified_runs": int(ok.sum())})
+                    continue
+                c = col[ok]
+                emp_sd = float(c.std(ddof=1))
+                mean = float(c.mean())
+                rep = float(np.sqrt(np.mean(sd[ok, i] ** 2)))
+                z = (c - self.truth[i]) / sd[ok, i]
+                rows.append({
+                    "name": name, "unit": PARAM_UNITS[i], "truth": float(self.truth[i]),
+                    "identified_runs": int(ok.sum()), "mean": mean,
+                    "bias": mean - float(self.truth[i]),
+                    "bias_over_sigma": (mean - float(self.truth[i])) / emp_sd,
+                    "empirical_std": emp_sd, "reported_std": rep,
+                    "empirical_over_reported_std": emp_sd / rep,
+                    "crb_std": float(crb_sd[i]),
+                    "variance_over_crb": emp_sd ** 2 / float(crb_sd[i]) ** 2,
+                    "mse_over_crb": float(np.mean((c - self.truth[i]) ** 2)) / float(crb_sd[i]) ** 2,
+                    # heavy tails (the two-step's s0 = (s0 K_C) / K_C): a spread that ignores them
+                    "robust_std_over_crb_std": float(1.4826 * np.median(np.abs(c - np.median(c))))
+                    / float(crb_sd[i]),
+                    "fraction_abs_z_over_4": float(np.mean(np.abs(z) > 4)),
+                    "noise_free_error_over_crb_std": float((self.noise_free[meth][i] - self.truth[i]) / crb_sd[i])
+                    if np.isfinite(self.noise_free[meth][i]) else None,
+                })
+            out["methods"][meth] = {"seconds": self.times[meth],
+                                    "seconds_per_run": self.times[meth] / n, "parameters": rows}
+        return out
+
+
+def run_montecarlo(scn: Scenario, runs: int, methods=METHODS, progress: bool | None = None,
+                   seed: int | None = None) -> MonteCarlo:
+    """N runs of the estimators on the scenario's campaign; see the module docstring."""
+    t0 = time.perf_counter()
+    truth_rb = truth_robot(scn)
+    plans = plan_campaign(scn, truth_rb)
+    robot = Robot.from_file(scn.robot)              # the estimator's own model: geometry only
+    obs0 = campaign_observations(scn, truth_rb, plans, None)
+    linv0 = whiten_factors(obs0.cov)
+    lp = linear_plan(robot, obs0)
+    est = OneStep(robot, obs0)
+    theta_true = true_theta(scn)
+
+    noise_free: dict[str, np.ndarray] = {}
+    two0 = two_step(robot, obs0, False, lp=lp, linv=linv0)
+    noise_free["two-step"] = two0.theta
+    noise_free["two-step-weighted"] = two_step(robot, obs0, True, lp=lp, linv=linv0).theta
+    # diagnostic: the linear model at the true (sagged) unloaded configuration -- what is left
+    # of the two-step's model error is H00 (eq. 18) and the nonlinearity over the deflection
+    lp_true = linear_plan(robot, obs0, {p.index: p.equilibria[0].qpos for p in plans})
+    noise_free["two-step at the true sagged configuration"] = two_step(
+        robot, obs0, False, lp=lp_true, linv=linv0).theta
+    start, _ = sanitize_start(two0.theta, generic_start(robot, obs0))
+    nf = est.fit(obs0.dp, linv0, start, start_method="two-step")
+    noise_free["one-step"] = nf.theta
+    theta0 = np.where(np.isfinite(nf.theta), nf.theta, start)
+    scale = np.abs(to_phi(theta0))
+    f0, j0 = est.model.evaluate(theta0)
+    # Cramer-Rao bound at the truth (exact model)
+    _, jt = est.model.evaluate(theta_true)
+    jtw = np.einsum("mij,mjk->mik", linv0, jt).reshape(-1, NP) * theta_true  # scaled columns
+    crb = np.linalg.pinv(jtw.T @ jtw) * np.outer(theta_true, theta_true)
+    setup = time.perf_counter() - t0
+
+    estimates = {m: np.full((runs, NP), np.nan) for m in methods}
+    stds = {m: np.full((runs, NP), np.nan) for m in methods}
+    times = {m: 0.0 for m in methods}
+    iters: list[tuple[int, int]] = []
+    base_seed = scn.seed if seed is None else seed
+    bar = Progress(total=runs, enabled=sys.stderr.isatty() if progress is None else progress)
+    for r in range(runs):
+        rng = np.random.default_rng([base_seed, r])
+        n_eval = est.model.stats["evaluations"]
+        obs = campaign_observations(scn, truth_rb, plans, rng)
+        if obs.labels != obs0.labels:
+            raise RuntimeError("visibility changed between runs")  # cannot happen: fixed plan
+        linv = whiten_factors(obs.cov)
+        for meth in methods:
+            t = time.perf_counter()
+            if meth == "one-step":
+                res = est.fit(obs.dp, linv, theta0, scale=scale, start_eval=(f0, j0),
+                              final_eval=False, step_tol=MC_STEP_TOL,
+                              start_method="noise-free estimate")
+                th, cv = res.theta, res.cov
+                iters.append((res.iterations, est.model.stats["evaluations"] - n_eval))
+            else:
+                res = two_step(robot, obs, meth == "two-step-weighted", lp=lp, linv=linv)
+                th, cv = res.theta, res.cov
+            times[meth] += time.perf_counter() - t
+            estimates[meth][r] = th
+            stds[meth][r] = np.sqrt(np.diag(cv))
+        bar.update(f"run {r + 1}/{runs}")
+    bar.close()
+    mc = MonteCarlo(str(scn.path), runs, theta_true, crb, estimates, stds, times, noise_free, setup)
+    mc.iterations = np.array(iters)
+    return mc
+
+
+def format_summary(s: dict) -> str:
+    lines = [f"Monte Carlo: {s['runs']} runs of {Path(s['scenario']).name} "
+             f"(sampling error: bias/sigma +-{s['sampling_error']['bias_over_sigma']:.3f}, "
+             f"variance ratio +-{s['sampling_error']['variance_ratio']:.3f})"]
+    for meth, d in s["methods"].items():
+        lines.append(f"\n{meth}  ({d['seconds']:.2f} s, {1e3 * d['seconds_per_run']:.1f} ms/run)")
+        lines.append(f"  {'parameter':<22}{'bias/sd':>9}{'sd/rep.sd':>11}{'var/CRB':>9}{'MSE/CRB':>9}"
+                     f"{'noise-free err/CRBsd':>22}")
+        for p in d["parameters"]:
+            if "bias_over_sigma" not in p:
+                lines.append(f"  {p['name']:<22}  not identified")
+                continue
+            nfe = p["noise_free_error_over_crb_std"]
+            g = lambda x: f"{x:.3f}" if abs(x) < 1e4 else f"{x:.2e}"  # noqa: E731
+            lines.append(f"  {p['name']:<22}{g(p['bias_over_sigma']):>9} {g(p['empirical_over_reported_std']):>10}"
+                         f" {g(p['variance_over_crb']):>9} {g(p['mse_over_crb']):>9}"
+                         f"{(g(nfe) if nfe is not None else 'n/a'):>22}")
+    return "\n".join(lines)
+
+
+def add_montecarlo(sub) -> None:
+    p = sub.add_parser("montecarlo", help="re-measure a campaign with N noise seeds: bias, spread, CRB")
+    p.add_argument("scenario", type=Path, help="scenario TOML file")
+    p.add_argument("--runs", type=int, required=True, help="number of noise seeds")
+    p.add_argument("--method", choices=("both", "one-step", "two-step"), default="both",
+                   help="estimators to run (two-step runs both step-2 variants)")
+    p.add_argument("--seed", type=int, default=None, help="base noise seed (default: the scenario's)")
+    p.add_argument("--json", type=Path, default=None, help="write the summary as JSON")
+    p.set_defaults(func=cmd_montecarlo)
+
+
+def cmd_montecarlo(args) -> int:
+    import json
+    from bench.errors import InputError
+    if args.runs < 2:
+        raise InputError("--runs", "runs", "an integer >= 2", args.runs)
+    scn = load_scenario(args.scenario, seed=args.seed)
+    methods = {"both": METHODS, "one-step": ("one-step",),
+               "two-step": ("two-step", "two-step-weighted")}[args.method]
+    mc = run_montecarlo(scn, args.runs, methods)
+    s = mc.summary()
+    print(format_summary(s))
+    if args.json:
+        Path(args.json).write_text(json.dumps(s, indent=2))
+    return 0
+
+
+__all__ = ["add_montecarlo", "cmd_montecarlo", "campaign_observations", "run_montecarlo", "MonteCarlo", "format_summary", "true_theta"]

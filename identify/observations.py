@@ -1,0 +1,182 @@
+"""What identification may know: the measured deflections and the known inputs of each pose.
+
+Paper eq. (2): only positions are measured, so the observation of pose j and reflector r is
+the deflection
+
+    dp_jr = mean(loaded readings of r) - mean(unloaded readings of r)     (world frame, m)
+
+with covariance Cov(mean loaded) + Cov(mean unloaded) (the two states are read independently;
+each reading is used in exactly one dp, so the dp are mutually independent). A reflector counts
+only when it is visible in both states of the pose. The known inputs are the commanded angles q,
+the applied wrench (force, moment, site) and the tracker pose from the log header.
+
+Nothing here reads a ``/truth/`` topic or the ``ground_truth`` record: :func:`from_log` takes a
+:class:`bench.logformat.CampaignLog`, and the caller reads it with ``include_truth=False``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from bench.errors import InputError
+from bench.logformat import CampaignLog
+from bench.scenario import TrackerSpec
+from bench.tracker import tracker_rotation
+
+
+@dataclass(frozen=True)
+class PoseObservation:
+    """One complete pose: known inputs and the measured deflections of its reflectors."""
+
+    index: int                 # pose index in the plan
+    q: np.ndarray              # (6,) rad, commanded (controller convention)
+    force: np.ndarray          # (3,) N, world frame, applied in the loaded state
+    moment: np.ndarray         # (3,) N*m, world frame
+    site: str                  # MJCF site the wrench acts at
+    reflectors: tuple[str, ...]  # reflectors seen in both states (rows of dp)
+    dp: np.ndarray             # (n, 3) m, world frame
+    cov: np.ndarray            # (n, 3, 3) m^2
+
+
+@dataclass
+class Observations:
+    """All usable observations of a campaign plus what was lost."""
+
+    poses: list[PoseObservation]
+    tracker: TrackerSpec
+    noise_sigma: float                     # the tracker's nominal per-axis sigma (m), for reports
+    n_planned: int
+    lost_poses: list[int] = field(default_factory=list)
+    truncated: bool = False
+    source: str = ""
+
+    # -- stacked views (row order: poses in order, reflectors in order) ---------------------
+    @property
+    def labels(self) -> list[tuple[int, str]]:
+        return [(p.index, r) for p in self.poses for r in p.reflectors]
+
+    @property
+    def dp(self) -> np.ndarray:
+        return np.concatenate([p.dp for p in self.poses]) if self.poses else np.zeros((0, 3))
+
+    @property
+    def cov(self) -> np.ndarray:
+        return np.concatenate([p.cov for p in self.poses]) if self.poses else np.zeros((0, 3, 3))
+
+    def n_obs(self) -> int:
+        return sum(len(p.reflectors) for p in self.poses)
+
+    def subset(self, keep: Iterable[tuple[int, str]]) -> "Observations":
+        """A copy holding only the (pose, reflector) rows in ``keep`` (e.g. outliers dropped)."""
+        keep = set(keep)
+        poses = []
+        for p in self.poses:
+            rows = [i for i, r in enumerate(p.reflectors) if (p.index, r) in keep]
+            if rows:
+                poses.append(PoseObservation(p.index, p.q, p.force, p.moment, p.site,
+                                             tuple(p.reflectors[i] for i in rows),
+                                             p.dp[rows], p.cov[rows]))
+        return Observations(poses, self.tracker, self.noise_sigma, self.n_planned,
+                            list(self.lost_poses), self.truncated, self.source)
+
+
+def tracker_spec(header_tracker: dict) -> TrackerSpec:
+    """The TrackerSpec of a log header's ``tracker`` dict (position m, yaw rad)."""
+    t = header_tracker
+    return TrackerSpec(
+        position=np.asarray(t["position"], dtype=float),
+        yaw=float(t.get("yaw", 0.0)),
+        model=str(t.get("model", "isotropic")),
+        sigma=float(t.get("sigma", 20e-6)),
+        distance=tuple(t.get("distance", (10e-6, 0.3e-6))),
+        transverse=tuple(t.get("transverse", (15e-6, 6e-6))),
+    )
+
+
+def _state_mean(readings: Sequence, names: Sequence[str], rot: np.ndarray,
+                origin: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean world position (n,3), covariance of the mean (n,3,3) and a seen-flag (n,) over
+    repeated readings (objects with ``position``, ``covariance``, ``visible`` in the tracker
+    frame, rows in ``names`` order)."""
+    n = len(names)
+    s = np.zeros((n, 3))
+    c = np.zeros((n, 3, 3))
+    cnt = np.zeros(n)
+    for m in readings:
+        vis = np.asarray(m.visible, dtype=bool)
+        s[vis] += np.asarray(m.position)[vis]
+        c[vis] += np.asarray(m.covariance)[vis]
+        cnt[vis] += 1
+    seen = cnt > 0
+    mean = np.full((n, 3), np.nan)
+    cov = np.full((n, 3, 3), np.nan)
+    mean[seen] = (s[seen] / cnt[seen, None]) @ rot.T + origin
+    cov[seen] = rot @ (c[seen] / cnt[seen, None, None] ** 2) @ rot.T
+    return mean, cov, seen
+
+
+def pose_observation(index: int, q, force, moment, site: str, names: Sequence[str],
+                     unloaded: Sequence, loaded: Sequence, spec: TrackerSpec) -> PoseObservation:
+    """dp and its covariance for one pose from its readings in both states (eq. 2)."""
+    rot = tracker_rotation(spec)
+    origin = np.asarray(spec.position, dtype=float)
+    m0, c0, s0 = _state_mean(unloaded, names, rot, origin)
+    m1, c1, s1 = _state_mean(loaded, names, rot, origin)
+    both = s0 & s1
+    rows = np.flatnonzero(both)
+    return PoseObservation(
+        index=int(index), q=np.asarray(q, dtype=float), force=np.asarray(force, dtype=float),
+        moment=np.asarray(moment, dtype=float), site=str(site),
+        reflectors=tuple(names[i] for i in rows), dp=m1[rows] - m0[rows],
+        cov=c0[rows] + c1[rows])
+
+
+def from_log(log: CampaignLog) -> Observations:
+    """Observations of every complete pose of a campaign log (read without truth).
+
+    Raises InputError when the log cannot support identification: no wrench channel, a pose
+    without both states, or no pose with a reflector seen in both states.
+    """
+    path = log.path
+    spec = tracker_spec(log.header["tracker"])
+    by_state: dict[tuple[int, str], list] = {}
+    for m in log.measurements:
+        by_state.setdefault((m.pose, m.state), []).append(m)
+    poses: list[PoseObservation] = []
+    for p in log.complete_poses:
+        states = log.poses.get(p, {})
+        if "unloaded" not in states or "loaded" not in states:
+            raise InputError(path, "/campaign/pose", f"pose {p} commanded in both states",
+                             sorted(states))
+        if p not in log.wrenches:
+            raise InputError(path, "/campaign/wrench",
+                             f"the applied wrench of complete pose {p} (a /campaign/wrench message)",
+                             "none")
+        q = states["unloaded"]
+        if not np.allclose(q, states["loaded"], rtol=0, atol=1e-12):
+            raise InputError(path, "/campaign/pose", f"pose {p}: the same command in both states",
+                             [q.tolist(), states["loaded"].tolist()])
+        u = by_state.get((p, "unloaded"), [])
+        ld = by_state.get((p, "loaded"), [])
+        if not u or not ld:
+            continue  # nothing measured: contributes nothing
+        names = u[0].reflectors
+        if any(r.reflectors != names for r in u + ld):
+            raise InputError(path, "/tracker/measurement",
+                             f"pose {p}: the same reflector list in every reading", "different lists")
+        w = log.wrenches[p]
+        ob = pose_observation(p, q, w["force"], w["moment"], w["site"], names, u, ld, spec)
+        if len(ob.reflectors):
+            poses.append(ob)
+    if not poses:
+        raise InputError(path, "/tracker/measurement",
+                         "at least one complete pose with a reflector seen unloaded and loaded", "none")
+    n_planned = max(int(log.n_poses_planned), len(log.complete_poses))
+    lost = sorted(set(range(n_planned)) - set(log.complete_poses))
+    return Observations(poses, spec, float(spec.sigma), n_planned, lost, bool(log.truncated),
+                        str(path))
+
+
+__all__ = ["PoseObservation", "Observations", "from_log", "pose_observation", "tracker_spec"]

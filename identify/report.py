@@ -1,0 +1,271 @@
+"""`calbench identify`: read a campaign log, identify, report (table and CONTRACT.md JSON).
+
+The estimation reads the log WITHOUT truth (``read_log(path)``: /truth/ messages are skipped
+before decoding, the ground_truth record ignored) and the MJCF for geometry only (every elastic
+value in it is overwritten by the estimator's own parameters). Only after the estimate is made
+is the log read a second time with ``include_truth=True`` to fill the truth, error and z
+columns; the estimate cannot depend on it (tests/test_identify_cli.py strips the truth and
+scales every MJCF stiffness by 10 and checks the estimates do not move).
+"""
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bench.errors import InputError
+from bench.logformat import read_log
+from bench.robot import Robot
+
+from .forward import NP, PARAM_NAMES, PARAM_UNITS
+from .identifiability import OUTLIER_SIGMA, outliers
+from .observations import Observations, from_log
+from .onestep import one_step
+from .twostep import two_step
+
+METHODS = ("one-step", "two-step")
+Z_CHECK = 4.0
+
+# display units: (label, factor from SI)
+DISPLAY = {
+    "rad/(N*m)": ("µrad/(N·m)", 1e6),
+    "N/m": ("kN/m", 1e-3),
+    "m": ("mm", 1e3),
+}
+
+
+def load_model(log, model: str | Path | None) -> Robot:
+    """The robot for identification: --model, else the MJCF carried by the log."""
+    try:
+        if model is not None:
+            path = Path(model)
+            if not path.is_file():
+                raise InputError(path, "--model", "an existing MJCF file", "no such file")
+            return Robot.from_file(path)
+        if not log.mjcf_text:
+            raise InputError(log.path, "robot model", "an MJCF attachment in the log (or --model ROBOT.xml)",
+                             "none")
+        return Robot.from_xml(log.mjcf_text)
+    except ValueError as exc:  # MuJoCo compile errors, missing named joints
+        where = str(model) if model is not None else f"{log.path} (MJCF attachment)"
+        raise InputError(where, "robot model", "a loadable MJCF of the calbench robot", str(exc)) from None
+
+
+def check_sites(robot: Robot, obs: Observations, where) -> None:
+    import mujoco
+    for p in obs.poses:
+        for name in (p.site, *p.reflectors):
+            if mujoco.mj_name2id(robot.model, mujoco.mjtObj.mjOBJ_SITE, name) < 0:
+                raise InputError(where, f"site {name!r}", "a site of this name in the robot model", "none")
+
+
+@dataclass
+class Identified:
+    method: str
+    obs: Observations
+    theta: np.ndarray
+    cov: np.ndarray
+    identifiable: np.ndarray
+    reasons: dict
+    residual: np.ndarray
+    residual_w: np.ndarray
+    chi2: float
+    dof: int
+    outliers: list
+    dropped: list
+    extra: dict
+
+
+def _estimate(robot: Robot, obs: Observations, method: str):
+    if method == "two-step":
+        r = two_step(robot, obs)
+        extra = {"step1": {"names": r.step1_names,
+                           "estimate": [None if not np.isfinite(x) else float(x) for x in r.step1_k],
+                           "std": [None if not np.isfinite(x) else float(math.sqrt(x))
+                                   for x in np.diag(r.step1_cov)]},
+                 "step2": r.step2}
+        return r, extra
+    r = one_step(robot, obs)
+    extra = {"start": r.start_method, "iterations": r.iterations, "evaluations": r.evaluations,
+             "converged": bool(r.converged)}
+    return r, extra
+
+
+def identify(robot: Robot, obs: Observations, method: str = "one-step",
+             drop_outliers: bool = False) -> Identified:
+    """Estimate, flag outliers (> 5 sigma), optionally refit without them."""
+    if method not in METHODS:
+        raise InputError("--method", "method", " or ".join(METHODS), method)
+    r, extra = _estimate(robot, obs, method)
+    found = outliers(r.residual_w, obs.labels, OUTLIER_SIGMA)
+    dropped: list = []
+    if drop_outliers and found:
+        bad = {(o["pose"], o["reflector"]) for o in found}
+        keep = [lab for lab in obs.labels if lab not in bad]
+        obs = obs.subset(keep)
+        dropped = found
+        r, extra = _estimate(robot, obs, method)
+        found = outliers(r.residual_w, obs.labels, OUTLIER_SIGMA)
+    return Identified(method, obs, r.theta, r.cov, r.identifiable, dict(r.reasons), r.residual,
+                      r.residual_w, float(r.chi2), int(r.dof), found, dropped, extra)
+
+
+def truth_vector(truth: dict | None) -> np.ndarray | None:
+    if not truth or not truth.get("parameters"):
+        return None
+    p = truth["parameters"]
+    try:
+        comp = p.get("compensator", {})
+        return np.array([*map(float, p["compliance"]), float(comp["stiffness"]), float(comp["preload"])])
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+def _num(x) -> float | None:
+    return None if x is None or not np.isfinite(x) else float(x)
+
+
+def as_json(res: Identified, truth: np.ndarray | None, log_path, model_name: str,
+            seconds: float) -> dict:
+    obs = res.obs
+    sd = np.sqrt(np.where(np.isfinite(np.diag(res.cov)), np.diag(res.cov), np.nan))
+    params = []
+    for i, name in enumerate(PARAM_NAMES):
+        est = _num(res.theta[i]) if res.identifiable[i] else None
+        std = _num(sd[i]) if res.identifiable[i] else None
+        t = None if truth is None else float(truth[i])
+        err = None if (est is None or t is None) else est - t
+        z = None if (err is None or not std) else err / std
+        params.append({"name": name, "unit": PARAM_UNITS[i], "estimate": est, "std": std,
+                       "truth": t, "error": err, "z": z, "identifiable": bool(res.identifiable[i]),
+                       "reason": res.reasons.get(name)})
+    n = res.residual.size
+    cov_diag = np.concatenate([np.diagonal(c) for c in obs.cov]) if obs.poses else np.zeros(0)
+    cov_out = [[_num(res.cov[i, j]) for j in range(NP)] for i in range(NP)]
+    return {
+        "method": res.method,
+        "parameters": params,
+        "residual_rms": float(np.sqrt(np.mean(res.residual ** 2))) if n else None,
+        "noise_sigma": float(obs.noise_sigma),
+        "chi2_per_dof": res.chi2 / res.dof if res.dof > 0 else None,
+        # additions
+        "chi2": res.chi2, "dof": res.dof,
+        "expected_residual_rms": float(np.sqrt(np.mean(cov_diag) * res.dof / max(n, 1))) if n else None,
+        "whitened_residual_rms": float(np.sqrt(np.mean(res.residual_w ** 2))) if n else None,
+        "covariance": cov_out,
+        "log": str(log_path), "model": model_name,
+        "n_poses_planned": obs.n_planned, "n_poses_used": len(obs.poses),
+        "lost_poses": list(obs.lost_poses), "n_lost_poses": len(obs.lost_poses),
+        "truncated": bool(obs.truncated), "n_observations": obs.n_obs(),
+        "identifiable": {n_: bool(b) for n_, b in zip(PARAM_NAMES, res.identifiable)},
+        "unidentifiable": {k: v for k, v in res.reasons.items()},
+        "outliers": res.outliers, "outlier_threshold_sigma": OUTLIER_SIGMA,
+        "dropped_outliers": res.dropped,
+        "seconds": seconds,
+        **res.extra,
+    }
+
+
+def format_table(rep: dict) -> str:
+    has_truth = any(p["truth"] is not None for p in rep["parameters"])
+    lines = [f"calbench identify: {rep['log']} ({rep['method']}; model {rep['model']})",
+             f"  poses used {rep['n_poses_used']} of {rep['n_poses_planned']} planned, "
+             f"{rep['n_lost_poses']} lost" + (f" {rep['lost_poses']}" if rep["lost_poses"] else "")
+             + (" (log truncated)" if rep["truncated"] else "")
+             + f"; {rep['n_observations']} reflector deflections"]
+    head = f"  {'parameter':<22}{'unit':<12}{'estimate':>12} {'± std':>10}"
+    if has_truth:
+        head += f"{'truth':>12}{'error':>11}{'z':>7}"
+    lines.append(head)
+    for p in rep["parameters"]:
+        label, f = DISPLAY[p["unit"]]
+        if p["estimate"] is None:
+            row = f"  {p['name']:<22}{label:<12}{'not identifiable':>23}"
+            if has_truth and p["truth"] is not None:
+                row += f"{p['truth'] * f:>12.5g}"
+            lines.append(row)
+            continue
+        sd = p["std"] * f
+        dec = max(0, 1 - math.floor(math.log10(sd))) if sd > 0 else 3   # std to 2 digits
+        row = f"  {p['name']:<22}{label:<12}{p['estimate'] * f:>12.{dec}f} {sd:>10.{dec}f}"
+        if has_truth and p["truth"] is not None:
+            row += f"{p['truth'] * f:>12.{dec}f}{p['error'] * f:>+11.{dec}f}{p['z']:>+7.2f}"
+        lines.append(row)
+    if rep["residual_rms"] is not None:
+        lines.append(f"  residual RMS {rep['residual_rms'] * 1e6:.2f} µm per axis (expected "
+                     f"{rep['expected_residual_rms'] * 1e6:.2f} µm from the tracker: σ = "
+                     f"{rep['noise_sigma'] * 1e6:.3g} µm per reading, a deflection is the difference of two); "
+                     f"χ²/dof = {rep['chi2_per_dof']:.3f} ({rep['dof']} dof)")
+    for name, why in rep["unidentifiable"].items():
+        lines.append(f"  not identifiable: {name}: {why}")
+    if rep["outliers"]:
+        for o in rep["outliers"]:
+            lines.append(f"  outlier (> {rep['outlier_threshold_sigma']:g}σ): pose {o['pose']} reflector "
+                         f"{o['reflector']}: {o['sigma']:.1f}σ" + ("" if rep["dropped_outliers"] else
+                                                                   " (refit without: --drop-outliers)"))
+    if rep["dropped_outliers"]:
+        lines.append("  dropped and refitted without: " + ", ".join(
+            f"pose {o['pose']} {o['reflector']} ({o['sigma']:.1f}σ)" for o in rep["dropped_outliers"]))
+    if rep.get("converged") is False:
+        lines.append("  WARNING: the estimator did not converge")
+    return "\n".join(lines)
+
+
+def run_identify(log_path, model=None, method: str = "one-step",
+                 drop_outliers: bool = False) -> dict:
+    """Everything `calbench identify` does except printing; returns the JSON report."""
+    t0 = time.perf_counter()
+    log = read_log(log_path)                 # no truth: nothing below can see it
+    obs = from_log(log)
+    robot = load_model(log, model)
+    if robot.tendon < 0:
+        raise InputError(model or log.path, "tendon 'compensator'", "the compensator tendon in the robot model", "none")
+    check_sites(robot, obs, model or log.path)
+    res = identify(robot, obs, method, drop_outliers)
+    seconds = time.perf_counter() - t0
+    truth = truth_vector(read_log(log_path, include_truth=True).truth)   # for the report only
+    model_name = str(model) if model is not None else f"{log.header.get('robot', 'MJCF')} (from the log)"
+    return as_json(res, truth, log_path, model_name, seconds)
+
+
+def check_failed(rep: dict, z_max: float = Z_CHECK) -> list[str]:
+    """Parameters whose |z| exceeds z_max (empty without truth)."""
+    return [p["name"] for p in rep["parameters"] if p["z"] is not None and abs(p["z"]) > z_max]
+
+
+def add_identify(sub) -> None:
+    p = sub.add_parser("identify", help="estimate the elastostatic parameters from a campaign log")
+    p.add_argument("log", type=Path, help="campaign MCAP log")
+    p.add_argument("--model", type=Path, default=None, help="robot MJCF (default: the one in the log)")
+    p.add_argument("--method", choices=METHODS, default="one-step")
+    p.add_argument("--json", type=Path, default=None, help="write the report as JSON")
+    p.add_argument("--check", action="store_true",
+                   help=f"exit 1 when the log has ground truth and any |z| > {Z_CHECK:g}")
+    p.add_argument("--drop-outliers", action="store_true",
+                   help=f"refit without tracker readings off by more than {OUTLIER_SIGMA:g} sigma")
+    p.set_defaults(func=cmd_identify)
+
+
+def cmd_identify(args) -> int:
+    rep = run_identify(args.log, args.model, args.method, args.drop_outliers)
+    print(format_table(rep))
+    if args.json:
+        args.json.write_text(json.dumps(rep, indent=2, allow_nan=False))
+    if args.check:
+        if all(p["truth"] is None for p in rep["parameters"]):
+            print("check: the log carries no ground truth; nothing to check")
+            return 0
+        bad = check_failed(rep)
+        if bad:
+            print(f"check FAILED: |z| > {Z_CHECK:g} for " + ", ".join(bad))
+            return 1
+        print(f"check passed: every identified parameter within {Z_CHECK:g} standard deviations of the truth")
+    return 0
+
+
+__all__ = ["run_identify", "identify", "format_table", "as_json", "add_identify", "cmd_identify",
+           "check_failed", "load_model"]

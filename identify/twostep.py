@@ -1,0 +1,257 @@
+"""The paper's two-step identification (Klimchik, Magid & Pashkevich 2016, §4).
+
+Step 1 (eqs. 19-20, built on eq. 4). At the nominal unloaded configuration of pose j (the
+rigid closed-loop pose at the command: the parameters are unknown, so is the deflection) the
+loop-closed motor-space Jacobians J_r (reflector r) and J_L (load site) give, for each motor i,
+the generalised force the wrench W = [F; M] puts on it, tau_ji = J_L,i^T W, and the linear model
+
+    dp_jr = sum_i J_r,i[:3] k_i tau_ji = B_jr k,   column i of B_jr = J_r,i[:3] * tau_ji.
+
+This is eq. (4) (A_j = J_j J_j^T W) generalised to a load point other than the measured point,
+positions only (eq. 2); motor 3 is the crank (§3.4: the Jacobian is taken with respect to it).
+k2 is split per distinct q2 (values equal within 1e-6 rad form one group): k = [k1, k2_1..k2_m,
+k3..k6]. Unlike eq. (20), which is unweighted, every dp is weighted by its tracker covariance
+(identical to eq. 20 for an isotropic tracker with equal repeats); cov(k) = (B^T Sigma^-1 B)^-1.
+
+Step 2 (eqs. 21-22, with the sin^2 correction of PHYSICS.md and the compensator angle of the
+model, psi = q2 + offset measured from the MJCF sites). With K_2i = 1/k2_i,
+
+    K_2i = K_theta2 + K_C l_c l_2 eta(psi_i),  eta = (1 - s0/s) cos psi + s0 l_c l_2 sin^2 psi / s^3
+    C_i  = [1, l_c l_2 cos psi_i, l_c l_2 (l_c l_2 sin^2 psi_i / s_i^3 - cos psi_i / s_i)]
+
+fitted for x = [K_theta2, K_C, s0 K_C]; k2 = 1/K_theta2, s0 = x_3 / x_2. Two variants:
+``weighted=False`` is the paper's eq. (21) (ordinary LS); ``weighted=True`` uses the step-1
+covariance of the K_2i (delta method, correlations kept) as GLS weights. With exactly three
+distinct q2 (the paper's plan) step 2 is exactly determined and the two coincide. The reported
+covariance of both propagates step 1's full covariance through step 2 (delta method).
+
+What the linear model leaves out: gravity's and the load's geometric stiffness (H00, eq. 18),
+the Jacobian's change over the gravity deflection, and the compensator's nonlinearity over the
+deflection. The one-step estimator (identify/onestep.py) has none of these approximations.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from bench.loop import motor_jacobian
+from bench.robot import Robot
+
+from .forward import NP, PARAM_NAMES
+from .identifiability import Identifiability, analyze, explain, whiten_factors
+from .observations import Observations
+
+Q2_GROUP_TOL = 1e-6  # rad
+
+
+def group_q2(q2: np.ndarray, tol: float = Q2_GROUP_TOL) -> tuple[np.ndarray, np.ndarray]:
+    """Group labels (n,) and the group values (m,) of q2 angles equal within ``tol``."""
+    values: list[float] = []
+    labels = np.empty(len(q2), dtype=int)
+    for i, v in enumerate(q2):
+        for g, u in enumerate(values):
+            if abs(v - u) <= tol:
+                labels[i] = g
+                break
+        else:
+            values.append(float(v))
+            labels[i] = len(values) - 1
+    return labels, np.array(values)
+
+
+@dataclass
+class LinearPlan:
+    """Step 1's regressors: per observation row (M,3,6) motor columns J_r,i[:3] tau_i."""
+
+    cols: np.ndarray          # (M, 3, 6): dp = sum_i cols[:, :, i] k_i
+    tau: np.ndarray           # (n_poses, 6) motor torques of each pose's load
+    q2_group: np.ndarray      # (n_poses,) group label
+    q2_values: np.ndarray     # (m,) distinct q2
+    rows_pose: np.ndarray     # (M,) index into obs.poses of each observation row
+
+
+def linear_plan(robot: Robot, obs: Observations, qpos: dict | None = None) -> LinearPlan:
+    """Motor torques and reflector motor Jacobians at each pose's rigid configuration.
+
+    ``qpos`` (pose index -> full qpos) replaces the rigid configuration: a diagnostic only (the
+    Monte Carlo's "oracle" variant evaluates the linear model at the TRUE unloaded equilibrium,
+    with the compensator angle at the true q2 of each group, to separate the cost of the sag
+    from the cost of H00); identification never passes it.
+    """
+    m = robot.model
+    d = mujoco.MjData(m)
+    site = lambda n: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, n)  # noqa: E731
+    cols, taus, rows = [], [], []
+    for k, p in enumerate(obs.poses):
+        d.qpos[:] = robot.rigid_qpos(p.q) if qpos is None else qpos[p.index]
+        mujoco.mj_fwdPosition(m, d)
+        jl = motor_jacobian(robot, d, site(p.site))
+        tau = jl.T @ np.concatenate([p.force, p.moment])
+        taus.append(tau)
+        for r in p.reflectors:
+            jr = motor_jacobian(robot, d, site(r))
+            cols.append(jr[:3] * tau[None, :])
+            rows.append(k)
+    labels, values = group_q2(np.array([p.q[1] for p in obs.poses]))
+    if qpos is not None:  # the compensator angle at the given configurations (group means)
+        q2 = np.array([qpos[p.index][robot.act_qpos[1]] for p in obs.poses])
+        values = np.array([q2[labels == g].mean() for g in range(len(values))])
+    return LinearPlan(np.array(cols).reshape(-1, 3, 6), np.array(taus).reshape(-1, 6), labels,
+                      values, np.array(rows, dtype=int))
+
+
+def plan_facts(robot: Robot, obs: Observations, lp: LinearPlan | None = None) -> dict:
+    """Structural facts used to explain unidentifiable parameters."""
+    lp = lp or linear_plan(robot, obs)
+    tau = np.abs(lp.tau)
+    seen = tau.max(axis=0) > 1e-9 * max(tau.max(), 1e-300) if tau.size else np.zeros(6, bool)
+    forces = np.array([p.force for p in obs.poses])
+    moments = np.array([p.moment for p in obs.poses])
+    fmax = max(np.abs(forces).max(), 1e-300)
+    vertical = bool(np.all(np.abs(forces[:, :2]) <= 1e-9 * fmax)
+                    and np.all(np.abs(moments[:, 2]) <= 1e-9 * fmax))
+    return {"motor_torque_seen": seen, "loads_vertical": vertical,
+            "n_distinct_q2": int(len(lp.q2_values)), "q2_values": lp.q2_values}
+
+
+@dataclass
+class TwoStepResult:
+    theta: np.ndarray                 # (8,) NaN where not identified
+    cov: np.ndarray                   # (8,8) NaN rows/cols where not identified
+    identifiable: np.ndarray          # (8,) bool
+    reasons: dict[str, str]
+    step1_names: list[str]
+    step1_k: np.ndarray               # step-1 estimate, NaN where not identified
+    step1_cov: np.ndarray
+    q2_values: np.ndarray
+    residual: np.ndarray              # (M,3) dp - B k, m
+    residual_w: np.ndarray            # (M,3) whitened
+    chi2: float
+    dof: int
+    step2: dict = field(default_factory=dict)
+    ident: Identifiability | None = None
+
+
+def step1(lp: LinearPlan, dp: np.ndarray, linv: np.ndarray):
+    """Weighted LS of eqs. (19)-(20). Returns k, cov, names, whitened B, identifiability."""
+    m = len(lp.q2_values)
+    nk = 5 + m
+    names = ["k1"] + [f"k2@{np.degrees(v):.6g}deg" for v in lp.q2_values] + ["k3", "k4", "k5", "k6"]
+    M = lp.cols.shape[0]
+    b = np.zeros((M, 3, nk))
+    b[:, :, 0] = lp.cols[:, :, 0]
+    g = lp.q2_group[lp.rows_pose]
+    for i in range(M):
+        b[i, :, 1 + g[i]] = lp.cols[i, :, 1]
+    b[:, :, 1 + m:] = lp.cols[:, :, 2:]
+    bw = np.einsum("mij,mjk->mik", linv, b).reshape(3 * M, nk)
+    yw = np.einsum("mij,mj->mi", linv, dp).reshape(3 * M)
+    ident = analyze(bw, tuple(names))
+    keep = ident.identifiable
+    k = np.full(nk, np.nan)
+    cov = np.full((nk, nk), np.nan)
+    if keep.any():
+        sol, *_ = np.linalg.lstsq(bw[:, keep], yw, rcond=None)
+        k[keep] = sol
+        cov[np.ix_(keep, keep)] = np.linalg.inv(bw[:, keep].T @ bw[:, keep])
+    return k, cov, names, b, bw, yw, ident
+
+
+def step2_rows(geom, q2_values: np.ndarray) -> np.ndarray:
+    """C_i of eq. (22) with sin^2 (PHYSICS.md), psi = q2 + offset (m, 3)."""
+    psi = np.array([geom.angle(v) for v in q2_values])
+    s = np.array([geom.length(v) for v in q2_values])
+    ll = geom.l_c * geom.l_2
+    return np.column_stack([np.ones_like(psi), ll * np.cos(psi),
+                            ll * (ll * np.sin(psi) ** 2 / s ** 3 - np.cos(psi) / s)])
+
+
+def two_step(robot: Robot, obs: Observations, weighted: bool = False,
+             lp: LinearPlan | None = None, linv: np.ndarray | None = None) -> TwoStepResult:
+    """Paper §4 on the observations. ``weighted``: GLS step 2 (else the paper's eq. 21)."""
+    lp = lp or linear_plan(robot, obs)
+    dp = obs.dp
+    linv = whiten_factors(obs.cov) if linv is None else linv
+    k, kcov, names, b, bw, yw, ident = step1(lp, dp, linv)
+    m = len(lp.q2_values)
+    M = dp.shape[0]
+    kk = np.where(np.isfinite(k), k, 0.0)
+    resid = dp - np.einsum("mij,j->mi", b, kk)
+    resid_w = np.einsum("mij,mj->mi", linv, resid)
+    dof = 3 * M - int(ident.identifiable.sum())
+    chi2 = float((resid_w ** 2).sum())
+
+    theta = np.full(NP, np.nan)
+    # map step-1 entries to theta: k1 -> 0, k3..k6 -> 2..5
+    idx = {0: 0, **{1 + m + j: 2 + j for j in range(4)}}
+    hmat = np.zeros((NP, len(k)))       # d theta / d k (delta method), filled where defined
+    ok = np.zeros(NP, bool)
+    for src, dst in idx.items():
+        if ident.identifiable[src]:
+            theta[dst] = k[src]
+            hmat[dst, src] = 1.0
+            ok[dst] = True
+    step2_info: dict = {"n_distinct_q2": m, "weighted": weighted}
+    k2i = k[1: 1 + m]
+    comp = robot.tendon >= 0
+    if comp and m >= 3 and np.all(np.isfinite(k2i)) and np.all(k2i > 0):
+        geom = robot.compensator_geometry()
+        c = step2_rows(geom, lp.q2_values)
+        big_k = 1.0 / k2i
+        dk = np.diag(-1.0 / k2i ** 2)                      # d K_2i / d k2_i
+        cov_big = dk @ kcov[1: 1 + m, 1: 1 + m] @ dk.T
+        if weighted:
+            wmat = np.linalg.inv(cov_big)
+            gmat = np.linalg.solve(c.T @ wmat @ c, c.T @ wmat)
+        else:
+            gmat = np.linalg.solve(c.T @ c, c.T)           # eq. (21)
+        x = gmat @ big_k
+        k_theta2, k_c, s0kc = x
+        if k_theta2 > 0 and k_c != 0:
+            theta[1] = 1.0 / k_theta2
+            theta[6] = k_c
+            theta[7] = s0kc / k_c
+            # d(k2, K_C, s0)/dx, then dx/dk2_i = G dK/dk
+            dtx = np.array([[-1.0 / k_theta2 ** 2, 0, 0], [0, 1.0, 0], [0, -s0kc / k_c ** 2, 1.0 / k_c]])
+            hmat[[1, 6, 7], 1: 1 + m] = dtx @ gmat @ dk
+            ok[[1, 6, 7]] = True
+        step2_info.update({
+            "rows_C": c.tolist(), "K2_aggregated": big_k.tolist(),
+            "K_theta2": float(k_theta2), "K_C": float(k_c), "s0_K_C": float(s0kc),
+            "l_c": geom.l_c, "l_2": geom.l_2, "psi_offset_rad": geom.offset,
+            "residual_K2": (big_k - c @ x).tolist(),
+        })
+    kc0 = np.where(np.isfinite(kcov), kcov, 0.0)
+    cov = hmat @ kc0 @ hmat.T
+    cov[~ok, :] = np.nan
+    cov[:, ~ok] = np.nan
+
+    # reasons: step 1's rank analysis mapped to theta names, plus step 2's requirement
+    facts = plan_facts(robot, obs, lp)
+    theta_ident = Identifiability(PARAM_NAMES, ident.singular_values, ident.rank, ok.copy(),
+                                  np.zeros((NP, 0)), np.ones(NP))
+    reasons: dict[str, str] = {}
+    for src, dst in idx.items():
+        if not ident.identifiable[src]:
+            sub = explain(ident, motor_torque_seen=facts["motor_torque_seen"],
+                          loads_vertical=facts["loads_vertical"], n_distinct_q2=m)
+            reasons[PARAM_NAMES[dst]] = sub.get(names[src], "not identified by step 1")
+    if not ok[1]:
+        if not comp:
+            why = "the model has no compensator tendon"
+        elif m < 3:
+            why = (f"only {m} distinct q2 in the plan: step 2 (eqs. 21-22) needs the aggregated "
+                   "J2 stiffness at three or more q2 to separate K_theta2, K_C and s0")
+        else:
+            why = "step 1 did not identify every aggregated J2 stiffness k2_i, or step 2 gave K_theta2 <= 0"
+        for n in ("k2", "compensator_stiffness", "compensator_preload"):
+            reasons[n] = why
+    theta_ident.reasons = reasons
+    return TwoStepResult(theta, cov, ok, reasons, names, k, kcov, lp.q2_values, resid, resid_w,
+                         chi2, dof, step2_info, ident)
+
+
+__all__ = ["group_q2", "LinearPlan", "linear_plan", "plan_facts", "TwoStepResult", "step1",
+           "step2_rows", "two_step", "Q2_GROUP_TOL"]

@@ -1,0 +1,227 @@
+"""`calbench identify` end to end on simulated logs: accuracy, the CI gate, no truth leaks,
+crashed logs, bad input, outliers.
+
+Statistics: every |z| < 4 on a noisy log fails by chance with probability ~8 x 6e-5 = 5e-4
+(the seed is fixed, so the test is deterministic; the Monte Carlo test checks the calibration
+of the z's over many seeds). The altered-truth log shifts k3 by 10 % = 13 of its standard
+deviations (0.52e-9 of 0.07e-6), so its |z| ~ 13 > 4 whatever the noise.
+"""
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
+from mcap.writer import CompressionType, Writer
+
+from bench.logformat import _records, read_log, strip_truth
+from identify.cli import main
+from identify.report import run_identify
+
+ROOT = Path(__file__).resolve().parent.parent
+PAPER = ROOT / "scenarios" / "paper_table5.toml"
+K_TRUE = np.array([0.25, 0.12, 0.07, 0.35, 0.40, 0.60]) * 1e-6
+NAMES = ["k1", "k2", "k3", "k4", "k5", "k6", "compensator_stiffness", "compensator_preload"]
+
+
+@pytest.fixture(scope="module")
+def paper_log(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("paper") / "paper.mcap"
+    assert main(["simulate", str(PAPER), "--out", str(out)]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def paper_report(paper_log, tmp_path_factory) -> dict:
+    js = tmp_path_factory.mktemp("rep") / "id.json"
+    assert main(["identify", str(paper_log), "--json", str(js), "--check"]) == 0
+    return json.loads(js.read_text())
+
+
+def rewrite(src: Path, dst: Path, message=None, metadata=None, drop_topic: str | None = None) -> None:
+    """Copy an MCAP log record by record, letting ``message(topic, dict) -> dict`` edit JSON
+    messages and ``metadata(name, dict) -> dict`` edit metadata records."""
+    topics: dict[int, str] = {}
+    with open(dst, "wb") as f:
+        w = Writer(f, compression=CompressionType.ZSTD)
+        schemas: dict[int, Schema] = {}
+        sid_map: dict[int, int] = {}
+        cid_map: dict[int, int] = {}
+        for rec in _records(src):
+            if isinstance(rec, Header):
+                w.start(profile=rec.profile, library=rec.library)
+            elif isinstance(rec, Schema):
+                schemas[rec.id] = rec
+            elif isinstance(rec, Channel):
+                topics[rec.id] = rec.topic
+                if rec.topic == drop_topic or rec.id in cid_map:
+                    continue
+                if rec.schema_id not in sid_map:
+                    s = schemas[rec.schema_id]
+                    sid_map[rec.schema_id] = w.register_schema(s.name, s.encoding, s.data)
+                cid_map[rec.id] = w.register_channel(rec.topic, rec.message_encoding,
+                                                     sid_map[rec.schema_id], dict(rec.metadata))
+            elif isinstance(rec, Message):
+                if rec.channel_id not in cid_map:
+                    continue
+                data = rec.data
+                if message is not None:
+                    data = json.dumps(message(topics[rec.channel_id], json.loads(data))).encode()
+                w.add_message(cid_map[rec.channel_id], rec.log_time, data, rec.publish_time,
+                              rec.sequence)
+            elif isinstance(rec, Metadata):
+                md = dict(rec.metadata)
+                if metadata is not None:
+                    md = metadata(rec.name, md)
+                w.add_metadata(rec.name, md)
+            elif isinstance(rec, Attachment):
+                w.add_attachment(rec.create_time, rec.log_time, rec.name, rec.media_type, rec.data)
+        w.finish()
+
+
+def estimates(rep: dict) -> np.ndarray:
+    return np.array([np.nan if p["estimate"] is None else p["estimate"] for p in rep["parameters"]])
+
+
+# --------------------------------------------------------------------------- accuracy and JSON
+
+def test_noisy_log_every_z_below_4_and_contract_json(paper_report):
+    rep = paper_report
+    assert rep["method"] == "one-step"
+    assert [p["name"] for p in rep["parameters"]] == NAMES
+    assert [p["unit"] for p in rep["parameters"]] == ["rad/(N*m)"] * 6 + ["N/m", "m"]
+    for key in ("residual_rms", "noise_sigma", "chi2_per_dof"):
+        assert isinstance(rep[key], float)
+    assert rep["noise_sigma"] == pytest.approx(20e-6)
+    truth = np.concatenate([K_TRUE, [2.6e6, 0.83]])
+    for p, t in zip(rep["parameters"], truth):
+        assert p["truth"] == pytest.approx(t, rel=1e-12)
+        assert p["std"] > 0 and abs(p["z"]) < 4, p
+    # chi2/dof of a correct model: mean 1, sd sqrt(2/dof) = 0.13 at 124 dof; 4 sd
+    assert abs(rep["chi2_per_dof"] - 1) < 4 * np.sqrt(2 / rep["dof"])
+    assert rep["n_lost_poses"] == 0 and rep["outliers"] == []
+    assert rep["seconds"] < 2.0          # the issue's target for the paper campaign
+
+
+def test_two_step_runs_and_reports_its_steps(paper_log, tmp_path):
+    js = tmp_path / "two.json"
+    rc = main(["identify", str(paper_log), "--method", "two-step", "--json", str(js)])
+    assert rc == 0
+    rep = json.loads(js.read_text())
+    assert rep["method"] == "two-step"
+    assert len(rep["step1"]["names"]) == 5 + 3       # k1, k2 at 3 q2, k3..k6 (eq. 19)
+    assert rep["step2"]["n_distinct_q2"] == 3
+
+
+# --------------------------------------------------------------------------- the CI gate
+
+def test_check_fails_on_a_log_whose_truth_was_altered(paper_log, tmp_path):
+    bad = tmp_path / "altered.mcap"
+
+    def msg(topic, m):
+        if topic == "/truth/parameters":
+            m["compliance"][2] *= 1.10
+        return m
+
+    def meta(name, md):
+        if name == "ground_truth":
+            p = json.loads(md["parameters"])
+            p["compliance"][2] *= 1.10
+            md["parameters"] = json.dumps(p)
+        return md
+
+    rewrite(paper_log, bad, msg, meta)
+    assert read_log(bad, include_truth=True).truth["parameters"]["compliance"][2] == pytest.approx(0.077e-6)
+    assert main(["identify", str(bad), "--check"]) == 1
+    # and the estimate itself is the same as on the original log
+    assert np.allclose(estimates(run_identify(bad)), estimates(run_identify(paper_log)), rtol=0, atol=0)
+
+
+def test_check_without_truth_passes_with_a_note(paper_log, tmp_path, capsys):
+    stripped = tmp_path / "stripped.mcap"
+    strip_truth(paper_log, stripped)
+    assert main(["identify", str(stripped), "--check"]) == 0
+    assert "no ground truth" in capsys.readouterr().out
+
+
+# --------------------------------------------------------------------------- no leaks
+
+def test_estimates_unchanged_by_stripping_the_truth(paper_log, paper_report, tmp_path):
+    stripped = tmp_path / "stripped.mcap"
+    strip_truth(paper_log, stripped)
+    js = tmp_path / "s.json"
+    assert main(["identify", str(stripped), "--json", str(js)]) == 0
+    rep = json.loads(js.read_text())
+    assert np.array_equal(estimates(rep), estimates(paper_report))
+    assert all(p["truth"] is None and p["z"] is None for p in rep["parameters"])
+
+
+def test_estimates_unchanged_by_scaling_every_stiffness_in_the_mjcf(paper_log, paper_report, tmp_path):
+    text = read_log(paper_log).mjcf_text
+
+    def times10(m):
+        vals = " ".join(repr(10 * float(x)) for x in m.group(2).split())
+        return f'{m.group(1)}="{vals}"'
+
+    edited = re.sub(r'\b(stiffness|springlength)="([^"]*)"', times10, text)
+    assert edited.count("stiffness=") == text.count("stiffness=") >= 7 and edited != text
+    model = tmp_path / "scaled.xml"
+    model.write_text(edited)
+    rep = run_identify(paper_log, model=model)
+    assert np.array_equal(estimates(rep), estimates(paper_report))
+
+
+# --------------------------------------------------------------------------- crashed logs, bad input
+
+def test_truncated_log_is_identified_from_its_complete_poses(paper_log, tmp_path):
+    data = paper_log.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: int(len(data) * 0.6)])
+    log = read_log(cut)
+    assert log.truncated and 0 < len(log.complete_poses) < 16
+    js = tmp_path / "cut.json"
+    assert main(["identify", str(cut), "--json", str(js)]) == 0
+    rep = json.loads(js.read_text())
+    assert rep["n_poses_used"] == len(log.complete_poses)
+    assert rep["n_lost_poses"] == 16 - len(log.complete_poses) == len(rep["lost_poses"])
+    assert rep["truncated"] is True
+    # the lateral pulls (poses 12-15) come last: without them k1 is named, not estimated
+    if max(log.complete_poses) < 12:
+        k1 = rep["parameters"][0]
+        assert k1["estimate"] is None and "vertical" in k1["reason"]
+
+
+def test_not_mcap_missing_model_missing_channel_exit_2(paper_log, tmp_path, capsys):
+    junk = tmp_path / "junk.mcap"
+    junk.write_text("not an mcap file")
+    assert main(["identify", str(junk)]) == 2
+    assert "MCAP" in capsys.readouterr().err
+    assert main(["identify", str(paper_log), "--model", str(tmp_path / "nope.xml")]) == 2
+    assert "--model" in capsys.readouterr().err
+    nowrench = tmp_path / "nowrench.mcap"
+    rewrite(paper_log, nowrench, drop_topic="/campaign/wrench")
+    assert main(["identify", str(nowrench)]) == 2
+    assert "/campaign/wrench" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------- outliers
+
+def test_outlier_is_reported_and_can_be_dropped(paper_log, paper_report, tmp_path):
+    bad = tmp_path / "outlier.mcap"
+
+    def msg(topic, m):
+        if topic == "/tracker/measurement" and m["pose"] == 5 and m["state"] == "loaded":
+            i = next(i for i, v in enumerate(m["visible"]) if v)
+            m["position"][i][2] += 10 * 20e-6 * np.sqrt(2)        # a 10 sigma reading
+        return m
+
+    rewrite(paper_log, bad, msg)
+    rep = run_identify(bad)
+    assert [(o["pose"]) for o in rep["outliers"]] == [5]
+    refl = rep["outliers"][0]["reflector"]
+    rep2 = run_identify(bad, drop_outliers=True)
+    assert rep2["dropped_outliers"][0]["pose"] == 5 and rep2["dropped_outliers"][0]["reflector"] == refl
+    assert rep2["outliers"] == [] and rep2["n_observations"] == paper_report["n_observations"] - 1

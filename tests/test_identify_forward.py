@@ -1,0 +1,88 @@
+"""The exact forward model of identification: same physics as the simulator, exact Jacobian.
+
+Tolerances. The statics are solved to a residual of tol x (gravity scale ~1e5 N*m): with the
+default tol = 1e-10 that is ~1e-11 rad, ~3e-11 m at the reflectors; the Jacobian test uses
+tol = 1e-12 (~2e-13 m). Central differences with a relative step h = 1e-3 carry an O(h^2)
+truncation error of ~1e-6 x (curvature ratio, < 10 here) and a round-off of 2 x 2e-13 m over
+the change they measure, 2 h theta |J| >= 7e-8 m for the weakest column (K_C: 34 um at 100 %),
+i.e. < 1e-5; the stale part of the KKT matrix costs < 1e-6. Allowed: 1e-4 of the column.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from bench.campaign import plan_campaign, truth_robot
+from bench.robot import Params, Robot
+from bench.scenario import load_scenario
+from identify.forward import ForwardModel, design_from_observations, tendon_moment
+from identify.montecarlo import campaign_observations, true_theta
+from identify.twostep import step2_rows
+
+ROOT = Path(__file__).resolve().parent.parent
+PAPER = ROOT / "scenarios" / "paper_table5.toml"
+
+
+@pytest.fixture(scope="module")
+def paper():
+    scn = load_scenario(PAPER)
+    tr = truth_robot(scn)
+    plans = plan_campaign(scn, tr)
+    obs = campaign_observations(scn, tr, plans, None)
+    return scn, plans, obs
+
+
+def test_forward_model_reproduces_the_simulator(paper):
+    """dp(theta_true) on the nominal MJCF equals the simulated true reflector motion."""
+    scn, plans, obs = paper
+    robot = Robot.from_file(scn.robot)
+    fm = ForwardModel(robot, design_from_observations(robot, obs))
+    dp, _ = fm.evaluate(true_theta(scn), jacobian=False)
+    assert np.abs(dp - obs.dp).max() < 1e-10     # both at ~3e-11 m solver precision
+    # a second, warm-started evaluation (the fast path) gives the same
+    dp2, _ = fm.evaluate(true_theta(scn) * 1.0, jacobian=False)
+    assert np.abs(dp2 - obs.dp).max() < 1e-10
+
+
+def test_ift_jacobian_matches_finite_differences(paper):
+    scn, _, obs = paper
+    robot = Robot.from_file(scn.robot)
+    fm = ForwardModel(robot, design_from_observations(robot, obs), tol=1e-12)
+    th = true_theta(scn) * np.array([1.1, 0.9, 1.05, 1.2, 0.95, 1.1, 0.8, 1.05])  # off the truth
+    _, jac = fm.evaluate(th)
+    for j in range(8):
+        h = 1e-3 * th[j]
+        tp, tm = th.copy(), th.copy()
+        tp[j] += h
+        tm[j] -= h
+        fd = (fm.evaluate(tp, False)[0] - fm.evaluate(tm, False)[0]) / (2 * h)
+        col = jac[:, :, j]
+        assert np.abs(fd - col).max() <= 1e-4 * np.abs(col).max(), f"column {j}"
+
+
+def test_compensator_stiffness_has_sin_squared_and_the_model_angle():
+    """Eqs. (10)-(11) with sin^2 (PHYSICS.md) and psi = q2 + offset: the step-2 row C_i times
+    [0, K_C, s0 K_C] equals -d(tendon torque on J2)/dq2 by central differences (h = 1e-6 rad:
+    O(h^2) ~ 1e-12 relative; round-off 1e-16 * 1e5 N*m / 1e-6 ~ 1e-5 N*m/rad)."""
+    robot = Robot.from_file(ROOT / "mjcf" / "m900ib700.xml")
+    k_c, s0 = 2.6e6, 0.83
+    robot.set_params(Params(np.full(6, 1e-7), k_c, s0))
+    geom = robot.compensator_geometry()
+    m, d = robot.model, robot.data
+    j2 = robot.act_dof[1]
+
+    def torque(q2):
+        d.qpos[:] = robot.rigid_qpos(np.array([0.0, q2, 0, 0, 0, 0]))
+        mujoco.mj_fwdPosition(m, d)
+        return -k_c * (d.ten_length[robot.tendon] - s0) * tendon_moment(robot)[j2]
+
+    q2s = np.radians([0.0, 35.0, 77.0, 120.0])
+    rows = step2_rows(geom, q2s)
+    for q2, row in zip(q2s, rows):
+        h = 1e-6
+        k_fd = -(torque(q2 + h) - torque(q2 - h)) / (2 * h)
+        k_model = row @ np.array([0.0, k_c, s0 * k_c])
+        assert abs(k_fd - k_model) < 1e-6 * abs(k_model) + 1e-3
