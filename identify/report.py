@@ -166,6 +166,12 @@ def as_json(res: Identified, truth: np.ndarray | None, log_path, model_name: str
         "outliers": res.outliers, "outlier_threshold_sigma": OUTLIER_SIGMA,
         "dropped_outliers": res.dropped,
         "seconds": seconds,
+        # per observation, world frame, m: what `calbench view --identified` draws
+        "observations": [
+            {"pose": int(pose), "reflector": refl, "measured": [float(x) for x in dp],
+             "predicted": [float(x) for x in dp - r], "residual": [float(x) for x in r]}
+            for (pose, refl), dp, r in zip(obs.labels, obs.dp, res.residual.reshape(-1, 3))
+        ],
         **res.extra,
     }
 

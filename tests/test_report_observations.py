@@ -1,0 +1,28 @@
+"""The identify JSON's per-observation block: what `calbench view --identified` draws."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from identify.cli import main
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_observations_are_measured_minus_residual_and_match_the_chi2(tmp_path):
+    log, rep = tmp_path / "p.mcap", tmp_path / "id.json"
+    assert main(["simulate", str(ROOT / "scenarios" / "paper_table5.toml"), "--out", str(log)]) == 0
+    assert main(["identify", str(log), "--json", str(rep)]) == 0
+    d = json.loads(rep.read_text())
+    obs = d["observations"]
+    assert len(obs) == d["n_observations"]
+    m = np.array([o["measured"] for o in obs])
+    p = np.array([o["predicted"] for o in obs])
+    r = np.array([o["residual"] for o in obs])
+    np.testing.assert_allclose(m - p, r, atol=1e-15)
+    # the residuals are the report's: same RMS
+    assert np.sqrt(np.mean(r**2)) == np.float64(d["residual_rms"]) or abs(np.sqrt(np.mean(r**2)) - d["residual_rms"]) < 1e-12
+    # and the model explains millimetre deflections down to tens of micrometres
+    assert np.abs(m).max() > 1e-3 and np.abs(r).max() < 5 * 4 * d["noise_sigma"]
