@@ -22,7 +22,6 @@ from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
-import scipy.linalg
 
 from .robot import Robot
 

@@ -650,8 +650,6 @@ def write_recording(log_path: str | os.PathLike, rrd_path: str | os.PathLike,
                     magnify: float = DEFAULT_MAGNIFY) -> Summary:
     """Write the recording of a campaign log (and report) to ``rrd_path``, with its default
     blueprint. Raises InputError on bad input, before the output file is created."""
-    import rerun as rr
-
     magnify = _check_magnify(magnify)
     log = read_log(log_path, include_truth=True)
     ident = read_identified(identified) if identified is not None else None
@@ -713,7 +711,6 @@ def cmd_view(args: argparse.Namespace) -> int:
     magnify = _check_magnify(args.magnify)
     why = " (no display, so no viewer was spawned)"
     if args.rrd is None and has_display():
-        import rerun as rr
         log = read_log(args.log, include_truth=True)
         ident = read_identified(args.identified) if args.identified is not None else None
         load_robot(log)

@@ -1,8 +1,6 @@
 """`calbench simulate` end to end: determinism, crash safety, bad input, independent readers."""
 from __future__ import annotations
 
-import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -13,6 +11,7 @@ import pytest
 from bench.logformat import read_log
 from bench.scenario import load_scenario
 from identify.cli import main
+from rerun_cli import rerun_env, rerun_exe
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
@@ -56,7 +55,7 @@ def test_same_seed_same_bytes_other_seed_other_noise(tmp_path, paper_log):
 
 def test_noise_matches_truth_statistics(paper_log):
     """Measured minus true reflector positions: zero mean, sigma 20 um, within sampling error."""
-    from bench.tracker import TrackerSpec, to_world_frame  # noqa: F401
+    from bench.tracker import to_world_frame
 
     full = read_log(paper_log, include_truth=True)
     scn = load_scenario(PAPER)
@@ -72,13 +71,8 @@ def test_noise_matches_truth_statistics(paper_log):
 
 
 def test_rerun_reads_the_log(paper_log, tmp_path):
-    rerun = Path(sys.executable).parent / "rerun"
-    if not rerun.exists():
-        rerun = Path(shutil.which("rerun") or "rerun")
-    env = dict(os.environ, HOME=str(tmp_path), XDG_CONFIG_HOME=str(tmp_path / "cfg"),
-               XDG_DATA_HOME=str(tmp_path / "data"), XDG_CACHE_HOME=str(tmp_path / "cache"),
-               CI="1", RERUN_ANALYTICS="0")
-    res = subprocess.run([str(rerun), "mcap", "info", str(paper_log)], capture_output=True, text=True, env=env, timeout=120)
+    res = subprocess.run([rerun_exe(), "mcap", "info", str(paper_log)], capture_output=True, text=True,
+                         env=rerun_env(tmp_path), timeout=120)
     assert res.returncode == 0, res.stderr
     assert "Channels" in res.stdout or "channels" in res.stdout.lower()
 

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 import tomllib
@@ -22,6 +21,7 @@ from mcap.writer import Writer
 
 import bench.logformat as lf
 from bench.errors import InputError
+from rerun_cli import rerun_env, rerun_exe
 from bench.logformat import (TRUTH_PREFIX, LogHeader, LogWriter, has_truth, read_log,
                              redact_truth, strip_truth)
 
@@ -263,21 +263,6 @@ def test_writer_rejects_malformed_input(tmp_path):
                           [True])
         with pytest.raises(ValueError):            # truth parameters missing the compensator
             w.truth_parameters({"compliance": K_TRUE})
-
-
-def rerun_env(tmp_path) -> dict:
-    home = tmp_path / "home"
-    home.mkdir(exist_ok=True)
-    return {**os.environ, "HOME": str(home), "XDG_CONFIG_HOME": str(home / ".config"),
-            "XDG_DATA_HOME": str(home / ".local/share"), "CI": "1"}
-
-
-def rerun_exe() -> str:
-    exe = Path(sys.executable).with_name("rerun")
-    found = str(exe) if exe.exists() else shutil.which("rerun")
-    if not found:
-        pytest.skip("rerun CLI not installed")
-    return found
 
 
 def test_rerun_reads_the_log(log, tmp_path):

@@ -44,6 +44,19 @@ def rotation_vector(r: np.ndarray) -> np.ndarray:
     return 0.5 * np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
 
 
+def small_load_response(robot: Robot, q: np.ndarray, w: np.ndarray):
+    """Gravity off: the equilibria without and with wrench w at the flange, and the motor-space
+    Jacobian of the flange at the unloaded one (where eq. 1 linearises)."""
+    solver = StaticsSolver(robot)
+    load = Load(w[:3], w[3:], robot.flange_site)
+    e0 = solver.solve(q, gravity=False)
+    e1 = solver.solve(q, load, qpos0=e0.qpos, gravity=False)
+    robot.data.qpos[:] = e0.qpos
+    mujoco.mj_kinematics(robot.model, robot.data)
+    mujoco.mj_comPos(robot.model, robot.data)
+    return e0, e1, motor_jacobian(robot, robot.data, robot.flange_site)
+
+
 def deflection_twist(robot, e0, e1, site) -> np.ndarray:
     p0, r0 = site_pose(robot, e0.qpos, site)
     p1, r1 = site_pose(robot, e1.qpos, site)
@@ -54,15 +67,8 @@ def deflection_twist(robot, e0, e1, site) -> np.ndarray:
 def test_eq1_gravity_off_small_load(q):
     """Eq. (1): dt = sum_i J_i k_i J_i^T W with motor-space (crank) Jacobians, no compensator."""
     robot = make_robot(k_c=0.0)
-    solver = StaticsSolver(robot)
     w = np.array([120.0, -80.0, -200.0, 30.0, -25.0, 40.0])
-    load = Load(w[:3], w[3:], robot.flange_site)
-    e0 = solver.solve(q, gravity=False)
-    e1 = solver.solve(q, load, qpos0=e0.qpos, gravity=False)
-    robot.data.qpos[:] = e0.qpos
-    mujoco.mj_kinematics(robot.model, robot.data)
-    mujoco.mj_comPos(robot.model, robot.data)
-    j = motor_jacobian(robot, robot.data, robot.flange_site)
+    e0, e1, j = small_load_response(robot, q, w)
     predicted = j @ np.diag(K_TRUE) @ j.T @ w
     measured = deflection_twist(robot, e0, e1, robot.flange_site)
     assert np.linalg.norm(measured - predicted) < 1e-3 * np.linalg.norm(predicted)
@@ -196,26 +202,18 @@ def test_residual_and_loop_at_full_load(idx):
 def test_eq1_with_compensator_uses_aggregated_k2():
     """Eq. (10): with the compensator, J2's spring is K2 + K_C l_c l_2 eta at the deflected q2."""
     robot = make_robot()
-    solver = StaticsSolver(robot)
     q = TABLE5[9]
     w = np.array([0.0, 0.0, -300.0, 0.0, 0.0, 0.0])
-    load = Load(w[:3], w[3:], robot.flange_site)
-    e0 = solver.solve(q, gravity=False)
-    e1 = solver.solve(q, load, qpos0=e0.qpos, gravity=False)
+    e0, e1, j = small_load_response(robot, q, w)
     q2 = e0.qpos[robot.act_qpos[1]]
     _, s_c = compensator_torque_and_stiffness(robot, q2)
     k_eff = K_TRUE.copy()
     k_eff[1] = 1.0 / (1.0 / K_TRUE[1] + s_c)
-    robot.data.qpos[:] = e0.qpos
-    mujoco.mj_kinematics(robot.model, robot.data)
-    mujoco.mj_comPos(robot.model, robot.data)
-    j = motor_jacobian(robot, robot.data, robot.flange_site)
     predicted = j @ np.diag(k_eff) @ j.T @ w
     measured = deflection_twist(robot, e0, e1, robot.flange_site)
     assert np.linalg.norm(measured - predicted) < 1e-3 * np.linalg.norm(predicted)
     # in joint space: motor 2 turns by k2_eff * tau2; the compensator changes it by > 1 %
-    jl = motor_jacobian(robot, robot.data, load.site)
-    tau = jl.T @ w
+    tau = j.T @ w  # the wrench acts at the flange
     dtheta = e1.deflection - e0.deflection
     assert dtheta[1] == pytest.approx(k_eff[1] * tau[1], rel=1e-3)
     assert abs(dtheta[1] - K_TRUE[1] * tau[1]) > 1e-2 * abs(dtheta[1])

@@ -7,10 +7,8 @@ tests/test_logformat.py), so it never touches the user's settings.
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -29,24 +27,10 @@ from bench.view import (_geom_archetype, measured_deflections, read_identified,
                         write_recording)
 from identify.cli import main as calbench_main
 
+from rerun_cli import rerun_env, rerun_exe
+
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
-
-
-def rerun_env(tmp_path) -> dict:
-    home = tmp_path / "home"
-    home.mkdir(exist_ok=True)
-    return {**os.environ, "HOME": str(home), "XDG_CONFIG_HOME": str(home / ".config"),
-            "XDG_DATA_HOME": str(home / ".local/share"), "XDG_CACHE_HOME": str(home / ".cache"),
-            "CI": "1", "RERUN_ANALYTICS": "0"}
-
-
-def rerun_exe() -> str:
-    exe = Path(sys.executable).with_name("rerun")
-    found = str(exe) if exe.exists() else shutil.which("rerun")
-    if not found:
-        pytest.skip("rerun CLI not installed")
-    return found
 
 
 @pytest.fixture(autouse=True)
