@@ -192,7 +192,10 @@ def _number(file: Path, key: str, value: Any, positive: bool, nonneg: bool) -> f
 
 # --------------------------------------------------------------------------- sections
 
-TOP_KEYS = ("name", "description", "robot", "seed", "truth", "tracker", "load", "work", "pose")
+TOP_KEYS = ("name", "description", "robot", "seed", "truth", "tracker", "load", "work", "pose", "design")
+# [design]: settings of `calbench design` (identify/design_candidates.py validates the values)
+DESIGN_KEYS = ("min_height", "min_radius", "candidates", "seed", "clearance", "compensator_margin",
+               "lateral_force", "lateral_fraction")
 EFFECT_KEYS = ("link_compliance", "base_compliance", "joint_nonlinearity")
 
 
@@ -304,6 +307,8 @@ def parse_scenario(text: str, path: str | Path, seed: int | None = None) -> Scen
 
     load = top.sub("load")
     load.only(("mass",))
+    if top.has("design"):
+        top.sub("design").only(DESIGN_KEYS)
 
     work = None
     if top.has("work"):

@@ -10,6 +10,7 @@ from bench.errors import InputError
 from bench.view import add_view
 
 from . import demo
+from .design import add_design
 from .montecarlo import add_montecarlo
 from .report import add_identify
 
@@ -21,6 +22,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_demo(sub)
     add_identify(sub)
     add_montecarlo(sub)
+    add_design(sub)
     add_view(sub)
     return parser
 

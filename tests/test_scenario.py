@@ -354,3 +354,11 @@ def test_writer_orders_tables_escapes_strings_and_skips_none(tmp_path):
     assert tomllib.loads(scenario_to_toml(doc))["name"] == name
     with pytest.raises(ValueError):
         scenario_to_toml({"seed": float("nan")})
+
+
+def test_design_table_keys_match_the_design_module():
+    """bench/scenario.py accepts exactly the [design] keys identify/design_candidates.py reads."""
+    from bench.scenario import DESIGN_KEYS as accepted
+    from identify.design_candidates import DESIGN_KEYS as read
+
+    assert set(accepted) == set(read)

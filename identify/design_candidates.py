@@ -1,0 +1,574 @@
+"""Feasible measurement configurations and their Fisher information blocks (issue 4, §2).
+
+A candidate is a commanded configuration q (rad, controller convention) and a load: either the
+scenario's ``[load]`` mass hanging at the payload site ("vertical") or a horizontal pull
+("lateral", paper §5.1: vertical loads cannot turn J1, so k1 needs a non-vertical load)
+of ``lateral_force`` newtons perpendicular to the arm's vertical plane, direction
+(-sin q1, cos q1, 0) times a random sign. Like a ``[[pose]] wrench``, the pull REPLACES the
+payload in the loaded state.
+
+Parameters and prior guess. theta = [k1..k6, K_C, s0] normalised by a nominal value:
+u_i = theta_i / theta0_i. A design needs a prior guess of theta (the information of the nonlinear
+model depends on it); a design study uses the scenario's ``[truth]``, which is the natural
+nominal (in a real cell: the manufacturer's values or a previous identification).
+
+Information. For one candidate with reflectors r, the deflection dp_r = x_r(loaded) -
+x_r(unloaded) is the exact-statics one of identify/forward.py; its Jacobian with respect to u
+comes from the implicit function theorem at both equilibria (``StaticsSolver.tangent``, exact
+KKT matrix), J_r = (J_site dq/dtheta)|loaded - (...)|unloaded, times theta0 column-wise. The
+deflection's covariance is Sigma_r = Cov(reading unloaded) + Cov(reading loaded)
+(bench.tracker.noise_covariance in the tracker frame, rotated to the world; 2 sigma^2 I for the
+isotropic tracker, one repeat). The candidate's block is the whitened regressor
+R = blockdiag(L_r^-1) [J_r], L_r L_r^T = Sigma_r: rows = the 3 coordinates of each reflector
+(9 rows for 3 reflectors), columns = the 8 normalised parameters, and the Fisher information of a
+plan is sum_i R_i^T R_i (with repeats n: n R_i^T R_i).
+
+Feasibility rules (each named; :func:`Feasibility.check` returns the violated ones):
+
+* ``joint_limits``: q inside the MJCF's controller ranges (q4, q6 sampled in [-180, 180]).
+* ``parallelogram``: q3 - q2 at least ``bench.campaign.PARALLELOGRAM_MARGIN`` (10 deg) away from
+  the degenerate -120 / 60 deg (bench.campaign.parallelogram_angle).
+* ``min_height`` / ``min_radius``: the WRIST CENTRE (origin of body ``link5``, on the J5 axis,
+  the point of the paper's Fig. 6) at z >= min_height and at least min_radius from axis 1
+  (horizontal distance), at the commanded (rigid) pose. Paper: 0.5 m and 1 m.
+* ``self_collision``: MuJoCo collision detection on a copy of the MJCF with every geom made
+  collidable (contype = conaffinity = 1, margin = ``clearance``), at the rigid pose and at both
+  equilibria. Not counted: parent-child pairs (MuJoCo's own filter, which includes bodies welded
+  to their parent: m1 on the crank, m2 on the forearm) and the pairs in ``EXCLUDED_PAIRS``:
+  the four links of the parallelogram among themselves (upper_arm, crank, rod, forearm and the
+  compensator masses welded to them: they meet by design at the loop's hinges), the coupler rod
+  against the turret (the rod's foot runs alongside the turret at the crank hinge) and the forearm
+  against link5 (the wrist's pitch housing sits in the forearm's end, across the J4 bearing).
+  Everything else counts, e.g. the wrist or the tool against the upper arm, turret, crank or m1,
+  and m2 against the turret.
+* ``compensator_discontinuity`` (paper §3.3): the vertical through a mass compensator's centre
+  (bodies m1, m2) must not cross a passive joint of the parallelogram (hinges ``elbow``,
+  ``rod``): the horizontal distance from the compensator's centre to each passive hinge's axis
+  line is at least ``compensator_margin`` (default 0.02 m) in both the unloaded and the loaded
+  equilibrium. The discontinuity needs the external load to carry the vertical across the hinge;
+  the load moves those points by < 1 mm (0.2 mm on Table 5 with 700 kg), so 2 cm is a wide
+  margin. (Gravity's sag of J2, up to 1.8 deg, moves them by centimetres: that is why the rule is
+  checked at the equilibria, not at the command.)
+* ``visibility``: every reflector seen by the tracker (``bench.tracker.visible_sites``) in both
+  the unloaded and the loaded equilibrium.
+* ``statics``: both equilibria converge (residual, loop gap) as in bench.campaign.plan_campaign.
+"""
+from __future__ import annotations
+
+import math
+import multiprocessing as mp
+import os
+import re
+import sys
+import time
+import tomllib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from bench.campaign import GRAVITY, PARALLELOGRAM_MARGIN, parallelogram_angle, scenario_params
+from bench.errors import InputError
+from bench.progress import Progress
+from bench.robot import Robot
+from bench.scenario import Scenario, parse_scenario
+from bench.statics import Equilibrium, Load, StaticsSolver
+from bench.tracker import noise_covariance, to_tracker_frame, tracker_rotation, visible_sites
+
+from .forward import NP, tendon_moment
+
+RULES = ("joint_limits", "parallelogram", "min_height", "min_radius", "self_collision",
+         "compensator_discontinuity", "statics", "visibility")
+WRIST_BODY = "link5"
+MASS_COMPENSATORS = ("m1", "m2")
+PASSIVE_HINGES = ("elbow", "rod")
+LOOP_BODIES = ("upper_arm", "crank", "m1", "rod", "forearm", "m2")
+EXCLUDED_PAIRS = tuple(sorted({tuple(sorted((a, b))) for a in LOOP_BODIES for b in LOOP_BODIES if a != b}
+                              | {("rod", "turret"), ("forearm", "link5")}))
+LOAD_KINDS = ("vertical", "lateral")
+
+
+# --------------------------------------------------------------------------- settings
+
+@dataclass(frozen=True)
+class DesignSettings:
+    """The scenario's optional ``[design]`` table (read here from the TOML text)."""
+
+    min_height: float = 0.5            # m, wrist centre z
+    min_radius: float = 1.0            # m, wrist centre from axis 1
+    candidates: int = 10000            # size of the candidate set
+    seed: int | None = None            # candidate sampling; default: the scenario's seed
+    clearance: float = 0.0             # m, collision margin
+    compensator_margin: float = 0.02   # m, §3.3 rule
+    lateral_force: float = 1200.0      # N, horizontal pull of the lateral candidates
+    lateral_fraction: float = 0.5      # share of lateral candidates in the set
+
+    def as_dict(self) -> dict:
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+
+DESIGN_KEYS = tuple(DesignSettings.__dataclass_fields__)
+
+
+def _design_number(path, key, v, lo=None, hi=None, integer=False):
+    what = ("an integer" if integer else "a finite number") + (f" >= {lo}" if lo is not None else "") + \
+        (f" and <= {hi}" if hi is not None else "")
+    ok = not isinstance(v, bool) and isinstance(v, int if integer else (int, float))
+    if not ok or not math.isfinite(float(v)) or (lo is not None and v < lo) or (hi is not None and v > hi):
+        raise InputError(path, f"design.{key}", what, v)
+    return int(v) if integer else float(v)
+
+
+def read_design_settings(path: str | Path, text: str | None = None) -> DesignSettings:
+    """Parse the optional ``[design]`` table of a scenario file (InputError naming the key)."""
+    path = Path(path)
+    text = Path(path).read_text(encoding="utf-8") if text is None else text
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(path, "(syntax)", "valid TOML", str(exc)) from None
+    tab = doc.get("design", {})
+    if not isinstance(tab, dict):
+        raise InputError(path, "design", "a table", type(tab).__name__)
+    for k in tab:
+        if k not in DESIGN_KEYS:
+            raise InputError(path, f"design.{k}", "no such key; allowed keys here: " + ", ".join(DESIGN_KEYS))
+    kw = {}
+    limits = {"min_height": (None, None, False), "min_radius": (0, None, False),
+              "candidates": (1, None, True), "seed": (0, None, True), "clearance": (0, None, False),
+              "compensator_margin": (0, None, False), "lateral_force": (0, None, False),
+              "lateral_fraction": (0, 1, False)}
+    for k, v in tab.items():
+        lo, hi, integer = limits[k]
+        kw[k] = _design_number(path, k, v, lo, hi, integer)
+    return DesignSettings(**kw)
+
+
+_DESIGN_TABLE = re.compile(r"^\[design\][^\n]*\n(?:(?!\s*\[)[^\n]*\n?)*", re.MULTILINE)
+
+
+def load_design_scenario(path: str | Path) -> tuple[Scenario, DesignSettings]:
+    """The scenario (bench.scenario.parse_scenario) and its ``[design]`` settings.
+
+    bench/scenario.py does not (yet) accept a ``[design]`` table, so it is cut out of the text
+    before parsing; the Scenario's ``text`` is the file without it.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(path, "(file)", "a readable UTF-8 scenario file", str(exc)) from None
+    settings = read_design_settings(path, text)
+    stripped = _DESIGN_TABLE.sub("", text)
+    try:
+        if "design" in tomllib.loads(stripped):
+            raise InputError(path, "design", "a [design] table written as a table header")
+    except tomllib.TOMLDecodeError:
+        pass  # parse_scenario reports it
+    return parse_scenario(stripped, path), settings
+
+
+def nominal_theta(scn: Scenario) -> np.ndarray:
+    """The prior guess theta0 = the scenario's [truth] (see the module docstring)."""
+    p = scenario_params(scn)
+    return np.concatenate([p.compliance, [p.compensator_stiffness, p.compensator_preload]])
+
+
+def nominal_robot(scn: Scenario) -> Robot:
+    """The design model: the scenario's MJCF with theta0 written in, WITHOUT the hidden
+    ``[truth.effects]`` (a design knows the model, not what the model lacks)."""
+    robot = Robot.from_file(scn.robot)
+    robot.set_params(scenario_params(scn))
+    return robot
+
+
+def lateral_wrench(q1: float, sign: float, force: float) -> np.ndarray:
+    return np.array([-math.sin(q1) * sign * force, math.cos(q1) * sign * force, 0.0, 0.0, 0.0, 0.0])
+
+
+# --------------------------------------------------------------------------- feasibility
+
+def collision_model(robot_path: Path, clearance: float = 0.0) -> mujoco.MjModel:
+    """A copy of the MJCF where every geom collides (margin = clearance), EXCLUDED_PAIRS off."""
+    spec = mujoco.MjSpec.from_file(str(robot_path))
+    for g in spec.geoms:
+        g.contype = 1
+        g.conaffinity = 1
+        g.margin = clearance
+        g.gap = 0.0
+    names = {b.name for b in spec.bodies}
+    for a, b in EXCLUDED_PAIRS:
+        if a in names and b in names:
+            ex = spec.add_exclude()
+            ex.bodyname1, ex.bodyname2 = a, b
+    return spec.compile()
+
+
+class Feasibility:
+    """The feasibility rules of the module docstring for one robot, tracker and settings."""
+
+    def __init__(self, robot: Robot, scn: Scenario, settings: DesignSettings):
+        self.robot = robot
+        self.scn = scn
+        self.settings = settings
+        self.limits = robot.limits()
+        m = robot.model
+        self.cmodel = collision_model(Path(scn.robot), settings.clearance)
+        self.cdata = mujoco.MjData(self.cmodel)
+        self._kd = mujoco.MjData(m)
+        self.wrist = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, WRIST_BODY)
+        self.masses = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, n) for n in MASS_COMPENSATORS]
+        self.hinges = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n) for n in PASSIVE_HINGES]
+
+    # -- individual rules ---------------------------------------------------------------------
+    def joint_limits(self, q) -> bool:
+        lo, hi = self.limits[:, 0], self.limits[:, 1]
+        return bool(np.all(q >= lo - 1e-9) and np.all(q <= hi + 1e-9))
+
+    def parallelogram(self, q) -> bool:
+        ang = parallelogram_angle(q)
+        return min(ang, np.pi - ang) >= PARALLELOGRAM_MARGIN
+
+    def wrist_centre(self, qpos) -> np.ndarray:
+        d = self._kd
+        d.qpos[:] = qpos
+        mujoco.mj_kinematics(self.robot.model, d)
+        return d.xpos[self.wrist].copy()
+
+    def collides(self, qpos) -> list[tuple[str, str]]:
+        """Body pairs in contact (within the clearance) at qpos; empty when free."""
+        m, d = self.cmodel, self.cdata
+        d.qpos[:] = qpos
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_collision(m, d)
+        out = []
+        for c in d.contact[: d.ncon]:
+            b1, b2 = m.geom_bodyid[c.geom[0]], m.geom_bodyid[c.geom[1]]
+            out.append((m.body(b1).name, m.body(b2).name))
+        return out
+
+    def compensator_clearance(self, qpos) -> float:
+        """Smallest horizontal distance from a mass compensator's centre to a passive hinge's
+        axis line (m) at qpos (§3.3)."""
+        m, d = self.robot.model, self._kd
+        d.qpos[:] = qpos
+        mujoco.mj_kinematics(m, d)
+        best = np.inf
+        for b in self.masses:
+            c = d.xipos[b]
+            for j in self.hinges:
+                a, ax = d.xanchor[j], d.xaxis[j]
+                axh = np.array([ax[0], ax[1], 0.0])
+                n = np.linalg.norm(axh)
+                v = np.array([c[0] - a[0], c[1] - a[1], 0.0])
+                if n < 1e-9:  # a vertical hinge axis: distance to its foot point
+                    dist = np.linalg.norm(v)
+                else:
+                    axh /= n
+                    dist = np.linalg.norm(v - axh * (v @ axh))
+                best = min(best, dist)
+        return float(best)
+
+    # -- combined -----------------------------------------------------------------------------
+    def check_command(self, q) -> list[str]:
+        """Rules decided at the commanded (rigid) pose, cheapest first; all violations."""
+        q = np.asarray(q, float)
+        bad = []
+        if not self.joint_limits(q):
+            bad.append("joint_limits")
+        if not self.parallelogram(q):
+            bad.append("parallelogram")
+        qpos = self.robot.rigid_qpos(q)
+        w = self.wrist_centre(qpos)
+        if w[2] < self.settings.min_height:
+            bad.append("min_height")
+        if math.hypot(w[0], w[1]) < self.settings.min_radius:
+            bad.append("min_radius")
+        if self.collides(qpos):
+            bad.append("self_collision")
+        return bad
+
+    def check_equilibria(self, e0: Equilibrium, e1: Equilibrium, require_all_visible=True):
+        """Rules decided at the solved equilibria: (violations, visible mask (n,) both states)."""
+        bad = []
+        for e in (e0, e1):
+            if e.residual > 1e-8 * max(e.gravity_scale, 1.0) or e.loop_violation > 1e-9:
+                bad.append("statics")
+                break
+        if any(self.collides(e.qpos) for e in (e0, e1)):
+            bad.append("self_collision")
+        if min(self.compensator_clearance(e.qpos) for e in (e0, e1)) < self.settings.compensator_margin:
+            bad.append("compensator_discontinuity")
+        m, d = self.robot.model, self._kd
+        vis = np.ones(len(self.robot.reflector_sites), bool)
+        for e in (e0, e1):
+            d.qpos[:] = e.qpos
+            mujoco.mj_kinematics(m, d)
+            vis &= visible_sites(m, d, self.scn.tracker, self.robot.reflector_sites)
+        if (require_all_visible and not vis.all()) or not vis.any():
+            bad.append("visibility")
+        return bad, vis
+
+
+# --------------------------------------------------------------------------- information
+
+@dataclass
+class PoseInfo:
+    q: np.ndarray
+    wrench: np.ndarray            # (6,) world: payload weight or the pull
+    kind: str
+    block: np.ndarray             # (3 n_visible, 8) whitened, normalised regressor
+    visible: np.ndarray           # (n,) bool
+    violations: list[str]
+    dp: np.ndarray | None = None  # (n, 3) deflections (visible rows meaningful)
+
+
+class InfoEngine:
+    """Exact information of single poses on the design model (one per process)."""
+
+    def __init__(self, scn: Scenario, settings: DesignSettings):
+        self.scn = scn
+        self.settings = settings
+        self.robot = nominal_robot(scn)
+        self.theta0 = nominal_theta(scn)
+        self.solver = StaticsSolver(self.robot, tol=1e-10)
+        self.feas = Feasibility(self.robot, scn, settings)
+        self.rot = tracker_rotation(scn.tracker)
+        self._js = np.zeros((3, self.robot.model.nv))
+        self._jr = np.zeros((3, self.robot.model.nv))
+
+    def load_for(self, wrench) -> Load:
+        return Load.wrench(self.robot, wrench)
+
+    def _dforce(self, e: Equilibrium) -> np.ndarray:
+        """dg/dtheta at fixed q (nv, 8) at equilibrium e (as identify/forward.py)."""
+        rb, th = self.robot, self.theta0
+        m, d = rb.model, rb.data
+        d.qpos[:] = e.qpos
+        mujoco.mj_fwdPosition(m, d)
+        g = np.zeros((m.nv, NP))
+        g[rb.act_dof, np.arange(6)] = e.deflection / th[:6] ** 2
+        if rb.tendon >= 0:
+            t = tendon_moment(rb)
+            length = float(d.ten_length[rb.tendon])
+            g[:, 6] = -(length - th[7]) * t
+            g[:, 7] = th[6] * t
+        return g
+
+    def _site_jac(self, e: Equilibrium, load: Load | None) -> tuple[np.ndarray, np.ndarray]:
+        """Reflector positions (n,3) and d position / d theta (n,3,8) at equilibrium e."""
+        rb = self.robot
+        tan = self.solver.tangent(e, load, self._dforce(e))
+        m, d = rb.model, rb.data
+        d.qpos[:] = e.qpos
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        pos = d.site_xpos[rb.reflector_sites].copy()
+        jac = np.empty((len(rb.reflector_sites), 3, NP))
+        for i, s in enumerate(rb.reflector_sites):
+            mujoco.mj_jacSite(m, d, self._js, None, int(s))
+            jac[i] = self._js @ tan
+        return pos, jac
+
+    def sigma_dp(self, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
+        """(n,3,3) world covariance of the deflections (one reading per state)."""
+        spec = self.scn.tracker
+        c = noise_covariance(spec, to_tracker_frame(spec, p0)) + noise_covariance(spec, to_tracker_frame(spec, p1))
+        return self.rot @ c @ self.rot.T
+
+    def pose(self, q, wrench, kind="vertical", e0: Equilibrium | None = None,
+             require_all_visible=True, check=True, repeats: int = 1) -> PoseInfo:
+        """Feasibility and the information block of one pose (the unloaded e0 may be reused)."""
+        q = np.asarray(q, float)
+        wrench = np.asarray(wrench, float)
+        bad = self.feas.check_command(q) if check else []
+        if check and any(r in bad for r in ("joint_limits", "parallelogram")):
+            return PoseInfo(q, wrench, kind, np.zeros((0, NP)), np.zeros(0, bool), bad)
+        load = self.load_for(wrench)
+        if e0 is None:
+            e0 = self.solver.solve(q)
+        e1 = self.solver.solve(q, load, warm=e0)
+        if check:
+            bad2, vis = self.feas.check_equilibria(e0, e1, require_all_visible)
+            bad += [b for b in bad2 if b not in bad]
+        else:
+            vis = np.ones(len(self.robot.reflector_sites), bool)
+        p0, j0 = self._site_jac(e0, None)
+        p1, j1 = self._site_jac(e1, load)
+        jac = (j1 - j0)[vis] * self.theta0                 # normalised columns
+        cov = self.sigma_dp(p0[vis], p1[vis]) / repeats
+        linv = np.linalg.inv(np.linalg.cholesky(cov))
+        block = np.einsum("nij,njk->nik", linv, jac).reshape(-1, NP)
+        return PoseInfo(q, wrench, kind, block, vis, bad, p1 - p0)
+
+    def work_jacobian(self, q, wrench) -> np.ndarray:
+        """G (3, 8): d(payload-site deflection under the work wrench)/d(theta normalised)."""
+        rb = self.robot
+        load = self.load_for(wrench)
+        e0 = self.solver.solve(np.asarray(q, float))
+        e1 = self.solver.solve(np.asarray(q, float), load, warm=e0)
+        out = []
+        for e, ld in ((e0, None), (e1, load)):
+            tan = self.solver.tangent(e, ld, self._dforce(e))
+            m, d = rb.model, rb.data
+            d.qpos[:] = e.qpos
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_comPos(m, d)
+            mujoco.mj_jacSite(m, d, self._js, None, rb.payload_site)
+            out.append(self._js @ tan)
+        return (out[1] - out[0]) * self.theta0
+
+
+# --------------------------------------------------------------------------- candidate set
+
+@dataclass
+class CandidateSet:
+    q: np.ndarray          # (N, 6) rad
+    wrench: np.ndarray     # (N, 6)
+    kind: np.ndarray       # (N,) 0 vertical, 1 lateral
+    blocks: np.ndarray     # (N, m, 8)
+    theta0: np.ndarray
+    settings: DesignSettings
+    stats: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.q)
+
+    def save_npz(self, path: str | Path, names=None) -> None:
+        from .forward import PARAM_NAMES
+        np.savez_compressed(
+            path, q=np.degrees(self.q), blocks=self.blocks, wrench=self.wrench,
+            load_kind=np.array([LOAD_KINDS[k] for k in self.kind]), theta0=self.theta0,
+            param_names=np.array(PARAM_NAMES),
+            note=np.array("blocks[i] = whitened regressor of candidate i w.r.t. theta/theta0; "
+                          "sum_i blocks[i].T @ blocks[i] over a plan = its Fisher information; "
+                          "q in degrees; wrench world-frame N, N*m at the payload site"))
+
+
+def sample_commands(rng: np.random.Generator, limits: np.ndarray, n: int) -> np.ndarray:
+    """n commands uniform in the joint ranges (q4, q6 in [-180, 180]: the statics is periodic)."""
+    lo, hi = limits[:, 0].copy(), limits[:, 1].copy()
+    for j in (3, 5):
+        lo[j], hi[j] = max(lo[j], -np.pi), min(hi[j], np.pi)
+    return lo + (hi - lo) * rng.random((n, 6))
+
+
+_ENGINE: InfoEngine | None = None
+
+
+def _worker_init(scn, settings):
+    global _ENGINE
+    _ENGINE = InfoEngine(scn, settings)
+
+
+def _worker(job):
+    """(q, [(wrench, kind), ...]) -> list of (index in the list, block) for feasible ones."""
+    q, loads = job
+    eng = _ENGINE
+    e0 = eng.solver.solve(q)
+    out = []
+    for k, (w, kind) in enumerate(loads):
+        try:
+            info = eng.pose(q, w, kind, e0=e0, check=True)
+        except (np.linalg.LinAlgError, RuntimeError):
+            continue
+        if not info.violations:
+            out.append((k, info.block))
+    return out
+
+
+def generate_candidates(scn: Scenario, settings: DesignSettings, n: int | None = None,
+                        processes: int | None = None, progress: bool | None = None) -> CandidateSet:
+    """At least ``n`` (default settings.candidates) feasible candidates, exactly n returned.
+
+    Raw commands are drawn uniformly in the joint ranges (seeded by settings.seed or the
+    scenario's), screened at the rigid pose in this process (cheap rules), then solved in
+    ``processes`` workers (default: the CPU count, at most 4) for the equilibria, the remaining
+    rules and the exact information. Each surviving command yields a vertical candidate and,
+    with probability lateral_fraction / (1 - lateral_fraction) capped at 1, a lateral one; the
+    result is deterministic for a given seed and n.
+    """
+    n = settings.candidates if n is None else n
+    seed = scn.seed if settings.seed is None else settings.seed
+    rng = np.random.default_rng([seed, 4])
+    t0 = time.perf_counter()
+    eng = InfoEngine(scn, settings)
+    limits = eng.robot.limits()
+    weight = scn.load_mass * GRAVITY
+    vertical = np.array([0.0, 0.0, -weight, 0.0, 0.0, 0.0])
+    frac = settings.lateral_fraction
+    p_lat = 1.0 if frac >= 0.5 else frac / (1 - frac)
+    p_vert = 1.0 if frac <= 0.5 else (1 - frac) / frac
+    processes = processes or min(4, os.cpu_count() or 1)
+    bar = Progress(total=n, enabled=sys.stderr.isatty() if progress is None else progress)
+    rejected: dict[str, int] = {r: 0 for r in RULES}
+    qs, ws, kinds, blocks = [], [], [], []
+    screened = raw = 0
+    pool = None
+    if processes > 1:
+        pool = mp.get_context("fork").Pool(processes, initializer=_worker_init, initargs=(scn, settings))
+    else:
+        _worker_init(scn, settings)
+    try:
+        while len(qs) < n:
+            batch = sample_commands(rng, limits, 4096)
+            signs = np.where(rng.random(len(batch)) < 0.5, -1.0, 1.0)
+            u_lat = rng.random(len(batch))
+            u_vert = rng.random(len(batch))
+            raw += len(batch)
+            jobs = []
+            for q, s, ul, uv in zip(batch, signs, u_lat, u_vert):
+                bad = eng.feas.check_command(q)
+                if bad:
+                    rejected[bad[0]] += 1
+                    continue
+                loads = []
+                if uv < p_vert:
+                    loads.append((vertical, 0))
+                if ul < p_lat and settings.lateral_force > 0:
+                    loads.append((lateral_wrench(q[0], s, settings.lateral_force), 1))
+                if loads:
+                    jobs.append((q, loads))
+            screened += len(jobs)
+            need = n - len(qs)
+            # ~1.6 candidates per job survive; solve in chunks so the progress bar moves
+            for start in range(0, len(jobs), 512):
+                chunk = jobs[start:start + 512]
+                res = pool.map(_worker, chunk, chunksize=16) if pool else [_worker(j) for j in chunk]
+                for (q, loads), got in zip(chunk, res):
+                    n_ok = 0
+                    for k, block in got:
+                        w, kind = loads[k]
+                        qs.append(q)
+                        ws.append(w)
+                        kinds.append(kind)
+                        blocks.append(block)
+                        n_ok += 1
+                    if n_ok < len(loads):
+                        rejected["visibility"] += len(loads) - n_ok  # equilibrium rules, mostly visibility
+                bar.update(f"candidates {min(len(qs), n)}/{n}", step=max(0, min(len(qs), n) - bar.done))
+                if len(qs) >= n:
+                    break
+            if raw > 200 * n:
+                raise InputError(scn.path, "design", "settings that leave feasible configurations",
+                                 f"only {len(qs)} of {raw} sampled commands feasible")
+    finally:
+        if pool is not None:
+            pool.close()
+            pool.join()
+        bar.close()
+    m = max(b.shape[0] for b in blocks)
+    out = np.zeros((n, m, NP))
+    for i, b in enumerate(blocks[:n]):
+        out[i, : b.shape[0]] = b
+    stats = {"raw_commands": raw, "passed_command_rules": screened,
+             "rejected_first_rule": rejected, "seconds": time.perf_counter() - t0,
+             "processes": processes}
+    return CandidateSet(np.array(qs[:n]), np.array(ws[:n]), np.array(kinds[:n], int), out,
+                        eng.theta0, settings, stats)
+
+
+__all__ = ["DesignSettings", "read_design_settings", "load_design_scenario", "nominal_theta",
+           "nominal_robot", "Feasibility", "InfoEngine", "PoseInfo", "CandidateSet",
+           "generate_candidates", "lateral_wrench", "collision_model", "EXCLUDED_PAIRS", "RULES"]
