@@ -453,6 +453,66 @@ def compensator() -> Effect:
     return Effect("compensator", ("K_C", "s0"), {}, ("N/m", "m"), apply, set_)
 
 
+# --------------------------------------------------------------------------- tool_compliance
+
+def _tool_truth(t: dict) -> tuple[dict, np.ndarray]:
+    c = np.asarray(t["compliance"], dtype=float)
+    axes = "".join(a for a, ci in zip("yz", c) if ci != 0.0)
+    return {"axes": axes}, c[c != 0.0]
+
+
+TOOL_BODY = "tool"
+TOOL_MOUNT = (0.04, 0.0, 0.0)      # link6 frame, m: the flange face (flange_geom is 0.04 thick)
+TOOL_MASS = 1.0                    # kg on the moving tool body (MuJoCo needs mass there)
+
+
+@register("tool_compliance", from_truth=_tool_truth)
+def tool_compliance(axes: str = "yz", body: str = "link6", mount: tuple = TOOL_MOUNT) -> Effect:
+    """Bending of the tool on its mount at the flange (a TRUTH-ONLY effect: it is not one of
+    CONTRACT.md's discovery candidates; the discovery tests use it as a disagreement that no
+    candidate explains).
+
+    Physics: a child body `tool` of link6 at the flange face (`mount`, link6 frame) carries
+    hinges `tool_ry`, `tool_rz` about link6's y and z (stiffness 1/c, springref 0) and takes
+    over link6's payload site and reflectors (same world positions), so the load bends the
+    tool by c times its moment about the mount point, and the reflectors on the tool see it.
+    The tool's mass stays on link6 (the new body holds a 1 kg point mass at the mount).
+    Parameters cy, cz in rad/(N*m), for the axes listed.
+    """
+    if not axes or any(a not in "yz" for a in axes) or len(set(axes)) != len(axes):
+        raise ValueError(f"tool_compliance: axes must be a non-empty subset of 'yz', got {axes!r}")
+    axes = "".join(a for a in "yz" if a in axes)
+    mount = tuple(float(x) for x in mount)
+
+    def apply(spec, p, o):
+        b = _body(spec, o["body"])
+        if spec.body(TOOL_BODY) is not None:
+            raise ValueError("tool_compliance is already applied")
+        tool = b.add_body(name=TOOL_BODY, pos=list(o["mount"]))
+        for a, c in zip(o["axes"], p):
+            _add_hinge(tool, f"tool_r{a}", np.eye(3)[AXES.index(a)], c)
+        tool.explicitinertial = True
+        tool.mass = TOOL_MASS
+        tool.ipos = [0.0, 0.0, 0.0]
+        tool.iquat = [1.0, 0.0, 0.0, 0.0]
+        tool.inertia = [1e-3, 1e-3, 1e-3]
+        moving = [s for s in b.sites if s.name == "payload" or s.name.startswith("refl_")]
+        for s in moving:
+            keep = dict(name=s.name, pos=list(np.asarray(s.pos, float) - np.asarray(o["mount"])),
+                        quat=list(s.quat), size=list(s.size), rgba=list(s.rgba))
+            spec.delete(s)
+            tool.add_site(**keep)
+
+    def set_(robot, p, o):
+        for a, c in zip(o["axes"], p):
+            robot.model.jnt_stiffness[_joint_id(robot, f"tool_r{a}")] = _stiffness(c)
+
+    return Effect("tool_compliance", tuple(f"c{a}" for a in axes),
+                  {"axes": axes, "body": body, "mount": mount},
+                  ("rad/(N*m)",) * len(axes), apply, set_)
+
+
 __all__ = ["Effect", "EffectRobot", "REGISTRY", "register", "effect_from_truth", "apply_effects",
            "load_spec", "augmented_xml", "link_compliance", "base_compliance", "joint_nonlinearity", "compensator",
+           "tool_compliance",
            "RIGID_COMPLIANCE"]

@@ -196,7 +196,7 @@ TOP_KEYS = ("name", "description", "robot", "seed", "truth", "tracker", "load", 
 # [design]: settings of `calbench design` (identify/design_candidates.py validates the values)
 DESIGN_KEYS = ("min_height", "min_radius", "candidates", "seed", "clearance", "compensator_margin",
                "lateral_force", "lateral_fraction")
-EFFECT_KEYS = ("link_compliance", "base_compliance", "joint_nonlinearity")
+EFFECT_KEYS = ("link_compliance", "base_compliance", "joint_nonlinearity", "tool_compliance")
 
 
 def _effects(c: _Checker) -> dict[str, dict]:
@@ -212,6 +212,10 @@ def _effects(c: _Checker) -> dict[str, dict]:
         e = c.sub("base_compliance")
         e.only(("compliance",))
         out["base_compliance"] = {"compliance": _frozen(e.vector("compliance", 2, nonneg=True))}
+    if c.has("tool_compliance"):      # truth-only: not a discovery candidate (bench/effects.py)
+        e = c.sub("tool_compliance")
+        e.only(("compliance",))
+        out["tool_compliance"] = {"compliance": _frozen(e.vector("compliance", 2, nonneg=True))}
     if c.has("joint_nonlinearity"):
         e = c.sub("joint_nonlinearity")
         e.only(("joint", "cubic"))

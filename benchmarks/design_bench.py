@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from bench.scenario import load_scenario  # noqa: E402
-from identify.design import (PlanPose, design_plan, plan_measures, plan_scenario_text,  # noqa: E402
+from identify.design import (design_plan, plan_measures, plan_scenario_text,  # noqa: E402
                              scenario_plan_information, work_jacobian)
 from identify.design_candidates import InfoEngine, generate_candidates, load_design_scenario  # noqa: E402
 from identify.design_criteria import information, measures  # noqa: E402

@@ -11,6 +11,7 @@ from bench.view import add_view
 
 from . import demo
 from .design import add_design
+from .discover import add_discover
 from .montecarlo import add_montecarlo
 from .report import add_identify
 
@@ -24,6 +25,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_montecarlo(sub)
     add_design(sub)
     add_view(sub)
+    add_discover(sub)
     return parser
 
 

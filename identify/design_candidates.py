@@ -62,7 +62,7 @@ import re
 import sys
 import time
 import tomllib
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import mujoco
@@ -531,7 +531,6 @@ def generate_candidates(scn: Scenario, settings: DesignSettings, n: int | None =
                 if loads:
                     jobs.append((q, loads))
             screened += len(jobs)
-            need = n - len(qs)
             # ~1.6 candidates per job survive; solve in chunks so the progress bar moves
             for start in range(0, len(jobs), 512):
                 chunk = jobs[start:start + 512]

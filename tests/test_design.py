@@ -17,10 +17,10 @@ import pytest
 
 from bench.campaign import GRAVITY, plan_campaign, truth_robot
 from bench.robot import Robot
-from bench.scenario import load_scenario, parse_scenario, scenario_as_dict, scenario_to_toml
+from bench.scenario import load_scenario
 from identify.cli import main
 from identify.design import PlanPose, plan_scenario_text
-from identify.design_candidates import (DesignSettings, InfoEngine, generate_candidates,
+from identify.design_candidates import (InfoEngine, generate_candidates,
                                         load_design_scenario, read_design_settings)
 from identify.design_criteria import criterion_value, information, measures
 from identify.design_exchange import Exchanger

@@ -1,0 +1,438 @@
+"""Discovery, part 1: the candidate library and fitting a model with effects in the loop.
+
+The LIBRARY is bench/effects.py's REGISTRY restricted to CONTRACT.md's four discovery names, with
+each effect's structural options enumerated (:data:`OPTIONS`): `link_compliance` on the upper arm
+and on the forearm, `joint_nonlinearity` on joints 1..6, `base_compliance`, `compensator`. These
+are the same MjSpec edits the bench puts in the simulated truth. Nothing here chooses between
+them: identify/discover.py does, through identify/discover_stats.py, and knows nothing about any
+single effect. Adding a candidate = registering an effect in bench/effects.py and naming it (and
+its options) here.
+
+FITTING. A candidate model is the user's MJCF with the effects applied (`apply_effects`); its
+parameters are theta = [k1..k6, K_C, s0] (identify/forward.py) followed by every effect's own
+parameters, in order. :class:`AugmentedForward` is the exact forward model of
+identify/forward.py (same KKT-Newton statics, warm starts, implicit-function Jacobian) with
+three generalisations:
+
+* parameters are written by ``Robot.set_params`` and then each effect's ``Effect.set_params``
+  (no recompilation); an effect that owns a base quantity (the compensator added to a model
+  without one) overrides it, and the overridden base columns come out exactly zero;
+* dg/dtheta at fixed q (the right-hand side of the implicit function theorem) is taken by
+  central differences of MuJoCo's passive force for EVERY parameter: generic (any registered
+  effect), ~2 x 11 velocity-stage calls per equilibrium, relative error ~1e-10;
+* the KKT matrix's non-analytic part A_base (which holds the effects' springs) is re-taken by
+  finite differences whenever the effect parameters change.
+
+:func:`fit` is Gauss-Newton / Levenberg-Marquardt on the whitened residual (the maximum-likelihood
+estimate for the tracker's Gaussian noise), with lower bounds by an active set and the rank
+analysis of identify/identifiability.py at every iterate: an effect parameter that the plan
+cannot separate from the base parameters (e.g. in-plane forearm bending, exactly a k3 through
+the parallelogram) is held at its start, so that it never costs the base model anything, and
+any base parameter still unidentifiable is held as in identify/onestep.py.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from bench.effects import REGISTRY, Effect, EffectRobot, apply_effects
+from bench.robot import Robot
+from bench.statics import StaticsSolver
+
+from .forward import NP, PARAM_NAMES, PARAM_UNITS, ForwardModel, PoseDesign, design_from_observations, to_params
+from .identifiability import analyze
+
+# --------------------------------------------------------------------------- the library
+
+DISCOVERY_EFFECTS = ("compensator", "joint_nonlinearity", "link_compliance", "base_compliance")
+# structural options enumerated for each candidate (factory keyword arguments)
+OPTIONS: dict[str, list[dict]] = {
+    "compensator": [{}],
+    "joint_nonlinearity": [{"joint": j} for j in range(1, 7)],
+    "link_compliance": [{"link": "upper_arm"}, {"link": "forearm"}],
+    "base_compliance": [{}],
+}
+
+# Per physical UNIT (not per effect): where an effect parameter starts (its "absent" value, or a
+# generic size where absent makes the others meaningless), its lower bound, and a typical size
+# (finite-difference steps at zero). A new effect with a new unit adds one line.
+UNIT_PRIORS: dict[str, dict] = {
+    # compliance: >= 0, and at most 1e-6 rad/(N*m) (a spring softer than any drive of this
+    # robot is a broken part, not a compliance); starts at a typical size so that hinges that
+    # only move together (upper-arm x and z, braced by the coupler rod) are not locked
+    "rad/(N*m)": {"start": 1e-8, "lower": 1e-12, "upper": 1e-6, "size": 1e-8},
+    "N*m/rad^3": {"start": 0.0, "lower": -np.inf, "upper": np.inf, "size": 1e12},  # cubic: none
+    "N/m": {"start": 1e6, "lower": 1.0, "upper": 1e9, "size": 1e6},              # spring rate
+    "m": {"start": 1.0, "lower": 1e-3, "upper": 10.0, "size": 1.0},              # free length
+}
+DISCOVER_RANK_TOL = 1e-5     # singular value (column-normalised) below which a direction is unseen
+DEBUG = False
+COST_TOL = 1e-3              # chi2 units: a step gaining (or promising) less ends the fit
+BASE_LOWER = np.array([1e-12] * 6 + [1.0, 1e-3])
+BASE_UPPER = np.array([1e-5] * 6 + [1e9, 10.0])
+
+
+def library() -> list[Effect]:
+    """Every candidate effect with its structural options (REGISTRY order is irrelevant)."""
+    out = []
+    for name in DISCOVERY_EFFECTS:
+        factory = REGISTRY[name]
+        for opts in OPTIONS[name]:
+            out.append(factory(**opts))
+    return out
+
+
+def label(effect: Effect) -> str:
+    return effect.name + (f"[{effect.detail}]" if effect.detail else "")
+
+
+def effect_priors(effect: Effect) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(start, lower bound, upper bound, size) of an effect's parameters from their units."""
+    pri = [UNIT_PRIORS[u] for u in effect.units]
+    return tuple(np.array([p[k] for p in pri], float) for k in ("start", "lower", "upper", "size"))
+
+
+def param_names(effects: list[Effect]) -> list[str]:
+    return list(PARAM_NAMES) + [f"{label(e)}.{n}" for e in effects for n in e.param_names]
+
+
+def param_units(effects: list[Effect]) -> list[str]:
+    return list(PARAM_UNITS) + [u for e in effects for u in e.units]
+
+
+# --------------------------------------------------------------------------- forward model
+
+class AugmentedForward(ForwardModel):
+    """identify/forward.py's exact forward model with effect parameters appended to theta."""
+
+    def __init__(self, robot: Robot, design: list[PoseDesign], effects: list[Effect], **kw):
+        super().__init__(robot, design, **kw)
+        self.effects = list(effects)
+        self.sizes = [len(e.param_names) for e in self.effects]
+        self.n_params = NP + sum(self.sizes)
+        self._p_kkt: np.ndarray | None = None     # effect parameters A_base was taken at
+        self._fd_size = np.ones(self.n_params)
+        if self.effects:
+            self._fd_size[NP:] = np.concatenate([effect_priors(e)[3] for e in self.effects])
+
+    def write(self, theta: np.ndarray) -> None:
+        self.robot.set_params(to_params(theta[:NP]))
+        off = NP
+        for e, n in zip(self.effects, self.sizes):
+            e.set_params(self.robot, theta[off: off + n])
+            off += n
+
+    def _dforce(self, theta, qpos, command) -> np.ndarray:
+        """dg/dtheta at fixed q by central differences of the passive force (position stage of
+        the solution current in data; restored on return)."""
+        m, d = self.robot.model, self.robot.data
+        out = np.zeros((self.nv, self.n_params))
+        for i in range(self.n_params):
+            h = 1e-6 * (abs(theta[i]) if theta[i] != 0 else self._fd_size[i])
+            if i < NP and theta[i] - h <= 0:          # keep compliances positive
+                h = 0.5 * theta[i]
+            tp, tm = theta.copy(), theta.copy()
+            tp[i] += h
+            tm[i] -= h
+            try:
+                self.write(tp)
+                mujoco.mj_fwdVelocity(m, d)
+                fp = d.qfrc_passive.copy()
+                self.write(tm)
+                mujoco.mj_fwdVelocity(m, d)
+                fm = d.qfrc_passive.copy()
+            except ValueError:                          # at a bound (compliance <= 0): one-sided
+                self.write(theta)
+                mujoco.mj_fwdVelocity(m, d)
+                fm, tm = d.qfrc_passive.copy(), theta
+                self.write(tp)
+                mujoco.mj_fwdVelocity(m, d)
+                fp = d.qfrc_passive.copy()
+            out[:, i] = (fp - fm) / (tp[i] - tm[i])
+        self.write(theta)
+        mujoco.mj_fwdVelocity(m, d)
+        return out
+
+    def evaluate(self, theta, jacobian: bool = True):
+        """dp (M,3) and, with ``jacobian``, d dp / d theta (M,3,P); P = 8 + effect parameters."""
+        theta = np.asarray(theta, dtype=float)
+        npar = self.n_params
+        if theta.shape != (npar,) or not np.all(np.isfinite(theta)) or np.any(theta[:6] <= 0):
+            raise ValueError(f"theta must be {npar} finite values with positive compliances, got {theta}")
+        robot = self.robot
+        m, d = robot.model, robot.data
+        self.write(theta)                             # ValueError for invalid effect values
+        self.stats["evaluations"] += 1
+        dp = np.empty((self.n_obs, 3))
+        jac = np.empty((self.n_obs, 3, npar)) if jacobian else None
+        flags = m.opt.disableflags
+        d.qvel[:] = 0.0
+        try:
+            if self._cache is None:
+                self._init_cache(theta)
+                self._p_kkt = theta[NP:].copy()
+            self._enable()
+            refresh = self._p_kkt is None or not np.array_equal(self._p_kkt, theta[NP:])
+            row = 0
+            for des, pair in zip(self.design, self._cache):
+                robot.set_command(des.q)
+                n = len(des.sites)
+                pos, jsite = [], []
+                for load, eq in zip((None, des.load), pair):
+                    if refresh:   # the effects' springs live in A_base: re-take it
+                        eq.a_base, eq.h_len = self._kkt_fd(eq.qpos, load, eq.lam, eq.basis, theta)
+                    sol = self._newton(eq, des.q, load, theta)
+                    if sol is None:
+                        self.stats["refreshes"] += 1
+                        eq.tangent = None
+                        eq.a_base, eq.h_len = self._kkt_fd(eq.qpos, load, eq.lam, eq.basis, theta)
+                        sol = self._newton(eq, des.q, load, theta)
+                    if sol is None:
+                        self.stats["fallbacks"] += 1
+                        m.opt.disableflags = flags
+                        e = StaticsSolver(robot).solve(des.q, load, qpos0=eq.qpos)
+                        self._enable()
+                        robot.set_command(des.q)
+                        new = self._adopt(e.qpos, load, theta)
+                        eq.qpos, eq.lam, eq.basis, eq.a_base, eq.h_len = (
+                            new.qpos, new.lam, new.basis, new.a_base, new.h_len)
+                        eq.tangent = None
+                        sol = self._newton(eq, des.q, load, theta)
+                        if sol is None:
+                            raise RuntimeError(f"pose {des.index}: no static equilibrium at theta={theta}")
+                    qpos, lam, jc_r = sol
+                    eq.qpos, eq.lam, eq.theta, eq.tangent = qpos, lam, theta.copy(), None
+                    pos.append(d.site_xpos[des.sites].copy())
+                    if jacobian:
+                        kkt = self._kkt(eq, theta, jc_r)
+                        rhs = np.zeros((kkt.shape[0], npar))
+                        rhs[: self.nv] = -self._dforce(theta, qpos, des.q)
+                        tan = np.linalg.solve(kkt, rhs)
+                        eq.tangent = tan
+                        dq = tan[: self.nv]
+                        js = np.empty((n, 3, npar))
+                        for i, s in enumerate(des.sites):
+                            mujoco.mj_jacSite(m, d, self._js, None, int(s))
+                            js[i] = self._js @ dq
+                        jsite.append(js)
+                dp[row: row + n] = pos[1] - pos[0]
+                if jacobian:
+                    jac[row: row + n] = jsite[1] - jsite[0]
+                row += n
+            self._p_kkt = theta[NP:].copy()
+        finally:
+            m.opt.disableflags = flags
+        return dp, jac
+
+    def equilibria(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """(unloaded qpos, loaded qpos) of every pose at the last evaluation."""
+        return [(a.qpos.copy(), b.qpos.copy()) for a, b in (self._cache or [])]
+
+
+# --------------------------------------------------------------------------- fitting
+
+@dataclass
+class Fit:
+    """A maximum-likelihood fit of one model (base + effects) to the observations."""
+
+    effects: list[Effect]
+    theta: np.ndarray                 # (P,) all parameters (held ones at their held values)
+    free: np.ndarray                  # (P,) bool: estimated (identifiable, not at a bound)
+    at_bound: np.ndarray              # (P,) bool
+    cov: np.ndarray                   # (P,P) inverse Fisher information on the free ones, NaN else
+    predicted: np.ndarray             # (M,3) model deflections, m
+    residual: np.ndarray              # (M,3) measured - predicted, m
+    residual_w: np.ndarray            # (M,3) whitened
+    chi2: float
+    n_res: int                        # number of scalar residuals (3M)
+    iterations: int
+    evaluations: int
+    converged: bool
+    seconds: float
+    model: AugmentedForward = field(repr=False, default=None)
+    robot: EffectRobot | Robot = field(repr=False, default=None)
+
+    rank: int = 0                     # parameters the data determine (Jacobian rank on the free ones)
+
+    @property
+    def n_free(self) -> int:
+        return int(self.rank)
+
+    @property
+    def dof(self) -> int:
+        return self.n_res - self.n_free
+
+    @property
+    def names(self) -> list[str]:
+        return param_names(self.effects)
+
+    @property
+    def units(self) -> list[str]:
+        return param_units(self.effects)
+
+    def effect_params(self) -> list[tuple[Effect, np.ndarray]]:
+        out, off = [], NP
+        for e in self.effects:
+            n = len(e.param_names)
+            out.append((e, self.theta[off: off + n].copy()))
+            off += n
+        return out
+
+
+def build(model_source, effects: list[tuple[Effect, np.ndarray]], obs) -> tuple[Robot, AugmentedForward]:
+    """The candidate robot (user's MJCF + effects) and its forward model for the observations.
+    Raises ValueError / NotImplementedError when an effect does not apply to this MJCF."""
+    if effects:
+        robot = apply_effects(model_source, effects)
+    else:
+        robot = (Robot.from_file(model_source) if isinstance(model_source, Path) or
+                 (isinstance(model_source, str) and "<mujoco" not in model_source)
+                 else Robot.from_xml(model_source))
+    fm = AugmentedForward(robot, design_from_observations(robot, obs), [e for e, _ in effects])
+    return robot, fm
+
+
+def _svd_step(jw: np.ndarray, rw: np.ndarray, lam: float) -> tuple[np.ndarray, int, np.ndarray]:
+    """Minimum-norm (truncated SVD) Levenberg-Marquardt step on column-normalised jw.
+
+    Directions the plan cannot see (singular values below RANK_TOL of the largest) are left
+    alone, so combinations of parameters that no measurement separates (an effect parameter
+    and a base one, two hinges that only move together) are not pushed anywhere: the step is
+    the smallest one that fits. Returns (du in jw's columns, rank, V_seen)."""
+    norms = np.linalg.norm(jw, axis=0)
+    ok = norms > 0
+    du = np.zeros(jw.shape[1])
+    if not ok.any():
+        return du, 0, np.zeros((jw.shape[1], 0))
+    jn = jw[:, ok] / norms[ok]
+    u, s, vt = np.linalg.svd(jn, full_matrices=False)
+    keep = s > DISCOVER_RANK_TOL * s[0]
+    s_k, u_k, v_k = s[keep], u[:, keep], vt[keep].T
+    coef = s_k / (s_k ** 2 + lam * s_k[0] ** 2) * (u_k.T @ rw)
+    du[ok] = (v_k @ coef) / norms[ok]
+    v_full = np.zeros((jw.shape[1], v_k.shape[1]))
+    v_full[ok] = v_k
+    return du, int(keep.sum()), v_full
+
+
+def _covariance(jw: np.ndarray, free: np.ndarray, scale: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Pseudo-inverse Fisher information on the free parameters (scaled back), the identifiable
+    flags (weight in the unseen directions <= NULL_TOL) and the rank."""
+    npar = jw.shape[1]
+    cov = np.full((npar, npar), np.nan)
+    ident = np.zeros(npar, bool)
+    idx = np.flatnonzero(free)
+    if idx.size == 0:
+        return cov, ident, 0
+    a = analyze(jw[:, idx], tuple(str(i) for i in idx))
+    jf = jw[:, idx]
+    norms = np.where(a.column_norms > 0, a.column_norms, 1.0)
+    jn = jf / norms
+    u, s, vt = np.linalg.svd(jn, full_matrices=False)
+    keep = s > DISCOVER_RANK_TOL * s[0]
+    pinv = (vt[keep].T / s[keep] ** 2) @ vt[keep]
+    c = pinv / np.outer(norms, norms) * np.outer(scale[idx], scale[idx])
+    cov[np.ix_(idx, idx)] = c
+    ident[idx] = a.identifiable
+    return cov, ident, int(keep.sum())
+
+
+def _at_bounds(theta, lower, upper) -> tuple[np.ndarray, np.ndarray]:
+    lo = np.isfinite(lower) & (theta <= lower + 1e-9 * np.abs(np.where(np.isfinite(lower), lower, 0)))
+    hi = np.isfinite(upper) & (theta >= upper - 1e-9 * np.abs(np.where(np.isfinite(upper), upper, 0)))
+    return lo, hi
+
+
+def fit(model: AugmentedForward, dp: np.ndarray, linv: np.ndarray, start: np.ndarray,
+        lower: np.ndarray, upper: np.ndarray, hold: np.ndarray | None = None, *, step_tol: float = 1e-3,
+        max_iter: int = 30) -> Fit:
+    """Levenberg-Marquardt with minimum-norm steps on the whitened residual; lower bounds by
+    projection (a parameter at its bound whose step points outside is fixed for that step).
+
+    hold: parameters never estimated. The fitted model's number of free parameters is the rank
+    of the Jacobian on the rest (what the data determine), used for dof, chi2 and BIC.
+    """
+    t0 = time.perf_counter()
+    npar = model.n_params
+    theta = np.array(start, dtype=float)
+    hold = np.zeros(npar, bool) if hold is None else np.asarray(hold, bool).copy()
+    scale = np.where(np.abs(theta) > 0, np.abs(theta), model._fd_size)
+    yw = np.einsum("mij,mj->mi", linv, dp).reshape(-1)
+    n0 = model.stats["evaluations"]
+
+    def lin(th):
+        f, j = model.evaluate(th)
+        fw = np.einsum("mij,mj->mi", linv, f).reshape(-1)
+        jw = np.einsum("mij,mjk->mik", linv, j).reshape(-1, npar) * scale
+        return f, fw, jw
+
+    f, fw, jw = lin(theta)
+    rw = yw - fw
+    cost = float(rw @ rw)
+    lam = 0.0
+    converged = False
+    it = 0
+    for it in range(1, max_iter + 1):
+        free = ~hold
+        at_low, at_high = _at_bounds(theta, lower, upper)
+        du = np.zeros(npar)
+        for _ in range(npar):                    # fix bound parameters whose step points out
+            du[:] = 0.0
+            du[free], _, _ = _svd_step(jw[:, free], rw, 0.0)
+            out = free & ((at_low & (du < 0)) | (at_high & (du > 0)))
+            if not out.any():
+                break
+            free &= ~out
+        # predicted decrease of the undamped step, in cost units: stop when negligible
+        gain = float(np.sum((jw[:, free] @ du[free]) ** 2))
+        if gain < max(step_tol ** 2, 10 * COST_TOL):
+            converged = True
+            break
+        accepted = False
+        for _ in range(12):
+            if lam > 0:
+                du[:] = 0.0
+                du[free], _, _ = _svd_step(jw[:, free], rw, lam)
+            trial = theta.copy()
+            trial[free] += scale[free] * du[free]
+            trial = np.clip(trial, lower, upper)   # projection on the bounds
+            try:
+                f_t, fw_t, jw_t = lin(trial)
+            except (RuntimeError, ValueError):
+                lam = max(10 * lam, 1e-3)
+                continue
+            rw_t = yw - fw_t
+            cost_t = float(rw_t @ rw_t)
+            if cost_t <= cost + 1e-9 * max(cost, 1.0):
+                gained = cost - cost_t
+                theta, f, fw, jw, rw, cost = trial, f_t, fw_t, jw_t, rw_t, cost_t
+                lam = lam / 10 if lam > 1e-6 else 0.0
+                accepted = True
+                break
+            lam = max(10 * lam, 1e-3)
+        if DEBUG:
+            print(f"  it {it} cost {cost:.6f} gained {gained if accepted else None} gain {gain:.3g} lam {lam:g} free {free.sum()} theta_eff {theta[NP:]}")
+        if not accepted:
+            break
+        if gained < COST_TOL:
+            converged = True
+            break
+    at_low, at_high = _at_bounds(theta, lower, upper)
+    free = ~hold & ~at_low & ~at_high
+    cov, ident, rank = _covariance(jw, free, scale)
+    resid_w = rw.reshape(-1, 3)
+    resid = np.einsum("mij,mj->mi", np.linalg.inv(linv), resid_w)
+    out = Fit(list(model.effects), theta, ident, ~free & ~hold, cov, f, resid, resid_w, cost, rw.size,
+              it, model.stats["evaluations"] - n0, converged, time.perf_counter() - t0, model,
+              model.robot)
+    out.rank = rank
+    return out
+
+
+__all__ = ["DISCOVERY_EFFECTS", "OPTIONS", "UNIT_PRIORS", "library", "label", "effect_priors",
+           "param_names", "param_units", "AugmentedForward", "Fit", "build", "fit", "BASE_LOWER",
+           "BASE_UPPER"]

@@ -1,0 +1,269 @@
+"""`calbench discover` on logs where an effect is hidden in the truth (paper plan, 20 um).
+
+Magnitudes (flange displacement they add under 700 kg: see benchmarks/discover_bench.py):
+  link_compliance forearm   [1.8e-7, 0, 1.8e-7] rad/(N*m)   (lateral bending + torsion; the
+                            in-plane y spring is exactly a k3 change and is never testable)
+  link_compliance upper_arm [1.5e-8, 1.5e-8, 1.5e-8]
+  base_compliance           [4e-9, 4e-9]
+  joint_nonlinearity j3     cubic 6e12 N*m/rad^3 (the j3 spring is 2x stiffer at the largest
+                            deflection of the plan): named, but RMS before only ~1.55x noise.
+                            The 2x of the issue is out of reach at plausible magnitudes: the
+                            cubic stiffens the joint and so limits its own deflection (2e13
+                            gives only 1.69x).
+  compensator (user model without one; truth K_C 6e6 N/m, s0 0.83 m): named, before ~1.3x. At
+                            the shipped K_C = 2.6e6 N/m the model without a compensator fits the
+                            paper plan to the noise level (chi2 p = 0.55): nothing is named and
+                            the report gives a hint below the noise floor. 2x needs K_C ~ 1.2e7.
+  tool_compliance [4e-7, 4e-7] (truth only, outside the library): `unexplained`.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from bench.campaign import run_campaign
+from bench.effects import REGISTRY, apply_effects
+from bench.logformat import read_log, strip_truth
+from bench.robot import Robot
+from bench.scenario import load_scenario
+from identify.cli import main as cli_main
+from identify.discover import UNEXPLAINED, discover
+from identify.discover_fit import DISCOVERY_EFFECTS, library
+
+ROOT = Path(__file__).resolve().parent.parent
+PAPER = ROOT / "scenarios" / "paper_table5.toml"
+MJCF = ROOT / "mjcf" / "m900ib700.xml"
+
+HIDDEN = {
+    "forearm": ('[truth.effects.link_compliance]\nlink = "forearm"\ncompliance = [1.8e-7, 0.0, 1.8e-7]',
+                "link_compliance", "forearm"),
+    "upper_arm": ('[truth.effects.link_compliance]\nlink = "upper_arm"\ncompliance = [1.5e-8, 1.5e-8, 1.5e-8]',
+                  "link_compliance", "upper_arm"),
+    "base": ("[truth.effects.base_compliance]\ncompliance = [4e-9, 4e-9]", "base_compliance", ""),
+    "j3": ("[truth.effects.joint_nonlinearity]\njoint = 3\ncubic = 6e12", "joint_nonlinearity", "j3"),
+}
+BEFORE_MIN = {"forearm": 2.0, "upper_arm": 2.0, "base": 2.0, "j3": 1.5}   # see the docstring
+AFTER_MAX = 1.3
+
+
+def scenario(tmp: Path, name: str, extra: str = "", compensator: tuple | None = None) -> Path:
+    text = PAPER.read_text().replace('robot = "../mjcf/m900ib700.xml"', f'robot = "{MJCF}"')
+    if compensator:
+        text = text.replace("stiffness = 2.6e6", f"stiffness = {compensator[0]}")
+        text = text.replace("preload = 0.83", f"preload = {compensator[1]}")
+    if extra:
+        text = text.replace("[tracker]", extra.strip() + "\n\n[tracker]", 1)
+    path = tmp / f"{name}.toml"
+    path.write_text(text)
+    return path
+
+
+def bare_model(tmp: Path) -> Path:
+    """The user's model without the compensator tendon (and its sites)."""
+    spec = mujoco.MjSpec.from_file(str(MJCF))
+    spec.delete(spec.tendon("compensator"))
+    spec.delete(spec.site("comp_base"))
+    spec.delete(spec.site("comp_arm"))
+    spec.compiler.savecompiled = False
+    path = tmp / "bare.xml"
+    path.write_text(spec.to_xml())
+    return path
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("discover")
+    out = {}
+    cases = {k: v[0] for k, v in HIDDEN.items()}
+    cases["none"] = ""
+    cases["tool"] = "[truth.effects.tool_compliance]\ncompliance = [4e-7, 4e-7]"
+    for name, extra in cases.items():
+        run_campaign(load_scenario(scenario(tmp, name, extra)), tmp / f"{name}.mcap", show_progress=False)
+        out[name] = tmp / f"{name}.mcap"
+    for name, comp in (("comp_default", (2.6e6, 0.83)), ("comp_strong", (6e6, 0.83))):
+        run_campaign(load_scenario(scenario(tmp, name, "", comp)), tmp / f"{name}.mcap", show_progress=False)
+        out[name] = tmp / f"{name}.mcap"
+    out["bare"] = bare_model(tmp)
+    out["tmp"] = tmp
+    return out
+
+
+_REPORTS: dict = {}
+
+
+def run(logs, case, model=None):
+    """discover() on a case's log, once per module (the augmented MJCF next to the log)."""
+    key = (case, str(model))
+    if key not in _REPORTS:
+        _REPORTS[key] = discover(logs[case], model, out_model=logs["tmp"] / f"{case}.augmented.xml")
+    return _REPORTS[key]
+
+
+def ratios(rep):
+    return rep["rms_before"] / rep["noise_rms_before"], rep["rms_after"] / rep["noise_rms_after"]
+
+
+# --------------------------------------------------------------------------- the library
+
+def test_library_is_the_contract_effects_with_options():
+    lib = library()
+    assert {e.name for e in lib} == set(DISCOVERY_EFFECTS) == {
+        "compensator", "joint_nonlinearity", "link_compliance", "base_compliance"}
+    assert "tool_compliance" in REGISTRY and "tool_compliance" not in {e.name for e in lib}
+    assert sorted(e.detail for e in lib if e.name == "link_compliance") == ["forearm", "upper_arm"]
+    assert sorted(e.detail for e in lib if e.name == "joint_nonlinearity") == [f"j{j}" for j in range(1, 7)]
+
+
+def test_tool_compliance_truth_effect(tmp_path):
+    """The truth-only effect: loads through the scenario, moves the payload and reflectors onto
+    the compliant tool (same positions), set_params equals apply."""
+    scn = load_scenario(scenario(tmp_path, "t", "[truth.effects.tool_compliance]\ncompliance = [3e-7, 0.0]"))
+    assert scn.effects["tool_compliance"]["compliance"].tolist() == [3e-7, 0.0]
+    eff = REGISTRY["tool_compliance"]()
+    robot = apply_effects(MJCF, [(eff, [3e-7, 2e-7])])
+    plain = Robot.from_file(MJCF)
+    assert robot.model.nv == plain.model.nv + 2
+    tool = robot.model.body("tool").id
+    for s in ["payload", "refl_a", "refl_b", "refl_c"]:
+        assert robot.model.site_bodyid[robot.model.site(s).id] == tool
+    q = np.radians([10, 40, 5, 20, -30, 50])
+    for r in (robot, plain):
+        r.data.qpos[:] = r.rigid_qpos(q)
+        mujoco.mj_kinematics(r.model, r.data)
+    np.testing.assert_allclose(robot.data.site_xpos[robot.reflector_sites],
+                               plain.data.site_xpos[plain.reflector_sites], atol=1e-12)
+    eff.set_params(robot, [1e-7, 1e-7])
+    assert robot.model.jnt_stiffness[robot.model.joint("tool_ry").id] == pytest.approx(1e7)
+
+
+# --------------------------------------------------------------------------- the workflow
+
+@pytest.mark.parametrize("case", list(HIDDEN))
+def test_hidden_effect_is_named_and_gap_closes(logs, case):
+    _, effect, detail = HIDDEN[case]
+    out = logs["tmp"] / f"{case}.augmented.xml"
+    rep = run(logs, case)
+    before, after = ratios(rep)
+    assert rep["named_effects"] == [effect], rep["rounds"]
+    assert rep["steps"][0]["effect"] == effect and rep["steps"][0]["detail"] == detail
+    assert before >= BEFORE_MIN[case]
+    assert after <= AFTER_MAX
+    assert rep["p_after"] > 1e-3
+    assert rep["seconds"] < 30
+    # the augmented MJCF loads and carries the identified parameters
+    aug = Robot.from_file(out)
+    assert rep["augmented_model"] == str(out)
+    fitted = {p["name"]: p["estimate"] for p in rep["steps"][0]["parameters"]}
+    if effect == "link_compliance":
+        for ax in "xyz":
+            j = aug.model.joint(f"{detail}_r{ax}").id
+            assert aug.model.jnt_stiffness[j] == pytest.approx(1.0 / fitted[f"c{ax}"], rel=1e-9)
+    if effect == "base_compliance":
+        assert aug.model.jnt_stiffness[aug.model.joint("base_rx").id] == pytest.approx(1 / fitted["cx"], rel=1e-9)
+    if effect == "joint_nonlinearity":
+        assert aug.model.jnt_stiffnesspoly[aug.model.joint(detail).id][1] == pytest.approx(fitted["cubic"], rel=1e-9)
+
+
+def test_identified_values_are_close_to_the_truth(logs):
+    """Where the plan determines them, the named effect's parameters match the hidden truth."""
+    rep = run(logs, "base")
+    est = [p["estimate"] for p in rep["steps"][0]["parameters"]]
+    np.testing.assert_allclose(est, [4e-9, 4e-9], rtol=0.25)
+    rep = run(logs, "j3")
+    assert rep["steps"][0]["parameters"][0]["estimate"] == pytest.approx(6e12, rel=0.3)
+
+
+def test_no_hidden_effect_names_nothing(logs):
+    rep = discover(logs["none"])
+    assert rep["named_effects"] == [] and rep["steps"] == []
+    assert rep["augmented_model"] is None
+    assert rep["p_before"] > 1e-3
+    assert rep["rms_after"] == rep["rms_before"]
+
+
+def test_effect_outside_the_library_is_unexplained(logs):
+    rep = discover(logs["tool"])
+    before, after = ratios(rep)
+    assert rep["named_effects"] == [UNEXPLAINED]
+    assert before >= 2.0 and after >= 2.0
+    # no library candidate mimics it: the best explains only a small share of the excess
+    best = max(c["explained"] for c in rep["candidates"] if c["score"] is not None)
+    assert best < 0.2
+    assert rep["augmented_model"] is None
+
+
+def test_compensator_missing_from_the_user_model(logs):
+    rep = discover(logs["comp_strong"], logs["bare"], out_model=logs["tmp"] / "c.xml")
+    assert rep["named_effects"] == ["compensator"]
+    before, after = ratios(rep)
+    assert before > 1.2 and after <= AFTER_MAX
+    est = {p["name"]: p["estimate"] for p in rep["steps"][0]["parameters"]}
+    assert est["K_C"] == pytest.approx(6e6, rel=0.3) and est["s0"] == pytest.approx(0.83, abs=0.1)
+    aug = Robot.from_file(logs["tmp"] / "c.xml")
+    assert aug.tendon >= 0 and aug.model.tendon_stiffness[aug.tendon] == pytest.approx(est["K_C"], rel=1e-9)
+    # the shipped compensator (2.6e6 N/m) is below the paper plan's noise floor: nothing named,
+    # but the targeted likelihood-ratio test points at it
+    rep = discover(logs["comp_default"], logs["bare"])
+    assert rep["named_effects"] == []
+    assert [h["effect"] for h in rep["hints"]] == ["compensator"]
+
+
+def test_truth_never_read(logs, tmp_path):
+    """The same answer from a log stripped of every truth record."""
+    stripped = tmp_path / "stripped.mcap"
+    strip_truth(logs["upper_arm"], stripped)
+    assert read_log(stripped, include_truth=True).truth in (None, {}) or not read_log(
+        stripped, include_truth=True).truth.get("parameters")
+    a = run(logs, "upper_arm")
+    b = discover(stripped, out_model=tmp_path / "b.xml")
+    assert a["named_effects"] == b["named_effects"]
+    assert a["rms_after"] == pytest.approx(b["rms_after"], rel=1e-9)
+
+
+def test_cli_json_plot_view(logs, tmp_path, capsys):
+    js = tmp_path / "d.json"
+    aug = tmp_path / "aug.xml"
+    assert cli_main(["discover", str(logs["forearm"]), "--model", str(MJCF), "--json", str(js),
+                     "--out-model", str(aug)]) == 0
+    text = capsys.readouterr().out
+    assert "Named: link_compliance (forearm)" in text and "does not fit" in text
+    rep = json.loads(js.read_text())
+    for key in ("named_effects", "steps", "rms_before", "rms_after", "noise_sigma", "candidates", "augmented_model"):
+        assert key in rep
+    for s in rep["steps"]:
+        assert {"effect", "detail", "rms_before", "rms_after"} <= set(s)
+    assert all({"effect", "score"} <= set(c) for c in rep["candidates"])
+    assert rep["noise_sigma"] == pytest.approx(20e-6)
+    assert rep["augmented_model"] == str(aug) and Robot.from_file(aug).model.nv > 0
+    assert Path(rep["plot"]).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    from bench.view import read_identified
+    ident = read_identified(rep["view_json"])
+    assert len(ident.predicted) == rep["n_poses"]
+    # bad input: exit status 2
+    assert cli_main(["discover", str(tmp_path / "missing.mcap")]) == 2
+    assert cli_main(["discover", str(logs["forearm"]), "--model", str(tmp_path / "nope.xml")]) == 2
+
+
+def test_augmented_jacobian_matches_finite_differences(logs):
+    """d dp / d theta of the augmented forward model (implicit function theorem with the effect
+    columns from the passive force) against central differences of the solved equilibria."""
+    from bench.effects import link_compliance
+    from identify.discover_fit import build
+    from identify.observations import from_log
+    obs = from_log(read_log(logs["none"]))
+    obs = obs.subset(obs.labels[:9])
+    eff = link_compliance("forearm")
+    _, fm = build(MJCF, [(eff, [5e-8, 2e-8, 5e-8])], obs)
+    theta = np.r_[[0.25e-6, 0.12e-6, 0.07e-6, 0.35e-6, 0.40e-6, 0.60e-6], 2.6e6, 0.83, 5e-8, 2e-8, 5e-8]
+    _, jac = fm.evaluate(theta)
+    for i in (1, 6, 8, 10):
+        h = 1e-4 * theta[i]
+        tp, tm = theta.copy(), theta.copy()
+        tp[i] += h
+        tm[i] -= h
+        fd = (fm.evaluate(tp, jacobian=False)[0] - fm.evaluate(tm, jacobian=False)[0]) / (2 * h)
+        np.testing.assert_allclose(jac[..., i], fd, atol=1e-4 * np.abs(fd).max())
