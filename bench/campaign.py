@@ -20,7 +20,7 @@ from .errors import InputError
 from .logformat import LogHeader, LogWriter
 from .robot import Params, Robot
 from .scenario import Scenario, check_joint_limits
-from .statics import Equilibrium, Load, StaticsSolver
+from .statics import Equilibrium, Load, StaticsError, StaticsSolver
 from .tracker import measure, to_tracker_frame, visible_sites
 from .progress import Progress
 
@@ -93,8 +93,11 @@ def plan_campaign(scn: Scenario, robot: Robot | None = None, progress: Progress 
                 [round(float(np.degrees(x)), 3) for x in pose.q],
             )
         load, mass = pose_load(robot, scn, pose)
-        e0 = solver.solve(pose.q)
-        e1 = solver.solve(pose.q, load, warm=e0)
+        try:
+            e0 = solver.solve(pose.q)
+            e1 = solver.solve(pose.q, load, warm=e0)
+        except StaticsError as exc:
+            raise InputError(scn.path, key, "a pose with a static equilibrium", str(exc)) from None
         for state, e in zip(STATES, (e0, e1)):
             if e.residual > 1e-8 * max(e.gravity_scale, 1.0) or e.loop_violation > 1e-9:
                 raise InputError(scn.path, key, f"a pose with a static equilibrium ({state} did not converge)",

@@ -39,6 +39,11 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
+class StaticsError(np.linalg.LinAlgError):
+    """No equilibrium can be computed: the KKT matrix is singular (a degenerate configuration,
+    e.g. the parallelogram's crank parallel to the upper arm) or the solution is not finite."""
+
+
 @dataclass(frozen=True)
 class Equilibrium:
     """A solved static pose. Lengths in m, angles in rad, forces in N and N*m."""
@@ -230,12 +235,19 @@ class StaticsSolver:
             c_r = basis.T @ c
             if res_norm <= self.tol * scale and np.abs(c_r).max() <= 1e-12:
                 break
-            if res_norm > 0.2 * prev:  # stalled: take the exact (finite-difference) matrix
-                lu = np.linalg.inv(self._kkt(qpos, load, lam, basis, r, jc_r))
-                stalls += 1
-            elif fresh < 2:  # the big first steps move the stiffness; later ones barely do
-                lu = np.linalg.inv(self._stiffness_kkt(qpos, jc_r))
-                fresh += 1
+            if not np.isfinite(res_norm):
+                raise StaticsError(f"statics diverged at command {np.degrees(q).round(3).tolist()} deg")
+            try:
+                if res_norm > 0.2 * prev:  # stalled: take the exact (finite-difference) matrix
+                    lu = np.linalg.inv(self._kkt(qpos, load, lam, basis, r, jc_r))
+                    stalls += 1
+                elif fresh < 2:  # the big first steps move the stiffness; later ones barely do
+                    lu = np.linalg.inv(self._stiffness_kkt(qpos, jc_r))
+                    fresh += 1
+            except np.linalg.LinAlgError:
+                raise StaticsError(
+                    f"singular stiffness (KKT) matrix at command {np.degrees(q).round(3).tolist()} deg: "
+                    "a degenerate configuration (is the parallelogram flat?)") from None
             prev = res_norm
             # the inverse of a 10x10 KKT matrix (condition ~1e7) is accurate to ~1e-9 relative:
             # ample for Newton steps, whose errors the next residual corrects

@@ -253,3 +253,12 @@ def test_second_solver_time_stepping_relaxation_agrees():
     relaxed = d.site_xpos[robot.flange_site].copy()
     newton, _ = site_pose(robot, e.qpos, robot.flange_site)
     assert np.linalg.norm(relaxed - newton) < 5e-6
+
+
+def test_degenerate_parallelogram_is_a_clear_error():
+    """Crank parallel to the upper arm (q3 = q2 - 120 deg): no unique equilibrium exists."""
+    from bench.statics import StaticsError
+
+    robot = make_robot()
+    with pytest.raises(StaticsError, match="degenerate"):
+        StaticsSolver(robot).solve(np.radians([0.0, 90.0, -30.0, 0.0, 0.0, 0.0]))
