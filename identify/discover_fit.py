@@ -41,7 +41,6 @@ import numpy as np
 
 from bench.effects import REGISTRY, Effect, EffectRobot, apply_effects
 from bench.robot import Robot
-from bench.statics import StaticsSolver
 
 from .forward import NP, PARAM_NAMES, PARAM_UNITS, ForwardModel, PoseDesign, design_from_observations, to_params
 from .identifiability import analyze
@@ -114,7 +113,6 @@ class AugmentedForward(ForwardModel):
         self.effects = list(effects)
         self.sizes = [len(e.param_names) for e in self.effects]
         self.n_params = NP + sum(self.sizes)
-        self._p_kkt: np.ndarray | None = None     # effect parameters A_base was taken at
         self._fd_size = np.ones(self.n_params)
         if self.effects:
             self._fd_size[NP:] = np.concatenate([effect_priors(e)[3] for e in self.effects])
@@ -157,76 +155,6 @@ class AugmentedForward(ForwardModel):
         mujoco.mj_fwdVelocity(m, d)
         return out
 
-    def evaluate(self, theta, jacobian: bool = True):
-        """dp (M,3) and, with ``jacobian``, d dp / d theta (M,3,P); P = 8 + effect parameters."""
-        theta = np.asarray(theta, dtype=float)
-        npar = self.n_params
-        if theta.shape != (npar,) or not np.all(np.isfinite(theta)) or np.any(theta[:6] <= 0):
-            raise ValueError(f"theta must be {npar} finite values with positive compliances, got {theta}")
-        robot = self.robot
-        m, d = robot.model, robot.data
-        self.write(theta)                             # ValueError for invalid effect values
-        self.stats["evaluations"] += 1
-        dp = np.empty((self.n_obs, 3))
-        jac = np.empty((self.n_obs, 3, npar)) if jacobian else None
-        flags = m.opt.disableflags
-        d.qvel[:] = 0.0
-        try:
-            if self._cache is None:
-                self._init_cache(theta)
-                self._p_kkt = theta[NP:].copy()
-            self._enable()
-            refresh = self._p_kkt is None or not np.array_equal(self._p_kkt, theta[NP:])
-            row = 0
-            for des, pair in zip(self.design, self._cache):
-                robot.set_command(des.q)
-                n = len(des.sites)
-                pos, jsite = [], []
-                for load, eq in zip((None, des.load), pair):
-                    if refresh:   # the effects' springs live in A_base: re-take it
-                        eq.a_base, eq.h_len = self._kkt_fd(eq.qpos, load, eq.lam, eq.basis, theta)
-                    sol = self._newton(eq, des.q, load, theta)
-                    if sol is None:
-                        self.stats["refreshes"] += 1
-                        eq.tangent = None
-                        eq.a_base, eq.h_len = self._kkt_fd(eq.qpos, load, eq.lam, eq.basis, theta)
-                        sol = self._newton(eq, des.q, load, theta)
-                    if sol is None:
-                        self.stats["fallbacks"] += 1
-                        m.opt.disableflags = flags
-                        e = StaticsSolver(robot).solve(des.q, load, qpos0=eq.qpos)
-                        self._enable()
-                        robot.set_command(des.q)
-                        new = self._adopt(e.qpos, load, theta)
-                        eq.qpos, eq.lam, eq.basis, eq.a_base, eq.h_len = (
-                            new.qpos, new.lam, new.basis, new.a_base, new.h_len)
-                        eq.tangent = None
-                        sol = self._newton(eq, des.q, load, theta)
-                        if sol is None:
-                            raise RuntimeError(f"pose {des.index}: no static equilibrium at theta={theta}")
-                    qpos, lam, jc_r = sol
-                    eq.qpos, eq.lam, eq.theta, eq.tangent = qpos, lam, theta.copy(), None
-                    pos.append(d.site_xpos[des.sites].copy())
-                    if jacobian:
-                        kkt = self._kkt(eq, theta, jc_r)
-                        rhs = np.zeros((kkt.shape[0], npar))
-                        rhs[: self.nv] = -self._dforce(theta, qpos, des.q)
-                        tan = np.linalg.solve(kkt, rhs)
-                        eq.tangent = tan
-                        dq = tan[: self.nv]
-                        js = np.empty((n, 3, npar))
-                        for i, s in enumerate(des.sites):
-                            mujoco.mj_jacSite(m, d, self._js, None, int(s))
-                            js[i] = self._js @ dq
-                        jsite.append(js)
-                dp[row: row + n] = pos[1] - pos[0]
-                if jacobian:
-                    jac[row: row + n] = jsite[1] - jsite[0]
-                row += n
-            self._p_kkt = theta[NP:].copy()
-        finally:
-            m.opt.disableflags = flags
-        return dp, jac
 
     def equilibria(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """(unloaded qpos, loaded qpos) of every pose at the last evaluation."""

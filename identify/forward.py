@@ -131,6 +131,13 @@ class ForwardModel:
         self.n_obs = int(sum(len(d.sites) for d in design))
         self.act_dof = robot.act_dof
         self.stats = {"evaluations": 0, "newton_iterations": 0, "refreshes": 0, "fallbacks": 0}
+        self._p_kkt: np.ndarray | None = None     # parameters beyond the eight A_base was taken at
+
+    n_params = NP   # a subclass appending parameters (identify/discover_fit.py) overrides it
+
+    def write(self, theta: np.ndarray) -> None:
+        """Put theta into the robot model (a subclass writes its extra parameters too)."""
+        self.robot.set_params(to_params(theta[:NP]))
 
     # -- MuJoCo pieces ---------------------------------------------------------------------------
     def _forward(self, qpos: np.ndarray, velocity: bool = True) -> None:
@@ -272,35 +279,43 @@ class ForwardModel:
             lam = lam + step[nv:]
         return None
 
-    def evaluate(self, theta, jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+    def evaluate(self, theta, jacobian: bool = True):
+        """dp (M,3) and, with ``jacobian``, d dp / d theta (M,3,P): P = n_params, the eight
+        parameters plus any a subclass appends (discovery's effects). Parameters beyond the
+        eight enter the stiffness matrix A_base, so it is re-taken when they change."""
         theta = np.asarray(theta, dtype=float)
-        if theta.shape != (NP,) or not np.all(np.isfinite(theta)) or np.any(theta[:6] <= 0):
-            raise ValueError(f"theta must be 8 finite values with positive compliances, got {theta}")
+        npar = self.n_params
+        if theta.shape != (npar,) or not np.all(np.isfinite(theta)) or np.any(theta[:6] <= 0):
+            raise ValueError(f"theta must be {npar} finite values with positive compliances, got {theta}")
         robot = self.robot
         m, d = robot.model, robot.data
-        robot.set_params(to_params(theta))
+        self.write(theta)                             # ValueError for invalid effect values
         self.stats["evaluations"] += 1
         dp = np.empty((self.n_obs, 3))
-        jac = np.empty((self.n_obs, 3, NP)) if jacobian else None
+        jac = np.empty((self.n_obs, 3, npar)) if jacobian else None
         flags = m.opt.disableflags
         d.qvel[:] = 0.0
         try:
             if self._cache is None:
                 self._init_cache(theta)
+                self._p_kkt = theta[NP:].copy()
             self._enable()
+            refresh = self._p_kkt is None or not np.array_equal(self._p_kkt, theta[NP:])
             row = 0
             for des, pair in zip(self.design, self._cache):
                 robot.set_command(des.q)
                 n = len(des.sites)
-                pos = []
-                jsite = []
+                pos, jsite = [], []
                 for load, eq in zip((None, des.load), pair):
+                    if refresh:   # the effects' springs live in A_base: re-take it
+                        eq.a_base, eq.h_len = self._kkt_fd(eq.qpos, load, eq.lam, eq.basis, theta)
                     sol = self._newton(eq, des.q, load, theta)
-                    if sol is None:  # far from the cache: refresh A_base there and retry
+                    if sol is None:
                         self.stats["refreshes"] += 1
+                        eq.tangent = None
                         eq.a_base, eq.h_len = self._kkt_fd(eq.qpos, load, eq.lam, eq.basis, theta)
                         sol = self._newton(eq, des.q, load, theta)
-                    if sol is None:  # last resort: a solve by the bench's solver
+                    if sol is None:
                         self.stats["fallbacks"] += 1
                         m.opt.disableflags = flags
                         e = StaticsSolver(robot).solve(des.q, load, qpos0=eq.qpos)
@@ -309,29 +324,30 @@ class ForwardModel:
                         new = self._adopt(e.qpos, load, theta)
                         eq.qpos, eq.lam, eq.basis, eq.a_base, eq.h_len = (
                             new.qpos, new.lam, new.basis, new.a_base, new.h_len)
+                        eq.tangent = None
                         sol = self._newton(eq, des.q, load, theta)
                         if sol is None:
                             raise RuntimeError(f"pose {des.index}: no static equilibrium at theta={theta}")
                     qpos, lam, jc_r = sol
                     eq.qpos, eq.lam, eq.theta, eq.tangent = qpos, lam, theta.copy(), None
-                    # data holds the solution (the converged residual was evaluated there)
                     pos.append(d.site_xpos[des.sites].copy())
                     if jacobian:
                         kkt = self._kkt(eq, theta, jc_r)
-                        rhs = np.zeros((kkt.shape[0], NP))
+                        rhs = np.zeros((kkt.shape[0], npar))
                         rhs[: self.nv] = -self._dforce(theta, qpos, des.q)
                         tan = np.linalg.solve(kkt, rhs)
                         eq.tangent = tan
                         dq = tan[: self.nv]
-                        js = np.empty((n, 3, NP))
+                        js = np.empty((n, 3, npar))
                         for i, s in enumerate(des.sites):
                             mujoco.mj_jacSite(m, d, self._js, None, int(s))
                             js[i] = self._js @ dq
                         jsite.append(js)
-                dp[row : row + n] = pos[1] - pos[0]
+                dp[row: row + n] = pos[1] - pos[0]
                 if jacobian:
-                    jac[row : row + n] = jsite[1] - jsite[0]
+                    jac[row: row + n] = jsite[1] - jsite[0]
                 row += n
+            self._p_kkt = theta[NP:].copy()
         finally:
             m.opt.disableflags = flags
         return dp, jac
