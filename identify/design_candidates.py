@@ -549,7 +549,7 @@ def generate_candidates(scn: Scenario, settings: DesignSettings, n: int | None =
                 bar.update(f"candidates {min(len(qs), n)}/{n}", step=max(0, min(len(qs), n) - bar.done))
                 if len(qs) >= n:
                     break
-            if raw > 200 * n:
+            if len(qs) < n and raw > 200 * n:  # give up only while still short of n
                 raise InputError(scn.path, "design", "settings that leave feasible configurations",
                                  f"only {len(qs)} of {raw} sampled commands feasible")
     finally:

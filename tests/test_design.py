@@ -194,7 +194,14 @@ def test_design_out_writes_a_scenario_that_simulate_accepts(tmp_path):
 
 
 def test_pose_criterion_without_work_is_bad_input(tmp_path, capsys):
-    rc = main(["design", str(PAPER), "--configs", "4", "--criterion", "pose", "--out", str(tmp_path / "x.toml"),
+    import re
+
+    text = PAPER.read_text().replace('"../mjcf/', f'"{PAPER.parent.parent / "mjcf"}/')
+    no_work = re.sub(r"\n\[work\]\n(?:[^\[\n][^\n]*\n|\n)*", "\n", text)
+    assert "[work]" in text and "[work]" not in no_work
+    scn = tmp_path / "no_work.toml"
+    scn.write_text(no_work)
+    rc = main(["design", str(scn), "--configs", "4", "--criterion", "pose", "--out", str(tmp_path / "x.toml"),
                "--candidates", "20", "--processes", "1"])
     assert rc == 2
     assert "work" in capsys.readouterr().err
@@ -218,3 +225,12 @@ def test_predicted_trace_matches_monte_carlo(tmp_path, paper, cands, engine):
     # and per parameter, against the variance's own sampling error
     ratio = np.diag(emp) / np.diag(C)
     assert np.all(np.abs(ratio - 1) < 4 * np.sqrt(2 / (N - 1))), ratio
+
+
+def test_a_small_candidate_set_is_not_mistaken_for_an_infeasible_setup(tmp_path):
+    """Candidates come in batches of sampled commands; asking for few must not trip the
+    'settings leave no feasible configurations' guard once enough have been found."""
+    rc = main(["design", str(PAPER), "--configs", "4", "--criterion", "A", "--out", str(tmp_path / "x.toml"),
+               "--candidates", "20", "--processes", "1"])
+    assert rc == 0
+    assert (tmp_path / "x.toml").exists()
