@@ -453,6 +453,17 @@ def compensator() -> Effect:
     return Effect("compensator", ("K_C", "s0"), {}, ("N/m", "m"), apply, set_)
 
 
+def without_compensator(xml_or_path) -> str:
+    """The MJCF with the compensator tendon and its two sites removed: a user's model that
+    lacks the effect above (for testing that discovery names it). Returns XML text."""
+    spec = load_spec(xml_or_path)
+    spec.delete(spec.tendon(COMPENSATOR))
+    for site in COMP_SITES:
+        spec.delete(spec.site(site))
+    spec.compiler.savecompiled = False  # keep full precision (see EffectRobot.to_xml)
+    return spec.to_xml()
+
+
 # --------------------------------------------------------------------------- tool_compliance
 
 def _tool_truth(t: dict) -> tuple[dict, np.ndarray]:

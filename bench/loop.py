@@ -13,6 +13,30 @@ import numpy as np
 from .robot import Robot
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """3-vector cross product (np.cross costs ~50 us of argument handling per call)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
+def constraint_basis(jc: np.ndarray) -> np.ndarray:
+    """Orthonormal basis (3, 2 or 3) of the loop's independent constraint directions.
+
+    A planar loop's gap has no component along its hinge axes, so J_c (3, nv) has rank 2 and its
+    Gram matrix's null direction is the largest cross product of two of its rows; a KKT system
+    on the two remaining directions stays regular. A spatial loop keeps all three.
+    """
+    gram = jc @ jc.T
+    cands = [_cross(gram[0], gram[1]), _cross(gram[0], gram[2]), _cross(gram[1], gram[2])]
+    n = max(cands, key=lambda v: v @ v)
+    nn = np.sqrt(n @ n)
+    if nn == 0.0 or np.abs(gram @ (n / nn)).max() > 1e-9 * np.abs(gram).max():
+        return np.eye(3)
+    n /= nn
+    a = _cross(n, np.array([1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0]))
+    a /= np.sqrt(a @ a)
+    return np.column_stack([a, _cross(n, a)])
+
+
 def loop_jacobian(robot: Robot, data: mujoco.MjData) -> np.ndarray:
     """J_c (3, nv): derivative of the loop gap (rod end minus anchor); kinematics must be current."""
     m = robot.model

@@ -346,6 +346,41 @@ def load_scenario(path: str | Path, seed: int | None = None) -> Scenario:
     return parse_scenario(text, path, seed)
 
 
+def scenario_variant(src: str | Path, out: str | Path, *, name: str | None = None, seed: int | None = None,
+                     compensator: tuple[float, float] | None = None, extra: str = "") -> Path:
+    """Write a copy of scenario ``src`` at ``out`` with a few truths changed, keeping its comments.
+
+    The robot path is made absolute (the copy may live elsewhere); ``name``, ``seed`` and the
+    compensator's (stiffness, preload) replace the file's; ``extra`` is TOML inserted before
+    ``[tracker]``, e.g. a hidden ``[truth.effects.*]`` table. The result is validated.
+    """
+    src, out = Path(src), Path(out)
+    text = src.read_text(encoding="utf-8")
+    robot = (src.parent / tomllib.loads(text)["robot"]).resolve()
+
+    def sub(pattern: str, value: str, flags: int = re.MULTILINE) -> None:
+        nonlocal text
+        text, n = re.subn(pattern, lambda m: m.group(1) + value, text, count=1, flags=flags)
+        if n != 1:
+            raise ValueError(f"{src}: cannot set {pattern!r}")
+
+    sub(r'^(robot\s*=\s*)"[^"]*"', f'"{robot.as_posix()}"')
+    if name is not None:
+        sub(r'^(name\s*=\s*)"[^"]*"', f'"{name}"')
+    if seed is not None:
+        sub(r"^(seed\s*=\s*)\d+", str(int(seed)))
+    if compensator is not None:
+        # within [truth.compensator]: up to the next line that opens a table
+        for key, value in zip(("stiffness", "preload"), compensator):
+            sub(rf"(^\[truth\.compensator\](?:(?!^\[).)*?^{key}\s*=\s*)\S+", repr(float(value)),
+                re.MULTILINE | re.DOTALL)
+    if extra:
+        sub(r"^()(?=\[tracker\])", extra.strip() + "\n\n")
+    parse_scenario(text, out)  # raises InputError on a bad variant, before writing it
+    out.write_text(text, encoding="utf-8")
+    return out
+
+
 def check_joint_limits(scn: Scenario, limits: np.ndarray) -> None:
     """Reject poses (and the work pose) outside the robot's joint ``limits`` ((6, 2) rad)."""
     limits = np.asarray(limits, dtype=float)

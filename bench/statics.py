@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
+from .loop import constraint_basis
 from .robot import Robot
 
 # Loop closed by us; contacts and joint-range stops play no part in the statics (ranges are
@@ -32,11 +33,6 @@ _DISABLE = (
     | int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
     | int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
 )
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """3-vector cross product (np.cross costs ~50 us of argument handling per call)."""
-    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
 class StaticsError(np.linalg.LinAlgError):
@@ -163,17 +159,7 @@ class StaticsSolver:
         """Orthonormal basis of the loop's independent constraint directions (2 of 3: planar)."""
         self._forward(qpos)
         _, jc = self._loop()
-        gram = jc @ jc.T
-        # rank 2 (planar loop): the null direction is the largest cross product of two rows
-        cands = [_cross(gram[0], gram[1]), _cross(gram[0], gram[2]), _cross(gram[1], gram[2])]
-        n = max(cands, key=lambda v: v @ v)
-        nn = np.sqrt(n @ n)
-        if nn == 0.0 or np.abs(gram @ (n / nn)).max() > 1e-9 * np.abs(gram).max():
-            return np.eye(3)  # a spatial loop: all three rows are independent
-        n /= nn
-        a = _cross(n, np.array([1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0]))
-        a /= np.sqrt(a @ a)
-        return np.column_stack([a, _cross(n, a)])
+        return constraint_basis(jc)
 
     def _kkt(self, qpos, load, lam, basis, r, jc_r) -> np.ndarray:
         """KKT matrix [[A, J_c^T], [J_c, 0]] with A = d(g + J_c^T lam)/dq by forward differences."""

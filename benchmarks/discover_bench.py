@@ -25,7 +25,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from bench.campaign import plan_campaign, run_campaign, truth_robot  # noqa: E402
-from bench.scenario import load_scenario  # noqa: E402
+from bench.effects import without_compensator  # noqa: E402
+from bench.scenario import load_scenario, scenario_variant  # noqa: E402
 from identify.discover import discover  # noqa: E402
 
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
@@ -47,25 +48,16 @@ FRACTIONS = (1.0, 0.75, 0.5, 0.35)
 
 
 def scenario(tmp: Path, extra: str, seed: int) -> Path:
-    text = PAPER.read_text().replace('robot = "../mjcf/m900ib700.xml"', f'robot = "{MJCF}"')
-    text = text.replace("seed = 1", f"seed = {seed}")
+    """The paper scenario with a hidden effect ("COMPENSATOR K_C" sets the spring's stiffness)."""
+    out = tmp / f"s{seed}.toml"
     if extra.startswith("COMPENSATOR"):
-        text = text.replace("stiffness = 2.6e6", f"stiffness = {float(extra.split()[1])}")
-    elif extra:
-        text = text.replace("[tracker]", extra.strip() + "\n\n[tracker]", 1)
-    path = tmp / f"s{seed}.toml"
-    path.write_text(text)
-    return path
+        return scenario_variant(PAPER, out, seed=seed, compensator=(float(extra.split()[1]), 0.83))
+    return scenario_variant(PAPER, out, seed=seed, extra=extra)
 
 
 def bare_model(tmp: Path) -> Path:
-    import mujoco
-    spec = mujoco.MjSpec.from_file(str(MJCF))
-    for kind, name in (("tendon", "compensator"), ("site", "comp_base"), ("site", "comp_arm")):
-        spec.delete(getattr(spec, kind)(name))
-    spec.compiler.savecompiled = False
     path = tmp / "bare.xml"
-    path.write_text(spec.to_xml())
+    path.write_text(without_compensator(MJCF))
     return path
 
 

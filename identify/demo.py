@@ -5,7 +5,7 @@ import argparse
 from pathlib import Path
 
 from bench.campaign import run_campaign
-from bench.scenario import load_scenario
+from bench.scenario import load_scenario, scenario_variant
 from bench.view import write_recording
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -43,12 +43,9 @@ def discover_step(logs: Path) -> None:
     """Last demo step: a campaign whose robot has a forearm compliance the model lacks;
     `calbench discover` finds where they disagree, names it, adds it, shows the gap shrink."""
     from .discover import discover, story
-    text = PAPER.read_text().replace('robot = "../mjcf/m900ib700.xml"', f'robot = "{PAPER.parent.parent / "mjcf" / "m900ib700.xml"}"')
-    text = text.replace('name = "paper_table5"', 'name = "paper_table5_hidden"')
-    text = text.replace("[tracker]", HIDDEN_DEMO + "\n\n[tracker]", 1)
     logs.mkdir(parents=True, exist_ok=True)
-    scn_path = logs / "paper_table5_hidden.toml"
-    scn_path.write_text(text)
+    scn_path = scenario_variant(PAPER, logs / "paper_table5_hidden.toml", name="paper_table5_hidden",
+                                extra=HIDDEN_DEMO)
     log = logs / "paper_table5_hidden.mcap"
     run_campaign(load_scenario(scn_path), log, show_progress=False)
     print(f"4. discover: a campaign on a robot with a hidden effect the model lacks -> {log}")

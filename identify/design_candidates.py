@@ -76,7 +76,7 @@ from bench.scenario import Scenario, parse_scenario
 from bench.statics import Equilibrium, Load, StaticsSolver
 from bench.tracker import noise_covariance, to_tracker_frame, tracker_rotation, visible_sites
 
-from .forward import NP, tendon_moment
+from .forward import NP
 
 RULES = ("joint_limits", "parallelogram", "min_height", "min_radius", "self_collision",
          "compensator_discontinuity", "statics", "visibility")
@@ -350,7 +350,7 @@ class InfoEngine:
         g = np.zeros((m.nv, NP))
         g[rb.act_dof, np.arange(6)] = e.deflection / th[:6] ** 2
         if rb.tendon >= 0:
-            t = tendon_moment(rb)
+            t = rb.tendon_moment()
             length = float(d.ten_length[rb.tendon])
             g[:, 6] = -(length - th[7]) * t
             g[:, 7] = th[6] * t

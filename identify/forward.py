@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from bench.loop import constraint_basis
 from bench.robot import Params, Robot
 from bench.statics import Load, StaticsSolver
 
@@ -46,19 +47,6 @@ PARAM_NAMES = ("k1", "k2", "k3", "k4", "k5", "k6", "compensator_stiffness", "com
 PARAM_UNITS = ("rad/(N*m)",) * 6 + ("N/m", "m")
 NP = len(PARAM_NAMES)
 _DISABLE = int(mujoco.mjtDisableBit.mjDSBL_EQUALITY) | int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
-
-
-def tendon_moment(robot: Robot, data: mujoco.MjData | None = None) -> np.ndarray:
-    """(nv,) dense dL/dq of the compensator tendon; zeros without one. Position stage current.
-    (MuJoCo 4 stores ten_J sparsely: values in data.ten_J, columns in model.ten_J_colind.)"""
-    m = robot.model
-    d = robot.data if data is None else data
-    out = np.zeros(m.nv)
-    if robot.tendon < 0:
-        return out
-    adr, nnz = int(m.ten_J_rowadr[robot.tendon]), int(m.ten_J_rownnz[robot.tendon])
-    out[m.ten_J_colind[adr: adr + nnz]] = d.ten_J[adr: adr + nnz]
-    return out
 
 
 def to_params(theta: np.ndarray) -> Params:
@@ -149,7 +137,7 @@ class ForwardModel:
 
     def _tendon_moment(self) -> np.ndarray:
         """(nv,) dense dL/dq of the compensator tendon (MuJoCo stores ten_J sparsely)."""
-        return tendon_moment(self.robot)
+        return self.robot.tendon_moment()
 
     def _basis(self, qpos) -> np.ndarray:
         """Orthonormal basis of the loop's independent constraint rows (as bench/statics.py)."""
@@ -158,8 +146,7 @@ class ForwardModel:
         m, d = self.robot.model, self.robot.data
         mujoco.mj_jacSite(m, d, self._ja, None, a)
         mujoco.mj_jacSite(m, d, self._jb, None, b)
-        u, s, _ = np.linalg.svd(self._ja - self._jb, full_matrices=False)
-        return u[:, s > 1e-9 * s[0]].copy()
+        return constraint_basis(self._ja - self._jb)
 
     def _adopt(self, qpos, load, theta) -> _Eq:
         """A cache entry at an equilibrium qpos: basis, multipliers by least squares, KKT parts."""

@@ -26,10 +26,10 @@ import numpy as np
 import pytest
 
 from bench.campaign import run_campaign
-from bench.effects import REGISTRY, apply_effects
+from bench.effects import REGISTRY, apply_effects, without_compensator
 from bench.logformat import read_log, strip_truth
 from bench.robot import Robot
-from bench.scenario import load_scenario
+from bench.scenario import load_scenario, scenario_variant
 from identify.cli import main as cli_main
 from identify.discover import UNEXPLAINED, discover
 from identify.discover_fit import DISCOVERY_EFFECTS, library
@@ -51,26 +51,13 @@ AFTER_MAX = 1.3
 
 
 def scenario(tmp: Path, name: str, extra: str = "", compensator: tuple | None = None) -> Path:
-    text = PAPER.read_text().replace('robot = "../mjcf/m900ib700.xml"', f'robot = "{MJCF}"')
-    if compensator:
-        text = text.replace("stiffness = 2.6e6", f"stiffness = {compensator[0]}")
-        text = text.replace("preload = 0.83", f"preload = {compensator[1]}")
-    if extra:
-        text = text.replace("[tracker]", extra.strip() + "\n\n[tracker]", 1)
-    path = tmp / f"{name}.toml"
-    path.write_text(text)
-    return path
+    return scenario_variant(PAPER, tmp / f"{name}.toml", compensator=compensator, extra=extra)
 
 
 def bare_model(tmp: Path) -> Path:
     """The user's model without the compensator tendon (and its sites)."""
-    spec = mujoco.MjSpec.from_file(str(MJCF))
-    spec.delete(spec.tendon("compensator"))
-    spec.delete(spec.site("comp_base"))
-    spec.delete(spec.site("comp_arm"))
-    spec.compiler.savecompiled = False
     path = tmp / "bare.xml"
-    path.write_text(spec.to_xml())
+    path.write_text(without_compensator(MJCF))
     return path
 
 

@@ -18,7 +18,7 @@ import pytest
 from bench.campaign import plan_campaign, truth_robot
 from bench.robot import Params, Robot
 from bench.scenario import load_scenario
-from identify.forward import ForwardModel, design_from_observations, tendon_moment
+from identify.forward import ForwardModel, design_from_observations
 from identify.montecarlo import campaign_observations, true_theta
 from identify.twostep import step2_rows
 
@@ -77,7 +77,7 @@ def test_compensator_stiffness_has_sin_squared_and_the_model_angle():
     def torque(q2):
         d.qpos[:] = robot.rigid_qpos(np.array([0.0, q2, 0, 0, 0, 0]))
         mujoco.mj_fwdPosition(m, d)
-        return -k_c * (d.ten_length[robot.tendon] - s0) * tendon_moment(robot)[j2]
+        return -k_c * (d.ten_length[robot.tendon] - s0) * robot.tendon_moment()[j2]
 
     q2s = np.radians([0.0, 35.0, 77.0, 120.0])
     rows = step2_rows(geom, q2s)

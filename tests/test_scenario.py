@@ -362,3 +362,21 @@ def test_design_table_keys_match_the_design_module():
     from identify.design_candidates import DESIGN_KEYS as read
 
     assert set(accepted) == set(read)
+
+
+def test_scenario_variant_overrides_and_validates(tmp_path):
+    from bench.scenario import load_scenario, scenario_variant
+
+    paper = Path(__file__).resolve().parent.parent / "scenarios" / "paper_table5.toml"
+    out = scenario_variant(paper, tmp_path / "v.toml", name="v", seed=7, compensator=(6e6, 0.7),
+                           extra="[truth.effects.base_compliance]\ncompliance = [4e-9, 4e-9]")
+    scn = load_scenario(out)
+    assert (scn.name, scn.seed) == ("v", 7)
+    assert (scn.compensator.stiffness, scn.compensator.preload) == (6e6, 0.7)
+    np.testing.assert_array_equal(scn.effects["base_compliance"]["compliance"], [4e-9, 4e-9])
+    assert scn.robot == (paper.parent.parent / "mjcf" / "m900ib700.xml").resolve()
+    assert "Table 5" in out.read_text()                      # comments kept
+    bad = tmp_path / "bad.toml"
+    with pytest.raises(InputError):
+        scenario_variant(paper, bad, extra="[truth.effects.base_compliance]\ncompliance = [-1, 0]")
+    assert not bad.exists()
