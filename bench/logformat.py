@@ -39,7 +39,7 @@ from mcap.records import Attachment, Channel, Footer, Header, Message, Metadata,
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
-from bench.errors import InputError
+from .errors import InputError
 
 TRUTH_PREFIX = "/truth/"
 GROUND_TRUTH_METADATA = "ground_truth"

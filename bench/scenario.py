@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.errors import InputError
+from .errors import InputError
 
 LINKS = ("forearm", "upper_arm")
 TRACKER_MODELS = ("isotropic", "spec")

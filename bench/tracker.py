@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from bench.scenario import TrackerSpec
+from .scenario import TrackerSpec
 
 OCCLUSION_TOL = 1e-6            # m: a hit closer than the site by more than this occludes it
 BLOCKING_GROUPS = np.array([1, 1, 1, 0, 0, 0], dtype=np.uint8)  # geom groups >= 3 never block

@@ -23,15 +23,14 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
 
-from bench.scenario import load_scenario  # noqa: E402
-from identify.design import (design_plan, plan_measures, plan_scenario_text,  # noqa: E402
+from calbench.bench.scenario import load_scenario
+from calbench.identify.design.plan import (design_plan, plan_measures, plan_scenario_text,
                              scenario_plan_information, work_jacobian)
-from identify.design_candidates import InfoEngine, generate_candidates, load_design_scenario  # noqa: E402
-from identify.design_criteria import information, measures  # noqa: E402
-from identify.design_exchange import Exchanger  # noqa: E402
-from identify.montecarlo import run_montecarlo  # noqa: E402
+from calbench.identify.design.candidates import InfoEngine, generate_candidates, load_design_scenario
+from calbench.identify.design.criteria import information, measures
+from calbench.identify.design.exchange import Exchanger
+from calbench.identify.montecarlo import run_montecarlo
 
 def work_scenario() -> Path:
     """The paper scenario; it carries the [work] pose the pose measure needs (a machining

@@ -22,12 +22,11 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
 
-from bench.campaign import plan_campaign, run_campaign, truth_robot  # noqa: E402
-from bench.effects import without_compensator  # noqa: E402
-from bench.scenario import load_scenario, scenario_variant  # noqa: E402
-from identify.discover import discover  # noqa: E402
+from calbench.bench.campaign import plan_campaign, run_campaign, truth_robot
+from calbench.bench.effects import without_compensator
+from calbench.bench.scenario import load_scenario, scenario_variant
+from calbench.identify.discover.workflow import discover
 
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
 MJCF = ROOT / "mjcf" / "m900ib700.xml"

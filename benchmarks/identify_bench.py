@@ -10,18 +10,16 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
 
-from bench.campaign import run_campaign  # noqa: E402
-from bench.scenario import load_scenario  # noqa: E402
-from identify.montecarlo import run_montecarlo  # noqa: E402
-from identify.report import run_identify  # noqa: E402
+from calbench.bench.campaign import run_campaign
+from calbench.bench.scenario import load_scenario
+from calbench.identify.montecarlo import run_montecarlo
+from calbench.identify.report import run_identify
 
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
 

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import statistics
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -18,11 +17,10 @@ import mujoco
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
 
-from bench.campaign import run_campaign, truth_robot  # noqa: E402
-from bench.scenario import load_scenario  # noqa: E402
-from bench.statics import StaticsSolver  # noqa: E402
+from calbench.bench.campaign import run_campaign, truth_robot
+from calbench.bench.scenario import load_scenario
+from calbench.bench.statics import StaticsSolver
 
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
 
@@ -46,7 +44,7 @@ def newton_times(scn, robot, repeats=5):
 
 
 def truth_load(robot, scn, pose):
-    from bench.campaign import pose_load
+    from calbench.bench.campaign import pose_load
 
     return pose_load(robot, scn, pose)[0]
 

@@ -5,13 +5,13 @@ from __future__ import annotations
 import argparse
 import sys
 
-from bench.cli import add_simulate
-from bench.errors import InputError
-from bench.view import add_view
+from calbench.bench.cli import add_simulate
+from calbench.bench.errors import InputError
+from calbench.bench.view import add_view
 
 from . import demo
-from .design import add_design
-from .discover import add_discover
+from .design.plan import add_design
+from .discover.workflow import add_discover
 from .montecarlo import add_montecarlo
 from .report import add_identify
 

@@ -4,17 +4,18 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from bench.campaign import run_campaign
-from bench.scenario import load_scenario, scenario_variant
-from bench.view import write_recording
+from calbench.bench.campaign import run_campaign
+from calbench.bench.scenario import load_scenario, scenario_variant
+from calbench.bench.resources import PAPER_SCENARIO, scenario_path
+from calbench.bench.view import write_recording
 
-ROOT = Path(__file__).resolve().parent.parent
-PAPER = ROOT / "scenarios" / "paper_table5.toml"
+PAPER = scenario_path(PAPER_SCENARIO)   # package data: works outside a checkout
 
 
 def add_demo(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="the paper campaign end to end")
-    p.add_argument("--logs", type=Path, default=ROOT / "logs", help="output folder")
+    p.add_argument("--logs", type=Path, default=Path("logs"),
+                   help="output folder, relative to where you run it (default: %(default)s)")
     p.set_defaults(func=cmd_demo)
 
 
@@ -42,7 +43,7 @@ compliance = [1.8e-7, 0.0, 1.8e-7]"""
 def discover_step(logs: Path) -> None:
     """Last demo step: a campaign whose robot has a forearm compliance the model lacks;
     `calbench discover` finds where they disagree, names it, adds it, shows the gap shrink."""
-    from .discover import discover, story
+    from .discover.workflow import discover, story
     logs.mkdir(parents=True, exist_ok=True)
     scn_path = scenario_variant(PAPER, logs / "paper_table5_hidden.toml", name="paper_table5_hidden",
                                 extra=HIDDEN_DEMO)
@@ -50,7 +51,7 @@ def discover_step(logs: Path) -> None:
     run_campaign(load_scenario(scn_path), log, show_progress=False)
     print(f"4. discover: a campaign on a robot with a hidden effect the model lacks -> {log}")
     import json
-    from .discover import clean
+    from .discover.workflow import clean
     js = logs / "paper_table5_hidden.discover.json"
     rep = discover(log, out_model=logs / "paper_table5_hidden.augmented.xml",
                    plot=js.with_suffix(".png"), view_json=logs / "paper_table5_hidden.discover.view.json")

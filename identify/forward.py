@@ -37,9 +37,9 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from bench.loop import constraint_basis
-from bench.robot import Params, Robot
-from bench.statics import Load, StaticsSolver
+from calbench.bench.loop import constraint_basis
+from calbench.bench.robot import Params, Robot
+from calbench.bench.statics import Load, StaticsSolver
 
 from .observations import Observations
 

@@ -26,11 +26,11 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.campaign import PosePlan, plan_campaign, truth_robot, scenario_params
-from bench.progress import Progress
-from bench.robot import Robot
-from bench.scenario import Scenario, load_scenario
-from bench.tracker import Measurement, measure, noise_covariance, to_tracker_frame
+from calbench.bench.campaign import PosePlan, plan_campaign, truth_robot, scenario_params
+from calbench.bench.progress import Progress
+from calbench.bench.robot import Robot
+from calbench.bench.scenario import Scenario, load_scenario
+from calbench.bench.tracker import Measurement, measure, noise_covariance, to_tracker_frame
 
 from .forward import NP, PARAM_NAMES, PARAM_UNITS
 from .identifiability import whiten_factors
@@ -244,7 +244,7 @@ def add_montecarlo(sub) -> None:
 
 def cmd_montecarlo(args) -> int:
     import json
-    from bench.errors import InputError
+    from calbench.bench.errors import InputError
     if args.runs < 2:
         raise InputError("--runs", "runs", "an integer >= 2", args.runs)
     scn = load_scenario(args.scenario, seed=args.seed)

@@ -20,10 +20,10 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from bench.errors import InputError
-from bench.logformat import CampaignLog
-from bench.scenario import TrackerSpec
-from bench.tracker import tracker_rotation
+from calbench.bench.errors import InputError
+from calbench.bench.logformat import CampaignLog
+from calbench.bench.scenario import TrackerSpec
+from calbench.bench.tracker import tracker_rotation
 
 
 @dataclass(frozen=True)

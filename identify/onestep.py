@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bench.robot import Robot
+from calbench.bench.robot import Robot
 
 from .forward import NP, PARAM_NAMES, ForwardModel, design_from_observations
 from .identifiability import Identifiability, analyze, explain, whiten_factors

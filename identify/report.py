@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.errors import InputError
-from bench.logformat import read_log
-from bench.robot import Robot
+from calbench.bench.errors import InputError
+from calbench.bench.logformat import read_log
+from calbench.bench.robot import Robot
 
 from .forward import NP, PARAM_NAMES, PARAM_UNITS
 from .identifiability import OUTLIER_SIGMA, outliers

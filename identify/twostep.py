@@ -36,8 +36,8 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from bench.loop import motor_jacobian
-from bench.robot import Robot
+from calbench.bench.loop import motor_jacobian
+from calbench.bench.robot import Robot
 
 from .forward import NP, PARAM_NAMES
 from .identifiability import Identifiability, analyze, explain, whiten_factors

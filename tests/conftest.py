@@ -1,5 +1,25 @@
-"""Make the tests folder importable for its small shared helpers (tests/rerun_cli.py)."""
+"""Shared test constants and helpers.
+
+The tests folder is put on sys.path so that tests can import these constants
+(``from conftest import PAPER, MJCF, K_TRUE``) and the small helpers beside them
+(tests/rerun_cli.py).
+"""
 import sys
 from pathlib import Path
 
+import numpy as np
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+ROOT = Path(__file__).resolve().parent.parent
+PAPER = ROOT / "scenarios" / "paper_table5.toml"          # Table 5 + four lateral pulls, 700 kg
+MJCF = ROOT / "mjcf" / "m900ib700.xml"
+# the default truth of the shipped scenarios (README "Default truth values"), rad/(N*m)
+K_TRUE = np.array([0.25, 0.12, 0.07, 0.35, 0.40, 0.60]) * 1e-6
+# the paper's Table 5 (q1..q6, degrees, the controller's convention: q3 = crank), in rad
+TABLE5 = np.radians([
+    [0, 0, -30, -45, 30, 135], [0, 0, -30, 45, -30, 35], [90, 0, 30, -45, -30, -45],
+    [90, 0, 30, 45, -30, 45], [180, 35, -30, 135, -30, -45], [-180, 35, -30, -45, 30, 135],
+    [-90, 35, 30, 135, 30, 135], [-90, 35, 30, -45, -30, -45], [0, 120, -30, -135, 30, -135],
+    [0, 120, -30, 135, -30, -45], [180, 120, 30, -135, 30, -135], [-180, 120, 30, 135, 30, 135],
+])

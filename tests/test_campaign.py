@@ -8,13 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.logformat import read_log
-from bench.scenario import load_scenario
-from identify.cli import main
+from calbench.bench.logformat import read_log
+from calbench.bench.scenario import load_scenario
+from calbench.identify.cli import main
+from conftest import MJCF, PAPER
 from rerun_cli import rerun_env, rerun_exe
 
-ROOT = Path(__file__).resolve().parent.parent
-PAPER = ROOT / "scenarios" / "paper_table5.toml"
 
 
 def simulate(tmp_path: Path, scenario: Path = PAPER, name: str = "log.mcap", *extra: str) -> tuple[int, Path]:
@@ -55,7 +54,7 @@ def test_same_seed_same_bytes_other_seed_other_noise(tmp_path, paper_log):
 
 def test_noise_matches_truth_statistics(paper_log):
     """Measured minus true reflector positions: zero mean, sigma 20 um, within sampling error."""
-    from bench.tracker import to_world_frame
+    from calbench.bench.tracker import to_world_frame
 
     full = read_log(paper_log, include_truth=True)
     scn = load_scenario(PAPER)
@@ -79,7 +78,7 @@ def test_rerun_reads_the_log(paper_log, tmp_path):
 
 KILLER = r"""
 import os, signal, sys
-import bench.campaign as c
+import calbench.bench.campaign as c
 orig = c.LogWriter.pose_done
 count = {"n": 0}
 def pose_done(self, pose):
@@ -90,7 +89,7 @@ def pose_done(self, pose):
         self.pose(pose + 1, "unloaded", [0.0] * 6)
         os.kill(os.getpid(), signal.SIGKILL)
 c.LogWriter.pose_done = pose_done
-from identify.cli import main
+from calbench.identify.cli import main
 main(["simulate", sys.argv[1], "--out", sys.argv[2]])
 """
 
@@ -107,7 +106,7 @@ def test_killed_campaign_keeps_finished_poses(tmp_path):
 
 def bad_scenario(tmp_path: Path, edit) -> Path:
     text = PAPER.read_text()
-    text = text.replace('robot = "../mjcf/m900ib700.xml"', f'robot = "{ROOT / "mjcf" / "m900ib700.xml"}"')
+    text = text.replace('robot = "../mjcf/m900ib700.xml"', f'robot = "{MJCF}"')
     p = tmp_path / "bad.toml"
     p.write_text(edit(text))
     return p

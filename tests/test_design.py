@@ -15,21 +15,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.campaign import GRAVITY, plan_campaign, truth_robot
-from bench.robot import Robot
-from bench.scenario import load_scenario
-from identify.cli import main
-from identify.design import PlanPose, plan_scenario_text
-from identify.design_candidates import (InfoEngine, generate_candidates,
+from calbench.bench.campaign import GRAVITY, plan_campaign, truth_robot
+from calbench.bench.robot import Robot
+from calbench.bench.scenario import load_scenario
+from calbench.identify.cli import main
+from calbench.identify.design.plan import PlanPose, plan_scenario_text
+from calbench.identify.design.candidates import (InfoEngine, generate_candidates,
                                         load_design_scenario, read_design_settings)
-from identify.design_criteria import criterion_value, information, measures
-from identify.design_exchange import Exchanger
-from identify.forward import ForwardModel, design_from_observations
-from identify.identifiability import whiten_factors
-from identify.montecarlo import campaign_observations, run_montecarlo
+from calbench.identify.design.criteria import criterion_value, information, measures
+from calbench.identify.design.exchange import Exchanger
+from calbench.identify.forward import ForwardModel, design_from_observations
+from calbench.identify.identifiability import whiten_factors
+from calbench.identify.montecarlo import campaign_observations, run_montecarlo
+from conftest import PAPER, ROOT
 
-ROOT = Path(__file__).resolve().parent.parent
-PAPER = ROOT / "scenarios" / "paper_table5.toml"
 WEIGHT = np.array([0, 0, -700 * GRAVITY, 0, 0, 0.0])
 
 
@@ -86,7 +85,7 @@ def test_min_height_is_a_scenario_setting(tmp_path, paper):
     assert "min_height" not in InfoEngine(*paper).pose(q, WEIGHT).violations
     bad = tmp_path / "bad.toml"
     bad.write_text(path.read_text() + "min_heigth = 2\n")
-    from bench.errors import InputError
+    from calbench.bench.errors import InputError
     with pytest.raises(InputError, match="design.min_heigth"):
         read_design_settings(bad)
 

@@ -25,18 +25,16 @@ import mujoco
 import numpy as np
 import pytest
 
-from bench.campaign import run_campaign
-from bench.effects import REGISTRY, apply_effects, without_compensator
-from bench.logformat import read_log, strip_truth
-from bench.robot import Robot
-from bench.scenario import load_scenario, scenario_variant
-from identify.cli import main as cli_main
-from identify.discover import UNEXPLAINED, discover
-from identify.discover_fit import DISCOVERY_EFFECTS, library
+from calbench.bench.campaign import run_campaign
+from calbench.bench.effects import REGISTRY, apply_effects, without_compensator
+from calbench.bench.logformat import read_log, strip_truth
+from calbench.bench.robot import Robot
+from calbench.bench.scenario import load_scenario, scenario_variant
+from calbench.identify.cli import main as cli_main
+from calbench.identify.discover.workflow import UNEXPLAINED, discover
+from calbench.identify.discover.fit import DISCOVERY_EFFECTS, library
+from conftest import MJCF, PAPER
 
-ROOT = Path(__file__).resolve().parent.parent
-PAPER = ROOT / "scenarios" / "paper_table5.toml"
-MJCF = ROOT / "mjcf" / "m900ib700.xml"
 
 HIDDEN = {
     "forearm": ('[truth.effects.link_compliance]\nlink = "forearm"\ncompliance = [1.8e-7, 0.0, 1.8e-7]',
@@ -227,7 +225,7 @@ def test_cli_json_plot_view(logs, tmp_path, capsys):
     assert rep["noise_sigma"] == pytest.approx(20e-6)
     assert rep["augmented_model"] == str(aug) and Robot.from_file(aug).model.nv > 0
     assert Path(rep["plot"]).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    from bench.view import read_identified
+    from calbench.bench.view import read_identified
     ident = read_identified(rep["view_json"])
     assert len(ident.predicted) == rep["n_poses"]
     # bad input: exit status 2
@@ -238,9 +236,9 @@ def test_cli_json_plot_view(logs, tmp_path, capsys):
 def test_augmented_jacobian_matches_finite_differences(logs):
     """d dp / d theta of the augmented forward model (implicit function theorem with the effect
     columns from the passive force) against central differences of the solved equilibria."""
-    from bench.effects import link_compliance
-    from identify.discover_fit import build
-    from identify.observations import from_log
+    from calbench.bench.effects import link_compliance
+    from calbench.identify.discover.fit import build
+    from calbench.identify.observations import from_log
     obs = from_log(read_log(logs["none"]))
     obs = obs.subset(obs.labels[:9])
     eff = link_compliance("forearm")

@@ -15,18 +15,16 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from bench.campaign import run_campaign, scenario_params, truth_robot
-from bench.effects import (REGISTRY, Effect, EffectRobot, apply_effects, base_compliance, compensator,
+from calbench.bench.campaign import run_campaign, scenario_params, truth_robot
+from calbench.bench.effects import (REGISTRY, Effect, EffectRobot, apply_effects, base_compliance, compensator,
                            effect_from_truth, joint_nonlinearity, link_compliance)
-from bench.logformat import read_log
-from bench.loop import loop_jacobian
-from bench.robot import Params, Robot
-from bench.scenario import load_scenario
-from bench.statics import Load, StaticsSolver
+from calbench.bench.logformat import read_log
+from calbench.bench.loop import loop_jacobian
+from calbench.bench.robot import Params, Robot
+from calbench.bench.scenario import load_scenario
+from calbench.bench.statics import Load, StaticsSolver
+from conftest import MJCF, PAPER
 
-ROOT = Path(__file__).resolve().parent.parent
-MJCF = ROOT / "mjcf" / "m900ib700.xml"
-PAPER = ROOT / "scenarios" / "paper_table5.toml"
 K = np.array([0.25e-6, 0.12e-6, 0.07e-6, 0.35e-6, 0.40e-6, 0.60e-6])
 NO_COMP = Params(K, 0.0, 0.83)                      # compensator off
 Q = np.radians([30.0, 60.0, -10.0, 20.0, 30.0, 40.0])  # a generic pose, far from the loop's singularity

@@ -17,13 +17,11 @@ import pytest
 from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
 from mcap.writer import CompressionType, Writer
 
-from bench.logformat import _records, read_log, strip_truth
-from identify.cli import main
-from identify.report import run_identify
+from calbench.bench.logformat import _records, read_log, strip_truth
+from calbench.identify.cli import main
+from calbench.identify.report import run_identify
+from conftest import K_TRUE, PAPER
 
-ROOT = Path(__file__).resolve().parent.parent
-PAPER = ROOT / "scenarios" / "paper_table5.toml"
-K_TRUE = np.array([0.25, 0.12, 0.07, 0.35, 0.40, 0.60]) * 1e-6
 NAMES = ["k1", "k2", "k3", "k4", "k5", "k6", "compensator_stiffness", "compensator_preload"]
 
 

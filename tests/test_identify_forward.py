@@ -9,21 +9,19 @@ i.e. < 1e-5; the stale part of the KKT matrix costs < 1e-6. Allowed: 1e-4 of the
 """
 from __future__ import annotations
 
-from pathlib import Path
 
 import mujoco
 import numpy as np
 import pytest
 
-from bench.campaign import plan_campaign, truth_robot
-from bench.robot import Params, Robot
-from bench.scenario import load_scenario
-from identify.forward import ForwardModel, design_from_observations
-from identify.montecarlo import campaign_observations, true_theta
-from identify.twostep import step2_rows
+from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.robot import Params, Robot
+from calbench.bench.scenario import load_scenario
+from calbench.identify.forward import ForwardModel, design_from_observations
+from calbench.identify.montecarlo import campaign_observations, true_theta
+from calbench.identify.twostep import step2_rows
+from conftest import MJCF, PAPER
 
-ROOT = Path(__file__).resolve().parent.parent
-PAPER = ROOT / "scenarios" / "paper_table5.toml"
 
 
 @pytest.fixture(scope="module")
@@ -67,7 +65,7 @@ def test_compensator_stiffness_has_sin_squared_and_the_model_angle():
     """Eqs. (10)-(11) with sin^2 (PHYSICS.md) and psi = q2 + offset: the step-2 row C_i times
     [0, K_C, s0 K_C] equals -d(tendon torque on J2)/dq2 by central differences (h = 1e-6 rad:
     O(h^2) ~ 1e-12 relative; round-off 1e-16 * 1e5 N*m / 1e-6 ~ 1e-5 N*m/rad)."""
-    robot = Robot.from_file(ROOT / "mjcf" / "m900ib700.xml")
+    robot = Robot.from_file(MJCF)
     k_c, s0 = 2.6e6, 0.83
     robot.set_params(Params(np.full(6, 1e-7), k_c, s0))
     geom = robot.compensator_geometry()

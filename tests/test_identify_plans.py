@@ -11,17 +11,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.campaign import plan_campaign, truth_robot
-from bench.robot import Robot
-from bench.scenario import parse_scenario
-from identify.forward import ForwardModel, design_from_observations
-from identify.identifiability import whiten_factors
-from identify.montecarlo import campaign_observations, true_theta
-from identify.onestep import one_step
-from identify.twostep import linear_plan, two_step
+from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.robot import Robot
+from calbench.bench.scenario import parse_scenario
+from calbench.identify.forward import ForwardModel, design_from_observations
+from calbench.identify.identifiability import whiten_factors
+from calbench.identify.montecarlo import campaign_observations, true_theta
+from calbench.identify.onestep import one_step
+from calbench.identify.twostep import linear_plan, two_step
+from conftest import MJCF, PAPER
 
-ROOT = Path(__file__).resolve().parent.parent
-PAPER = ROOT / "scenarios" / "paper_table5.toml"
 TEXT = PAPER.read_text()
 HEAD, *POSES = TEXT.split("[[pose]]")
 COMPENSATOR = ("k2", "compensator_stiffness", "compensator_preload")
@@ -29,7 +28,7 @@ COMPENSATOR = ("k2", "compensator_stiffness", "compensator_preload")
 
 def observations(poses, tmp="/tmp/plan.toml"):
     head = HEAD.replace('robot = "../mjcf/m900ib700.xml"',
-                        f'robot = "{(ROOT / "mjcf" / "m900ib700.xml").as_posix()}"')
+                        f'robot = "{(MJCF).as_posix()}"')
     scn = parse_scenario(head + "".join("[[pose]]" + POSES[i] for i in poses), Path(tmp))
     tr = truth_robot(scn)
     plans = plan_campaign(scn, tr)

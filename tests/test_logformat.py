@@ -19,10 +19,10 @@ from mcap.records import Attachment, Channel, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import Writer
 
-import bench.logformat as lf
-from bench.errors import InputError
+import calbench.bench.logformat as lf
+from calbench.bench.errors import InputError
 from rerun_cli import rerun_env, rerun_exe
-from bench.logformat import (TRUTH_PREFIX, LogHeader, LogWriter, has_truth, read_log,
+from calbench.bench.logformat import (TRUTH_PREFIX, LogHeader, LogWriter, has_truth, read_log,
                              redact_truth, strip_truth)
 
 REFLECTORS = ["R1", "R2", "R3"]

@@ -12,17 +12,15 @@ tests; at 4 standard errors the family-wise false alarm rate is still < 1e-3.
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from bench.scenario import load_scenario
-from identify.cli import main
-from identify.montecarlo import run_montecarlo
+from calbench.bench.scenario import load_scenario
+from calbench.identify.cli import main
+from calbench.identify.montecarlo import run_montecarlo
+from conftest import PAPER
 
-ROOT = Path(__file__).resolve().parent.parent
-PAPER = ROOT / "scenarios" / "paper_table5.toml"
 N = 200
 
 

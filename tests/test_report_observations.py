@@ -2,18 +2,17 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 
-from identify.cli import main
+from calbench.identify.cli import main
+from conftest import PAPER
 
-ROOT = Path(__file__).resolve().parent.parent
 
 
 def test_observations_are_measured_minus_residual_and_match_the_chi2(tmp_path):
     log, rep = tmp_path / "p.mcap", tmp_path / "id.json"
-    assert main(["simulate", str(ROOT / "scenarios" / "paper_table5.toml"), "--out", str(log)]) == 0
+    assert main(["simulate", str(PAPER), "--out", str(log)]) == 0
     assert main(["identify", str(log), "--json", str(rep)]) == 0
     d = json.loads(rep.read_text())
     obs = d["observations"]

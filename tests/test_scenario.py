@@ -7,11 +7,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.errors import InputError
-from bench.scenario import (
+from calbench.bench.errors import InputError
+from calbench.bench.scenario import (
     DEFAULT_DISTANCE, DEFAULT_SIGMA, DEFAULT_TRANSVERSE, Scenario, check_joint_limits,
     load_scenario, parse_scenario, scenario_as_dict, scenario_to_toml,
 )
+from conftest import PAPER
 
 BASE = """\
 name = "unit"
@@ -358,16 +359,16 @@ def test_writer_orders_tables_escapes_strings_and_skips_none(tmp_path):
 
 def test_design_table_keys_match_the_design_module():
     """bench/scenario.py accepts exactly the [design] keys identify/design_candidates.py reads."""
-    from bench.scenario import DESIGN_KEYS as accepted
-    from identify.design_candidates import DESIGN_KEYS as read
+    from calbench.bench.scenario import DESIGN_KEYS as accepted
+    from calbench.identify.design.candidates import DESIGN_KEYS as read
 
     assert set(accepted) == set(read)
 
 
 def test_scenario_variant_overrides_and_validates(tmp_path):
-    from bench.scenario import load_scenario, scenario_variant
+    from calbench.bench.scenario import load_scenario, scenario_variant
 
-    paper = Path(__file__).resolve().parent.parent / "scenarios" / "paper_table5.toml"
+    paper = PAPER
     out = scenario_variant(paper, tmp_path / "v.toml", name="v", seed=7, compensator=(6e6, 0.7),
                            extra="[truth.effects.base_compliance]\ncompliance = [4e-9, 4e-9]")
     scn = load_scenario(out)

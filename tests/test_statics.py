@@ -6,25 +6,16 @@ well inside the 0.1 % the issue asks for; finite differences carry O(h^2) error.
 """
 from __future__ import annotations
 
-from pathlib import Path
 
 import mujoco
 import numpy as np
 import pytest
 
-from bench.loop import motor_jacobian, motor_map
-from bench.robot import Params, Robot
-from bench.statics import Load, StaticsSolver
+from calbench.bench.loop import motor_jacobian, motor_map
+from calbench.bench.robot import Params, Robot
+from calbench.bench.statics import Load, StaticsSolver
+from conftest import K_TRUE, MJCF, TABLE5
 
-ROOT = Path(__file__).resolve().parent.parent
-MJCF = ROOT / "mjcf" / "m900ib700.xml"
-K_TRUE = np.array([0.25, 0.12, 0.07, 0.35, 0.40, 0.60]) * 1e-6
-TABLE5 = np.radians([
-    [0, 0, -30, -45, 30, 135], [0, 0, -30, 45, -30, 35], [90, 0, 30, -45, -30, -45],
-    [90, 0, 30, 45, -30, 45], [180, 35, -30, 135, -30, -45], [-180, 35, -30, -45, 30, 135],
-    [-90, 35, 30, 135, 30, 135], [-90, 35, 30, -45, -30, -45], [0, 120, -30, -135, 30, -135],
-    [0, 120, -30, 135, -30, -45], [180, 120, 30, -135, 30, -135], [-180, 120, 30, 135, 30, 135],
-])
 
 
 def make_robot(k_c: float = 2.6e6, s0: float = 0.83) -> Robot:
@@ -257,7 +248,7 @@ def test_second_solver_time_stepping_relaxation_agrees():
 
 def test_degenerate_parallelogram_is_a_clear_error():
     """Crank parallel to the upper arm (q3 = q2 - 120 deg): no unique equilibrium exists."""
-    from bench.statics import StaticsError
+    from calbench.bench.statics import StaticsError
 
     robot = make_robot()
     with pytest.raises(StaticsError, match="degenerate"):

@@ -7,8 +7,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from bench.scenario import TrackerSpec
-from bench.tracker import (
+from calbench.bench.scenario import TrackerSpec
+from calbench.bench.tracker import (
     Measurement, measure, noise_covariance, to_tracker_frame, to_world_frame, tracker_rotation,
     visible_sites,
 )

@@ -18,19 +18,18 @@ import pytest
 import rerun as rr
 from rerun.chunk import RrdReader
 
-from bench.campaign import run_campaign
-from bench.errors import InputError
-from bench.logformat import read_log, strip_truth
-from bench.scenario import TrackerSpec, load_scenario
-from bench.tracker import to_world_frame
-from bench.view import (_geom_archetype, measured_deflections, read_identified,
+from calbench.bench.campaign import run_campaign
+from calbench.bench.errors import InputError
+from calbench.bench.logformat import read_log, strip_truth
+from calbench.bench.scenario import TrackerSpec, load_scenario
+from calbench.bench.tracker import to_world_frame
+from calbench.bench.view import (_geom_archetype, measured_deflections, read_identified,
                         write_recording)
-from identify.cli import main as calbench_main
+from calbench.identify.cli import main as calbench_main
 
 from rerun_cli import rerun_env, rerun_exe
+from conftest import PAPER
 
-ROOT = Path(__file__).resolve().parents[1]
-PAPER = ROOT / "scenarios" / "paper_table5.toml"
 
 
 @pytest.fixture(autouse=True)
@@ -323,7 +322,7 @@ def test_logged_body_pose_places_geoms_where_mujoco_does(paper_log, paper_rrd):
 
 
 def test_spawn_failure_falls_back_to_a_file(paper_log, tmp_path, capsys, monkeypatch):
-    import bench.view as view
+    import calbench.bench.view as view
     log = tmp_path / "c.mcap"
     shutil.copy(paper_log, log)
     monkeypatch.setattr(view, "has_display", lambda: True)

@@ -36,18 +36,18 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.effects import augmented_xml, load_spec
-from bench.errors import InputError
-from bench.logformat import read_log
-from bench.robot import ACTUATED, COMPENSATOR, Robot
+from calbench.bench.effects import augmented_xml, load_spec
+from calbench.bench.errors import InputError
+from calbench.bench.logformat import read_log
+from calbench.bench.robot import ACTUATED, COMPENSATOR, Robot
 
-from .discover_fit import (BASE_LOWER, BASE_UPPER, NP, Fit, build, effect_priors, fit, label, library)
-from .discover_stats import (ALPHA_EFFECT, ALPHA_FIT, MIN_EXPLAINED, chi2_p, compare, diagnose,
+from .fit import (BASE_LOWER, BASE_UPPER, NP, Fit, build, effect_priors, fit, label, library)
+from .stats import (ALPHA_EFFECT, ALPHA_FIT, MIN_EXPLAINED, chi2_p, compare, diagnose,
                              expected_rms, rms)
-from .identifiability import whiten_factors
-from .observations import from_log
-from .onestep import one_step
-from .report import check_sites, load_model
+from ..identifiability import whiten_factors
+from ..observations import from_log
+from ..onestep import one_step
+from ..report import check_sites, load_model
 
 MAX_ROUNDS = 3
 UNEXPLAINED = "unexplained"

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .design_criteria import combine, criterion_value, information, weight_matrix
+from .criteria import combine, criterion_value, information, weight_matrix
 
 
 def compress(blocks: np.ndarray) -> np.ndarray:

@@ -25,11 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.campaign import GRAVITY
+from calbench.bench.campaign import GRAVITY
 
-from .design_candidates import InfoEngine, load_design_scenario
-from .design_criteria import measures
-from .forward import PARAM_NAMES
+from .candidates import InfoEngine, load_design_scenario
+from .criteria import measures
+from ..forward import PARAM_NAMES
 
 WRISTS = ((-45.0, 30.0, 135.0), (45.0, -30.0, 45.0))
 Q3 = (-30.0, 30.0)

@@ -39,11 +39,11 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from bench.effects import REGISTRY, Effect, EffectRobot, apply_effects
-from bench.robot import Robot
+from calbench.bench.effects import REGISTRY, Effect, EffectRobot, apply_effects
+from calbench.bench.robot import Robot
 
-from .forward import NP, PARAM_NAMES, PARAM_UNITS, ForwardModel, PoseDesign, design_from_observations, to_params
-from .identifiability import analyze
+from ..forward import NP, PARAM_NAMES, PARAM_UNITS, ForwardModel, PoseDesign, design_from_observations, to_params
+from ..identifiability import analyze
 
 # --------------------------------------------------------------------------- the library
 

@@ -25,16 +25,16 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.campaign import GRAVITY
-from bench.errors import InputError
-from bench.progress import Progress
-from bench.scenario import Scenario, scenario_as_dict, scenario_to_toml
+from calbench.bench.campaign import GRAVITY
+from calbench.bench.errors import InputError
+from calbench.bench.progress import Progress
+from calbench.bench.scenario import Scenario, scenario_as_dict, scenario_to_toml
 
-from .design_candidates import (LOAD_KINDS, CandidateSet, DesignSettings, InfoEngine,
+from .candidates import (LOAD_KINDS, CandidateSet, DesignSettings, InfoEngine,
                                 generate_candidates, lateral_wrench, load_design_scenario)
-from .design_criteria import CRITERIA, criterion_value, information, measures
-from .design_exchange import Exchanger
-from .forward import PARAM_NAMES
+from .criteria import CRITERIA, criterion_value, information, measures
+from .exchange import Exchanger
+from ..forward import PARAM_NAMES
 
 REFINE_STEPS_DEG = (4.0, 2.0, 1.0)
 
@@ -226,7 +226,7 @@ def add_design(sub) -> None:
 
 def cmd_design(args) -> int:
     if args.study:
-        from .design_study import run_study
+        from .study import run_study
         run_study(args.scenario, args.out_dir, progress=sys.stderr.isatty())
         return 0
     if args.out is None and args.json is None and args.export_candidates is None:

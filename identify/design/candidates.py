@@ -68,15 +68,15 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from bench.campaign import GRAVITY, PARALLELOGRAM_MARGIN, parallelogram_angle, scenario_params
-from bench.errors import InputError
-from bench.progress import Progress
-from bench.robot import Robot
-from bench.scenario import Scenario, parse_scenario
-from bench.statics import Equilibrium, Load, StaticsSolver
-from bench.tracker import noise_covariance, to_tracker_frame, tracker_rotation, visible_sites
+from calbench.bench.campaign import GRAVITY, PARALLELOGRAM_MARGIN, parallelogram_angle, scenario_params
+from calbench.bench.errors import InputError
+from calbench.bench.progress import Progress
+from calbench.bench.robot import Robot
+from calbench.bench.scenario import Scenario, parse_scenario
+from calbench.bench.statics import Equilibrium, Load, StaticsSolver
+from calbench.bench.tracker import noise_covariance, to_tracker_frame, tracker_rotation, visible_sites
 
-from .forward import NP
+from ..forward import NP
 
 RULES = ("joint_limits", "parallelogram", "min_height", "min_radius", "self_collision",
          "compensator_discontinuity", "statics", "visibility")
@@ -436,7 +436,7 @@ class CandidateSet:
         return len(self.q)
 
     def save_npz(self, path: str | Path, names=None) -> None:
-        from .forward import PARAM_NAMES
+        from ..forward import PARAM_NAMES
         np.savez_compressed(
             path, q=np.degrees(self.q), blocks=self.blocks, wrench=self.wrench,
             load_kind=np.array([LOAD_KINDS[k] for k in self.kind]), theta0=self.theta0,
