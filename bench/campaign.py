@@ -8,7 +8,6 @@ in plan order, so the same scenario and seed give the same log, byte for byte.
 """
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,7 +21,7 @@ from .robot import Params, Robot
 from .scenario import Scenario, check_joint_limits
 from .statics import Equilibrium, Load, StaticsError, StaticsSolver
 from .tracker import measure, to_tracker_frame, visible_sites
-from .progress import Progress
+from .progress import ProgressSink, sink
 
 STATES = ("unloaded", "loaded")
 GRAVITY = 9.81
@@ -76,7 +75,7 @@ def pose_load(robot: Robot, scn: Scenario, pose) -> tuple[Load, float | None]:
     return Load.mass(robot, scn.load_mass, GRAVITY), scn.load_mass
 
 
-def plan_campaign(scn: Scenario, robot: Robot | None = None, progress: Progress | None = None) -> list[PosePlan]:
+def plan_campaign(scn: Scenario, robot: Robot | None = None, progress: ProgressSink | None = None) -> list[PosePlan]:
     """Solve and check every pose; raise InputError naming the first bad one."""
     robot = robot or truth_robot(scn)
     check_joint_limits(scn, robot.limits())
@@ -136,12 +135,14 @@ def truth_record(scn: Scenario) -> dict:
     return d
 
 
-def run_campaign(scn: Scenario, out: str | Path, show_progress: bool | None = None) -> list[PosePlan]:
-    """Simulate the whole campaign into one MCAP log at `out`. Returns the solved plan."""
+def run_campaign(scn: Scenario, out: str | Path, progress: ProgressSink | None = None) -> list[PosePlan]:
+    """Simulate the whole campaign into one MCAP log at `out`. Returns the solved plan.
+    ``progress`` (bench/progress.py) hears of every solved and every measured pose."""
     out = Path(out)
     robot = truth_robot(scn)
     n = len(scn.poses)
-    progress = Progress(total=2 * n, enabled=sys.stderr.isatty() if show_progress is None else show_progress)
+    progress = sink(progress)
+    progress.start(2 * n)
     plans = plan_campaign(scn, robot, progress)  # raises before any file exists
     out.parent.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(scn.seed)
@@ -171,7 +172,6 @@ def run_campaign(scn: Scenario, out: str | Path, show_progress: bool | None = No
                 log.truth_joints(plan.index, state, e.qpos, e.deflection)
             log.pose_done(plan.index)
             progress.update(f"measured pose {plan.index + 1}/{n}")
-    progress.close()
     return plans
 
 

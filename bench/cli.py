@@ -1,5 +1,9 @@
-"""The bench's command-line verbs (`simulate`). The console script itself lives in
-identify/cli.py, which sits on top of both packages; bench never imports identify."""
+"""The bench's command-line verbs: `simulate` and `view`.
+
+The console script itself lives in identify/cli.py, which sits on top of both packages and
+registers these; bench never imports identify. This module and identify/cli.py are the only
+ones that parse arguments or print: every library function they call returns its result.
+"""
 from __future__ import annotations
 
 import argparse
@@ -7,21 +11,87 @@ import sys
 from pathlib import Path
 
 from .campaign import run_campaign
+from .progress import Progress
 from .scenario import load_scenario
+from .view import (DEFAULT_MAGNIFY, Summary, build_blueprint, default_rrd_path, has_display,
+                   load_robot, log_campaign, read_identified, recording_stream, write_recording)
+from .logformat import read_log
 
+
+# --------------------------------------------------------------------------- simulate
 
 def add_simulate(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="run a calibration campaign and write one MCAP log")
     p.add_argument("scenario", type=Path, help="scenario TOML file")
     p.add_argument("--out", type=Path, required=True, help="output MCAP log")
-    p.add_argument("--seed", type=int, default=None, help="noise seed (overrides the scenario's)")
+    p.add_argument("--seed", type=int, default=None,
+                   help="noise seed (default: the scenario's `seed`)")
     p.set_defaults(func=cmd_simulate)
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     scn = load_scenario(args.scenario, seed=args.seed)
-    plans = run_campaign(scn, args.out)
+    bar = Progress(total=2 * len(scn.poses), enabled=sys.stderr.isatty())
+    plans = run_campaign(scn, args.out, progress=bar)
+    bar.close()
     n_meas = sum(p.visible.sum() for p in plans)
     print(f"wrote {args.out}: {len(plans)} poses, unloaded and loaded, {n_meas} reflector sightings "
-          f"(tracker sigma {scn.tracker.sigma * 1e6:.0f} um, seed {scn.seed})", file=sys.stdout)
+          f"(tracker sigma {scn.tracker.sigma * 1e6:.0f} um, seed {scn.seed})")
     return 0
+
+
+# --------------------------------------------------------------------------- view
+
+def add_view(sub: argparse._SubParsersAction) -> None:
+    from . import view
+    p = sub.add_parser("view", help="Rerun recording of a campaign (and its identification)",
+                       description=view.__doc__.split("\n\n")[0])
+    p.add_argument("log", type=Path, help="campaign MCAP log")
+    p.add_argument("--rrd", type=Path, default=None,
+                   help="write the recording to this .rrd file instead of spawning the viewer "
+                        "(default without a display: LOG.rrd beside the log)")
+    p.add_argument("--identified", type=Path, default=None,
+                   help="JSON report of `calbench identify --json` (parameters as bar charts; "
+                        "predicted deflections and residuals when it carries them)")
+    p.add_argument("--magnify", type=float, default=DEFAULT_MAGNIFY,
+                   help="magnification of the deflection arrows (default: %(default)g; "
+                        "stated in the entity path and labels)")
+    p.set_defaults(func=cmd_view)
+
+
+def _view_summary(s: Summary, magnify: float) -> str:
+    return (f"{s.poses} poses, {s.arrows} deflection arrows (x{magnify:g})"
+            + (f", {s.predicted} predicted" if s.predicted else "")
+            + f"; robot drawn at the {s.robot_source}")
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    from .view import _check_magnify
+    magnify = _check_magnify(args.magnify)
+    why = " (no display, so no viewer was spawned)"
+    if args.rrd is None and has_display():
+        log = read_log(args.log, include_truth=True)
+        ident = read_identified(args.identified) if args.identified is not None else None
+        load_robot(log)
+        rec = recording_stream(args.log)
+        try:
+            rec.spawn(default_blueprint=build_blueprint(ident is not None, bool(log.truth), magnify))
+        except Exception as e:  # noqa: BLE001  no viewer binary, cannot start: fall back to a file
+            print(f"calbench view: could not spawn the viewer ({e}); writing a file instead",
+                  file=sys.stderr)
+            why = " (the viewer could not be spawned)"
+        else:
+            s = log_campaign(rec, log, ident, magnify)
+            rec.flush()
+            print(f"sent to the Rerun viewer: {_view_summary(s, magnify)}")
+            return 0
+    out = args.rrd if args.rrd is not None else default_rrd_path(args.log)
+    s = write_recording(args.log, out, args.identified, magnify)
+    for w in s.warnings:
+        print(f"calbench view: warning: {w}", file=sys.stderr)
+    print(f"wrote {out}{'' if args.rrd is not None else why}: {_view_summary(s, magnify)}")
+    print(f"open it with: rerun {out}")
+    return 0
+
+
+__all__ = ["add_simulate", "cmd_simulate", "add_view", "cmd_view"]

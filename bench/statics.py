@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
+from .errors import StaticsError
 from .loop import constraint_basis
 from .robot import Robot
 
@@ -33,11 +34,6 @@ _DISABLE = (
     | int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
     | int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
 )
-
-
-class StaticsError(np.linalg.LinAlgError):
-    """No equilibrium can be computed: the KKT matrix is singular (a degenerate configuration,
-    e.g. the parallelogram's crank parallel to the upper arm) or the solution is not finite."""
 
 
 @dataclass(frozen=True)

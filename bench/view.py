@@ -66,7 +66,6 @@ and the command prints how to open it.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import os
@@ -443,6 +442,7 @@ class Summary:
     truth: bool
     predicted: int
     robot_source: str
+    warnings: list[str] = field(default_factory=list)   # about the --identified report
 
 
 def log_campaign(rec, log: CampaignLog, identified: Identified | None = None,
@@ -638,7 +638,7 @@ def _check_magnify(magnify: float) -> float:
     return float(magnify)
 
 
-def _recording(log_path: str | os.PathLike):
+def recording_stream(log_path: str | os.PathLike):
     import rerun as rr
     rec = rr.RecordingStream(APP_ID)
     rec.send_recording_name(f"campaign {Path(log_path).name}")
@@ -660,7 +660,7 @@ def write_recording(log_path: str | os.PathLike, rrd_path: str | os.PathLike,
         raise InputError(rrd_path, "--rrd", "an output path other than the campaign log",
                          str(rrd_path))
     rrd_path.parent.mkdir(parents=True, exist_ok=True)
-    rec = _recording(log_path)
+    rec = recording_stream(log_path)
     bp = build_blueprint(ident is not None, bool(log.truth), magnify)
     rec.save(rrd_path, default_blueprint=bp)
     try:
@@ -668,8 +668,7 @@ def write_recording(log_path: str | os.PathLike, rrd_path: str | os.PathLike,
     finally:
         rec.flush()
         rec.disconnect()
-    for w in (ident.warnings if ident else []):
-        print(f"calbench view: warning: {ident.path}: {w}", file=sys.stderr)
+    summary.warnings = [f"{ident.path}: {w}" for w in (ident.warnings if ident else [])]
     return summary
 
 
@@ -686,53 +685,5 @@ def default_rrd_path(log_path: Path) -> Path:
     return Path(log_path).with_suffix(".rrd")
 
 
-def add_view(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("view", help="Rerun recording of a campaign (and its identification)",
-                       description=__doc__.split("\n\n")[0])
-    p.add_argument("log", type=Path, help="campaign MCAP log")
-    p.add_argument("--rrd", type=Path, default=None,
-                   help="write the recording to this .rrd file instead of spawning the viewer")
-    p.add_argument("--identified", type=Path, default=None,
-                   help="JSON report of `calbench identify --json` (parameters as bar charts; "
-                        "predicted deflections and residuals when it carries them)")
-    p.add_argument("--magnify", type=float, default=DEFAULT_MAGNIFY,
-                   help=f"magnification of the deflection arrows (default {DEFAULT_MAGNIFY:g}; "
-                        "stated in the entity path and labels)")
-    p.set_defaults(func=cmd_view)
-
-
-def _report(s: Summary, magnify: float) -> str:
-    return (f"{s.poses} poses, {s.arrows} deflection arrows (x{magnify:g})"
-            + (f", {s.predicted} predicted" if s.predicted else "")
-            + f"; robot drawn at the {s.robot_source}")
-
-
-def cmd_view(args: argparse.Namespace) -> int:
-    magnify = _check_magnify(args.magnify)
-    why = " (no display, so no viewer was spawned)"
-    if args.rrd is None and has_display():
-        log = read_log(args.log, include_truth=True)
-        ident = read_identified(args.identified) if args.identified is not None else None
-        load_robot(log)
-        rec = _recording(args.log)
-        try:
-            rec.spawn(default_blueprint=build_blueprint(ident is not None, bool(log.truth),
-                                                        magnify))
-        except Exception as e:  # no viewer binary, cannot start: fall back to a file
-            print(f"calbench view: could not spawn the viewer ({e}); writing a file instead",
-                  file=sys.stderr)
-            why = " (the viewer could not be spawned)"
-        else:
-            s = log_campaign(rec, log, ident, magnify)
-            rec.flush()
-            print(f"sent to the Rerun viewer: {_report(s, magnify)}")
-            return 0
-    out = args.rrd if args.rrd is not None else default_rrd_path(args.log)
-    s = write_recording(args.log, out, args.identified, magnify)
-    print(f"wrote {out}{'' if args.rrd is not None else why}: {_report(s, magnify)}")
-    print(f"open it with: rerun {out}")
-    return 0
-
-
-__all__ = ["add_view", "cmd_view", "write_recording", "log_campaign", "read_identified",
+__all__ = ["write_recording", "has_display", "default_rrd_path", "recording_stream", "Summary", "log_campaign", "read_identified",
            "measured_deflections", "build_blueprint", "magnify_tag", "DEFAULT_MAGNIFY"]

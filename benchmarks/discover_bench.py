@@ -90,7 +90,7 @@ def run_case(tmp: Path, tmpl: str, v: float, effect: str, detail: str, seeds: in
     named, ok, before, after, secs = [], 0, [], [], []
     for seed in range(1, seeds + 1):
         log = tmp / f"log{seed}.mcap"
-        run_campaign(load_scenario(scenario(tmp, extra, seed)), log, show_progress=False)
+        run_campaign(load_scenario(scenario(tmp, extra, seed)), log)
         rep = discover(log, model, out_model=tmp / "aug.xml")
         first = rep["steps"][0] if rep["steps"] else None
         tag = (first["effect"] + (f"[{first['detail']}]" if first["detail"] and first["effect"] != "unexplained"

@@ -34,7 +34,7 @@ def main() -> None:
                                  else args.scenario)}
     with tempfile.TemporaryDirectory() as tmp:
         log = Path(tmp) / "paper.mcap"
-        run_campaign(scn, log, show_progress=False)
+        run_campaign(scn, log)
         for method in ("one-step", "two-step"):
             times, internal = [], []
             for _ in range(5):

@@ -107,7 +107,7 @@ def main() -> None:
         campaign = []
         for _ in range(3):
             t = time.perf_counter()
-            run_campaign(scn, Path(tmp) / "bench.mcap", show_progress=False)
+            run_campaign(scn, Path(tmp) / "bench.mcap")
             campaign.append(time.perf_counter() - t)
     med_newton = statistics.median(times)
     med_relax = statistics.median(relax_times)

@@ -1,26 +1,240 @@
-"""`calbench`: the one console script. Subcommands from both packages (bench: simulate;
-identify: the estimation verbs). Exit status: 0 success, 1 a check failed, 2 bad input."""
+"""`calbench`: the one console script.
+
+Subcommands from both packages: bench/cli.py owns `simulate` and `view`; this module owns the
+estimation verbs (identify, montecarlo, design, discover) and `demo`. These two modules are the
+only ones that parse arguments or print; every workflow they call is a library function that
+returns its result, so it can be called from a notebook as well.
+
+Exit status: 0 success, 1 a check failed, 2 bad input (any CalbenchError: one line naming the
+file, the key and what was expected).
+"""
 from __future__ import annotations
 
 import argparse
+import json
+import logging
 import sys
+import time
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
 
-from calbench.bench.cli import add_simulate
-from calbench.bench.errors import InputError
-from calbench.bench.view import add_view
+from calbench.bench.cli import add_simulate, add_view
+from calbench.bench.errors import CalbenchError, InputError
+from calbench.bench.progress import terminal_progress
 
 from . import demo
-from .design.plan import add_design
-from .discover.workflow import add_discover
-from .montecarlo import add_montecarlo
-from .report import add_identify
+from .identifiability import OUTLIER_SIGMA
 
+
+def _version() -> str:
+    try:
+        return version("calbench")
+    except PackageNotFoundError:  # pragma: no cover - always installed (editable or not)
+        return "unknown"
+
+
+# --------------------------------------------------------------------------- identify
+
+def add_identify(sub) -> None:
+    from .report import METHODS, Z_CHECK
+    p = sub.add_parser("identify", help="estimate the elastostatic parameters from a campaign log")
+    p.add_argument("log", type=Path, help="campaign MCAP log")
+    p.add_argument("--model", type=Path, default=None, help="robot MJCF (default: the one in the log)")
+    p.add_argument("--method", choices=METHODS, default="one-step",
+                   help="one-step: all parameters at once on the exact statics; two-step: the paper's "
+                        "§4 (default: %(default)s)")
+    p.add_argument("--json", type=Path, default=None, help="write the report as JSON")
+    p.add_argument("--check", action="store_true",
+                   help=f"exit 1 when the log has ground truth and any |z| > {Z_CHECK:g}")
+    p.add_argument("--drop-outliers", action="store_true",
+                   help=f"refit without tracker readings off by more than {OUTLIER_SIGMA:g} sigma")
+    p.set_defaults(func=cmd_identify)
+
+
+def cmd_identify(args) -> int:
+    from .report import Z_CHECK, check_failed, format_table, run_identify
+    rep = run_identify(args.log, args.model, args.method, args.drop_outliers)
+    print(format_table(rep))
+    if args.json:
+        args.json.write_text(json.dumps(rep, indent=2, allow_nan=False))
+    if args.check:
+        if all(p["truth"] is None for p in rep["parameters"]):
+            print("check: the log carries no ground truth; nothing to check")
+            return 0
+        bad = check_failed(rep)
+        if bad:
+            print(f"check FAILED: |z| > {Z_CHECK:g} for " + ", ".join(bad))
+            return 1
+        print(f"check passed: every identified parameter within {Z_CHECK:g} standard deviations of the truth")
+    return 0
+
+
+# --------------------------------------------------------------------------- montecarlo
+
+def add_montecarlo(sub) -> None:
+    p = sub.add_parser("montecarlo", help="re-measure a campaign with N noise seeds: bias, spread, CRB")
+    p.add_argument("scenario", type=Path, help="scenario TOML file")
+    p.add_argument("--runs", type=int, required=True, help="number of noise seeds")
+    p.add_argument("--method", choices=("both", "one-step", "two-step"), default="both",
+                   help="estimators to run; two-step runs both step-2 variants (default: %(default)s)")
+    p.add_argument("--seed", type=int, default=None, help="base noise seed (default: the scenario's)")
+    p.add_argument("--json", type=Path, default=None, help="write the summary as JSON")
+    p.set_defaults(func=cmd_montecarlo)
+
+
+def cmd_montecarlo(args) -> int:
+    from calbench.bench.scenario import load_scenario
+    from .montecarlo import METHODS, format_summary, run_montecarlo
+    if args.runs < 2:
+        raise InputError("--runs", "runs", "an integer >= 2", args.runs)
+    scn = load_scenario(args.scenario, seed=args.seed)
+    methods = {"both": METHODS, "one-step": ("one-step",),
+               "two-step": ("two-step", "two-step-weighted")}[args.method]
+    bar = terminal_progress()
+    mc = run_montecarlo(scn, args.runs, methods, progress=bar)
+    bar.close()
+    s = mc.summary()
+    print(format_summary(s))
+    if args.json:
+        Path(args.json).write_text(json.dumps(s, indent=2))
+    return 0
+
+
+# --------------------------------------------------------------------------- design
+
+def add_design(sub) -> None:
+    from .design.criteria import CRITERIA
+    p = sub.add_parser("design", help="optimal measurement configurations (design of experiments)")
+    p.add_argument("scenario", type=Path, help="scenario TOML (robot, truth = prior guess, tracker, load, "
+                   "optional [work] and [design])")
+    p.add_argument("--configs", type=int, default=12,
+                   help="number of measurement configurations M (default: %(default)s)")
+    p.add_argument("--criterion", choices=CRITERIA, default="A",
+                   help="A: trace of the covariance; D: its determinant; AD: their mean (the paper's O3); "
+                        "pose: the deflection variance at the scenario's [work] pose (default: %(default)s)")
+    p.add_argument("--out", type=Path, default=None, help="write the plan as a runnable scenario")
+    p.add_argument("--json", type=Path, default=None, help="write the criteria, stds and poses as JSON")
+    p.add_argument("--export-candidates", type=Path, default=None, help="write the candidate set (NPZ)")
+    p.add_argument("--candidates", type=int, default=None,
+                   help="number of candidates (default: the scenario's [design] candidates, else 10000)")
+    p.add_argument("--starts", type=int, default=8,
+                   help="random starts besides the greedy one (default: %(default)s)")
+    p.add_argument("--no-refine", action="store_true", help="skip the continuous refinement")
+    p.add_argument("--processes", type=int, default=None,
+                   help="worker processes for the candidates (default: the CPU count, at most 4)")
+    p.add_argument("--study", action="store_true", help="reproduce the paper's §5 study (plots)")
+    p.add_argument("--out-dir", type=Path, default=Path("logs/design_study"),
+                   help="--study output folder (default: %(default)s)")
+    p.set_defaults(func=cmd_design)
+
+
+def cmd_design(args) -> int:
+    from .design.candidates import InfoEngine, generate_candidates, load_design_scenario
+    from .design.plan import (design_plan, input_plan_measures, plan_comment, plan_scenario_text,
+                              result_json, summary_text)
+    if args.study:
+        from .design.study import run_study
+        res = run_study(args.scenario, args.out_dir)
+        print(json.dumps({k: res[k] for k in ("table1", "table2", "table3_parameters")}, indent=1))
+        return 0
+    if args.out is None and args.json is None and args.export_candidates is None:
+        raise InputError("(command line)", "--out", "--out PLAN.toml, --json OUT.json or --export-candidates "
+                         "CANDS.npz", None)
+    if args.configs < 1:
+        raise InputError("--configs", "configs", "an integer >= 1", args.configs)
+    scn, settings = load_design_scenario(args.scenario)
+    if args.criterion == "pose" and scn.work is None and (args.out or args.json):
+        raise InputError(scn.path, "work", "a [work] table (q in degrees, wrench in N and N*m) for "
+                         "--criterion pose", None)
+    t0 = time.perf_counter()
+    bar = terminal_progress()
+    cands = generate_candidates(scn, settings, n=args.candidates, processes=args.processes, progress=bar)
+    bar.close()
+    t_c = time.perf_counter() - t0
+    print(f"{len(cands)} feasible candidates ({int(cands.kind.sum())} lateral pulls) in {t_c:.1f} s "
+          f"from {cands.stats['raw_commands']} sampled commands", file=sys.stderr)
+    if args.export_candidates:
+        args.export_candidates.parent.mkdir(parents=True, exist_ok=True)
+        cands.save_npz(args.export_candidates)
+        print(f"wrote {args.export_candidates}", file=sys.stderr)
+    if args.out is None and args.json is None:
+        return 0
+    bar = terminal_progress()
+    bar.start(1 + 3 * args.configs, "exchange")
+    engine = InfoEngine(scn, settings)
+    res = design_plan(scn, settings, cands, args.configs, args.criterion, n_random=args.starts,
+                      do_refine=not args.no_refine, engine=engine, progress=bar)
+    bar.close()
+    res.timings["candidates_s"] = t_c
+    input_plan = input_plan_measures(engine, scn, cands.theta0)
+    print(summary_text(res, len(cands), input_plan))
+    if args.out:
+        text = plan_scenario_text(scn, res.poses, args.out, plan_comment(args.scenario, res))
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(text)
+        print(f"wrote {args.out}", file=sys.stderr)
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(result_json(res, scn, cands, {"input_plan": input_plan}), indent=2))
+    return 0
+
+
+# --------------------------------------------------------------------------- discover
+
+def add_discover(sub) -> None:
+    p = sub.add_parser("discover", help="find where the model and the measurements disagree and name the missing effect")
+    p.add_argument("log", type=Path, help="campaign MCAP log")
+    p.add_argument("--model", type=Path, default=None, help="the user's robot MJCF (default: the one in the log)")
+    p.add_argument("--json", type=Path, default=None, help="write the report as JSON")
+    p.add_argument("--out-model", type=Path, default=None,
+                   help="augmented MJCF (default: LOG.augmented.xml next to the log, when an effect is named)")
+    p.add_argument("--plot", type=Path, default=None,
+                   help="per-pose residuals before/after, PNG (default: next to --json, or LOG.discover.png)")
+    p.add_argument("--view-json", type=Path, default=None,
+                   help="identify-style JSON with predicted deflections for `calbench view --identified` "
+                        "(default: next to --json)")
+    p.set_defaults(func=cmd_discover)
+
+
+def cmd_discover(args) -> int:
+    from .discover.workflow import clean, discover, story
+    if not args.log.is_file():
+        raise InputError(args.log, "LOG.mcap", "an existing campaign log", "no such file")
+    plot = args.plot or (args.json.with_suffix(".png") if args.json else args.log.with_name(args.log.stem + ".discover.png"))
+    view = args.view_json or (args.json.with_name(args.json.stem + ".view.json") if args.json else None)
+    rep = discover(args.log, args.model, out_model=args.out_model, plot=plot, view_json=view)
+    print(story(rep))
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(clean(rep), indent=2, allow_nan=False))
+    return 0
+
+
+# --------------------------------------------------------------------------- demo
+
+def add_demo(sub) -> None:
+    p = sub.add_parser("demo", help="the paper campaign end to end: simulate, view, identify, discover")
+    p.add_argument("--logs", type=Path, default=Path("logs"),
+                   help="output folder, relative to where you run it (default: %(default)s)")
+    p.set_defaults(func=cmd_demo)
+
+
+def cmd_demo(args) -> int:
+    for line in demo.run_demo(args.logs):
+        print(line, flush=True)
+    return 0
+
+
+# --------------------------------------------------------------------------- the script
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="calbench", description=__doc__)
+    parser = argparse.ArgumentParser(prog="calbench", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--version", action="version", version=f"calbench {_version()}")
+    parser.add_argument("-v", "--verbose", action="count", default=0,
+                        help="log the solvers' iterations to stderr (-v: info, -vv: debug)")
     sub = parser.add_subparsers(dest="command", required=True)
     add_simulate(sub)
-    demo.add_demo(sub)
+    add_demo(sub)
     add_identify(sub)
     add_montecarlo(sub)
     add_design(sub)
@@ -32,9 +246,12 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.verbose:
+        logging.basicConfig(level=logging.DEBUG if args.verbose > 1 else logging.INFO,
+                            format="%(name)s: %(message)s", stream=sys.stderr)
     try:
         return int(args.func(args) or 0)
-    except InputError as exc:
+    except CalbenchError as exc:
         print(f"calbench {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

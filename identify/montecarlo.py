@@ -19,7 +19,6 @@ step. The truth enters only the CRB and the statistics.
 """
 from __future__ import annotations
 
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,9 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from calbench.bench.campaign import PosePlan, plan_campaign, truth_robot, scenario_params
-from calbench.bench.progress import Progress
+from calbench.bench.progress import ProgressSink, sink
 from calbench.bench.robot import Robot
-from calbench.bench.scenario import Scenario, load_scenario
+from calbench.bench.scenario import Scenario
 from calbench.bench.tracker import Measurement, measure, noise_covariance, to_tracker_frame
 
 from .forward import NP, PARAM_NAMES, PARAM_UNITS
@@ -143,7 +142,7 @@ class MonteCarlo:
         return out
 
 
-def run_montecarlo(scn: Scenario, runs: int, methods=METHODS, progress: bool | None = None,
+def run_montecarlo(scn: Scenario, runs: int, methods=METHODS, progress: ProgressSink | None = None,
                    seed: int | None = None) -> MonteCarlo:
     """N runs of the estimators on the scenario's campaign; see the module docstring."""
     t0 = time.perf_counter()
@@ -182,7 +181,8 @@ def run_montecarlo(scn: Scenario, runs: int, methods=METHODS, progress: bool | N
     times = {m: 0.0 for m in methods}
     iters: list[tuple[int, int]] = []
     base_seed = scn.seed if seed is None else seed
-    bar = Progress(total=runs, enabled=sys.stderr.isatty() if progress is None else progress)
+    bar = sink(progress)
+    bar.start(runs, "Monte Carlo")
     for r in range(runs):
         rng = np.random.default_rng([base_seed, r])
         n_eval = est.model.stats["evaluations"]
@@ -205,7 +205,6 @@ def run_montecarlo(scn: Scenario, runs: int, methods=METHODS, progress: bool | N
             estimates[meth][r] = th
             stds[meth][r] = np.sqrt(np.diag(cv))
         bar.update(f"run {r + 1}/{runs}")
-    bar.close()
     mc = MonteCarlo(str(scn.path), runs, theta_true, crb, estimates, stds, times, noise_free, setup)
     mc.iterations = np.array(iters)
     return mc
@@ -231,31 +230,4 @@ def format_summary(s: dict) -> str:
     return "\n".join(lines)
 
 
-def add_montecarlo(sub) -> None:
-    p = sub.add_parser("montecarlo", help="re-measure a campaign with N noise seeds: bias, spread, CRB")
-    p.add_argument("scenario", type=Path, help="scenario TOML file")
-    p.add_argument("--runs", type=int, required=True, help="number of noise seeds")
-    p.add_argument("--method", choices=("both", "one-step", "two-step"), default="both",
-                   help="estimators to run (two-step runs both step-2 variants)")
-    p.add_argument("--seed", type=int, default=None, help="base noise seed (default: the scenario's)")
-    p.add_argument("--json", type=Path, default=None, help="write the summary as JSON")
-    p.set_defaults(func=cmd_montecarlo)
-
-
-def cmd_montecarlo(args) -> int:
-    import json
-    from calbench.bench.errors import InputError
-    if args.runs < 2:
-        raise InputError("--runs", "runs", "an integer >= 2", args.runs)
-    scn = load_scenario(args.scenario, seed=args.seed)
-    methods = {"both": METHODS, "one-step": ("one-step",),
-               "two-step": ("two-step", "two-step-weighted")}[args.method]
-    mc = run_montecarlo(scn, args.runs, methods)
-    s = mc.summary()
-    print(format_summary(s))
-    if args.json:
-        Path(args.json).write_text(json.dumps(s, indent=2))
-    return 0
-
-
-__all__ = ["add_montecarlo", "cmd_montecarlo", "campaign_observations", "run_montecarlo", "MonteCarlo", "format_summary", "true_theta"]
+__all__ = ["campaign_observations", "run_montecarlo", "MonteCarlo", "format_summary", "true_theta"]

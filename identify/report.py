@@ -9,17 +9,17 @@ scales every MJCF stiffness by 10 and checks the estimates do not move).
 """
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from calbench.bench.errors import InputError
 from calbench.bench.logformat import read_log
 from calbench.bench.robot import Robot
+
+from .model import check_sites, load_model
 
 from .forward import NP, PARAM_NAMES, PARAM_UNITS
 from .identifiability import OUTLIER_SIGMA, outliers
@@ -36,31 +36,6 @@ DISPLAY = {
     "N/m": ("kN/m", 1e-3),
     "m": ("mm", 1e3),
 }
-
-
-def load_model(log, model: str | Path | None) -> Robot:
-    """The robot for identification: --model, else the MJCF carried by the log."""
-    try:
-        if model is not None:
-            path = Path(model)
-            if not path.is_file():
-                raise InputError(path, "--model", "an existing MJCF file", "no such file")
-            return Robot.from_file(path)
-        if not log.mjcf_text:
-            raise InputError(log.path, "robot model", "an MJCF attachment in the log (or --model ROBOT.xml)",
-                             "none")
-        return Robot.from_xml(log.mjcf_text)
-    except ValueError as exc:  # MuJoCo compile errors, missing named joints
-        where = str(model) if model is not None else f"{log.path} (MJCF attachment)"
-        raise InputError(where, "robot model", "a loadable MJCF of the calbench robot", str(exc)) from None
-
-
-def check_sites(robot: Robot, obs: Observations, where) -> None:
-    import mujoco
-    for p in obs.poses:
-        for name in (p.site, *p.reflectors):
-            if mujoco.mj_name2id(robot.model, mujoco.mjtObj.mjOBJ_SITE, name) < 0:
-                raise InputError(where, f"site {name!r}", "a site of this name in the robot model", "none")
 
 
 @dataclass
@@ -243,35 +218,4 @@ def check_failed(rep: dict, z_max: float = Z_CHECK) -> list[str]:
     return [p["name"] for p in rep["parameters"] if p["z"] is not None and abs(p["z"]) > z_max]
 
 
-def add_identify(sub) -> None:
-    p = sub.add_parser("identify", help="estimate the elastostatic parameters from a campaign log")
-    p.add_argument("log", type=Path, help="campaign MCAP log")
-    p.add_argument("--model", type=Path, default=None, help="robot MJCF (default: the one in the log)")
-    p.add_argument("--method", choices=METHODS, default="one-step")
-    p.add_argument("--json", type=Path, default=None, help="write the report as JSON")
-    p.add_argument("--check", action="store_true",
-                   help=f"exit 1 when the log has ground truth and any |z| > {Z_CHECK:g}")
-    p.add_argument("--drop-outliers", action="store_true",
-                   help=f"refit without tracker readings off by more than {OUTLIER_SIGMA:g} sigma")
-    p.set_defaults(func=cmd_identify)
-
-
-def cmd_identify(args) -> int:
-    rep = run_identify(args.log, args.model, args.method, args.drop_outliers)
-    print(format_table(rep))
-    if args.json:
-        args.json.write_text(json.dumps(rep, indent=2, allow_nan=False))
-    if args.check:
-        if all(p["truth"] is None for p in rep["parameters"]):
-            print("check: the log carries no ground truth; nothing to check")
-            return 0
-        bad = check_failed(rep)
-        if bad:
-            print(f"check FAILED: |z| > {Z_CHECK:g} for " + ", ".join(bad))
-            return 1
-        print(f"check passed: every identified parameter within {Z_CHECK:g} standard deviations of the truth")
-    return 0
-
-
-__all__ = ["run_identify", "identify", "format_table", "as_json", "add_identify", "cmd_identify",
-           "check_failed", "load_model"]
+__all__ = ["run_identify", "identify", "format_table", "as_json", "check_failed", "METHODS", "Z_CHECK"]

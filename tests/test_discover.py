@@ -67,10 +67,10 @@ def logs(tmp_path_factory):
     cases["none"] = ""
     cases["tool"] = "[truth.effects.tool_compliance]\ncompliance = [4e-7, 4e-7]"
     for name, extra in cases.items():
-        run_campaign(load_scenario(scenario(tmp, name, extra)), tmp / f"{name}.mcap", show_progress=False)
+        run_campaign(load_scenario(scenario(tmp, name, extra)), tmp / f"{name}.mcap")
         out[name] = tmp / f"{name}.mcap"
     for name, comp in (("comp_default", (2.6e6, 0.83)), ("comp_strong", (6e6, 0.83))):
-        run_campaign(load_scenario(scenario(tmp, name, "", comp)), tmp / f"{name}.mcap", show_progress=False)
+        run_campaign(load_scenario(scenario(tmp, name, "", comp)), tmp / f"{name}.mcap")
         out[name] = tmp / f"{name}.mcap"
     out["bare"] = bare_model(tmp)
     out["tmp"] = tmp

@@ -59,7 +59,6 @@ import math
 import multiprocessing as mp
 import os
 import re
-import sys
 import time
 import tomllib
 from dataclasses import dataclass, field
@@ -70,7 +69,7 @@ import numpy as np
 
 from calbench.bench.campaign import GRAVITY, PARALLELOGRAM_MARGIN, parallelogram_angle, scenario_params
 from calbench.bench.errors import InputError
-from calbench.bench.progress import Progress
+from calbench.bench.progress import ProgressSink, sink
 from calbench.bench.robot import Robot
 from calbench.bench.scenario import Scenario, parse_scenario
 from calbench.bench.statics import Equilibrium, Load, StaticsSolver
@@ -479,7 +478,7 @@ def _worker(job):
 
 
 def generate_candidates(scn: Scenario, settings: DesignSettings, n: int | None = None,
-                        processes: int | None = None, progress: bool | None = None) -> CandidateSet:
+                        processes: int | None = None, progress: ProgressSink | None = None) -> CandidateSet:
     """At least ``n`` (default settings.candidates) feasible candidates, exactly n returned.
 
     Raw commands are drawn uniformly in the joint ranges (seeded by settings.seed or the
@@ -501,7 +500,9 @@ def generate_candidates(scn: Scenario, settings: DesignSettings, n: int | None =
     p_lat = 1.0 if frac >= 0.5 else frac / (1 - frac)
     p_vert = 1.0 if frac <= 0.5 else (1 - frac) / frac
     processes = processes or min(4, os.cpu_count() or 1)
-    bar = Progress(total=n, enabled=sys.stderr.isatty() if progress is None else progress)
+    bar = sink(progress)
+    bar.start(n, "candidates")
+    shown = 0
     rejected: dict[str, int] = {r: 0 for r in RULES}
     qs, ws, kinds, blocks = [], [], [], []
     screened = raw = 0
@@ -546,7 +547,8 @@ def generate_candidates(scn: Scenario, settings: DesignSettings, n: int | None =
                         n_ok += 1
                     if n_ok < len(loads):
                         rejected["visibility"] += len(loads) - n_ok  # equilibrium rules, mostly visibility
-                bar.update(f"candidates {min(len(qs), n)}/{n}", step=max(0, min(len(qs), n) - bar.done))
+                bar.update(f"candidates {min(len(qs), n)}/{n}", step=min(len(qs), n) - shown)
+                shown = min(len(qs), n)
                 if len(qs) >= n:
                     break
             if len(qs) < n and raw > 200 * n:  # give up only while still short of n
@@ -556,7 +558,6 @@ def generate_candidates(scn: Scenario, settings: DesignSettings, n: int | None =
         if pool is not None:
             pool.close()
             pool.join()
-        bar.close()
     m = max(b.shape[0] for b in blocks)
     out = np.zeros((n, m, NP))
     for i, b in enumerate(blocks[:n]):

@@ -17,8 +17,6 @@ The prior guess of the parameters is the scenario's [truth] (see design_candidat
 """
 from __future__ import annotations
 
-import json
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,11 +25,11 @@ import numpy as np
 
 from calbench.bench.campaign import GRAVITY
 from calbench.bench.errors import InputError
-from calbench.bench.progress import Progress
+from calbench.bench.progress import ProgressSink
 from calbench.bench.scenario import Scenario, scenario_as_dict, scenario_to_toml
 
 from .candidates import (LOAD_KINDS, CandidateSet, DesignSettings, InfoEngine,
-                                generate_candidates, lateral_wrench, load_design_scenario)
+                                lateral_wrench)
 from .criteria import CRITERIA, criterion_value, information, measures
 from .exchange import Exchanger
 from ..forward import PARAM_NAMES
@@ -97,7 +95,7 @@ def _lateral_sign(q, w) -> float:
 
 
 def refine(engine: InfoEngine, poses: list[PlanPose], criterion: str, G, steps=REFINE_STEPS_DEG,
-           budget_s: float = 20.0, progress: Progress | None = None) -> dict:
+           budget_s: float = 20.0, progress: ProgressSink | None = None) -> dict:
     """Coordinate descent in q on each chosen pose (see the module docstring). In place."""
     t0 = time.perf_counter()
     F = sum(p.repeats * p.block.T @ p.block for p in poses)
@@ -135,7 +133,7 @@ def refine(engine: InfoEngine, poses: list[PlanPose], criterion: str, G, steps=R
 
 def design_plan(scn: Scenario, settings: DesignSettings, cands: CandidateSet, M: int, criterion: str,
                 n_random: int = 8, seed: int = 0, do_refine: bool = True, engine: InfoEngine | None = None,
-                progress: Progress | None = None) -> DesignResult:
+                progress: ProgressSink | None = None) -> DesignResult:
     if criterion not in CRITERIA:
         raise InputError("--criterion", "criterion", "one of " + ", ".join(CRITERIA), criterion)
     engine = engine or InfoEngine(scn, settings)
@@ -206,83 +204,33 @@ def result_json(res: DesignResult, scn: Scenario, cands: CandidateSet, extra: di
     return out
 
 
-def add_design(sub) -> None:
-    p = sub.add_parser("design", help="optimal measurement configurations (design of experiments)")
-    p.add_argument("scenario", type=Path, help="scenario TOML (robot, truth = prior guess, tracker, load, "
-                   "optional [work] and [design])")
-    p.add_argument("--configs", type=int, default=12, help="number of measurement configurations M")
-    p.add_argument("--criterion", choices=CRITERIA, default="A")
-    p.add_argument("--out", type=Path, default=None, help="write the plan as a runnable scenario")
-    p.add_argument("--json", type=Path, default=None, help="write the criteria, stds and poses as JSON")
-    p.add_argument("--export-candidates", type=Path, default=None, help="write the candidate set (NPZ)")
-    p.add_argument("--candidates", type=int, default=None, help="override [design] candidates")
-    p.add_argument("--starts", type=int, default=8, help="random starts besides the greedy one")
-    p.add_argument("--no-refine", action="store_true", help="skip the continuous refinement")
-    p.add_argument("--processes", type=int, default=None, help="worker processes for the candidates")
-    p.add_argument("--study", action="store_true", help="reproduce the paper's §5 study (plots)")
-    p.add_argument("--out-dir", type=Path, default=Path("logs/design_study"), help="--study output folder")
-    p.set_defaults(func=cmd_design)
-
-
-def cmd_design(args) -> int:
-    if args.study:
-        from .study import run_study
-        run_study(args.scenario, args.out_dir, progress=sys.stderr.isatty())
-        return 0
-    if args.out is None and args.json is None and args.export_candidates is None:
-        raise InputError("(command line)", "--out", "--out PLAN.toml, --json OUT.json or --export-candidates "
-                         "CANDS.npz", None)
-    if args.configs < 1:
-        raise InputError("--configs", "configs", "an integer >= 1", args.configs)
-    scn, settings = load_design_scenario(args.scenario)
-    if args.criterion == "pose" and scn.work is None and (args.out or args.json):
-        raise InputError(scn.path, "work", "a [work] table (q in degrees, wrench in N and N*m) for "
-                         "--criterion pose", None)
-    tty = sys.stderr.isatty()
-    t0 = time.perf_counter()
-    cands = generate_candidates(scn, settings, n=args.candidates, processes=args.processes, progress=tty)
-    t_c = time.perf_counter() - t0
-    print(f"{len(cands)} feasible candidates ({int(cands.kind.sum())} lateral pulls) in {t_c:.1f} s "
-          f"from {cands.stats['raw_commands']} sampled commands", file=sys.stderr)
-    if args.export_candidates:
-        args.export_candidates.parent.mkdir(parents=True, exist_ok=True)
-        cands.save_npz(args.export_candidates)
-        print(f"wrote {args.export_candidates}", file=sys.stderr)
-    if args.out is None and args.json is None:
-        return 0
-    bar = Progress(total=1 + 3 * args.configs, enabled=tty)
-    engine = InfoEngine(scn, settings)
-    res = design_plan(scn, settings, cands, args.configs, args.criterion, n_random=args.starts,
-                      do_refine=not args.no_refine, engine=engine, progress=bar)
-    bar.close()
-    res.timings["candidates_s"] = t_c
-    G = work_jacobian(engine, scn)
+def input_plan_measures(engine: InfoEngine, scn: Scenario, theta0: np.ndarray) -> dict:
+    """The scenario's own [[pose]] plan, measured like a designed one, with its rule violations."""
     F_in, viol = scenario_plan_information(engine, scn)
-    input_plan = {"configs": int(sum(p.repeats for p in scn.poses)),
-                  "measures": plan_measures(F_in, cands.theta0, G), "violations": viol}
+    return {"configs": int(sum(p.repeats for p in scn.poses)),
+            "measures": plan_measures(F_in, theta0, work_jacobian(engine, scn)), "violations": viol}
+
+
+def summary_text(res: DesignResult, n_candidates: int, input_plan: dict) -> str:
+    """What `calbench design` prints: the plan's measures beside the scenario's own plan's."""
+    m, mi = res.measures, input_plan["measures"]
+    configs = int(sum(p.repeats for p in res.poses))
+    return (f"design: {res.criterion}-optimal plan of {configs} configurations from {n_candidates} candidates\n"
+            f"  A (trace cov) {m['A']:.4g}   D (det^1/8) {m['D']:.4g}   AD {m['AD']:.4g}"
+            + (f"   pose {m['pose']:.4g} m^2 ({m['pose_rms_um']:.2f} um rms)" if "pose" in m else "")
+            + f"\n  scenario's own plan ({input_plan['configs']} poses): A {mi['A']:.4g}   D {mi['D']:.4g}"
+            + (f"   pose {mi['pose']:.4g}" if "pose" in mi else ""))
+
+
+def plan_comment(scenario: Path, res: DesignResult) -> str:
+    """The header comment of a written PLAN.toml: how it was made and what it predicts."""
     m = res.measures
-    summary = (f"design: {args.criterion}-optimal plan of {args.configs} configurations "
-               f"from {len(cands)} candidates\n"
-               f"  A (trace cov) {m['A']:.4g}   D (det^1/8) {m['D']:.4g}   AD {m['AD']:.4g}"
-               + (f"   pose {m['pose']:.4g} m^2 ({m['pose_rms_um']:.2f} um rms)" if "pose" in m else "")
-               + f"\n  scenario's own plan ({input_plan['configs']} poses): A {input_plan['measures']['A']:.4g}"
-               f"   D {input_plan['measures']['D']:.4g}"
-               + (f"   pose {input_plan['measures']['pose']:.4g}" if "pose" in input_plan["measures"] else ""))
-    print(summary)
-    if args.out:
-        comment = (f"Measurement plan by `calbench design {Path(args.scenario).name} --configs {args.configs} "
-                   f"--criterion {args.criterion}`\n(prior guess = the scenario's [truth]). Predicted: "
-                   f"A = {m['A']:.6g}, D = {m['D']:.6g}, AD = {m['AD']:.6g}"
-                   + (f", pose = {m['pose']:.6g} m^2" if "pose" in m else ""))
-        text = plan_scenario_text(scn, res.poses, args.out, comment)
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(text)
-        print(f"wrote {args.out}", file=sys.stderr)
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result_json(res, scn, cands, {"input_plan": input_plan}), indent=2))
-    return 0
+    configs = int(sum(p.repeats for p in res.poses))
+    return (f"Measurement plan by `calbench design {Path(scenario).name} --configs {configs} "
+            f"--criterion {res.criterion}`\n(prior guess = the scenario's [truth]). Predicted: "
+            f"A = {m['A']:.6g}, D = {m['D']:.6g}, AD = {m['AD']:.6g}"
+            + (f", pose = {m['pose']:.6g} m^2" if "pose" in m else ""))
 
 
-__all__ = ["add_design", "cmd_design", "design_plan", "plan_scenario_text", "scenario_plan_information",
+__all__ = ["input_plan_measures", "summary_text", "plan_comment", "design_plan", "plan_scenario_text", "scenario_plan_information",
            "plan_measures", "refine", "work_jacobian", "PlanPose", "DesignResult"]

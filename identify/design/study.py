@@ -35,7 +35,7 @@ WRISTS = ((-45.0, 30.0, 135.0), (45.0, -30.0, 45.0))
 Q3 = (-30.0, 30.0)
 
 
-def run_study(scenario: Path, out_dir: Path, progress: bool = False, step: float = 5.0) -> dict:
+def run_study(scenario: Path, out_dir: Path, progress=None, step: float = 5.0) -> dict:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -130,7 +130,6 @@ def run_study(scenario: Path, out_dir: Path, progress: bool = False, step: float
            "curves": {"middle_q2": grid.tolist(), **{k: list(map(float, v)) for k, v in curves.items()},
                       "relative_std": {n: stds[:, j].tolist() for j, n in enumerate(PARAM_NAMES)}}}
     (out_dir / "study.json").write_text(json.dumps(res, indent=1))
-    print(json.dumps({"table1": table1, "table2": table2, "table3_parameters": table3}, indent=1))
     return res
 
 

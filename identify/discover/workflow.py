@@ -37,7 +37,6 @@ from pathlib import Path
 import numpy as np
 
 from calbench.bench.effects import augmented_xml, load_spec
-from calbench.bench.errors import InputError
 from calbench.bench.logformat import read_log
 from calbench.bench.robot import ACTUATED, COMPENSATOR, Robot
 
@@ -47,7 +46,7 @@ from .stats import (ALPHA_EFFECT, ALPHA_FIT, MIN_EXPLAINED, chi2_p, compare, dia
 from ..identifiability import whiten_factors
 from ..observations import from_log
 from ..onestep import one_step
-from ..report import check_sites, load_model
+from ..model import check_sites, load_model
 
 MAX_ROUNDS = 3
 UNEXPLAINED = "unexplained"
@@ -311,34 +310,6 @@ def story(rep: dict) -> str:
     return "\n".join(lines)
 
 
-def add_discover(sub) -> None:
-    p = sub.add_parser("discover", help="find where the model and the measurements disagree and name the missing effect")
-    p.add_argument("log", type=Path, help="campaign MCAP log")
-    p.add_argument("--model", type=Path, default=None, help="the user's robot MJCF (default: the one in the log)")
-    p.add_argument("--json", type=Path, default=None, help="write the report as JSON")
-    p.add_argument("--out-model", type=Path, default=None,
-                   help="augmented MJCF (default: LOG.augmented.xml next to the log, when an effect is named)")
-    p.add_argument("--plot", type=Path, default=None,
-                   help="per-pose residuals before/after, PNG (default: next to --json, or LOG.discover.png)")
-    p.add_argument("--view-json", type=Path, default=None,
-                   help="identify-style JSON with predicted deflections for `calbench view --identified` "
-                        "(default: next to --json)")
-    p.set_defaults(func=cmd_discover)
-
-
-def cmd_discover(args) -> int:
-    if not args.log.is_file():
-        raise InputError(args.log, "LOG.mcap", "an existing campaign log", "no such file")
-    plot = args.plot or (args.json.with_suffix(".png") if args.json else args.log.with_name(args.log.stem + ".discover.png"))
-    view = args.view_json or (args.json.with_name(args.json.stem + ".view.json") if args.json else None)
-    rep = discover(args.log, args.model, out_model=args.out_model, plot=plot, view_json=view)
-    print(story(rep))
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(clean(rep), indent=2, allow_nan=False))
-    return 0
-
-
 def clean(x):
     """JSON-safe copy: numpy scalars/arrays to Python, NaN and infinities to null."""
     if isinstance(x, dict):
@@ -356,5 +327,5 @@ def clean(x):
     return x
 
 
-__all__ = ["discover", "story", "add_discover", "cmd_discover", "augmented_mjcf", "plot_residuals",
+__all__ = ["discover", "story", "augmented_mjcf", "plot_residuals",
            "view_report", "clean", "UNEXPLAINED"]
