@@ -31,38 +31,18 @@ paper solves eq. (20) once, we iterate because the model is nonlinear in theta.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
 from calbench.bench.robot import Robot
 
-from .forward import NP, PARAM_NAMES, ForwardModel, design_from_observations
-from .identifiability import Identifiability, analyze, explain, whiten_factors
+from .forward import NP, PARAM_NAMES, PARAM_UNITS, ForwardModel, design_from_observations
+from .identifiability import RANK_TOL, analyze, explain, whiten_factors
+from .leastsq import Fit, covariance, levenberg_marquardt
 from .observations import Observations
 from .twostep import TwoStepResult, group_q2, plan_facts, two_step
 
 GENERIC_COMPLIANCE = 1e-7     # rad/(N*m)
 GENERIC_KC = 1e6              # N/m
-
-
-@dataclass
-class FitResult:
-    theta: np.ndarray               # (8,) NaN where not identifiable
-    cov: np.ndarray                 # (8,8) NaN rows/cols where not identifiable
-    identifiable: np.ndarray
-    reasons: dict[str, str]
-    residual: np.ndarray            # (M,3) dp - f(theta), m
-    residual_w: np.ndarray          # (M,3) whitened
-    chi2: float
-    dof: int
-    iterations: int
-    evaluations: int
-    converged: bool
-    start: np.ndarray
-    start_method: str
-    ident: Identifiability | None = None
-    extra: dict = field(default_factory=dict)
 
 
 def generic_start(robot: Robot, obs: Observations) -> np.ndarray:
@@ -103,90 +83,42 @@ class OneStep:
 
     def fit(self, dp: np.ndarray, linv: np.ndarray, start: np.ndarray, *, scale=None,
             start_eval: tuple[np.ndarray, np.ndarray] | None = None, step_tol: float = 1e-6,
-            max_iter: int = 40, final_eval: bool = True, start_method: str = "given") -> FitResult:
+            max_iter: int = 40, final_eval: bool = True, start_method: str = "given") -> Fit:
         """Fit to observations dp (M,3) with whitening factors linv (M,3,3).
 
         Iterates in phi = [k1..k6, K_C, P = K_C s0] (the compensator's force K_C (L - s0) is
         linear in K_C and P, as in eq. 21's unknowns), scaled by ``scale`` (|phi(start)| by
         default); reports theta = [k1..k6, K_C, s0 = P / K_C]. The maximum-likelihood point does
-        not depend on the parametrisation; the iterations do (fewer here).
+        not depend on the parametrisation; the iterations do (fewer here). The iterations are
+        identify/leastsq.py's core; unidentifiable parameters (rank analysis at every iterate)
+        are held at their start.
         start_eval: (f, J) already evaluated at ``start`` (saves one evaluation).
         """
         model = self.model
-        phi = to_phi(np.array(start, dtype=float))
-        scale = np.where(np.abs(phi) > 0, np.abs(phi), 1.0) if scale is None else np.asarray(scale)
+        phi0 = to_phi(np.array(start, dtype=float))
+        scale = np.where(np.abs(phi0) > 0, np.abs(phi0), 1.0) if scale is None else np.asarray(scale)
         yw = np.einsum("mij,mj->mi", linv, dp).reshape(-1)
         n_eval0 = model.stats["evaluations"]
 
-        def lin(ph, fj=None):
-            th = to_theta(ph)
-            f, j = fj if fj is not None else model.evaluate(th)
+        def whiten(ph, f, j):
             fw = np.einsum("mij,mj->mi", linv, f).reshape(-1)
-            jw = np.einsum("mij,mjk->mik", linv, j).reshape(-1, NP) @ dtheta_dphi(ph) * scale
+            jw = np.einsum("mij,mjk->mik", linv, j).reshape(-1, NP) @ dtheta_dphi(ph)
             return fw, jw
 
-        fw, jw = lin(phi, start_eval)
-        rw = yw - fw
-        cost = float(rw @ rw)
-        lam = 0.0
-        converged = False
-        it = 0
-        prev_step = np.inf
-        ident = analyze(jw, PARAM_NAMES)
-        for it in range(1, max_iter + 1):
-            ident = analyze(jw, PARAM_NAMES)
-            free = ident.identifiable
-            jf = jw[:, free]
-            jtj = jf.T @ jf
-            g = jf.T @ rw
-            std_u = np.sqrt(np.diag(np.linalg.inv(jtj)))
-            du = np.linalg.solve(jtj, g)
-            step = float(np.max(np.abs(du) / std_u))    # Gauss-Newton step in sigmas
-            prev, prev_step = prev_step, step
-            rho = step / prev if np.isfinite(prev) else np.inf   # observed contraction of the steps
-            if step < step_tol or (np.isfinite(prev) and rho < 0.5 and rho / (1 - rho) * step < step_tol):
-                # the remaining error after this step (geometric series) is below step_tol sigma
-                phi[free] += scale[free] * du
-                rw = rw - jf @ du
-                cost = float(rw @ rw)
-                converged = True
-                break
-            accepted = False
-            for _ in range(30):
-                if lam > 0:
-                    du = np.linalg.solve(jtj + lam * np.diag(np.diag(jtj)), g)
-                trial = phi.copy()
-                trial[free] += scale[free] * du
-                if not valid_phi(trial):
-                    lam = max(10 * lam, 1e-3)
-                    continue
-                try:
-                    fw_t, jw_t = lin(trial)
-                except (RuntimeError, ValueError):
-                    lam = max(10 * lam, 1e-3)
-                    continue
-                rw_t = yw - fw_t
-                cost_t = float(rw_t @ rw_t)
-                # Within one sigma of the optimum the undamped Gauss-Newton step is taken without
-                # a cost test: there the cost changes by ~step^2, which for tiny steps is below
-                # the cost's round-off (solver precision ~1e-6 sigma per residual).
-                if (lam == 0.0 and step < 1.0) or cost_t <= cost:
-                    phi, fw, jw, rw, cost = trial, fw_t, jw_t, rw_t, cost_t
-                    lam = lam / 10 if lam > 1e-6 else 0.0
-                    accepted = True
-                    break
-                lam = max(10 * lam, 1e-3)
-            if not accepted:
-                break
-        if final_eval:
-            fw, jw = lin(phi)
-            rw = yw - fw
-            cost = float(rw @ rw)
-            ident = analyze(jw, PARAM_NAMES)
+        def evaluate(ph):
+            return whiten(ph, *model.evaluate(to_theta(ph)))
+
+        sol = levenberg_marquardt(
+            evaluate, yw, phi0, scale, valid=valid_phi,
+            free_fn=lambda jw: analyze(jw, PARAM_NAMES).identifiable,
+            step_tol=step_tol, rank_tol=RANK_TOL, max_iter=max_iter, max_damping=30,
+            accept_within_sigma=True, final_eval=final_eval,
+            start_eval=None if start_eval is None else whiten(phi0, *start_eval))
+        phi = sol.x
+        ident = analyze(sol.j_w * scale, PARAM_NAMES)
         free = ident.identifiable
-        jf = jw[:, free]
-        cov_phi = np.zeros((NP, NP))
-        cov_phi[np.ix_(free, free)] = np.linalg.inv(jf.T @ jf) * np.outer(scale[free], scale[free])
+        cov_phi, _ = covariance(sol.j_w * scale, free, scale, RANK_TOL)
+        cov_phi[np.isnan(cov_phi)] = 0.0
         dt = dtheta_dphi(phi)
         cov = dt @ cov_phi @ dt.T
         theta = to_theta(phi)
@@ -194,8 +126,6 @@ class OneStep:
         bad[7] = bad[6] or bad[7]           # s0 = P / K_C needs both
         cov[bad, :] = np.nan
         cov[:, bad] = np.nan
-        est = theta.copy()
-        est[bad] = np.nan
         explain(ident, motor_torque_seen=self.facts["motor_torque_seen"],
                 loads_vertical=self.facts["loads_vertical"],
                 n_distinct_q2=self.facts["n_distinct_q2"],
@@ -203,11 +133,12 @@ class OneStep:
         reasons = dict(ident.reasons)
         if bad[7] and "compensator_preload" not in reasons:
             reasons["compensator_preload"] = "s0 = (K_C s0) / K_C and K_C is not identified"
-        resid_w = rw.reshape(-1, 3)
+        resid_w = sol.r_w.reshape(-1, 3)
         resid = np.einsum("mij,mj->mi", np.linalg.inv(linv), resid_w)
-        return FitResult(est, cov, ~bad, reasons, resid, resid_w, cost,
-                         int(rw.size - free.sum()), it, model.stats["evaluations"] - n_eval0,
-                         converged, np.array(start, float), start_method, ident)
+        return Fit(theta, cov, ~bad, resid, resid_w, sol.cost, sol.r_w.size, int(free.sum()), sol.iterations, model.stats["evaluations"] - n_eval0, sol.converged,
+                   sol.seconds, names=PARAM_NAMES, units=PARAM_UNITS, reasons=reasons,
+                   start=np.array(start, float), start_method=start_method, ident=ident, model=model,
+                   robot=self.robot)
 
 
 def to_phi(theta: np.ndarray) -> np.ndarray:
@@ -235,7 +166,7 @@ def valid_phi(phi: np.ndarray) -> bool:
 
 
 def one_step(robot: Robot, obs: Observations, start: np.ndarray | None = None,
-             two: TwoStepResult | None = None, **kw) -> FitResult:
+             two: TwoStepResult | None = None, **kw) -> Fit:
     """Identify all parameters at once from the observations (see the module docstring)."""
     est = OneStep(robot, obs)
     linv = whiten_factors(obs.cov)
@@ -254,4 +185,4 @@ def one_step(robot: Robot, obs: Observations, start: np.ndarray | None = None,
     return res
 
 
-__all__ = ["FitResult", "OneStep", "one_step", "generic_start", "sanitize_start"]
+__all__ = ["Fit", "OneStep", "one_step", "generic_start", "sanitize_start"]

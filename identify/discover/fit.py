@@ -33,17 +33,17 @@ any base parameter still unidentifiable is held as in identify/onestep.py.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import mujoco
 import numpy as np
 
-from calbench.bench.effects import REGISTRY, Effect, EffectRobot, apply_effects
+from calbench.bench.effects import REGISTRY, Effect, apply_effects
 from calbench.bench.robot import Robot
 
 from ..forward import NP, PARAM_NAMES, PARAM_UNITS, ForwardModel, PoseDesign, design_from_observations, to_params
 from ..identifiability import analyze
+from ..leastsq import Fit, at_bounds, covariance, levenberg_marquardt
 
 # --------------------------------------------------------------------------- the library
 
@@ -69,7 +69,6 @@ UNIT_PRIORS: dict[str, dict] = {
     "m": {"start": 1.0, "lower": 1e-3, "upper": 10.0, "size": 1.0},              # free length
 }
 DISCOVER_RANK_TOL = 1e-5     # singular value (column-normalised) below which a direction is unseen
-DEBUG = False
 COST_TOL = 1e-3              # chi2 units: a step gaining (or promising) less ends the fit
 BASE_LOWER = np.array([1e-12] * 6 + [1.0, 1e-3])
 BASE_UPPER = np.array([1e-5] * 6 + [1e9, 10.0])
@@ -163,54 +162,6 @@ class AugmentedForward(ForwardModel):
 
 # --------------------------------------------------------------------------- fitting
 
-@dataclass
-class Fit:
-    """A maximum-likelihood fit of one model (base + effects) to the observations."""
-
-    effects: list[Effect]
-    theta: np.ndarray                 # (P,) all parameters (held ones at their held values)
-    free: np.ndarray                  # (P,) bool: estimated (identifiable, not at a bound)
-    at_bound: np.ndarray              # (P,) bool
-    cov: np.ndarray                   # (P,P) inverse Fisher information on the free ones, NaN else
-    predicted: np.ndarray             # (M,3) model deflections, m
-    residual: np.ndarray              # (M,3) measured - predicted, m
-    residual_w: np.ndarray            # (M,3) whitened
-    chi2: float
-    n_res: int                        # number of scalar residuals (3M)
-    iterations: int
-    evaluations: int
-    converged: bool
-    seconds: float
-    model: AugmentedForward = field(repr=False, default=None)
-    robot: EffectRobot | Robot = field(repr=False, default=None)
-
-    rank: int = 0                     # parameters the data determine (Jacobian rank on the free ones)
-
-    @property
-    def n_free(self) -> int:
-        return int(self.rank)
-
-    @property
-    def dof(self) -> int:
-        return self.n_res - self.n_free
-
-    @property
-    def names(self) -> list[str]:
-        return param_names(self.effects)
-
-    @property
-    def units(self) -> list[str]:
-        return param_units(self.effects)
-
-    def effect_params(self) -> list[tuple[Effect, np.ndarray]]:
-        out, off = [], NP
-        for e in self.effects:
-            n = len(e.param_names)
-            out.append((e, self.theta[off: off + n].copy()))
-            off += n
-        return out
-
-
 def build(model_source, effects: list[tuple[Effect, np.ndarray]], obs) -> tuple[Robot, AugmentedForward]:
     """The candidate robot (user's MJCF + effects) and its forward model for the observations.
     Raises ValueError / NotImplementedError when an effect does not apply to this MJCF."""
@@ -224,141 +175,51 @@ def build(model_source, effects: list[tuple[Effect, np.ndarray]], obs) -> tuple[
     return robot, fm
 
 
-def _svd_step(jw: np.ndarray, rw: np.ndarray, lam: float) -> tuple[np.ndarray, int, np.ndarray]:
-    """Minimum-norm (truncated SVD) Levenberg-Marquardt step on column-normalised jw.
-
-    Directions the plan cannot see (singular values below RANK_TOL of the largest) are left
-    alone, so combinations of parameters that no measurement separates (an effect parameter
-    and a base one, two hinges that only move together) are not pushed anywhere: the step is
-    the smallest one that fits. Returns (du in jw's columns, rank, V_seen)."""
-    norms = np.linalg.norm(jw, axis=0)
-    ok = norms > 0
-    du = np.zeros(jw.shape[1])
-    if not ok.any():
-        return du, 0, np.zeros((jw.shape[1], 0))
-    jn = jw[:, ok] / norms[ok]
-    u, s, vt = np.linalg.svd(jn, full_matrices=False)
-    keep = s > DISCOVER_RANK_TOL * s[0]
-    s_k, u_k, v_k = s[keep], u[:, keep], vt[keep].T
-    coef = s_k / (s_k ** 2 + lam * s_k[0] ** 2) * (u_k.T @ rw)
-    du[ok] = (v_k @ coef) / norms[ok]
-    v_full = np.zeros((jw.shape[1], v_k.shape[1]))
-    v_full[ok] = v_k
-    return du, int(keep.sum()), v_full
-
-
-def _covariance(jw: np.ndarray, free: np.ndarray, scale: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
-    """Pseudo-inverse Fisher information on the free parameters (scaled back), the identifiable
-    flags (weight in the unseen directions <= NULL_TOL) and the rank."""
-    npar = jw.shape[1]
-    cov = np.full((npar, npar), np.nan)
-    ident = np.zeros(npar, bool)
-    idx = np.flatnonzero(free)
-    if idx.size == 0:
-        return cov, ident, 0
-    a = analyze(jw[:, idx], tuple(str(i) for i in idx))
-    jf = jw[:, idx]
-    norms = np.where(a.column_norms > 0, a.column_norms, 1.0)
-    jn = jf / norms
-    u, s, vt = np.linalg.svd(jn, full_matrices=False)
-    keep = s > DISCOVER_RANK_TOL * s[0]
-    pinv = (vt[keep].T / s[keep] ** 2) @ vt[keep]
-    c = pinv / np.outer(norms, norms) * np.outer(scale[idx], scale[idx])
-    cov[np.ix_(idx, idx)] = c
-    ident[idx] = a.identifiable
-    return cov, ident, int(keep.sum())
-
-
-def _at_bounds(theta, lower, upper) -> tuple[np.ndarray, np.ndarray]:
-    lo = np.isfinite(lower) & (theta <= lower + 1e-9 * np.abs(np.where(np.isfinite(lower), lower, 0)))
-    hi = np.isfinite(upper) & (theta >= upper - 1e-9 * np.abs(np.where(np.isfinite(upper), upper, 0)))
-    return lo, hi
-
-
 def fit(model: AugmentedForward, dp: np.ndarray, linv: np.ndarray, start: np.ndarray,
         lower: np.ndarray, upper: np.ndarray, hold: np.ndarray | None = None, *, step_tol: float = 1e-3,
         max_iter: int = 30) -> Fit:
-    """Levenberg-Marquardt with minimum-norm steps on the whitened residual; lower bounds by
-    projection (a parameter at its bound whose step points outside is fixed for that step).
+    """Maximum-likelihood fit of the base + effect parameters (identify/leastsq.py's core, with
+    minimum-norm steps: directions the plan cannot see are left where they are; bounds by an
+    active set and projection). Stops when a step promises or gains less than COST_TOL-scale
+    chi2 (``max(step_tol^2, 10 COST_TOL)`` promised, COST_TOL gained).
 
     hold: parameters never estimated. The fitted model's number of free parameters is the rank
     of the Jacobian on the rest (what the data determine), used for dof, chi2 and BIC.
     """
     t0 = time.perf_counter()
     npar = model.n_params
-    theta = np.array(start, dtype=float)
+    theta0 = np.array(start, dtype=float)
     hold = np.zeros(npar, bool) if hold is None else np.asarray(hold, bool).copy()
-    scale = np.where(np.abs(theta) > 0, np.abs(theta), model._fd_size)
+    scale = np.where(np.abs(theta0) > 0, np.abs(theta0), model._fd_size)
     yw = np.einsum("mij,mj->mi", linv, dp).reshape(-1)
     n0 = model.stats["evaluations"]
+    last: dict = {}
 
-    def lin(th):
+    def evaluate(th):
         f, j = model.evaluate(th)
-        fw = np.einsum("mij,mj->mi", linv, f).reshape(-1)
-        jw = np.einsum("mij,mjk->mik", linv, j).reshape(-1, npar) * scale
-        return f, fw, jw
+        last["f"] = f
+        return (np.einsum("mij,mj->mi", linv, f).reshape(-1),
+                np.einsum("mij,mjk->mik", linv, j).reshape(-1, npar))
 
-    f, fw, jw = lin(theta)
-    rw = yw - fw
-    cost = float(rw @ rw)
-    lam = 0.0
-    converged = False
-    it = 0
-    for it in range(1, max_iter + 1):
-        free = ~hold
-        at_low, at_high = _at_bounds(theta, lower, upper)
-        du = np.zeros(npar)
-        for _ in range(npar):                    # fix bound parameters whose step points out
-            du[:] = 0.0
-            du[free], _, _ = _svd_step(jw[:, free], rw, 0.0)
-            out = free & ((at_low & (du < 0)) | (at_high & (du > 0)))
-            if not out.any():
-                break
-            free &= ~out
-        # predicted decrease of the undamped step, in cost units: stop when negligible
-        gain = float(np.sum((jw[:, free] @ du[free]) ** 2))
-        if gain < max(step_tol ** 2, 10 * COST_TOL):
-            converged = True
-            break
-        accepted = False
-        for _ in range(12):
-            if lam > 0:
-                du[:] = 0.0
-                du[free], _, _ = _svd_step(jw[:, free], rw, lam)
-            trial = theta.copy()
-            trial[free] += scale[free] * du[free]
-            trial = np.clip(trial, lower, upper)   # projection on the bounds
-            try:
-                f_t, fw_t, jw_t = lin(trial)
-            except (RuntimeError, ValueError):
-                lam = max(10 * lam, 1e-3)
-                continue
-            rw_t = yw - fw_t
-            cost_t = float(rw_t @ rw_t)
-            if cost_t <= cost + 1e-9 * max(cost, 1.0):
-                gained = cost - cost_t
-                theta, f, fw, jw, rw, cost = trial, f_t, fw_t, jw_t, rw_t, cost_t
-                lam = lam / 10 if lam > 1e-6 else 0.0
-                accepted = True
-                break
-            lam = max(10 * lam, 1e-3)
-        if DEBUG:
-            print(f"  it {it} cost {cost:.6f} gained {gained if accepted else None} gain {gain:.3g} lam {lam:g} free {free.sum()} theta_eff {theta[NP:]}")
-        if not accepted:
-            break
-        if gained < COST_TOL:
-            converged = True
-            break
-    at_low, at_high = _at_bounds(theta, lower, upper)
+    sol = levenberg_marquardt(evaluate, yw, theta0, scale, lower=lower, upper=upper, hold=hold,
+                              gain_tol=max(step_tol ** 2, 10 * COST_TOL), cost_tol=COST_TOL,
+                              rank_tol=DISCOVER_RANK_TOL, max_iter=max_iter)
+    theta = sol.x
+    at_low, at_high = at_bounds(theta, lower, upper)
     free = ~hold & ~at_low & ~at_high
-    cov, ident, rank = _covariance(jw, free, scale)
-    resid_w = rw.reshape(-1, 3)
+    jw = sol.j_w * scale
+    cov, rank = covariance(jw, free, scale, DISCOVER_RANK_TOL)
+    ident = np.zeros(npar, bool)
+    idx = np.flatnonzero(free)
+    if idx.size:
+        ident[idx] = analyze(jw[:, idx], tuple(str(i) for i in idx)).identifiable
+    resid_w = sol.r_w.reshape(-1, 3)
     resid = np.einsum("mij,mj->mi", np.linalg.inv(linv), resid_w)
-    out = Fit(list(model.effects), theta, ident, ~free & ~hold, cov, f, resid, resid_w, cost, rw.size,
-              it, model.stats["evaluations"] - n0, converged, time.perf_counter() - t0, model,
-              model.robot)
-    out.rank = rank
-    return out
+    return Fit(theta, cov, ident, resid, resid_w, sol.cost, sol.r_w.size, rank, sol.iterations,
+               model.stats["evaluations"] - n0, sol.converged, time.perf_counter() - t0,
+               names=tuple(param_names(model.effects)), units=tuple(param_units(model.effects)),
+               predicted=last["f"], at_bound=~free & ~hold, start=theta0, effects=list(model.effects),
+               model=model, robot=model.robot)
 
 
 __all__ = ["DISCOVERY_EFFECTS", "OPTIONS", "UNIT_PRIORS", "library", "label", "effect_priors",

@@ -58,7 +58,7 @@ def pose_features(fit, obs) -> dict[str, np.ndarray]:
     robot = fit.robot
     m, d = robot.model, robot.data
     eqs = fit.model.equilibria()
-    k = fit.theta[:6]
+    k = fit.values[:6]
     q2, ext, ang = [], [], []
     tau = []
     for p, (q0, q1) in zip(obs.poses, eqs):

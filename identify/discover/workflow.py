@@ -64,16 +64,16 @@ def _candidate_fit(src, obs, linv, current: Fit, hold_base: np.ndarray, effect) 
     start, lower, upper, _ = effect_priors(effect)
     applied = current.effect_params()
     _, fm = build(src, applied + [(effect, start)], obs)
-    n_prev = current.theta.size - NP
+    n_prev = current.values.size - NP
     lo = np.concatenate([BASE_LOWER] + [effect_priors(e)[1] for e, _ in applied] + [lower])
     hi = np.concatenate([BASE_UPPER] + [effect_priors(e)[2] for e, _ in applied] + [upper])
     hold = np.concatenate([hold_base, np.zeros(n_prev + start.size, bool)])
-    return fit(fm, obs.dp, linv, np.concatenate([current.theta, start]), lo, hi, hold)
+    return fit(fm, obs.dp, linv, np.concatenate([current.values, start]), lo, hi, hold)
 
 
 def _step_record(effect, cand: Fit, before: Fit, stats_: dict, obs) -> dict:
     params = cand.effect_params()[-1][1]
-    off = cand.theta.size - params.size
+    off = cand.values.size - params.size
     sd = np.sqrt(np.abs(np.diagonal(cand.cov)[off:]))
     return {"effect": effect.name, "detail": effect.detail,
             "rms_before": rms(before.residual), "rms_after": rms(cand.residual),
@@ -89,15 +89,15 @@ def _step_record(effect, cand: Fit, before: Fit, stats_: dict, obs) -> dict:
 def augmented_mjcf(src, fitted: Fit) -> str:
     """The user's MJCF with the identified base parameters and every effect written in."""
     spec = load_spec(Path(src) if isinstance(src, Path) else src)
-    k = fitted.theta[:6]
+    k = fitted.values[:6]
     for name, ki in zip(ACTUATED, k):
         j = spec.joint(name)
         if j is not None:
             j.stiffness[0] = 1.0 / ki
     t = spec.tendon(COMPENSATOR)
     if t is not None and fitted.free[6]:
-        t.stiffness[0] = fitted.theta[6]
-        t.springlength = [fitted.theta[7], fitted.theta[7]]
+        t.stiffness[0] = fitted.values[6]
+        t.springlength = [fitted.values[7], fitted.values[7]]
     effects = fitted.effect_params()
     for e, p in effects:
         e.apply(spec, p)
@@ -220,7 +220,7 @@ def _parameters(f: Fit) -> list[dict]:
     sd = np.sqrt(np.abs(np.diagonal(f.cov)))
     return [{"name": n, "unit": u, "estimate": float(v), "std": _num(s) if f.free[i] else None,
              "determined": bool(f.free[i])}
-            for i, (n, u, v, s) in enumerate(zip(f.names, f.units, f.theta, sd))]
+            for i, (n, u, v, s) in enumerate(zip(f.names, f.units, f.values, sd))]
 
 
 def view_report(f: Fit, obs, rep: dict) -> dict:

@@ -1,0 +1,148 @@
+"""Why calbench keeps its own Levenberg–Marquardt loop (identify/leastsq.py): measured.
+
+Side by side in one process, on the paper campaign's one-step identification (eight
+parameters, exact statics), from the same start and with the same forward model:
+* calbench's core (identify/leastsq.py), as `calbench identify` runs it;
+* scipy.optimize.least_squares (trust-region reflective, x_scale from the start, the model's
+  own Jacobian; tolerances tight enough to reach the same optimum);
+* mujoco.minimize.least_squares (MuJoCo 4's bounded LM, the model's own Jacobian);
+and the Monte Carlo case: a run started at the noise-free estimate with its model value and
+Jacobian already known (what `calbench montecarlo` does 1000 times).
+
+Prints JSON: model evaluations, seconds and the largest difference of the estimates from
+calbench's, in standard deviations. Usage: python benchmarks/lm_bench.py [--repeats 3]
+"""
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import scipy.optimize
+
+from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.robot import Robot
+from calbench.bench.scenario import load_scenario
+from calbench.identify.forward import NP
+from calbench.identify.identifiability import whiten_factors
+from calbench.identify.montecarlo import campaign_observations
+from calbench.identify.onestep import OneStep, generic_start, sanitize_start, to_phi, to_theta
+from calbench.identify.twostep import two_step
+
+ROOT = Path(__file__).resolve().parent.parent
+PAPER = ROOT / "scenarios" / "paper_table5.toml"
+
+
+def problem(seed: int):
+    scn = load_scenario(PAPER)
+    plans = plan_campaign(scn, truth_robot(scn))
+    robot = Robot.from_file(scn.robot)
+    obs = campaign_observations(scn, truth_robot(scn), plans, np.random.default_rng(seed))
+    linv = whiten_factors(obs.cov)
+    start, _ = sanitize_start(two_step(robot, obs).theta, generic_start(robot, obs))
+    return robot, obs, linv, start
+
+
+def library_runs(est: OneStep, obs, linv, start, ours) -> dict:
+    """scipy and mujoco on the same problem in phi = [k, K_C, K_C s0] scaled by |phi(start)|."""
+    model = est.model
+    yw = np.einsum("mij,mj->mi", linv, obs.dp).reshape(-1)
+    phi0 = to_phi(start)
+    scale = np.abs(phi0)
+    cache: dict = {}
+
+    def fj(z):
+        key = z.tobytes()
+        if key not in cache:
+            f, j = model.evaluate(to_theta(z * scale))
+            cache.clear()
+            cache[key] = (np.einsum("mij,mj->mi", linv, f).reshape(-1),
+                          np.einsum("mij,mjk->mik", linv, j).reshape(-1, NP))
+        return cache[key]
+
+    n_eval = {"n": 0}
+
+    def resid(z):
+        n0 = model.stats["evaluations"]
+        fw, _ = fj(z)
+        n_eval["n"] += model.stats["evaluations"] - n0
+        return fw - yw
+
+    def jac(z, *_):
+        n0 = model.stats["evaluations"]
+        th = to_theta(z * scale)
+        _, jw = fj(z)
+        n_eval["n"] += model.stats["evaluations"] - n0
+        # d theta / d phi for the compensator pair, then the scaling
+        from calbench.identify.onestep import dtheta_dphi
+        return jw @ dtheta_dphi(z * scale) * scale if th is not None else None
+
+    out = {}
+    sd = np.sqrt(np.diag(ours.cov))
+    for name, run in (
+        ("scipy_trf", lambda: scipy.optimize.least_squares(resid, phi0 / scale, jac=jac, method="trf",
+                                                            xtol=1e-12, ftol=1e-12, gtol=1e-12).x),
+        ("mujoco_minimize", lambda: _mujoco(resid, jac, phi0 / scale)),
+    ):
+        n_eval["n"] = 0
+        t = time.perf_counter()
+        z = run()
+        dt = time.perf_counter() - t
+        th = to_theta(z * scale)
+        out[name] = {"evaluations": n_eval["n"], "seconds": dt,
+                     "max_abs_difference_in_sigma": float(np.nanmax(np.abs(th - ours.theta) / sd))}
+    return out
+
+
+def _mujoco(resid, jac, z0):
+    """mujoco.minimize passes points as columns (n, k) and wants residuals as columns."""
+    from mujoco import minimize
+
+    def r2(z):
+        z = np.asarray(z).reshape(len(z0), -1)
+        return np.column_stack([resid(z[:, i]) for i in range(z.shape[1])])
+
+    x, _ = minimize.least_squares(z0, r2, jacobian=lambda z, r: jac(np.asarray(z).ravel()), verbose=0,
+                                  output=io.StringIO(), xtol=1e-12, gtol=1e-12)
+    return np.asarray(x).ravel()
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--repeats", type=int, default=3)
+    args = ap.parse_args()
+    out: dict = {"identify": [], "montecarlo_run": []}
+    for seed in range(args.repeats):
+        robot, obs, linv, start = problem(seed)
+        est = OneStep(robot, obs)
+        t = time.perf_counter()
+        n0 = est.model.stats["evaluations"]
+        ours = est.fit(obs.dp, linv, start, start_method="two-step")
+        row = {"seed": seed, "calbench": {"evaluations": est.model.stats["evaluations"] - n0,
+                                          "seconds": time.perf_counter() - t}}
+        row.update(library_runs(OneStep(robot, obs, est.model), obs, linv, start, ours))
+        out["identify"].append(row)
+        # the Monte Carlo case: start at a known estimate with its evaluation in hand
+        theta0 = ours.theta
+        f0, j0 = est.model.evaluate(theta0)
+        _, _, linv2, _ = problem(seed + 100)
+        obs2 = campaign_observations(load_scenario(PAPER), truth_robot(load_scenario(PAPER)),
+                                     plan_campaign(load_scenario(PAPER)), np.random.default_rng(seed + 100))
+        n0 = est.model.stats["evaluations"]
+        t = time.perf_counter()
+        r2 = est.fit(obs2.dp, linv2, theta0, scale=np.abs(to_phi(theta0)), start_eval=(f0, j0),
+                     final_eval=False, step_tol=1e-2)
+        mc = {"seed": seed + 100, "calbench": {"evaluations": est.model.stats["evaluations"] - n0,
+                                               "seconds": time.perf_counter() - t}}
+        mc.update(library_runs(OneStep(robot, obs2, est.model), obs2, linv2, theta0,
+                               est.fit(obs2.dp, linv2, theta0)))
+        out["montecarlo_run"].append(mc)
+        del r2
+    print(json.dumps(out, indent=2))
+
+
+if __name__ == "__main__":
+    main()
