@@ -7,8 +7,11 @@ no selection logic: an :class:`Effect` knows its parameters (SI), how to edit a 
 model without recompiling (:meth:`Effect.set_params`, the fast path for fitting). Both give the
 same model.
 
-Adding an effect = one factory function decorated with :func:`register` (and, if the scenario
-file may carry it, a `from_truth` parser). Nothing else in the project needs to change.
+Adding an effect = one factory function decorated with :func:`register`, which carries
+everything about it: the scenario parser (`from_truth`, if the truth may carry it), the
+structural options discovery tries (`discover`; none = a truth-only effect) and, where the
+per-unit defaults (:data:`UNIT_PRIORS`) do not fit, its parameters' priors. Nothing else in the
+project needs to change.
 
 Every new joint has ref 0 and springref 0, so its qpos0 and qpos_spring are 0 and
 :meth:`bench.robot.Robot.rigid_qpos` leaves it at 0 (only the actuated and passive joints are
@@ -83,19 +86,65 @@ class Effect:
         return ""
 
 
+@dataclass(frozen=True)
+class Prior:
+    """What a fit assumes of one effect parameter: where it starts (its "absent" value, or a
+    generic size where absent makes the others meaningless), its bounds, and a typical size
+    (finite-difference steps at zero). SI units."""
+
+    start: float
+    lower: float
+    upper: float
+    size: float
+
+
+# Per physical UNIT: the default priors of any effect parameter with that unit. A new effect with
+# a new unit adds one line (or passes its own priors to @register).
+UNIT_PRIORS: dict[str, Prior] = {
+    # compliance: >= 0, and at most 1e-6 rad/(N*m) (a spring softer than any drive of this
+    # robot is a broken part, not a compliance); starts at a typical size so that hinges that
+    # only move together (upper-arm x and z, braced by the coupler rod) are not locked
+    "rad/(N*m)": Prior(start=1e-8, lower=1e-12, upper=1e-6, size=1e-8),
+    "N*m/rad^3": Prior(start=0.0, lower=-np.inf, upper=np.inf, size=1e12),   # cubic: none
+    "N/m": Prior(start=1e6, lower=1.0, upper=1e9, size=1e6),                 # spring rate
+    "m": Prior(start=1.0, lower=1e-3, upper=10.0, size=1.0),                 # free length
+}
+
 REGISTRY: dict[str, Callable[..., Effect]] = {}
 _FROM_TRUTH: dict[str, Callable[[dict], tuple[dict, np.ndarray]]] = {}
+DISCOVERY_OPTIONS: dict[str, tuple[dict, ...]] = {}    # effect -> structural options discovery tries
+_PRIORS: dict[str, dict[str, Prior]] = {}             # effect -> parameter name -> prior override
 
 
-def register(name: str, from_truth: Callable[[dict], tuple[dict, np.ndarray]] | None = None):
+def register(name: str, from_truth: Callable[[dict], tuple[dict, np.ndarray]] | None = None, *,
+             discover: list[dict] | None = None, priors: dict[str, Prior] | None = None):
     """Decorator: add an effect factory (keyword options -> Effect) to the library.
-    from_truth maps a scenario table (bench.scenario, SI) to (factory options, parameters)."""
+
+    from_truth maps a scenario table (bench.scenario, SI) to (factory options, parameters).
+    discover lists the structural options (factory keyword arguments) that discovery tries as
+    candidates; None keeps the effect out of discovery (truth only). priors overrides
+    :data:`UNIT_PRIORS` for named parameters."""
     def deco(factory: Callable[..., Effect]) -> Callable[..., Effect]:
         REGISTRY[name] = factory
         if from_truth is not None:
             _FROM_TRUTH[name] = from_truth
+        if discover is not None:
+            DISCOVERY_OPTIONS[name] = tuple(dict(o) for o in discover)
+        if priors:
+            _PRIORS[name] = dict(priors)
         return factory
     return deco
+
+
+def priors(effect: Effect) -> list[Prior]:
+    """The prior of each of the effect's parameters: its registered override, else its unit's."""
+    own = _PRIORS.get(effect.name, {})
+    return [own.get(n) or UNIT_PRIORS[u] for n, u in zip(effect.param_names, effect.units)]
+
+
+def discovery_library() -> list[Effect]:
+    """Every discovery candidate: each registered effect with each of its structural options."""
+    return [REGISTRY[name](**opts) for name, options in DISCOVERY_OPTIONS.items() for opts in options]
 
 
 def effect_from_truth(name: str, table: dict) -> tuple[Effect, np.ndarray]:
@@ -254,7 +303,8 @@ def _beam_hinge(link: str, axis: str) -> str:
     return f"{link}_r{axis}"
 
 
-@register("link_compliance", from_truth=_link_truth)
+@register("link_compliance", from_truth=_link_truth,
+          discover=[{"link": "upper_arm"}, {"link": "forearm"}])
 def link_compliance(link: str = "forearm", axes: str = AXES, pivot: tuple = (0.0, 0.0, 0.0)) -> Effect:
     """Bending and torsion springs at the root of a link (upper_arm or forearm).
 
@@ -342,7 +392,7 @@ def _base_truth(t: dict) -> tuple[dict, np.ndarray]:
     return {"axes": axes}, c[c != 0.0]
 
 
-@register("base_compliance", from_truth=_base_truth)
+@register("base_compliance", from_truth=_base_truth, discover=[{}])
 def base_compliance(axes: str = "xy", body: str = "base") -> Effect:
     """Tilt of the robot's base on its foundation (anchor bolts, floor plate).
 
@@ -388,7 +438,7 @@ def _nonlin_truth(t: dict) -> tuple[dict, np.ndarray]:
     return {"joint": int(t["joint"])}, np.array([float(t["cubic"])])
 
 
-@register("joint_nonlinearity", from_truth=_nonlin_truth)
+@register("joint_nonlinearity", from_truth=_nonlin_truth, discover=[{"joint": j} for j in range(1, 7)])
 def joint_nonlinearity(joint: int = 2) -> Effect:
     """A hardening (cubic > 0) or softening (< 0) drive spring on actuated axis `joint` (1..6).
 
@@ -420,7 +470,7 @@ def _comp_truth(t: dict) -> tuple[dict, np.ndarray]:
     return {}, np.array([float(t["stiffness"]), float(t["preload"])])
 
 
-@register("compensator", from_truth=_comp_truth)
+@register("compensator", from_truth=_comp_truth, discover=[{}])
 def compensator() -> Effect:
     """The spring gravity compensator of axis 2 (paper eqs. 7-11), for a model that lacks one.
 
@@ -523,7 +573,8 @@ def tool_compliance(axes: str = "yz", body: str = "link6", mount: tuple = TOOL_M
                   ("rad/(N*m)",) * len(axes), apply, set_)
 
 
-__all__ = ["Effect", "EffectRobot", "REGISTRY", "register", "effect_from_truth", "apply_effects",
+__all__ = ["Effect", "EffectRobot", "REGISTRY", "register", "effect_from_truth", "apply_effects", "Prior",
+           "UNIT_PRIORS", "DISCOVERY_OPTIONS", "priors", "discovery_library",
            "load_spec", "augmented_xml", "link_compliance", "base_compliance", "joint_nonlinearity", "compensator",
            "tool_compliance",
            "RIGID_COMPLIANCE"]

@@ -368,3 +368,27 @@ def test_campaign_with_hidden_effect(tmp_path):
     a = np.array([r["loaded"]["position_world"] for r in log.truth["reflectors"].values()])
     b = np.array([r["loaded"]["position_world"] for r in plain_log.truth["reflectors"].values()])
     assert 5e-5 < np.median(np.linalg.norm(a - b, axis=-1)) < 1e-3
+
+
+def test_register_carries_discovery_options_and_priors():
+    """Adding an effect is one decorated function: @register alone puts it (with its options
+    and priors) into discovery's library; nothing in identify/ names it."""
+    from calbench.bench import effects as fx
+    from calbench.identify.discover.fit import effect_priors, library
+
+    @fx.register("toy_spring", discover=[{"axis": "x"}, {"axis": "y"}],
+                 priors={"c": fx.Prior(start=2e-9, lower=0.0, upper=1e-7, size=1e-9)})
+    def toy_spring(axis: str = "x") -> Effect:
+        return Effect("toy_spring", ("c", "k"), {"axis": axis}, ("rad/(N*m)", "N/m"))
+
+    try:
+        toys = [e for e in library() if e.name == "toy_spring"]
+        assert [e.options["axis"] for e in toys] == ["x", "y"]
+        start, lower, upper, size = effect_priors(toys[0])
+        assert start.tolist() == [2e-9, fx.UNIT_PRIORS["N/m"].start]      # own prior, then the unit's
+        assert upper.tolist() == [1e-7, fx.UNIT_PRIORS["N/m"].upper]
+    finally:
+        fx.REGISTRY.pop("toy_spring")
+        fx.DISCOVERY_OPTIONS.pop("toy_spring")
+        fx._PRIORS.pop("toy_spring")
+    assert all(e.name != "toy_spring" for e in library())

@@ -1,12 +1,11 @@
 """Discovery, part 1: the candidate library and fitting a model with effects in the loop.
 
-The LIBRARY is bench/effects.py's REGISTRY restricted to CONTRACT.md's four discovery names, with
-each effect's structural options enumerated (:data:`OPTIONS`): `link_compliance` on the upper arm
-and on the forearm, `joint_nonlinearity` on joints 1..6, `base_compliance`, `compensator`. These
+The LIBRARY is every effect that bench/effects.py's ``@register`` puts in discovery, with the
+structural options it declares there: `link_compliance` on the upper arm and on the forearm,
+`joint_nonlinearity` on joints 1..6, `base_compliance`, `compensator`, with their priors. These
 are the same MjSpec edits the bench puts in the simulated truth. Nothing here chooses between
-them: identify/discover.py does, through identify/discover_stats.py, and knows nothing about any
-single effect. Adding a candidate = registering an effect in bench/effects.py and naming it (and
-its options) here.
+them: identify/discover/workflow.py does, through identify/discover/stats.py, and knows nothing
+about any single effect. Adding a candidate = registering an effect in bench/effects.py.
 
 FITTING. A candidate model is the user's MJCF with the effects applied (`apply_effects`); its
 parameters are theta = [k1..k6, K_C, s0] (identify/forward.py) followed by every effect's own
@@ -23,9 +22,9 @@ three generalisations:
 * the KKT matrix's non-analytic part A_base (which holds the effects' springs) is re-taken by
   finite differences whenever the effect parameters change.
 
-:func:`fit` is Gauss-Newton / Levenberg-Marquardt on the whitened residual (the maximum-likelihood
-estimate for the tracker's Gaussian noise), with lower bounds by an active set and the rank
-analysis of identify/identifiability.py at every iterate: an effect parameter that the plan
+:func:`fit` is identify/leastsq.py's Levenberg-Marquardt on the whitened residual (the
+maximum-likelihood estimate for the tracker's Gaussian noise), with bounds by an active set
+and minimum-norm steps: an effect parameter that the plan
 cannot separate from the base parameters (e.g. in-plane forearm bending, exactly a k3 through
 the parallelogram) is held at its start, so that it never costs the base model anything, and
 any base parameter still unidentifiable is held as in identify/onestep.py.
@@ -38,7 +37,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from calbench.bench.effects import REGISTRY, Effect, apply_effects
+from calbench.bench.effects import DISCOVERY_OPTIONS, Effect, apply_effects, discovery_library, priors
 from calbench.bench.robot import Robot
 
 from ..forward import NP, PARAM_NAMES, PARAM_UNITS, ForwardModel, PoseDesign, design_from_observations, to_params
@@ -47,41 +46,18 @@ from ..leastsq import Fit, at_bounds, covariance, levenberg_marquardt
 
 # --------------------------------------------------------------------------- the library
 
-DISCOVERY_EFFECTS = ("compensator", "joint_nonlinearity", "link_compliance", "base_compliance")
-# structural options enumerated for each candidate (factory keyword arguments)
-OPTIONS: dict[str, list[dict]] = {
-    "compensator": [{}],
-    "joint_nonlinearity": [{"joint": j} for j in range(1, 7)],
-    "link_compliance": [{"link": "upper_arm"}, {"link": "forearm"}],
-    "base_compliance": [{}],
-}
-
-# Per physical UNIT (not per effect): where an effect parameter starts (its "absent" value, or a
-# generic size where absent makes the others meaningless), its lower bound, and a typical size
-# (finite-difference steps at zero). A new effect with a new unit adds one line.
-UNIT_PRIORS: dict[str, dict] = {
-    # compliance: >= 0, and at most 1e-6 rad/(N*m) (a spring softer than any drive of this
-    # robot is a broken part, not a compliance); starts at a typical size so that hinges that
-    # only move together (upper-arm x and z, braced by the coupler rod) are not locked
-    "rad/(N*m)": {"start": 1e-8, "lower": 1e-12, "upper": 1e-6, "size": 1e-8},
-    "N*m/rad^3": {"start": 0.0, "lower": -np.inf, "upper": np.inf, "size": 1e12},  # cubic: none
-    "N/m": {"start": 1e6, "lower": 1.0, "upper": 1e9, "size": 1e6},              # spring rate
-    "m": {"start": 1.0, "lower": 1e-3, "upper": 10.0, "size": 1.0},              # free length
-}
 DISCOVER_RANK_TOL = 1e-5     # singular value (column-normalised) below which a direction is unseen
 COST_TOL = 1e-3              # chi2 units: a step gaining (or promising) less ends the fit
 BASE_LOWER = np.array([1e-12] * 6 + [1.0, 1e-3])
 BASE_UPPER = np.array([1e-5] * 6 + [1e9, 10.0])
 
 
+DISCOVERY_EFFECTS = tuple(DISCOVERY_OPTIONS)   # the effects @register puts in discovery's library
+
+
 def library() -> list[Effect]:
-    """Every candidate effect with its structural options (REGISTRY order is irrelevant)."""
-    out = []
-    for name in DISCOVERY_EFFECTS:
-        factory = REGISTRY[name]
-        for opts in OPTIONS[name]:
-            out.append(factory(**opts))
-    return out
+    """Every candidate effect with its structural options (bench/effects.py's registry)."""
+    return discovery_library()
 
 
 def label(effect: Effect) -> str:
@@ -89,9 +65,9 @@ def label(effect: Effect) -> str:
 
 
 def effect_priors(effect: Effect) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(start, lower bound, upper bound, size) of an effect's parameters from their units."""
-    pri = [UNIT_PRIORS[u] for u in effect.units]
-    return tuple(np.array([p[k] for p in pri], float) for k in ("start", "lower", "upper", "size"))
+    """(start, lower bound, upper bound, size) of an effect's parameters (bench/effects.py)."""
+    pri = priors(effect)
+    return tuple(np.array([getattr(p, k) for p in pri], float) for k in ("start", "lower", "upper", "size"))
 
 
 def param_names(effects: list[Effect]) -> list[str]:
@@ -222,6 +198,6 @@ def fit(model: AugmentedForward, dp: np.ndarray, linv: np.ndarray, start: np.nda
                model=model, robot=model.robot)
 
 
-__all__ = ["DISCOVERY_EFFECTS", "OPTIONS", "UNIT_PRIORS", "library", "label", "effect_priors",
+__all__ = ["DISCOVERY_EFFECTS", "library", "label", "effect_priors",
            "param_names", "param_units", "AugmentedForward", "Fit", "build", "fit", "BASE_LOWER",
            "BASE_UPPER"]
