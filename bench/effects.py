@@ -1,6 +1,6 @@
 """A library of hidden physical effects, each a named edit of the robot's MJCF (mujoco.MjSpec).
 
-The bench puts them in the simulated truth (`[truth.effects.*]`, CONTRACT.md); the discovery
+The bench puts them in the simulated truth (`[truth.effects.*]`, docs/contract.md); the discovery
 workflow later uses the SAME functions as its library of candidate effects. The library holds
 no selection logic: an :class:`Effect` knows its parameters (SI), how to edit a spec
 (:meth:`Effect.apply`, then compile) and how to write the same values into an already compiled
@@ -48,7 +48,7 @@ _TMP_PREFIX = "__effects_move__"
 class Effect:
     """One candidate physical effect: a structural choice (options) and SI parameters.
 
-    name: the CONTRACT.md effect name; param_names / units: its parameters, in order;
+    name: the docs/contract.md effect name; param_names / units: its parameters, in order;
     options: structural choices (which link, which axes, which joint).
     """
 
@@ -530,7 +530,7 @@ TOOL_MASS = 1.0                    # kg on the moving tool body (MuJoCo needs ma
 @register("tool_compliance", from_truth=_tool_truth)
 def tool_compliance(axes: str = "yz", body: str = "link6", mount: tuple = TOOL_MOUNT) -> Effect:
     """Bending of the tool on its mount at the flange (a TRUTH-ONLY effect: it is not one of
-    CONTRACT.md's discovery candidates; the discovery tests use it as a disagreement that no
+    docs/contract.md's discovery candidates; the discovery tests use it as a disagreement that no
     candidate explains).
 
     Physics: a child body `tool` of link6 at the flange face (`mount`, link6 frame) carries

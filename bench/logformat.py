@@ -6,7 +6,7 @@ Why this format
   without this project: every channel is ``message_encoding="json"`` with a real
   ``jsonschema`` schema (types, required fields, array lengths).
 * Ground truth lives only on topics beginning with :data:`TRUTH_PREFIX` plus one metadata
-  record named ``ground_truth`` (CONTRACT.md, "MCAP log"). :func:`strip_truth` removes exactly
+  record named ``ground_truth`` (docs/contract.md, "MCAP log"). :func:`strip_truth` removes exactly
   those and leaves what a real campaign would have recorded. The scenario TOML carries the
   ``[truth]`` tables, so the copy stored in the non-truth part of the log has them removed
   (:func:`redact_truth`); the original text goes into the ``ground_truth`` record.

@@ -1,4 +1,4 @@
-"""Load and validate a calibration campaign scenario (TOML, see CONTRACT.md).
+"""Load and validate a calibration campaign scenario (TOML, see docs/contract.md).
 
 The file speaks degrees for joint angles and the tracker yaw; everything returned here is SI
 (radians, metres). Every bad input raises :class:`bench.errors.InputError` naming the file, the
@@ -519,7 +519,7 @@ def _emit(table: dict, path: list[str], lines: list[str]) -> None:
 
 
 def scenario_to_toml(scn_like: dict) -> str:
-    """Write a scenario TOML from a plain dict keyed as in CONTRACT.md (file units, degrees).
+    """Write a scenario TOML from a plain dict keyed as in docs/contract.md (file units, degrees).
 
     ``None`` values are omitted. The result is meant to be read back by :func:`parse_scenario`.
     """

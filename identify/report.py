@@ -1,4 +1,4 @@
-"""`calbench identify`: read a campaign log, identify, report (table and CONTRACT.md JSON).
+"""`calbench identify`: read a campaign log, identify, report (table and docs/contract.md JSON).
 
 The estimation reads the log WITHOUT truth (``read_log(path)``: /truth/ messages are skipped
 before decoding, the ground_truth record ignored) and the MJCF for geometry only (every elastic

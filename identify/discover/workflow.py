@@ -9,7 +9,7 @@
    direction, and the correlation of each pose's misfit with what varies over the plan
    (identify/discover_stats.py), in words and numbers.
 3. NAME the missing effect: every candidate of the library (identify/discover_fit.py: the four
-   CONTRACT.md effects of bench/effects.py with their structural options) is added to the model
+   docs/contract.md effects of bench/effects.py with their structural options) is added to the model
    and fitted jointly with the base parameters on the exact statics; the candidates are compared
    by the likelihood ratio (known noise: the chi2 drop, tested against chi2(k) at a family-wise
    level ALPHA_EFFECT, Bonferroni over the library) and BIC. A candidate is ACCEPTED only if it is
@@ -106,7 +106,7 @@ def augmented_mjcf(src, fitted: Fit) -> str:
 
 def discover(log_path, model=None, *, out_model=None, plot=None, view_json=None,
              max_rounds: int = MAX_ROUNDS) -> dict:
-    """Run the whole workflow; returns the JSON report (CONTRACT.md keys plus extras)."""
+    """Run the whole workflow; returns the JSON report (docs/contract.md keys plus extras)."""
     t0 = time.perf_counter()
     log_path = Path(log_path)
     log = read_log(log_path)                       # no truth
