@@ -16,6 +16,7 @@ from .scenario import load_scenario
 from .view import (DEFAULT_MAGNIFY, Summary, build_blueprint, default_rrd_path, has_display,
                    load_robot, log_campaign, read_identified, recording_stream, write_recording)
 from .logformat import read_log
+from .outputs import check_outputs
 
 
 # --------------------------------------------------------------------------- simulate
@@ -31,6 +32,7 @@ def add_simulate(sub: argparse._SubParsersAction) -> None:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     scn = load_scenario(args.scenario, seed=args.seed)
+    check_outputs({"--out": args.out}, {"SCENARIO": args.scenario, "robot": scn.robot})
     bar = Progress(total=2 * len(scn.poses), enabled=sys.stderr.isatty())
     plans = run_campaign(scn, args.out, progress=bar)
     bar.close()
@@ -68,6 +70,9 @@ def _view_summary(s: Summary, magnify: float) -> str:
 def cmd_view(args: argparse.Namespace) -> int:
     from .view import _check_magnify
     magnify = _check_magnify(args.magnify)
+    inputs = {"LOG": args.log, "--identified": args.identified}
+    if args.rrd is not None:
+        check_outputs({"--rrd": args.rrd}, inputs)
     why = " (no display, so no viewer was spawned)"
     if args.rrd is None and has_display():
         log = read_log(args.log, include_truth=True)
@@ -86,6 +91,7 @@ def cmd_view(args: argparse.Namespace) -> int:
             print(f"sent to the Rerun viewer: {_view_summary(s, magnify)}")
             return 0
     out = args.rrd if args.rrd is not None else default_rrd_path(args.log)
+    check_outputs({"--rrd": out}, inputs)
     s = write_recording(args.log, out, args.identified, magnify)
     for w in s.warnings:
         print(f"calbench view: warning: {w}", file=sys.stderr)

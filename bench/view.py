@@ -78,6 +78,7 @@ import numpy as np
 
 from .errors import InputError
 from .logformat import STATES, CampaignLog, read_log
+from .outputs import atomic_path, check_outputs
 from .robot import Robot
 from .scenario import TrackerSpec
 from .tracker import tracker_rotation, to_world_frame
@@ -656,18 +657,16 @@ def write_recording(log_path: str | os.PathLike, rrd_path: str | os.PathLike,
     load_robot(log)  # fail before creating the file
     tracker_spec(log)
     rrd_path = Path(rrd_path)
-    if rrd_path.exists() and rrd_path.resolve() == Path(log_path).resolve():
-        raise InputError(rrd_path, "--rrd", "an output path other than the campaign log",
-                         str(rrd_path))
-    rrd_path.parent.mkdir(parents=True, exist_ok=True)
-    rec = recording_stream(log_path)
-    bp = build_blueprint(ident is not None, bool(log.truth), magnify)
-    rec.save(rrd_path, default_blueprint=bp)
-    try:
-        summary = log_campaign(rec, log, ident, magnify)
-    finally:
-        rec.flush()
-        rec.disconnect()
+    check_outputs({"--rrd": rrd_path}, {"LOG": log_path, "--identified": identified})
+    with atomic_path(rrd_path) as tmp:          # a complete recording or none
+        rec = recording_stream(log_path)
+        bp = build_blueprint(ident is not None, bool(log.truth), magnify)
+        rec.save(tmp, default_blueprint=bp)
+        try:
+            summary = log_campaign(rec, log, ident, magnify)
+        finally:
+            rec.flush()
+            rec.disconnect()
     summary.warnings = [f"{ident.path}: {w}" for w in (ident.warnings if ident else [])]
     return summary
 

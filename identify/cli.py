@@ -20,6 +20,7 @@ from pathlib import Path
 
 from calbench.bench.cli import add_simulate, add_view
 from calbench.bench.errors import CalbenchError, InputError
+from calbench.bench.outputs import atomic_path, check_outputs, write_text
 from calbench.bench.progress import terminal_progress
 
 from . import demo
@@ -53,10 +54,11 @@ def add_identify(sub) -> None:
 
 def cmd_identify(args) -> int:
     from .report import Z_CHECK, check_failed, format_table, run_identify
+    check_outputs({"--json": args.json}, {"LOG": args.log, "--model": args.model})
     rep = run_identify(args.log, args.model, args.method, args.drop_outliers)
     print(format_table(rep))
     if args.json:
-        args.json.write_text(json.dumps(rep, indent=2, allow_nan=False))
+        write_text(args.json, json.dumps(rep, indent=2, allow_nan=False))
     if args.check:
         if all(p["truth"] is None for p in rep["parameters"]):
             print("check: the log carries no ground truth; nothing to check")
@@ -88,6 +90,7 @@ def cmd_montecarlo(args) -> int:
     if args.runs < 2:
         raise InputError("--runs", "runs", "an integer >= 2", args.runs)
     scn = load_scenario(args.scenario, seed=args.seed)
+    check_outputs({"--json": args.json}, {"SCENARIO": args.scenario, "robot": scn.robot})
     methods = {"both": METHODS, "one-step": ("one-step",),
                "two-step": ("two-step", "two-step-weighted")}[args.method]
     bar = terminal_progress()
@@ -96,7 +99,7 @@ def cmd_montecarlo(args) -> int:
     s = mc.summary()
     print(format_summary(s))
     if args.json:
-        Path(args.json).write_text(json.dumps(s, indent=2))
+        write_text(args.json, json.dumps(s, indent=2))
     return 0
 
 
@@ -143,6 +146,8 @@ def cmd_design(args) -> int:
     if args.configs < 1:
         raise InputError("--configs", "configs", "an integer >= 1", args.configs)
     scn, settings = load_design_scenario(args.scenario)
+    check_outputs({"--out": args.out, "--json": args.json, "--export-candidates": args.export_candidates},
+                  {"SCENARIO": args.scenario, "robot": scn.robot})
     if args.criterion == "pose" and scn.work is None and (args.out or args.json):
         raise InputError(scn.path, "work", "a [work] table (q in degrees, wrench in N and N*m) for "
                          "--criterion pose", None)
@@ -154,8 +159,8 @@ def cmd_design(args) -> int:
     print(f"{len(cands)} feasible candidates ({int(cands.kind.sum())} lateral pulls) in {t_c:.1f} s "
           f"from {cands.stats['raw_commands']} sampled commands", file=sys.stderr)
     if args.export_candidates:
-        args.export_candidates.parent.mkdir(parents=True, exist_ok=True)
-        cands.save_npz(args.export_candidates)
+        with atomic_path(args.export_candidates, suffix=".npz") as tmp:   # savez adds .npz otherwise
+            cands.save_npz(tmp)
         print(f"wrote {args.export_candidates}", file=sys.stderr)
     if args.out is None and args.json is None:
         return 0
@@ -170,12 +175,10 @@ def cmd_design(args) -> int:
     print(summary_text(res, len(cands), input_plan))
     if args.out:
         text = plan_scenario_text(scn, res.poses, args.out, plan_comment(args.scenario, res))
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(text)
+        write_text(args.out, text)
         print(f"wrote {args.out}", file=sys.stderr)
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result_json(res, scn, cands, {"input_plan": input_plan}), indent=2))
+        write_text(args.json, json.dumps(result_json(res, scn, cands, {"input_plan": input_plan}), indent=2))
     return 0
 
 
@@ -202,11 +205,13 @@ def cmd_discover(args) -> int:
         raise InputError(args.log, "LOG.mcap", "an existing campaign log", "no such file")
     plot = args.plot or (args.json.with_suffix(".png") if args.json else args.log.with_name(args.log.stem + ".discover.png"))
     view = args.view_json or (args.json.with_name(args.json.stem + ".view.json") if args.json else None)
+    out_model = args.out_model or args.log.with_name(args.log.stem + ".augmented.xml")
+    check_outputs({"--json": args.json, "--out-model": out_model, "--plot": plot, "--view-json": view},
+                  {"LOG": args.log, "--model": args.model})
     rep = discover(args.log, args.model, out_model=args.out_model, plot=plot, view_json=view)
     print(story(rep))
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(clean(rep), indent=2, allow_nan=False))
+        write_text(args.json, json.dumps(clean(rep), indent=2, allow_nan=False))
     return 0
 
 

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Iterator
 
 from calbench.bench.campaign import run_campaign
+from calbench.bench.outputs import write_text
 from calbench.bench.resources import PAPER_SCENARIO, scenario_path
 from calbench.bench.scenario import load_scenario, scenario_variant
 from calbench.bench.view import write_recording
@@ -52,7 +53,7 @@ def discover_step(logs: Path) -> Iterator[str]:
     js = logs / "paper_table5_hidden.discover.json"
     rep = discover(log, out_model=logs / "paper_table5_hidden.augmented.xml",
                    plot=js.with_suffix(".png"), view_json=logs / "paper_table5_hidden.discover.view.json")
-    js.write_text(json.dumps(clean(rep), indent=2, allow_nan=False))
+    write_text(js, json.dumps(clean(rep), indent=2, allow_nan=False))
     yield "\n".join("   " + line for line in story(rep).splitlines())
     yield ("   (the hidden truth, read only now: link_compliance forearm, compliance [1.8e-7, 0, 1.8e-7] "
            "rad/(N*m))")

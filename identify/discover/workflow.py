@@ -38,6 +38,7 @@ import numpy as np
 
 from calbench.bench.effects import augmented_xml, load_spec
 from calbench.bench.logformat import read_log
+from calbench.bench.outputs import atomic_path, write_text
 from calbench.bench.robot import ACTUATED, COMPENSATOR, Robot
 
 from .fit import (BASE_LOWER, BASE_UPPER, NP, Fit, build, effect_priors, fit, label, library)
@@ -175,8 +176,7 @@ def discover(log_path, model=None, *, out_model=None, plot=None, view_json=None,
     aug_path = None
     if final.effects:
         aug_path = Path(out_model) if out_model else log_path.with_name(log_path.stem + ".augmented.xml")
-        aug_path.parent.mkdir(parents=True, exist_ok=True)
-        aug_path.write_text(augmented_mjcf(src, final))
+        write_text(aug_path, augmented_mjcf(src, final))
         Robot.from_file(aug_path)                  # must load
     seconds = time.perf_counter() - t0
     rep = {
@@ -207,7 +207,7 @@ def discover(log_path, model=None, *, out_model=None, plot=None, view_json=None,
     if plot:
         rep["plot"] = str(plot_residuals(rep, plot))
     if view_json:
-        Path(view_json).write_text(json.dumps(clean(view_report(final, obs, rep)), indent=2, allow_nan=False))
+        write_text(view_json, json.dumps(clean(view_report(final, obs, rep)), indent=2, allow_nan=False))
         rep["view_json"] = str(view_json)
     return rep
 
@@ -259,8 +259,8 @@ def plot_residuals(rep: dict, path) -> Path:
     ax.set_title("calbench discover: measured minus predicted deflection, per pose")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format=path.suffix.lstrip(".") or "png")
     plt.close(fig)
     return path
 
