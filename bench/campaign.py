@@ -117,15 +117,6 @@ def plan_campaign(scn: Scenario, robot: Robot | None = None, progress: ProgressS
     return plans
 
 
-def _tracker_dict(scn: Scenario) -> dict:
-    t = scn.tracker
-    return {
-        "position": [float(x) for x in t.position], "yaw": float(t.yaw), "model": t.model,
-        "sigma": float(t.sigma), "distance": [float(x) for x in t.distance],
-        "transverse": [float(x) for x in t.transverse],
-    }
-
-
 def truth_record(scn: Scenario) -> dict:
     d = scenario_params(scn).as_dict()
     d["effects"] = {
@@ -154,7 +145,7 @@ def run_campaign(scn: Scenario, out: str | Path, progress: ProgressSink | None =
         mjcf_text=Path(scn.robot).read_text(),
         reflectors=list(robot.reflector_names),
         payload_site="payload",
-        tracker=_tracker_dict(scn),
+        tracker=scn.tracker.to_dict(),
         seed=int(scn.seed),
     )
     with LogWriter(out, header) as log:

@@ -13,7 +13,7 @@ import re
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -56,6 +56,22 @@ class TrackerSpec:
     sigma: float = DEFAULT_SIGMA
     distance: tuple[float, float] = DEFAULT_DISTANCE
     transverse: tuple[float, float] = DEFAULT_TRANSVERSE
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON form of the log header's ``tracker`` (CONTRACT.md, ``/campaign/info``):
+        SI throughout (position m, yaw rad, sigma m, ``[a m, b m/m]`` error laws)."""
+        return {"position": [float(x) for x in self.position], "yaw": float(self.yaw),
+                "model": self.model, "sigma": float(self.sigma),
+                "distance": [float(x) for x in self.distance],
+                "transverse": [float(x) for x in self.transverse]}
+
+    @classmethod
+    def from_dict(cls, d: Any, file: object = "<tracker>", key: str = "tracker") -> "TrackerSpec":
+        """The inverse of :meth:`to_dict`, validated like the scenario's ``[tracker]`` table but
+        in SI (yaw in rad). Missing optional keys take the scenario defaults; unknown keys are
+        ignored (a log header may carry more). Bad values raise InputError naming ``file`` and
+        ``key.<field>``."""
+        return _tracker_spec(_Checker(file, d, key), yaw_to_rad=float)
 
 
 @dataclass(frozen=True)
@@ -235,10 +251,16 @@ def _pair(c: _Checker, name: str, default: tuple[float, float]) -> tuple[float, 
 
 
 def _tracker(c: _Checker) -> TrackerSpec:
+    """The scenario's ``[tracker]`` table (yaw in degrees)."""
     c.only(("sigma", "position", "yaw", "model", "distance", "transverse"))
+    return _tracker_spec(c, yaw_to_rad=math.radians)
+
+
+def _tracker_spec(c: _Checker, yaw_to_rad: Callable[[float], float]) -> TrackerSpec:
+    """A TrackerSpec from a checked table; ``yaw_to_rad`` converts the table's yaw unit."""
     return TrackerSpec(
         position=_frozen(c.vector("position", 3)),
-        yaw=math.radians(c.number("yaw")) if c.has("yaw") else 0.0,
+        yaw=yaw_to_rad(c.number("yaw")) if c.has("yaw") else 0.0,
         model=c.string("model", TRACKER_MODELS) if c.has("model") else "isotropic",
         sigma=c.number("sigma", positive=True) if c.has("sigma") else DEFAULT_SIGMA,
         distance=_pair(c, "distance", DEFAULT_DISTANCE),

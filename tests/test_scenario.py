@@ -1,7 +1,9 @@
 """Scenario loading: a valid file, every class of bad input, seed override, limits, writing."""
 from __future__ import annotations
 
+import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -9,9 +11,10 @@ import pytest
 
 from calbench.bench.errors import InputError
 from calbench.bench.scenario import (
-    DEFAULT_DISTANCE, DEFAULT_SIGMA, DEFAULT_TRANSVERSE, Scenario, check_joint_limits,
-    load_scenario, parse_scenario, scenario_as_dict, scenario_to_toml,
+    DEFAULT_DISTANCE, DEFAULT_SIGMA, DEFAULT_TRANSVERSE, TRACKER_MODELS, Scenario, TrackerSpec,
+    check_joint_limits, load_scenario, parse_scenario, scenario_as_dict, scenario_to_toml,
 )
+from calbench.bench.tracker import noise_covariance
 from conftest import PAPER
 
 BASE = """\
@@ -381,3 +384,47 @@ def test_scenario_variant_overrides_and_validates(tmp_path):
     with pytest.raises(InputError):
         scenario_variant(paper, bad, extra="[truth.effects.base_compliance]\ncompliance = [-1, 0]")
     assert not bad.exists()
+
+
+# --------------------------------------------------------------------------- TrackerSpec as a dict
+
+TRACKERS = {
+    "isotropic": TrackerSpec(position=np.array([3.25, -1.5, 0.75]), yaw=0.3, model="isotropic",
+                             sigma=25e-6),
+    "spec": TrackerSpec(position=np.array([-2.0, 4.0, 1.1]), yaw=-1.2, model="spec", sigma=7e-6,
+                        distance=(12e-6, 0.4e-6), transverse=(18e-6, 5e-6)),
+}
+
+
+def assert_same_tracker(a: TrackerSpec, b: TrackerSpec) -> None:
+    np.testing.assert_array_equal(a.position, b.position)
+    assert (a.yaw, a.model, a.sigma, a.distance, a.transverse) == \
+           (b.yaw, b.model, b.sigma, b.distance, b.transverse)
+
+
+@pytest.mark.parametrize("model", TRACKER_MODELS)
+def test_tracker_dict_round_trip_keeps_the_noise_model(model):
+    spec = TRACKERS[model]
+    d = spec.to_dict()
+    assert list(d) == ["position", "yaw", "model", "sigma", "distance", "transverse"]
+    back = TrackerSpec.from_dict(json.loads(json.dumps(d)))      # through JSON, as in a log
+    assert_same_tracker(back, spec)
+    assert back.to_dict() == d
+    # the noise model survives: the covariance it gives is the original's, bit for bit
+    pts = np.array([[2.0, 0.5, -0.3], [5.0, -1.0, 2.0]])
+    np.testing.assert_array_equal(noise_covariance(back, pts), noise_covariance(spec, pts))
+    with pytest.raises(ValueError):                               # frozen, like the scenario's
+        back.position[0] = 0.0
+
+
+def test_tracker_from_dict_defaults_and_bad_values():
+    spec = TrackerSpec.from_dict({"position": [1, 2, 3], "vendor": "ignored"})
+    assert (spec.yaw, spec.model, spec.sigma) == (0.0, "isotropic", DEFAULT_SIGMA)
+    assert (spec.distance, spec.transverse) == (DEFAULT_DISTANCE, DEFAULT_TRANSVERSE)
+    cases = {"model": ({"position": [0, 0, 0], "model": "laser"}, "log.mcap: info.tracker.model"),
+             "position": ({"position": [0, 0]}, "log.mcap: info.tracker.position"),
+             "sigma": ({"position": [0, 0, 0], "sigma": -1}, "log.mcap: info.tracker.sigma"),
+             "table": (None, "log.mcap: info.tracker: expected a table")}
+    for d, msg in cases.values():
+        with pytest.raises(InputError, match=re.escape(msg)):
+            TrackerSpec.from_dict(d, "log.mcap", "info.tracker")
