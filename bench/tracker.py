@@ -76,6 +76,53 @@ def noise_covariance(spec: TrackerSpec, points_tracker: np.ndarray) -> np.ndarra
     return sd[:, None, None] ** 2 * uu + st[:, None, None] ** 2 * (eye - uu)
 
 
+@dataclass(frozen=True)
+class MeanReading:
+    """The mean of repeated readings of n reflectors in one state, in the world frame.
+
+    Rows of reflectors never seen are NaN in ``position`` and ``covariance``.
+    """
+    position: np.ndarray        # (n, 3) m, world frame
+    covariance: np.ndarray      # (n, 3, 3) m^2, covariance of the mean, world frame
+    seen: np.ndarray            # (n,) bool: seen in at least one reading
+    count: np.ndarray           # (n,) number of readings averaged
+
+
+def mean_reading(spec: TrackerSpec, readings) -> MeanReading:
+    """Average repeated tracker-frame readings (objects with ``position`` (n,3),
+    ``covariance`` (n,3,3) and ``visible`` (n,), rows in the same reflector order) and
+    express the mean in the world frame.
+
+    With N_r readings of reflector r (visible, finite position) the mean is
+    p_r = R (1/N_r sum_i p_ri) + t and, the readings being independent, its covariance
+    R (1/N_r^2 sum_i C_ri) R^T (sigma^2/N_r per axis for an isotropic tracker); R, t are
+    the tracker's pose (:func:`tracker_rotation`, ``spec.position``). Paper eq. (2) differences
+    two such means. This is the one place both identification and the viewer average.
+    """
+    readings = list(readings)
+    if not readings:
+        raise ValueError("mean_reading needs at least one reading")
+    n = len(readings[0].visible)
+    s = np.zeros((n, 3))
+    c = np.zeros((n, 3, 3))
+    cnt = np.zeros(n)
+    for m in readings:
+        pos = np.asarray(m.position, dtype=float)
+        if pos.shape != (n, 3):
+            raise ValueError(f"every reading must have {n} rows, got shape {pos.shape}")
+        vis = np.asarray(m.visible, dtype=bool) & np.all(np.isfinite(pos), axis=1)
+        s[vis] += pos[vis]
+        c[vis] += np.asarray(m.covariance, dtype=float)[vis]
+        cnt[vis] += 1
+    seen = cnt > 0
+    rot = tracker_rotation(spec)
+    mean = np.full((n, 3), np.nan)
+    cov = np.full((n, 3, 3), np.nan)
+    mean[seen] = (s[seen] / cnt[seen, None]) @ rot.T + np.asarray(spec.position, dtype=float)
+    cov[seen] = rot @ (c[seen] / cnt[seen, None, None] ** 2) @ rot.T
+    return MeanReading(mean, cov, seen, cnt.astype(int))
+
+
 def visible_sites(model: mujoco.MjModel, data: mujoco.MjData, spec: TrackerSpec,
                   site_ids) -> np.ndarray:
     """Line-of-sight test (n,) bool from the tracker to each site at the pose held in ``data``.

@@ -9,8 +9,8 @@ import pytest
 
 from calbench.bench.scenario import TrackerSpec
 from calbench.bench.tracker import (
-    Measurement, measure, noise_covariance, to_tracker_frame, to_world_frame, tracker_rotation,
-    visible_sites,
+    Measurement, mean_reading, measure, noise_covariance, to_tracker_frame, to_world_frame,
+    tracker_rotation, visible_sites,
 )
 
 N_DRAWS = 20000
@@ -179,3 +179,31 @@ def test_visibility_follows_the_pose(scene):
     assert visible_sites(model, data, tracker, ids)[0]
     with pytest.raises(ValueError):
         visible_sites(model, data, tracker, [model.nsite])
+
+
+def test_mean_reading_against_a_hand_computation():
+    """Two readings of three reflectors, tracker at (1, 2, 3) turned 90 deg: world = (-y, x, z)
+    + (1, 2, 3). Reflector 0 is seen twice, 1 once (hidden in the first reading), 2 never (its
+    only 'visible' row has no position)."""
+    s = TrackerSpec(position=np.array([1.0, 2.0, 3.0]), yaw=math.pi / 2)
+    nan3, nan33 = [np.nan] * 3, np.full((3, 3), np.nan)
+    first = Measurement(position=np.array([[1.0, 0.0, 0.0], nan3, nan3]),
+                        covariance=np.array([np.diag([1.0, 4.0, 9.0]) * 1e-10, nan33, nan33]),
+                        visible=np.array([True, False, True]))
+    second = Measurement(position=np.array([[3.0, 2.0, 0.0], [0.0, 1.0, 1.0], nan3]),
+                         covariance=np.array([np.eye(3) * 1e-10, np.eye(3) * 4e-10, nan33]),
+                         visible=np.array([True, True, False]))
+    m = mean_reading(s, [first, second])
+    assert m.seen.tolist() == [True, True, False] and m.count.tolist() == [2, 1, 0]
+    # reflector 0: tracker-frame mean (2, 1, 0) -> world (-1, 2, 0) + (1, 2, 3)
+    np.testing.assert_allclose(m.position[0], [0.0, 4.0, 3.0], rtol=0, atol=1e-15)
+    # covariance of the mean: (diag(1,4,9) + I) e-10 / 2^2 = diag(0.5, 1.25, 2.5) e-10 in the
+    # tracker frame; the 90 deg yaw swaps x and y
+    np.testing.assert_allclose(m.covariance[0], np.diag([1.25, 0.5, 2.5]) * 1e-10, rtol=1e-15,
+                               atol=1e-25)
+    # reflector 1: one reading (0, 1, 1) -> world (-1, 0, 1) + (1, 2, 3), its own covariance
+    np.testing.assert_allclose(m.position[1], [0.0, 2.0, 4.0], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(m.covariance[1], np.eye(3) * 4e-10, rtol=1e-15, atol=1e-25)
+    assert np.isnan(m.position[2]).all() and np.isnan(m.covariance[2]).all()
+    with pytest.raises(ValueError):
+        mean_reading(s, [])
