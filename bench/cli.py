@@ -11,10 +11,11 @@ import sys
 from pathlib import Path
 
 from .campaign import run_campaign
+from .idreport import IdentificationReport
 from .progress import Progress
 from .scenario import load_scenario
 from .view import (DEFAULT_MAGNIFY, Summary, build_blueprint, default_rrd_path, has_display,
-                   load_robot, log_campaign, read_identified, recording_stream, write_recording)
+                   load_robot, log_campaign, recording_stream, write_recording)
 from .logformat import read_log
 from .outputs import check_outputs
 
@@ -76,7 +77,7 @@ def cmd_view(args: argparse.Namespace) -> int:
     why = " (no display, so no viewer was spawned)"
     if args.rrd is None and has_display():
         log = read_log(args.log, include_truth=True)
-        ident = read_identified(args.identified) if args.identified is not None else None
+        ident = IdentificationReport.read(args.identified) if args.identified is not None else None
         load_robot(log)
         rec = recording_stream(args.log)
         try:

@@ -29,7 +29,7 @@ import os
 import re
 import struct
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator, Mapping, Sequence
 
@@ -39,12 +39,13 @@ from mcap.records import Attachment, Channel, Footer, Header, Message, Metadata,
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
+from .campaignlog import (STATES, CampaignLog, CampaignTruth, MeasurementRecord, PerState,
+                          TruthJoints, TruthParameters, TruthReflectors, WrenchRecord)
 from .errors import InputError
 
 TRUTH_PREFIX = "/truth/"
 GROUND_TRUTH_METADATA = "ground_truth"
 SCENARIO_METADATA = "scenario"
-STATES = ("unloaded", "loaded")
 REQUIRED_TOPICS = ("/campaign/info", "/campaign/pose", "/tracker/measurement")
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 _MAGIC_TEXT = "an MCAP file (magic bytes 89 4D 43 41 50 30 0D 0A)"
@@ -579,43 +580,6 @@ def validate(instance: Any, schema: dict, where: str = "$") -> list[str]:
 # ---------------------------------------------------------------------------------------------
 
 
-@dataclass
-class MeasurementRecord:
-    """One tracker reading: positions (n,3) m in the tracker frame with NaN rows where not
-    visible, covariances (n,3,3) m^2 (NaN where not visible), visibility flags."""
-
-    pose: int
-    state: str
-    repeat: int
-    reflectors: list[str]
-    position: np.ndarray
-    covariance: np.ndarray
-    visible: np.ndarray
-
-
-@dataclass
-class CampaignLog:
-    """A campaign log as read back: complete poses only.
-
-    ``truncated`` is True when the file has no footer (the campaign did not finish).
-    ``truth`` is None unless read with ``include_truth=True`` and the log carries truth; then
-    it holds ``parameters`` (dict), ``reflectors`` and ``joints`` (pose -> state -> dict of
-    arrays) and ``scenario_text`` (the original scenario, with its [truth] tables).
-    """
-
-    path: Path
-    header: dict
-    scenario_text: str | None
-    mjcf_text: str | None
-    poses: dict[int, dict[str, np.ndarray]] = field(default_factory=dict)
-    wrenches: dict[int, dict] = field(default_factory=dict)
-    measurements: list[MeasurementRecord] = field(default_factory=list)
-    complete_poses: list[int] = field(default_factory=list)
-    n_poses_planned: int = 0
-    truncated: bool = False
-    truth: dict | None = None
-
-
 try:
     from zstandard import ZstdError as _ZstdError
 except ImportError:  # pragma: no cover - mcap's writer needs zstandard anyway
@@ -665,6 +629,11 @@ def _nan_rows(rows: list, shape: tuple[int, ...]) -> np.ndarray:
     return out
 
 
+def _per_state(d: dict[int, dict[str, Any]], keep: set[int]) -> dict[int, PerState]:
+    return {p: PerState(v.get("unloaded"), v.get("loaded")) for p, v in sorted(d.items())
+            if p in keep}
+
+
 def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLog:
     """Read a campaign log, keeping only poses with a ``/campaign/pose_done`` marker.
 
@@ -677,14 +646,14 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
     info: dict | None = None
     scenario_text = scenario_att = mjcf_text = None
     poses: dict[int, dict[str, np.ndarray]] = {}
-    wrenches: dict[int, dict] = {}
+    wrenches: dict[int, WrenchRecord] = {}
     meas: list[MeasurementRecord] = []
     done: set[int] = set()
     truncated = True
     t_params: dict | None = None
     t_meta: dict | None = None
-    t_refl: dict[int, dict[str, dict]] = {}
-    t_joints: dict[int, dict[str, dict]] = {}
+    t_refl: dict[int, dict[str, TruthReflectors]] = {}
+    t_joints: dict[int, dict[str, TruthJoints]] = {}
     saw_truth = False
 
     for rec in _records(path):
@@ -707,9 +676,9 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
             elif topic == "/campaign/pose":
                 poses.setdefault(m["pose"], {})[m["state"]] = np.asarray(m["q"], dtype=float)
             elif topic == "/campaign/wrench":
-                wrenches[m["pose"]] = {"force": np.asarray(m["force"], dtype=float),
-                                       "moment": np.asarray(m["moment"], dtype=float),
-                                       "site": m["site"], "mass": m["mass"]}
+                wrenches[m["pose"]] = WrenchRecord(
+                    pose=m["pose"], force=np.asarray(m["force"], dtype=float),
+                    moment=np.asarray(m["moment"], dtype=float), site=m["site"], mass=m["mass"])
             elif topic == "/tracker/measurement":
                 meas.append(MeasurementRecord(
                     pose=m["pose"], state=m["state"], repeat=m["repeat"],
@@ -722,13 +691,11 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
             elif topic == "/truth/parameters":
                 t_params = m
             elif topic == "/truth/reflectors":
-                t_refl.setdefault(m["pose"], {})[m["state"]] = {
-                    "reflectors": list(m["reflectors"]),
-                    "position_world": np.asarray(m["position_world"], dtype=float)}
+                t_refl.setdefault(m["pose"], {})[m["state"]] = TruthReflectors(
+                    tuple(m["reflectors"]), np.asarray(m["position_world"], dtype=float))
             elif topic == "/truth/joints":
-                t_joints.setdefault(m["pose"], {})[m["state"]] = {
-                    "qpos": np.asarray(m["qpos"], dtype=float),
-                    "deflection": np.asarray(m["deflection"], dtype=float)}
+                t_joints.setdefault(m["pose"], {})[m["state"]] = TruthJoints(
+                    np.asarray(m["qpos"], dtype=float), np.asarray(m["deflection"], dtype=float))
         elif isinstance(rec, Metadata):
             if rec.name == GROUND_TRUTH_METADATA:
                 saw_truth = True
@@ -758,17 +725,17 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
     if include_truth and saw_truth:
         if t_params is None and t_meta and "parameters" in t_meta:
             t_params = json.loads(t_meta["parameters"])
-        truth = {
-            "parameters": t_params,
-            "reflectors": {p: v for p, v in sorted(t_refl.items()) if p in keep},
-            "joints": {p: v for p, v in sorted(t_joints.items()) if p in keep},
-            "scenario_text": (t_meta or {}).get("scenario_text"),
-        }
+        truth = CampaignTruth(
+            parameters=_truth_parameters(path, t_params),
+            reflectors=_per_state(t_refl, keep),
+            joints=_per_state(t_joints, keep),
+            scenario_text=(t_meta or {}).get("scenario_text"),
+        )
     return CampaignLog(
         path=path, header=info,
         scenario_text=scenario_text if scenario_text is not None else scenario_att,
         mjcf_text=mjcf_text,
-        poses={p: v for p, v in sorted(poses.items()) if p in keep},
+        poses=_per_state(poses, keep),
         wrenches={p: v for p, v in sorted(wrenches.items()) if p in keep},
         measurements=[m for m in meas if m.pose in keep],
         complete_poses=complete,
@@ -776,6 +743,17 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
         truncated=truncated,
         truth=truth,
     )
+
+
+def _truth_parameters(path: Path, m: dict | None) -> TruthParameters | None:
+    if m is None:
+        return None
+    try:
+        return TruthParameters.from_message(m)
+    except (KeyError, TypeError, ValueError) as e:
+        raise InputError(path, "/truth/parameters",
+                         "compliance [6 numbers] and compensator {stiffness, preload}",
+                         str(e)) from None
 
 
 def has_truth(path: str | os.PathLike) -> bool:
@@ -856,5 +834,7 @@ def _channel_id_of(records: list, topic: str) -> int | None:
 
 __all__ = [
     "TRUTH_PREFIX", "SCHEMAS", "TOPICS", "LogHeader", "LogWriter", "MeasurementRecord",
-    "CampaignLog", "read_log", "strip_truth", "has_truth", "redact_truth", "validate",
+    "CampaignLog", "CampaignTruth", "PerState", "WrenchRecord", "TruthParameters",
+    "TruthReflectors", "TruthJoints", "read_log", "strip_truth", "has_truth", "redact_truth",
+    "validate",
 ]

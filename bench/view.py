@@ -26,7 +26,8 @@ loaded as an orange wireframe).
     to every reflector it saw in the unloaded state.
 ``measured/<state>``
     Measured reflector positions (mean of the repeats, tracker frame -> world frame with the
-    tracker pose of the log header), and ``measured/<state>/uncertainty_3sigma``: ellipsoids
+    tracker pose of the log header: :func:`bench.tracker.mean_reading`, as identification
+    averages them), and ``measured/<state>/uncertainty_3sigma``: ellipsoids
     whose half-axes are 3 sigma of the covariance of that mean (true scale: ~60 um).
 ``deflection/x<F>/measured``
     The measured deflection (loaded - unloaded, mean of the repeats) of every reflector seen in
@@ -42,7 +43,8 @@ campaign sees)
 ``plots/deflection_mm/<reflector>``
     Per-pose scalar series: magnitude of the measured deflection, mm.
 
-With ``--identified ID.json`` (the report of ``calbench identify --json``):
+With ``--identified ID.json`` (the report of ``calbench identify --json``, or the view report of
+``calbench discover``; read as a :class:`bench.idreport.IdentificationReport`):
 
 ``parameters/...``
     Static bar charts, bar i = parameter i of the table: ``parameters/compliance/estimate``,
@@ -51,11 +53,11 @@ With ``--identified ID.json`` (the report of ``calbench identify --json``):
     ``parameters/table``, a markdown table of every parameter with its unit.
 ``deflection/x<F>/predicted``, ``deflection/x<F>/residual``, ``plots/residual_mm/<reflector>``
     Only when the report carries per-observation predictions, an optional field that this
-    viewer reads (the CONTRACT does not require it): a list under ``"observations"`` (or
-    ``"predictions"``) of objects ``{"pose": int, "reflector": str, "predicted": [dx, dy, dz]}``
-    (also accepted: ``"predicted_deflection"``), the model's deflection loaded - unloaded of
-    that reflector in the world frame, metres. The residual is measured - predicted. Entries
-    that do not fit are skipped with a warning; without any, only the bar charts are shown.
+    viewer reads (the CONTRACT does not require it): a list under ``"observations"`` of objects
+    ``{"pose": int, "reflector": str, "predicted": [dx, dy, dz]}``, the model's deflection
+    loaded - unloaded of that reflector in the world frame, metres. The residual drawn is the
+    log's measured deflection minus the predicted one. Entries that do not fit are skipped
+    with a warning; without any, only the bar charts are shown.
 
 The default blueprint shows the 3D scene beside the per-pose plots (and the parameter charts
 and table with ``--identified``), with the time panel on the ``pose`` timeline.
@@ -66,7 +68,6 @@ and the command prints how to open it.
 """
 from __future__ import annotations
 
-import json
 import math
 import os
 import sys
@@ -77,11 +78,12 @@ import mujoco
 import numpy as np
 
 from .errors import InputError
-from .logformat import STATES, CampaignLog, read_log
+from .idreport import IdentificationReport, ParameterEstimate
+from .logformat import STATES, CampaignLog, PerState, read_log
 from .outputs import atomic_path, check_outputs
 from .robot import Robot
 from .scenario import TrackerSpec
-from .tracker import tracker_rotation, to_world_frame
+from .tracker import MeanReading, mean_reading
 
 DEFAULT_MAGNIFY = 200.0
 APP_ID = "calbench"
@@ -121,19 +123,6 @@ class PoseView:
         return d, cov, ok
 
 
-def tracker_spec(log: CampaignLog) -> TrackerSpec:
-    t = log.header.get("tracker") or {}
-    try:
-        pos = np.asarray(t["position"], dtype=float)
-        if pos.shape != (3,):
-            raise ValueError
-        return TrackerSpec(position=pos, yaw=float(t.get("yaw", 0.0)))
-    except (KeyError, TypeError, ValueError):
-        raise InputError(log.path, "/campaign/info.tracker.position",
-                         "the tracker position [x, y, z] in the campaign header",
-                         t.get("position") if isinstance(t, dict) else t) from None
-
-
 def load_robot(log: CampaignLog) -> Robot:
     if not log.mjcf_text:
         raise InputError(log.path, "robot MJCF attachment (application/xml)",
@@ -146,50 +135,26 @@ def load_robot(log: CampaignLog) -> Robot:
 
 
 def mean_measurements(log: CampaignLog, spec: TrackerSpec, names: list[str]) \
-        -> dict[tuple[int, str], tuple[np.ndarray, np.ndarray]]:
-    """(pose, state) -> (mean world positions (n,3), covariance of the mean (n,3,3)); NaN rows
-    for reflectors not seen in any repeat. Reflectors are matched by name to ``names``."""
-    acc: dict[tuple[int, str], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-    idx = {n: i for i, n in enumerate(names)}
-    n = len(names)
+        -> dict[tuple[int, str], MeanReading]:
+    """(pose, state) -> the mean of its readings in the world frame
+    (:func:`bench.tracker.mean_reading`), rows in ``names`` order (readings are matched by
+    reflector name)."""
+    groups: dict[tuple[int, str], list] = {}
     for m in log.measurements:
-        key = (m.pose, m.state)
-        if key not in acc:
-            acc[key] = (np.zeros((n, 3)), np.zeros((n, 3, 3)), np.zeros(n))
-        s, c, k = acc[key]
-        for j, name in enumerate(m.reflectors):
-            i = idx.get(name)
-            if i is None or not m.visible[j] or not np.all(np.isfinite(m.position[j])):
-                continue
-            s[i] += m.position[j]
-            c[i] += m.covariance[j]
-            k[i] += 1
-    R = tracker_rotation(spec)
-    out = {}
-    for key, (s, c, k) in acc.items():
-        seen = k > 0
-        mean_t = np.full((n, 3), np.nan)
-        cov_w = np.full((n, 3, 3), np.nan)
-        mean_t[seen] = s[seen] / k[seen, None]
-        cov_w[seen] = R @ (c[seen] / (k[seen, None, None] ** 2)) @ R.T
-        world = np.full((n, 3), np.nan)
-        if seen.any():
-            world[seen] = to_world_frame(spec, mean_t[seen])
-        out[key] = (world, cov_w)
-    return out
+        groups.setdefault((m.pose, m.state), []).append(m.in_order(names))
+    return {key: mean_reading(spec, readings) for key, readings in groups.items()}
 
 
 def measured_deflections(log: CampaignLog) -> dict[int, dict[str, np.ndarray]]:
     """pose -> reflector -> measured deflection (3,) in the world frame, metres: mean of the
     loaded repeats minus mean of the unloaded repeats. Reflectors seen in both states only."""
-    spec = tracker_spec(log)
     names = list(log.header.get("reflectors") or [])
-    means = mean_measurements(log, spec, names)
+    means = mean_measurements(log, log.tracker_spec(), names)
     out: dict[int, dict[str, np.ndarray]] = {}
     for p in log.complete_poses:
         if (p, "unloaded") not in means or (p, "loaded") not in means:
             continue
-        d = means[(p, "loaded")][0] - means[(p, "unloaded")][0]
+        d = means[(p, "loaded")].position - means[(p, "unloaded")].position
         out[p] = {nm: d[i] for i, nm in enumerate(names) if np.all(np.isfinite(d[i]))}
     return out
 
@@ -207,12 +172,12 @@ def _tendon_sites(model: mujoco.MjModel) -> list[tuple[str, list[int]]]:
 
 def pose_views(log: CampaignLog, robot: Robot) -> list[PoseView]:
     model, data = robot.model, mujoco.MjData(robot.model)
-    spec = tracker_spec(log)
     names = list(log.header.get("reflectors") or [])
-    means = mean_measurements(log, spec, names)
+    means = mean_measurements(log, log.tracker_spec(), names)
     tendons = _tendon_sites(model)
-    truth_joints = (log.truth or {}).get("joints") or {}
-    truth_refl = (log.truth or {}).get("reflectors") or {}
+    truth_joints = log.truth.joints if log.truth else {}
+    truth_refl = log.truth.reflectors if log.truth else {}
+    missing = PerState()
     nan = np.full((len(names), 3), np.nan)
     nan_cov = np.full((len(names), 3, 3), np.nan)
     views = []
@@ -220,13 +185,13 @@ def pose_views(log: CampaignLog, robot: Robot) -> list[PoseView]:
         xpos, xquat, tl, meas, cov, truth = {}, {}, {}, {}, {}, {}
         for state in STATES:
             qpos = None
-            tj = truth_joints.get(p, {}).get(state)
-            if tj is not None and np.asarray(tj["qpos"]).shape == (model.nq,):
-                qpos = np.asarray(tj["qpos"], dtype=float)
+            tj = truth_joints.get(p, missing).get(state)
+            if tj is not None and tj.qpos.shape == (model.nq,):
+                qpos = tj.qpos
             else:
-                q = log.poses.get(p, {}).get(state)
+                q = log.poses.get(p, missing).get(state)
                 if q is None:
-                    q = log.poses.get(p, {}).get("unloaded")
+                    q = log.poses.get(p, missing).unloaded
                 if q is None or np.asarray(q).shape != (6,):
                     raise InputError(log.path, f"/campaign/pose (pose {p}, {state})",
                                      "the commanded joint angles q[6] of every complete pose",
@@ -237,87 +202,18 @@ def pose_views(log: CampaignLog, robot: Robot) -> list[PoseView]:
             xpos[state] = data.xpos.copy()
             xquat[state] = data.xquat.copy()
             tl[state] = [data.site_xpos[s].copy() for _, s in tendons]
-            meas[state], cov[state] = means.get((p, state), (nan, nan_cov))
-            tr = truth_refl.get(p, {}).get(state)
+            mean = means.get((p, state))
+            meas[state], cov[state] = (nan, nan_cov) if mean is None else \
+                (mean.position, mean.covariance)
+            tr = truth_refl.get(p, missing).get(state)
             if tr is not None:
                 pos = np.full((len(names), 3), np.nan)
-                for j, nm in enumerate(tr["reflectors"]):
+                for j, nm in enumerate(tr.reflectors):
                     if nm in names:
-                        pos[names.index(nm)] = tr["position_world"][j]
+                        pos[names.index(nm)] = tr.position_world[j]
                 truth[state] = pos
         views.append(PoseView(p, xpos, xquat, tl, meas, cov, truth))
     return views
-
-
-# ---------------------------------------------------------------------------------------------
-# the identification report
-# ---------------------------------------------------------------------------------------------
-
-
-@dataclass
-class Identified:
-    path: Path
-    parameters: list[dict]                      # name, unit, estimate, std, truth (float|None)
-    predicted: dict[int, dict[str, np.ndarray]]  # pose -> reflector -> (3,) m
-    method: str | None = None
-    warnings: list[str] = field(default_factory=list)
-
-
-def _num(x) -> float | None:
-    if isinstance(x, bool) or not isinstance(x, (int, float)):
-        return None
-    return float(x) if math.isfinite(x) else None
-
-
-def read_identified(path: str | os.PathLike) -> Identified:
-    """Read the ``identify --json`` report; only ``parameters[].name`` and ``.estimate`` are
-    required, everything else is optional (missing -> not shown)."""
-    path = Path(path)
-    try:
-        doc = json.loads(path.read_text())
-    except OSError as e:
-        raise InputError(path, "file", "a readable JSON file (calbench identify --json)",
-                         e.strerror) from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise InputError(path, "file", "JSON (calbench identify --json)", str(e)) from None
-    if not isinstance(doc, dict) or not isinstance(doc.get("parameters"), list):
-        raise InputError(path, "parameters", "a list of {name, estimate, std, truth}",
-                         type(doc.get("parameters") if isinstance(doc, dict) else doc).__name__)
-    params = []
-    for i, p in enumerate(doc["parameters"]):
-        if not isinstance(p, dict) or not isinstance(p.get("name"), str) \
-                or _num(p.get("estimate")) is None:
-            raise InputError(path, f"parameters[{i}]",
-                             "an object with a string name and a finite number estimate", p)
-        params.append({"name": p["name"], "unit": str(p.get("unit") or ""),
-                       "estimate": _num(p["estimate"]), "std": _num(p.get("std")),
-                       "truth": _num(p.get("truth"))})
-    warnings: list[str] = []
-    predicted: dict[int, dict[str, np.ndarray]] = {}
-    obs = doc.get("observations", doc.get("predictions"))
-    if obs is not None and not isinstance(obs, list):
-        warnings.append("observations: not a list, ignored")
-        obs = None
-    bad = 0
-    for o in obs or []:
-        vec = None
-        if isinstance(o, dict):
-            vec = o.get("predicted", o.get("predicted_deflection"))
-        try:
-            pose = o["pose"]
-            refl = o["reflector"]
-            v = np.asarray(vec, dtype=float)
-            if isinstance(pose, bool) or int(pose) != pose or not isinstance(refl, str) \
-                    or v.shape != (3,) or not np.all(np.isfinite(v)):
-                raise ValueError
-        except (KeyError, TypeError, ValueError):
-            bad += 1
-            continue
-        predicted.setdefault(int(pose), {})[refl] = v
-    if bad:
-        warnings.append(f"observations: {bad} entries without pose, reflector and a "
-                        "predicted [dx, dy, dz] were skipped")
-    return Identified(path, params, predicted, doc.get("method"), warnings)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -446,7 +342,7 @@ class Summary:
     warnings: list[str] = field(default_factory=list)   # about the --identified report
 
 
-def log_campaign(rec, log: CampaignLog, identified: Identified | None = None,
+def log_campaign(rec, log: CampaignLog, identified: IdentificationReport | None = None,
                  magnify: float = DEFAULT_MAGNIFY) -> Summary:
     """Log the whole campaign (and the identification report) into the RecordingStream."""
     import rerun as rr
@@ -454,11 +350,12 @@ def log_campaign(rec, log: CampaignLog, identified: Identified | None = None,
     robot = load_robot(log)
     model = robot.model
     views = pose_views(log, robot)
-    spec = tracker_spec(log)
+    spec = log.tracker_spec()
     names = list(log.header.get("reflectors") or [])
     bodies = _body_names(model)
     tag = magnify_tag(magnify)
-    has_truth = bool(log.truth and log.truth.get("joints"))
+    has_truth = bool(log.truth and log.truth.joints)
+    predicted = identified.predictions() if identified else {}
     refl_colors = [REFLECTOR_COLORS[i % len(REFLECTOR_COLORS)] for i in range(len(names))]
 
     rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
@@ -475,14 +372,13 @@ def log_campaign(rec, log: CampaignLog, identified: Identified | None = None,
             rec.log(path, arch, static=True)
     tendons = _tendon_sites(model)
     # --- tracker -------------------------------------------------------------------------
-    sigma = (log.header.get("tracker") or {}).get("sigma")
-    label = "laser tracker" + (f" (sigma {sigma * 1e6:.0f} um)" if _num(sigma) else "")
+    label = f"laser tracker (sigma {spec.sigma * 1e6:.0f} um)"
     rec.log("tracker", rr.Points3D([spec.position], radii=[0.06], colors=[(20, 20, 20)],
                                    labels=[label], show_labels=True), static=True)
     for i, nm in enumerate(names):
         rec.log(f"plots/deflection_mm/{nm}",
                 rr.SeriesLines(colors=[refl_colors[i]], names=[f"|d| {nm}"]), static=True)
-        if identified and identified.predicted:
+        if predicted:
             rec.log(f"plots/residual_mm/{nm}",
                     rr.SeriesLines(colors=[refl_colors[i]], names=[f"|residual| {nm}"]),
                     static=True)
@@ -553,10 +449,10 @@ def log_campaign(rec, log: CampaignLog, identified: Identified | None = None,
                 labels=[f"{names[i]} true {np.linalg.norm(td[i]) * 1e3:.3f} mm ({tag})"
                         for i in tok]))
         # the model's prediction and the residual
-        pred = (identified.predicted.get(v.index, {}) if identified else {})
+        pred = predicted.get(v.index, {})
         pi = [i for i in idx if names[i] in pred]
         if pi:
-            pv = np.array([pred[names[i]] for i in pi])
+            pv = np.array([pred[names[i]] for i in pi], dtype=float)
             o = v.measured["unloaded"][pi]
             res = d[pi] - pv
             rec.log(f"deflection/{tag}/predicted", rr.Arrows3D(
@@ -571,7 +467,7 @@ def log_campaign(rec, log: CampaignLog, identified: Identified | None = None,
             for i, r in zip(pi, res):
                 rec.log(f"plots/residual_mm/{names[i]}", rr.Scalars(np.linalg.norm(r) * 1e3))
             n_pred += len(pi)
-        elif identified and identified.predicted:  # no prediction here: hide the last pose's
+        elif predicted:  # no prediction here: hide the last pose's
             rec.log(f"deflection/{tag}/predicted", rr.Clear(recursive=False))
             rec.log(f"deflection/{tag}/residual", rr.Clear(recursive=False))
     if identified is not None:
@@ -581,15 +477,20 @@ def log_campaign(rec, log: CampaignLog, identified: Identified | None = None,
                    else "rigid closed-loop configuration at the commanded q")
 
 
-def log_parameters(rec, ident: Identified) -> None:
+def log_parameters(rec, ident: IdentificationReport) -> None:
     """Static bar charts and a table of the identified parameters."""
     import rerun as rr
 
-    by_name = {p["name"]: p for p in ident.parameters}
+    def z_of(p: ParameterEstimate) -> float | None:
+        if p.estimate is None or p.truth is None or not p.std:
+            return None
+        return (p.estimate - p.truth) / p.std
+
+    by_name = {p.name: p for p in ident.parameters}
     ks = [by_name.get(n) for n in COMPLIANCE_NAMES]
     if any(ks):
         def col(key):
-            vals = [(p.get(key) if p else None) for p in ks]
+            vals = [(getattr(p, key) if p else None) for p in ks]
             return None if all(x is None for x in vals) else \
                 np.array([np.nan if x is None else x * 1e6 for x in vals])
         for key in ("estimate", "std", "truth"):
@@ -599,29 +500,28 @@ def log_parameters(rec, ident: Identified) -> None:
                         rr.BarChart(np.nan_to_num(vals), color=
                                     {"estimate": PREDICTED_COLOR, "std": (150, 150, 150),
                                      "truth": TRUTH_COLOR}[key]), static=True)
-    rel = [abs(p["std"] / p["estimate"]) * 100 if p["std"] is not None and p["estimate"] else 0.0
+    rel = [abs(p.std / p.estimate) * 100 if p.std is not None and p.estimate else 0.0
            for p in ident.parameters]
-    if any(p["std"] is not None for p in ident.parameters):
+    if any(p.std is not None for p in ident.parameters):
         rec.log("parameters/relative_std_percent", rr.BarChart(rel, color=(150, 150, 150)),
                 static=True)
-    if any(p["truth"] is not None and p["std"] for p in ident.parameters):
-        z = [(p["estimate"] - p["truth"]) / p["std"] if p["truth"] is not None and p["std"]
-             else 0.0 for p in ident.parameters]
-        rec.log("parameters/z_score", rr.BarChart(z, color=RESIDUAL_COLOR), static=True)
+    zs = [z_of(p) for p in ident.parameters]
+    if any(z is not None for z in zs):
+        rec.log("parameters/z_score", rr.BarChart([z or 0.0 for z in zs], color=RESIDUAL_COLOR),
+                static=True)
 
     def fmt(x):
         return "-" if x is None else f"{x:.4g}"
+    source = Path(ident.source).name if ident.source else "report"
     lines = [f"**Identified parameters** ({ident.method or 'method not stated'}, "
-             f"`{ident.path.name}`). Bar *i* of every chart is row *i* "
+             f"`{source}`). Bar *i* of every chart is row *i* "
              "(compliance charts: k1..k6 in urad/(N*m)).", "",
              "| # | name | estimate | std | truth | z | unit |",
              "|---|---|---|---|---|---|---|"]
-    for i, p in enumerate(ident.parameters):
-        z = (p["estimate"] - p["truth"]) / p["std"] if p["truth"] is not None and p["std"] \
-            else None
-        lines.append(f"| {i} | {p['name']} | {fmt(p['estimate'])} | {fmt(p['std'])} | "
-                     f"{fmt(p['truth'])} | {'-' if z is None else f'{z:+.2f}'} | {p['unit']} |")
-    if not ident.predicted:
+    for i, (p, z) in enumerate(zip(ident.parameters, zs)):
+        lines.append(f"| {i} | {p.name} | {fmt(p.estimate)} | {fmt(p.std)} | "
+                     f"{fmt(p.truth)} | {'-' if z is None else f'{z:+.2f}'} | {p.unit} |")
+    if not ident.observations:
         lines += ["", "The report carries no per-observation predicted deflections, so the "
                   "3D view shows the measured deflections only."]
     rec.log("parameters/table", rr.TextDocument("\n".join(lines),
@@ -653,9 +553,9 @@ def write_recording(log_path: str | os.PathLike, rrd_path: str | os.PathLike,
     blueprint. Raises InputError on bad input, before the output file is created."""
     magnify = _check_magnify(magnify)
     log = read_log(log_path, include_truth=True)
-    ident = read_identified(identified) if identified is not None else None
+    ident = IdentificationReport.read(identified) if identified is not None else None
     load_robot(log)  # fail before creating the file
-    tracker_spec(log)
+    log.tracker_spec()
     rrd_path = Path(rrd_path)
     check_outputs({"--rrd": rrd_path}, {"LOG": log_path, "--identified": identified})
     with atomic_path(rrd_path) as tmp:          # a complete recording or none
@@ -667,7 +567,7 @@ def write_recording(log_path: str | os.PathLike, rrd_path: str | os.PathLike,
         finally:
             rec.flush()
             rec.disconnect()
-    summary.warnings = [f"{ident.path}: {w}" for w in (ident.warnings if ident else [])]
+    summary.warnings = [f"{ident.source}: {w}" for w in (ident.read_warnings if ident else ())]
     return summary
 
 
@@ -684,5 +584,5 @@ def default_rrd_path(log_path: Path) -> Path:
     return Path(log_path).with_suffix(".rrd")
 
 
-__all__ = ["write_recording", "has_display", "default_rrd_path", "recording_stream", "Summary", "log_campaign", "read_identified",
+__all__ = ["write_recording", "has_display", "default_rrd_path", "recording_stream", "Summary", "log_campaign", "mean_measurements",
            "measured_deflections", "build_blueprint", "magnify_tag", "DEFAULT_MAGNIFY"]

@@ -41,7 +41,7 @@ def main() -> None:
                 t = time.perf_counter()
                 rep = run_identify(log, method=method)
                 times.append(time.perf_counter() - t)
-                internal.append(rep["seconds"])
+                internal.append(rep.seconds)
             out[f"identify_{method}_seconds"] = {
                 "median_wall_incl_log_reading": statistics.median(times),
                 "median_estimation": statistics.median(internal), "target": 2.0 if method == "one-step" else None}

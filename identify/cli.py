@@ -58,9 +58,9 @@ def cmd_identify(args) -> int:
     rep = run_identify(args.log, args.model, args.method, args.drop_outliers)
     print(format_table(rep))
     if args.json:
-        write_text(args.json, json.dumps(rep, indent=2, allow_nan=False))
+        write_text(args.json, rep.to_json())
     if args.check:
-        if all(p["truth"] is None for p in rep["parameters"]):
+        if not rep.has_truth():
             print("check: the log carries no ground truth; nothing to check")
             return 0
         bad = check_failed(rep)

@@ -35,7 +35,7 @@ def run_demo(logs: Path) -> Iterator[str]:
     write_recording(log, rrd)
     yield f"2. Rerun recording of the deflections -> {rrd}   (open it with: rerun {rrd})"
     rep = run_identify(log)
-    yield f"3. identified (one-step, {rep['seconds']:.2f} s), against the truth in the log:"
+    yield f"3. identified (one-step, {rep.seconds:.2f} s), against the truth in the log:"
     yield format_table(rep)
     yield from discover_step(logs)
 

@@ -6,7 +6,8 @@ the deflection
     dp_jr = mean(loaded readings of r) - mean(unloaded readings of r)     (world frame, m)
 
 with covariance Cov(mean loaded) + Cov(mean unloaded) (the two states are read independently;
-each reading is used in exactly one dp, so the dp are mutually independent). A reflector counts
+each reading is used in exactly one dp, so the dp are mutually independent). The means and their
+covariances are :func:`bench.tracker.mean_reading`'s, the viewer's too. A reflector counts
 only when it is visible in both states of the pose. The known inputs are the commanded angles q,
 the applied wrench (force, moment, site) and the tracker pose from the log header.
 
@@ -21,9 +22,9 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from calbench.bench.errors import InputError
-from calbench.bench.logformat import CampaignLog
+from calbench.bench.logformat import STATES, CampaignLog, PerState
 from calbench.bench.scenario import TrackerSpec
-from calbench.bench.tracker import tracker_rotation
+from calbench.bench.tracker import mean_reading
 
 
 @dataclass(frozen=True)
@@ -82,55 +83,18 @@ class Observations:
                             list(self.lost_poses), self.truncated, self.source)
 
 
-def tracker_spec(header_tracker: dict) -> TrackerSpec:
-    """The TrackerSpec of a log header's ``tracker`` dict (position m, yaw rad)."""
-    t = header_tracker
-    return TrackerSpec(
-        position=np.asarray(t["position"], dtype=float),
-        yaw=float(t.get("yaw", 0.0)),
-        model=str(t.get("model", "isotropic")),
-        sigma=float(t.get("sigma", 20e-6)),
-        distance=tuple(t.get("distance", (10e-6, 0.3e-6))),
-        transverse=tuple(t.get("transverse", (15e-6, 6e-6))),
-    )
-
-
-def _state_mean(readings: Sequence, names: Sequence[str], rot: np.ndarray,
-                origin: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Mean world position (n,3), covariance of the mean (n,3,3) and a seen-flag (n,) over
-    repeated readings (objects with ``position``, ``covariance``, ``visible`` in the tracker
-    frame, rows in ``names`` order)."""
-    n = len(names)
-    s = np.zeros((n, 3))
-    c = np.zeros((n, 3, 3))
-    cnt = np.zeros(n)
-    for m in readings:
-        vis = np.asarray(m.visible, dtype=bool)
-        s[vis] += np.asarray(m.position)[vis]
-        c[vis] += np.asarray(m.covariance)[vis]
-        cnt[vis] += 1
-    seen = cnt > 0
-    mean = np.full((n, 3), np.nan)
-    cov = np.full((n, 3, 3), np.nan)
-    mean[seen] = (s[seen] / cnt[seen, None]) @ rot.T + origin
-    cov[seen] = rot @ (c[seen] / cnt[seen, None, None] ** 2) @ rot.T
-    return mean, cov, seen
-
-
 def pose_observation(index: int, q, force, moment, site: str, names: Sequence[str],
                      unloaded: Sequence, loaded: Sequence, spec: TrackerSpec) -> PoseObservation:
-    """dp and its covariance for one pose from its readings in both states (eq. 2)."""
-    rot = tracker_rotation(spec)
-    origin = np.asarray(spec.position, dtype=float)
-    m0, c0, s0 = _state_mean(unloaded, names, rot, origin)
-    m1, c1, s1 = _state_mean(loaded, names, rot, origin)
-    both = s0 & s1
-    rows = np.flatnonzero(both)
+    """dp and its covariance for one pose from its readings in both states (eq. 2); the
+    readings' rows are in ``names`` order."""
+    m0 = mean_reading(spec, unloaded)
+    m1 = mean_reading(spec, loaded)
+    rows = np.flatnonzero(m0.seen & m1.seen)
     return PoseObservation(
         index=int(index), q=np.asarray(q, dtype=float), force=np.asarray(force, dtype=float),
         moment=np.asarray(moment, dtype=float), site=str(site),
-        reflectors=tuple(names[i] for i in rows), dp=m1[rows] - m0[rows],
-        cov=c0[rows] + c1[rows])
+        reflectors=tuple(names[i] for i in rows), dp=m1.position[rows] - m0.position[rows],
+        cov=m0.covariance[rows] + m1.covariance[rows])
 
 
 def from_log(log: CampaignLog) -> Observations:
@@ -140,26 +104,23 @@ def from_log(log: CampaignLog) -> Observations:
     without both states, or no pose with a reflector seen in both states.
     """
     path = log.path
-    spec = tracker_spec(log.header["tracker"])
-    by_state: dict[tuple[int, str], list] = {}
-    for m in log.measurements:
-        by_state.setdefault((m.pose, m.state), []).append(m)
+    spec = log.tracker_spec()
     poses: list[PoseObservation] = []
     for p in log.complete_poses:
-        states = log.poses.get(p, {})
-        if "unloaded" not in states or "loaded" not in states:
+        cmd = log.poses.get(p, PerState())
+        if not cmd.both():
             raise InputError(path, "/campaign/pose", f"pose {p} commanded in both states",
-                             sorted(states))
+                             [s for s in STATES if cmd.get(s) is not None])
         if p not in log.wrenches:
             raise InputError(path, "/campaign/wrench",
                              f"the applied wrench of complete pose {p} (a /campaign/wrench message)",
                              "none")
-        q = states["unloaded"]
-        if not np.allclose(q, states["loaded"], rtol=0, atol=1e-12):
+        q = cmd.unloaded
+        if not np.allclose(q, cmd.loaded, rtol=0, atol=1e-12):
             raise InputError(path, "/campaign/pose", f"pose {p}: the same command in both states",
-                             [q.tolist(), states["loaded"].tolist()])
-        u = by_state.get((p, "unloaded"), [])
-        ld = by_state.get((p, "loaded"), [])
+                             [q.tolist(), cmd.loaded.tolist()])
+        u = log.readings(p, "unloaded")
+        ld = log.readings(p, "loaded")
         if not u or not ld:
             continue  # nothing measured: contributes nothing
         names = u[0].reflectors
@@ -167,7 +128,7 @@ def from_log(log: CampaignLog) -> Observations:
             raise InputError(path, "/tracker/measurement",
                              f"pose {p}: the same reflector list in every reading", "different lists")
         w = log.wrenches[p]
-        ob = pose_observation(p, q, w["force"], w["moment"], w["site"], names, u, ld, spec)
+        ob = pose_observation(p, q, w.force, w.moment, w.site, names, u, ld, spec)
         if len(ob.reflectors):
             poses.append(ob)
     if not poses:
@@ -179,4 +140,4 @@ def from_log(log: CampaignLog) -> Observations:
                         str(path))
 
 
-__all__ = ["PoseObservation", "Observations", "from_log", "pose_observation", "tracker_spec"]
+__all__ = ["PoseObservation", "Observations", "from_log", "pose_observation"]

@@ -16,7 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from calbench.bench.errors import InputError
-from calbench.bench.logformat import read_log
+from calbench.bench.idreport import IdentificationReport, ObservationFit, Outlier, ParameterEstimate
+from calbench.bench.logformat import CampaignTruth, read_log
 from calbench.bench.robot import Robot
 
 from .model import check_sites, load_model
@@ -89,23 +90,22 @@ def identify(robot: Robot, obs: Observations, method: str = "one-step",
                       r.residual_w, float(r.chi2), int(r.dof), found, dropped, extra)
 
 
-def truth_vector(truth: dict | None) -> np.ndarray | None:
-    if not truth or not truth.get("parameters"):
+def truth_vector(truth: CampaignTruth | None) -> np.ndarray | None:
+    """The true theta (PARAM_NAMES order) of a log read with truth, or None without."""
+    if truth is None or truth.parameters is None:
         return None
-    p = truth["parameters"]
-    try:
-        comp = p.get("compensator", {})
-        return np.array([*map(float, p["compliance"]), float(comp["stiffness"]), float(comp["preload"])])
-    except (KeyError, TypeError, ValueError):
-        return None
+    t = truth.parameters
+    return np.array([*t.compliance, t.compensator_stiffness, t.compensator_preload], dtype=float)
 
 
 def _num(x) -> float | None:
     return None if x is None or not np.isfinite(x) else float(x)
 
 
-def as_json(res: Identified, truth: np.ndarray | None, log_path, model_name: str,
-            seconds: float) -> dict:
+def build_report(res: Identified, truth: np.ndarray | None, log_path, model_name: str,
+                 seconds: float) -> IdentificationReport:
+    """The report of an identification; ``truth`` (from the log, after the estimate) fills the
+    truth, error and z columns."""
     obs = res.obs
     sd = np.sqrt(np.where(np.isfinite(np.diag(res.cov)), np.diag(res.cov), np.nan))
     params = []
@@ -115,90 +115,83 @@ def as_json(res: Identified, truth: np.ndarray | None, log_path, model_name: str
         t = None if truth is None else float(truth[i])
         err = None if (est is None or t is None) else est - t
         z = None if (err is None or not std) else err / std
-        params.append({"name": name, "unit": PARAM_UNITS[i], "estimate": est, "std": std,
-                       "truth": t, "error": err, "z": z, "identifiable": bool(res.identifiable[i]),
-                       "reason": res.reasons.get(name)})
+        params.append(ParameterEstimate(name, PARAM_UNITS[i], est, std, t, err, z,
+                                        bool(res.identifiable[i]), res.reasons.get(name)))
     n = res.residual.size
     cov_diag = np.concatenate([np.diagonal(c) for c in obs.cov]) if obs.poses else np.zeros(0)
-    cov_out = [[_num(res.cov[i, j]) for j in range(NP)] for i in range(NP)]
-    return {
-        "method": res.method,
-        "parameters": params,
-        "residual_rms": float(np.sqrt(np.mean(res.residual ** 2))) if n else None,
-        "noise_sigma": float(obs.noise_sigma),
-        "chi2_per_dof": res.chi2 / res.dof if res.dof > 0 else None,
-        # additions
-        "chi2": res.chi2, "dof": res.dof,
-        "expected_residual_rms": float(np.sqrt(np.mean(cov_diag) * res.dof / max(n, 1))) if n else None,
-        "whitened_residual_rms": float(np.sqrt(np.mean(res.residual_w ** 2))) if n else None,
-        "covariance": cov_out,
-        "log": str(log_path), "model": model_name,
-        "n_poses_planned": obs.n_planned, "n_poses_used": len(obs.poses),
-        "lost_poses": list(obs.lost_poses), "n_lost_poses": len(obs.lost_poses),
-        "truncated": bool(obs.truncated), "n_observations": obs.n_obs(),
-        "identifiable": {n_: bool(b) for n_, b in zip(PARAM_NAMES, res.identifiable)},
-        "unidentifiable": {k: v for k, v in res.reasons.items()},
-        "outliers": res.outliers, "outlier_threshold_sigma": OUTLIER_SIGMA,
-        "dropped_outliers": res.dropped,
-        "seconds": seconds,
+    return IdentificationReport(
+        method=res.method,
+        parameters=tuple(params),
+        residual_rms=float(np.sqrt(np.mean(res.residual ** 2))) if n else None,
+        noise_sigma=float(obs.noise_sigma),
+        chi2_per_dof=res.chi2 / res.dof if res.dof > 0 else None,
+        chi2=res.chi2, dof=res.dof,
+        expected_residual_rms=float(np.sqrt(np.mean(cov_diag) * res.dof / max(n, 1))) if n else None,
+        whitened_residual_rms=float(np.sqrt(np.mean(res.residual_w ** 2))) if n else None,
+        covariance=tuple(tuple(_num(res.cov[i, j]) for j in range(NP)) for i in range(NP)),
+        log=str(log_path), model=model_name,
+        n_poses_planned=obs.n_planned, n_poses_used=len(obs.poses),
+        lost_poses=tuple(obs.lost_poses), truncated=bool(obs.truncated),
+        n_observations=obs.n_obs(),
+        outliers=tuple(Outlier(**o) for o in res.outliers), outlier_threshold_sigma=OUTLIER_SIGMA,
+        dropped_outliers=tuple(Outlier(**o) for o in res.dropped),
+        seconds=seconds,
         # per observation, world frame, m: what `calbench view --identified` draws
-        "observations": [
-            {"pose": int(pose), "reflector": refl, "measured": [float(x) for x in dp],
-             "predicted": [float(x) for x in dp - r], "residual": [float(x) for x in r]}
-            for (pose, refl), dp, r in zip(obs.labels, obs.dp, res.residual.reshape(-1, 3))
-        ],
-        **res.extra,
-    }
+        observations=tuple(
+            ObservationFit(int(pose), refl, predicted=tuple(float(x) for x in dp - r),
+                           measured=tuple(float(x) for x in dp), residual=tuple(float(x) for x in r))
+            for (pose, refl), dp, r in zip(obs.labels, obs.dp, res.residual.reshape(-1, 3))),
+        details=res.extra,
+    )
 
 
-def format_table(rep: dict) -> str:
-    has_truth = any(p["truth"] is not None for p in rep["parameters"])
-    lines = [f"calbench identify: {rep['log']} ({rep['method']}; model {rep['model']})",
-             f"  poses used {rep['n_poses_used']} of {rep['n_poses_planned']} planned, "
-             f"{rep['n_lost_poses']} lost" + (f" {rep['lost_poses']}" if rep["lost_poses"] else "")
-             + (" (log truncated)" if rep["truncated"] else "")
-             + f"; {rep['n_observations']} reflector deflections"]
+def format_table(rep: IdentificationReport) -> str:
+    has_truth = rep.has_truth()
+    lines = [f"calbench identify: {rep.log} ({rep.method}; model {rep.model})",
+             f"  poses used {rep.n_poses_used} of {rep.n_poses_planned} planned, "
+             f"{rep.n_lost_poses} lost" + (f" {list(rep.lost_poses)}" if rep.lost_poses else "")
+             + (" (log truncated)" if rep.truncated else "")
+             + f"; {rep.n_observations} reflector deflections"]
     head = f"  {'parameter':<22}{'unit':<12}{'estimate':>12} {'± std':>10}"
     if has_truth:
         head += f"{'truth':>12}{'error':>11}{'z':>7}"
     lines.append(head)
-    for p in rep["parameters"]:
-        label, f = DISPLAY[p["unit"]]
-        if p["estimate"] is None:
-            row = f"  {p['name']:<22}{label:<12}{'not identifiable':>23}"
-            if has_truth and p["truth"] is not None:
-                row += f"{p['truth'] * f:>12.5g}"
+    for p in rep.parameters:
+        label, f = DISPLAY[p.unit]
+        if p.estimate is None:
+            row = f"  {p.name:<22}{label:<12}{'not identifiable':>23}"
+            if has_truth and p.truth is not None:
+                row += f"{p.truth * f:>12.5g}"
             lines.append(row)
             continue
-        sd = p["std"] * f
+        sd = p.std * f
         dec = max(0, 1 - math.floor(math.log10(sd))) if sd > 0 else 3   # std to 2 digits
-        row = f"  {p['name']:<22}{label:<12}{p['estimate'] * f:>12.{dec}f} {sd:>10.{dec}f}"
-        if has_truth and p["truth"] is not None:
-            row += f"{p['truth'] * f:>12.{dec}f}{p['error'] * f:>+11.{dec}f}{p['z']:>+7.2f}"
+        row = f"  {p.name:<22}{label:<12}{p.estimate * f:>12.{dec}f} {sd:>10.{dec}f}"
+        if has_truth and p.truth is not None:
+            row += f"{p.truth * f:>12.{dec}f}{p.error * f:>+11.{dec}f}{p.z:>+7.2f}"
         lines.append(row)
-    if rep["residual_rms"] is not None:
-        lines.append(f"  residual RMS {rep['residual_rms'] * 1e6:.2f} µm per axis (expected "
-                     f"{rep['expected_residual_rms'] * 1e6:.2f} µm from the tracker: σ = "
-                     f"{rep['noise_sigma'] * 1e6:.3g} µm per reading, a deflection is the difference of two); "
-                     f"χ²/dof = {rep['chi2_per_dof']:.3f} ({rep['dof']} dof)")
-    for name, why in rep["unidentifiable"].items():
+    if rep.residual_rms is not None:
+        lines.append(f"  residual RMS {rep.residual_rms * 1e6:.2f} µm per axis (expected "
+                     f"{rep.expected_residual_rms * 1e6:.2f} µm from the tracker: σ = "
+                     f"{rep.noise_sigma * 1e6:.3g} µm per reading, a deflection is the difference of two); "
+                     f"χ²/dof = {rep.chi2_per_dof:.3f} ({rep.dof} dof)")
+    for name, why in rep.unidentifiable.items():
         lines.append(f"  not identifiable: {name}: {why}")
-    if rep["outliers"]:
-        for o in rep["outliers"]:
-            lines.append(f"  outlier (> {rep['outlier_threshold_sigma']:g}σ): pose {o['pose']} reflector "
-                         f"{o['reflector']}: {o['sigma']:.1f}σ" + ("" if rep["dropped_outliers"] else
-                                                                   " (refit without: --drop-outliers)"))
-    if rep["dropped_outliers"]:
+    for o in rep.outliers:
+        lines.append(f"  outlier (> {rep.outlier_threshold_sigma:g}σ): pose {o.pose} reflector "
+                     f"{o.reflector}: {o.sigma:.1f}σ" + ("" if rep.dropped_outliers else
+                                                         " (refit without: --drop-outliers)"))
+    if rep.dropped_outliers:
         lines.append("  dropped and refitted without: " + ", ".join(
-            f"pose {o['pose']} {o['reflector']} ({o['sigma']:.1f}σ)" for o in rep["dropped_outliers"]))
-    if rep.get("converged") is False:
+            f"pose {o.pose} {o.reflector} ({o.sigma:.1f}σ)" for o in rep.dropped_outliers))
+    if rep.details.get("converged") is False:
         lines.append("  WARNING: the estimator did not converge")
     return "\n".join(lines)
 
 
 def run_identify(log_path, model=None, method: str = "one-step",
-                 drop_outliers: bool = False) -> dict:
-    """Everything `calbench identify` does except printing; returns the JSON report."""
+                 drop_outliers: bool = False) -> IdentificationReport:
+    """Everything `calbench identify` does except printing; returns the report."""
     t0 = time.perf_counter()
     log = read_log(log_path)                 # no truth: nothing below can see it
     obs = from_log(log)
@@ -210,12 +203,13 @@ def run_identify(log_path, model=None, method: str = "one-step",
     seconds = time.perf_counter() - t0
     truth = truth_vector(read_log(log_path, include_truth=True).truth)   # for the report only
     model_name = str(model) if model is not None else f"{log.header.get('robot', 'MJCF')} (from the log)"
-    return as_json(res, truth, log_path, model_name, seconds)
+    return build_report(res, truth, log_path, model_name, seconds)
 
 
-def check_failed(rep: dict, z_max: float = Z_CHECK) -> list[str]:
+def check_failed(rep: IdentificationReport, z_max: float = Z_CHECK) -> list[str]:
     """Parameters whose |z| exceeds z_max (empty without truth)."""
-    return [p["name"] for p in rep["parameters"] if p["z"] is not None and abs(p["z"]) > z_max]
+    return [p.name for p in rep.parameters if p.z is not None and abs(p.z) > z_max]
 
 
-__all__ = ["run_identify", "identify", "format_table", "as_json", "check_failed", "METHODS", "Z_CHECK"]
+__all__ = ["run_identify", "identify", "format_table", "build_report", "check_failed", "METHODS",
+           "Z_CHECK"]

@@ -60,7 +60,7 @@ def test_noise_matches_truth_statistics(paper_log):
     scn = load_scenario(PAPER)
     errs = []
     for m in full.measurements:
-        true = np.asarray(full.truth["reflectors"][m.pose][m.state]["position_world"])
+        true = full.truth.reflectors[m.pose].get(m.state).position_world
         meas = to_world_frame(scn.tracker, np.nan_to_num(m.position))
         errs.append((meas - true)[m.visible])
     e = np.concatenate(errs).ravel()

@@ -201,8 +201,7 @@ def test_truth_never_read(logs, tmp_path):
     """The same answer from a log stripped of every truth record."""
     stripped = tmp_path / "stripped.mcap"
     strip_truth(logs["upper_arm"], stripped)
-    assert read_log(stripped, include_truth=True).truth in (None, {}) or not read_log(
-        stripped, include_truth=True).truth.get("parameters")
+    assert read_log(stripped, include_truth=True).truth is None
     a = run(logs, "upper_arm")
     b = discover(stripped, out_model=tmp_path / "b.xml")
     assert a["named_effects"] == b["named_effects"]
@@ -225,9 +224,9 @@ def test_cli_json_plot_view(logs, tmp_path, capsys):
     assert rep["noise_sigma"] == pytest.approx(20e-6)
     assert rep["augmented_model"] == str(aug) and Robot.from_file(aug).model.nv > 0
     assert Path(rep["plot"]).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    from calbench.bench.view import read_identified
-    ident = read_identified(rep["view_json"])
-    assert len(ident.predicted) == rep["n_poses"]
+    from calbench.bench.idreport import IdentificationReport
+    ident = IdentificationReport.read(rep["view_json"])
+    assert len(ident.predictions()) == rep["n_poses"] and not ident.read_warnings
     # bad input: exit status 2
     assert cli_main(["discover", str(tmp_path / "missing.mcap")]) == 2
     assert cli_main(["discover", str(logs["forearm"]), "--model", str(tmp_path / "nope.xml")]) == 2

@@ -357,7 +357,7 @@ def test_campaign_with_hidden_effect(tmp_path):
     plans = run_campaign(scn, tmp_path / "hidden.mcap")
     plain_plans = run_campaign(load_scenario(PAPER), tmp_path / "plain.mcap")
     log = read_log(tmp_path / "hidden.mcap", include_truth=True)
-    eff = log.truth["parameters"]["effects"]["link_compliance"]
+    eff = log.truth.parameters.effects["link_compliance"]
     assert eff == {"link": "forearm", "compliance": [8.0e-8, 1.0e-8, 8.0e-8]}
     assert "forearm_rx" not in log.mjcf_text           # the log carries the user's model, not the truth
     diff = np.linalg.norm(flange_moves(plans, robot) - flange_moves(plain_plans, Robot.from_file(MJCF)), axis=1)
@@ -365,8 +365,8 @@ def test_campaign_with_hidden_effect(tmp_path):
     assert 1e-4 < np.median(diff) < 3e-4 and diff.max() < 5e-4
     # the measurements moved accordingly: loaded-minus-unloaded differ by the same order
     plain_log = read_log(tmp_path / "plain.mcap", include_truth=True)
-    a = np.array([r["loaded"]["position_world"] for r in log.truth["reflectors"].values()])
-    b = np.array([r["loaded"]["position_world"] for r in plain_log.truth["reflectors"].values()])
+    a = np.array([r.loaded.position_world for r in log.truth.reflectors.values()])
+    b = np.array([r.loaded.position_world for r in plain_log.truth.reflectors.values()])
     assert 5e-5 < np.median(np.linalg.norm(a - b, axis=-1)) < 1e-3
 
 

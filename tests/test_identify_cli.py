@@ -19,6 +19,7 @@ from mcap.writer import CompressionType, Writer
 
 from calbench.bench.logformat import _records, read_log, strip_truth
 from calbench.identify.cli import main
+from calbench.bench.idreport import IdentificationReport
 from calbench.identify.report import run_identify
 from conftest import K_TRUE, PAPER
 
@@ -80,7 +81,10 @@ def rewrite(src: Path, dst: Path, message=None, metadata=None, drop_topic: str |
         w.finish()
 
 
-def estimates(rep: dict) -> np.ndarray:
+def estimates(rep: dict | IdentificationReport) -> np.ndarray:
+    """The estimates of a JSON report or of run_identify's report (NaN: not identifiable)."""
+    if isinstance(rep, IdentificationReport):
+        rep = rep.to_dict()
     return np.array([np.nan if p["estimate"] is None else p["estimate"] for p in rep["parameters"]])
 
 
@@ -112,6 +116,8 @@ def test_two_step_runs_and_reports_its_steps(paper_log, tmp_path):
     assert rep["method"] == "two-step"
     assert len(rep["step1"]["names"]) == 5 + 3       # k1, k2 at 3 q2, k3..k6 (eq. 19)
     assert rep["step2"]["n_distinct_q2"] == 3
+    # the typed report reads its own output back exactly, estimator details included
+    assert IdentificationReport.read(js).to_json() == js.read_text()
 
 
 # --------------------------------------------------------------------------- the CI gate
@@ -132,7 +138,7 @@ def test_check_fails_on_a_log_whose_truth_was_altered(paper_log, tmp_path):
         return md
 
     rewrite(paper_log, bad, msg, meta)
-    assert read_log(bad, include_truth=True).truth["parameters"]["compliance"][2] == pytest.approx(0.077e-6)
+    assert read_log(bad, include_truth=True).truth.parameters.compliance[2] == pytest.approx(0.077e-6)
     assert main(["identify", str(bad), "--check"]) == 1
     # and the estimate itself is the same as on the original log
     assert np.allclose(estimates(run_identify(bad)), estimates(run_identify(paper_log)), rtol=0, atol=0)
@@ -186,6 +192,7 @@ def test_truncated_log_is_identified_from_its_complete_poses(paper_log, tmp_path
     assert rep["n_poses_used"] == len(log.complete_poses)
     assert rep["n_lost_poses"] == 16 - len(log.complete_poses) == len(rep["lost_poses"])
     assert rep["truncated"] is True
+    assert IdentificationReport.read(js).to_json() == js.read_text()
     # the lateral pulls (poses 12-15) come last: without them k1 is named, not estimated
     if max(log.complete_poses) < 12:
         k1 = rep["parameters"][0]
@@ -218,8 +225,8 @@ def test_outlier_is_reported_and_can_be_dropped(paper_log, paper_report, tmp_pat
 
     rewrite(paper_log, bad, msg)
     rep = run_identify(bad)
-    assert [(o["pose"]) for o in rep["outliers"]] == [5]
-    refl = rep["outliers"][0]["reflector"]
+    assert [o.pose for o in rep.outliers] == [5]
+    refl = rep.outliers[0].reflector
     rep2 = run_identify(bad, drop_outliers=True)
-    assert rep2["dropped_outliers"][0]["pose"] == 5 and rep2["dropped_outliers"][0]["reflector"] == refl
-    assert rep2["outliers"] == [] and rep2["n_observations"] == paper_report["n_observations"] - 1
+    assert rep2.dropped_outliers[0].pose == 5 and rep2.dropped_outliers[0].reflector == refl
+    assert rep2.outliers == () and rep2.n_observations == paper_report["n_observations"] - 1

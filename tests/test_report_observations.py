@@ -5,7 +5,10 @@ import json
 
 import numpy as np
 
+from calbench.bench.logformat import read_log
+from calbench.bench.view import measured_deflections
 from calbench.identify.cli import main
+from calbench.identify.observations import from_log
 from conftest import PAPER
 
 
@@ -27,3 +30,15 @@ def test_observations_are_measured_minus_residual_and_match_the_chi2(tmp_path):
     # two readings (sigma * sqrt 2 per axis); 5 such sigmas over ~130 coordinates fails w.p. ~1e-4
     assert np.abs(m).max() > 1e-3
     assert np.abs(r).max() < 5 * np.sqrt(2) * d["noise_sigma"]
+
+
+def test_viewer_and_identification_average_alike(tmp_path):
+    """One averaging function: the viewer's measured deflections are identify's dp, exactly."""
+    path = tmp_path / "p.mcap"
+    assert main(["simulate", str(PAPER), "--out", str(path)]) == 0
+    log = read_log(path)
+    obs = from_log(log)
+    view = measured_deflections(log)
+    assert obs.n_obs() == sum(len(v) for v in view.values())
+    for (pose, refl), dp in zip(obs.labels, obs.dp):
+        np.testing.assert_array_equal(view[pose][refl], dp)

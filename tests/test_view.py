@@ -20,11 +20,11 @@ from rerun.chunk import RrdReader
 
 from calbench.bench.campaign import run_campaign
 from calbench.bench.errors import InputError
+from calbench.bench.idreport import IdentificationReport
 from calbench.bench.logformat import read_log, strip_truth
 from calbench.bench.scenario import TrackerSpec, load_scenario
 from calbench.bench.tracker import to_world_frame
-from calbench.bench.view import (_geom_archetype, measured_deflections, read_identified,
-                        write_recording)
+from calbench.bench.view import _geom_archetype, measured_deflections, write_recording
 from calbench.identify.cli import main as calbench_main
 
 from rerun_cli import rerun_env, rerun_exe
@@ -211,6 +211,19 @@ def test_identified_minimal_report(paper_log, tmp_path):
     assert "/parameters/z_score" not in paths and "/deflection/x200/predicted" not in paths
 
 
+def test_identified_report_with_an_unidentifiable_parameter(paper_log, tmp_path):
+    """identify writes estimate null for a parameter the campaign cannot identify (a truncated
+    log without the lateral pulls: k1); the viewer draws the rest."""
+    ident = write_identified(tmp_path / "id.json", paper_log, predictions=False)
+    doc = json.loads(ident.read_text())
+    doc["parameters"][0].update(estimate=None, std=None, identifiable=False, reason="vertical")
+    ident.write_text(json.dumps(doc))
+    s = write_recording(paper_log, tmp_path / "id.rrd", identified=ident)
+    assert s.poses == 16
+    paths = entity_paths(tmp_path / "id.rrd")
+    assert "/parameters/table" in paths and "/parameters/z_score" in paths
+
+
 def test_cli_writes_next_to_the_log_without_display(paper_log, tmp_path, capsys, monkeypatch):
     log = tmp_path / "logs" / "demo.mcap"
     log.parent.mkdir()
@@ -283,14 +296,14 @@ def test_every_geom_type_is_drawn():
     assert min(np.linalg.norm(start - e) for e in ends) < 1e-6
 
 
-def test_read_identified_tolerates_optional_fields(tmp_path):
+def test_report_tolerates_optional_fields(tmp_path):
     p = tmp_path / "id.json"
     p.write_text(json.dumps({"parameters": [{"name": "k2", "estimate": 1e-7, "std": None,
                                              "truth": None}],
                              "observations": "not a list"}))
-    ident = read_identified(p)
-    assert ident.parameters[0]["std"] is None and ident.predicted == {}
-    assert ident.warnings
+    ident = IdentificationReport.read(p)
+    assert ident.parameters[0].std is None and ident.predictions() == {}
+    assert ident.read_warnings
 
 
 def _quat_xyzw_to_mat(q) -> np.ndarray:
@@ -307,7 +320,7 @@ def test_logged_body_pose_places_geoms_where_mujoco_does(paper_log, paper_rrd):
     model = mujoco.MjModel.from_xml_string(log.mjcf_text)
     data = mujoco.MjData(model)
     pose = 5
-    data.qpos[:] = log.truth["joints"][pose]["loaded"]["qpos"]
+    data.qpos[:] = log.truth.joints[pose].loaded.qpos
     mujoco.mj_kinematics(model, data)
     t = rows_at(paper_rrd, "/robot/loaded/link6", "Transform3D:translation")[pose]
     q = rows_at(paper_rrd, "/robot/loaded/link6", "Transform3D:quaternion")[pose]

@@ -29,7 +29,6 @@ The selection logic here knows nothing about any particular effect.
 """
 from __future__ import annotations
 
-import json
 import math
 import time
 from pathlib import Path
@@ -37,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from calbench.bench.effects import augmented_xml, load_spec
+from calbench.bench.idreport import IdentificationReport, ObservationFit, ParameterEstimate
 from calbench.bench.logformat import read_log
 from calbench.bench.outputs import atomic_path, write_text
 from calbench.bench.robot import ACTUATED, COMPENSATOR, Robot
@@ -207,7 +207,7 @@ def discover(log_path, model=None, *, out_model=None, plot=None, view_json=None,
     if plot:
         rep["plot"] = str(plot_residuals(rep, plot))
     if view_json:
-        write_text(view_json, json.dumps(clean(view_report(final, obs, rep)), indent=2, allow_nan=False))
+        write_text(view_json, view_report(final, obs, rep).to_json())
         rep["view_json"] = str(view_json)
     return rep
 
@@ -223,16 +223,29 @@ def _parameters(f: Fit) -> list[dict]:
             for i, (n, u, v, s) in enumerate(zip(f.names, f.units, f.values, sd))]
 
 
-def view_report(f: Fit, obs, rep: dict) -> dict:
-    """An identify-style report that `calbench view --identified` reads: parameters and the final
-    model's predicted deflection of every observation."""
-    params = [{"name": p["name"], "unit": p["unit"], "estimate": p["estimate"], "std": p["std"], "truth": None}
-              for p in _parameters(f)]
-    ob = [{"pose": int(pose), "reflector": r, "predicted": [float(x) for x in f.predicted[i]]}
-          for i, (pose, r) in enumerate(obs.labels)]
-    return {"method": "discover: " + (" + ".join(rep["named_effects"]) or "user model as is"),
-            "parameters": params, "observations": ob, "residual_rms": rep["rms_after"],
-            "noise_sigma": rep["noise_sigma"]}
+def view_report(f: Fit, obs, rep: dict) -> IdentificationReport:
+    """The final model as an identification report, for `calbench view --identified`: its
+    parameters (base and effect; ``identifiable`` = determined by the data) and the measured,
+    predicted and residual deflection of every observation."""
+    params = tuple(ParameterEstimate(p["name"], p["unit"], p["estimate"], p["std"],
+                                     identifiable=p["determined"]) for p in _parameters(f))
+    fits = tuple(ObservationFit(int(pose), r, predicted=tuple(float(x) for x in f.predicted[i]),
+                                measured=tuple(float(x) for x in obs.dp[i]),
+                                residual=tuple(float(x) for x in f.residual[i]))
+                 for i, (pose, r) in enumerate(obs.labels))
+    return IdentificationReport(
+        method="discover: " + (" + ".join(rep["named_effects"]) or "user model as is"),
+        parameters=params, residual_rms=rep["rms_after"], noise_sigma=rep["noise_sigma"],
+        chi2_per_dof=f.chi2 / f.dof if f.dof > 0 else None, chi2=float(f.chi2), dof=int(f.dof),
+        expected_residual_rms=rep["noise_rms_after"],
+        whitened_residual_rms=rms(f.residual_w),
+        covariance=tuple(tuple(_num(x) for x in row) for row in f.cov),
+        log=rep["log"], model=rep["model"], n_poses_planned=obs.n_planned,
+        n_poses_used=len(obs.poses), lost_poses=tuple(obs.lost_poses),
+        truncated=bool(obs.truncated), n_observations=obs.n_obs(), seconds=rep["seconds"],
+        observations=fits,
+        details={"converged": bool(f.converged), "iterations": int(f.iterations),
+                 "evaluations": int(f.evaluations)})
 
 
 def plot_residuals(rep: dict, path) -> Path:
