@@ -78,6 +78,7 @@ import mujoco
 import numpy as np
 
 from .errors import InputError
+from .geoms import GeomShape, geom_shapes, tendon_sites
 from .idreport import IdentificationReport, ParameterEstimate
 from .logformat import STATES, CampaignLog, PerState, read_log
 from .outputs import atomic_path, check_outputs
@@ -160,14 +161,7 @@ def measured_deflections(log: CampaignLog) -> dict[int, dict[str, np.ndarray]]:
 
 
 def _tendon_sites(model: mujoco.MjModel) -> list[tuple[str, list[int]]]:
-    out = []
-    for t in range(model.ntendon):
-        adr, num = model.tendon_adr[t], model.tendon_num[t]
-        sites = [int(model.wrap_objid[a]) for a in range(adr, adr + num)
-                 if model.wrap_type[a] == mujoco.mjtWrap.mjWRAP_SITE]
-        if len(sites) >= 2:
-            out.append((_part(model.tendon(t).name or f"tendon{t}"), sites))
-    return out
+    return [(_part(name), sites) for name, sites in tendon_sites(model)]
 
 
 def pose_views(log: CampaignLog, robot: Robot) -> list[PoseView]:
@@ -230,42 +224,33 @@ def _rgba(rgba) -> tuple[int, int, int, int]:
     return tuple(int(round(255 * min(max(float(c), 0.0), 1.0))) for c in rgba)  # type: ignore
 
 
-def _geom_archetype(rr, model: mujoco.MjModel, g: int, wire: bool):
-    """The rerun archetype drawing geom g in its body's frame, or None (planes, unknown)."""
-    gt = mujoco.mjtGeom
-    typ = int(model.geom_type[g])
-    size = model.geom_size[g]
-    pos = model.geom_pos[g].astype(float)
-    quat = model.geom_quat[g].astype(float)
-    rgba = model.mat_rgba[model.geom_matid[g]] if model.geom_matid[g] >= 0 else model.geom_rgba[g]
-    color = LOADED_WIRE_COLOR if wire else _rgba(rgba)
+def _geom_archetype(rr, shape: GeomShape, wire: bool):
+    """The rerun archetype drawing one geom (bench/geoms.py) in its body's frame."""
+    size, pos, quat = shape.size, shape.pos, shape.quat
+    color = LOADED_WIRE_COLOR if wire else _rgba(shape.rgba)
     fill = rr.components.FillMode.MajorWireframe if wire else rr.components.FillMode.Solid
     q = rr.Quaternion(xyzw=_xyzw(quat))
-    if typ == gt.mjGEOM_BOX:
-        return rr.Boxes3D(half_sizes=[size[:3]], centers=[pos], quaternions=[q], colors=[color],
+    if shape.kind == "box":
+        return rr.Boxes3D(half_sizes=[size], centers=[pos], quaternions=[q], colors=[color],
                           fill_mode=fill)
-    if typ == gt.mjGEOM_CAPSULE:
+    if shape.kind == "capsule":
         # MuJoCo: centred, axis z, half-length size[1]; rerun: starts at translation, along +z
         R = np.empty(9)
         mujoco.mju_quat2Mat(R, quat)
         start = pos - R.reshape(3, 3)[:, 2] * size[1]
         return rr.Capsules3D(lengths=[2 * size[1]], radii=[size[0]], translations=[start],
                              quaternions=[q], colors=[color], fill_mode=fill)
-    if typ == gt.mjGEOM_CYLINDER:
+    if shape.kind == "cylinder":
         return rr.Cylinders3D(lengths=[2 * size[1]], radii=[size[0]], centers=[pos],
                               quaternions=[q], colors=[color], fill_mode=fill)
-    if typ in (gt.mjGEOM_SPHERE, gt.mjGEOM_ELLIPSOID):
-        hs = [size[0]] * 3 if typ == gt.mjGEOM_SPHERE else size[:3]
-        return rr.Ellipsoids3D(half_sizes=[hs], centers=[pos], quaternions=[q], colors=[color],
+    if shape.kind == "ellipsoid":
+        return rr.Ellipsoids3D(half_sizes=[size], centers=[pos], quaternions=[q], colors=[color],
                                fill_mode=fill)
-    if typ == gt.mjGEOM_MESH and model.geom_dataid[g] >= 0:
-        m = int(model.geom_dataid[g])
-        va, vn = model.mesh_vertadr[m], model.mesh_vertnum[m]
-        fa, fn = model.mesh_faceadr[m], model.mesh_facenum[m]
+    if shape.kind == "mesh":
         R = np.empty(9)
         mujoco.mju_quat2Mat(R, quat)
-        verts = model.mesh_vert[va:va + vn].astype(float) @ R.reshape(3, 3).T + pos
-        faces = model.mesh_face[fa:fa + fn].astype(np.uint32)
+        verts = shape.vertices @ R.reshape(3, 3).T + pos
+        faces = shape.faces
         if wire:  # a wireframe of the triangles' edges
             strips = verts[np.concatenate([faces, faces[:, :1]], axis=1)]
             return rr.LineStrips3D(strips, colors=[color], radii=[0.002])
@@ -281,10 +266,6 @@ def _part(name: str) -> str:
 
 def _body_names(model: mujoco.MjModel) -> list[str]:
     return [_part(model.body(b).name or f"body{b}") for b in range(model.nbody)]
-
-
-def _geom_name(model: mujoco.MjModel, g: int) -> str:
-    return _part(model.geom(g).name or f"geom{g}")
 
 
 def magnify_tag(magnify: float) -> str:
@@ -362,13 +343,13 @@ def log_campaign(rec, log: CampaignLog, identified: IdentificationReport | None 
     # --- static robot geometry, in body frames -----------------------------------------
     for state in STATES:
         wire = state == "loaded"
-        for g in range(model.ngeom):
-            arch = _geom_archetype(rr, model, g, wire)
+        for shape in geom_shapes(model):
+            arch = _geom_archetype(rr, shape, wire)
             if arch is None:
                 continue
-            b = int(model.geom_bodyid[g])
-            path = f"robot/{state}/{bodies[b]}/{_geom_name(model, g)}" if b else \
-                f"robot/{state}/world/{_geom_name(model, g)}"
+            b = shape.body
+            path = f"robot/{state}/{bodies[b]}/{_part(shape.name)}" if b else \
+                f"robot/{state}/world/{_part(shape.name)}"
             rec.log(path, arch, static=True)
     tendons = _tendon_sites(model)
     # --- tracker -------------------------------------------------------------------------

@@ -20,6 +20,7 @@ from rerun.chunk import RrdReader
 
 from calbench.bench.campaign import run_campaign
 from calbench.bench.errors import InputError
+from calbench.bench.geoms import geom_shapes
 from calbench.bench.idreport import IdentificationReport
 from calbench.bench.logformat import read_log, strip_truth
 from calbench.bench.scenario import TrackerSpec, load_scenario
@@ -281,16 +282,17 @@ def test_every_geom_type_is_drawn():
       </body></worldbody></mujoco>"""
     model = mujoco.MjModel.from_xml_string(xml)
     kinds = {}
-    for g in range(model.ngeom):
+    shapes = {s.name: s for s in geom_shapes(model)}
+    for shape in shapes.values():
         for wire in (False, True):
-            a = _geom_archetype(rr, model, g, wire)
-            kinds[(model.geom(g).name, wire)] = type(a).__name__ if a is not None else None
+            a = _geom_archetype(rr, shape, wire)
+            kinds[(shape.name, wire)] = type(a).__name__ if a is not None else None
     assert kinds[("box", False)] == "Boxes3D" and kinds[("cap", False)] == "Capsules3D"
     assert kinds[("cyl", False)] == "Cylinders3D" and kinds[("sph", False)] == "Ellipsoids3D"
     assert kinds[("ell", True)] == "Ellipsoids3D" and kinds[("msh", False)] == "Mesh3D"
-    assert kinds[("msh", True)] == "LineStrips3D" and kinds[("pln", False)] is None
+    assert kinds[("msh", True)] == "LineStrips3D" and "pln" not in shapes
     # the capsule starts at one end of its segment (rerun capsules grow along +z)
-    cap = _geom_archetype(rr, model, 1, False)
+    cap = _geom_archetype(rr, shapes["cap"], False)
     start = np.asarray(cap.translations.as_arrow_array().to_pylist()[0])
     ends = [np.zeros(3), np.array([1.0, 0, 0])]
     assert min(np.linalg.norm(start - e) for e in ends) < 1e-6
