@@ -16,6 +16,7 @@ import numpy as np
 
 from .effects import apply_effects, effect_from_truth
 from .errors import InputError
+from .foxglove import FoxgloveWriter
 from .logformat import LogHeader, LogWriter
 from .robot import Params, Robot
 from .scenario import Scenario, check_joint_limits
@@ -150,17 +151,24 @@ def run_campaign(scn: Scenario, out: str | Path, progress: ProgressSink | None =
     )
     with LogWriter(out, header) as log:
         log.truth_parameters(truth_record(scn))
+        fox = FoxgloveWriter(log, Robot.from_file(scn.robot), robot, scn.tracker, robot.reflector_names)
+        fox.start(n, plans[0].q if plans else np.zeros(6))
         for plan, pose in zip(plans, scn.poses):
             log.pose(plan.index, "unloaded", plan.q)
             log.pose(plan.index, "loaded", plan.q)
             log.wrench(plan.index, plan.load.force, plan.load.moment, "payload", plan.mass)
+            readings: tuple[list, list] = ([], [])
             for s, state in enumerate(STATES):
                 for rep in range(pose.repeats):
                     m = measure(scn.tracker, plan.reflectors_world[s], plan.visible[s], rng)
                     log.measurement(plan.index, state, rep, robot.reflector_names, m.position, m.covariance, m.visible)
+                    readings[s].append(m)
                 e = plan.equilibria[s]
                 log.truth_reflectors(plan.index, state, robot.reflector_names, plan.reflectors_world[s])
                 log.truth_joints(plan.index, state, e.qpos, e.deflection)
+            e0, e1 = plan.equilibria
+            fox.pose(plan.index, plan.q, readings, (e0.qpos, e1.qpos), plan.reflectors_world,
+                     (e0.deflection, e1.deflection))  # Foxglove's view; the truth on /truth/ only
             log.pose_done(plan.index)
             progress.update(f"measured pose {plan.index + 1}/{n}")
     return plans

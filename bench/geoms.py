@@ -80,14 +80,4 @@ def tendon_sites(model: mujoco.MjModel) -> list[tuple[str, list[int]]]:
     return out
 
 
-def world_poses(data: mujoco.MjData, shapes: list[GeomShape]) -> tuple[np.ndarray, np.ndarray]:
-    """World positions (n, 3) and wxyz quaternions (n, 4) of ``shapes`` at the configuration
-    held in ``data`` (``mj_kinematics`` must be current): MuJoCo's own geom_xpos/geom_xmat."""
-    pos = np.array([data.geom_xpos[s.geom] for s in shapes]).reshape(-1, 3)
-    quat = np.empty((len(shapes), 4))
-    for i, s in enumerate(shapes):
-        mujoco.mju_mat2Quat(quat[i], data.geom_xmat[s.geom])
-    return pos, quat
-
-
-__all__ = ["GeomShape", "geom_shapes", "tendon_sites", "world_poses"]
+__all__ = ["GeomShape", "geom_shapes", "tendon_sites"]

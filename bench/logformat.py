@@ -337,6 +337,8 @@ class LogWriter:
         self._writer.start(profile="",
                            library=f"calbench/{_version()}; mcap-python/{_mcap_version()}")
         self._channels: dict[str, int] = {}
+        self._extra_schemas: dict[str, dict] = {}
+        self._schema_ids: dict[tuple[str, bytes], int] = {}
         for topic, schema in SCHEMAS.items():
             sid = self._writer.register_schema(
                 name=schema["title"], encoding="jsonschema",
@@ -371,7 +373,7 @@ class LogWriter:
     def _write(self, topic: str, msg: dict, nominal_time: int) -> None:
         if self._closed:
             raise RuntimeError(f"{self.path}: log already closed")
-        problems = validate(msg, SCHEMAS[topic])
+        problems = validate(msg, SCHEMAS.get(topic) or self._extra_schemas[topic])
         if problems:
             raise ValueError(f"{topic}: message does not match its schema: {problems}")
         t = max(nominal_time, self._last_time + 1)  # strictly increasing, still deterministic
@@ -381,6 +383,38 @@ class LogWriter:
         data = json.dumps(msg, allow_nan=False, separators=(",", ":")).encode()
         self._writer.add_message(channel_id=self._channels[topic], log_time=t, data=data,
                                  publish_time=t, sequence=seq)
+
+    # -- extra channels (the Foxglove topics of bench/foxglove.py) ----------------------------
+    def add_channel(self, topic: str, schema_name: str, schema_text: str) -> None:
+        """Register one more JSON channel whose messages follow the JSON Schema ``schema_text``
+        (registered under ``schema_name``; channels with the same schema share one record).
+        Contract topics cannot be re-registered. A topic under /truth/ is ground truth and
+        :func:`strip_truth` removes it like the others."""
+        if topic in self._channels:
+            raise ValueError(f"{topic}: channel already registered")
+        schema = json.loads(schema_text)
+        data = json.dumps(schema, separators=(",", ":")).encode()
+        sid = self._schema_ids.get((schema_name, data))
+        if sid is None:
+            sid = self._schema_ids[(schema_name, data)] = self._writer.register_schema(
+                name=schema_name, encoding="jsonschema", data=data)
+        self._channels[topic] = self._writer.register_channel(
+            topic=topic, message_encoding="json", schema_id=sid)
+        self._extra_schemas[topic] = schema
+
+    def next_time(self, nominal_time: int) -> int:
+        """The log time (ns) a message written now at ``nominal_time`` gets: times are kept
+        strictly increasing, so a message may carry its own log time (Foxglove stamps)."""
+        return max(int(nominal_time), self._last_time + 1)
+
+    def write(self, topic: str, msg: dict, log_time: int) -> None:
+        """Write ``msg`` on a channel of :meth:`add_channel` at ``log_time`` (from
+        :meth:`next_time`), after checking it against the channel's schema."""
+        if topic not in self._extra_schemas:
+            raise ValueError(f"{topic}: not an extra channel (add_channel first)")
+        if self.next_time(log_time) != log_time:
+            raise ValueError(f"{topic}: log time {log_time} is not after {self._last_time}")
+        self._write(topic, msg, log_time)
 
     def pose(self, pose: int, state: str, q) -> None:
         """Commanded joint angles (rad, controller convention) of one pose and load state."""
