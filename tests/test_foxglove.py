@@ -34,7 +34,7 @@ ROUNDING = 1e-7      # m: bench/foxglove.py rounds coordinates to 0.1 um
 @pytest.fixture(scope="module")
 def paper_log(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("fox") / "paper.mcap"
-    run_campaign(load_scenario(PAPER), out, show_progress=False)
+    run_campaign(load_scenario(PAPER), out)
     return out
 
 
@@ -298,3 +298,30 @@ def test_layout_opens_the_3d_panel_on_these_topics(paper_log):
     with open(paper_log, "rb") as f:
         in_log = {c.topic for c in make_reader(f).get_summary().channels.values()}
     assert named <= in_log
+
+
+def test_the_writer_hook_keeps_channels_and_times_honest(tmp_path):
+    """LogWriter.add_channel/next_time/write: no re-registered topic, no message on an unknown
+    channel, no time that goes back, no message its channel's schema rejects."""
+    from calbench.bench.logformat import LogHeader, LogWriter
+    header = LogHeader("s", "seed = 1\n", "s.toml", "r.xml", "<mujoco/>", ["R1"], "payload",
+                       {"position": [1.0, 0, 0], "yaw": 0.0, "model": "isotropic",
+                        "sigma": 2e-5, "distance": [0.0, 0.0], "transverse": [0.0, 0.0]}, 1)
+    with LogWriter(tmp_path / "x.mcap", header) as w:
+        w.add_channel(fx.LOG, "foxglove.Log", fx.schema_text("foxglove.Log"))
+        with pytest.raises(ValueError):
+            w.add_channel(fx.LOG, "foxglove.Log", fx.schema_text("foxglove.Log"))
+        with pytest.raises(ValueError):
+            w.add_channel("/campaign/pose", "foxglove.Log", fx.schema_text("foxglove.Log"))
+        t = w.next_time(5)
+        w.write(fx.LOG, fx.log_message(t, "hello"), t)
+        with pytest.raises(ValueError):                    # not after the last message
+            w.write(fx.LOG, fx.log_message(t, "again"), t)
+        with pytest.raises(ValueError):                    # never registered
+            w.write(fx.SCENE, fx.scene_update([]), w.next_time(0))
+        with pytest.raises(ValueError):                    # the schema requires "name"
+            msg = fx.log_message(w.next_time(0), "x")
+            del msg["name"]
+            w.write(fx.LOG, msg, w.next_time(0))
+    msgs = messages(tmp_path / "x.mcap")
+    assert [(tp, t_, m["message"]) for tp, _, t_, m in msgs] == [(fx.LOG, 5, "hello")]
