@@ -215,6 +215,30 @@ def cmd_discover(args) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- report
+
+def add_report(sub) -> None:
+    p = sub.add_parser("report", help="the calibration report: one self-contained HTML file")
+    p.add_argument("log", type=Path, help="campaign MCAP log")
+    p.add_argument("--identified", type=Path, default=None,
+                   help="JSON of `calbench identify --json` (parameters, correlation, residuals)")
+    p.add_argument("--discover", type=Path, default=None,
+                   help="JSON of `calbench discover --json` (verdict, before/after, aliasing)")
+    p.add_argument("--design", type=Path, default=None,
+                   help="JSON of `calbench design --json` (the plan and its certificate)")
+    p.add_argument("--out", type=Path, required=True, help="the report, HTML")
+    p.set_defaults(func=cmd_report)
+
+
+def cmd_report(args) -> int:
+    from .htmlreport import write_report
+    out = write_report(args.log, args.out, args.identified, args.discover, args.design)
+    given = [k for k in ("identified", "discover", "design") if getattr(args, k) is not None]
+    print(f"wrote {out} ({out.stat().st_size / 1024:.0f} KiB; from the log"
+          + "".join(f", --{k}" for k in given) + ")")
+    return 0
+
+
 # --------------------------------------------------------------------------- demo
 
 def add_demo(sub) -> None:
@@ -245,6 +269,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_design(sub)
     add_view(sub)
     add_discover(sub)
+    add_report(sub)
     return parser
 
 

@@ -1,0 +1,467 @@
+"""`calbench report`: the calibration report a metrology engineer hands over with the robot.
+
+    calbench report LOG.mcap [--identified ID.json] [--discover D.json] [--design PLAN.json]
+                    --out REPORT.html
+
+One HTML file that opens offline: inline CSS, every figure an SVG data URI (identify/htmlplots.py),
+no script and no external URL. Sections: the campaign (robot, plan, tracker, lost poses, from the
+log without its truth), the parameters (estimate, std, 95 % interval, the unidentifiable ones
+with the reason), their correlation matrix, the residuals per pose and reflector against the
+noise level, discovery's verdict with its before/after (and its aliasing warnings when the
+report carries them), the design's certificate, and the commands that reproduce every number.
+A section whose input was not given says which command produces it. The same inputs give the
+same bytes (no clock, deterministic SVG), so a report can be checked by rebuilding it.
+
+Why our own builder on Jinja2 rather than MuJoCo's ``mujoco.sysid`` report: that builder shows
+the genre (Jinja2 sections for a parameter table with confidence, the covariance, the
+optimisation trace), but its page loads a web font from an external URL and draws with Plotly
+(a CDN script, or 3.5 MB of JavaScript inlined), so it does not open offline as one small file;
+its sections take ``mujoco.sysid`` ParameterDicts and time-series rollouts, not an
+elastostatic identification read from JSON; and it would bring the ``mujoco[sysid]`` extras
+in. Jinja2 alone (autoescaping the template) and the matplotlib we already use give a 200 kB
+self-contained page.
+
+Inputs are checked before anything is written: a missing or unreadable file, JSON that is not
+the named command's report, or an output path equal to an input raise InputError (exit 2)
+naming the file; the HTML is written to a temporary file and renamed into place.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import shlex
+from importlib.resources import files
+from pathlib import Path
+
+import numpy as np
+
+from calbench.bench.errors import InputError
+from calbench.bench.logformat import CampaignLog, has_truth, read_log
+from calbench.bench.view import measured_deflections
+
+from . import htmlplots
+from .report import DISPLAY
+
+Z95 = 1.959963984540054         # two-sided 95 % quantile of the standard normal
+KINDS = {
+    "identify": ("calbench identify --json", ("method", "parameters", "noise_sigma")),
+    "discover": ("calbench discover --json", ("named_effects", "rms_before", "rms_after")),
+    "design": ("calbench design --json", ("criterion", "poses")),
+}
+
+
+# ---------------------------------------------------------------------------------------------
+# inputs
+# ---------------------------------------------------------------------------------------------
+
+
+def read_json_report(path: str | os.PathLike, kind: str) -> dict:
+    """A JSON report of ``kind`` (identify, discover, design), checked for its defining keys."""
+    path = Path(path)
+    what, keys = KINDS[kind]
+    try:
+        doc = json.loads(path.read_text())
+    except OSError as e:
+        raise InputError(path, "file", f"a readable JSON file ({what})", e.strerror) from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise InputError(path, "file", f"JSON ({what})", str(e)) from None
+    if not isinstance(doc, dict):
+        raise InputError(path, "file", f"a JSON object ({what})", type(doc).__name__)
+    missing = [k for k in keys if k not in doc]
+    if missing:
+        found = ", ".join(sorted(doc)[:6]) or "none"
+        raise InputError(path, missing[0], f"the {what} report (keys {', '.join(keys)})",
+                         f"an object with keys {found}")
+    lists = {"identify": "parameters", "discover": "named_effects", "design": "poses"}[kind]
+    if not isinstance(doc[lists], list):
+        raise InputError(path, lists, "a list", type(doc[lists]).__name__)
+    if kind == "identify":
+        for i, p in enumerate(doc["parameters"]):
+            if not isinstance(p, dict) or not isinstance(p.get("name"), str):
+                raise InputError(path, f"parameters[{i}]", "an object with a name", p)
+    return doc
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+# ---------------------------------------------------------------------------------------------
+# formatting
+# ---------------------------------------------------------------------------------------------
+
+
+def _finite(x) -> float | None:
+    if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
+        return None
+    return float(x)
+
+
+def unit_display(unit: str) -> tuple[str, float]:
+    """(label, factor from SI) of a unit for people: µrad/(N·m), kN/m, mm."""
+    return DISPLAY.get(unit, (unit, 1.0))
+
+
+def decimals(std: float | None) -> int:
+    """Decimals that show ``std`` to two significant digits (3 without a std)."""
+    if not std or std <= 0:
+        return 3
+    return max(0, 1 - math.floor(math.log10(std)))
+
+
+def num(x: float | None, dec: int) -> str:
+    return "–" if x is None else f"{x:.{dec}f}"
+
+
+def um(x) -> str:
+    x = _finite(x)
+    return "–" if x is None else f"{x * 1e6:.1f}"
+
+
+# ---------------------------------------------------------------------------------------------
+# sections (each a plain dict for the template)
+# ---------------------------------------------------------------------------------------------
+
+
+def campaign_section(log: CampaignLog, simulated: bool) -> dict:
+    h = log.header
+    tr = h.get("tracker") or {}
+    names = list(h.get("reflectors") or [])
+    lost = sorted(set(range(log.n_poses_planned)) - set(log.complete_poses))
+    defl = measured_deflections(log)
+    seen: dict[tuple[int, str], set] = {}
+    repeats: dict[int, int] = {}
+    for m in log.measurements:
+        seen.setdefault((m.pose, m.state), set()).update(
+            r for r, v in zip(m.reflectors, m.visible) if v)
+        repeats[m.pose] = max(repeats.get(m.pose, 0), m.repeat + 1)
+    rows = []
+    for p in log.complete_poses:
+        q = log.poses.get(p, {}).get("unloaded")
+        w = log.wrenches.get(p)
+        if w is None:
+            load = "–"
+        elif w["mass"] is not None:
+            load = f"{w['mass']:g} kg payload"
+        else:
+            load = "force [" + ", ".join(f"{f:.0f}" for f in w["force"]) + "] N"
+        rows.append({"pose": p, "q": "" if q is None else ", ".join(
+                         f"{x:.1f}" for x in np.degrees(q)),
+                     "load": load, "repeats": repeats.get(p, 0),
+                     "seen": f"{len(seen.get((p, 'unloaded'), ()))}/"
+                             f"{len(seen.get((p, 'loaded'), ()))} of {len(names)}",
+                     "deflection": [("–" if n not in defl.get(p, {}) else
+                                     f"{np.linalg.norm(defl[p][n]) * 1e3:.3f}") for n in names]})
+    noise = (f"isotropic, σ = {tr['sigma'] * 1e6:.3g} µm per axis" if tr.get("model") == "isotropic"
+             else f"{tr.get('model')}: distance {tr.get('distance')}, transverse "
+                  f"{tr.get('transverse')} (a m + b m/m)")
+    return {
+        "scenario": h.get("scenario_name", "?"), "robot": h.get("robot", "?"),
+        "reflectors": names, "payload_site": h.get("payload_site", "?"),
+        "tracker_position": ", ".join(f"{x:.3f}" for x in tr.get("position", [])),
+        "tracker_yaw": f"{math.degrees(float(tr.get('yaw', 0.0))):.1f}",
+        "tracker_noise": noise, "seed": h.get("seed"), "simulated": simulated,
+        "planned": log.n_poses_planned, "complete": len(log.complete_poses), "lost": lost,
+        "truncated": log.truncated, "n_readings": len(log.measurements), "rows": rows,
+    }
+
+
+def parameters_section(ident: dict) -> dict:
+    rows, rel_names, rel = [], [], []
+    has_truth = any(_finite(p.get("truth")) is not None for p in ident["parameters"])
+    for p in ident["parameters"]:
+        label, f = unit_display(str(p.get("unit") or ""))
+        est, std, truth = (_finite(p.get(k)) for k in ("estimate", "std", "truth"))
+        ok = est is not None and p.get("identifiable", True) is not False
+        d = decimals(std * f if std else None)
+        z = _finite(p.get("z"))
+        if z is None and ok and std and truth is not None:
+            z = (est - truth) / std
+        rows.append({
+            "name": p["name"], "unit": label, "identifiable": ok,
+            "reason": p.get("reason") or (ident.get("unidentifiable") or {}).get(p["name"]) or "",
+            "estimate": num(est * f, d) if ok else "",
+            "std": num(std * f, d) if ok and std is not None else "–",
+            "ci": (f"[{num((est - Z95 * std) * f, d)}, {num((est + Z95 * std) * f, d)}]"
+                   if ok and std is not None else "–"),
+            "rel": f"{abs(std / est) * 100:.2g}" if ok and std is not None and est else "–",
+            "truth": num(truth * f, d) if truth is not None else "–",
+            "z": f"{z:+.2f}" if z is not None else "–",
+            "z_flag": z is not None and abs(z) > 3,
+        })
+        rel_names.append(p["name"])
+        rel.append(abs(std / est) * 100 if ok and std is not None and est else None)
+    chi2 = _finite(ident.get("chi2_per_dof"))
+    return {"method": ident.get("method"), "rows": rows, "has_truth": has_truth,
+            "unidentifiable": [r for r in rows if not r["identifiable"]],
+            "chi2_per_dof": f"{chi2:.3f}" if chi2 is not None else "–", "dof": ident.get("dof"),
+            "residual_rms": um(ident.get("residual_rms")),
+            "expected_rms": um(ident.get("expected_residual_rms")),
+            "sigma": um(ident.get("noise_sigma")), "model": ident.get("model", ""),
+            "n_observations": ident.get("n_observations"),
+            "chart": htmlplots.relative_std_bars(rel_names, rel) if any(rel) else None}
+
+
+def correlation_section(ident: dict) -> dict:
+    cov = ident.get("covariance")
+    names = [p["name"] for p in ident["parameters"]]
+    if not isinstance(cov, list) or len(cov) != len(names):
+        return {"available": False, "why": "the identify report carries no covariance matrix"}
+    C = np.array([[np.nan if _finite(x) is None else x for x in row] for row in cov], float)
+    d = np.diag(C)
+    keep = [i for i in range(len(names)) if np.isfinite(d[i]) and d[i] > 0
+            and np.all(np.isfinite(C[i, :][np.isfinite(d) & (d > 0)]))]
+    if len(keep) < 2:
+        return {"available": False, "why": "fewer than two identifiable parameters"}
+    sub = C[np.ix_(keep, keep)]
+    s = np.sqrt(np.diag(sub))
+    corr = np.clip(sub / np.outer(s, s), -1, 1)
+    kn = [names[i] for i in keep]
+    strong = [{"a": kn[i], "b": kn[j], "rho": f"{corr[i, j]:+.3f}"}
+              for i in range(len(kn)) for j in range(i + 1, len(kn)) if abs(corr[i, j]) >= 0.9]
+    return {"available": True, "chart": htmlplots.correlation_heatmap(kn, corr),
+            "left_out": [n for i, n in enumerate(names) if i not in keep], "strong": strong}
+
+
+def residuals_section(ident: dict, reflectors: list[str]) -> dict:
+    obs = ident.get("observations")
+    expected = _finite(ident.get("expected_residual_rms"))
+    if not isinstance(obs, list) or not obs or expected is None:
+        return {"available": False,
+                "why": "the identify report carries no per-observation residuals"}
+    names = list(reflectors) or sorted({o["reflector"] for o in obs})
+    poses = sorted({int(o["pose"]) for o in obs})
+    grid = np.full((len(names), len(poses)), np.nan)
+    for o in obs:
+        r = np.asarray(o.get("residual", [np.nan] * 3), float)
+        if o["reflector"] in names and r.shape == (3,):
+            grid[names.index(o["reflector"]), poses.index(int(o["pose"]))] = \
+                np.sqrt(np.mean(r ** 2)) * 1e6
+    exp_um = expected * 1e6
+    per_refl = []
+    for i, n in enumerate(names):
+        v = grid[i][np.isfinite(grid[i])]
+        if v.size:
+            rms = float(np.sqrt(np.mean(v ** 2)))
+            per_refl.append({"reflector": n, "n": int(v.size), "rms": f"{rms:.1f}",
+                             "ratio": f"{rms / exp_um:.2f}",
+                             "worst": f"{v.max():.1f} (pose {poses[int(np.nanargmax(grid[i]))]})"})
+    return {"available": True, "expected": f"{exp_um:.1f}",
+            "map": htmlplots.residual_map(poses, names, grid, exp_um),
+            "bars": htmlplots.residual_per_pose(poses, names, grid, exp_um),
+            "per_reflector": per_refl, "outliers": ident.get("outliers") or [],
+            "threshold": ident.get("outlier_threshold_sigma")}
+
+
+def _generic_rows(x) -> list[dict]:
+    """Any JSON (a list of objects, an object of objects or of values) as rows of name/value
+    text pairs, for report fields whose layout this page does not fix (aliasing, ambiguous)."""
+    def text(v):
+        if isinstance(v, float):
+            return f"{v:.4g}"
+        return v if isinstance(v, str) else json.dumps(v, separators=(", ", ": "))
+    if isinstance(x, dict):
+        return [{"name": str(k), "value": text(v)} for k, v in x.items()]
+    if isinstance(x, list):
+        out = []
+        for v in x:
+            if isinstance(v, dict):
+                head = v.get("effect") or v.get("name") or ""
+                rest = {k: w for k, w in v.items() if k not in ("effect", "name")}
+                out.append({"name": str(head), "value": "; ".join(
+                    f"{k}: {text(w)}" for k, w in rest.items())})
+            else:
+                out.append({"name": "", "value": text(v)})
+        return out
+    return [{"name": "", "value": text(x)}]
+
+
+def discovery_section(disc: dict) -> dict:
+    named = [n for n in disc["named_effects"]]
+    steps = disc.get("steps") or []
+    if not named:
+        verdict = ("The model explains the measurements to the noise level: no missing effect "
+                   "is named.")
+    elif "unexplained" in named:
+        verdict = "A disagreement remains that no candidate of the library explains."
+    else:
+        verdict = "Named: " + ", ".join(
+            f"{s['effect']}" + (f" ({s['detail']})" if s.get("detail") else "")
+            for s in steps if s.get("effect") != "unexplained") + "."
+    step_rows = []
+    for s in steps:
+        params = []
+        for p in s.get("parameters") or []:
+            label, f = unit_display(str(p.get("unit") or ""))
+            e, sd = _finite(p.get("estimate")), _finite(p.get("std"))
+            d = decimals(sd * f if sd else None)
+            params.append(f"{p['name']} = {num(None if e is None else e * f, d)}"
+                          + (f" ± {num(sd * f, d)}" if sd is not None else " (not determined)")
+                          + f" {label}")
+        step_rows.append({"effect": s.get("effect"), "detail": s.get("detail") or "",
+                          "before": um(s.get("rms_before")), "after": um(s.get("rms_after")),
+                          "parameters": params})
+    pp = disc.get("per_pose") or []
+    chart = None
+    nb, na = _finite(disc.get("noise_rms_before")), _finite(disc.get("noise_rms_after"))
+    if pp and nb is not None:
+        chart = htmlplots.before_after([int(p["pose"]) for p in pp],
+                                       [p["rms_before"] * 1e6 for p in pp],
+                                       [p["rms_after"] * 1e6 for p in pp] if named else None,
+                                       nb * 1e6,
+                                       (na if na is not None else nb) * 1e6)
+    cands = []
+    for c in disc.get("candidates") or []:
+        sc, p_lr = _finite(c.get("score")), _finite(c.get("p_lr"))
+        cands.append({"effect": c.get("effect"), "detail": c.get("detail") or "",
+                      "score": "–" if sc is None else f"{sc:.1f}",
+                      "lr": "–" if _finite(c.get("lr")) is None else f"{c['lr']:.1f}",
+                      "k": c.get("k", "–"), "p": "–" if p_lr is None else f"{p_lr:.2g}",
+                      "accepted": bool(c.get("accepted")), "error": c.get("error")})
+
+    def stat(k):
+        v = _finite(disc.get(k))
+        return "–" if v is None else (f"{v:.3g}" if k.startswith("p_") else f"{v:.1f}")
+    return {"verdict": verdict, "named": named, "steps": step_rows, "chart": chart,
+            "rms_before": um(disc.get("rms_before")), "rms_after": um(disc.get("rms_after")),
+            "noise_before": um(nb), "noise_after": um(na),
+            "chi2_before": stat("chi2_before"), "chi2_after": stat("chi2_after"),
+            "dof_before": disc.get("dof_before", "–"), "dof_after": disc.get("dof_after", "–"),
+            "p_before": stat("p_before"), "p_after": stat("p_after"),
+            "where_before": (disc.get("where_before") or {}).get("words") or [],
+            "where_after": (disc.get("where_after") or {}).get("words") or [],
+            "candidates": cands,
+            "ambiguous": _generic_rows(disc["ambiguous"]) if disc.get("ambiguous") else [],
+            "aliasing": _generic_rows(disc["aliasing"]) if disc.get("aliasing") else [],
+            "hints": _generic_rows(disc["hints"]) if disc.get("hints") else [],
+            "augmented_model": disc.get("augmented_model")}
+
+
+def design_section(design: dict) -> dict:
+    m = design.get("measures") or {}
+    cert = design.get("certificate")
+    c = None
+    if isinstance(cert, dict) and _finite(cert.get("efficiency")) is not None:
+        eff = float(cert["efficiency"])
+        c = {"criterion": cert.get("criterion", design["criterion"]),
+             "plan": f"{cert['plan_logdet']:.4f}" if _finite(cert.get("plan_logdet")) is not None else "–",
+             "bound": f"{cert['bound_logdet']:.4f}" if _finite(cert.get("bound_logdet")) is not None else "–",
+             "efficiency": f"{eff * 100:.2f}", "gap": f"{(1 - eff) * 100:.2f}"}
+    rel = m.get("relative_std") or {}
+    rows = [{"pose": i, "q": ", ".join(f"{x:.1f}" for x in p.get("q_deg", [])),
+             "load": p.get("load", ""), "repeats": p.get("repeats", 1)}
+            for i, p in enumerate(design["poses"])]
+    meas = [(k, f"{m[k]:.4g}") for k in ("A", "D", "AD") if _finite(m.get(k)) is not None]
+    if _finite(m.get("pose_rms_um")) is not None:
+        meas.append(("pose (µm rms at [work])", f"{m['pose_rms_um']:.2f}"))
+    own = ((design.get("input_plan") or {}).get("measures") or {})
+    return {"criterion": design["criterion"], "configs": design.get("configs", len(rows)),
+            "candidates": (design.get("candidates") or {}).get("count"),
+            "certificate": c, "measures": meas,
+            "own": [(k, f"{own[k]:.4g}") for k in ("A", "D", "AD") if _finite(own.get(k)) is not None],
+            "relative_std": [(k, f"{v * 100:.2g}") for k, v in rel.items() if _finite(v) is not None],
+            "rows": rows, "rows_idx": design.get("rows")}
+
+
+def reproduce_section(log_path: Path, log: CampaignLog, simulated: bool, inputs: dict,
+                      out: Path) -> dict:
+    q = shlex.quote
+    cmds = []
+    if simulated:
+        cmds.append(("the campaign log (the scenario with its [truth], seed of the log)",
+                     f"calbench simulate {q(str(log.header.get('scenario_name', 'SCENARIO')) + '.toml')} "
+                     f"--out {q(str(log_path))} --seed {log.header.get('seed')}"))
+    if "identify" in inputs:
+        path, doc = inputs["identify"]
+        model = str(doc.get("model", ""))
+        opt = "" if not model or "(from the log)" in model else f" --model {q(model)}"
+        cmds.append(("parameters, correlation, residuals",
+                     f"calbench identify {q(str(log_path))}{opt} --method {q(str(doc['method']))} "
+                     f"--json {q(str(path))}"))
+    if "discover" in inputs:
+        path, doc = inputs["discover"]
+        model = str(doc.get("model", ""))
+        opt = "" if not model or model == "MJCF from the log" else f" --model {q(model)}"
+        cmds.append(("discovery", f"calbench discover {q(str(log_path))}{opt} --json {q(str(path))}"))
+    if "design" in inputs:
+        path, doc = inputs["design"]
+        n = (doc.get("candidates") or {}).get("count")
+        cmds.append(("design", f"calbench design {q(str(doc.get('scenario', 'SCENARIO.toml')))} "
+                               f"--configs {doc.get('configs')} --criterion {q(str(doc['criterion']))}"
+                               + (f" --candidates {n}" if n else "")
+                               + (" --no-refine" if doc.get("refinement") == {} else "")
+                               + f" --json {q(str(path))}"))
+    flags = "".join(f" --{'identified' if k == 'identify' else k} {q(str(p))}"
+                    for k, (p, _) in inputs.items())
+    cmds.append(("this report", f"calbench report {q(str(log_path))}{flags} --out {q(str(out))}"))
+    files_ = [{"role": "campaign log", "path": str(log_path), "size": log_path.stat().st_size,
+               "sha256": _sha256(log_path)}]
+    for k, (p, _) in inputs.items():
+        files_.append({"role": KINDS[k][0], "path": str(p), "size": p.stat().st_size,
+                       "sha256": _sha256(p)})
+    return {"commands": cmds, "files": files_,
+            "version": log.header.get("calbench_version", "?")}
+
+
+# ---------------------------------------------------------------------------------------------
+# the page
+# ---------------------------------------------------------------------------------------------
+
+
+def render(context: dict) -> str:
+    import jinja2
+    env = jinja2.Environment(
+        loader=jinja2.FileSystemLoader(str(files("calbench.identify").joinpath("templates"))),
+        autoescape=True, trim_blocks=True, lstrip_blocks=True, undefined=jinja2.StrictUndefined)
+    return env.get_template("report.html.j2").render(**context)
+
+
+def build_report(log_path, identified=None, discover=None, design=None,
+                 out: str | os.PathLike = "REPORT.html") -> str:
+    """The report's HTML text. ``out`` only names the report in its reproduce section."""
+    log_path = Path(log_path)
+    log = read_log(log_path)                     # what identification had: no truth
+    simulated = has_truth(log_path)
+    inputs: dict[str, tuple[Path, dict]] = {}
+    for kind, path in (("identify", identified), ("discover", discover), ("design", design)):
+        if path is not None:
+            inputs[kind] = (Path(path), read_json_report(path, kind))
+    ident = inputs.get("identify", (None, None))[1]
+    disc = inputs.get("discover", (None, None))[1]
+    plan = inputs.get("design", (None, None))[1]
+    camp = campaign_section(log, simulated)
+    ctx = {
+        "title": f"Calibration report: {camp['scenario']}",
+        "log_name": log_path.name,
+        "campaign": camp,
+        "parameters": parameters_section(ident) if ident else None,
+        "correlation": correlation_section(ident) if ident else None,
+        "residuals": residuals_section(ident, camp["reflectors"]) if ident else None,
+        "discovery": discovery_section(disc) if disc else None,
+        "design": design_section(plan) if plan else None,
+        "reproduce": reproduce_section(log_path, log, simulated, inputs, Path(out)),
+        "log_path": str(log_path),
+    }
+    return render(ctx)
+
+
+def write_report(log_path, out, identified=None, discover=None, design=None) -> Path:
+    """Write the report to ``out`` (atomically: a temporary file renamed into place) and
+    return its path. Raises InputError before writing anything on bad input."""
+    out = Path(out)
+    for p in (log_path, identified, discover, design):
+        if p is not None and out.resolve() == Path(p).resolve():
+            raise InputError(out, "--out", "an output path other than every input", str(out))
+    html = build_report(log_path, identified, discover, design, out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.tmp")
+    tmp.write_text(html, encoding="utf-8")
+    os.replace(tmp, out)
+    return out
+
+
+__all__ = ["write_report", "build_report", "read_json_report", "campaign_section",
+           "parameters_section", "correlation_section", "residuals_section",
+           "discovery_section", "design_section"]
