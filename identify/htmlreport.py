@@ -23,7 +23,7 @@ self-contained page.
 
 Inputs are checked before anything is written: a missing or unreadable file, JSON that is not
 the named command's report, or an output path equal to an input raise InputError (exit 2)
-naming the file; the HTML is written to a temporary file and renamed into place.
+naming the file; the HTML is written atomically (bench/outputs.py).
 """
 from __future__ import annotations
 
@@ -36,12 +36,15 @@ from importlib.resources import files
 from pathlib import Path
 
 import numpy as np
+from scipy.stats import chi2 as chi2_dist
 
 from calbench.bench.errors import InputError
 from calbench.bench.logformat import CampaignLog, has_truth, read_log
+from calbench.bench.outputs import check_outputs, write_text
 from calbench.bench.view import measured_deflections
 
 from . import htmlplots
+from .discover.stats import ALPHA_FIT as MISFIT_P   # chi2 p below which the model is rejected
 from .report import DISPLAY
 
 Z95 = 1.959963984540054         # two-sided 95 % quantile of the standard normal
@@ -194,9 +197,15 @@ def parameters_section(ident: dict) -> dict:
         rel_names.append(p["name"])
         rel.append(abs(std / est) * 100 if ok and std is not None and est else None)
     chi2 = _finite(ident.get("chi2_per_dof"))
+    chi2_total, dof = _finite(ident.get("chi2")), ident.get("dof")
+    p_fit = (float(chi2_dist.sf(chi2_total, dof)) if chi2_total is not None
+             and isinstance(dof, int) and dof > 0 else None)
     return {"method": ident.get("method"), "rows": rows, "has_truth": has_truth,
+            "misfit": p_fit is not None and p_fit < MISFIT_P,
+            "chi2": f"{chi2_total:.1f}" if chi2_total is not None else "–",
+            "p": f"{p_fit:.2g}" if p_fit is not None else "–",
             "unidentifiable": [r for r in rows if not r["identifiable"]],
-            "chi2_per_dof": f"{chi2:.3f}" if chi2 is not None else "–", "dof": ident.get("dof"),
+            "chi2_per_dof": f"{chi2:.3f}" if chi2 is not None else "–", "dof": dof,
             "residual_rms": um(ident.get("residual_rms")),
             "expected_rms": um(ident.get("expected_residual_rms")),
             "sigma": um(ident.get("noise_sigma")), "model": ident.get("model", ""),
@@ -348,7 +357,9 @@ def design_section(design: dict) -> dict:
         c = {"criterion": cert.get("criterion", design["criterion"]),
              "plan": f"{cert['plan_logdet']:.4f}" if _finite(cert.get("plan_logdet")) is not None else "–",
              "bound": f"{cert['bound_logdet']:.4f}" if _finite(cert.get("bound_logdet")) is not None else "–",
-             "efficiency": f"{eff * 100:.2f}", "gap": f"{(1 - eff) * 100:.2f}"}
+             "efficiency": f"{eff * 100:.2f}", "gap": f"{(1 - eff) * 100:.2f}",
+             "refined": (f"{cert['refined_plan']:.4f}"
+                         if _finite(cert.get("refined_plan")) is not None else None)}
     rel = m.get("relative_std") or {}
     rows = [{"pose": i, "q": ", ".join(f"{x:.1f}" for x in p.get("q_deg", [])),
              "load": p.get("load", ""), "repeats": p.get("repeats", 1)}
@@ -448,18 +459,11 @@ def build_report(log_path, identified=None, discover=None, design=None,
 
 
 def write_report(log_path, out, identified=None, discover=None, design=None) -> Path:
-    """Write the report to ``out`` (atomically: a temporary file renamed into place) and
-    return its path. Raises InputError before writing anything on bad input."""
-    out = Path(out)
-    for p in (log_path, identified, discover, design):
-        if p is not None and out.resolve() == Path(p).resolve():
-            raise InputError(out, "--out", "an output path other than every input", str(out))
-    html = build_report(log_path, identified, discover, design, out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp")
-    tmp.write_text(html, encoding="utf-8")
-    os.replace(tmp, out)
-    return out
+    """Write the report to ``out`` (atomically, bench/outputs.py) and return its path.
+    Raises InputError before writing anything on bad input."""
+    out = check_outputs({"--out": out}, {"LOG.mcap": log_path, "--identified": identified,
+                                         "--discover": discover, "--design": design})["--out"]
+    return write_text(out, build_report(log_path, identified, discover, design, out))
 
 
 __all__ = ["write_report", "build_report", "read_json_report", "campaign_section",
