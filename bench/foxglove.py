@@ -253,8 +253,8 @@ def tracker_entity(t_ns: int, spec: TrackerSpec) -> dict:
                               "bottom_scale": 1.0, "top_scale": 1.0,
                               "color": color(TRACKER_COLOR)}]
     return entity(t_ns, "tracker", TRACKER, {"position_world_m": list(map(_m, spec.position))},
-                  frame_locked=True, spheres=[sphere((0, 0, 0), 0.2, TRACKER_COLOR)], cylinders=cyl,
-                  texts=[text((0, 0, 0.25), "laser tracker", TRACKER_COLOR)])
+                  frame_locked=True, spheres=[sphere((0, 0, 0), 0.2, TRACKER_COLOR)],
+                  cylinders=cyl, texts=[text((0, 0, 0.25), "laser tracker", TRACKER_COLOR)])
 
 
 def measured_entities(t_ns: int, names: list[str], unloaded: np.ndarray, loaded: np.ndarray,

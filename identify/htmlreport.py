@@ -348,6 +348,11 @@ def discovery_section(disc: dict) -> dict:
             "augmented_model": disc.get("augmented_model")}
 
 
+def _fixed(x, fmt: str) -> str | None:
+    v = _finite(x)
+    return None if v is None else format(v, fmt)
+
+
 def design_section(design: dict) -> dict:
     m = design.get("measures") or {}
     cert = design.get("certificate")
@@ -355,25 +360,28 @@ def design_section(design: dict) -> dict:
     if isinstance(cert, dict) and _finite(cert.get("efficiency")) is not None:
         eff = float(cert["efficiency"])
         c = {"criterion": cert.get("criterion", design["criterion"]),
-             "plan": f"{cert['plan_logdet']:.4f}" if _finite(cert.get("plan_logdet")) is not None else "–",
-             "bound": f"{cert['bound_logdet']:.4f}" if _finite(cert.get("bound_logdet")) is not None else "–",
+             "plan": _fixed(cert.get("plan_logdet"), ".4f") or "–",
+             "bound": _fixed(cert.get("bound_logdet"), ".4f") or "–",
              "efficiency": f"{eff * 100:.2f}", "gap": f"{(1 - eff) * 100:.2f}",
-             "refined": (f"{cert['refined_plan']:.4f}"
-                         if _finite(cert.get("refined_plan")) is not None else None)}
+             "refined": _fixed(cert.get("refined_plan"), ".4f")}
     rel = m.get("relative_std") or {}
     rows = [{"pose": i, "q": ", ".join(f"{x:.1f}" for x in p.get("q_deg", [])),
              "load": p.get("load", ""), "repeats": p.get("repeats", 1)}
             for i, p in enumerate(design["poses"])]
-    meas = [(k, f"{m[k]:.4g}") for k in ("A", "D", "AD") if _finite(m.get(k)) is not None]
+    own = ((design.get("input_plan") or {}).get("measures") or {})
+
+    def measures(src: dict) -> list[tuple[str, str]]:
+        return [(k, _fixed(src.get(k), ".4g")) for k in ("A", "D", "AD")
+                if _finite(src.get(k)) is not None]
+    meas = measures(m)
     if _finite(m.get("pose_rms_um")) is not None:
         meas.append(("pose (µm rms at [work])", f"{m['pose_rms_um']:.2f}"))
-    own = ((design.get("input_plan") or {}).get("measures") or {})
     return {"criterion": design["criterion"], "configs": design.get("configs", len(rows)),
             "candidates": (design.get("candidates") or {}).get("count"),
-            "certificate": c, "measures": meas,
-            "own": [(k, f"{own[k]:.4g}") for k in ("A", "D", "AD") if _finite(own.get(k)) is not None],
-            "relative_std": [(k, f"{v * 100:.2g}") for k, v in rel.items() if _finite(v) is not None],
-            "rows": rows, "rows_idx": design.get("rows")}
+            "certificate": c, "measures": meas, "own": measures(own),
+            "relative_std": [(k, _fixed(v * 100 if _finite(v) is not None else None, ".2g"))
+                             for k, v in rel.items() if _finite(v) is not None],
+            "rows": rows}
 
 
 def reproduce_section(log_path: Path, log: CampaignLog, simulated: bool, inputs: dict,
@@ -384,18 +392,18 @@ def reproduce_section(log_path: Path, log: CampaignLog, simulated: bool, inputs:
         cmds.append(("the campaign log (the scenario with its [truth], seed of the log)",
                      f"calbench simulate {q(str(log.header.get('scenario_name', 'SCENARIO')) + '.toml')} "
                      f"--out {q(str(log_path))} --seed {log.header.get('seed')}"))
+    def model_flag(doc: dict) -> str:     # identify and discover name the log's own MJCF so
+        model = str(doc.get("model", ""))  # ("... (from the log)", "MJCF from the log")
+        return "" if not model or "from the log" in model else f" --model {q(model)}"
     if "identify" in inputs:
         path, doc = inputs["identify"]
-        model = str(doc.get("model", ""))
-        opt = "" if not model or "(from the log)" in model else f" --model {q(model)}"
         cmds.append(("parameters, correlation, residuals",
-                     f"calbench identify {q(str(log_path))}{opt} --method {q(str(doc['method']))} "
-                     f"--json {q(str(path))}"))
+                     f"calbench identify {q(str(log_path))}{model_flag(doc)} --method "
+                     f"{q(str(doc['method']))} --json {q(str(path))}"))
     if "discover" in inputs:
         path, doc = inputs["discover"]
-        model = str(doc.get("model", ""))
-        opt = "" if not model or model == "MJCF from the log" else f" --model {q(model)}"
-        cmds.append(("discovery", f"calbench discover {q(str(log_path))}{opt} --json {q(str(path))}"))
+        cmds.append(("discovery", f"calbench discover {q(str(log_path))}{model_flag(doc)} "
+                                  f"--json {q(str(path))}"))
     if "design" in inputs:
         path, doc = inputs["design"]
         n = (doc.get("candidates") or {}).get("count")

@@ -207,8 +207,10 @@ def test_measured_arrows_are_the_magnified_mean_deflections(paper_log):
         seen = np.flatnonzero(np.all(np.isfinite(mean["loaded"]), axis=1))
         got = np.array([_vec(s["pose"]["position"]) for s in spheres])
         np.testing.assert_allclose(got, mean["loaded"][seen], atol=ROUNDING)
-        assert {e["metadata"][0]["key"] for e in scene["entities"]
-                if e["id"] == "deflection_x200"} <= {"magnification"} | set(names)
+        meta = {m["key"]: m["value"] for e in scene["entities"] if e["id"] == "deflection_x200"
+                for m in e["metadata"]}
+        assert meta == {"magnification": "200", **{
+            names[i]: f"{np.linalg.norm(d[i]) * 1e6:.1f} um" for i in np.flatnonzero(ok)}}
 
 
 def test_each_pose_writes_its_foxglove_messages_before_its_pose_done(paper_log):
