@@ -385,11 +385,13 @@ class LogWriter:
                                  publish_time=t, sequence=seq)
 
     # -- extra channels (the Foxglove topics of bench/foxglove.py) ----------------------------
-    def add_channel(self, topic: str, schema_name: str, schema_text: str) -> None:
+    def add_channel(self, topic: str, schema_name: str, schema_text: str,
+                    check: bool = True) -> None:
         """Register one more JSON channel whose messages follow the JSON Schema ``schema_text``
         (registered under ``schema_name``; channels with the same schema share one record).
         Contract topics cannot be re-registered. A topic under /truth/ is ground truth and
-        :func:`strip_truth` removes it like the others."""
+        :func:`strip_truth` removes it like the others. ``check=False`` skips the per-message
+        check of :meth:`write`, for builders whose output a test validates instead."""
         if topic in self._channels:
             raise ValueError(f"{topic}: channel already registered")
         schema = json.loads(schema_text)
@@ -400,7 +402,7 @@ class LogWriter:
                 name=schema_name, encoding="jsonschema", data=data)
         self._channels[topic] = self._writer.register_channel(
             topic=topic, message_encoding="json", schema_id=sid)
-        self._extra_schemas[topic] = schema
+        self._extra_schemas[topic] = schema if check else {}
 
     def next_time(self, nominal_time: int) -> int:
         """The log time (ns) a message written now at ``nominal_time`` gets: times are kept
