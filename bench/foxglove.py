@@ -45,7 +45,7 @@ import numpy as np
 
 from .geoms import GeomShape, geom_shapes, tendon_sites
 from .scenario import TrackerSpec
-from .tracker import Measurement, to_world_frame, tracker_rotation
+from .tracker import mean_reading, tracker_rotation
 
 MAGNIFY = 200.0
 STATES = ("unloaded", "loaded")
@@ -235,17 +235,6 @@ def log_message(t_ns: int, message: str, level: int = LOG_INFO) -> dict:
 # ---------------------------------------------------------------------------------------------
 
 
-def mean_world(spec: TrackerSpec, readings: list[Measurement]) -> np.ndarray:
-    """World positions (n, 3) of the mean of repeated readings; NaN rows where never seen."""
-    pos = np.array([np.where(m.visible[:, None], m.position, 0.0) for m in readings])
-    seen = np.array([m.visible for m in readings]).sum(axis=0)
-    out = np.full(pos.shape[1:], np.nan)
-    ok = seen > 0
-    if ok.any():
-        out[ok] = to_world_frame(spec, pos.sum(axis=0)[ok] / seen[ok, None])
-    return out
-
-
 def tracker_entity(t_ns: int, spec: TrackerSpec) -> dict:
     """The laser tracker in its own frame: a head sphere on a stand down to the floor."""
     h = float(spec.position[2])
@@ -405,7 +394,7 @@ class FoxgloveWriter:
             tendons[:] = tl
             return msg
         self._put(TF, tf, (index + 1) * 1_000_000_000 + POSE_SLOT)
-        mu, ml = (mean_world(self.spec, r) for r in readings)
+        mu, ml = (mean_reading(self.spec, r).position for r in readings)
         self._put(SCENE, lambda t: scene_update(
             [tendon_entity(t, "compensator", tendons)]
             + measured_entities(t, self.names, mu, ml, self.spec.position, self.magnify)))
@@ -441,5 +430,5 @@ class FoxgloveWriter:
 
 
 __all__ = ["FoxgloveWriter", "Poser", "TOPICS", "MAGNIFY", "schema_text", "stamp", "entity",
-           "scene_update", "frame_transforms", "transform", "geom_primitives", "mean_world",
+           "scene_update", "frame_transforms", "transform", "geom_primitives",
            "measured_entities", "truth_entities", "tracker_entity", "log_message", "arrow"]

@@ -39,6 +39,7 @@ import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
 from calbench.bench.errors import InputError
+from calbench.bench.idreport import IdentificationReport
 from calbench.bench.logformat import CampaignLog, has_truth, read_log
 from calbench.bench.outputs import check_outputs, write_text
 from calbench.bench.view import measured_deflections
@@ -80,11 +81,14 @@ def read_json_report(path: str | os.PathLike, kind: str) -> dict:
     lists = {"identify": "parameters", "discover": "named_effects", "design": "poses"}[kind]
     if not isinstance(doc[lists], list):
         raise InputError(path, lists, "a list", type(doc[lists]).__name__)
-    if kind == "identify":
-        for i, p in enumerate(doc["parameters"]):
-            if not isinstance(p, dict) or not isinstance(p.get("name"), str):
-                raise InputError(path, f"parameters[{i}]", "an object with a name", p)
     return doc
+
+
+def read_identified(path: str | os.PathLike) -> IdentificationReport:
+    """The ``identify --json`` report: its defining keys checked (a discover report also has
+    ``parameters``), then read as the typed report the viewer reads too."""
+    read_json_report(path, "identify")
+    return IdentificationReport.read(path)
 
 
 def _sha256(path: Path) -> str:
@@ -142,14 +146,14 @@ def campaign_section(log: CampaignLog, simulated: bool) -> dict:
         repeats[m.pose] = max(repeats.get(m.pose, 0), m.repeat + 1)
     rows = []
     for p in log.complete_poses:
-        q = log.poses.get(p, {}).get("unloaded")
+        q = log.poses[p].unloaded if p in log.poses else None
         w = log.wrenches.get(p)
         if w is None:
             load = "–"
-        elif w["mass"] is not None:
-            load = f"{w['mass']:g} kg payload"
+        elif w.mass is not None:
+            load = f"{w.mass:g} kg payload"
         else:
-            load = "force [" + ", ".join(f"{f:.0f}" for f in w["force"]) + "] N"
+            load = "force [" + ", ".join(f"{f:.0f}" for f in w.force) + "] N"
         rows.append({"pose": p, "q": "" if q is None else ", ".join(
                          f"{x:.1f}" for x in np.degrees(q)),
                      "load": load, "repeats": repeats.get(p, 0),
@@ -171,20 +175,17 @@ def campaign_section(log: CampaignLog, simulated: bool) -> dict:
     }
 
 
-def parameters_section(ident: dict) -> dict:
+def parameters_section(ident: IdentificationReport) -> dict:
     rows, rel_names, rel = [], [], []
-    has_truth = any(_finite(p.get("truth")) is not None for p in ident["parameters"])
-    for p in ident["parameters"]:
-        label, f = unit_display(str(p.get("unit") or ""))
-        est, std, truth = (_finite(p.get(k)) for k in ("estimate", "std", "truth"))
-        ok = est is not None and p.get("identifiable", True) is not False
+    for p in ident.parameters:
+        label, f = unit_display(p.unit)
+        est, std, truth = p.estimate, p.std, p.truth
+        ok = est is not None and p.identifiable
         d = decimals(std * f if std else None)
-        z = _finite(p.get("z"))
-        if z is None and ok and std and truth is not None:
-            z = (est - truth) / std
+        z = p.z if p.z is not None else (
+            (est - truth) / std if ok and std and truth is not None else None)
         rows.append({
-            "name": p["name"], "unit": label, "identifiable": ok,
-            "reason": p.get("reason") or (ident.get("unidentifiable") or {}).get(p["name"]) or "",
+            "name": p.name, "unit": label, "identifiable": ok, "reason": p.reason or "",
             "estimate": num(est * f, d) if ok else "",
             "std": num(std * f, d) if ok and std is not None else "–",
             "ci": (f"[{num((est - Z95 * std) * f, d)}, {num((est + Z95 * std) * f, d)}]"
@@ -194,34 +195,31 @@ def parameters_section(ident: dict) -> dict:
             "z": f"{z:+.2f}" if z is not None else "–",
             "z_flag": z is not None and abs(z) > 3,
         })
-        rel_names.append(p["name"])
+        rel_names.append(p.name)
         rel.append(abs(std / est) * 100 if ok and std is not None and est else None)
-    chi2 = _finite(ident.get("chi2_per_dof"))
-    chi2_total, dof = _finite(ident.get("chi2")), ident.get("dof")
-    p_fit = (float(chi2_dist.sf(chi2_total, dof)) if chi2_total is not None
-             and isinstance(dof, int) and dof > 0 else None)
-    return {"method": ident.get("method"), "rows": rows, "has_truth": has_truth,
+    chi2, dof = ident.chi2, ident.dof
+    p_fit = float(chi2_dist.sf(chi2, dof)) if chi2 is not None and dof else None
+    return {"method": ident.method, "rows": rows, "has_truth": ident.has_truth(),
             "misfit": p_fit is not None and p_fit < MISFIT_P,
-            "chi2": f"{chi2_total:.1f}" if chi2_total is not None else "–",
+            "chi2": f"{chi2:.1f}" if chi2 is not None else "–",
             "p": f"{p_fit:.2g}" if p_fit is not None else "–",
             "unidentifiable": [r for r in rows if not r["identifiable"]],
-            "chi2_per_dof": f"{chi2:.3f}" if chi2 is not None else "–", "dof": dof,
-            "residual_rms": um(ident.get("residual_rms")),
-            "expected_rms": um(ident.get("expected_residual_rms")),
-            "sigma": um(ident.get("noise_sigma")), "model": ident.get("model", ""),
-            "n_observations": ident.get("n_observations"),
+            "chi2_per_dof": (f"{ident.chi2_per_dof:.3f}" if ident.chi2_per_dof is not None
+                             else "–"), "dof": dof,
+            "residual_rms": um(ident.residual_rms), "expected_rms": um(ident.expected_residual_rms),
+            "sigma": um(ident.noise_sigma), "model": ident.model or "",
+            "n_observations": ident.n_observations,
             "chart": htmlplots.relative_std_bars(rel_names, rel) if any(rel) else None}
 
 
-def correlation_section(ident: dict) -> dict:
-    cov = ident.get("covariance")
-    names = [p["name"] for p in ident["parameters"]]
-    if not isinstance(cov, list) or len(cov) != len(names):
+def correlation_section(ident: IdentificationReport) -> dict:
+    names = [p.name for p in ident.parameters]
+    if ident.covariance is None or len(ident.covariance) != len(names):
         return {"available": False, "why": "the identify report carries no covariance matrix"}
-    C = np.array([[np.nan if _finite(x) is None else x for x in row] for row in cov], float)
+    C = np.array([[np.nan if x is None else x for x in row] for row in ident.covariance], float)
     d = np.diag(C)
-    keep = [i for i in range(len(names)) if np.isfinite(d[i]) and d[i] > 0
-            and np.all(np.isfinite(C[i, :][np.isfinite(d) & (d > 0)]))]
+    good = np.isfinite(d) & (d > 0)
+    keep = [i for i in range(len(names)) if good[i] and np.all(np.isfinite(C[i, good]))]
     if len(keep) < 2:
         return {"available": False, "why": "fewer than two identifiable parameters"}
     sub = C[np.ix_(keep, keep)]
@@ -234,20 +232,19 @@ def correlation_section(ident: dict) -> dict:
             "left_out": [n for i, n in enumerate(names) if i not in keep], "strong": strong}
 
 
-def residuals_section(ident: dict, reflectors: list[str]) -> dict:
-    obs = ident.get("observations")
-    expected = _finite(ident.get("expected_residual_rms"))
-    if not isinstance(obs, list) or not obs or expected is None:
+def residuals_section(ident: IdentificationReport, reflectors: list[str]) -> dict:
+    obs = [o for o in ident.observations if o.residual is not None]
+    expected = ident.expected_residual_rms
+    if not obs or expected is None:
         return {"available": False,
                 "why": "the identify report carries no per-observation residuals"}
-    names = list(reflectors) or sorted({o["reflector"] for o in obs})
-    poses = sorted({int(o["pose"]) for o in obs})
+    names = list(reflectors) or sorted({o.reflector for o in obs})
+    poses = sorted({o.pose for o in obs})
     grid = np.full((len(names), len(poses)), np.nan)
     for o in obs:
-        r = np.asarray(o.get("residual", [np.nan] * 3), float)
-        if o["reflector"] in names and r.shape == (3,):
-            grid[names.index(o["reflector"]), poses.index(int(o["pose"]))] = \
-                np.sqrt(np.mean(r ** 2)) * 1e6
+        if o.reflector in names:
+            grid[names.index(o.reflector), poses.index(o.pose)] = \
+                np.sqrt(np.mean(np.square(o.residual))) * 1e6
     exp_um = expected * 1e6
     per_refl = []
     for i, n in enumerate(names):
@@ -260,8 +257,8 @@ def residuals_section(ident: dict, reflectors: list[str]) -> dict:
     return {"available": True, "expected": f"{exp_um:.1f}",
             "map": htmlplots.residual_map(poses, names, grid, exp_um),
             "bars": htmlplots.residual_per_pose(poses, names, grid, exp_um),
-            "per_reflector": per_refl, "outliers": ident.get("outliers") or [],
-            "threshold": ident.get("outlier_threshold_sigma")}
+            "per_reflector": per_refl, "outliers": list(ident.outliers),
+            "threshold": ident.outlier_threshold_sigma}
 
 
 def _generic_rows(x) -> list[dict]:
@@ -392,18 +389,18 @@ def reproduce_section(log_path: Path, log: CampaignLog, simulated: bool, inputs:
         cmds.append(("the campaign log (the scenario with its [truth], seed of the log)",
                      f"calbench simulate {q(str(log.header.get('scenario_name', 'SCENARIO')) + '.toml')} "
                      f"--out {q(str(log_path))} --seed {log.header.get('seed')}"))
-    def model_flag(doc: dict) -> str:     # identify and discover name the log's own MJCF so
-        model = str(doc.get("model", ""))  # ("... (from the log)", "MJCF from the log")
-        return "" if not model or "from the log" in model else f" --model {q(model)}"
+    def model_flag(model: str | None) -> str:   # identify and discover name the log's own
+        model = str(model or "")                 # MJCF so: "... (from the log)", "MJCF from
+        return "" if not model or "from the log" in model else f" --model {q(model)}"  # the log"
     if "identify" in inputs:
-        path, doc = inputs["identify"]
+        path, rep = inputs["identify"]
         cmds.append(("parameters, correlation, residuals",
-                     f"calbench identify {q(str(log_path))}{model_flag(doc)} --method "
-                     f"{q(str(doc['method']))} --json {q(str(path))}"))
+                     f"calbench identify {q(str(log_path))}{model_flag(rep.model)} --method "
+                     f"{q(str(rep.method))} --json {q(str(path))}"))
     if "discover" in inputs:
         path, doc = inputs["discover"]
-        cmds.append(("discovery", f"calbench discover {q(str(log_path))}{model_flag(doc)} "
-                                  f"--json {q(str(path))}"))
+        cmds.append(("discovery", f"calbench discover {q(str(log_path))}"
+                                  f"{model_flag(doc.get('model'))} --json {q(str(path))}"))
     if "design" in inputs:
         path, doc = inputs["design"]
         n = (doc.get("candidates") or {}).get("count")
@@ -446,7 +443,8 @@ def build_report(log_path, identified=None, discover=None, design=None,
     inputs: dict[str, tuple[Path, dict]] = {}
     for kind, path in (("identify", identified), ("discover", discover), ("design", design)):
         if path is not None:
-            inputs[kind] = (Path(path), read_json_report(path, kind))
+            inputs[kind] = (Path(path), read_identified(path) if kind == "identify"
+                            else read_json_report(path, kind))
     ident = inputs.get("identify", (None, None))[1]
     disc = inputs.get("discover", (None, None))[1]
     plan = inputs.get("design", (None, None))[1]
@@ -474,6 +472,6 @@ def write_report(log_path, out, identified=None, discover=None, design=None) -> 
     return write_text(out, build_report(log_path, identified, discover, design, out))
 
 
-__all__ = ["write_report", "build_report", "read_json_report", "campaign_section",
+__all__ = ["write_report", "build_report", "read_json_report", "read_identified", "campaign_section",
            "parameters_section", "correlation_section", "residuals_section",
            "discovery_section", "design_section"]

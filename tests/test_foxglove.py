@@ -166,10 +166,10 @@ def test_a_foxglove_reader_puts_every_geom_where_mujoco_does(paper_log):
     true_static = next(m for tp, _, _, m in msgs if tp == fx.TRUTH_ROBOT)
     true_tfs = [m for tp, _, _, m in msgs if tp == fx.TRUTH_TF]
     for p in (0, 7, 15):
-        q = log.poses[p]["unloaded"]
+        q = log.poses[p].unloaded
         assert_geoms_drawn_where_mujoco_puts_them(robot.model, robot.rigid_qpos(q), {
             "entities": [e for e in static["entities"] if e["id"] != "tracker"]}, tfs[p])
-        qpos = log.truth["joints"][p]["loaded"]["qpos"]
+        qpos = log.truth.joints[p].loaded.qpos
         assert_geoms_drawn_where_mujoco_puts_them(robot.model, qpos, {"entities": [
             e for e in true_static["entities"] if e["frame_id"].startswith("true_loaded/")]},
             true_tfs[p], "true loaded ")
@@ -275,12 +275,12 @@ def test_stripped_log_keeps_the_foxglove_view_and_no_true_value(paper_log, tmp_p
 
     secrets = []
     for p in log.complete_poses:
-        commanded = positions(robot.rigid_qpos(log.poses[p]["unloaded"]))
+        commanded = positions(robot.rigid_qpos(log.poses[p].unloaded))
         for state in ("unloaded", "loaded"):
-            true = positions(log.truth["joints"][p][state]["qpos"])
+            true = positions(log.truth.joints[p].get(state).qpos)
             moved = np.linalg.norm(true - commanded, axis=1) > 1e-6
             secrets.append(true[moved])
-            secrets.append(log.truth["reflectors"][p][state]["position_world"])
+            secrets.append(log.truth.reflectors[p].get(state).position_world)
     secrets = np.vstack(secrets)
     assert len(secrets) > 100
     dist = np.min(np.linalg.norm(shown[:, None, :] - secrets[None, :, :], axis=2), axis=0)

@@ -9,7 +9,6 @@ the certificate) that other commands add.
 """
 from __future__ import annotations
 
-import copy
 import html as htmllib
 import json
 import os
@@ -71,11 +70,10 @@ def inputs(tmp_path_factory) -> dict[str, Path]:
     d = tmp_path_factory.mktemp("report")
     log = d / "campaign.mcap"
     run_campaign(load_scenario(PAPER), log)
-    ident = run_identify(log)
+    ident = run_identify(log).to_dict()
     # one parameter as identify writes an unidentifiable one: no estimate, no std, a reason,
     # its covariance row and column null
     i = [p["name"] for p in ident["parameters"]].index(UNIDENTIFIABLE)
-    ident = copy.deepcopy(ident)
     ident["parameters"][i].update(estimate=None, std=None, z=None, error=None,
                                   identifiable=False, reason=REASON)
     ident["unidentifiable"] = {UNIDENTIFIABLE: REASON}
