@@ -92,3 +92,14 @@ def test_interrupted_write_leaves_the_old_file_whole(tmp_path):
             raise KeyboardInterrupt
     assert target.read_text() == "the good report\n"
     assert [p.name for p in tmp_path.iterdir()] == ["report.json"]      # no temporary left behind
+
+
+def test_atomic_outputs_get_the_permissions_of_an_ordinary_file(tmp_path):
+    import os
+    umask = os.umask(0o022)
+    try:
+        write_text(tmp_path / "a.json", "{}")
+        (tmp_path / "b.json").write_text("{}")
+    finally:
+        os.umask(umask)
+    assert (tmp_path / "a.json").stat().st_mode & 0o777 == (tmp_path / "b.json").stat().st_mode & 0o777 == 0o644
