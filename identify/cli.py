@@ -108,8 +108,9 @@ def cmd_montecarlo(args) -> int:
 def add_design(sub) -> None:
     from .design.criteria import CRITERIA
     p = sub.add_parser("design", help="optimal measurement configurations (design of experiments)")
-    p.add_argument("scenario", type=Path, help="scenario TOML (robot, truth = prior guess, tracker, load, "
-                   "optional [work] and [design])")
+    p.add_argument("scenario", type=Path, nargs="?", default=None,
+                   help="scenario TOML (robot, truth = prior guess, tracker, load, optional [work] and [design]); "
+                        "optional with --from-candidates, where it serves --out and --criterion pose")
     p.add_argument("--configs", type=int, default=12,
                    help="number of measurement configurations M (default: %(default)s)")
     p.add_argument("--criterion", choices=CRITERIA, default="A",
@@ -118,6 +119,14 @@ def add_design(sub) -> None:
     p.add_argument("--out", type=Path, default=None, help="write the plan as a runnable scenario")
     p.add_argument("--json", type=Path, default=None, help="write the criteria, stds and poses as JSON")
     p.add_argument("--export-candidates", type=Path, default=None, help="write the candidate set (NPZ)")
+    p.add_argument("--normalise", action="store_true",
+                   help="with --export-candidates: divide each block column by its RMS (unit mean information "
+                        "diagonal, for tools that divide by it; the D-optimal plan is unchanged)")
+    p.add_argument("--from-candidates", type=Path, default=None, metavar="CANDS.npz",
+                   help="optimise these candidates (the --export-candidates form: q N x 6 degrees, blocks N x m x p) "
+                        "instead of generating them; prints and records the chosen rows")
+    p.add_argument("--distinct", action="store_true",
+                   help="no candidate twice (no repeats); reports the cost against the plan with repeats")
     p.add_argument("--candidates", type=int, default=None,
                    help="number of candidates (default: the scenario's [design] candidates, else 10000)")
     p.add_argument("--starts", type=int, default=8,
@@ -135,6 +144,12 @@ def cmd_design(args) -> int:
     from .design.candidates import InfoEngine, generate_candidates, load_design_scenario
     from .design.plan import (design_plan, input_plan_measures, plan_comment, plan_scenario_text,
                               result_json, summary_text)
+    if args.normalise and args.export_candidates is None:
+        raise InputError("(command line)", "--normalise", "--export-candidates CANDS.npz with it", None)
+    if args.from_candidates is not None:
+        return _design_from_candidates(args)
+    if args.scenario is None:
+        raise InputError("(command line)", "SCENARIO", "a scenario TOML (or --from-candidates CANDS.npz)", None)
     if args.study:
         from .design.study import run_study
         res = run_study(args.scenario, args.out_dir)
@@ -160,7 +175,7 @@ def cmd_design(args) -> int:
           f"from {cands.stats['raw_commands']} sampled commands", file=sys.stderr)
     if args.export_candidates:
         with atomic_path(args.export_candidates, suffix=".npz") as tmp:   # savez adds .npz otherwise
-            cands.save_npz(tmp)
+            cands.save_npz(tmp, normalise=args.normalise)
         print(f"wrote {args.export_candidates}", file=sys.stderr)
     if args.out is None and args.json is None:
         return 0
@@ -168,17 +183,76 @@ def cmd_design(args) -> int:
     bar.start(1 + 3 * args.configs, "exchange")
     engine = InfoEngine(scn, settings)
     res = design_plan(scn, settings, cands, args.configs, args.criterion, n_random=args.starts,
-                      do_refine=not args.no_refine, engine=engine, progress=bar)
+                      do_refine=not args.no_refine, engine=engine, progress=bar, distinct=args.distinct)
     bar.close()
     res.timings["candidates_s"] = t_c
     input_plan = input_plan_measures(engine, scn, cands.theta0)
-    print(summary_text(res, len(cands), input_plan))
+    print(summary_text(res, cands, input_plan))
     if args.out:
         text = plan_scenario_text(scn, res.poses, args.out, plan_comment(args.scenario, res))
         write_text(args.out, text)
         print(f"wrote {args.out}", file=sys.stderr)
     if args.json:
         write_text(args.json, json.dumps(result_json(res, scn, cands, {"input_plan": input_plan}), indent=2))
+    return 0
+
+
+def _design_from_candidates(args) -> int:
+    """`design --from-candidates CANDS.npz`: the exchange and its certificate on given blocks."""
+    import numpy as np
+    from .design.candidate_file import read_candidates
+    from .design.candidates import LOAD_KINDS, InfoEngine, load_design_scenario
+    from .design.certificate import SingularCandidates
+    from .design.plan import merge_repeats, plan_scenario_text, poses_of_rows
+    from .design.selection import select_rows, selection_text
+    for flag, given in (("--study", args.study), ("--export-candidates", args.export_candidates)):
+        if given:
+            raise InputError("(command line)", flag, "no " + flag + " with --from-candidates", None)
+    if args.configs < 1:
+        raise InputError("--configs", "configs", "an integer >= 1", args.configs)
+    check_outputs({"--out": args.out, "--json": args.json},
+                  {"--from-candidates": args.from_candidates, "SCENARIO": args.scenario})
+    cf = read_candidates(args.from_candidates)
+    if args.distinct and args.configs > len(cf):
+        raise InputError(cf.path, "q", f"at least --configs {args.configs} candidates with --distinct", len(cf))
+    scn = G = None
+    if args.scenario is not None:
+        scn, settings = load_design_scenario(args.scenario)
+    if args.out is not None and (scn is None or cf.wrench is None or cf.kind is None):
+        raise InputError(cf.path if scn is not None else "(command line)", "wrench" if scn is not None else "SCENARIO",
+                         "the scenario and the arrays wrench and load_kind in the candidate file for --out", None)
+    if args.criterion == "pose":
+        if scn is None or scn.work is None:
+            raise InputError(args.scenario or "(command line)", "work", "a scenario with a [work] table "
+                             "for --criterion pose (the work-pose Jacobian)", None)
+        engine = InfoEngine(scn, settings)
+        if cf.blocks.shape[2] != len(engine.theta0) or (cf.theta0 is not None and not
+                                                       np.allclose(cf.theta0, engine.theta0, rtol=1e-9)):
+            raise InputError(cf.path, "theta0", f"the prior of {scn.path} ({len(engine.theta0)} parameters)",
+                             None if cf.theta0 is None else cf.theta0.tolist())
+        G = engine.work_jacobian(scn.work.q, scn.work.wrench)
+    try:
+        sel = select_rows(cf.blocks, args.configs, args.criterion, G, distinct=args.distinct,
+                          n_random=args.starts)
+    except SingularCandidates as exc:
+        raise InputError(cf.path, "blocks", "candidates that together identify every parameter", str(exc)) from None
+    load = None if cf.kind is None else [LOAD_KINDS[k] for k in cf.kind]
+    print(f"design: {args.criterion}-optimal plan of {args.configs} rows from {len(cf)} candidates "
+          f"({cf.path})\n" + selection_text(sel, len(cf), cf.q, load))
+    if args.out:
+        poses = merge_repeats(poses_of_rows(cf.q, cf.wrench, cf.kind, cf.blocks, sel.rows))
+        text = plan_scenario_text(scn, poses, args.out, f"Measurement plan by `calbench design --from-candidates "
+                                  f"{cf.path.name} --configs {args.configs} --criterion {args.criterion}`")
+        write_text(args.out, text)
+        print(f"wrote {args.out}", file=sys.stderr)
+    if args.json:
+        r = sel.exchange
+        out = {"candidates_file": str(cf.path), "candidates": len(cf), "criterion": args.criterion,
+               "configs": args.configs, **sel.as_json(cf.q, load),
+               "exchange": {"value": r.value, "start_values": r.start_values, "start_results": r.start_results,
+                            "passes": r.passes, "swaps": r.swaps, **sel.exchanger_stats},
+               "timings": sel.seconds}
+        write_text(args.json, json.dumps(out, indent=2))
     return 0
 
 

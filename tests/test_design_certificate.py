@@ -9,7 +9,9 @@ Cholesky factorisation in double precision, far below any gap the bounds leave.
 from __future__ import annotations
 
 import itertools
+import json
 import math
+import tomllib
 
 import numpy as np
 import pytest
@@ -142,3 +144,118 @@ def test_distinct_exchange_never_repeats_and_its_scan_skips_the_excluded():
     assert not exclude[j] and j == int(np.argmin(full)) and v == pytest.approx(full.min(), rel=1e-12)
     with pytest.raises(ValueError):
         ex.optimise(301, distinct=True)
+
+
+# ------------------------------------------------------------------------------ command line
+
+from calbench.identify.cli import main  # noqa: E402
+from conftest import PAPER  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    """150 paper-scenario candidates, raw and normalised, and the design's JSON on them."""
+    d = tmp_path_factory.mktemp("cands")
+    common = [str(PAPER), "--candidates", "150", "--processes", "1"]
+    assert main(["design", *common, "--export-candidates", str(d / "raw.npz"), "--configs", "8",
+                 "--criterion", "D", "--json", str(d / "design.json"), "--starts", "2", "--no-refine"]) == 0
+    assert main(["design", *common, "--export-candidates", str(d / "norm.npz"), "--normalise"]) == 0
+    return d
+
+
+def test_design_json_records_rows_and_a_certificate_of_them(exported, capsys):
+    out = json.loads((exported / "design.json").read_text())
+    z = np.load(exported / "raw.npz")
+    cert = out["certificate"]
+    assert cert["criterion"] == "D" and len(out["rows"]) == 8
+    assert cert["plan_logdet"] == pytest.approx(plan_logdet(z["blocks"], out["rows"]), abs=1e-9)
+    assert cert["plan_logdet"] <= cert["bound_logdet"]
+    assert cert["efficiency"] == pytest.approx(math.exp((cert["plan_logdet"] - cert["bound_logdet"]) / 8))
+    sup = out["continuous_design"]["D"]["support"]
+    assert sum(s["poses_of_M"] for s in sup) <= 8 + 1e-9 and all(len(s["q_deg"]) == 6 for s in sup)
+    # the same optimiser on the exported file: the same rows and certificate
+    js = exported / "from.json"
+    assert main(["design", "--from-candidates", str(exported / "raw.npz"), "--configs", "8", "--criterion", "D",
+                 "--starts", "2", "--json", str(js)]) == 0
+    text = capsys.readouterr().out
+    assert "efficiency" in text and "provably within" in text
+    again = json.loads(js.read_text())
+    assert again["rows"] == out["rows"]
+    assert again["certificate"]["bound_logdet"] == pytest.approx(cert["bound_logdet"], abs=1e-3)
+
+
+def test_normalised_export_rescales_columns_and_keeps_the_d_optimal_plan(exported, tmp_path):
+    raw, norm = np.load(exported / "raw.npz"), np.load(exported / "norm.npz")
+    s = norm["column_scale"]
+    np.testing.assert_allclose(norm["blocks"] * s, raw["blocks"], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(np.einsum("nij,nij->j", norm["blocks"], norm["blocks"]) / len(norm["q"]), 1.0)
+    assert "NORMALISED" in str(norm["note"])
+    rows = {}
+    for name in ("raw", "norm"):
+        js = tmp_path / f"{name}.json"
+        assert main(["design", "--from-candidates", str(exported / f"{name}.npz"), "--configs", "8",
+                     "--criterion", "D", "--starts", "2", "--json", str(js)]) == 0
+        rows[name] = json.loads(js.read_text())
+    assert rows["raw"]["rows"] == rows["norm"]["rows"]
+    shift = -2 * np.log(s).sum()
+    assert rows["norm"]["certificate"]["plan_logdet"] == pytest.approx(rows["raw"]["certificate"]["plan_logdet"]
+                                                                       + shift, abs=1e-8)
+    assert rows["norm"]["certificate"]["efficiency"] == pytest.approx(rows["raw"]["certificate"]["efficiency"],
+                                                                      rel=1e-3)
+
+
+def test_distinct_from_candidates_never_repeats_and_brackets_its_cost(exported, tmp_path):
+    js = tmp_path / "d.json"
+    assert main(["design", "--from-candidates", str(exported / "raw.npz"), "--configs", "30", "--criterion", "A",
+                 "--starts", "1", "--distinct", "--json", str(js)]) == 0
+    out = json.loads(js.read_text())
+    assert len(set(out["rows"])) == 30 and out["certificate"]["distinct"] is True
+    assert len(set(out["distinct"]["repeats_rows"])) < 30      # 30 of 150: with repeats it repeats
+    cost = out["distinct"]["cost"]
+    assert 0 <= cost["at_least"] <= cost["at_most"] < 1
+    assert out["certificate"]["bound_value"] >= out["distinct"]["repeats_bound"]  # A: a smaller set, a higher floor
+
+
+def test_from_candidates_writes_a_runnable_plan_with_the_scenario(exported, tmp_path):
+    plan = tmp_path / "plan.toml"
+    assert main(["design", str(PAPER), "--from-candidates", str(exported / "raw.npz"), "--configs", "6",
+                 "--criterion", "pose", "--starts", "1", "--out", str(plan)]) == 0
+    z = np.load(exported / "raw.npz")
+    doc = tomllib.loads(plan.read_text())
+    assert sum(p["repeats"] for p in doc["pose"]) == 6
+    assert all(np.min(np.abs(z["q"] - p["q"]).max(axis=1)) < 1e-8 for p in doc["pose"])
+
+
+def _npz(path, **arrays):
+    np.savez(path, **arrays)
+    return path
+
+
+@pytest.mark.parametrize("arrays, key", [
+    (lambda z: {"q": z["q"]}, "blocks"),                                        # missing array
+    (lambda z: {"q": z["q"][:, :5], "blocks": z["blocks"]}, "q"),               # N x 5
+    (lambda z: {"q": z["q"], "blocks": z["blocks"][:-1]}, "blocks"),            # N mismatch
+    (lambda z: {"q": z["q"], "blocks": np.where(np.arange(150)[:, None, None] == 7, np.nan, z["blocks"])},
+     "blocks"),                                                                 # NaN
+    (lambda z: {"q": z["q"], "blocks": z["blocks"], "load_kind": np.array(["up"] * 150)}, "load_kind"),
+    (lambda z: {"q": z["q"], "blocks": z["blocks"] * 0}, "blocks"),             # no information at all
+])
+def test_a_bad_candidate_file_is_bad_input_naming_the_file_and_the_array(exported, tmp_path, capsys, arrays, key):
+    z = np.load(exported / "raw.npz")
+    bad = _npz(tmp_path / "bad.npz", **arrays(z))
+    js = tmp_path / "out.json"
+    rc = main(["design", "--from-candidates", str(bad), "--configs", "4", "--criterion", "D", "--json", str(js)])
+    err = capsys.readouterr().err
+    assert rc == 2 and str(bad) in err and f": {key}:" in err, err
+    assert len(err.strip().splitlines()) == 1 and not js.exists()
+
+
+def test_a_file_that_is_no_npz_and_misused_flags_are_bad_input(tmp_path, capsys):
+    txt = tmp_path / "c.npz"
+    txt.write_text("not an archive")
+    assert main(["design", "--from-candidates", str(txt), "--configs", "4"]) == 2
+    assert str(txt) in capsys.readouterr().err
+    assert main(["design", str(PAPER), "--normalise", "--json", str(tmp_path / "x.json")]) == 2
+    assert "--normalise" in capsys.readouterr().err
+    assert main(["design", "--configs", "4", "--json", str(tmp_path / "x.json")]) == 2
+    assert "SCENARIO" in capsys.readouterr().err

@@ -434,15 +434,11 @@ class CandidateSet:
     def __len__(self) -> int:
         return len(self.q)
 
-    def save_npz(self, path: str | Path, names=None) -> None:
+    def save_npz(self, path: str | Path, normalise: bool = False) -> None:
+        """The NPZ of identify/design/candidate_file.py (``normalise``: unit column scales)."""
         from ..forward import PARAM_NAMES
-        np.savez_compressed(
-            path, q=np.degrees(self.q), blocks=self.blocks, wrench=self.wrench,
-            load_kind=np.array([LOAD_KINDS[k] for k in self.kind]), theta0=self.theta0,
-            param_names=np.array(PARAM_NAMES),
-            note=np.array("blocks[i] = whitened regressor of candidate i w.r.t. theta/theta0; "
-                          "sum_i blocks[i].T @ blocks[i] over a plan = its Fisher information; "
-                          "q in degrees; wrench world-frame N, N*m at the payload site"))
+        from .candidate_file import write_candidates
+        write_candidates(path, self.q, self.blocks, self.wrench, self.kind, self.theta0, PARAM_NAMES, normalise)
 
 
 def sample_commands(rng: np.random.Generator, limits: np.ndarray, n: int) -> np.ndarray:

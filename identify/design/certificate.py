@@ -90,8 +90,23 @@ def normalise_blocks(blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """
     s = column_scale(blocks)
     if not np.all(s > 0):
-        raise SingularCandidates(f"columns {np.flatnonzero(~(s > 0)).tolist()} are zero in every block")
+        raise SingularCandidates(f"column(s) {np.flatnonzero(~(s > 0)).tolist()} zero in every block: "
+                                 "those parameters are not identifiable from any plan")
     return blocks / s, s
+
+
+def check_identifiable(blocks: np.ndarray) -> None:
+    """Raise SingularCandidates unless the candidates' mean information is nonsingular (after
+    column normalisation, its Cholesky pivots all above 1e-8 of the unit diagonal)."""
+    b, _ = normalise_blocks(np.asarray(blocks, float))
+    mean = np.einsum("nki,nkj->ij", b, b) / len(b)
+    try:
+        ok = np.diag(np.linalg.cholesky(mean)).min() > 1e-8
+    except np.linalg.LinAlgError:
+        ok = False
+    if not ok:
+        raise SingularCandidates("the candidates' total information is singular: some parameter "
+                                 "is not identifiable from any plan")
 
 
 @dataclass(frozen=True)
@@ -118,7 +133,7 @@ class ApproximateDesign:
         k = int(round(1.0 / self.cap))
         return float(np.sort(self.sensitivity)[-k:].mean())
 
-    def support(self, rel: float = 1e-3) -> np.ndarray:
+    def support(self, rel: float = 1e-2) -> np.ndarray:
         """Candidates carrying weight above rel x the largest, heaviest first."""
         idx = np.flatnonzero(self.weights > rel * self.weights.max())
         return idx[np.argsort(-self.weights[idx], kind="stable")]
@@ -299,12 +314,8 @@ def approximate_design(blocks: np.ndarray, criterion: str = "D", W: np.ndarray |
 def _approximate_design(blocks, criterion, W, algorithm, start, cap, tol, max_iter, max_seconds):
     if algorithm not in ALGORITHMS:
         raise ValueError(f"algorithm must be one of {ALGORITHMS}, not {algorithm!r}")
+    check_identifiable(blocks)
     prob = _Problem(blocks, criterion, W)
-    try:
-        prob.state(prob.info(np.full(prob.n, 1.0 / prob.n)))
-    except np.linalg.LinAlgError:
-        raise SingularCandidates("the candidates' total information is singular: some parameter "
-                                 "is not identifiable from any plan") from None
     if algorithm == "multiplicative":
         if cap is not None:
             raise ValueError("the capped (distinct) design uses fw-away")
@@ -347,6 +358,10 @@ class Certificate:
     efficiency: float
     designs: tuple              # the ApproximateDesign(s) behind the bound
 
+    @property
+    def p(self) -> int:
+        return self.designs[0].p
+
     def as_json(self) -> dict:
         out = {"criterion": self.criterion}
         if self.criterion == "D":
@@ -354,16 +369,23 @@ class Certificate:
         else:
             out.update(plan_value=self.plan, bound_value=self.bound)
         out.update(efficiency=self.efficiency, configs=self.configs, distinct=self.distinct)
-        out["approximate_designs"] = [design_json(d, self.configs) for d in self.designs]
         return out
 
 
-def design_json(d: ApproximateDesign, M: int) -> dict:
-    sup = d.support()
+def design_json(d: ApproximateDesign, M: int, q: np.ndarray | None = None, load=None) -> dict:
+    """The design's support: rows, weights and weights x M ("how many of the M poses"), with
+    the rows' q (degrees, from q in rad) and load names when given."""
+    support = []
+    for i in d.support():
+        e = {"row": int(i), "weight": float(d.weights[i]), "poses_of_M": float(M * d.weights[i])}
+        if q is not None:
+            e["q_deg"] = np.round(np.degrees(q[i]), 6).tolist()
+        if load is not None:
+            e["load"] = load[i]
+        support.append(e)
     return {"criterion": d.criterion, "algorithm": d.algorithm, "iterations": d.iterations,
-            "seconds": d.seconds, "optimality_gap": d.g_bound - 1.0,
-            "support": [{"row": int(i), "weight": float(d.weights[i]), "poses_of_M": float(M * d.weights[i])}
-                        for i in sup]}
+            "seconds": d.seconds, "optimality_gap": d.g_bound - 1.0, "capped": d.cap is not None,
+            "support": support}
 
 
 def d_bound(design: ApproximateDesign, M: int) -> float:
@@ -424,4 +446,4 @@ def certify(blocks: np.ndarray, rows, criterion: str, G: np.ndarray | None = Non
 
 
 __all__ = ["ALGORITHMS", "ApproximateDesign", "Certificate", "SingularCandidates", "a_bound", "approximate_design",
-           "certify", "d_bound", "column_scale", "design_json", "normalise_blocks", "plan_logdet"]
+           "certify", "check_identifiable", "d_bound", "column_scale", "design_json", "normalise_blocks", "plan_logdet"]

@@ -31,7 +31,8 @@ from calbench.bench.scenario import Scenario, scenario_as_dict, scenario_to_toml
 from .candidates import (LOAD_KINDS, CandidateSet, DesignSettings, InfoEngine,
                                 lateral_wrench)
 from .criteria import CRITERIA, criterion_value, information, measures
-from .exchange import Exchanger
+from .certificate import SingularCandidates
+from .selection import Selection, select_rows, selection_text
 from ..forward import PARAM_NAMES
 
 REFINE_STEPS_DEG = (4.0, 2.0, 1.0)
@@ -55,6 +56,7 @@ class DesignResult:
     timings: dict
     exchange: dict
     refine: dict = field(default_factory=dict)
+    selection: Selection | None = None     # the exchange's rows and their certificate
 
     def information(self) -> np.ndarray:
         return sum(p.repeats * p.block.T @ p.block for p in self.poses)
@@ -131,29 +133,13 @@ def refine(engine: InfoEngine, poses: list[PlanPose], criterion: str, G, steps=R
             "seconds": time.perf_counter() - t0, "steps_deg": list(steps)}
 
 
-def design_plan(scn: Scenario, settings: DesignSettings, cands: CandidateSet, M: int, criterion: str,
-                n_random: int = 8, seed: int = 0, do_refine: bool = True, engine: InfoEngine | None = None,
-                progress: ProgressSink | None = None) -> DesignResult:
-    if criterion not in CRITERIA:
-        raise InputError("--criterion", "criterion", "one of " + ", ".join(CRITERIA), criterion)
-    engine = engine or InfoEngine(scn, settings)
-    G = work_jacobian(engine, scn)
-    if criterion == "pose" and G is None:
-        raise InputError(scn.path, "work", "a [work] table (q in degrees, wrench in N and N*m) for "
-                         "--criterion pose: the pose measure is the compliance error there", None)
-    t0 = time.perf_counter()
-    ex = Exchanger(cands.blocks, criterion, G)
-    r = ex.optimise(M, n_random=n_random, seed=seed)
-    t_ex = time.perf_counter() - t0
-    if progress:
-        progress.update("exchange done")
-    poses = [PlanPose(cands.q[i].copy(), cands.wrench[i].copy(), int(cands.kind[i]), cands.blocks[i].copy())
-             for i in r.idx]
-    exch_meas = plan_measures(information(cands.blocks, r.idx), cands.theta0, G)
-    ref = {}
-    if do_refine:
-        ref = refine(engine, poses, criterion, G, progress=progress)
-    # merge identical configurations into repeats
+def poses_of_rows(q, wrench, kind, blocks, rows) -> list[PlanPose]:
+    """The plan's poses from candidate rows (q in rad), one per row (repeats not merged)."""
+    return [PlanPose(q[i].copy(), wrench[i].copy(), int(kind[i]), blocks[i].copy()) for i in rows]
+
+
+def merge_repeats(poses: list[PlanPose]) -> list[PlanPose]:
+    """Identical configurations (q and wrench) merged into one pose with repeats."""
     merged: list[PlanPose] = []
     for p in poses:
         for m in merged:
@@ -162,13 +148,44 @@ def design_plan(scn: Scenario, settings: DesignSettings, cands: CandidateSet, M:
                 break
         else:
             merged.append(p)
+    return merged
+
+
+def design_plan(scn: Scenario, settings: DesignSettings, cands: CandidateSet, M: int, criterion: str,
+                n_random: int = 8, seed: int = 0, do_refine: bool = True, engine: InfoEngine | None = None,
+                progress: ProgressSink | None = None, distinct: bool = False) -> DesignResult:
+    """The plan of M configurations: exchange on the candidates, certificate of its rows
+    (selection.py), then the continuous refinement (which leaves the candidate set: the
+    certificate is of the plan before it). ``distinct``: no candidate twice."""
+    if criterion not in CRITERIA:
+        raise InputError("--criterion", "criterion", "one of " + ", ".join(CRITERIA), criterion)
+    if distinct and M > len(cands):
+        raise InputError("--configs", "configs", f"at most {len(cands)} (the candidates) with --distinct", M)
+    engine = engine or InfoEngine(scn, settings)
+    G = work_jacobian(engine, scn)
+    if criterion == "pose" and G is None:
+        raise InputError(scn.path, "work", "a [work] table (q in degrees, wrench in N and N*m) for "
+                         "--criterion pose: the pose measure is the compliance error there", None)
+    try:
+        sel = select_rows(cands.blocks, M, criterion, G, distinct=distinct, n_random=n_random, seed=seed)
+    except SingularCandidates as exc:
+        raise InputError(scn.path, "design", "candidates that identify every parameter", str(exc)) from None
+    r = sel.exchange
+    if progress:
+        progress.update("exchange done")
+    poses = poses_of_rows(cands.q, cands.wrench, cands.kind, cands.blocks, r.idx)
+    exch_meas = plan_measures(information(cands.blocks, r.idx), cands.theta0, G)
+    ref = {}
+    if do_refine:
+        ref = refine(engine, poses, criterion, G, progress=progress)
+    merged = merge_repeats(poses)
     F = sum(p.repeats * p.block.T @ p.block for p in merged)
     return DesignResult(criterion, merged, plan_measures(F, cands.theta0, G), exch_meas,
-                        {"exchange_s": t_ex, "refine_s": ref.get("seconds", 0.0)},
+                        {**sel.seconds, "refine_s": ref.get("seconds", 0.0)},
                         {"value": r.value, "start_values": r.start_values, "start_results": r.start_results,
-                         "passes": r.passes, "swaps": r.swaps, "scans": ex.stats["scans"],
-                         "exact_evaluations": ex.stats["exact_evaluations"], "indices": r.idx.tolist()},
-                        ref)
+                         "passes": r.passes, "swaps": r.swaps, "scans": sel.exchanger_stats["scans"],
+                         "exact_evaluations": sel.exchanger_stats["exact_evaluations"], "indices": r.idx.tolist()},
+                        ref, sel)
 
 
 def plan_scenario_text(scn: Scenario, poses: list[PlanPose], out: Path, comment: str = "") -> str:
@@ -199,6 +216,12 @@ def result_json(res: DesignResult, scn: Scenario, cands: CandidateSet, extra: di
         "exchange": res.exchange, "refinement": res.refine, "timings": res.timings,
         "prior_theta": {n: float(t) for n, t in zip(PARAM_NAMES, cands.theta0)},
     }
+    if res.selection is not None:
+        out.update(res.selection.as_json(cands.q, [LOAD_KINDS[k] for k in cands.kind]))
+        if res.refine:
+            F = res.information()
+            out["certificate"]["refined_plan"] = (float(np.linalg.slogdet(F)[1]) if res.criterion == "D"
+                                                  else float(res.measures[res.criterion]))
     if extra:
         out.update(extra)
     return out
@@ -211,15 +234,22 @@ def input_plan_measures(engine: InfoEngine, scn: Scenario, theta0: np.ndarray) -
             "measures": plan_measures(F_in, theta0, work_jacobian(engine, scn)), "violations": viol}
 
 
-def summary_text(res: DesignResult, n_candidates: int, input_plan: dict) -> str:
-    """What `calbench design` prints: the plan's measures beside the scenario's own plan's."""
+def summary_text(res: DesignResult, cands: CandidateSet, input_plan: dict) -> str:
+    """What `calbench design` prints: the plan's measures beside the scenario's own plan's, and
+    the certificate with the continuous design (selection_text)."""
     m, mi = res.measures, input_plan["measures"]
     configs = int(sum(p.repeats for p in res.poses))
-    return (f"design: {res.criterion}-optimal plan of {configs} configurations from {n_candidates} candidates\n"
+    text = (f"design: {res.criterion}-optimal plan of {configs} configurations from {len(cands)} candidates\n"
             f"  A (trace cov) {m['A']:.4g}   D (det^1/8) {m['D']:.4g}   AD {m['AD']:.4g}"
             + (f"   pose {m['pose']:.4g} m^2 ({m['pose_rms_um']:.2f} um rms)" if "pose" in m else "")
             + f"\n  scenario's own plan ({input_plan['configs']} poses): A {mi['A']:.4g}   D {mi['D']:.4g}"
             + (f"   pose {mi['pose']:.4g}" if "pose" in mi else ""))
+    if res.selection is not None:
+        text += "\n" + selection_text(res.selection, len(cands), cands.q, [LOAD_KINDS[k] for k in cands.kind])
+        if res.refine:
+            text += ("\n  (the certificate is of the exchange's plan on the candidates; the refinement then "
+                     f"moved poses off them: {res.criterion} {res.refine['before']:.6g} -> {res.refine['after']:.6g})")
+    return text
 
 
 def plan_comment(scenario: Path, res: DesignResult) -> str:
@@ -232,5 +262,5 @@ def plan_comment(scenario: Path, res: DesignResult) -> str:
             + (f", pose = {m['pose']:.6g} m^2" if "pose" in m else ""))
 
 
-__all__ = ["input_plan_measures", "summary_text", "plan_comment", "design_plan", "plan_scenario_text", "scenario_plan_information",
+__all__ = ["poses_of_rows", "merge_repeats", "input_plan_measures", "summary_text", "plan_comment", "design_plan", "plan_scenario_text", "scenario_plan_information",
            "plan_measures", "refine", "work_jacobian", "PlanPose", "DesignResult"]
