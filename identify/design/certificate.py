@@ -152,6 +152,10 @@ class _Problem:
         T = compress(b)
         self.p = b.shape[2]
         self.A = np.einsum("nki,nkj->nij", T, T).reshape(len(b), -1)     # (N, p*p)
+        # tr(X A_i) for symmetric X from the upper triangle: off-diagonal terms counted twice
+        self.tri = np.flatnonzero(np.triu(np.ones((self.p, self.p), bool)).ravel())
+        twice = np.where(np.eye(self.p, dtype=bool).ravel()[self.tri], 1.0, 2.0)
+        self.A_tri = np.ascontiguousarray(self.A[:, self.tri] * twice)    # (N, p(p+1)/2)
         self.criterion = criterion
         W = np.eye(self.p) if W is None else np.asarray(W, float)
         self.W = W / np.outer(s, s)
@@ -168,10 +172,10 @@ class _Problem:
         Minv = Li.T @ Li
         logdet = 2.0 * float(np.log(np.diag(L)).sum())
         if self.criterion == "D":
-            return L, Minv, logdet, math.nan, (self.A @ Minv.ravel()) / self.p
+            return L, Minv, logdet, math.nan, (self.A_tri @ Minv.ravel()[self.tri]) / self.p
         K = Minv @ self.W @ Minv
         t = float(np.trace(self.W @ Minv))
-        return L, Minv, logdet, t, (self.A @ K.ravel()) / t
+        return L, Minv, logdet, t, (self.A_tri @ (0.5 * (K + K.T)).ravel()[self.tri]) / t
 
     def step(self, L: np.ndarray, B: np.ndarray, amax: float) -> float:
         """Exact line search of the criterion on M + a B, a in [0, amax].
@@ -194,13 +198,14 @@ class _Problem:
         # the domain: 1 + a mu > 0
         neg = mu[mu < 0]
         hi = amax if neg.size == 0 else min(amax, (1 - 1e-12) / -neg.min())
-        g0, _ = d1(0.0)
+        g0, h0 = d1(0.0)
         if g0 <= 0:
             return 0.0
         ghi, _ = d1(hi)
         if ghi >= 0:
             return hi
-        lo, a = 0.0, 0.5 * hi
+        lo = 0.0
+        a = -g0 / h0 if h0 < 0 and -g0 / h0 < hi else 0.5 * hi     # the Newton step from 0
         for _ in range(60):
             g, h = d1(a)
             if g > 0:
@@ -210,7 +215,7 @@ class _Problem:
             a_new = a - g / h if h < 0 else 0.5 * (lo + hi)
             if not lo < a_new < hi:
                 a_new = 0.5 * (lo + hi)
-            if abs(a_new - a) <= 1e-14 * max(a, 1e-300) or hi - lo <= 1e-15 * hi:
+            if abs(a_new - a) <= 1e-10 * a or hi - lo <= 1e-12 * hi:   # a step, not a root: 1e-10 is plenty
                 return a_new
             a = a_new
         return a
@@ -232,11 +237,12 @@ def _multiplicative(prob: _Problem, tol, max_iter, max_seconds, check_every=10) 
     it = 0
     for it in range(1, max_iter + 1):
         _, _, _, _, g = prob.state(prob.info(w))
-        if it % check_every == 1 or check_every == 1:
-            gap = float(g.max()) - 1.0
+        gap = float(g.max()) - 1.0
+        done = gap <= tol or time.perf_counter() - t0 > max_seconds
+        if (it - 1) % check_every == 0 or done:
             history.append((it - 1, time.perf_counter() - t0, gap))
-            if gap <= tol or time.perf_counter() - t0 > max_seconds:
-                break
+        if done:
+            break
         w = w * (g if power == 1.0 else np.sqrt(g))
         w /= w.sum()
     return _finish(prob, w, None, "multiplicative", it, t0, history)
@@ -264,9 +270,10 @@ def _fw_away(prob: _Problem, start: np.ndarray, cap: float | None, tol, max_iter
             j = int(np.flatnonzero(free)[np.argmax(g[free])])
             k_cap = int(round(1.0 / cap))
             gap = float(np.sort(g)[-k_cap:].mean()) - 1.0
-        if (it - 1) % check_every == 0:
+        done = gap <= tol or time.perf_counter() - t0 > max_seconds
+        if (it - 1) % check_every == 0 or done:
             history.append((it - 1, time.perf_counter() - t0, gap))
-        if gap <= tol or time.perf_counter() - t0 > max_seconds:
+        if done:
             break
         ks = np.flatnonzero(sup)
         k = int(ks[np.argmin(g[ks])])

@@ -1,12 +1,13 @@
 """`calbench design`: optimal measurement configurations (issue 4).
 
-    calbench design SCENARIO.toml --configs M --criterion A|D|AD|pose --out PLAN.toml [--json OUT]
-    calbench design SCENARIO.toml --export-candidates CANDS.npz
+    calbench design SCENARIO.toml --configs M --criterion A|D|AD|pose --out PLAN.toml [--json OUT] [--distinct]
+    calbench design SCENARIO.toml --export-candidates CANDS.npz [--normalise]
+    calbench design [SCENARIO.toml] --from-candidates CANDS.npz --configs M [--distinct] [--json OUT]
     calbench design SCENARIO.toml --study --out-dir logs/design_study
 
-Pipeline: feasible candidates with their exact information blocks
-(identify/design_candidates.py), multi-start exchange with low-rank updates
-(identify/design_exchange.py), then a continuous refinement of the chosen configurations:
+Pipeline: feasible candidates with their exact information blocks (candidates.py), multi-start
+exchange with low-rank updates (exchange.py) and the certificate of its rows against every
+M-pose plan from the candidates (selection.py, certificate.py), then a continuous refinement of the chosen configurations:
 coordinate steps of 4, 2 and 1 degree on each joint of each chosen pose, accepted when the
 pose stays feasible (every rule of design_candidates) and the criterion, recomputed from the
 exact block of the moved pose, decreases. PLAN.toml is the input scenario (robot, truth, tracker,
