@@ -327,6 +327,8 @@ def _approximate_design(blocks, criterion, W, algorithm, start, cap, tol, max_it
         if cap is not None:
             raise ValueError("the capped (distinct) design uses fw-away")
         return _multiplicative(prob, tol, max_iter, max_seconds)
+    if cap is not None and cap * prob.n < 1 - 1e-12:
+        raise ValueError(f"a cap of {cap:g} per row needs at least {math.ceil(1 / cap)} candidates, not {prob.n}")
     if start is None:
         start = np.full(prob.n, 1.0 / prob.n)
     start = np.asarray(start, float)
