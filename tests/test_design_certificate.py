@@ -259,3 +259,17 @@ def test_a_file_that_is_no_npz_and_misused_flags_are_bad_input(tmp_path, capsys)
     assert "--normalise" in capsys.readouterr().err
     assert main(["design", "--configs", "4", "--json", str(tmp_path / "x.json")]) == 2
     assert "SCENARIO" in capsys.readouterr().err
+
+
+def test_a_refined_distinct_design_prints_and_records_its_certificate(tmp_path, capsys):
+    plan, js = tmp_path / "plan.toml", tmp_path / "plan.json"
+    assert main(["design", str(PAPER), "--configs", "8", "--criterion", "D", "--distinct", "--out", str(plan),
+                 "--json", str(js), "--candidates", "150", "--starts", "1", "--processes", "1"]) == 0
+    text = capsys.readouterr().out
+    out = json.loads(js.read_text())
+    cert = out["certificate"]
+    assert f"efficiency {100 * cert['efficiency']:.1f} %" in text and "no repeats: costs" in text
+    assert cert["distinct"] and len(set(out["rows"])) == 8
+    assert cert["refined_plan"] >= cert["plan_logdet"]          # refinement only accepts improvements
+    assert "Certified efficiency" in plan.read_text()
+    assert all(p["repeats"] == 1 for p in tomllib.loads(plan.read_text())["pose"])

@@ -260,7 +260,11 @@ def plan_comment(scenario: Path, res: DesignResult) -> str:
     return (f"Measurement plan by `calbench design {Path(scenario).name} --configs {configs} "
             f"--criterion {res.criterion}`\n(prior guess = the scenario's [truth]). Predicted: "
             f"A = {m['A']:.6g}, D = {m['D']:.6g}, AD = {m['AD']:.6g}"
-            + (f", pose = {m['pose']:.6g} m^2" if "pose" in m else ""))
+            + (f", pose = {m['pose']:.6g} m^2" if "pose" in m else "")
+            + ("" if res.selection is None else
+               f"\nCertified efficiency of the exchange's plan (before refinement): "
+               f"{100 * res.selection.certificate.efficiency:.2f} % of the best {configs}-pose "
+               f"{'distinct ' if res.selection.distinct else ''}plan from the candidates ({res.criterion})"))
 
 
 __all__ = ["poses_of_rows", "merge_repeats", "input_plan_measures", "summary_text", "plan_comment", "design_plan", "plan_scenario_text", "scenario_plan_information",

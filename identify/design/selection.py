@@ -116,7 +116,7 @@ def selection_text(sel: Selection, n_candidates: int, q: np.ndarray | None = Non
         unit = f"det^(1/{c.p})"
     else:
         head = f"{c.criterion} {c.plan:.5g} >= bound {c.bound:.5g}"
-        unit = "the criterion"
+        unit = {"A": "the trace of the covariance", "pose": "the work-pose variance"}.get(c.criterion, "the criterion")
     lines = [f"  certificate ({c.criterion}, every {M}-pose {which[:-1]} from these {n_candidates} candidates): {head}",
              f"    efficiency {100 * c.efficiency:.1f} %: provably within {100 * (1 - c.efficiency):.1f} % of the best "
              f"{M}-pose {which[:-1]} from these candidates (in {unit}; equivalence-theorem bound, a proof, "
