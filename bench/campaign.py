@@ -18,16 +18,13 @@ from .effects import apply_effects, effect_from_truth
 from .errors import InputError
 from .foxglove import FoxgloveWriter
 from .logformat import LogHeader, LogWriter
-from .robot import Params, Robot
+from .robot import PARALLELOGRAM_MARGIN, Params, Robot
 from .scenario import Scenario, check_joint_limits
 from .statics import Equilibrium, Load, StaticsError, StaticsSolver
 from .tracker import measure, to_tracker_frame, visible_sites
 from .progress import ProgressSink, sink
 
 STATES = ("unloaded", "loaded")
-GRAVITY = 9.81
-# The parallelogram degenerates when the crank is parallel to the upper arm; keep this margin.
-PARALLELOGRAM_MARGIN = np.radians(10.0)
 
 
 @dataclass(frozen=True)
@@ -65,15 +62,10 @@ def truth_robot(scn: Scenario) -> Robot:
     return robot
 
 
-def parallelogram_angle(q: np.ndarray) -> float:
-    """Angle between crank and upper arm (rad, mod pi); 0 is the degenerate parallelogram."""
-    return float(np.mod(q[2] - q[1] + np.radians(120.0), np.pi))
-
-
 def pose_load(robot: Robot, scn: Scenario, pose) -> tuple[Load, float | None]:
     if pose.wrench is not None:
         return Load.wrench(robot, pose.wrench), None
-    return Load.mass(robot, scn.load_mass, GRAVITY), scn.load_mass
+    return Load.mass(robot, scn.load_mass), scn.load_mass
 
 
 def plan_campaign(scn: Scenario, robot: Robot | None = None, progress: ProgressSink | None = None) -> list[PosePlan]:
@@ -84,8 +76,7 @@ def plan_campaign(scn: Scenario, robot: Robot | None = None, progress: ProgressS
     plans = []
     for i, pose in enumerate(scn.poses):
         key = f"pose[{i}].q"
-        ang = parallelogram_angle(pose.q)
-        if min(ang, np.pi - ang) < PARALLELOGRAM_MARGIN:
+        if not robot.parallelogram_ok(pose.q):
             raise InputError(
                 scn.path, key,
                 f"q3 - q2 at least {np.degrees(PARALLELOGRAM_MARGIN):.0f} deg away from -120 and 60 deg "
@@ -99,7 +90,7 @@ def plan_campaign(scn: Scenario, robot: Robot | None = None, progress: ProgressS
         except StaticsError as exc:
             raise InputError(scn.path, key, "a pose with a static equilibrium", str(exc)) from None
         for state, e in zip(STATES, (e0, e1)):
-            if e.residual > 1e-8 * max(e.gravity_scale, 1.0) or e.loop_violation > 1e-9:
+            if not e.acceptable:
                 raise InputError(scn.path, key, f"a pose with a static equilibrium ({state} did not converge)",
                                  [round(float(np.degrees(x)), 3) for x in pose.q])
         refl = np.empty((2, len(robot.reflector_sites), 3))

@@ -1,4 +1,9 @@
-"""Closed-loop kinematics: the map from the six motor angles to every joint of the robot.
+"""Closed-loop kinematics: the loop gap, its constraint basis, and the motor map.
+
+A kinematic loop is a pair of sites that must coincide (``Robot.loops``; here the parallelogram's
+rod end and its anchor). Its gap c(q) = x_a - x_b and Jacobian J_c = J_a - J_b are defined once,
+in :func:`loop_gap`: the statics (bench/statics.py, paper eq. 17) hold c = 0 as a hard
+constraint, and this module maps motor motion onto the loop manifold.
 
 Paper §3.4: the parallelogram's stiffness must be modelled through the Jacobian with respect to
 the crank (motor 3), not the elbow. On the loop manifold c(q) = 0 the passive joints follow the
@@ -18,13 +23,29 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
-def constraint_basis(jc: np.ndarray) -> np.ndarray:
-    """Orthonormal basis (3, 2 or 3) of the loop's independent constraint directions.
+def loop_gap(robot: Robot, data: mujoco.MjData, jac: np.ndarray | None = None,
+             scratch: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Gap c (3L,) and Jacobian J_c (3L, nv) of the robot's L loops, rows ordered loop by loop.
 
-    A planar loop's gap has no component along its hinge axes, so J_c (3, nv) has rank 2 and its
-    Gram matrix's null direction is the largest cross product of two of its rows; a KKT system
-    on the two remaining directions stays regular. A spatial loop keeps all three.
-    """
+    Each loop contributes x_a - x_b (m) and J_a - J_b; the position stage (and mj_comPos, as
+    for any mj_jacSite) must be current in ``data``. ``jac`` (3L, nv) and ``scratch`` (3, nv),
+    if given, are filled instead of allocated (the statics' hot path); J_c is then ``jac``."""
+    m = robot.model
+    jc = np.empty((3 * len(robot.loops), m.nv)) if jac is None else jac
+    jb = np.empty((3, m.nv)) if scratch is None else scratch
+    xpos = data.site_xpos
+    gaps = []
+    for i, (a, b) in enumerate(robot.loops):
+        ja = jc[3 * i: 3 * i + 3]
+        mujoco.mj_jacSite(m, data, ja, None, a)
+        mujoco.mj_jacSite(m, data, jb, None, b)
+        ja -= jb
+        gaps.append(xpos[a] - xpos[b])
+    return (gaps[0] if len(gaps) == 1 else np.concatenate(gaps)), jc
+
+
+def _loop_basis(jc: np.ndarray) -> np.ndarray:
+    """Basis (3, 2 or 3) of one loop's independent constraint directions."""
     gram = jc @ jc.T
     cands = [_cross(gram[0], gram[1]), _cross(gram[0], gram[2]), _cross(gram[1], gram[2])]
     n = max(cands, key=lambda v: v @ v)
@@ -37,29 +58,44 @@ def constraint_basis(jc: np.ndarray) -> np.ndarray:
     return np.column_stack([a, _cross(n, a)])
 
 
+def constraint_basis(jc: np.ndarray) -> np.ndarray:
+    """Orthonormal basis (3L, r) of the loops' independent constraint directions, block by loop.
+
+    A planar loop's gap has no component along its hinge axes, so its J_c (3, nv) has rank 2 and
+    its Gram matrix's null direction is the largest cross product of two of its rows; a KKT
+    system on the two remaining directions stays regular. A spatial loop keeps all three.
+    Loops are reduced one at a time (enough while no two loops constrain the same motion).
+    """
+    if jc.shape[0] == 3:
+        return _loop_basis(jc)
+    blocks = [_loop_basis(jc[i: i + 3]) for i in range(0, jc.shape[0], 3)]
+    out = np.zeros((jc.shape[0], sum(b.shape[1] for b in blocks)))
+    col = 0
+    for i, b in enumerate(blocks):
+        out[3 * i: 3 * i + 3, col: col + b.shape[1]] = b
+        col += b.shape[1]
+    return out
+
+
 def loop_jacobian(robot: Robot, data: mujoco.MjData) -> np.ndarray:
-    """J_c (3, nv): derivative of the loop gap (rod end minus anchor); kinematics must be current."""
-    m = robot.model
-    ja, jb = np.zeros((3, m.nv)), np.zeros((3, m.nv))
-    a, b = robot.loop_sites
-    mujoco.mj_jacSite(m, data, ja, None, a)
-    mujoco.mj_jacSite(m, data, jb, None, b)
-    return ja - jb
+    """J_c (3L, nv) alone (see :func:`loop_gap`)."""
+    return loop_gap(robot, data)[1]
 
 
 def motor_map(robot: Robot, data: mujoco.MjData) -> np.ndarray:
-    """N (nv, 6): joint velocities per unit motor velocity with the loop kept closed."""
+    """N (nv, n_act): joint velocities per unit motor velocity with the loops kept closed."""
     m = robot.model
     jc = loop_jacobian(robot, data)
     act, pas = robot.act_dof, m.jnt_dofadr[robot.passive_joint]
-    n = np.zeros((m.nv, 6))
-    n[act, np.arange(6)] = 1.0
+    n = np.zeros((m.nv, robot.n_act))
+    n[act, np.arange(robot.n_act)] = 1.0
     n[pas, :] = -np.linalg.pinv(jc[:, pas], rcond=1e-10) @ jc[:, act]
     return n
 
 
 def motor_jacobian(robot: Robot, data: mujoco.MjData, site: int) -> np.ndarray:
-    """(6, 6) motor-space Jacobian [position; rotation] of a site, loop closed (paper J_p, eq. 12)."""
+    """(6, n_act) motor-space Jacobian [position; rotation] of a site, loops closed (paper J_p,
+    eq. 12)."""
     m = robot.model
     jp, jr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
     mujoco.mj_jacSite(m, data, jp, jr, site)
@@ -68,5 +104,5 @@ def motor_jacobian(robot: Robot, data: mujoco.MjData, site: int) -> np.ndarray:
 
 
 def motor_forces(robot: Robot, data: mujoco.MjData, qfrc: np.ndarray) -> np.ndarray:
-    """Generalized forces mapped to the six motors by virtual work: N^T qfrc."""
+    """Generalized forces mapped to the motors by virtual work: N^T qfrc."""
     return motor_map(robot, data).T @ qfrc

@@ -20,6 +20,15 @@ LOOP = "parallelogram"
 PAYLOAD_SITE = "payload"
 FLANGE_SITE = "flange"
 REFLECTOR_PREFIX = "refl_"
+# The parallelogram degenerates (its crank parallel to the upper arm) at q3 - q2 = -120 deg and
+# 60 deg; commands keep this margin away (bench.campaign rejects them, design never samples them).
+PARALLELOGRAM_MARGIN = np.radians(10.0)
+_PARALLEL_OFFSET = np.radians(120.0)   # minus the q3 - q2 at which the crank lies along the arm
+
+
+def parallelogram_angle(q: np.ndarray) -> float:
+    """Angle between crank and upper arm (rad, mod pi); 0 is the degenerate parallelogram."""
+    return float(np.mod(q[2] - q[1] + _PARALLEL_OFFSET, np.pi))
 
 
 @dataclass(frozen=True)
@@ -74,10 +83,16 @@ class Robot:
         self.passive_joint = np.array([jid(n) for n in PASSIVE])
         if (self.act_joint < 0).any() or (self.passive_joint < 0).any():
             raise ValueError(f"{source}: the MJCF must name joints {ACTUATED + PASSIVE}")
+        self.n_act = len(self.act_joint)
+        self._act_cols = np.arange(self.n_act)
         self.act_qpos = model.jnt_qposadr[self.act_joint]
         self.act_dof = model.jnt_dofadr[self.act_joint]
         self.passive_qpos = model.jnt_qposadr[self.passive_joint]
         self.tendon = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TENDON, COMPENSATOR)
+        if self.tendon >= 0:  # the tendon's sparse row of ten_J: a fixed pattern of the model
+            adr, nnz = int(model.ten_J_rowadr[self.tendon]), int(model.ten_J_rownnz[self.tendon])
+            self._ten_rows = slice(adr, adr + nnz)
+            self._ten_cols = model.ten_J_colind[adr: adr + nnz].copy()
         self.loop = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_EQUALITY, LOOP)
         site = lambda n: mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, n)  # noqa: E731
         self.payload_site = site(PAYLOAD_SITE)
@@ -86,10 +101,12 @@ class Robot:
             model.site(i).name for i in range(model.nsite) if model.site(i).name.startswith(REFLECTOR_PREFIX)
         ]
         self.reflector_sites = np.array([site(n) for n in self.reflector_names])
-        self.loop_sites = (
+        # kinematic loops closed by the statics (bench/loop.py), each a (site, site) pair whose
+        # positions coincide: here the parallelogram's coupler rod end and its anchor
+        self.loops: tuple[tuple[int, int], ...] = (
             (site("rod_end"), site("rod_anchor"))
             if self.loop < 0
-            else (int(model.eq_obj1id[self.loop]), int(model.eq_obj2id[self.loop]))
+            else (int(model.eq_obj1id[self.loop]), int(model.eq_obj2id[self.loop])),
         )
 
     # -- construction -------------------------------------------------------------------
@@ -111,6 +128,30 @@ class Robot:
             self.model.tendon_stiffness[self.tendon] = params.compensator_stiffness
             self.model.tendon_lengthspring[self.tendon] = params.compensator_preload
 
+    def dforce_dtheta(self, params: Params, data: mujoco.MjData | None = None) -> np.ndarray:
+        """d g / d theta at fixed q (nv, n_act + 2): how the springs' generalized force moves with
+        the parameters ``set_params`` writes, theta = [compliances, K_C, s0] in that order.
+
+        Joint springs (paper eq. 1): g_i = -(q_i - q_cmd,i) / k_i, so dg_i/dk_i = (q_i - q_cmd,i)
+        / k_i^2 on motor i's dof. Compensator (eqs. 7-8, a tendon of length L and moment
+        t = dL/dq): g = -K_C (L - s0) t, so dg/dK_C = -(L - s0) t and dg/ds0 = K_C t; both zero
+        without the tendon. Gravity and the load do not depend on theta. The pose is the one
+        held in ``data`` (position stage current) and the command the springs' reference
+        (:meth:`set_command`); this is the right-hand side of the implicit function theorem
+        (bench.statics.StaticsSolver.tangent)."""
+        d = self.data if data is None else data
+        m = self.model
+        k = np.asarray(params.compliance, dtype=float)
+        out = np.zeros((m.nv, self.n_act + 2))
+        dq = d.qpos[self.act_qpos] - m.qpos_spring[self.act_qpos]
+        out[self.act_dof, self._act_cols] = dq / (k * k)
+        if self.tendon >= 0:
+            t = self.tendon_moment(d)
+            length = float(d.ten_length[self.tendon])
+            out[:, self.n_act] = -(length - params.compensator_preload) * t
+            out[:, self.n_act + 1] = params.compensator_stiffness * t
+        return out
+
     def params(self) -> Params:
         """The parameters the model currently holds (for the simulator's truth only)."""
         k_c = float(self.model.tendon_stiffness[self.tendon]) if self.tendon >= 0 else 0.0
@@ -118,8 +159,18 @@ class Robot:
         return Params(1.0 / self.model.jnt_stiffness[self.act_joint].copy(), k_c, s0)
 
     def limits(self) -> np.ndarray:
-        """(6,2) controller joint limits in rad."""
+        """(n_act, 2) controller joint limits in rad."""
         return self.model.jnt_range[self.act_joint].copy()
+
+    def parallelogram_ok(self, q: np.ndarray) -> bool:
+        """The command keeps PARALLELOGRAM_MARGIN away from a degenerate parallelogram (where the
+        loop has no unique equilibrium: bench.statics raises StaticsError there)."""
+        ang = parallelogram_angle(q)
+        return bool(min(ang, np.pi - ang) >= PARALLELOGRAM_MARGIN)
+
+    def weight(self, mass: float) -> np.ndarray:
+        """(3,) world force of a mass under the model's gravity (MJCF ``<option gravity>``), N."""
+        return mass * self.model.opt.gravity
 
     # -- commands -----------------------------------------------------------------------
     def set_command(self, q: np.ndarray) -> None:
@@ -141,19 +192,16 @@ class Robot:
         """(nv,) dense dL/dq of the compensator tendon. MuJoCo 4 stores ten_J sparsely
         (values in data.ten_J, columns in model.ten_J_colind); position stage must be current."""
         d = self.data if data is None else data
-        m = self.model
-        out = np.zeros(m.nv)
-        if self.tendon < 0:
-            return out
-        adr, nnz = m.ten_J_rowadr[self.tendon], m.ten_J_rownnz[self.tendon]
-        out[m.ten_J_colind[adr : adr + nnz]] = d.ten_J[adr : adr + nnz]
+        out = np.zeros(self.model.nv)
+        if self.tendon >= 0:
+            out[self._ten_cols] = d.ten_J[self._ten_rows]
         return out
 
     def compensator_geometry(self) -> CompensatorGeometry:
         """Measure l_c, l_2 and the angle offset from the MJCF sites at q = 0 (geometry only)."""
         m = self.model
         d = mujoco.MjData(m)
-        d.qpos[:] = self.rigid_qpos(np.zeros(6))
+        d.qpos[:] = self.rigid_qpos(np.zeros(self.n_act))
         mujoco.mj_kinematics(m, d)
         a, b = m.wrap_objid[m.tendon_adr[self.tendon] : m.tendon_adr[self.tendon] + 2]
         j2 = self.act_joint[1]

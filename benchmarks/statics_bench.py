@@ -19,6 +19,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 
 from calbench.bench.campaign import run_campaign, truth_robot
+from calbench.bench.loop import loop_gap
 from calbench.bench.scenario import load_scenario
 from calbench.bench.statics import StaticsSolver
 
@@ -77,8 +78,7 @@ def relax(robot, q, load, target, tol=1e-6, max_steps=20000):
             if err < tol and np.abs(d.qvel).max() < 1e-6:
                 break
     elapsed = time.perf_counter() - t
-    a, b = robot.loop_sites
-    gap = float(np.linalg.norm(d.site_xpos[a] - d.site_xpos[b]))
+    gap = float(np.linalg.norm(loop_gap(robot, d)[0]))
     err = float(np.linalg.norm(d.site_xpos[robot.flange_site] - target))
     m.dof_damping[:] = 0.0
     m.opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_LIMIT)

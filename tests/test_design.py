@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calbench.bench.campaign import GRAVITY, plan_campaign, truth_robot
+from calbench.bench.campaign import plan_campaign, truth_robot
 from calbench.bench.robot import Robot
 from calbench.bench.scenario import load_scenario
 from calbench.identify.cli import main
@@ -27,9 +27,9 @@ from calbench.identify.design.exchange import Exchanger
 from calbench.identify.forward import ForwardModel, design_from_observations
 from calbench.identify.identifiability import whiten_factors
 from calbench.identify.montecarlo import campaign_observations, run_montecarlo
-from conftest import PAPER, ROOT
+from conftest import MJCF, PAPER, ROOT
 
-WEIGHT = np.array([0, 0, -700 * GRAVITY, 0, 0, 0.0])
+WEIGHT = np.r_[Robot.from_file(MJCF).weight(700.0), 0, 0, 0.0]   # the model's own gravity
 
 
 @pytest.fixture(scope="module")

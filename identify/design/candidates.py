@@ -15,9 +15,9 @@ nominal (in a real cell: the manufacturer's values or a previous identification)
 Information. For one candidate with reflectors r, the deflection dp_r = x_r(loaded) -
 x_r(unloaded) is the exact-statics one of identify/forward.py; its Jacobian with respect to u
 comes from the implicit function theorem at both equilibria (``StaticsSolver.tangent``, exact
-KKT matrix), J_r = (J_site dq/dtheta)|loaded - (...)|unloaded, times theta0 column-wise. The
-deflection's covariance is Sigma_r = Cov(reading unloaded) + Cov(reading loaded)
-(bench.tracker.noise_covariance in the tracker frame, rotated to the world; 2 sigma^2 I for the
+KKT matrix, d g / d theta from ``Robot.dforce_dtheta``), J_r = (J_site dq/dtheta)|loaded -
+(...)|unloaded, times theta0 column-wise. The deflection's covariance is Sigma_r =
+Cov(reading unloaded) + Cov(reading loaded) (bench.tracker.noise_covariance in the tracker frame, rotated to the world; 2 sigma^2 I for the
 isotropic tracker, one repeat). The candidate's block is the whitened regressor
 R = blockdiag(L_r^-1) [J_r], L_r L_r^T = Sigma_r: rows = the 3 coordinates of each reflector
 (9 rows for 3 reflectors), columns = the 8 normalised parameters, and the Fisher information of a
@@ -26,8 +26,8 @@ plan is sum_i R_i^T R_i (with repeats n: n R_i^T R_i).
 Feasibility rules (each named; :func:`Feasibility.check` returns the violated ones):
 
 * ``joint_limits``: q inside the MJCF's controller ranges (q4, q6 sampled in [-180, 180]).
-* ``parallelogram``: q3 - q2 at least ``bench.campaign.PARALLELOGRAM_MARGIN`` (10 deg) away from
-  the degenerate -120 / 60 deg (bench.campaign.parallelogram_angle).
+* ``parallelogram``: q3 - q2 at least ``bench.robot.PARALLELOGRAM_MARGIN`` (10 deg) away from
+  the degenerate -120 / 60 deg (``bench.robot.Robot.parallelogram_ok``).
 * ``min_height`` / ``min_radius``: the WRIST CENTRE (origin of body ``link5``, on the J5 axis,
   the point of the paper's Fig. 6) at z >= min_height and at least min_radius from axis 1
   (horizontal distance), at the commanded (rigid) pose. Paper: 0.5 m and 1 m.
@@ -67,7 +67,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from calbench.bench.campaign import GRAVITY, PARALLELOGRAM_MARGIN, parallelogram_angle, scenario_params
+from calbench.bench.campaign import scenario_params
 from calbench.bench.errors import InputError
 from calbench.bench.progress import ProgressSink, sink
 from calbench.bench.robot import Robot
@@ -226,8 +226,7 @@ class Feasibility:
         return bool(np.all(q >= lo - 1e-9) and np.all(q <= hi + 1e-9))
 
     def parallelogram(self, q) -> bool:
-        ang = parallelogram_angle(q)
-        return min(ang, np.pi - ang) >= PARALLELOGRAM_MARGIN
+        return self.robot.parallelogram_ok(q)
 
     def wrist_centre(self, qpos) -> np.ndarray:
         d = self._kd
@@ -291,10 +290,8 @@ class Feasibility:
     def check_equilibria(self, e0: Equilibrium, e1: Equilibrium, require_all_visible=True):
         """Rules decided at the solved equilibria: (violations, visible mask (n,) both states)."""
         bad = []
-        for e in (e0, e1):
-            if e.residual > 1e-8 * max(e.gravity_scale, 1.0) or e.loop_violation > 1e-9:
-                bad.append("statics")
-                break
+        if not (e0.acceptable and e1.acceptable):
+            bad.append("statics")
         if any(self.collides(e.qpos) for e in (e0, e1)):
             bad.append("self_collision")
         if min(self.compensator_clearance(e.qpos) for e in (e0, e1)) < self.settings.compensator_margin:
@@ -331,6 +328,7 @@ class InfoEngine:
         self.settings = settings
         self.robot = nominal_robot(scn)
         self.theta0 = nominal_theta(scn)
+        self.params0 = scenario_params(scn)
         self.solver = StaticsSolver(self.robot, tol=1e-10)
         self.feas = Feasibility(self.robot, scn, settings)
         self.rot = tracker_rotation(scn.tracker)
@@ -341,19 +339,12 @@ class InfoEngine:
         return Load.wrench(self.robot, wrench)
 
     def _dforce(self, e: Equilibrium) -> np.ndarray:
-        """dg/dtheta at fixed q (nv, 8) at equilibrium e (as identify/forward.py)."""
-        rb, th = self.robot, self.theta0
-        m, d = rb.model, rb.data
-        d.qpos[:] = e.qpos
-        mujoco.mj_fwdPosition(m, d)
-        g = np.zeros((m.nv, NP))
-        g[rb.act_dof, np.arange(6)] = e.deflection / th[:6] ** 2
-        if rb.tendon >= 0:
-            t = rb.tendon_moment()
-            length = float(d.ten_length[rb.tendon])
-            g[:, 6] = -(length - th[7]) * t
-            g[:, 7] = th[6] * t
-        return g
+        """dg/dtheta at fixed q (nv, 8) at equilibrium e, for the prior guess theta0."""
+        rb = self.robot
+        rb.set_command(e.command)
+        rb.data.qpos[:] = e.qpos
+        mujoco.mj_fwdPosition(rb.model, rb.data)
+        return rb.dforce_dtheta(self.params0)
 
     def _site_jac(self, e: Equilibrium, load: Load | None) -> tuple[np.ndarray, np.ndarray]:
         """Reflector positions (n,3) and d position / d theta (n,3,8) at equilibrium e."""
@@ -490,8 +481,7 @@ def generate_candidates(scn: Scenario, settings: DesignSettings, n: int | None =
     t0 = time.perf_counter()
     eng = InfoEngine(scn, settings)
     limits = eng.robot.limits()
-    weight = scn.load_mass * GRAVITY
-    vertical = np.array([0.0, 0.0, -weight, 0.0, 0.0, 0.0])
+    vertical = np.concatenate([eng.robot.weight(scn.load_mass), np.zeros(3)])
     frac = settings.lateral_fraction
     p_lat = 1.0 if frac >= 0.5 else frac / (1 - frac)
     p_vert = 1.0 if frac <= 0.5 else (1 - frac) / frac

@@ -24,7 +24,6 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.campaign import GRAVITY
 from calbench.bench.errors import InputError
 from calbench.bench.progress import ProgressSink
 from calbench.bench.scenario import Scenario, scenario_as_dict, scenario_to_toml
@@ -83,7 +82,7 @@ def scenario_plan_information(engine: InfoEngine, scn: Scenario) -> tuple[np.nda
     F = np.zeros((len(engine.theta0),) * 2)
     viol = []
     for i, p in enumerate(scn.poses):
-        w = p.wrench if p.wrench is not None else np.array([0, 0, -scn.load_mass * GRAVITY, 0, 0, 0.0])
+        w = p.wrench if p.wrench is not None else np.r_[engine.robot.weight(scn.load_mass), 0, 0, 0.0]
         info = engine.pose(p.q, w, require_all_visible=True)
         if info.violations:
             viol.append({"pose": i, "rules": info.violations})

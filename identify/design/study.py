@@ -25,8 +25,6 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.campaign import GRAVITY
-
 from .candidates import InfoEngine, load_design_scenario
 from .criteria import measures
 from ..forward import PARAM_NAMES
@@ -43,7 +41,7 @@ def run_study(scenario: Path, out_dir: Path, progress=None, step: float = 5.0) -
     scn, st = load_design_scenario(scenario)
     eng = InfoEngine(scn, st)
     out_dir.mkdir(parents=True, exist_ok=True)
-    weight = np.array([0, 0, -scn.load_mass * GRAVITY, 0, 0, 0.0])
+    weight = np.r_[eng.robot.weight(scn.load_mass), 0, 0, 0.0]
     F_lat = np.zeros((8, 8))
     for p in scn.poses:
         if p.wrench is not None:

@@ -16,9 +16,10 @@ three generalisations:
 * parameters are written by ``Robot.set_params`` and then each effect's ``Effect.set_params``
   (no recompilation); an effect that owns a base quantity (the compensator added to a model
   without one) overrides it, and the overridden base columns come out exactly zero;
-* dg/dtheta at fixed q (the right-hand side of the implicit function theorem) is taken by
-  central differences of MuJoCo's passive force for EVERY parameter: generic (any registered
-  effect), ~2 x 11 velocity-stage calls per equilibrium, relative error ~1e-10;
+* dg/dtheta at fixed q (the right-hand side of the implicit function theorem): the base
+  columns are ``Robot.dforce_dtheta``'s (exactly zero where an effect owns the quantity), the
+  effect columns central differences of MuJoCo's passive force: generic (any registered
+  effect), 2 velocity-stage calls per effect parameter and equilibrium, relative error ~1e-10;
 * the KKT matrix's non-analytic part A_base (which holds the effects' springs) is re-taken by
   finite differences whenever the effect parameters change.
 
@@ -40,7 +41,7 @@ import numpy as np
 from calbench.bench.effects import DISCOVERY_OPTIONS, Effect, apply_effects, discovery_library, priors
 from calbench.bench.robot import Robot
 
-from ..forward import NP, PARAM_NAMES, PARAM_UNITS, ForwardModel, PoseDesign, design_from_observations, to_params
+from ..forward import NP, PARAM_NAMES, PARAM_UNITS, ForwardModel, PoseDesign, design_from_observations
 from ..identifiability import analyze
 from ..leastsq import Fit, at_bounds, covariance, levenberg_marquardt
 
@@ -91,23 +92,25 @@ class AugmentedForward(ForwardModel):
         self._fd_size = np.ones(self.n_params)
         if self.effects:
             self._fd_size[NP:] = np.concatenate([effect_priors(e)[3] for e in self.effects])
+        self._overridden: np.ndarray | None = None
 
     def write(self, theta: np.ndarray) -> None:
-        self.robot.set_params(to_params(theta[:NP]))
+        super().write(theta)
         off = NP
         for e, n in zip(self.effects, self.sizes):
             e.set_params(self.robot, theta[off: off + n])
             off += n
 
-    def _dforce(self, theta, qpos, command) -> np.ndarray:
-        """dg/dtheta at fixed q by central differences of the passive force (position stage of
-        the solution current in data; restored on return)."""
+    def _dforce(self, theta) -> np.ndarray:
+        """dg/dtheta at fixed q (position stage of the solution current in data; restored on
+        return): the base columns from ``Robot.dforce_dtheta`` (zero where an effect owns the
+        quantity), the effects' by central differences of the passive force."""
         m, d = self.robot.model, self.robot.data
         out = np.zeros((self.nv, self.n_params))
-        for i in range(self.n_params):
+        out[:, :NP] = super()._dforce(theta)
+        out[:, :NP][:, self._base_overridden(theta)] = 0.0
+        for i in range(NP, self.n_params):
             h = 1e-6 * (abs(theta[i]) if theta[i] != 0 else self._fd_size[i])
-            if i < NP and theta[i] - h <= 0:          # keep compliances positive
-                h = 0.5 * theta[i]
             tp, tm = theta.copy(), theta.copy()
             tp[i] += h
             tm[i] -= h
@@ -118,7 +121,7 @@ class AugmentedForward(ForwardModel):
                 self.write(tm)
                 mujoco.mj_fwdVelocity(m, d)
                 fm = d.qfrc_passive.copy()
-            except ValueError:                          # at a bound (compliance <= 0): one-sided
+            except ValueError:                          # at a bound: one-sided
                 self.write(theta)
                 mujoco.mj_fwdVelocity(m, d)
                 fm, tm = d.qfrc_passive.copy(), theta
@@ -130,6 +133,18 @@ class AugmentedForward(ForwardModel):
         mujoco.mj_fwdVelocity(m, d)
         return out
 
+    def _base_overridden(self, theta) -> np.ndarray:
+        """(NP,) bool: base parameters an effect writes over (the compensator effect owns K_C
+        and s0), found once by writing changed base values and reading the model back."""
+        if self._overridden is None:
+            probe = theta.copy()
+            probe[:NP] *= 1.5
+            self.write(probe)
+            p = self.robot.params()
+            back = np.r_[p.compliance, p.compensator_stiffness, p.compensator_preload]
+            self._overridden = ~np.isclose(back, probe[:NP], rtol=1e-9, atol=0.0)
+            self.write(theta)
+        return self._overridden
 
     def equilibria(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """(unloaded qpos, loaded qpos) of every pose at the last evaluation."""
