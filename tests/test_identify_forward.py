@@ -84,3 +84,26 @@ def test_compensator_stiffness_has_sin_squared_and_the_model_angle():
         k_fd = -(torque(q2 + h) - torque(q2 - h)) / (2 * h)
         k_model = row @ np.array([0.0, k_c, s0 * k_c])
         assert abs(k_fd - k_model) < 1e-6 * abs(k_model) + 1e-3
+
+
+def test_effect_columns_and_overridden_base_columns(paper):
+    """Discovery's augmented model extends Robot.dforce_dtheta: the compensator effect on the
+    MJCF that already has one owns K_C and s0, so their base columns are exactly zero, and its
+    own columns (central differences of MuJoCo's passive force) equal the plain model's
+    analytic ones. Both models solve the same statics to the same tolerance, so dp agrees to
+    the solver's ~3e-11 m; the difference columns' round-off (eps x |qfrc_passive| / h, ~1e-10 of
+    d g / d theta) grows through the KKT solve to ~1e-7 of a dp column: allowed 1e-6."""
+    from calbench.bench.effects import compensator
+    from calbench.identify.discover.fit import build
+
+    scn, _, obs = paper
+    theta = true_theta(scn)
+    robot = Robot.from_file(scn.robot)
+    dp, jac = ForwardModel(robot, design_from_observations(robot, obs)).evaluate(theta)
+    _, aug = build(scn.robot, [(compensator(), theta[6:8])], obs)
+    dp_a, jac_a = aug.evaluate(np.r_[theta, theta[6:8]])
+    assert np.abs(dp_a - dp).max() < 1e-10
+    assert np.all(jac_a[..., 6:8] == 0.0)
+    np.testing.assert_allclose(jac_a[..., :6], jac[..., :6], rtol=0, atol=1e-6 * np.abs(jac[..., :6]).max())
+    for i in (6, 7):
+        assert np.abs(jac_a[..., 2 + i] - jac[..., i]).max() <= 1e-6 * np.abs(jac[..., i]).max()

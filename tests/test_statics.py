@@ -11,9 +11,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from calbench.bench.loop import motor_jacobian, motor_map
+from calbench.bench.loop import loop_gap, motor_jacobian, motor_map
 from calbench.bench.robot import Params, Robot
-from calbench.bench.statics import Load, StaticsSolver
+from calbench.bench.statics import LOOP_TOL, Load, NewtonPoint, StaticsError, StaticsSolver, statics_options
 from conftest import K_TRUE, MJCF, TABLE5
 
 
@@ -248,8 +248,130 @@ def test_second_solver_time_stepping_relaxation_agrees():
 
 def test_degenerate_parallelogram_is_a_clear_error():
     """Crank parallel to the upper arm (q3 = q2 - 120 deg): no unique equilibrium exists."""
-    from calbench.bench.statics import StaticsError
-
     robot = make_robot()
     with pytest.raises(StaticsError, match="degenerate"):
         StaticsSolver(robot).solve(np.radians([0.0, 90.0, -30.0, 0.0, 0.0, 0.0]))
+
+
+# --------------------------------------------------------------------------- building blocks
+# bench/statics.py's public pieces, each against an independent computation (mink-style:
+# every Jacobian against finite differences).
+
+def solved(q=TABLE5[9], tol=1e-10, wrench=None):
+    robot = make_robot()
+    solver = StaticsSolver(robot, tol=tol)
+    load = Load.mass(robot, 700.0) if wrench is None else Load.wrench(robot, wrench)
+    e0 = solver.solve(q)
+    return robot, solver, load, e0, solver.solve(q, load, warm=e0)
+
+
+def test_loop_gap_jacobian_matches_finite_differences():
+    """J_c of bench.loop.loop_gap against central differences of the gap (h = 1e-6 rad:
+    truncation ~h^2 x 1 m = 1e-12 m/rad, round-off 1e-16 x 3 m / 1e-6 ~ 3e-10 m/rad)."""
+    robot = make_robot()
+    m, d = robot.model, robot.data
+    qpos = robot.rigid_qpos(TABLE5[6])
+    d.qpos[:] = qpos
+    mujoco.mj_kinematics(m, d)
+    mujoco.mj_comPos(m, d)
+    _, jc = loop_gap(robot, d)
+    assert jc.shape == (3 * len(robot.loops), m.nv)
+    h = 1e-6
+    for j in range(m.nv):
+        gaps = []
+        for s in (1, -1):
+            d.qpos[:] = qpos
+            d.qpos[j] += s * h
+            mujoco.mj_kinematics(m, d)
+            gaps.append(loop_gap(robot, d)[0])
+        np.testing.assert_allclose(jc[:, j], (gaps[0] - gaps[1]) / (2 * h), atol=1e-9)
+
+
+def test_residual_is_the_force_balance_at_a_solution():
+    """At a solved loaded equilibrium the residual is within the solver's tolerance, and the
+    load's share of it is the wrench's generalized force as MuJoCo's mj_applyFT maps it."""
+    robot, solver, load, _, e1 = solved()
+    with statics_options(robot):
+        res = solver.residual(e1.qpos, load, e1.lam, e1.basis)
+        assert np.abs(res.r).max() <= solver.tol * e1.gravity_scale * 1.01   # scale moves ~1e-3
+        assert np.abs(res.c_r).max() <= LOOP_TOL
+        unloaded = solver.residual(e1.qpos, None, e1.lam, e1.basis)
+        m, d = robot.model, robot.data
+        qfrc = np.zeros(m.nv)
+        mujoco.mj_applyFT(m, d, load.force, load.moment, d.site_xpos[load.site], m.site_bodyid[load.site], qfrc)
+    # both sides are sums of ~1e4 N*m terms: agreement to round-off (1e-16 x 1e4 x a few)
+    np.testing.assert_allclose(res.r - unloaded.r, qfrc, atol=1e-9)
+
+
+def test_inverse_dynamics_matrix_is_the_exact_one_but_for_the_loop_force():
+    """MuJoCo's mjd_inverseFD matrix equals our finite-difference d r / d q with no load and
+    lam = 0 (both difference passive - bias with the same step: round-off only,
+    eps x max|g| / fd_step ~ 1e-5 N*m/rad); with the loop force the two differ by its
+    curvature, which the chord iteration absorbs (the docstring's ~1e-3 of the stiffness)."""
+    robot, solver, _, e0, _ = solved()
+    with statics_options(robot):
+        robot.set_command(e0.command)
+        a_id = solver.stiffness_inverse_dynamics(e0.qpos)
+        a_fd = solver.stiffness_fd(e0.qpos, None, np.zeros_like(e0.lam), e0.basis)
+        a_loop = solver.stiffness_fd(e0.qpos, None, e0.lam, e0.basis)
+    assert np.abs(a_id - a_fd).max() <= 1e-5
+    share = np.abs(a_loop - a_id).max() / np.abs(a_fd).max()
+    assert 0.0 < share < 1e-2
+
+
+def test_pluggable_matrix_gives_the_same_equilibrium():
+    """Full Newton (the exact matrix every step) from the rigid pose reaches solve()'s chord
+    equilibrium: both residuals within tol x scale (1e-5 N*m) over the softest spring
+    (~1.7e6 N*m/rad) put them within ~1e-11 rad of each other; allowed 1e-10."""
+    robot, solver, load, _, e1 = solved()
+    with statics_options(robot):
+        robot.set_command(e1.command)
+        qpos = robot.rigid_qpos(e1.command)
+        basis = solver.basis(qpos)
+
+        def exact(p: NewtonPoint) -> np.ndarray:
+            return solver.stiffness_fd(p.qpos, load, p.lam, basis, p.residual.r)
+
+        full = solver.newton(qpos, np.zeros(basis.shape[1]), basis, load, exact, refresh=solver.max_iter)
+        gave_up = solver.newton(qpos, np.zeros(basis.shape[1]), basis, load, lambda p: None)
+    assert full.converged and full.stalls == 0
+    np.testing.assert_allclose(full.qpos, e1.qpos, rtol=0, atol=1e-10)
+    assert not gave_up.converged and gave_up.iterations == 0
+
+
+def test_tangent_matches_finite_differences_of_solved_equilibria():
+    """dq/dtheta by the implicit function theorem (StaticsSolver.tangent with
+    Robot.dforce_dtheta) against central differences of equilibria solved to tol = 1e-12
+    (~1e-13 rad) with theta moved by h = 1e-3 relative: truncation O(h^2) ~ 1e-6 of the column,
+    round-off 1e-13 / (2 h theta |dq/dtheta|) < 1e-5; allowed 1e-4 of each column. A general
+    wrench loads every motor, so every column is large against that round-off."""
+    wrench = np.array([1200.0, -900.0, -6000.0, 300.0, -150.0, 200.0])
+    robot, solver, load, _, e1 = solved(TABLE5[6], tol=1e-12, wrench=wrench)
+    params = robot.params()
+    theta = np.r_[params.compliance, params.compensator_stiffness, params.compensator_preload]
+    to_params = lambda t: Params(t[:6], float(t[6]), float(t[7]))  # noqa: E731
+    robot.set_command(e1.command)
+    robot.data.qpos[:] = e1.qpos
+    mujoco.mj_fwdPosition(robot.model, robot.data)
+    tan = solver.tangent(e1, load, robot.dforce_dtheta(params))
+    for i in range(8):
+        h = 1e-3 * theta[i]
+        qs = []
+        for s in (1, -1):
+            t = theta.copy()
+            t[i] += s * h
+            robot.set_params(to_params(t))
+            qs.append(solver.solve(e1.command, load, qpos0=e1.qpos).qpos)
+        fd = (qs[0] - qs[1]) / (2 * h)
+        assert np.abs(fd - tan[:, i]).max() <= 1e-4 * np.abs(tan[:, i]).max(), f"column {i}"
+    robot.set_params(params)
+
+
+def test_statics_options_restore_the_model_after_a_failed_solve():
+    robot = make_robot()
+    m = robot.model
+    flags, gravity = m.opt.disableflags, m.opt.gravity.copy()
+    with pytest.raises(StaticsError):
+        StaticsSolver(robot).solve(np.radians([0.0, 90.0, -30.0, 0.0, 0.0, 0.0]), gravity=False)
+    assert m.opt.disableflags == flags
+    np.testing.assert_array_equal(m.opt.gravity, gravity)
