@@ -84,9 +84,10 @@ class Robot:
         if (self.act_joint < 0).any() or (self.passive_joint < 0).any():
             raise ValueError(f"{source}: the MJCF must name joints {ACTUATED + PASSIVE}")
         self.n_act = len(self.act_joint)
-        self._act_cols = np.arange(self.n_act)
         self.act_qpos = model.jnt_qposadr[self.act_joint]
         self.act_dof = model.jnt_dofadr[self.act_joint]
+        # flat indices of (dof of motor i, column i) in dforce_dtheta's (nv, n_act + 2) result
+        self._spring_entries = self.act_dof * (self.n_act + 2) + np.arange(self.n_act)
         self.passive_qpos = model.jnt_qposadr[self.passive_joint]
         self.tendon = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TENDON, COMPENSATOR)
         if self.tendon >= 0:  # the tendon's sparse row of ten_J: a fixed pattern of the model
@@ -143,8 +144,8 @@ class Robot:
         m = self.model
         k = np.asarray(params.compliance, dtype=float)
         out = np.zeros((m.nv, self.n_act + 2))
-        dq = d.qpos[self.act_qpos] - m.qpos_spring[self.act_qpos]
-        out[self.act_dof, self._act_cols] = dq / (k * k)
+        dq = d.qpos.take(self.act_qpos) - m.qpos_spring.take(self.act_qpos)
+        out.flat[self._spring_entries] = dq / (k * k)
         if self.tendon >= 0:
             t = self.tendon_moment(d)
             length = float(d.ten_length[self.tendon])
