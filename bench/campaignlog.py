@@ -47,7 +47,8 @@ class PerState(Generic[T]):
 @dataclass(frozen=True)
 class MeasurementRecord:
     """One tracker reading: positions (n,3) m in the tracker frame with NaN rows where not
-    visible, covariances (n,3,3) m^2 (NaN where not visible), visibility flags."""
+    visible, covariances (n,3,3) m^2 (NaN where not visible), visibility flags, and the
+    message's log time (ns since 1970, when the reading was complete)."""
 
     pose: int
     state: str
@@ -56,6 +57,7 @@ class MeasurementRecord:
     position: np.ndarray
     covariance: np.ndarray
     visible: np.ndarray
+    time: int | None = None
 
     def in_order(self, names: Sequence[str]) -> "MeasurementRecord":
         """This reading with its rows in ``names`` order; a reflector it does not list is not

@@ -1,4 +1,4 @@
-"""The bench's command-line verbs: `simulate` and `view`.
+"""The bench's command-line verbs: `simulate`, `view` and `export`.
 
 The console script itself lives in identify/cli.py, which sits on top of both packages and
 registers these; bench never imports identify. This module and identify/cli.py are the only
@@ -17,7 +17,7 @@ from .scenario import load_scenario
 from .view import (DEFAULT_MAGNIFY, Summary, build_blueprint, default_rrd_path, has_display,
                    load_robot, log_campaign, recording_stream, write_recording)
 from .logformat import read_log
-from .outputs import check_outputs
+from .outputs import check_outputs, write_text
 
 
 # --------------------------------------------------------------------------- simulate
@@ -101,4 +101,23 @@ def cmd_view(args: argparse.Namespace) -> int:
     return 0
 
 
-__all__ = ["add_simulate", "cmd_simulate", "add_view", "cmd_view"]
+# --------------------------------------------------------------------------- export
+
+def add_export(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("export", help="the tracker readings of a log as CSV (the form `calbench import` reads)")
+    p.add_argument("log", type=Path, help="campaign MCAP log (simulated or imported)")
+    p.add_argument("--csv", type=Path, required=True, help="output CSV: pose,state,point,x,y,z,time[,sigma] (mm)")
+    p.set_defaults(func=cmd_export)
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from .logcsv import export_rows
+    from .readings import readings_csv
+    check_outputs({"--csv": args.csv}, {"LOG": args.log})
+    rows = export_rows(read_log(args.log))
+    write_text(args.csv, readings_csv(rows))
+    print(f"wrote {args.csv}: {len(rows)} readings (mm, tracker frame)")
+    return 0
+
+
+__all__ = ["add_simulate", "cmd_simulate", "add_view", "cmd_view", "add_export", "cmd_export"]

@@ -99,7 +99,10 @@ SCHEMAS: dict[str, dict] = {
         }),
         "seed": {"type": "integer"},
         "calbench_version": {"type": "string"},
-    }, title="calbench.CampaignInfo"),
+        "imported": {"type": "object", "description": "present when the log was made by "
+                     "`calbench import` from real readings: file, units, registration"},
+    }, required=("scenario_name", "robot", "n_poses", "reflectors", "payload_site", "tracker",
+                 "seed", "calbench_version"), title="calbench.CampaignInfo"),
     "/campaign/pose": _obj({
         "pose": _POSE, "state": _STATE,
         "q": _num_array(6, "rad, commanded, controller convention"),
@@ -257,7 +260,8 @@ class LogHeader:
     model with the true parameters applied. ``tracker`` needs the keys of the
     ``/campaign/info`` schema (position [3] m, yaw rad, model, sigma m, distance [2],
     transverse [2]); extra keys are kept. ``n_poses`` (an addition to the brief) defaults to
-    the number of ``[[pose]]`` entries of the scenario.
+    the number of ``[[pose]]`` entries of the scenario. ``imported`` (a log made by
+    ``calbench import``) says from which file and with which registration.
     """
 
     scenario_name: str
@@ -270,6 +274,7 @@ class LogHeader:
     tracker: dict
     seed: int
     n_poses: int | None = None
+    imported: dict | None = None
 
     def planned_poses(self) -> int:
         """Number of poses planned: ``n_poses`` or the scenario's ``[[pose]]`` count."""
@@ -324,6 +329,8 @@ class LogWriter:
             "seed": int(h.seed),
             "calbench_version": _version(),
         }
+        if h.imported is not None:
+            info["imported"] = _jsonable(h.imported)
         problems = validate(info, SCHEMAS["/campaign/info"])
         if problems:  # checked before the file is created, so a bad header leaves no file
             raise ValueError(f"/campaign/info: header does not match its schema: {problems}")
@@ -721,7 +728,7 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
                     reflectors=list(m["reflectors"]),
                     position=_nan_rows(m["position"], (3,)),
                     covariance=_nan_rows(m["covariance"], (3, 3)),
-                    visible=np.asarray(m["visible"], dtype=bool)))
+                    visible=np.asarray(m["visible"], dtype=bool), time=int(rec.log_time)))
             elif topic == "/campaign/pose_done":
                 done.add(m["pose"])
             elif topic == "/truth/parameters":

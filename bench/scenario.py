@@ -288,30 +288,66 @@ def _poses(file: Path, value: Any) -> tuple[Pose, ...]:
 _LINE = re.compile(r"line (\d+)")
 
 
-def parse_scenario(text: str, path: str | Path, seed: int | None = None) -> Scenario:
-    """Validate scenario ``text`` read from ``path`` (used for messages and the robot path).
-
-    ``seed`` (when given) overrides the file's seed, which then need not be present.
-    """
-    path = Path(path)
+def _document(text: str, path: Path) -> "_Checker":
+    """The TOML document as a checked top-level table (syntax errors name the line)."""
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         m = _LINE.search(str(exc))
         raise InputError(path, f"line {m.group(1)}" if m else "(syntax)",
                          "valid TOML", str(exc)) from None
-
     top = _Checker(path, doc, "")
     top.only(TOP_KEYS)
     for name in ("name", "description"):
         if top.has(name):
             top.string(name)
-    scenario_name = top.string("name") if top.has("name") else path.stem
+    return top
 
+
+def _robot(top: "_Checker", path: Path) -> Path:
     robot_rel = top.string("robot")
     robot = (path.parent / robot_rel).resolve()
     if not robot.is_file():
         raise InputError(path, "robot", f"an existing MJCF file (resolved to {robot})", robot_rel)
+    return robot
+
+
+def _truth(top: "_Checker") -> tuple[np.ndarray, Compensator, dict[str, dict]]:
+    truth = top.sub("truth")
+    truth.only(("compliance", "compensator", "effects"))
+    compliance = _frozen(truth.vector("compliance", 6, positive=True))
+    comp = truth.sub("compensator")
+    comp.only(("stiffness", "preload"))
+    compensator = Compensator(stiffness=comp.number("stiffness", nonneg=True),
+                              preload=comp.number("preload", nonneg=True))
+    effects = _effects(truth.sub("effects")) if truth.has("effects") else {}
+    return compliance, compensator, effects
+
+
+def _campaign(top: "_Checker", path: Path) -> dict[str, Any]:
+    """What a scenario and a plan share: the load, the work pose, the poses, the name."""
+    load = top.sub("load")
+    load.only(("mass",))
+    if top.has("design"):
+        top.sub("design").only(DESIGN_KEYS)
+    work = None
+    if top.has("work"):
+        w = top.sub("work")
+        w.only(("q", "wrench"))
+        work = Work(q=_frozen(np.radians(w.vector("q", 6))), wrench=_frozen(w.vector("wrench", 6)))
+    return {"load_mass": load.number("mass", positive=True), "work": work,
+            "poses": _poses(path, top.raw("pose")),
+            "name": top.string("name") if top.has("name") else path.stem}
+
+
+def parse_scenario(text: str, path: str | Path, seed: int | None = None) -> Scenario:
+    """Validate scenario ``text`` read from ``path`` (used for messages and the robot path).
+
+    ``seed`` (when given) overrides the file's seed, which then need not be present.
+    """
+    path = Path(path)
+    top = _document(text, path)
+    robot = _robot(top, path)
 
     if seed is None:
         seed = top.integer("seed", lo=0)
@@ -322,26 +358,7 @@ def parse_scenario(text: str, path: str | Path, seed: int | None = None) -> Scen
             raise InputError("--seed", "seed", "an integer >= 0", seed)
         seed = int(seed)
 
-    truth = top.sub("truth")
-    truth.only(("compliance", "compensator", "effects"))
-    compliance = _frozen(truth.vector("compliance", 6, positive=True))
-    comp = truth.sub("compensator")
-    comp.only(("stiffness", "preload"))
-    compensator = Compensator(stiffness=comp.number("stiffness", nonneg=True),
-                              preload=comp.number("preload", nonneg=True))
-    effects = _effects(truth.sub("effects")) if truth.has("effects") else {}
-
-    load = top.sub("load")
-    load.only(("mass",))
-    if top.has("design"):
-        top.sub("design").only(DESIGN_KEYS)
-
-    work = None
-    if top.has("work"):
-        w = top.sub("work")
-        w.only(("q", "wrench"))
-        work = Work(q=_frozen(np.radians(w.vector("q", 6))), wrench=_frozen(w.vector("wrench", 6)))
-
+    compliance, compensator, effects = _truth(top)
     return Scenario(
         path=path,
         text=text,
@@ -351,21 +368,71 @@ def parse_scenario(text: str, path: str | Path, seed: int | None = None) -> Scen
         compensator=compensator,
         effects=effects,
         tracker=_tracker(top.sub("tracker")),
-        load_mass=load.number("mass", positive=True),
-        work=work,
-        poses=_poses(path, top.raw("pose")),
-        name=scenario_name,
+        **_campaign(top, path),
     )
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A measurement plan: a scenario without ``[truth]`` (docs/contract.md), what a real
+    campaign knows before it starts: the robot, the commanded poses, the loads and the
+    tracker's noise model.
+
+    The tracker's ``position`` (and ``yaw``) are optional: ``tracker_placed`` says whether the
+    file gave them. When it did not, ``tracker`` carries the noise model only, its pose a
+    placeholder (origin, no rotation) that ``calbench import`` replaces by the registered one.
+    A ``[truth]`` table, if present (a plan written by ``calbench design`` carries its prior),
+    is validated like a scenario's and otherwise ignored.
+    """
+    path: Path
+    text: str
+    robot: Path
+    seed: int
+    tracker: TrackerSpec
+    tracker_placed: bool
+    load_mass: float
+    work: Work | None
+    poses: tuple[Pose, ...]
+    name: str = ""
+
+
+def parse_plan(text: str, path: str | Path) -> Plan:
+    """Validate a plan (see :class:`Plan`): a scenario whose ``[truth]``, ``seed`` and tracker
+    position are optional; everything present is checked as in :func:`parse_scenario`."""
+    path = Path(path)
+    top = _document(text, path)
+    robot = _robot(top, path)
+    seed = top.integer("seed", lo=0) if top.has("seed") else 0
+    if top.has("truth"):
+        _truth(top)
+    tr = top.sub("tracker")
+    placed = tr.has("position")
+    if not placed and tr.has("yaw"):
+        raise tr.fail("yaw", "a tracker position with the yaw (without a position, `calbench "
+                      "import` registers the whole tracker pose)")
+    if not placed:
+        tr = _Checker(path, {**tr.table, "position": [0.0, 0.0, 0.0]}, tr.prefix)
+    return Plan(path=path, text=text, robot=robot, seed=seed, tracker=_tracker(tr),
+                tracker_placed=placed, **_campaign(top, path))
+
+
+def load_plan(path: str | Path) -> Plan:
+    """Read and validate the plan file at ``path`` (see :func:`parse_plan`)."""
+    path = Path(path)
+    return parse_plan(_read(path, "plan"), path)
 
 
 def load_scenario(path: str | Path, seed: int | None = None) -> Scenario:
     """Read and validate the scenario file at ``path``; ``seed`` overrides the file's seed."""
     path = Path(path)
+    return parse_scenario(_read(path, "scenario"), path, seed)
+
+
+def _read(path: Path, what: str) -> str:
     try:
-        text = path.read_text(encoding="utf-8")
+        return path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(path, "(file)", "a readable UTF-8 scenario file", str(exc)) from None
-    return parse_scenario(text, path, seed)
+        raise InputError(path, "(file)", f"a readable UTF-8 {what} file", str(exc)) from None
 
 
 def scenario_variant(src: str | Path, out: str | Path, *, name: str | None = None, seed: int | None = None,

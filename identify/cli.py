@@ -18,7 +18,7 @@ import time
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
-from calbench.bench.cli import add_simulate, add_view
+from calbench.bench.cli import add_export, add_simulate, add_view
 from calbench.bench.errors import CalbenchError, InputError
 from calbench.bench.outputs import atomic_path, check_outputs, write_text
 from calbench.bench.progress import terminal_progress
@@ -313,6 +313,36 @@ def cmd_report(args) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- import
+
+def add_import(sub) -> None:
+    p = sub.add_parser("import", help="a campaign log from real tracker readings (CSV) taken along a plan",
+                       description="READINGS.csv: pose,state,point,x,y,z[,time][,sigma] (docs/contract.md); "
+                                   "PLAN.toml: a scenario without [truth]. Without a tracker position in the "
+                                   "plan the tracker is registered from the unloaded readings.")
+    p.add_argument("readings", type=Path, help="READINGS.csv")
+    p.add_argument("--plan", type=Path, required=True, help="the plan the readings were taken along (TOML)")
+    p.add_argument("--out", type=Path, required=True, help="output MCAP log")
+    p.add_argument("--units", choices=("mm", "m"), default="mm",
+                   help="unit of x, y, z and sigma in the CSV (default: %(default)s)")
+    p.add_argument("--model", type=Path, default=None, help="robot MJCF (default: the plan's `robot`)")
+    p.set_defaults(func=cmd_import)
+
+
+def cmd_import(args) -> int:
+    from .importer import import_readings
+    check_outputs({"--out": args.out}, {"READINGS": args.readings, "--plan": args.plan, "--model": args.model})
+    res = import_readings(args.readings, args.plan, args.out, args.units, args.model)
+    s = res.summary
+    for w in res.warnings:
+        print(f"calbench import: warning: {w}", file=sys.stderr)
+    print(f"wrote {res.out}: {len(s.poses)} of {len(res.plan.poses)} planned poses, {s.rows} readings "
+          f"in {s.readings} tracker messages ({args.units})"
+          + (f"; no readings for poses {s.lost}" if s.lost else "")
+          + (f"; one state only (no deflection) for poses {s.one_state}" if s.one_state else ""))
+    return 0
+
+
 # --------------------------------------------------------------------------- demo
 
 def add_demo(sub) -> None:
@@ -344,6 +374,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_view(sub)
     add_discover(sub)
     add_report(sub)
+    add_import(sub)
+    add_export(sub)
     return parser
 
 

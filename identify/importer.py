@@ -1,0 +1,85 @@
+"""`calbench import`: real tracker readings (CSV) along a plan become a calbench campaign log.
+
+Steps, each validated before any output exists:
+1. the plan (bench.scenario.load_plan: a scenario without ``[truth]``), the robot's MJCF (the
+   plan's, or ``--model``) and the readings (bench/readings.py: bad rows name line and column);
+2. the tracker's pose: the plan's ``[tracker] position``/``yaw`` when given, else registered
+   from the readings (identify/registration.py);
+3. the log (bench/logcsv.py), written atomically: an ordinary log without truth that
+   ``identify``, ``discover``, ``view`` and ``report`` read like a simulated one. Its
+   ``/campaign/info`` says it was imported, from which file (name and SHA-256), in which units,
+   and with which tracker pose (the plan's, or the registration with its residual and
+   uncertainty).
+"""
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from calbench.bench.errors import InputError
+from calbench.bench.logcsv import ImportSummary, write_imported_log
+from calbench.bench.outputs import atomic_path
+from calbench.bench.readings import ReadingsTable, read_readings
+from calbench.bench.robot import Robot
+from calbench.bench.scenario import Plan, TrackerSpec, check_joint_limits, load_plan
+
+
+@dataclass
+class ImportResult:
+    """What ``calbench import`` did: the log's summary, where the tracker stood, warnings."""
+
+    out: Path
+    plan: Plan
+    table: ReadingsTable
+    tracker: TrackerSpec
+    summary: ImportSummary
+    imported: dict
+    warnings: list[str] = field(default_factory=list)
+
+
+def load_robot(plan: Plan, model: Path | None) -> tuple[Robot, Path]:
+    """The robot the readings were taken on: ``model`` or the plan's MJCF (InputError when it
+    does not load), its poses checked against the joint limits."""
+    path = Path(model) if model is not None else plan.robot
+    key = "--model" if model is not None else "robot"
+    src = "--model" if model is not None else plan.path
+    if not path.is_file():
+        raise InputError(src, key, "an existing MJCF file", str(path))
+    try:
+        robot = Robot.from_file(path)
+    except ValueError as exc:
+        raise InputError(src, key, "a loadable MJCF robot", f"{path}: {exc}") from None
+    check_joint_limits(plan, robot.limits())
+    return robot, path
+
+
+def import_readings(csv_path: str | Path, plan_path: str | Path, out: str | Path, units: str = "mm",
+                    model: str | Path | None = None) -> ImportResult:
+    """Import ``csv_path`` taken along ``plan_path`` into the log ``out`` (module docstring)."""
+    csv_path, out = Path(csv_path), Path(out)
+    plan = load_plan(plan_path)
+    robot, model_path = load_robot(plan, None if model is None else Path(model))
+    try:
+        raw = csv_path.read_bytes()
+    except OSError as exc:
+        raise InputError(csv_path, "(file)", "a readable CSV file", exc.strerror) from None
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise InputError(csv_path, "(file)", "a UTF-8 CSV file", str(exc)) from None
+    table = read_readings(csv_path, len(plan.poses), robot.reflector_names, units, text=text)
+    warnings: list[str] = []
+    if not plan.tracker_placed:
+        raise InputError(plan.path, "tracker.position", "the tracker's position (m, world frame)",
+                         "none")
+    tracker = plan.tracker
+    imported = {"source": csv_path.name, "sha256": hashlib.sha256(raw).hexdigest(),
+                "units": units, "rows": len(table.readings), "tracker_pose": "plan",
+                "registration": None}
+    with atomic_path(out) as tmp:
+        summary = write_imported_log(plan, table, tracker, model_path, tmp, imported)
+    return ImportResult(out, plan, table, tracker, summary, imported, warnings)
+
+
+__all__ = ["ImportResult", "import_readings", "load_robot"]
