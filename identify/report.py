@@ -19,6 +19,7 @@ from calbench.bench.errors import InputError
 from calbench.bench.idreport import IdentificationReport, ObservationFit, Outlier, ParameterEstimate
 from calbench.bench.logformat import CampaignTruth, read_log
 from calbench.bench.robot import Robot
+from calbench.bench.units import DISPLAY
 
 from .model import check_sites, load_model
 
@@ -30,13 +31,6 @@ from .twostep import two_step
 
 METHODS = ("one-step", "two-step")
 Z_CHECK = 4.0
-
-# display units: (label, factor from SI)
-DISPLAY = {
-    "rad/(N*m)": ("µrad/(N·m)", 1e6),
-    "N/m": ("kN/m", 1e-3),
-    "m": ("mm", 1e3),
-}
 
 
 @dataclass
