@@ -15,7 +15,7 @@ from .idreport import IdentificationReport
 from .progress import Progress
 from .scenario import load_scenario
 from .view import (DEFAULT_MAGNIFY, Summary, build_blueprint, default_rrd_path, has_display,
-                   load_robot, log_campaign, recording_stream, write_recording)
+                   log_view, plan_view, recording_stream, write_recording)
 from .logformat import read_log
 from .outputs import check_outputs, write_text
 
@@ -54,18 +54,19 @@ def add_view(sub: argparse._SubParsersAction) -> None:
                    help="write the recording to this .rrd file instead of spawning the viewer "
                         "(default without a display: LOG.rrd beside the log)")
     p.add_argument("--identified", type=Path, default=None,
-                   help="JSON report of `calbench identify --json` (parameters as bar charts; "
-                        "predicted deflections and residuals when it carries them)")
+                   help="JSON report of `calbench identify --json` (the parameters by name, the "
+                        "model's deformation; predicted deflections and residuals when it "
+                        "carries them)")
     p.add_argument("--magnify", type=float, default=DEFAULT_MAGNIFY,
-                   help="magnification of the deflection arrows (default: %(default)g; "
-                        "stated in the entity path and labels)")
+                   help="magnification of the deformation and the deflection arrows (default: "
+                        "%(default)g; residuals 10 times more; stated in the 3D view's title)")
     p.set_defaults(func=cmd_view)
 
 
 def _view_summary(s: Summary, magnify: float) -> str:
     return (f"{s.poses} poses, {s.arrows} deflection arrows (x{magnify:g})"
             + (f", {s.predicted} predicted" if s.predicted else "")
-            + f"; robot drawn at the {s.robot_source}")
+            + f"; deformation ghost from {s.ghost}")
 
 
 def cmd_view(args: argparse.Namespace) -> int:
@@ -78,16 +79,16 @@ def cmd_view(args: argparse.Namespace) -> int:
     if args.rrd is None and has_display():
         log = read_log(args.log, include_truth=True)
         ident = IdentificationReport.read(args.identified) if args.identified is not None else None
-        load_robot(log)
+        plan = plan_view(log, ident, magnify)
         rec = recording_stream(args.log)
         try:
-            rec.spawn(default_blueprint=build_blueprint(ident is not None, bool(log.truth), magnify))
+            rec.spawn(default_blueprint=build_blueprint(plan))
         except Exception as e:  # noqa: BLE001  no viewer binary, cannot start: fall back to a file
             print(f"calbench view: could not spawn the viewer ({e}); writing a file instead",
                   file=sys.stderr)
             why = " (the viewer could not be spawned)"
         else:
-            s = log_campaign(rec, log, ident, magnify)
+            s = log_view(rec, plan)
             rec.flush()
             print(f"sent to the Rerun viewer: {_view_summary(s, magnify)}")
             return 0

@@ -1,15 +1,17 @@
-"""Tests of bench/view.py (`calbench view`): the .rrd it writes is valid, holds the expected
-entities, and its arrows are the magnified deflections of the log.
+"""Tests of bench/view.py (`calbench view`) and the discover view: the .rrd verifies, holds the
+expected entities, its arrows are the magnified deflections of the log, its ghosts the magnified
+joint deflections, the truth appears only under truth/, and the blueprint opens where a
+first-time user needs it.
 
-The rerun CLI runs with a scratch HOME / XDG dirs, CI=1 and analytics off (as in
-tests/test_logformat.py), so it never touches the user's settings.
+The rerun CLI runs with a scratch HOME / XDG dirs, CI=1 and analytics off (tests/rerun_cli.py),
+so it never touches the user's settings. Recordings store float32: positions of a few metres
+read back to ~1e-6 m, which bounds the tolerances below.
 """
 from __future__ import annotations
 
 import json
 import shutil
 import subprocess
-import time
 from pathlib import Path
 
 import mujoco
@@ -20,17 +22,24 @@ from rerun.chunk import RrdReader
 
 from calbench.bench.campaign import run_campaign
 from calbench.bench.errors import InputError
-from calbench.bench.geoms import geom_shapes
+from calbench.bench.geoms import geom_shapes, reflector_posts
 from calbench.bench.idreport import IdentificationReport
 from calbench.bench.logformat import read_log, strip_truth
+from calbench.bench.robot import Robot
 from calbench.bench.scenario import TrackerSpec, load_scenario
 from calbench.bench.tracker import to_world_frame
-from calbench.bench.view import _geom_archetype, measured_deflections, write_recording
+from calbench.bench.view import (Discovery, _geom_archetype, build_blueprint, measured_deflections,
+                                 plan_view, write_discovery_recording, write_recording)
+from calbench.bench.viewparams import WIDTH
+from calbench.bench.viewscene import HALF_FOV_TAN, framing
 from calbench.identify.cli import main as calbench_main
 
 from rerun_cli import rerun_env, rerun_exe
-from conftest import PAPER
+from conftest import K_TRUE, PAPER
 
+F32 = 2e-6          # m: float32 resolution of world coordinates of a few metres, with margin
+TRUE = [*K_TRUE, 2.6e6, 0.83]      # the paper scenario's truth, SI
+BASE = ["k1", "k2", "k3", "k4", "k5", "k6", "compensator_stiffness", "compensator_preload"]
 
 
 @pytest.fixture(autouse=True)
@@ -50,11 +59,16 @@ def paper_log(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
+def stripped_log(paper_log) -> Path:
+    out = paper_log.with_name("real.mcap")
+    strip_truth(paper_log, out)
+    return out
+
+
+@pytest.fixture(scope="module")
 def paper_rrd(paper_log) -> Path:
     rrd = paper_log.with_name("paper.rrd")
-    t0 = time.perf_counter()
     write_recording(paper_log, rrd)
-    print(f"\nwrite_recording(paper campaign): {time.perf_counter() - t0:.2f} s")
     return rrd
 
 
@@ -76,9 +90,29 @@ def rows_at(rrd: Path, entity: str, component: str) -> dict[int, list]:
     out: dict[int, list] = {}
     for c in chunks(rrd):
         if c.entity_path == entity and not c.is_static:
-            for p, v in zip(column(c, "pose"), column(c, component)):
-                out[p] = v
+            names = c.to_record_batch().schema.names
+            if component in names:
+                for p, v in zip(column(c, "pose"), column(c, component)):
+                    out[p] = v
     return out
+
+
+def page_at(rrd: Path, pose: int) -> str:
+    """The markdown of the pose page."""
+    return text(rows_at(rrd, "/info/pose", "TextDocument:text")[pose])
+
+
+def text(v) -> str:
+    """A TextDocument's text as read back (a one-element list)."""
+    return v[0] if isinstance(v, list) else v
+
+
+def static(rrd: Path, entity: str, component: str):
+    for c in chunks(rrd):
+        if c.entity_path == entity and c.is_static and \
+                component in c.to_record_batch().schema.names:
+            return column(c, component)[0]
+    raise KeyError((entity, component))
 
 
 def expected_deflection(log_path: Path, pose: int, reflector: str) -> np.ndarray:
@@ -94,7 +128,50 @@ def expected_deflection(log_path: Path, pose: int, reflector: str) -> np.ndarray
     return mean["loaded"] - mean["unloaded"]
 
 
-# ---------------------------------------------------------------------------------------------
+def body_pose(rrd: Path, entity: str, pose: int) -> tuple[np.ndarray, np.ndarray]:
+    """World translation and rotation matrix of a body entity's Transform3D at a pose."""
+    t = rows_at(rrd, entity, "Transform3D:translation")[pose]
+    q = rows_at(rrd, entity, "Transform3D:quaternion")[pose]
+    q = q[0] if np.ndim(q) == 2 else q
+    m = np.empty(9)
+    mujoco.mju_quat2Mat(m, np.array([q[3], q[0], q[1], q[2]], float))
+    return np.ravel(t), m.reshape(3, 3)
+
+
+def kinematics(log_path: Path, qpos: np.ndarray, body: str) -> tuple[np.ndarray, np.ndarray]:
+    """MuJoCo's world pose of `body` at `qpos` of the log's own MJCF."""
+    model = mujoco.MjModel.from_xml_string(read_log(log_path).mjcf_text)
+    data = mujoco.MjData(model)
+    data.qpos[:] = qpos
+    mujoco.mj_kinematics(model, data)
+    b = model.body(body).id
+    return data.xpos[b].copy(), data.xmat[b].reshape(3, 3).copy()
+
+
+def write_identified(path: Path, log_path: Path, predictions: bool, full: bool = True,
+                     factor: float = 1.01, truth: bool = True, extra: dict | None = None) -> Path:
+    """A report of the paper's parameters at `factor` times the truth (std 2 %); predictions
+    0.9 times the log's measured deflections."""
+    params = []
+    for n, t in zip(BASE, TRUE):
+        p = {"name": n, "estimate": t * factor}
+        if full:
+            p.update(unit={"compensator_stiffness": "N/m", "compensator_preload": "m"}.get(
+                n, "rad/(N*m)"), std=abs(t) * 0.02, truth=t if truth else None)
+        params.append(p)
+    if extra:
+        params.append(extra)
+    doc: dict = {"method": "one-step", "parameters": params}
+    if predictions:
+        d = measured_deflections(read_log(log_path))
+        doc["observations"] = [{"pose": p, "reflector": r, "predicted": (0.9 * v).tolist()}
+                               for p, refl in d.items() for r, v in refl.items()]
+        doc["observations"].append({"pose": 0, "reflector": "refl_a"})  # malformed: skipped
+    path.write_text(json.dumps(doc))
+    return path
+
+
+# --------------------------------------------------------------------------- the recording
 
 
 def test_rrd_verifies_and_has_the_expected_entities(paper_rrd, tmp_path):
@@ -106,24 +183,25 @@ def test_rrd_verifies_and_has_the_expected_entities(paper_rrd, tmp_path):
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     printed = r.stdout
-    for e in ("/robot/unloaded/forearm", "/robot/loaded/link6/tool_plate",
-              "/robot/unloaded/upper_arm/upper_arm_geom", "/robot/unloaded/tendon/compensator",
-              "/tracker", "/measured/loaded/uncertainty_3sigma", "/deflection/x200/measured",
-              "/truth/reflectors/loaded", "/truth/deflection/x200",
-              "/plots/deflection_mm/refl_a", "/viewport"):
+    for e in ("/robot/forearm", "/robot/link6/tool_plate", "/robot/link6/reflectors/refl_a",
+              "/robot/upper_arm/upper_arm_geom", "/robot/tendon/compensator", "/robot/payload",
+              "/tracker", "/tracker/line_of_sight", "/measured/loaded", "/measured/unloaded",
+              "/deflection/x200/measured", "/deflection/x200/uncertainty_3sigma",
+              "/truth/reflectors/loaded", "/truth/deflection/x200", "/truth/deformed_x200/forearm",
+              "/plots/deflection_mm/refl_a", "/info/pose", "/viewport", "/time_panel"):
         assert f"- {e} -" in printed, e
     # loaded back through the SDK: the same entities, and geometry for every drawn body
     paths = entity_paths(paper_rrd)
     model = mujoco.MjModel.from_xml_string(read_log(paper_rrd.with_name("paper_table5.mcap"))
                                            .mjcf_text)
     for b in range(1, model.nbody):
-        for state in ("unloaded", "loaded"):
-            assert f"/robot/{state}/{model.body(b).name}" in paths
-    assert "/parameters/table" not in paths  # no --identified
+        assert f"/robot/{model.body(b).name}" in paths
+    assert not any(p.startswith(("/parameters", "/model", "/residual")) for p in paths)
 
 
 def test_arrow_is_the_magnified_deflection_of_the_log(paper_log, paper_rrd):
     vectors = rows_at(paper_rrd, "/deflection/x200/measured", "Arrows3D:vectors")
+    origins = rows_at(paper_rrd, "/deflection/x200/measured", "Arrows3D:origins")
     labels = rows_at(paper_rrd, "/deflection/x200/measured", "Arrows3D:labels")
     log = read_log(paper_log)
     assert sorted(vectors) == log.complete_poses
@@ -133,72 +211,206 @@ def test_arrow_is_the_magnified_deflection_of_the_log(paper_log, paper_rrd):
     expected = 200.0 * expected_deflection(paper_log, pose, "refl_b")
     np.testing.assert_allclose(vectors[pose][j], expected.astype(np.float32), rtol=2e-7,
                                atol=1e-9)
-    # the label states the magnification and the true-scale size
-    assert labels[pose][j] == f"refl_b {np.linalg.norm(expected) / 200 * 1e3:.3f} mm (x200)"
-    # and every arrow matches measured_deflections()
+    # the (hover) label gives the true-scale size; the 3D view shows no text on arrows
+    assert labels[pose][j] == f"refl_b measured {np.linalg.norm(expected) / 200 * 1e3:.3f} mm"
+    shown = rows_at(paper_rrd, "/deflection/x200/measured", "Arrows3D:show_labels")[pose]
+    assert np.ravel(shown).tolist() == [False]
+    # every arrow matches measured_deflections() and starts at the measured unloaded reflector
     d = measured_deflections(log)
+    unloaded = rows_at(paper_rrd, "/measured/unloaded", "Points3D:positions")
     for p, vec in vectors.items():
-        for lab, v in zip(labels[p], vec):
+        for lab, v, o in zip(labels[p], vec, origins[p]):
             np.testing.assert_allclose(v, 200 * d[p][lab.split()[0]], rtol=1e-6, atol=1e-8)
+            assert min(np.linalg.norm(np.array(unloaded[p]) - o, axis=1)) < F32
 
 
-def test_magnify_and_truth_free_log(paper_log, tmp_path):
-    """A stripped (real-campaign) log: no truth tree, the robot at the rigid configuration."""
-    stripped = tmp_path / "real.mcap"
-    strip_truth(paper_log, stripped)
+def test_robot_is_drawn_at_the_command(paper_log, paper_rrd):
+    """The robot (outside truth/) stands at the rigid closed loop of the commanded angles, not
+    at the true equilibrium; the measured reflectors sit by the sag from its posts."""
+    log = read_log(paper_log, include_truth=True)
+    robot = Robot.from_xml(log.mjcf_text)
+    pose = 5
+    q = log.poses[pose].unloaded
+    t, R = body_pose(paper_rrd, "/robot/link6", pose)
+    x, M = kinematics(paper_log, robot.rigid_qpos(q), "link6")
+    np.testing.assert_allclose(t, x, atol=F32)
+    np.testing.assert_allclose(R, M, atol=1e-6)
+    x_true, _ = kinematics(paper_log, log.truth.joints[pose].unloaded.qpos, "link6")
+    assert np.linalg.norm(x_true - x) > 1e-3          # the sag: the two differ by centimetres
+
+
+def test_truth_ghost_is_the_magnified_joint_deflection(paper_log, paper_rrd, tmp_path):
+    """truth/deformed_x200: motor angles q + d_u + 200 (d_l - d_u) from /truth/joints, passive
+    joints by the loop; at x1 it is the true loaded equilibrium itself (the parallelogram's
+    closure holds at any motor angles, so nothing is lost by rebuilding the passive joints)."""
+    log = read_log(paper_log, include_truth=True)
+    robot = Robot.from_xml(log.mjcf_text)
+    pose = 8
+    q = np.asarray(log.poses[pose].unloaded)
+    du, dl = log.truth.joints[pose].unloaded.deflection, log.truth.joints[pose].loaded.deflection
+    x, M = kinematics(paper_log, robot.rigid_qpos(q + du + 200.0 * (dl - du)), "link6")
+    t, R = body_pose(paper_rrd, "/truth/deformed_x200/link6", pose)
+    np.testing.assert_allclose(t, x, atol=F32)
+    np.testing.assert_allclose(R, M, atol=1e-6)
+    # the magnified deformation is large: the ghost's tool is tens of cm off the robot's
+    assert np.linalg.norm(t - body_pose(paper_rrd, "/robot/link6", pose)[0]) > 0.1
+    one = tmp_path / "x1.rrd"
+    write_recording(paper_log, one, magnify=1.0)
+    x, M = kinematics(paper_log, log.truth.joints[pose].loaded.qpos, "link6")
+    t, R = body_pose(one, "/truth/deformed_x1/link6", pose)
+    np.testing.assert_allclose(t, x, atol=F32)
+    np.testing.assert_allclose(R, M, atol=1e-6)
+
+
+def test_no_truth_outside_the_truth_tree(paper_log, stripped_log, tmp_path):
+    """Hiding truth/ leaves exactly what a real campaign shows: every entity outside truth/ has
+    the same data whether the log (and the report) carry truth or not. Only the pose page's
+    legend differs, since it names what is drawn."""
+    def content(rrd: Path) -> dict:
+        out = {}
+        for c in chunks(rrd):
+            if c.entity_path.startswith(("/truth", "/__properties")):
+                continue
+            b = c.to_record_batch()
+            for name in b.schema.names:
+                if name.startswith("rerun.") or name in ("pose", "log_time", "log_tick"):
+                    continue
+                vals = column(c, name)
+                if name == "TextDocument:text":
+                    vals = [text(v).split("**In the 3D view**")[0] for v in vals]
+                key = (c.entity_path, name, c.is_static)
+                out.setdefault(key, []).extend(zip(column(c, "pose") if not c.is_static
+                                                   else [None] * len(vals), vals))
+        return {k: sorted(v, key=lambda t: -1 if t[0] is None else t[0]) for k, v in out.items()}
+
+    full, real = tmp_path / "full.rrd", tmp_path / "real.rrd"
+    (tmp_path / "t").mkdir()
+    (tmp_path / "r").mkdir()
+    write_recording(paper_log, full, write_identified(tmp_path / "t/id.json", paper_log, True))
+    write_recording(stripped_log, real, write_identified(tmp_path / "r/id.json", paper_log, True,
+                                                         truth=False))
+    a, b = content(full), content(real)
+    assert a.keys() == b.keys()
+    for k in a:
+        assert a[k] == b[k], k
+    paths = entity_paths(full)
+    assert {"/truth/parameters/table", "/truth/deformed_x200/forearm"} <= paths
+    assert not any(p.startswith("/truth") for p in entity_paths(real))
+
+
+def test_magnify_and_truth_free_log(paper_log, stripped_log, paper_rrd, tmp_path):
+    """A stripped (real-campaign) log: no truth tree, no ghost; --magnify scales the arrows."""
     rrd = tmp_path / "real.rrd"
-    s = write_recording(stripped, rrd, magnify=50)
-    assert not s.truth and "rigid" in s.robot_source
+    s = write_recording(stripped_log, rrd, magnify=50)
+    assert not s.truth and s.ghost == "none"
     paths = entity_paths(rrd)
-    assert not any(p.startswith("/truth") for p in paths)
+    assert not any(p.startswith(("/truth", "/model")) for p in paths)
     assert "/deflection/x50/measured" in paths
     vec = rows_at(rrd, "/deflection/x50/measured", "Arrows3D:vectors")
-    write_recording(paper_log, tmp_path / "full.rrd")
-    full = rows_at(tmp_path / "full.rrd", "/deflection/x200/measured", "Arrows3D:vectors")
+    full = rows_at(paper_rrd, "/deflection/x200/measured", "Arrows3D:vectors")
     np.testing.assert_allclose(np.array(vec[0]) * 4, full[0], rtol=1e-6)
-    # rigid configuration: both states draw the same robot
-    tu = rows_at(rrd, "/robot/unloaded/link6", "Transform3D:translation")
-    tl = rows_at(rrd, "/robot/loaded/link6", "Transform3D:translation")
-    np.testing.assert_array_equal(tu[0], tl[0])
+    page = page_at(rrd, 0)
+    assert "no ghost" in page and "--identified" in page
 
 
-def write_identified(path: Path, log_path: Path, predictions: bool, full: bool = True) -> Path:
-    names = ["k1", "k2", "k3", "k4", "k5", "k6", "compensator_stiffness", "compensator_preload"]
-    truth = [0.25e-6, 0.12e-6, 0.07e-6, 0.35e-6, 0.40e-6, 0.60e-6, 2.6e6, 0.83]
-    params = []
-    for n, t in zip(names, truth):
-        p = {"name": n, "estimate": t * 1.01}
-        if full:
-            p.update(unit="rad/(N*m)", std=abs(t) * 0.02, truth=t)
-        params.append(p)
-    doc: dict = {"method": "one-step", "parameters": params}
-    if predictions:
-        d = measured_deflections(read_log(log_path))
-        doc["observations"] = [{"pose": p, "reflector": r, "predicted": (0.9 * v).tolist()}
-                               for p, refl in d.items() for r, v in refl.items()]
-        doc["observations"].append({"pose": 0, "reflector": "refl_a"})  # malformed: skipped
-    path.write_text(json.dumps(doc))
-    return path
+# --------------------------------------------------------------------------- --identified
 
 
-def test_identified_with_predictions(paper_log, tmp_path, capsys):
+def test_model_ghost_from_the_truth_values_is_the_truth_ghost(paper_log, stripped_log, tmp_path):
+    """The model's ghost comes from the statics with the report's estimates. With estimates
+    equal to the truth it must coincide with the true ghost (the same statics made the log);
+    it is drawn for a real campaign too, where no true ghost exists."""
+    ident = write_identified(tmp_path / "id.json", paper_log, False, factor=1.0)
+    rrd = tmp_path / "m.rrd"
+    s = write_recording(paper_log, rrd, ident)
+    assert "identified model" in s.ghost and "truth" in s.ghost
+    for pose in (0, 8, 12):
+        t, R = body_pose(rrd, "/model/deformed_x200/link6", pose)
+        tt, RR = body_pose(rrd, "/truth/deformed_x200/link6", pose)
+        # statics solved to 1e-10 relative: the joint deflections agree to ~1e-12 rad, x200
+        np.testing.assert_allclose(t, tt, atol=F32)
+        np.testing.assert_allclose(R, RR, atol=1e-6)
+    real = tmp_path / "real.rrd"
+    assert write_recording(stripped_log, real, ident).ghost == "the identified model"
+    t, _ = body_pose(real, "/model/deformed_x200/link6", 8)
+    np.testing.assert_allclose(t, body_pose(rrd, "/model/deformed_x200/link6", 8)[0], atol=F32)
+    # the blueprint hides the true ghost beside the model's (it would sit on top of it)
+    bp = build_blueprint(plan_view(read_log(paper_log, include_truth=True),
+                                   IdentificationReport.read(ident)))
+    scene = bp.root_container.contents[0]
+    assert "/truth/deformed_x200" in scene.visualizer_overrides
+
+
+def test_no_model_ghost_for_parameters_it_cannot_pose(stripped_log, paper_log, tmp_path):
+    extra = {"name": "forearm_cx", "unit": "rad/(N*m)", "estimate": 1e-7, "std": 1e-8}
+    ident = write_identified(tmp_path / "id.json", paper_log, False, extra=extra)
+    rrd = tmp_path / "x.rrd"
+    assert write_recording(stripped_log, rrd, ident).ghost == "none"
+    assert not any(p.startswith("/model") for p in entity_paths(rrd))
+    page = page_at(rrd, 0)
+    assert "model ghost: none" in page and "forearm_cx" in page
+
+
+def test_identified_with_predictions(paper_log, tmp_path):
     ident = write_identified(tmp_path / "id.json", paper_log, predictions=True)
     rrd = tmp_path / "id.rrd"
     s = write_recording(paper_log, rrd, identified=ident)
     assert s.predicted == s.arrows
     assert any("1 entries" in w for w in s.warnings)   # the command line prints these
     paths = entity_paths(rrd)
-    for e in ("/deflection/x200/predicted", "/deflection/x200/residual",
-              "/plots/residual_mm/refl_a", "/parameters/compliance/estimate",
-              "/parameters/compliance/std", "/parameters/compliance/truth",
-              "/parameters/relative_std_percent", "/parameters/z_score", "/parameters/table"):
+    for e in ("/deflection/x200/model", "/residual/x2000/model", "/residual/x2000/noise_3sigma",
+              "/plots/residual_um/model", "/plots/residual_um/noise", "/parameters/table",
+              "/parameters/chart/0_µrad__N_m/estimate", "/truth/parameters/table"):
         assert e in paths, e
     meas = rows_at(rrd, "/deflection/x200/measured", "Arrows3D:vectors")
-    res = rows_at(rrd, "/deflection/x200/residual", "Arrows3D:vectors")
-    np.testing.assert_allclose(res[2], 0.1 * np.array(meas[2]), rtol=1e-5, atol=1e-7)
-    bars = [c for c in chunks(rrd) if c.entity_path == "/parameters/compliance/estimate"]
-    values = [col for col in bars[0].to_record_batch().schema.names if "values" in col]
-    assert values
+    start = rows_at(rrd, "/deflection/x200/measured", "Arrows3D:origins")
+    res = rows_at(rrd, "/residual/x2000/model", "Arrows3D:vectors")
+    res_o = rows_at(rrd, "/residual/x2000/model", "Arrows3D:origins")
+    pose = 2
+    # residual = measured - 0.9 measured, magnified 2000 = 10 x the arrows' 200
+    np.testing.assert_allclose(res[pose], 10 * 0.1 * np.array(meas[pose]), rtol=1e-5, atol=1e-6)
+    # and it ends at the measured arrow's tip
+    np.testing.assert_allclose(np.array(res_o[pose]) + res[pose],
+                               np.array(start[pose]) + meas[pose], atol=F32)
+    # the residual plot: RMS per axis of the pose's residuals, in um
+    rms = rows_at(rrd, "/plots/residual_um/model", "Scalars:scalars")[pose]
+    d = measured_deflections(read_log(paper_log))[pose]
+    expect = 1e6 * np.sqrt(np.mean([(0.1 * v) ** 2 for v in d.values()]))
+    assert np.ravel(rms)[0] == pytest.approx(expect, rel=1e-9)
+    # the pose page carries the numbers: residual of refl_a in um
+    page = page_at(rrd, pose)
+    assert f"{np.linalg.norm(0.1 * d['refl_a']) * 1e6:.0f} µm" in page
+
+
+def test_parameter_chart_names_every_parameter_and_reads_back(paper_log, tmp_path):
+    """Each parameter is named in the chart, and its dot sits where the block's tick labels
+    say its estimate is (in display units: µrad/(N·m), kN/m, mm)."""
+    ident = write_identified(tmp_path / "id.json", paper_log, predictions=False)
+    rrd = tmp_path / "id.rrd"
+    write_recording(paper_log, rrd, identified=ident)
+    shown = {"k1": 0.25 * 1.01, "compensator_stiffness": 2600 * 1.01,
+             "compensator_preload": 830 * 1.01}
+    texts = []
+    for c in chunks(rrd):
+        if c.entity_path.startswith("/parameters/chart") and "Points2D:labels" in \
+                c.to_record_batch().schema.names:
+            texts += column(c, "Points2D:labels")[0]
+    for n in BASE[:6]:
+        assert n in texts
+    assert "compensator_stiffness (kN/m)" in texts and "compensator_preload (mm)" in texts
+    for block, name in (("0_µrad__N_m", "k1"), ("1_kN_m", "compensator_stiffness"),
+                        ("2_mm", "compensator_preload")):
+        base = f"/parameters/chart/{block}"
+        ticks = [float(t) for t in static(rrd, f"{base}/ticks", "Points2D:labels")]
+        labels = static(rrd, f"{base}/estimate", "Points2D:labels")
+        dots = static(rrd, f"{base}/estimate", "Points2D:positions")
+        x = dots[[lab.split(" = ")[0] for lab in labels].index(name)][0]
+        value = ticks[0] + x / WIDTH * (ticks[-1] - ticks[0])
+        assert value == pytest.approx(shown[name], rel=1e-5)
+    table = text(static(rrd, "/parameters/table", "TextDocument:text"))
+    assert "µrad/(N·m)" in table and "kN/m" in table and "truth" not in table.lower()
+    # against the truth: z = (1.01 t - t) / (0.02 t) = +0.50 for every parameter
+    assert "+0.50" in text(static(rrd, "/truth/parameters/table", "TextDocument:text"))
 
 
 def test_identified_minimal_report(paper_log, tmp_path):
@@ -208,21 +420,133 @@ def test_identified_minimal_report(paper_log, tmp_path):
     s = write_recording(paper_log, rrd, identified=ident)
     assert s.predicted == 0
     paths = entity_paths(rrd)
-    assert "/parameters/compliance/estimate" in paths and "/parameters/table" in paths
-    assert "/parameters/z_score" not in paths and "/deflection/x200/predicted" not in paths
+    assert "/parameters/table" in paths and "/parameters/chart/0_unitless/estimate" in paths
+    assert "/truth/parameters/table" not in paths and "/deflection/x200/model" not in paths
 
 
 def test_identified_report_with_an_unidentifiable_parameter(paper_log, tmp_path):
-    """identify writes estimate null for a parameter the campaign cannot identify (a truncated
-    log without the lateral pulls: k1); the viewer draws the rest."""
+    """identify writes estimate null for a parameter the campaign cannot identify (k1 without
+    the lateral pulls); the chart says so, and the model ghost takes it as rigid."""
     ident = write_identified(tmp_path / "id.json", paper_log, predictions=False)
     doc = json.loads(ident.read_text())
     doc["parameters"][0].update(estimate=None, std=None, identifiable=False, reason="vertical")
     ident.write_text(json.dumps(doc))
-    s = write_recording(paper_log, tmp_path / "id.rrd", identified=ident)
+    rrd = tmp_path / "id.rrd"
+    s = write_recording(paper_log, rrd, identified=ident)
+    assert s.poses == 16 and "identified model" in s.ghost
+    assert static(rrd, "/parameters/chart/0_µrad__N_m/not_identifiable",
+                  "Points2D:labels") == ["not identifiable"]
+    page = page_at(rrd, 0)
+    assert "k1 not identified: taken as rigid" in page
+
+
+# --------------------------------------------------------------------------- first open
+
+
+def test_blueprint_opens_at_pose_0_framing_robot_tool_and_tracker(paper_log, tmp_path):
+    log = read_log(paper_log, include_truth=True)
+    plan = plan_view(log)
+    bp = build_blueprint(plan)
+    assert bp.time_panel.timeline == "pose" and bp.time_panel.play_state == "paused"
+    assert bp.blueprint_panel.state == "collapsed" and bp.selection_panel.state == "collapsed"
+    scene = bp.root_container.contents[0]
+    assert "×200" in scene.name
+    eye = scene.properties["EyeControls3D"]
+    # the camera: every body, reflector arrow tip and the tracker inside its field of view
+    e, target = framing(plan.scenes[0], log.tracker_spec().position, 200.0)
+    np.testing.assert_allclose(np.ravel(eye.position.as_arrow_array().to_pylist()), e, rtol=1e-6)
+    s = plan.scenes[0]
+    d, _, ok = s.deflection()
+    pts = np.vstack([s.robot.xpos[1:], s.measured["unloaded"][ok] + 200 * d[ok],
+                     log.tracker_spec().position])
+    fwd = (target - e) / np.linalg.norm(target - e)
+    right = np.cross(fwd, [0, 0, 1.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, fwd)
+    rel = pts - e
+    depth = rel @ fwd
+    assert np.all(depth > 0)
+    assert np.all(np.abs(rel @ right) <= HALF_FOV_TAN * depth + 1e-9)
+    assert np.all(np.abs(rel @ up) <= HALF_FOV_TAN * depth + 1e-9)
+    # and it is tight: some point touches the edge
+    assert np.max(np.maximum(np.abs(rel @ right), np.abs(rel @ up)) / depth) \
+        == pytest.approx(HALF_FOV_TAN, rel=1e-6)
+
+
+def test_reflector_posts_and_payload_are_drawn(paper_log, paper_rrd):
+    model = mujoco.MjModel.from_xml_string(read_log(paper_log).mjcf_text)
+    shapes = geom_shapes(model)
+    sites = [model.site(n).id for n in ("refl_a", "refl_b", "refl_c")]
+    plate = next(s for s in shapes if s.name == "tool_plate")
+    for post in reflector_posts(model, shapes, sites):
+        np.testing.assert_allclose(post.end, model.site_pos[post.site])
+        # it leaves the tool plate (a box) from its surface, at the point nearest the reflector
+        local = post.start - plate.pos
+        assert np.all(np.abs(local) <= plate.size + 1e-12)
+        assert np.any(np.isclose(np.abs(local), plate.size))
+        strip = static(paper_rrd, f"/robot/link6/reflectors/{post.name}", "LineStrips3D:strips")
+        np.testing.assert_allclose(strip[0], [post.start, post.end], atol=1e-6)
+    # the payload of pose 0 (700 kg): a steel block of that mass below the payload site
+    half = rows_at(paper_rrd, "/robot/payload", "Boxes3D:half_sizes")[0]
+    assert (2 * half[0][0]) ** 3 * 7850.0 == pytest.approx(700.0, rel=1e-5)
+    # the lateral pull of pose 12 (1.2 kN in y): an arrow along it
+    pull = rows_at(paper_rrd, "/robot/payload", "Arrows3D:vectors")[12]
+    np.testing.assert_allclose(np.ravel(pull), [0, 1200 * 4e-4, 0], atol=1e-6)
+
+
+# --------------------------------------------------------------------------- discover
+
+
+def test_discovery_view(paper_log, tmp_path):
+    """Residuals before (user's model) and after (with the effects), both ending at the
+    measured tips; the verdict on every pose's page names the worst (pose, reflector)."""
+    d = measured_deflections(read_log(paper_log))
+
+    def report(frac: float, rms: float) -> IdentificationReport:
+        obs = [{"pose": p, "reflector": r, "predicted": (frac * v).tolist()}
+               for p, refl in d.items() for r, v in refl.items()]
+        doc = {"method": "discover", "residual_rms": rms, "expected_residual_rms": 27e-6,
+               "parameters": [{"name": n, "estimate": t, "unit": ""} for n, t in zip(BASE, TRUE)],
+               "observations": obs}
+        return IdentificationReport.from_json(json.dumps(doc))
+    disc = Discovery(report(0.8, 300e-6), report(0.99, 25e-6), ("link_compliance (forearm)",))
+    rrd = tmp_path / "d.rrd"
+    s = write_discovery_recording(paper_log, rrd, disc)
     assert s.poses == 16
-    paths = entity_paths(tmp_path / "id.rrd")
-    assert "/parameters/table" in paths and "/parameters/z_score" in paths
+    before = rows_at(rrd, "/residual/x2000/before", "Arrows3D:vectors")
+    after = rows_at(rrd, "/residual/x2000/after", "Arrows3D:vectors")
+    meas = rows_at(rrd, "/deflection/x200/measured", "Arrows3D:vectors")
+    np.testing.assert_allclose(before[4], 2000 * 0.2 * np.array(meas[4]) / 200, rtol=1e-5)
+    np.testing.assert_allclose(after[4], 2000 * 0.01 * np.array(meas[4]) / 200, rtol=1e-4,
+                               atol=1e-6)
+    page = page_at(rrd, 4)
+    assert "named link_compliance (forearm)" in page and "300.0 µm → 25.0 µm" in page
+    # the worst residual of the user's model, found independently: largest 0.2 |d| / sigma
+    plan = plan_view(read_log(paper_log, include_truth=True))
+    worst = max(((np.sqrt(0.2 * v @ np.linalg.solve(sc.deflection()[1][i], 0.2 * v)), p, r)
+                 for sc in plan.scenes for p, refl in d.items() if p == sc.index
+                 for i, (r, v) in enumerate((nm, refl[nm]) for nm in plan.names if nm in refl)),
+                key=lambda t: t[0])
+    assert f"pose {worst[1]} {worst[2]} ({worst[0]:.1f}σ)" in page
+    assert {"/plots/residual_um/before", "/plots/residual_um/after"} <= entity_paths(rrd)
+
+
+def test_cli_discover_writes_its_view(paper_log, tmp_path, capsys):
+    log = tmp_path / "p.mcap"
+    shutil.copy(paper_log, log)
+    js = tmp_path / "d.json"
+    assert calbench_main(["discover", str(log), "--json", str(js)]) == 0
+    out = capsys.readouterr().out
+    rrd = tmp_path / "d.rrd"
+    assert rrd.exists() and f"rerun {rrd}" in out
+    assert json.loads(js.read_text())["view_rrd"] == str(rrd)
+    assert {"/residual/x2000/before", "/residual/x2000/after",
+            "/parameters/table"} <= entity_paths(rrd)
+    # an existing output is refused (exit 2) before any work
+    assert calbench_main(["discover", str(log), "--rrd", str(log)]) == 2
+
+
+# --------------------------------------------------------------------------- command line
 
 
 def test_cli_writes_next_to_the_log_without_display(paper_log, tmp_path, capsys, monkeypatch):
@@ -281,18 +605,14 @@ def test_every_geom_type_is_drawn():
         <geom name="pln" type="plane" size="1 1 1"/>
       </body></worldbody></mujoco>"""
     model = mujoco.MjModel.from_xml_string(xml)
-    kinds = {}
     shapes = {s.name: s for s in geom_shapes(model)}
-    for shape in shapes.values():
-        for wire in (False, True):
-            a = _geom_archetype(rr, shape, wire)
-            kinds[(shape.name, wire)] = type(a).__name__ if a is not None else None
-    assert kinds[("box", False)] == "Boxes3D" and kinds[("cap", False)] == "Capsules3D"
-    assert kinds[("cyl", False)] == "Cylinders3D" and kinds[("sph", False)] == "Ellipsoids3D"
-    assert kinds[("ell", True)] == "Ellipsoids3D" and kinds[("msh", False)] == "Mesh3D"
-    assert kinds[("msh", True)] == "LineStrips3D" and "pln" not in shapes
+    kinds = {name: type(_geom_archetype(rr, shape)).__name__ for name, shape in shapes.items()}
+    assert kinds == {"box": "Boxes3D", "cap": "Capsules3D", "cyl": "Cylinders3D",
+                     "sph": "Ellipsoids3D", "ell": "Ellipsoids3D", "msh": "Mesh3D"}
+    ghost = _geom_archetype(rr, shapes["box"], (1, 2, 3, 80))
+    assert ghost.colors.as_arrow_array().to_pylist() == [0x01020350]
     # the capsule starts at one end of its segment (rerun capsules grow along +z)
-    cap = _geom_archetype(rr, shapes["cap"], False)
+    cap = _geom_archetype(rr, shapes["cap"])
     start = np.asarray(cap.translations.as_arrow_array().to_pylist()[0])
     ends = [np.zeros(3), np.array([1.0, 0, 0])]
     assert min(np.linalg.norm(start - e) for e in ends) < 1e-6
@@ -308,32 +628,24 @@ def test_report_tolerates_optional_fields(tmp_path):
     assert ident.read_warnings
 
 
-def _quat_xyzw_to_mat(q) -> np.ndarray:
-    x, y, z, w = q
-    m = np.empty(9)
-    mujoco.mju_quat2Mat(m, np.array([w, x, y, z], float))
-    return m.reshape(3, 3)
-
-
 def test_logged_body_pose_places_geoms_where_mujoco_does(paper_log, paper_rrd):
     """Body Transform3D (world from body) composed with the geom's pose in the body frame
-    gives MuJoCo's geom pose at the true equilibrium (checks the wxyz -> xyzw handling)."""
-    log = read_log(paper_log, include_truth=True)
+    gives MuJoCo's geom pose at the command (checks the wxyz -> xyzw handling)."""
+    log = read_log(paper_log)
     model = mujoco.MjModel.from_xml_string(log.mjcf_text)
     data = mujoco.MjData(model)
     pose = 5
-    data.qpos[:] = log.truth.joints[pose].loaded.qpos
+    data.qpos[:] = Robot(model).rigid_qpos(log.poses[pose].unloaded)
     mujoco.mj_kinematics(model, data)
-    t = rows_at(paper_rrd, "/robot/loaded/link6", "Transform3D:translation")[pose]
-    q = rows_at(paper_rrd, "/robot/loaded/link6", "Transform3D:quaternion")[pose]
-    R = _quat_xyzw_to_mat(q[0] if np.ndim(q) == 2 else q)
-    (box,) = [c for c in chunks(paper_rrd) if c.entity_path == "/robot/loaded/link6/tool_plate"]
+    t, R = body_pose(paper_rrd, "/robot/link6", pose)
+    (box,) = [c for c in chunks(paper_rrd) if c.entity_path == "/robot/link6/tool_plate"]
     center = np.asarray(column(box, "Boxes3D:centers")[0][0])
     gq = column(box, "Boxes3D:quaternions")[0][0]
+    m = np.empty(9)
+    mujoco.mju_quat2Mat(m, np.array([gq[3], gq[0], gq[1], gq[2]], float))
     g = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "tool_plate")
-    np.testing.assert_allclose(np.ravel(t) + R @ center, data.geom_xpos[g], atol=1e-5)
-    np.testing.assert_allclose(R @ _quat_xyzw_to_mat(gq), data.geom_xmat[g].reshape(3, 3),
-                               atol=1e-5)
+    np.testing.assert_allclose(t + R @ center, data.geom_xpos[g], atol=1e-5)
+    np.testing.assert_allclose(R @ m.reshape(3, 3), data.geom_xmat[g].reshape(3, 3), atol=1e-5)
 
 
 def test_spawn_failure_falls_back_to_a_file(paper_log, tmp_path, capsys, monkeypatch):
