@@ -270,6 +270,9 @@ def add_discover(sub) -> None:
     p.add_argument("--view-json", type=Path, default=None,
                    help="identify-style JSON with predicted deflections for `calbench view --identified` "
                         "(default: next to --json)")
+    p.add_argument("--rrd", type=Path, default=None,
+                   help="Rerun recording of where the model disagreed, residuals before and after on the robot "
+                        "(default: next to --json, or LOG.discover.rrd)")
     p.set_defaults(func=cmd_discover)
 
 
@@ -279,10 +282,11 @@ def cmd_discover(args) -> int:
         raise InputError(args.log, "LOG.mcap", "an existing campaign log", "no such file")
     plot = args.plot or (args.json.with_suffix(".png") if args.json else args.log.with_name(args.log.stem + ".discover.png"))
     view = args.view_json or (args.json.with_name(args.json.stem + ".view.json") if args.json else None)
+    rrd = args.rrd or (args.json.with_suffix(".rrd") if args.json else args.log.with_name(args.log.stem + ".discover.rrd"))
     out_model = args.out_model or args.log.with_name(args.log.stem + ".augmented.xml")
-    check_outputs({"--json": args.json, "--out-model": out_model, "--plot": plot, "--view-json": view},
-                  {"LOG": args.log, "--model": args.model})
-    rep = discover(args.log, args.model, out_model=args.out_model, plot=plot, view_json=view)
+    check_outputs({"--json": args.json, "--out-model": out_model, "--plot": plot, "--view-json": view,
+                   "--rrd": rrd}, {"LOG": args.log, "--model": args.model})
+    rep = discover(args.log, args.model, out_model=args.out_model, plot=plot, view_json=view, view_rrd=rrd)
     print(story(rep))
     if args.json:
         write_text(args.json, json.dumps(clean(rep), indent=2, allow_nan=False))

@@ -52,7 +52,8 @@ def discover_step(logs: Path) -> Iterator[str]:
     yield f"4. discover: a campaign on a robot with a hidden effect the model lacks -> {log}"
     js = logs / "paper_table5_hidden.discover.json"
     rep = discover(log, out_model=logs / "paper_table5_hidden.augmented.xml",
-                   plot=js.with_suffix(".png"), view_json=logs / "paper_table5_hidden.discover.view.json")
+                   plot=js.with_suffix(".png"), view_json=logs / "paper_table5_hidden.discover.view.json",
+                   view_rrd=js.with_suffix(".rrd"))
     write_text(js, json.dumps(clean(rep), indent=2, allow_nan=False))
     yield "\n".join("   " + line for line in story(rep).splitlines())
     yield ("   (the hidden truth, read only now: link_compliance forearm, compliance [1.8e-7, 0, 1.8e-7] "

@@ -40,6 +40,7 @@ from calbench.bench.idreport import IdentificationReport, ObservationFit, Parame
 from calbench.bench.logformat import read_log
 from calbench.bench.outputs import atomic_path, write_text
 from calbench.bench.robot import ACTUATED, COMPENSATOR, Robot
+from calbench.bench.view import Discovery, write_discovery_recording
 
 from .fit import (BASE_LOWER, BASE_UPPER, NP, Fit, build, effect_priors, fit, label, library)
 from .stats import (ALPHA_EFFECT, ALPHA_FIT, MIN_EXPLAINED, chi2_p, compare, diagnose,
@@ -105,9 +106,10 @@ def augmented_mjcf(src, fitted: Fit) -> str:
     return augmented_xml(spec, effects)
 
 
-def discover(log_path, model=None, *, out_model=None, plot=None, view_json=None,
+def discover(log_path, model=None, *, out_model=None, plot=None, view_json=None, view_rrd=None,
              max_rounds: int = MAX_ROUNDS) -> dict:
-    """Run the whole workflow; returns the JSON report (docs/contract.md keys plus extras)."""
+    """Run the whole workflow; returns the JSON report (docs/contract.md keys plus extras).
+    ``view_rrd``: also write the Rerun recording of where the model disagreed (:func:`write_view`)."""
     t0 = time.perf_counter()
     log_path = Path(log_path)
     log = read_log(log_path)                       # no truth
@@ -209,6 +211,8 @@ def discover(log_path, model=None, *, out_model=None, plot=None, view_json=None,
     if view_json:
         write_text(view_json, view_report(final, obs, rep).to_json())
         rep["view_json"] = str(view_json)
+    if view_rrd:
+        rep["view_rrd"] = str(write_view(log_path, view_rrd, base, final, obs, rep))
     return rep
 
 
@@ -223,21 +227,35 @@ def _parameters(f: Fit) -> list[dict]:
             for i, (n, u, v, s) in enumerate(zip(f.names, f.units, f.values, sd))]
 
 
-def view_report(f: Fit, obs, rep: dict) -> IdentificationReport:
-    """The final model as an identification report, for `calbench view --identified`: its
+def write_view(log_path, rrd, base: Fit, final: Fit, obs, rep: dict) -> Path:
+    """The Rerun recording of the discovery (bench/view.py, ``write_discovery_recording``): on
+    the robot, every reflector's residual with the user's model and with the named effects,
+    against the noise, per pose; the verdict; the final model's parameters."""
+    named = tuple(s["effect"] + (f" ({s['detail']})" if s["effect"] != UNEXPLAINED and s["detail"]
+                                 else "") for s in rep["steps"])
+    disc = Discovery(view_report(base, obs, rep, "before"), view_report(final, obs, rep), named)
+    write_discovery_recording(log_path, rrd, disc)
+    return Path(rrd)
+
+
+def view_report(f: Fit, obs, rep: dict, stage: str = "after") -> IdentificationReport:
+    """A fitted model as an identification report, for `calbench view --identified`: its
     parameters (base and effect; ``identifiable`` = determined by the data) and the measured,
-    predicted and residual deflection of every observation."""
+    predicted and residual deflection of every observation. ``stage``: "after" (the final
+    model, with the named effects) or "before" (the user's model as it is)."""
     params = tuple(ParameterEstimate(p["name"], p["unit"], p["estimate"], p["std"],
                                      identifiable=p["determined"]) for p in _parameters(f))
     fits = tuple(ObservationFit(int(pose), r, predicted=tuple(float(x) for x in f.predicted[i]),
                                 measured=tuple(float(x) for x in obs.dp[i]),
                                 residual=tuple(float(x) for x in f.residual[i]))
                  for i, (pose, r) in enumerate(obs.labels))
+    method = "user model as is" if stage == "before" else \
+        (" + ".join(rep["named_effects"]) or "user model as is")
     return IdentificationReport(
-        method="discover: " + (" + ".join(rep["named_effects"]) or "user model as is"),
-        parameters=params, residual_rms=rep["rms_after"], noise_sigma=rep["noise_sigma"],
+        method="discover: " + method,
+        parameters=params, residual_rms=rep[f"rms_{stage}"], noise_sigma=rep["noise_sigma"],
         chi2_per_dof=f.chi2 / f.dof if f.dof > 0 else None, chi2=float(f.chi2), dof=int(f.dof),
-        expected_residual_rms=rep["noise_rms_after"],
+        expected_residual_rms=rep[f"noise_rms_{stage}"],
         whitened_residual_rms=rms(f.residual_w),
         covariance=tuple(tuple(_num(x) for x in row) for row in f.cov),
         log=rep["log"], model=rep["model"], n_poses_planned=obs.n_planned,
@@ -318,6 +336,8 @@ def story(rep: dict) -> str:
         lines.append(f"Augmented model: {rep['augmented_model']}")
     if rep.get("plot"):
         lines.append(f"Per-pose residuals before/after: {rep['plot']}")
+    if rep.get("view_rrd"):
+        lines.append(f"Where the model disagreed, on the robot (Rerun): rerun {rep['view_rrd']}")
     if rep.get("view_json"):
         lines.append(f"Rerun view: calbench view {rep['log']} --identified {rep['view_json']}")
     return "\n".join(lines)
@@ -341,4 +361,4 @@ def clean(x):
 
 
 __all__ = ["discover", "story", "augmented_mjcf", "plot_residuals",
-           "view_report", "clean", "UNEXPLAINED"]
+           "view_report", "write_view", "clean", "UNEXPLAINED"]
