@@ -340,7 +340,7 @@ def _tracker_archetypes(rr, position: np.ndarray) -> list:
     return [rr.Ellipsoids3D(half_sizes=[[0.14, 0.14, 0.16]], centers=[p], colors=[TRACKER],
                             fill_mode=rr.components.FillMode.Solid,
                             labels=["laser tracker"], show_labels=True),
-            rr.LineStrips3D(legs, radii=[0.025], colors=[TRACKER])]
+            rr.LineStrips3D(legs, radii=[0.015], colors=[TRACKER])]
 
 
 def _payload_archetypes(rr, scene: PoseScene) -> list:
@@ -355,12 +355,12 @@ def _payload_archetypes(rr, scene: PoseScene) -> list:
         top = scene.payload - [0, 0, SLING]
         return [rr.Boxes3D(half_sizes=[[side / 2] * 3], centers=[top - [0, 0, side / 2]],
                            colors=[PAYLOAD], fill_mode=rr.components.FillMode.MajorWireframe,
-                           labels=[f"{w.mass:g} kg (loaded state)"], show_labels=True),
+                           labels=[f"{w.mass:g} kg payload (loaded state)"], show_labels=False),
                 rr.LineStrips3D([[scene.payload, top]], radii=[0.01], colors=[PAYLOAD])]
     f = np.asarray(w.force, float)
     return [rr.Arrows3D(origins=[scene.payload], vectors=[f * 4e-4], colors=[PAYLOAD],
                         radii=[0.02], labels=[f"pull {np.linalg.norm(f) / 1e3:.2f} kN "
-                                              "(loaded state)"], show_labels=True),
+                                              "(loaded state)"], show_labels=False),
             rr.Clear(recursive=False)]
 
 
@@ -381,7 +381,7 @@ def build_blueprint(plan: ViewPlan):
     if plan.residuals:
         title += f", residuals ×{plan.residual_magnify:g}"
     title += " (colours: see the pose page)"
-    eye, target = framing(plan.scenes[0], plan.log.tracker_spec().position, plan.magnify) \
+    eye, target = framing(plan.scenes, plan.log.tracker_spec().position, plan.magnify) \
         if plan.scenes else (np.array([6.0, -6.0, 4.0]), np.zeros(3))
     # with the model's ghost shown, the true one (nearly on top of it) starts hidden
     hidden = {f"/truth/deformed_{plan.tag}": rrb.EntityBehavior(visible=False)} \
@@ -604,7 +604,7 @@ def log_view(rec, plan: ViewPlan) -> Summary:
         origins = mu[idx]
         tips = origins + plan.magnify * d[idx]
         rec.log(f"deflection/{tag}/measured", rr.Arrows3D(
-            vectors=plan.magnify * d[idx], origins=origins, colors=[MEASURED], radii=[0.022],
+            vectors=plan.magnify * d[idx], origins=origins, colors=[MEASURED], radii=[0.03],
             labels=[f"{names[i]} measured {np.linalg.norm(d[i]) * 1e3:.3f} mm" for i in idx],
             show_labels=False))
         rec.log(f"deflection/{tag}/uncertainty_3sigma", _ellipsoids(
@@ -618,7 +618,7 @@ def log_view(rec, plan: ViewPlan) -> Summary:
             tok = np.flatnonzero(np.all(np.isfinite(td), axis=1))
             rec.log(f"truth/deflection/{tag}", rr.Arrows3D(
                 vectors=plan.magnify * td[tok], origins=s.truth["unloaded"][tok], colors=[TRUTH],
-                radii=[0.01], labels=[f"{names[i]} true {np.linalg.norm(td[i]) * 1e3:.3f} mm"
+                radii=[0.014], labels=[f"{names[i]} true {np.linalg.norm(td[i]) * 1e3:.3f} mm"
                                        for i in tok], show_labels=False))
         # the model's prediction
         pred = plan.predicted.get(s.index, {})
@@ -627,7 +627,7 @@ def log_view(rec, plan: ViewPlan) -> Summary:
             pv = np.array([pred[names[i]] for i in pi], float).reshape(-1, 3)
             rec.log(f"deflection/{tag}/model", rr.Arrows3D(
                 vectors=plan.magnify * pv, origins=mu[pi].reshape(-1, 3), colors=[MODEL],
-                radii=[0.014], labels=[f"{names[i]} model {np.linalg.norm(v) * 1e3:.3f} mm"
+                radii=[0.02], labels=[f"{names[i]} model {np.linalg.norm(v) * 1e3:.3f} mm"
                                       for i, v in zip(pi, pv)], show_labels=False))
             n_pred += len(pi)
         # residuals, ending at the measured tips, and the noise around each tip
@@ -641,7 +641,7 @@ def log_view(rec, plan: ViewPlan) -> Summary:
                 color = RESIDUAL_AFTER if key == "after" else RESIDUAL
                 rec.log(f"residual/x{rk:g}/{key}", rr.Arrows3D(
                     vectors=vec, origins=np.array([tip_of[nm] for nm in refl]).reshape(-1, 3)
-                    - vec, colors=[color], radii=[0.014],
+                    - vec, colors=[color], radii=[0.02],
                     labels=[f"{nm} residual {np.linalg.norm(res[nm]) * 1e6:.0f} um" for nm in refl],
                     show_labels=False))
                 if res:

@@ -36,7 +36,6 @@ from .robot import Params, Robot
 from .statics import Load, StaticsError, StaticsSolver
 from .tracker import MeanReading, mean_reading
 
-TURN = 65.0           # degrees from in front of the tool towards the side away from the tracker
 HALF_FOV_TAN = 0.46   # tangent of the half field of view the framing allows (a margin inside
                       # the viewer's own: the view is wider than tall, and labels need room)
 BASE_PARAMETERS = tuple(f"k{i}" for i in range(1, 7)) + ("compensator_stiffness",
@@ -225,29 +224,32 @@ def pose_scenes(log: CampaignLog, robot: Robot, names: list[str], magnify: float
     return scenes
 
 
-def framing(scene: PoseScene, tracker: np.ndarray, magnify: float,
+def framing(scenes: list[PoseScene], tracker: np.ndarray, magnify: float,
             half_fov_tan: float = HALF_FOV_TAN) -> tuple[np.ndarray, np.ndarray]:
-    """(eye, target) of a camera that frames the robot, the deflection arrows of ``scene`` and
-    the tracker's head. It looks at the tool from in front of it, turned :data:`TURN` degrees
-    towards the side of the arm's vertical plane away from the tracker (so the payload's bending
-    shows in profile and the tracker stands aside, never in front), 20 degrees above the
-    horizon; it stands back just far enough that every one of those points is inside a view
-    whose half-width and half-height subtend ``half_fov_tan`` (a tangent) at the eye."""
-    d, _, ok = scene.deflection()
-    tips = scene.measured["unloaded"][ok] + magnify * d[ok]
+    """(eye, target) of a camera that frames the robot and its deflection arrows in every pose
+    (stepping through the poses never takes the tool out of view) and the tracker's head.
+
+    It looks at the first pose's arm in profile, across its vertical plane (where the payload
+    bends it), from the side away from the tracker (which then stands beyond the robot, never
+    in front), 20 degrees above the horizon, at the middle of all those points; it stands back
+    just far enough that every one of them is inside a view whose half-width and half-height
+    subtend ``half_fov_tan`` (a tangent) at the eye."""
     tracker = np.asarray(tracker, float)
-    pts = np.vstack([scene.robot.xpos[1:], tips, tracker[None]])
+    pts = [tracker[None]]
+    for sc in scenes:
+        d, _, ok = sc.deflection()
+        pts += [sc.robot.xpos[1:], sc.measured["unloaded"][ok] + magnify * d[ok]]
+    pts = np.vstack(pts)
     target = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+    scene = scenes[0]
     base = scene.robot.xpos[1][:2]
     tool = np.nanmean(scene.reflector_sites, axis=0)[:2] - base
-    tool = tool / np.linalg.norm(tool) if np.linalg.norm(tool) > 1e-9 else np.array([1.0, 0.0])
     side = np.array([-tool[1], tool[0]])            # normal of the arm's vertical plane
+    side = side / np.linalg.norm(side) if np.linalg.norm(side) > 1e-9 else np.array([0.0, 1.0])
     if side @ (tracker[:2] - base) > 0:
         side = -side
-    turn = np.radians(TURN)
-    h = np.cos(turn) * tool + np.sin(turn) * side
     elev = np.radians(20.0)
-    back = np.array([h[0] * np.cos(elev), h[1] * np.cos(elev), np.sin(elev)])  # eye - target
+    back = np.array([side[0] * np.cos(elev), side[1] * np.cos(elev), np.sin(elev)])  # eye - target
     right = np.cross(-back, [0.0, 0.0, 1.0])
     right /= np.linalg.norm(right)
     up = np.cross(right, -back)

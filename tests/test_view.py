@@ -452,13 +452,15 @@ def test_blueprint_opens_at_pose_0_framing_robot_tool_and_tracker(paper_log, tmp
     scene = bp.root_container.contents[0]
     assert "×200" in scene.name
     eye = scene.properties["EyeControls3D"]
-    # the camera: every body, reflector arrow tip and the tracker inside its field of view
-    e, target = framing(plan.scenes[0], log.tracker_spec().position, 200.0)
+    # the camera: every body, arrow tip and the tracker inside its field of view
+    e, target = framing(plan.scenes, log.tracker_spec().position, 200.0)
     np.testing.assert_allclose(np.ravel(eye.position.as_arrow_array().to_pylist()), e, rtol=1e-6)
-    s = plan.scenes[0]
-    d, _, ok = s.deflection()
-    pts = np.vstack([s.robot.xpos[1:], s.measured["unloaded"][ok] + 200 * d[ok],
-                     log.tracker_spec().position])
+    # every pose: stepping through them never takes the tool out of view
+    pts = [log.tracker_spec().position[None]]
+    for s in plan.scenes:
+        d, _, ok = s.deflection()
+        pts += [s.robot.xpos[1:], s.measured["unloaded"][ok] + 200 * d[ok]]
+    pts = np.vstack(pts)
     fwd = (target - e) / np.linalg.norm(target - e)
     right = np.cross(fwd, [0, 0, 1.0])
     right /= np.linalg.norm(right)
