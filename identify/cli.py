@@ -71,6 +71,27 @@ def cmd_identify(args) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- executors
+
+def add_scheduler(p) -> None:
+    """--scheduler and --workers: where montecarlo, design and study run their pieces."""
+    p.add_argument("--scheduler", default=None, metavar="ADDR",
+                   help="run the pieces on the Dask cluster at tcp://HOST:PORT or tls://HOST:PORT (tls: "
+                        "Dask's security configuration); default: DASK_SCHEDULER_ADDRESS, else a local cluster "
+                        "on 127.0.0.1 when the job is large enough, else this process; 'local' and "
+                        "'in-process' force those")
+    p.add_argument("--workers", type=int, default=None,
+                   help="worker processes of a local cluster (default: the CPU count; 1: this process)")
+
+
+def open_pieces(args, work_seconds: float, tasks: int):
+    """The executor for this command (identify/executor.py), announced on stderr."""
+    from .executor import choose, open_executor
+    ex = open_executor(choose(args.scheduler, work_seconds, tasks, args.workers))
+    print(f"calbench {args.command}: {ex.choice.describe()}", file=sys.stderr)
+    return ex
+
+
 # --------------------------------------------------------------------------- montecarlo
 
 def add_montecarlo(sub) -> None:
@@ -81,26 +102,39 @@ def add_montecarlo(sub) -> None:
                    help="estimators to run; two-step runs both step-2 variants (default: %(default)s)")
     p.add_argument("--seed", type=int, default=None, help="base noise seed (default: the scenario's)")
     p.add_argument("--json", type=Path, default=None, help="write the summary as JSON")
+    add_scheduler(p)
     p.set_defaults(func=cmd_montecarlo)
 
 
 def cmd_montecarlo(args) -> int:
     from calbench.bench.scenario import load_scenario
-    from .montecarlo import METHODS, format_summary, run_montecarlo
+    from .executor import Interrupted
+    from .montecarlo import METHODS, RUNS_PER_TASK, estimated_seconds, format_summary, run_montecarlo
     if args.runs < 2:
         raise InputError("--runs", "runs", "an integer >= 2", args.runs)
     scn = load_scenario(args.scenario, seed=args.seed)
     check_outputs({"--json": args.json}, {"SCENARIO": args.scenario, "robot": scn.robot})
     methods = {"both": METHODS, "one-step": ("one-step",),
                "two-step": ("two-step", "two-step-weighted")}[args.method]
-    bar = terminal_progress()
-    mc = run_montecarlo(scn, args.runs, methods, progress=bar)
-    bar.close()
+    interrupted = None
+    with open_pieces(args, estimated_seconds(args.runs, methods), -(-args.runs // RUNS_PER_TASK)) as ex:
+        bar = terminal_progress()
+        try:
+            mc = run_montecarlo(scn, args.runs, methods, progress=bar, executor=ex)
+        except Interrupted as exc:
+            mc, interrupted = exc.partial, exc
+        bar.close()
+    if interrupted is not None:
+        print(f"calbench montecarlo: interrupted; {interrupted.done} of {interrupted.total} runs finished",
+              file=sys.stderr)
+        if interrupted.done < 2:
+            return 130
     s = mc.summary()
+    s["interrupted"] = interrupted is not None
     print(format_summary(s))
     if args.json:
         write_text(args.json, json.dumps(s, indent=2))
-    return 0
+    return 130 if interrupted is not None else 0
 
 
 # --------------------------------------------------------------------------- design
@@ -132,8 +166,8 @@ def add_design(sub) -> None:
     p.add_argument("--starts", type=int, default=8,
                    help="random starts besides the greedy one (default: %(default)s)")
     p.add_argument("--no-refine", action="store_true", help="skip the continuous refinement")
-    p.add_argument("--processes", type=int, default=None,
-                   help="worker processes for the candidates (default: the CPU count, at most 4)")
+    add_scheduler(p)
+    p.add_argument("--processes", type=int, dest="workers", help=argparse.SUPPRESS)  # the old spelling
     p.add_argument("--study", action="store_true", help="reproduce the paper's §5 study (plots)")
     p.add_argument("--out-dir", type=Path, default=Path("logs/design_study"),
                    help="--study output folder (default: %(default)s)")
@@ -141,7 +175,8 @@ def add_design(sub) -> None:
 
 
 def cmd_design(args) -> int:
-    from .design.candidates import InfoEngine, generate_candidates, load_design_scenario
+    from .design.candidates import (SECONDS_PER_CANDIDATE, InfoEngine, generate_candidates,
+                                    load_design_scenario)
     from .design.plan import (design_plan, input_plan_measures, plan_comment, plan_scenario_text,
                               result_json, summary_text)
     if args.normalise and args.export_candidates is None:
@@ -167,9 +202,11 @@ def cmd_design(args) -> int:
         raise InputError(scn.path, "work", "a [work] table (q in degrees, wrench in N and N*m) for "
                          "--criterion pose", None)
     t0 = time.perf_counter()
-    bar = terminal_progress()
-    cands = generate_candidates(scn, settings, n=args.candidates, processes=args.processes, progress=bar)
-    bar.close()
+    n = settings.candidates if args.candidates is None else args.candidates
+    with open_pieces(args, n * SECONDS_PER_CANDIDATE, -(-n // 300)) as ex:
+        bar = terminal_progress()
+        cands = generate_candidates(scn, settings, n=n, progress=bar, executor=ex)
+        bar.close()
     t_c = time.perf_counter() - t0
     print(f"{len(cands)} feasible candidates ({int(cands.kind.sum())} lateral pulls) in {t_c:.1f} s "
           f"from {cands.stats['raw_commands']} sampled commands", file=sys.stderr)

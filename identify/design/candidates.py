@@ -55,9 +55,8 @@ Feasibility rules (each named; :func:`Feasibility.check` returns the violated on
 """
 from __future__ import annotations
 
+import functools
 import math
-import multiprocessing as mp
-import os
 import re
 import time
 import tomllib
@@ -75,7 +74,9 @@ from calbench.bench.scenario import Scenario, parse_scenario
 from calbench.bench.statics import Equilibrium, Load, StaticsSolver
 from calbench.bench.tracker import noise_covariance, to_tracker_frame, tracker_rotation, visible_sites
 
+from ..executor import Executor, InProcess
 from ..forward import NP
+from ..portable import PortableScenario
 
 RULES = ("joint_limits", "parallelogram", "min_height", "min_radius", "self_collision",
          "compensator_discontinuity", "statics", "visibility")
@@ -440,121 +441,136 @@ def sample_commands(rng: np.random.Generator, limits: np.ndarray, n: int) -> np.
     return lo + (hi - lo) * rng.random((n, 6))
 
 
-_ENGINE: InfoEngine | None = None
+CANDIDATE_BLOCK = 512          # raw commands per task (about 0.5 s of screening and statics)
+SECONDS_PER_CANDIDATE = 2.7e-3  # in-process, per feasible candidate (for the choice of executor)
+BATCH = 4096                   # commands drawn at a time (the order of the random stream)
 
 
-def _worker_init(scn, settings):
-    global _ENGINE
-    _ENGINE = InfoEngine(scn, settings)
+@dataclass(frozen=True)
+class CandidateJob:
+    """What a block of raw commands needs on any machine: the scenario's texts and the settings."""
+
+    scenario: PortableScenario
+    settings: DesignSettings
+    p_vertical: float
+    p_lateral: float
 
 
-def _worker(job):
-    """(q, [(wrench, kind), ...]) -> list of (index in the list, block) for feasible ones."""
-    q, loads = job
-    eng = _ENGINE
-    e0 = eng.solver.solve(q)
-    out = []
-    for k, (w, kind) in enumerate(loads):
-        try:
-            info = eng.pose(q, w, kind, e0=e0, check=True)
-        except (np.linalg.LinAlgError, RuntimeError):
+@functools.lru_cache(maxsize=2)
+def _engine(scenario: PortableScenario, settings: DesignSettings) -> InfoEngine:
+    """One InfoEngine per process and design problem (its results do not depend on its history:
+    every equilibrium is solved from the rigid configuration of its own command)."""
+    return InfoEngine(scenario.scenario(), settings)
+
+
+def candidate_block(job: CandidateJob, q: np.ndarray, signs: np.ndarray, u_lat: np.ndarray,
+                    u_vert: np.ndarray) -> dict:
+    """The task: screen raw commands (the command rules), solve the survivors' equilibria and
+    return the feasible candidates in command order, with the count of rejections per first rule."""
+    eng = _engine(job.scenario, job.settings)
+    st = job.settings
+    vertical = np.concatenate([eng.robot.weight(eng.scn.load_mass), np.zeros(3)])
+    rejected = {r: 0 for r in RULES}
+    out, passed = [], 0
+    for qi, s, ul, uv in zip(q, signs, u_lat, u_vert):
+        bad = eng.feas.check_command(qi)
+        if bad:
+            rejected[bad[0]] += 1
             continue
-        if not info.violations:
-            out.append((k, info.block))
-    return out
+        loads = []
+        if uv < job.p_vertical:
+            loads.append((vertical, 0))
+        if ul < job.p_lateral and st.lateral_force > 0:
+            loads.append((lateral_wrench(qi[0], s, st.lateral_force), 1))
+        if not loads:
+            continue
+        passed += 1
+        e0 = eng.solver.solve(qi)
+        for w, kind in loads:
+            try:
+                info = eng.pose(qi, w, LOAD_KINDS[kind], e0=e0, check=True)
+            except (np.linalg.LinAlgError, RuntimeError):
+                info = None
+            if info is not None and not info.violations:
+                out.append((qi, w, kind, info.block))
+            else:
+                rejected["visibility"] += 1       # equilibrium rules, mostly visibility
+    return {"candidates": out, "rejected": rejected, "passed": passed}
 
 
 def generate_candidates(scn: Scenario, settings: DesignSettings, n: int | None = None,
-                        processes: int | None = None, progress: ProgressSink | None = None) -> CandidateSet:
+                        progress: ProgressSink | None = None, executor: Executor | None = None) -> CandidateSet:
     """At least ``n`` (default settings.candidates) feasible candidates, exactly n returned.
 
     Raw commands are drawn uniformly in the joint ranges (seeded by settings.seed or the
-    scenario's), screened at the rigid pose in this process (cheap rules), then solved in
-    ``processes`` workers (default: the CPU count, at most 4) for the equilibria, the remaining
-    rules and the exact information. Each surviving command yields a vertical candidate and,
-    with probability lateral_fraction / (1 - lateral_fraction) capped at 1, a lateral one; the
-    result is deterministic for a given seed and n.
+    scenario's) in batches of BATCH, cut into tasks of CANDIDATE_BLOCK commands that ``executor``
+    runs (identify/executor.py; default: this process): the command rules, the equilibria, the
+    remaining rules and the exact information. Each surviving command yields a vertical
+    candidate and, with probability lateral_fraction / (1 - lateral_fraction) capped at 1, a
+    lateral one. The first n feasible candidates in the order of the draws are kept, so the
+    result is deterministic for a given seed and n, wherever the tasks ran.
     """
     n = settings.candidates if n is None else n
     seed = scn.seed if settings.seed is None else settings.seed
     rng = np.random.default_rng([seed, 4])
     t0 = time.perf_counter()
-    eng = InfoEngine(scn, settings)
-    limits = eng.robot.limits()
-    vertical = np.concatenate([eng.robot.weight(scn.load_mass), np.zeros(3)])
     frac = settings.lateral_fraction
     p_lat = 1.0 if frac >= 0.5 else frac / (1 - frac)
     p_vert = 1.0 if frac <= 0.5 else (1 - frac) / frac
-    processes = processes or min(4, os.cpu_count() or 1)
+    job = CandidateJob(PortableScenario.from_scenario(scn), settings, p_vert, p_lat)
+    eng = _engine(job.scenario, job.settings)
+    limits = eng.robot.limits()
+    executor = executor or InProcess()
     bar = sink(progress)
     bar.start(n, "candidates")
-    shown = 0
     rejected: dict[str, int] = {r: 0 for r in RULES}
     qs, ws, kinds, blocks = [], [], [], []
-    screened = raw = 0
-    pool = None
-    if processes > 1:
-        pool = mp.get_context("fork").Pool(processes, initializer=_worker_init, initargs=(scn, settings))
-    else:
-        _worker_init(scn, settings)
-    try:
-        while len(qs) < n:
-            batch = sample_commands(rng, limits, 4096)
+    screened = raw = shown = 0
+
+    def tasks():
+        while True:
+            batch = sample_commands(rng, limits, BATCH)
             signs = np.where(rng.random(len(batch)) < 0.5, -1.0, 1.0)
             u_lat = rng.random(len(batch))
             u_vert = rng.random(len(batch))
-            raw += len(batch)
-            jobs = []
-            for q, s, ul, uv in zip(batch, signs, u_lat, u_vert):
-                bad = eng.feas.check_command(q)
-                if bad:
-                    rejected[bad[0]] += 1
-                    continue
-                loads = []
-                if uv < p_vert:
-                    loads.append((vertical, 0))
-                if ul < p_lat and settings.lateral_force > 0:
-                    loads.append((lateral_wrench(q[0], s, settings.lateral_force), 1))
-                if loads:
-                    jobs.append((q, loads))
-            screened += len(jobs)
-            # ~1.6 candidates per job survive; solve in chunks so the progress bar moves
-            for start in range(0, len(jobs), 512):
-                chunk = jobs[start:start + 512]
-                res = pool.map(_worker, chunk, chunksize=16) if pool else [_worker(j) for j in chunk]
-                for (q, loads), got in zip(chunk, res):
-                    n_ok = 0
-                    for k, block in got:
-                        w, kind = loads[k]
-                        qs.append(q)
-                        ws.append(w)
-                        kinds.append(kind)
-                        blocks.append(block)
-                        n_ok += 1
-                    if n_ok < len(loads):
-                        rejected["visibility"] += len(loads) - n_ok  # equilibrium rules, mostly visibility
-                bar.update(f"candidates {min(len(qs), n)}/{n}", step=min(len(qs), n) - shown)
-                shown = min(len(qs), n)
-                if len(qs) >= n:
-                    break
-            if len(qs) < n and raw > 200 * n:  # give up only while still short of n
+            for a in range(0, BATCH, CANDIDATE_BLOCK):
+                sl = slice(a, a + CANDIDATE_BLOCK)
+                yield job, batch[sl], signs[sl], u_lat[sl], u_vert[sl]
+
+    results = executor.ordered(candidate_block, tasks())
+    try:
+        for got in results:
+            raw += CANDIDATE_BLOCK
+            screened += got["passed"]
+            for r, k in got["rejected"].items():
+                rejected[r] += k
+            for q, w, kind, block in got["candidates"]:
+                qs.append(q)
+                ws.append(w)
+                kinds.append(kind)
+                blocks.append(block)
+            now = min(len(qs), n)
+            bar.update(f"candidates {now}/{n}", step=now - shown)
+            shown = now
+            if len(qs) >= n:
+                break
+            if raw > 200 * n:  # give up only while still short of n
                 raise InputError(scn.path, "design", "settings that leave feasible configurations",
                                  f"only {len(qs)} of {raw} sampled commands feasible")
     finally:
-        if pool is not None:
-            pool.close()
-            pool.join()
+        results.close()           # cancels the blocks drawn ahead
     m = max(b.shape[0] for b in blocks)
     out = np.zeros((n, m, NP))
     for i, b in enumerate(blocks[:n]):
         out[i, : b.shape[0]] = b
     stats = {"raw_commands": raw, "passed_command_rules": screened,
              "rejected_first_rule": rejected, "seconds": time.perf_counter() - t0,
-             "processes": processes}
+             "executor": executor.choice.describe()}
     return CandidateSet(np.array(qs[:n]), np.array(ws[:n]), np.array(kinds[:n], int), out,
                         eng.theta0, settings, stats)
 
 
 __all__ = ["DesignSettings", "read_design_settings", "load_design_scenario", "nominal_theta",
            "nominal_robot", "Feasibility", "InfoEngine", "PoseInfo", "CandidateSet",
-           "generate_candidates", "lateral_wrench", "collision_model", "EXCLUDED_PAIRS", "RULES"]
+           "generate_candidates", "candidate_block", "CandidateJob", "lateral_wrench", "collision_model",
+           "EXCLUDED_PAIRS", "RULES"]
