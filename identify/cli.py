@@ -384,6 +384,65 @@ def cmd_import(args) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- study
+
+def add_study(sub) -> None:
+    p = sub.add_parser("study", help="a grid of whole campaigns (scenario keys x seeds) into Parquet; resumable")
+    p.add_argument("study", type=Path, help="study TOML (base scenario, axes, seeds; see docs/studies.md)")
+    p.add_argument("--out", type=Path, required=True,
+                   help="results, one row per campaign (Parquet); re-running the same command resumes")
+    p.add_argument("--plots", type=Path, default=None,
+                   help="folder for the accuracy and power plots (default: OUT's name + _plots beside it)")
+    p.add_argument("--json", type=Path, default=None, help="write the per-cell summary as JSON")
+    add_scheduler(p)
+    p.set_defaults(func=cmd_study)
+
+
+def cmd_study(args) -> int:
+    from .executor import Interrupted
+    from .study import cell_summaries, format_cells, load_study, prepare, read_results, run_study
+    from .study.plots import accuracy_plots, power_plots
+    from .study.summary import pooled_by_axis
+    study = load_study(args.study)                     # every cell validated: nothing sent yet
+    plots = args.plots or args.out.with_name(args.out.stem + "_plots")
+    check_outputs({"--out": args.out, "--json": args.json},
+                  {"STUDY": args.study, "scenario": study.base.path, "robot": study.base.robot})
+    if plots.exists() and not plots.is_dir():
+        raise InputError(plots, "--plots", "a folder", "a file")
+    pending = prepare(study, args.out)
+    interrupted = None
+    if pending.campaigns == 0:
+        print(f"calbench study: all {pending.before} campaigns already in {args.out}", file=sys.stderr)
+    else:
+        print(f"calbench study: {pending.campaigns} campaigns to run ({pending.before} already in {args.out})",
+              file=sys.stderr)
+        with open_pieces(args, pending.estimated_seconds(), pending.tasks()) as ex:
+            bar = terminal_progress()
+            try:
+                outcome = run_study(pending, ex, progress=bar)
+            except Interrupted as exc:
+                outcome, interrupted = exc.partial, exc
+            bar.close()
+        print(f"calbench study: {outcome.ran} campaigns run in {outcome.seconds:.1f} s"
+              + (f", {outcome.designs} plans designed" if outcome.designs else "")
+              + f"; {outcome.rows} in {args.out}" + (f" ({outcome.failed} failed)" if outcome.failed else ""),
+              file=sys.stderr)
+    table, _ = read_results(args.out)
+    cells = cell_summaries(study, table)
+    print(format_cells(study, cells))
+    plots.mkdir(parents=True, exist_ok=True)
+    made = accuracy_plots(study, pooled_by_axis(study, table), plots) + power_plots(study, cells, plots)
+    print(f"plots: {', '.join(str(p) for p in made)}", file=sys.stderr)
+    if args.json:
+        write_text(args.json, json.dumps({"study": study.name, "file": str(args.study), "results": str(args.out),
+                                          "seeds": study.seeds, "cells": cells}, indent=2))
+    if interrupted is not None:
+        print(f"calbench study: interrupted; {interrupted.done} of {interrupted.total} campaigns kept in "
+              f"{args.out}; run the same command again to resume", file=sys.stderr)
+        return 130
+    return 0
+
+
 # --------------------------------------------------------------------------- demo
 
 def add_demo(sub) -> None:
@@ -417,6 +476,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_report(sub)
     add_import(sub)
     add_export(sub)
+    add_study(sub)
     return parser
 
 

@@ -151,8 +151,9 @@ class Executor:
     def workers(self) -> int:
         return self.choice.workers
 
-    def run(self, fn: Callable, arglist: Sequence[tuple]) -> Iterator[tuple[int, Any]]:
-        """(index, result) of every call, as each finishes (any order)."""
+    def run(self, fn: Callable, arglist: Sequence[tuple], shared: tuple = ()) -> Iterator[tuple[int, Any]]:
+        """(index, result) of ``fn(*shared, *args)`` for every args of ``arglist``, as each finishes
+        (any order). ``shared``: large arguments common to every call, sent to a cluster once."""
         raise NotImplementedError
 
     def ordered(self, fn: Callable, args: Iterable[tuple], window: int | None = None) -> Iterator[Any]:
@@ -176,9 +177,9 @@ class InProcess(Executor):
     def __init__(self, choice: ExecutorChoice | None = None):
         self.choice = choice or ExecutorChoice(IN_PROCESS, None, 1, "in-process")
 
-    def run(self, fn, arglist):
+    def run(self, fn, arglist, shared=()):
         for i, a in enumerate(arglist):
-            yield i, fn(*a)
+            yield i, fn(*shared, *a)
 
     def ordered(self, fn, args, window=None):
         for a in args:
@@ -238,10 +239,11 @@ class DaskExecutor(Executor):
         if pending:
             self.client.cancel(pending)
 
-    def run(self, fn, arglist):
+    def run(self, fn, arglist, shared=()):
         from distributed import as_completed
         tag = uuid.uuid4().hex[:12]
-        futures = [self._submit(fn, a, tag, i) for i, a in enumerate(arglist)]
+        held = [self.client.scatter([x], hash=False)[0] for x in shared]   # each as one object
+        futures = [self._submit(fn, (*held, *a), tag, i) for i, a in enumerate(arglist)]
         index = {f.key: i for i, f in enumerate(futures)}
         try:
             for fut in as_completed(futures):
@@ -250,6 +252,7 @@ class DaskExecutor(Executor):
                 yield index[fut.key], res
         finally:                      # done, failed, interrupted or abandoned: nothing left running
             self._cancel(futures)
+            self._cancel(held)
 
     def ordered(self, fn, args, window=None):
         window = window or 2 * max(self.workers, 1)

@@ -4,7 +4,7 @@ Workers need only the installed package, never a checkout or the user's files, s
 carries the texts (a few tens of kB) instead of paths. :meth:`PortableScenario.scenario`
 rebuilds the validated :class:`bench.scenario.Scenario` on whatever machine it runs: the MJCF is
 written under its own file name into a private temporary folder of the process (once per
-process and content, removed at exit) and the scenario's ``robot`` key points at it. The texts
+process and robot, removed at exit) and the scenario's ``robot`` key points at it. The texts
 are the identity: the same PortableScenario gives the same Scenario values everywhere.
 """
 from __future__ import annotations
@@ -19,6 +19,7 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
+from calbench.bench.outputs import write_text
 from calbench.bench.scenario import Scenario, parse_scenario, scenario_to_toml
 
 _ROBOT_LINE = re.compile(r"""^(\s*robot\s*=\s*)(?:"[^"\n]*"|'[^'\n]*')""", re.MULTILINE)
@@ -66,23 +67,18 @@ class PortableScenario:
         """From a scenario document (bench.scenario file units) and the MJCF text."""
         return cls(scenario_to_toml({**doc, "robot": robot_name}), mjcf, robot_name, filename)
 
-    @property
-    def digest(self) -> str:
-        h = hashlib.sha256()
-        for part in (self.text, self.mjcf, self.robot_name, self.filename):
-            h.update(part.encode("utf-8"))
-            h.update(b"\0")
-        return h.hexdigest()
+    def robot_folder(self) -> Path:
+        """This process's private folder holding the MJCF (one per robot text)."""
+        h = hashlib.sha256(self.robot_name.encode("utf-8") + b"\0" + self.mjcf.encode("utf-8")).hexdigest()
+        return _workdir(h)
 
     def scenario(self, seed: int | None = None) -> Scenario:
         """The validated scenario, its robot in this process's private folder (InputError as
         bench.scenario.parse_scenario)."""
-        d = _workdir(self.digest)
+        d = self.robot_folder()
         robot = d / self.robot_name
         if not robot.is_file():
-            tmp = robot.with_suffix(".tmp")
-            tmp.write_text(self.mjcf, encoding="utf-8")
-            tmp.replace(robot)
+            write_text(robot, self.mjcf)
         return parse_scenario(self.text, d / self.filename, seed)
 
 

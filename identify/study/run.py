@@ -1,0 +1,225 @@
+"""`calbench study STUDY.toml --out RESULTS.parquet`: the grid of campaigns, on any executor.
+
+1. :func:`prepare`: the study (spec.load_study: every cell validated) and what RESULTS.parquet
+   already holds (store.ResultStore); what is missing and about how long it will take. Any
+   problem is an InputError here, before a task is sent.
+2. :func:`run_study`: the designed plans the missing cells need (design:<criterion>:<M>,
+   candidates on the executor, kept in the results' metadata), then the missing campaigns as
+   tasks of CAMPAIGNS_PER_TASK-ish campaigns of one cell (campaign.run_campaigns), rows
+   journaled as each task finishes; cells with identical inputs are computed once.
+   Ctrl-C cancels what is running and raises executor.Interrupted with the outcome; what finished
+   is in RESULTS.parquet.
+"""
+from __future__ import annotations
+
+import copy
+import math
+import time
+import tomllib
+from collections import defaultdict
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import pyarrow as pa
+
+from ..executor import Executor, InProcess, Interrupted
+from .campaign import RESULT_COLUMNS, CampaignJob, discover_model_text, empty_record, run_campaigns
+from .spec import Cell, Study, digest
+from .store import ResultStore
+
+CONSOLIDATE_S = 30.0     # journal -> RESULTS.parquet at most this often (and at the end)
+TARGET_TASK_S = 2.0      # campaigns per task: about this long (per-task overhead ~3 ms)
+# in-process seconds per campaign on the paper plan (measured: simulate 0.09, identify 0.07,
+# discover 1.1 with nothing to find to ~3 with an effect), for the executor choice and task sizes
+SECONDS_PER_CAMPAIGN = {"identify": 0.2, "discover": 2.0}
+SECONDS_PER_DESIGN = 30.0
+
+
+def campaign_seconds(cell: Cell) -> float:
+    return SECONDS_PER_CAMPAIGN["identify"] + (SECONDS_PER_CAMPAIGN["discover"] if cell.campaign.discover else 0)
+
+
+def _axis_type(values) -> pa.DataType:
+    if all(isinstance(v, bool) for v in values):
+        return pa.bool_()
+    if all(isinstance(v, int) and not isinstance(v, bool) for v in values):
+        return pa.int64()
+    if all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
+        return pa.float64()
+    return pa.string()
+
+
+def schema(study: Study) -> pa.Schema:
+    """The results' columns: cell and replicate first, then the axes, then the measurements."""
+    fields = [pa.field("cell", pa.int64()), pa.field("replicate", pa.int64())]
+    fields += [pa.field(a.name, _axis_type(a.column)) for a in study.axes]
+    fields += [pa.field(k, t) for k, t in RESULT_COLUMNS.items() if k not in ("cell", "replicate")]
+    return pa.schema(fields)
+
+
+def _axis_value(study: Study, name: str, v):
+    t = _axis_type(next(a.column for a in study.axes if a.name == name))
+    if t == pa.float64():
+        return float(v)
+    if t == pa.string() and not isinstance(v, str):
+        return str(v)
+    return v
+
+
+@dataclass
+class StudyOutcome:
+    """What a run of a study did (the command line prints it)."""
+
+    out: Path
+    total: int                      # campaigns in the grid
+    before: int                     # finished before this run
+    ran: int = 0                    # finished in this run
+    failed: int = 0                 # of all rows, campaigns whose record holds an error
+    designs: int = 0                # plans designed in this run
+    seconds: float = 0.0
+    interrupted: bool = False
+    rows: int = 0                   # in RESULTS.parquet now
+
+
+@dataclass
+class Pending:
+    """A prepared study: its store, and the (cell, replicate) campaigns still missing."""
+
+    study: Study
+    store: ResultStore
+    missing: dict[int, list[int]] = field(default_factory=dict)    # cell index -> replicates
+    before: int = 0
+
+    @property
+    def campaigns(self) -> int:
+        return sum(len(r) for r in self.missing.values())
+
+    def _design_keys(self) -> set:
+        return {design_key(c) for c in self.study.cells if self.missing.get(c.index) and c.plan.startswith("design:")
+                and design_key(c) not in self.store.plans}
+
+    def estimated_seconds(self) -> float:
+        """About how long the missing work takes in this process (for the executor choice)."""
+        unique = {self.study.cells[i].inputs: (self.study.cells[i], len(r)) for i, r in self.missing.items()}
+        return (sum(campaign_seconds(c) * n for c, n in unique.values())
+                + SECONDS_PER_DESIGN * len(self._design_keys()))
+
+    def tasks(self) -> int:
+        return sum(math.ceil(len(r) / per_task(self.study.cells[i])) for i, r in self.missing.items())
+
+
+def per_task(cell: Cell) -> int:
+    return max(1, round(TARGET_TASK_S / campaign_seconds(cell)))
+
+
+def design_key(cell: Cell) -> str:
+    """What a designed plan depends on: the cell's scenario without its poses, and the spec."""
+    doc = {k: v for k, v in cell.doc.items() if k != "pose"}
+    return digest(doc, cell.plan)
+
+
+def prepare(study: Study, out: str | Path) -> Pending:
+    """Read what RESULTS.parquet (and its journal) hold; refuse results of another study."""
+    from calbench.bench.errors import InputError
+    store = ResultStore(out, schema(study), study.text)
+    have = store.load()
+    known = {c.cell_id for c in study.cells}
+    ids = have.column("cell_id").to_pylist()
+    foreign = sum(1 for c in ids if c not in known)
+    if foreign:
+        raise InputError(out, "--out", "results of this study (the same base scenario, axes and settings) or a "
+                         "new file", f"{foreign} campaigns of cells this study does not have")
+    done = set(zip(ids, have.column("replicate").to_pylist()))
+    done = {(c, r) for c, r in done if r < study.seeds}
+    p = Pending(study, store, before=len(done))
+    for cell in study.cells:
+        miss = [r for r in range(study.seeds) if (cell.cell_id, r) not in done]
+        if miss:
+            p.missing[cell.index] = miss
+    return p
+
+
+def _design(study: Study, cell: Cell, executor: Executor, progress) -> list:
+    """The [[pose]] entries of the plan design:<criterion>:<M> for the cell's scenario."""
+    from ..design.candidates import generate_candidates, read_design_settings
+    from ..design.plan import design_plan, plan_scenario_text
+    _, criterion, m = cell.plan.split(":")
+    scn = study.portable(cell).scenario(seed=study.seed)
+    settings = read_design_settings(scn.path, scn.text)
+    cands = generate_candidates(scn, settings, progress=progress, executor=executor)
+    res = design_plan(scn, settings, cands, int(m), criterion)
+    text = plan_scenario_text(scn, res.poses, Path(scn.path))
+    return tomllib.loads(text)["pose"]
+
+
+def run_study(pending: Pending, executor: Executor | None = None, progress=None) -> StudyOutcome:
+    """Run the missing campaigns (see the module docstring); returns the outcome."""
+    from calbench.bench.progress import sink
+    t0 = time.perf_counter()
+    study, store = pending.study, pending.store
+    executor = executor or InProcess()
+    bar = sink(progress)
+    outcome = StudyOutcome(Path(store.out), len(study.cells) * study.seeds, pending.before)
+    index = {c.cell_id: c.index for c in study.cells}
+    try:
+        # 1. designed plans
+        docs: dict[int, dict] = {}
+        for i in pending.missing:
+            cell = study.cells[i]
+            if cell.plan.startswith("design:"):
+                key = design_key(cell)
+                if key not in store.plans:
+                    store.add_plan(key, _design(study, cell, executor, progress))
+                    outcome.designs += 1
+                doc = copy.deepcopy(cell.doc)
+                doc["pose"] = store.plans[key]
+                docs[i] = doc
+        # 2. the campaigns: one group per distinct inputs, tasks of per_task(cell) replicates
+        groups: dict[str, dict[int, list[Cell]]] = defaultdict(lambda: defaultdict(list))
+        for i, reps in pending.missing.items():
+            for r in reps:
+                groups[study.cells[i].inputs][r].append(study.cells[i])
+        models = {c.campaign.discover_without: discover_model_text(study.mjcf, c.campaign.discover_without)
+                  for c in study.cells if c.campaign.discover}
+        jobs, fanout = [], []
+        for inputs, by_rep in groups.items():
+            cell = next(iter(by_rep.values()))[0]
+            scn = replace(study.portable(replace(cell, doc=docs.get(cell.index, cell.doc))), mjcf="")
+            reps = sorted(by_rep)
+            k = per_task(cell)
+            for a in range(0, len(reps), k):
+                chunk = reps[a:a + k]
+                jobs.append((CampaignJob(scn, cell.campaign.method, cell.campaign.discover,
+                                         cell.campaign.discover_without, cell.expected,
+                                         tuple((r, study.campaign_seed(r)) for r in chunk)),))
+                fanout.append({r: by_rep[r] for r in chunk})
+        bar.start(pending.campaigns, "campaigns")
+        last = time.perf_counter()
+        for j, records in executor.run(run_campaigns, jobs, shared=(study.mjcf, models)):
+            rows = []
+            for rec in records:
+                for cell in fanout[j][rec["replicate"]]:
+                    row = {**empty_record(), **rec, "cell": cell.index, "cell_id": cell.cell_id,
+                           **{k: _axis_value(study, k, v) for k, v in cell.values.items()}}
+                    rows.append(row)
+            store.add(rows)
+            outcome.ran += len(rows)
+            bar.update(f"cell {fanout[j][records[0]['replicate']][0].index}", step=len(rows))
+            if time.perf_counter() - last > CONSOLIDATE_S:
+                store.consolidate(index, complete=False)
+                last = time.perf_counter()
+    except KeyboardInterrupt:
+        outcome.interrupted = True
+    finally:
+        outcome.rows = store.consolidate(index, complete=not outcome.interrupted
+                                         and outcome.before + outcome.ran >= outcome.total)
+        outcome.seconds = time.perf_counter() - t0
+    from .store import read_results
+    errs = read_results(store.out)[0].column("error").to_pylist()
+    outcome.failed = sum(1 for e in errs if e)
+    if outcome.interrupted:
+        raise Interrupted(outcome, outcome.before + outcome.ran, outcome.total)
+    return outcome
+
+
+__all__ = ["prepare", "run_study", "Pending", "StudyOutcome", "schema", "campaign_seconds"]
