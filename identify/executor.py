@@ -52,6 +52,7 @@ KEYWORDS = ("local", "in-process")
 LOCAL_STARTUP_S = 4.0      # LocalCluster + Client + first task importing calbench in a worker
 LOCAL_SHUTDOWN_S = 2.5     # Client.close + LocalCluster.close (nannies stop their workers)
 TASK_OVERHEAD_S = 3e-3     # scheduler round trip per task, 2 workers on 2 cores
+CONNECT_TIMEOUT_S = 10.0   # how long to keep trying a --scheduler address
 
 
 class Interrupted(KeyboardInterrupt):
@@ -198,7 +199,7 @@ def _calbench_version() -> str | None:
 class DaskExecutor(Executor):
     """The pieces as Dask tasks (a local cluster we own, or the user's scheduler)."""
 
-    def __init__(self, choice: ExecutorChoice, connect_timeout: float = 10.0):
+    def __init__(self, choice: ExecutorChoice, connect_timeout: float | None = None):
         from distributed import Client, LocalCluster, Security
         self.cluster = None
         if choice.kind == LOCAL:
@@ -213,7 +214,7 @@ class DaskExecutor(Executor):
                                  "address (distributed.comm.tls.ca-file, .client.cert, .client.key; e.g. "
                                  "DASK_DISTRIBUTED__COMM__TLS__CA_FILE; see docs/studies.md)", choice.address)
             try:
-                self.client = Client(choice.address, timeout=connect_timeout, security=sec)
+                self.client = Client(choice.address, timeout=connect_timeout or CONNECT_TIMEOUT_S, security=sec)
             except (OSError, TimeoutError, ValueError) as exc:
                 raise InputError("--scheduler", "scheduler", "a reachable Dask scheduler",
                                  f"{choice.address}: {exc}") from None

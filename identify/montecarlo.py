@@ -25,6 +25,7 @@ from a copy of the same estimator state, and run r's noise comes from the genera
 """
 from __future__ import annotations
 
+import contextlib
 import copy
 import functools
 import time
@@ -301,15 +302,16 @@ def run_montecarlo(scn: Scenario, runs: int, methods=METHODS, progress: Progress
         return mc
 
     try:
-        for i, out in executor.run(run_block, blocks):
-            _, a, b = blocks[i]
-            for m in methods:
-                estimates[m][a:b] = out["estimates"][m]
-                stds[m][a:b] = out["stds"][m]
-                times[m] += out["times"][m]
-            iters[i] = out["iterations"]
-            done[a:b] = True
-            bar.update(f"runs {int(done.sum())}/{runs}", step=b - a)
+        with contextlib.closing(executor.run(run_block, blocks)) as results:   # closed: nothing left running
+            for i, out in results:
+                _, a, b = blocks[i]
+                for m in methods:
+                    estimates[m][a:b] = out["estimates"][m]
+                    stds[m][a:b] = out["stds"][m]
+                    times[m] += out["times"][m]
+                iters[i] = out["iterations"]
+                done[a:b] = True
+                bar.update(f"runs {int(done.sum())}/{runs}", step=b - a)
     except KeyboardInterrupt:
         raise Interrupted(result(done), int(done.sum()), runs) from None
     return result(done)

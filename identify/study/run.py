@@ -161,6 +161,7 @@ def run_study(pending: Pending, executor: Executor | None = None, progress=None)
     bar = sink(progress)
     outcome = StudyOutcome(Path(store.out), len(study.cells) * study.seeds, pending.before)
     index = {c.cell_id: c.index for c in study.cells}
+    results = None
     try:
         # 1. designed plans
         docs: dict[int, dict] = {}
@@ -195,7 +196,8 @@ def run_study(pending: Pending, executor: Executor | None = None, progress=None)
                 fanout.append({r: by_rep[r] for r in chunk})
         bar.start(pending.campaigns, "campaigns")
         last = time.perf_counter()
-        for j, records in executor.run(run_campaigns, jobs, shared=(study.mjcf, models)):
+        results = executor.run(run_campaigns, jobs, shared=(study.mjcf, models))
+        for j, records in results:
             rows = []
             for rec in records:
                 for cell in fanout[j][rec["replicate"]]:
@@ -211,6 +213,8 @@ def run_study(pending: Pending, executor: Executor | None = None, progress=None)
     except KeyboardInterrupt:
         outcome.interrupted = True
     finally:
+        if results is not None:
+            results.close()            # cancels whatever is still queued or running
         outcome.rows = store.consolidate(index, complete=not outcome.interrupted
                                          and outcome.before + outcome.ran >= outcome.total)
         outcome.seconds = time.perf_counter() - t0

@@ -357,6 +357,12 @@ def load_study(path: str | Path) -> Study:
             raise InputError(path, f"{a.where}.name", "a column name used once and by no result column", a.name)
         if a.scales is not None and (a.scales not in names or a.scales == a.name):
             raise InputError(path, f"{a.where}.scales", "the name of another axis", a.scales)
+        if a.scales is not None:
+            target = axes[names.index(a.scales)]
+            for col, st in zip(target.column, target.settings):
+                if st and scaled(st, 2.0) == st:
+                    raise InputError(path, f"{target.where} {target.name} = {col!r}", f"a float for {a.name} to "
+                                     "scale (it scales floats only: write 6.0e6, not 6000000)", st)
 
     robot = Path(base.robot)
     mjcf = robot.read_text(encoding="utf-8")
@@ -389,6 +395,9 @@ def load_study(path: str | Path) -> Study:
         else:
             spec = ""
         camp_settings = _campaign(path, camp)
+        if spec.startswith("design:pose:") and "work" not in doc:
+            raise InputError(path, _culprit(axes, combo, fixed, "pose", where), "a [work] table in the scenario "
+                             "for a design:pose plan (the deflection variance at the work pose)", spec)
         values = {a.name: a.column[j] for a, j in zip(axes, combo)}
         cell = Cell(index, values, doc, spec, camp_settings, "", "")
         try:
