@@ -1,13 +1,16 @@
-"""Detection power of `calbench discover` on the paper plan (20 um tracker).
+"""Detection power of `calbench discover` on the paper plan (20 um tracker): the study
+studies/discovery_power.toml, run on Dask (issue 15 replaced this benchmark's own loop by it).
 
-For each hidden effect and each magnitude (a fraction of the tested one), campaigns with N noise
-seeds (default 20) are simulated and discovered: how often the right effect (and option) is named
-first, how often something else or `unexplained` or nothing, the median RMS before/after against
-noise, the flange displacement the effect adds under 700 kg, and the smallest magnitude at which
-the right effect is still named in >= 90 % of the seeds. Also: the false-alarm rate on logs with
-no hidden effect, and the workflow time. Prints JSON.
+For each hidden effect and each magnitude (a fraction of the tested one), N campaigns (default
+20 seeds) are simulated and discovered: how often the right effect (and option) is named first,
+how often something else or `unexplained` or nothing, the median RMS before/after against noise,
+the flange displacement the effect adds under 700 kg, and the smallest magnitude at which the
+right effect is still named in >= 90 % of the seeds. Also: the false-alarm rate on campaigns with
+no hidden effect, the discovery time per campaign, and the whole study's time and executor.
+Prints JSON.
 
     python benchmarks/discover_bench.py [--seeds 20] [--effects forearm,base,...] [--quick]
+                                        [--scheduler ADDR] [--out RESULTS.parquet]
 """
 from __future__ import annotations
 
@@ -17,133 +20,136 @@ import statistics
 import sys
 import tempfile
 import time
+import tomllib
+from collections import Counter
 from pathlib import Path
 
+import mujoco
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 
-from calbench.bench.campaign import plan_campaign, run_campaign, truth_robot
-from calbench.bench.effects import without_compensator
-from calbench.bench.scenario import load_scenario, scenario_variant
-from calbench.identify.discover.workflow import discover
+from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.scenario import scenario_to_toml
+from calbench.identify.executor import choose, open_executor
+from calbench.identify.study import load_study, prepare, read_results, run_study
 
-PAPER = ROOT / "scenarios" / "paper_table5.toml"
-MJCF = ROOT / "mjcf" / "m900ib700.xml"
-
-# name: (TOML template with {v} the magnitude, tested magnitude, expected effect, detail, model)
-CASES = {
-    "forearm": ('[truth.effects.link_compliance]\nlink = "forearm"\ncompliance = [{v}, 0.0, {v}]', 1.8e-7,
-                "link_compliance", "forearm"),
-    "upper_arm": ('[truth.effects.link_compliance]\nlink = "upper_arm"\ncompliance = [{v}, {v}, {v}]', 1.5e-8,
-                  "link_compliance", "upper_arm"),
-    "base": ("[truth.effects.base_compliance]\ncompliance = [{v}, {v}]", 4e-9, "base_compliance", ""),
-    "j3": ("[truth.effects.joint_nonlinearity]\njoint = 3\ncubic = {v}", 6e12, "joint_nonlinearity", "j3"),
-    "compensator": ("COMPENSATOR {v}", 6e6, "compensator", ""),
-    "tool (outside the library)": ("[truth.effects.tool_compliance]\ncompliance = [{v}, {v}]", 4e-7,
-                                   "unexplained", ""),
-}
-FRACTIONS = (1.0, 0.75, 0.5, 0.35)
+STUDY = ROOT / "studies" / "discovery_power.toml"
 
 
-def scenario(tmp: Path, extra: str, seed: int) -> Path:
-    """The paper scenario with a hidden effect ("COMPENSATOR K_C" sets the spring's stiffness)."""
-    out = tmp / f"s{seed}.toml"
-    if extra.startswith("COMPENSATOR"):
-        return scenario_variant(PAPER, out, seed=seed, compensator=(float(extra.split()[1]), 0.83))
-    return scenario_variant(PAPER, out, seed=seed, extra=extra)
+def study_file(tmp: Path, seeds: int, effects: list[str] | None, quick: bool) -> Path:
+    """The shipped study with its seeds, effects (plus "none") and magnitudes chosen here."""
+    doc = tomllib.loads(STUDY.read_text())
+    doc["scenario"] = str((STUDY.parent / doc["scenario"]).resolve())
+    doc["seeds"] = seeds
+    for ax in doc["axis"]:
+        if "cases" in ax and effects:
+            ax["cases"] = [c for c in ax["cases"] if c["label"] == "none" or c["label"] in effects]
+        if "scales" in ax and quick:
+            ax["values"] = [1.0]
+    out = tmp / "discovery_power.toml"
+    out.write_text(scenario_to_toml(doc))
+    return out
 
 
-def bare_model(tmp: Path) -> Path:
-    path = tmp / "bare.xml"
-    path.write_text(without_compensator(MJCF))
-    return path
+def largest_float(x) -> float:
+    if isinstance(x, float):
+        return abs(x)
+    if isinstance(x, dict):
+        x = list(x.values())
+    if isinstance(x, list):
+        return max((largest_float(v) for v in x), default=0.0)
+    return 0.0
 
 
-def flange_extra(extra: str, tmp: Path, site: str = "flange") -> float | None:
-    """Median extra displacement (mm) of a site (the flange; the payload point for an effect on
-    the tool, which does not move the flange) that the effect adds under the plan's loads."""
-    if extra.startswith("COMPENSATOR") or not extra:
-        return None
-    with_e = load_scenario(scenario(tmp, extra, 1))
-    without = load_scenario(scenario(tmp, "", 1))
-    out = []
-    for scn in (with_e, without):
+def flange_extra(study, with_cell, without_cell, site: str = "flange") -> float:
+    """Median extra displacement (mm) of a site under the plan's loads that the effect adds."""
+    moves = []
+    for cell in (with_cell, without_cell):
+        scn = study.portable(cell).scenario()
         robot = truth_robot(scn)
-        plans = plan_campaign(scn, robot)
         f = robot.model.site(site).id
-        moves = []
-        for p in plans:
+        m = []
+        for p in plan_campaign(scn, robot):
             pos = []
             for e in p.equilibria:
                 robot.data.qpos[:] = e.qpos
-                import mujoco
                 mujoco.mj_kinematics(robot.model, robot.data)
                 pos.append(robot.data.site_xpos[f].copy())
-            moves.append(pos[1] - pos[0])
-        out.append(np.array(moves))
-    return float(np.median(np.linalg.norm(out[0] - out[1], axis=1)) * 1e3)
+            m.append(pos[1] - pos[0])
+        moves.append(np.array(m))
+    return float(np.median(np.linalg.norm(moves[0] - moves[1], axis=1)) * 1e3)
 
 
-def run_case(tmp: Path, tmpl: str, v: float, effect: str, detail: str, seeds: int, model) -> dict:
-    extra = tmpl.format(v=v)
-    named, ok, before, after, secs = [], 0, [], [], []
-    for seed in range(1, seeds + 1):
-        log = tmp / f"log{seed}.mcap"
-        run_campaign(load_scenario(scenario(tmp, extra, seed)), log)
-        rep = discover(log, model, out_model=tmp / "aug.xml")
-        first = rep["steps"][0] if rep["steps"] else None
-        tag = (first["effect"] + (f"[{first['detail']}]" if first["detail"] and first["effect"] != "unexplained"
-                                  else "")) if first else "nothing"
-        named.append(tag)
-        ok += int(first is not None and first["effect"] == effect and (not detail or first["detail"] == detail)
-                  and (effect == "unexplained" or rep["named_effects"][0] == effect))
-        before.append(rep["rms_before"] / rep["noise_rms_before"])
-        after.append(rep["rms_after"] / rep["noise_rms_after"])
-        secs.append(rep["seconds"])
-    counts: dict[str, int] = {}
-    for t in named:
-        counts[t] = counts.get(t, 0) + 1
-    return {"magnitude": v, "right": ok / seeds, "named": counts,
-            "rms_before_over_noise_median": statistics.median(before),
-            "rms_after_over_noise_median": statistics.median(after),
-            "rms_after_over_noise_max": max(after),
-            "seconds_median": statistics.median(secs), "seconds_max": max(secs)}
+def rows_of(table, cells) -> dict:
+    want = {c.index for c in cells}
+    cols = {n: table.column(n).to_pylist() for n in ("cell", "named_first", "detected", "rms_before",
+                                                     "noise_rms_before", "rms_after", "noise_rms_after",
+                                                     "discover_s", "error")}
+    idx = [i for i, c in enumerate(cols["cell"]) if c in want]
+    return {k: [v[i] for i in idx] for k, v in cols.items()}
 
 
-def main() -> None:
+def case_row(r: dict, magnitude: float) -> dict:
+    n = len(r["cell"])
+    return {"magnitude": magnitude, "right": sum(bool(d) for d in r["detected"]) / n,
+            "named": dict(Counter(r["named_first"])),
+            "rms_before_over_noise_median": statistics.median(a / b for a, b in zip(r["rms_before"], r["noise_rms_before"])),
+            "rms_after_over_noise_median": statistics.median(a / b for a, b in zip(r["rms_after"], r["noise_rms_after"])),
+            "rms_after_over_noise_max": max(a / b for a, b in zip(r["rms_after"], r["noise_rms_after"])),
+            "seconds_median": statistics.median(r["discover_s"]), "seconds_max": max(r["discover_s"]),
+            "failed": sum(1 for e in r["error"] if e)}
+
+
+def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", type=int, default=20)
-    ap.add_argument("--effects", default=",".join(CASES))
+    ap.add_argument("--effects", default=None, help="comma-separated case labels (default: all)")
     ap.add_argument("--quick", action="store_true", help="tested magnitude only")
+    ap.add_argument("--scheduler", default=None, help="as calbench study --scheduler")
+    ap.add_argument("--out", type=Path, default=None, help="keep the study's Parquet here (default: temporary)")
     args = ap.parse_args()
-    out: dict = {"plan": "scenarios/paper_table5.toml", "tracker_sigma_um": 20, "seeds": args.seeds,
-                 "criterion": "right effect (and option) named first", "effects": {}}
     with tempfile.TemporaryDirectory() as tmp_:
         tmp = Path(tmp_)
-        bare = bare_model(tmp)
+        study = load_study(study_file(tmp, args.seeds, args.effects.split(",") if args.effects else None, args.quick))
+        out = args.out or tmp / "discovery_power.parquet"
+        pending = prepare(study, out)
         t0 = time.perf_counter()
-        out["no_effect"] = run_case(tmp, "", 0.0, "nothing", "", args.seeds, None)
-        out["no_effect"]["false_alarm_rate"] = 1.0 - out["no_effect"]["named"].get("nothing", 0) / args.seeds
-        for name in args.effects.split(","):
-            tmpl, v0, effect, detail = CASES[name]
-            model = bare if effect == "compensator" else None
-            rows = []
-            for frac in ((1.0,) if args.quick else FRACTIONS):
-                rows.append(run_case(tmp, tmpl, v0 * frac, effect, detail, args.seeds, model))
-                if rows[-1]["right"] < 0.5:
-                    break
-            good = [r["magnitude"] for r in rows if r["right"] >= 0.9]
-            out["effects"][name] = {"expected": effect + (f"[{detail}]" if detail else ""),
-                                    "tested_magnitude": v0,
-                                    "flange_extra_mm_median": flange_extra(tmpl.format(v=v0), tmp),
-                                    "payload_point_extra_mm_median": flange_extra(tmpl.format(v=v0), tmp, "payload"),
-                                    "smallest_magnitude_named_in_90pct": min(good) if good else None,
-                                    "rows": rows}
-            print(json.dumps({name: out["effects"][name]}), file=sys.stderr)
-        out["total_seconds"] = time.perf_counter() - t0
-    print(json.dumps(out, indent=2))
+        with open_executor(choose(args.scheduler, pending.estimated_seconds(), pending.tasks())) as ex:
+            outcome = run_study(pending, ex)
+            where = ex.choice.describe()
+        total = time.perf_counter() - t0
+        table, _ = read_results(out)
+        res: dict = {"plan": "scenarios/paper_table5.toml", "tracker_sigma_um": 20, "seeds": args.seeds,
+                     "study": "studies/discovery_power.toml", "executor": where, "total_seconds": total,
+                     "campaigns": outcome.total, "campaigns_run": outcome.ran, "failed": outcome.failed,
+                     "criterion": "right effect (and option) named first", "effects": {}}
+        effect_axis = next(a for a in study.axes if a.scales is None)
+        scale_axis = next(a for a in study.axes if a.scales is not None)
+        by = {(c.values[effect_axis.name], c.values[scale_axis.name]): c for c in study.cells}
+        top = max(scale_axis.column)
+        none = by[("none", top)]
+        r = rows_of(table, [none])
+        res["no_effect"] = case_row(r, 0.0)
+        res["no_effect"]["false_alarm_rate"] = 1.0 - res["no_effect"]["named"].get("nothing", 0) / len(r["cell"])
+        for label, settings in zip(effect_axis.column, effect_axis.settings):
+            if label == "none":
+                continue
+            v0 = largest_float(list(settings.values()))
+            rows = [case_row(rows_of(table, [by[(label, f)]]), v0 * f)
+                    for f in sorted(scale_axis.column, reverse=True)]
+            good = [row["magnitude"] for row in rows if row["right"] >= 0.9]
+            cell = by[(label, top)]
+            hidden = "compensator" not in (cell.expected or "")
+            res["effects"][label] = {
+                "expected": cell.expected, "tested_magnitude": v0,
+                "flange_extra_mm_median": flange_extra(study, cell, none) if hidden else None,
+                "payload_point_extra_mm_median": flange_extra(study, cell, none, "payload") if hidden else None,
+                "smallest_magnitude_named_in_90pct": min(good) if good else None, "rows": rows}
+            print(json.dumps({label: res["effects"][label]}), file=sys.stderr)
+    print(json.dumps(res, indent=2))
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
