@@ -430,9 +430,10 @@ def cmd_study(args) -> int:
     table, _ = read_results(args.out)
     cells = cell_summaries(study, table)
     print(format_cells(study, cells))
-    plots.mkdir(parents=True, exist_ok=True)
-    made = accuracy_plots(study, pooled_by_axis(study, table), plots) + power_plots(study, cells, plots)
-    print(f"plots: {', '.join(str(p) for p in made)}", file=sys.stderr)
+    if table.num_rows:
+        plots.mkdir(parents=True, exist_ok=True)
+        made = accuracy_plots(study, pooled_by_axis(study, table), plots) + power_plots(study, cells, plots)
+        print(f"plots: {', '.join(str(p) for p in made)}", file=sys.stderr)
     if args.json:
         write_text(args.json, json.dumps({"study": study.name, "file": str(args.study), "results": str(args.out),
                                           "seeds": study.seeds, "cells": cells}, indent=2))

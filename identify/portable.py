@@ -3,17 +3,20 @@
 Workers need only the installed package, never a checkout or the user's files, so a task
 carries the texts (a few tens of kB) instead of paths. :meth:`PortableScenario.scenario`
 rebuilds the validated :class:`bench.scenario.Scenario` on whatever machine it runs: the MJCF is
-written under its own file name into a private temporary folder of the process (once per
-process and robot, removed at exit) and the scenario's ``robot`` key points at it. The texts
-are the identity: the same PortableScenario gives the same Scenario values everywhere.
+written under its own file name into a folder named by the hash of its text, in the user's
+private cache ``$TMPDIR/calbench-<uid>/`` (mode 0700; written atomically, shared by every process
+of the user, one file per distinct robot, so even killed workers leave nothing that grows), and
+the scenario's ``robot`` key points at it. The texts are the identity: the same
+PortableScenario gives the same Scenario values everywhere.
 """
 from __future__ import annotations
 
-import atexit
+import functools
 import hashlib
 import json
+import os
 import re
-import shutil
+import stat
 import tempfile
 import tomllib
 from dataclasses import dataclass
@@ -23,7 +26,6 @@ from calbench.bench.outputs import write_text
 from calbench.bench.scenario import Scenario, parse_scenario, scenario_to_toml
 
 _ROBOT_LINE = re.compile(r"""^(\s*robot\s*=\s*)(?:"[^"\n]*"|'[^'\n]*')""", re.MULTILINE)
-_DIRS: dict[str, Path] = {}
 
 
 def with_robot(text: str, robot: str) -> str:
@@ -37,14 +39,19 @@ def with_robot(text: str, robot: str) -> str:
     return scenario_to_toml(doc)
 
 
-def _workdir(digest: str) -> Path:
-    d = _DIRS.get(digest)
-    if d is None or not d.is_dir():
-        d = Path(tempfile.mkdtemp(prefix="calbench-task-"))
-        if not _DIRS:
-            atexit.register(lambda: [shutil.rmtree(p, ignore_errors=True) for p in _DIRS.values()])
-        _DIRS[digest] = d
-    return d
+@functools.lru_cache(maxsize=1)
+def _cache() -> Path:
+    """The user's private folder for robot texts (a fresh one if the shared name is not ours)."""
+    uid = os.getuid() if hasattr(os, "getuid") else 0
+    base = Path(tempfile.gettempdir()) / f"calbench-{uid}"
+    try:
+        base.mkdir(mode=0o700, exist_ok=True)
+        st = base.lstat()
+        if stat.S_ISDIR(st.st_mode) and (not hasattr(os, "getuid") or st.st_uid == uid):
+            return base
+    except OSError:
+        pass
+    return Path(tempfile.mkdtemp(prefix="calbench-"))
 
 
 @dataclass(frozen=True)
@@ -68,16 +75,18 @@ class PortableScenario:
         return cls(scenario_to_toml({**doc, "robot": robot_name}), mjcf, robot_name, filename)
 
     def robot_folder(self) -> Path:
-        """This process's private folder holding the MJCF (one per robot text)."""
+        """The folder holding this MJCF text under its name (one per robot text)."""
         h = hashlib.sha256(self.robot_name.encode("utf-8") + b"\0" + self.mjcf.encode("utf-8")).hexdigest()
-        return _workdir(h)
+        d = _cache() / h[:32]
+        d.mkdir(exist_ok=True)
+        return d
 
     def scenario(self, seed: int | None = None) -> Scenario:
         """The validated scenario, its robot in this process's private folder (InputError as
         bench.scenario.parse_scenario)."""
         d = self.robot_folder()
         robot = d / self.robot_name
-        if not robot.is_file():
+        if not robot.is_file() or robot.read_text(encoding="utf-8") != self.mjcf:
             write_text(robot, self.mjcf)
         return parse_scenario(self.text, d / self.filename, seed)
 

@@ -50,7 +50,8 @@ def accuracy_plots(study: Study, pooled: dict, folder: Path) -> list[Path]:
             ax1.plot(x, [np.nan if v is None else 100 * v for v in y], "o-", label=p)
         ax1.set_yscale("log")
         ax1.set_ylabel("RMS relative error (%)")
-        ax1.legend(fontsize=7, ncol=2)
+        if ax1.lines:
+            ax1.legend(fontsize=7, ncol=2)
         ax2.plot(x, [np.nan if r["rms_z"] is None else r["rms_z"] for r in rows], "o-", label="RMS z")
         ax2.plot(x, [np.nan if r["coverage_2sigma"] is None else r["coverage_2sigma"] for r in rows], "s-",
                  label="coverage of ±2σ")
