@@ -144,6 +144,9 @@ def test_results_of_another_study_are_refused(tmp_path):
     other = write(tmp_path, SMALL.format(seeds=2).replace("4e-5", "5e-5"), "other.toml")
     with pytest.raises(InputError, match="cells this study does not have"):
         prepare(load_study(other), out)
+    fewer = write(tmp_path, SMALL.format(seeds=1), "fewer.toml")
+    with pytest.raises(InputError, match="2 campaigns beyond them"):
+        prepare(load_study(fewer), out)
 
 
 def test_study_cli_prints_the_cell_summary_and_draws_plots(tmp_path, capsys):

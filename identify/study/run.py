@@ -130,7 +130,10 @@ def prepare(study: Study, out: str | Path) -> Pending:
         raise InputError(out, "--out", "results of this study (the same base scenario, axes and settings) or a "
                          "new file", f"{foreign} campaigns of cells this study does not have")
     done = set(zip(ids, have.column("replicate").to_pylist()))
-    done = {(c, r) for c, r in done if r < study.seeds}
+    beyond = sum(1 for _, r in done if r >= study.seeds)
+    if beyond:
+        raise InputError(out, "--out", f"at most seeds = {study.seeds} campaigns per cell (raise seeds, or use "
+                         "another --out)", f"{beyond} campaigns beyond them")
     p = Pending(study, store, before=len(done))
     for cell in study.cells:
         miss = [r for r in range(study.seeds) if (cell.cell_id, r) not in done]
