@@ -13,10 +13,10 @@ on the worker count or on the order of completion (tests/test_cluster.py checks 
 bit). No pool or scheduler of our own: Dask's ``Client.submit`` and ``as_completed``.
 
 Choice without an address: a local cluster pays a start-up and shut-down cost once (about
-4 s + 2 s here, ``LOCAL_STARTUP_S``/``LOCAL_SHUTDOWN_S``, measured by
-benchmarks/scaling_bench.py) and ~3 ms per task (``TASK_OVERHEAD_S``); with W workers it wins
-when the in-process work T satisfies T > (startup + shutdown) * W / (W - 1) + tasks *
-overhead, the break-even of :func:`break_even_seconds` (~13 s for 2 workers). Callers pass an
+4 s + 1 s here, ``LOCAL_STARTUP_S``/``LOCAL_SHUTDOWN_S``, measured in a fresh process by
+benchmarks/scaling_bench.py) and ~5 ms of scheduling per task (``TASK_OVERHEAD_S``); with W
+workers it wins when the in-process work T satisfies T > (startup + shutdown) * W / (W - 1) +
+tasks * overhead, the break-even of :func:`break_even_seconds` (~10 s for 2 workers). Callers pass an
 estimate of T (their own measured per-piece cost times the number of pieces); the choice and
 its reason are returned so the command line can say which executor it used.
 
@@ -48,10 +48,10 @@ REMOTE = "cluster"
 SCHEMES = ("tcp://", "tls://")
 KEYWORDS = ("local", "in-process")
 
-# measured on the 2-core machine (benchmarks/scaling_bench.py: "local_cluster")
-LOCAL_STARTUP_S = 4.0      # LocalCluster + Client + first task importing calbench in a worker
-LOCAL_SHUTDOWN_S = 2.5     # Client.close + LocalCluster.close (nannies stop their workers)
-TASK_OVERHEAD_S = 3e-3     # scheduler round trip per task, 2 workers on 2 cores
+# measured on the 2-core machine (benchmarks/scaling_bench.py: "local_cluster", fresh process)
+LOCAL_STARTUP_S = 4.0      # import distributed, LocalCluster + Client, first task importing calbench
+LOCAL_SHUTDOWN_S = 1.0     # Client.close + LocalCluster.close (nannies stop their workers)
+TASK_OVERHEAD_S = 5e-3     # scheduling per task and worker (1000 trivial tasks on 2 workers)
 CONNECT_TIMEOUT_S = 10.0   # how long to keep trying a --scheduler address
 
 
