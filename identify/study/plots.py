@@ -34,10 +34,22 @@ def _slug(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
 
 
-def accuracy_plots(study: Study, pooled: dict, folder: Path) -> list[Path]:
+def _pyplot():
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    return plt
+
+
+def _save(fig, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    _pyplot().close(fig)
+    return path
+
+
+def accuracy_plots(study: Study, pooled: dict, folder: Path) -> list[Path]:
+    plt = _pyplot()
     out = []
     for a in study.axes:
         rows = pooled[a.name]
@@ -68,18 +80,12 @@ def accuracy_plots(study: Study, pooled: dict, folder: Path) -> list[Path]:
                 ax.set_xscale("log")
             ax.grid(alpha=0.3)
         fig.suptitle(f"{study.name}: accuracy against {a.name} (pooled over the other axes)")
-        fig.tight_layout()
-        path = folder / f"accuracy_{_slug(a.name)}.png"
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        out.append(path)
+        out.append(_save(fig, folder / f"accuracy_{_slug(a.name)}.png"))
     return out
 
 
 def power_plots(study: Study, cells: list[dict], folder: Path, max_curves: int = 12) -> list[Path]:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = _pyplot()
     out = []
     if not any(c["detection_rate"] is not None for c in cells):
         return out
@@ -112,11 +118,7 @@ def power_plots(study: Study, cells: list[dict], folder: Path, max_curves: int =
         ax.set_title(f"{study.name}: detection power against {a.name}")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
-        fig.tight_layout()
-        path = folder / f"power_{_slug(a.name)}.png"
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        out.append(path)
+        out.append(_save(fig, folder / f"power_{_slug(a.name)}.png"))
     return out
 
 

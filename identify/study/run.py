@@ -27,7 +27,8 @@ from .campaign import RESULT_COLUMNS, CampaignJob, discover_model_text, empty_re
 from .spec import Cell, Study, digest
 from .store import ResultStore
 
-CONSOLIDATE_S = 30.0     # journal -> RESULTS.parquet at most this often (and at the end)
+CONSOLIDATE_S = 30.0     # journal -> RESULTS.parquet at most this often (and at the end), and
+                         # never more than 10 % of the time: a merge rewrites the whole file
 TARGET_TASK_S = 2.0      # campaigns per task: about this long (scheduling ~5 ms per task)
 # in-process seconds per campaign on the paper plan (measured: simulate 0.09, identify 0.07,
 # discover 1.1 with nothing to find to ~3 with an effect), for the executor choice and task sizes
@@ -198,7 +199,7 @@ def run_study(pending: Pending, executor: Executor | None = None, progress=None)
                                          tuple((r, study.campaign_seed(r)) for r in chunk)),))
                 fanout.append({r: by_rep[r] for r in chunk})
         bar.start(pending.campaigns, "campaigns")
-        last = time.perf_counter()
+        last, merge_s = time.perf_counter(), 0.0
         results = executor.run(run_campaigns, jobs, shared=(study.mjcf, models))
         for j, records in results:
             rows = []
@@ -210,20 +211,21 @@ def run_study(pending: Pending, executor: Executor | None = None, progress=None)
             store.add(rows)
             outcome.ran += len(rows)
             bar.update(f"cell {fanout[j][records[0]['replicate']][0].index}", step=len(rows))
-            if time.perf_counter() - last > CONSOLIDATE_S:
+            if time.perf_counter() - last > max(CONSOLIDATE_S, 10 * merge_s):
+                t_merge = time.perf_counter()
                 store.consolidate(index, complete=False)
                 last = time.perf_counter()
+                merge_s = last - t_merge
     except KeyboardInterrupt:
         outcome.interrupted = True
     finally:
         if results is not None:
             results.close()            # cancels whatever is still queued or running
-        outcome.rows = store.consolidate(index, complete=not outcome.interrupted
-                                         and outcome.before + outcome.ran >= outcome.total)
+        table = store.consolidate(index, complete=not outcome.interrupted
+                                  and outcome.before + outcome.ran >= outcome.total)
+        outcome.rows = table.num_rows
+        outcome.failed = sum(1 for e in table.column("error").to_pylist() if e)
         outcome.seconds = time.perf_counter() - t0
-    from .store import read_results
-    errs = read_results(store.out)[0].column("error").to_pylist()
-    outcome.failed = sum(1 for e in errs if e)
     if outcome.interrupted:
         raise Interrupted(outcome, outcome.before + outcome.ran, outcome.total)
     return outcome

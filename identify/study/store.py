@@ -2,8 +2,8 @@
 
 A Parquet file is only readable once its footer is written, so finished campaigns go first to a
 journal beside it, ``RESULTS.parquet.parts/``: one small Parquet file per finished task, each
-written atomically (temporary name, then rename; bench/outputs.py). Every CONSOLIDATE_S seconds,
-on Ctrl-C and at the end, the journal is merged into RESULTS.parquet (again atomically: the file
+written atomically (temporary name, then rename; bench/outputs.py). Every 30 s (run.py's
+CONSOLIDATE_S), on Ctrl-C and at the end, the journal is merged into RESULTS.parquet (again atomically: the file
 is always either the previous complete version or the new one) and the merged parts are removed.
 A crash at any moment therefore loses at most the campaigns still running; re-running the same
 command reads both, skips every (cell, replicate) already there, and runs the rest.
@@ -95,9 +95,10 @@ class ResultStore:
         self.parts.mkdir(parents=True, exist_ok=True)
         write_text(self.parts / f"plan-{key}.json", json.dumps({key: poses}))
 
-    def consolidate(self, cell_index: dict[str, int], complete: bool) -> int:
+    def consolidate(self, cell_index: dict[str, int], complete: bool) -> pa.Table:
         """Merge the journal into RESULTS.parquet (rows renumbered by the study's cells, sorted);
-        remove the merged parts, and the journal folder when the study is ``complete``."""
+        remove the merged parts, and the journal folder when the study is ``complete``. Returns
+        the merged table."""
         t = self.load()
         merged = list(self._merged_parts)
         cells = pa.array([cell_index[c] for c in t.column("cell_id").to_pylist()], pa.int64())
@@ -117,7 +118,7 @@ class ResultStore:
                 self.parts.rmdir()
             except OSError:
                 pass
-        return t.num_rows
+        return t
 
 
 def read_results(path: str | Path) -> tuple[pa.Table, dict]:
