@@ -4,6 +4,7 @@ from __future__ import annotations
 import operator
 
 import dask
+import numpy as np
 import psutil
 import pytest
 
@@ -58,3 +59,31 @@ def test_the_local_cluster_listens_on_127_0_0_1_only_and_runs_the_same_functions
     inproc = X.InProcess()
     assert list(inproc.ordered(operator.mul, [(3, 3)])) == [9]
     assert list(inproc.run(operator.mul, [(2,)], shared=(5,))) == [(0, 10)]
+
+
+class _InterruptedAfter(X.InProcess):
+    """This process, with a Ctrl-C after ``n`` pieces finished."""
+
+    def __init__(self, n):
+        super().__init__()
+        self.n = n
+
+    def run(self, fn, arglist, shared=()):
+        for i, a in enumerate(arglist):
+            if i == self.n:
+                raise KeyboardInterrupt
+            yield i, fn(*shared, *a)
+
+
+def test_ctrl_c_during_montecarlo_keeps_the_runs_that_finished(monkeypatch):
+    from calbench.bench.scenario import load_scenario
+    from calbench.identify import montecarlo
+    monkeypatch.setattr(montecarlo, "RUNS_PER_TASK", 2)
+    scn = load_scenario(PAPER)
+    full = montecarlo.run_montecarlo(scn, 6, methods=("one-step",), progress=False)
+    with pytest.raises(X.Interrupted) as e:
+        montecarlo.run_montecarlo(scn, 6, methods=("one-step",), progress=False, executor=_InterruptedAfter(2))
+    part = e.value.partial
+    assert (e.value.done, e.value.total, part.runs) == (4, 6, 4)
+    assert np.array_equal(part.estimates["one-step"], full.estimates["one-step"][:4])
+    assert isinstance(e.value, KeyboardInterrupt)

@@ -29,6 +29,7 @@ def test_wheel_installs_one_namespace_with_the_models_and_scenarios(wheel):
     assert top == {"calbench"}                       # no top-level bench or identify
     assert "calbench/mjcf/m900ib700.xml" in names
     assert "calbench/scenarios/paper_table5.toml" in names
+    assert "calbench/studies/discovery_power.toml" in names and "calbench/identify/study/run.py" in names
     assert "calbench/identify/design/plan.py" in names and "calbench/identify/discover/fit.py" in names
     # data folders inside the packages: the Foxglove schemas and the report template
     assert "calbench/bench/foxglove_schemas/foxglove.SceneUpdate.json" in names
