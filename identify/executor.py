@@ -73,8 +73,9 @@ class ExecutorChoice:
     reason: str
 
     def describe(self) -> str:
-        where = {IN_PROCESS: "in this process", LOCAL: f"on a local Dask cluster of {self.workers} "
-                 "worker processes (127.0.0.1)", REMOTE: f"on the Dask cluster at {self.address}"}[self.kind]
+        procs = f"{self.workers} worker process" + ("es" if self.workers != 1 else "")
+        where = {IN_PROCESS: "in this process", LOCAL: f"on a local Dask cluster of {procs} (127.0.0.1)",
+                 REMOTE: f"on the Dask cluster at {self.address}"}[self.kind]
         return f"running {where}: {self.reason}"
 
 
