@@ -28,7 +28,9 @@ from typing import Callable
 import mujoco
 import numpy as np
 
-from .robot import COMPENSATOR, Robot
+from .description import set_spec_names, spec_names
+from .params import LEGACY_COMPENSATOR as COMPENSATOR
+from .robot import Robot
 
 RIGID_COMPLIANCE = 1e-12     # rad/(N*m): the lock used for a present hinge set to compliance 0
 AXES = "xyz"
@@ -495,19 +497,22 @@ def compensator() -> Effect:
         t.springlength = [p[1], p[1]]
 
     def set_(robot, p, o):
-        if robot.tendon < 0:
+        t = mujoco.mj_name2id(robot.model, mujoco.mjtObj.mjOBJ_TENDON, COMPENSATOR)
+        if t < 0:
             raise ValueError("the model has no compensator tendon: apply the effect (and recompile) first")
-        robot.model.tendon_stiffness[robot.tendon] = p[0]
-        robot.model.tendon_lengthspring[robot.tendon] = p[1]
+        robot.model.tendon_stiffness[t] = p[0]
+        robot.model.tendon_lengthspring[t] = p[1]
 
     return Effect("compensator", ("K_C", "s0"), {}, ("N/m", "m"), apply, set_)
 
 
 def without_compensator(xml_or_path) -> str:
-    """The MJCF with the compensator tendon and its two sites removed: a user's model that
-    lacks the effect above (for testing that discovery names it). Returns XML text."""
+    """The MJCF with the compensator tendon and its two sites removed (and the tendon dropped
+    from the robot description): a user's model that lacks the effect above (for testing that
+    discovery names it). Returns XML text."""
     spec = load_spec(xml_or_path)
     spec.delete(spec.tendon(COMPENSATOR))
+    set_spec_names(spec, "compensators", [t for t in spec_names(spec, "compensators") if t != COMPENSATOR])
     for site in COMP_SITES:
         spec.delete(spec.site(site))
     spec.compiler.savecompiled = False  # keep full precision (see EffectRobot.to_xml)

@@ -6,11 +6,11 @@ It solves paper eq. (17) in its generalized form,
     r(q, lam) = g(q) + J_c(q)^T B lam = 0,   B^T c(q) = 0,
     g(q) = qfrc_spring(q) - qfrc_bias(q; qvel=0) + J_site(q)^T W,
 
-where c is the loop gap (bench/loop.py: rod end minus anchor) held as a HARD constraint: MuJoCo's
+where c is the loops' gap (bench/loop.py: site 1 minus site 2 of each) held as a HARD constraint: MuJoCo's
 own equality constraints are soft and would open the loop by millimetres under load
 (PHYSICS.md), so they are switched off (:func:`statics_options`) and the loop is closed here by a
 KKT-Newton iteration. g includes the virtual joint springs (eq. 1), the compensator tendon
-(eqs. 7-9), gravity of every body (links, the mass compensators m1 and m2; the model's own
+(eqs. 7-9), gravity of every body (links and mass compensators; the model's own
 ``<option gravity>``) and the external wrench W at a site. B is an orthonormal basis of the
 loop's independent constraint directions (bench.loop.constraint_basis: the planar loop's third
 row is identically zero and would make the KKT matrix singular), taken once per solve.
@@ -51,7 +51,7 @@ import mujoco
 import numpy as np
 
 from .errors import StaticsError
-from .loop import constraint_basis, loop_gap
+from .loop import LOOP_TOL, constraint_basis, loop_gap
 from .robot import Robot
 
 # The loop is closed by us; contacts and joint-range stops play no part in the statics (ranges
@@ -61,7 +61,6 @@ DISABLE_FLAGS = (
     | int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
     | int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
 )
-LOOP_TOL = 1e-12      # m, converged loop gap (module docstring)
 CONTRACTION = 0.2     # a step gaining less than this factor re-assembles the chord matrix
 
 
@@ -278,7 +277,7 @@ class StaticsSolver:
         force_tol = self.tol * max(1.0, float(np.abs(d.qfrc_bias).max()))
         while True:
             res_norm = float(np.abs(res.r).max())
-            if res_norm <= force_tol and float(np.abs(res.c_r).max()) <= LOOP_TOL:
+            if res_norm <= force_tol and float(np.abs(res.c_r).max(initial=0.0)) <= LOOP_TOL:
                 return NewtonResult(qpos, lam, res.jc_r, res_norm, it, True, factor, stalls)
             if not math.isfinite(res_norm):
                 raise StaticsError(f"statics diverged at command {self._command_deg()} deg")
@@ -296,7 +295,7 @@ class StaticsSolver:
                 except np.linalg.LinAlgError:
                     raise StaticsError(
                         f"singular stiffness (KKT) matrix at command {self._command_deg()} deg: "
-                        "a degenerate configuration (is the parallelogram flat?)") from None
+                        "a degenerate configuration (is a kinematic loop degenerate?)") from None
             prev = res_norm
             # the inverse of a 10x10 KKT matrix (condition ~1e7) is accurate to ~1e-9 relative:
             # ample for Newton steps, whose errors the next residual corrects

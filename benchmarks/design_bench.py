@@ -74,8 +74,8 @@ def main() -> int:
            "candidates": {"n": len(cands), "lateral": int(cands.kind.sum()), "seconds_exact_information": t_c,
                           **{k: v for k, v in cands.stats.items() if k != "seconds"}},
            "work_pose": {"q_deg": [30, 60, 0, 0, -60, 0], "wrench": [-1600, 800, 900, 0, 0, 0]},
-           "paper_plan": {"configs": 16, "measures": short(plan_measures(F_paper, cands.theta0, G)),
-                          "relative_std": plan_measures(F_paper, cands.theta0, G)["relative_std"],
+           "paper_plan": {"configs": 16, "measures": short(plan_measures(F_paper, cands.theta0, G, cands.param_names)),
+                          "relative_std": plan_measures(F_paper, cands.theta0, G, cands.param_names)["relative_std"],
                           "violates_our_rules": viol},
            "plans": {}}
     rng = np.random.default_rng(11)

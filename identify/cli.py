@@ -43,7 +43,8 @@ def add_identify(sub) -> None:
     p.add_argument("--model", type=Path, default=None, help="robot MJCF (default: the one in the log)")
     p.add_argument("--method", choices=METHODS, default="one-step",
                    help="one-step: all parameters at once on the exact statics; two-step: the paper's "
-                        "§4 (default: %(default)s)")
+                        "§4, for robots with at most one compensator across one actuated hinge "
+                        "(default: %(default)s)")
     p.add_argument("--json", type=Path, default=None, help="write the report as JSON")
     p.add_argument("--check", action="store_true",
                    help=f"exit 1 when the log has ground truth and any |z| > {Z_CHECK:g}")
@@ -78,21 +79,34 @@ def add_montecarlo(sub) -> None:
     p.add_argument("scenario", type=Path, help="scenario TOML file")
     p.add_argument("--runs", type=int, required=True, help="number of noise seeds")
     p.add_argument("--method", choices=("both", "one-step", "two-step"), default="both",
-                   help="estimators to run; two-step runs both step-2 variants (default: %(default)s)")
+                   help="estimators to run; two-step runs both step-2 variants, for robots with at most "
+                        "one compensator across one actuated hinge; both: one-step alone on other robots "
+                        "(default: %(default)s)")
     p.add_argument("--seed", type=int, default=None, help="base noise seed (default: the scenario's)")
     p.add_argument("--json", type=Path, default=None, help="write the summary as JSON")
     p.set_defaults(func=cmd_montecarlo)
 
 
 def cmd_montecarlo(args) -> int:
+    from calbench.bench.robot import Robot
     from calbench.bench.scenario import load_scenario
     from .montecarlo import METHODS, format_summary, run_montecarlo
+    from .twostep import TwoStepError, two_step_applies
     if args.runs < 2:
         raise InputError("--runs", "runs", "an integer >= 2", args.runs)
     scn = load_scenario(args.scenario, seed=args.seed)
     check_outputs({"--json": args.json}, {"SCENARIO": args.scenario, "robot": scn.robot})
     methods = {"both": METHODS, "one-step": ("one-step",),
                "two-step": ("two-step", "two-step-weighted")}[args.method]
+    try:
+        two_step_applies(Robot.from_file(scn.robot))
+    except TwoStepError as exc:
+        if args.method == "two-step":
+            raise InputError(scn.robot, "--method two-step", "a robot with at most one compensator, across "
+                             "one actuated hinge (paper §4)", str(exc)) from None
+        methods = ("one-step",)
+    except ValueError as exc:   # the MJCF itself: reported where the campaign loads it
+        raise InputError(scn.path, "robot", "a loadable MJCF robot", f"{scn.robot}: {exc}") from None
     bar = terminal_progress()
     mc = run_montecarlo(scn, args.runs, methods, progress=bar)
     bar.close()
@@ -218,6 +232,9 @@ def _design_from_candidates(args) -> int:
     scn = G = None
     if args.scenario is not None:
         scn, settings = load_design_scenario(args.scenario)
+        if cf.q.shape[1] != len(scn.compliance):
+            raise InputError(cf.path, "q", f"N x {len(scn.compliance)} joint angles (one per actuated joint of "
+                             f"{scn.robot.name})", f"N x {cf.q.shape[1]}")
     if args.out is not None and (scn is None or cf.wrench is None or cf.kind is None):
         raise InputError(cf.path if scn is not None else "(command line)", "wrench" if scn is not None else "SCENARIO",
                          "the scenario and the arrays wrench and load_kind in the candidate file for --out", None)

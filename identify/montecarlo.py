@@ -31,19 +31,26 @@ from calbench.bench.robot import Robot
 from calbench.bench.scenario import Scenario
 from calbench.bench.tracker import Measurement, measure, noise_covariance, to_tracker_frame
 
-from .forward import NP, PARAM_NAMES, PARAM_UNITS
 from .identifiability import whiten_factors
 from .observations import Observations, pose_observation
 from .onestep import OneStep, generic_start, sanitize_start, to_phi
-from .twostep import linear_plan, two_step
+from .twostep import TwoStepError, linear_plan, two_step, two_step_applies
 
 METHODS = ("one-step", "two-step", "two-step-weighted")
 MC_STEP_TOL = 1e-2   # sigma: see identify/onestep.py, stopping rule
 
 
-def true_theta(scn: Scenario) -> np.ndarray:
-    p = scenario_params(scn)
-    return np.concatenate([p.compliance, [p.compensator_stiffness, p.compensator_preload]])
+def true_theta(scn: Scenario, robot: Robot) -> np.ndarray:
+    return robot.layout.theta(scenario_params(scn, robot))
+
+
+def two_step_ok(robot: Robot) -> bool:
+    """Whether the paper's two-step method applies to the robot (identify/twostep.py)."""
+    try:
+        two_step_applies(robot)
+    except TwoStepError:
+        return False
+    return True
 
 
 def campaign_observations(scn: Scenario, robot: Robot, plans: list[PosePlan],
@@ -84,18 +91,20 @@ class MonteCarlo:
     runs: int
     truth: np.ndarray
     crb: np.ndarray
-    estimates: dict[str, np.ndarray]      # method -> (N, 8), NaN where not identified
-    stds: dict[str, np.ndarray]           # method -> (N, 8) reported
+    estimates: dict[str, np.ndarray]      # method -> (runs, P), NaN where not identified
+    stds: dict[str, np.ndarray]           # method -> (runs, P) reported
     times: dict[str, float]
-    noise_free: dict[str, np.ndarray]     # method -> (8,) estimate on exact data (model error)
+    noise_free: dict[str, np.ndarray]     # method -> (P,) estimate on exact data (model error)
     setup_time: float
+    names: tuple[str, ...] = ()           # the parameters (the robot's layout)
+    units: tuple[str, ...] = ()
 
     def summary(self) -> dict:
         n = self.runs
         crb_sd0 = np.sqrt(np.diag(self.crb))
         model_error = {
             meth: {name: (None if not np.isfinite(v) else float((v - t) / sd))
-                   for name, v, t, sd in zip(PARAM_NAMES, est, self.truth, crb_sd0)}
+                   for name, v, t, sd in zip(self.names, est, self.truth, crb_sd0)}
             for meth, est in self.noise_free.items()}
         out = {"scenario": self.scenario, "runs": n,
                "sampling_error": {"bias_over_sigma": 1 / np.sqrt(n),
@@ -103,17 +112,17 @@ class MonteCarlo:
                                   "std_ratio": float(np.sqrt(1 / (2 * max(n - 1, 1))))},
                "setup_seconds": self.setup_time,
                "noise_free_error_over_crb_std": model_error,
-               "crb_std": {n_: float(v) for n_, v in zip(PARAM_NAMES, crb_sd0)},
+               "crb_std": {n_: float(v) for n_, v in zip(self.names, crb_sd0)},
                "methods": {}}
         crb_sd = np.sqrt(np.diag(self.crb))
         for meth, est in self.estimates.items():
             sd = self.stds[meth]
             rows = []
-            for i, name in enumerate(PARAM_NAMES):
+            for i, name in enumerate(self.names):
                 col = est[:, i]
                 ok = np.isfinite(col)
                 if ok.sum() < 2:
-                    rows.append({"name": name, "unit": PARAM_UNITS[i], "identified_runs": int(ok.sum())})
+                    rows.append({"name": name, "unit": self.units[i], "identified_runs": int(ok.sum())})
                     continue
                 c = col[ok]
                 emp_sd = float(c.std(ddof=1))
@@ -121,7 +130,7 @@ class MonteCarlo:
                 rep = float(np.sqrt(np.mean(sd[ok, i] ** 2)))
                 z = (c - self.truth[i]) / sd[ok, i]
                 rows.append({
-                    "name": name, "unit": PARAM_UNITS[i], "truth": float(self.truth[i]),
+                    "name": name, "unit": self.units[i], "truth": float(self.truth[i]),
                     "identified_runs": int(ok.sum()), "mean": mean,
                     "bias": mean - float(self.truth[i]),
                     "bias_over_sigma": (mean - float(self.truth[i])) / emp_sd,
@@ -144,40 +153,48 @@ class MonteCarlo:
 
 def run_montecarlo(scn: Scenario, runs: int, methods=METHODS, progress: ProgressSink | None = None,
                    seed: int | None = None) -> MonteCarlo:
-    """N runs of the estimators on the scenario's campaign; see the module docstring."""
+    """N runs of the estimators on the scenario's campaign; see the module docstring. The
+    two-step methods need a robot the two-step applies to (TwoStepError otherwise)."""
     t0 = time.perf_counter()
     truth_rb = truth_robot(scn)
     plans = plan_campaign(scn, truth_rb)
     robot = Robot.from_file(scn.robot)              # the estimator's own model: geometry only
+    lay = robot.layout
+    if any(m != "one-step" for m in methods):
+        two_step_applies(robot)
     obs0 = campaign_observations(scn, truth_rb, plans, None)
     linv0 = whiten_factors(obs0.cov)
-    lp = linear_plan(robot, obs0)
     est = OneStep(robot, obs0)
-    theta_true = true_theta(scn)
+    theta_true = true_theta(scn, robot)
 
     noise_free: dict[str, np.ndarray] = {}
-    two0 = two_step(robot, obs0, False, lp=lp, linv=linv0)
-    noise_free["two-step"] = two0.theta
-    noise_free["two-step-weighted"] = two_step(robot, obs0, True, lp=lp, linv=linv0).theta
-    # diagnostic: the linear model at the true (sagged) unloaded configuration -- what is left
-    # of the two-step's model error is H00 (eq. 18) and the nonlinearity over the deflection
-    lp_true = linear_plan(robot, obs0, {p.index: p.equilibria[0].qpos for p in plans})
-    noise_free["two-step at the true sagged configuration"] = two_step(
-        robot, obs0, False, lp=lp_true, linv=linv0).theta
-    start, _ = sanitize_start(two0.theta, generic_start(robot, obs0))
-    nf = est.fit(obs0.dp, linv0, start, start_method="two-step")
+    generic = generic_start(robot, obs0)
+    start, method0 = generic, "generic"
+    if two_step_ok(robot):
+        lp = linear_plan(robot, obs0)
+        two0 = two_step(robot, obs0, False, lp=lp, linv=linv0)
+        noise_free["two-step"] = two0.theta
+        noise_free["two-step-weighted"] = two_step(robot, obs0, True, lp=lp, linv=linv0).theta
+        # diagnostic: the linear model at the true (sagged) unloaded configuration -- what is left
+        # of the two-step's model error is H00 (eq. 18) and the nonlinearity over the deflection
+        lp_true = linear_plan(robot, obs0, {p.index: p.equilibria[0].qpos for p in plans})
+        noise_free["two-step at the true sagged configuration"] = two_step(
+            robot, obs0, False, lp=lp_true, linv=linv0).theta
+        start, _ = sanitize_start(two0.theta, generic, lay)
+        method0 = "two-step"
+    nf = est.fit(obs0.dp, linv0, start, start_method=method0)
     noise_free["one-step"] = nf.theta
     theta0 = np.where(np.isfinite(nf.theta), nf.theta, start)
-    scale = np.abs(to_phi(theta0))
+    scale = np.abs(to_phi(theta0, lay))
     f0, j0 = est.model.evaluate(theta0)
     # Cramer-Rao bound at the truth (exact model)
     _, jt = est.model.evaluate(theta_true)
-    jtw = np.einsum("mij,mjk->mik", linv0, jt).reshape(-1, NP) * theta_true  # scaled columns
+    jtw = np.einsum("mij,mjk->mik", linv0, jt).reshape(-1, lay.n) * theta_true  # scaled columns
     crb = np.linalg.pinv(jtw.T @ jtw) * np.outer(theta_true, theta_true)
     setup = time.perf_counter() - t0
 
-    estimates = {m: np.full((runs, NP), np.nan) for m in methods}
-    stds = {m: np.full((runs, NP), np.nan) for m in methods}
+    estimates = {m: np.full((runs, lay.n), np.nan) for m in methods}
+    stds = {m: np.full((runs, lay.n), np.nan) for m in methods}
     times = {m: 0.0 for m in methods}
     iters: list[tuple[int, int]] = []
     base_seed = scn.seed if seed is None else seed
@@ -205,7 +222,8 @@ def run_montecarlo(scn: Scenario, runs: int, methods=METHODS, progress: Progress
             estimates[meth][r] = th
             stds[meth][r] = np.sqrt(np.diag(cv))
         bar.update(f"run {r + 1}/{runs}")
-    mc = MonteCarlo(str(scn.path), runs, theta_true, crb, estimates, stds, times, noise_free, setup)
+    mc = MonteCarlo(str(scn.path), runs, theta_true, crb, estimates, stds, times, noise_free, setup,
+                    lay.names, lay.units)
     mc.iterations = np.array(iters)
     return mc
 
@@ -230,4 +248,5 @@ def format_summary(s: dict) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["campaign_observations", "run_montecarlo", "MonteCarlo", "format_summary", "true_theta"]
+__all__ = ["campaign_observations", "run_montecarlo", "MonteCarlo", "format_summary", "true_theta",
+           "two_step_ok"]

@@ -61,7 +61,7 @@ def _scenario_with_poses(scn, poses, tmp: Path, name="plan.toml") -> Path:
     ([0, 60, 0, 0, 122, 0], "self_collision"),          # wrist folded down: the tool hits the forearm
     ([90, 0, 30, 45, -30, 45], "visibility"),           # Table 5 pose 4: refl_c hidden from the tracker
     ([0, 0, -30, -45, 30, 135], "min_radius"),          # Table 5 pose 1: wrist centre 0.84 m from axis 1
-    ([0, 60, -65, 0, 0, 0], "parallelogram"),           # q3 - q2 = -125: 5 deg from the degenerate -120
+    ([0, 60, -65, 0, 0, 0], "degenerate_loop"),         # q3 - q2 = -125: 5 deg from the degenerate -120
 ])
 def test_a_pose_violating_a_rule_is_rejected_with_the_rule_named(engine, q, rule):
     info = engine.pose(np.radians(q), WEIGHT)

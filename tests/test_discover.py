@@ -189,7 +189,9 @@ def test_compensator_missing_from_the_user_model(logs):
     est = {p["name"]: p["estimate"] for p in rep["steps"][0]["parameters"]}
     assert est["K_C"] == pytest.approx(6e6, rel=0.3) and est["s0"] == pytest.approx(0.83, abs=0.1)
     aug = Robot.from_file(logs["tmp"] / "c.xml")
-    assert aug.tendon >= 0 and aug.model.tendon_stiffness[aug.tendon] == pytest.approx(est["K_C"], rel=1e-9)
+    # the tendon the effect added is a compensator of the augmented robot description
+    assert aug.description.compensators == ("compensator",)
+    assert aug.model.tendon_stiffness[aug.tendons[0]] == pytest.approx(est["K_C"], rel=1e-9)
     # the shipped compensator (2.6e6 N/m) is below the paper plan's noise floor: nothing named,
     # but the targeted likelihood-ratio test points at it
     rep = discover(logs["comp_default"], logs["bare"])

@@ -12,15 +12,15 @@ import numpy as np
 import pytest
 
 from calbench.bench.loop import loop_gap, motor_jacobian, motor_map
-from calbench.bench.robot import Params, Robot
+from calbench.bench.robot import Robot
 from calbench.bench.statics import LOOP_TOL, Load, NewtonPoint, StaticsError, StaticsSolver, statics_options
-from conftest import K_TRUE, MJCF, TABLE5
+from conftest import K_TRUE, MJCF, TABLE5, fanuc_params
 
 
 
 def make_robot(k_c: float = 2.6e6, s0: float = 0.83) -> Robot:
     robot = Robot.from_file(MJCF)
-    robot.set_params(Params(K_TRUE, k_c, s0))
+    robot.set_params(fanuc_params(K_TRUE, k_c, s0))
     return robot
 
 
@@ -69,8 +69,8 @@ def compensator_torque_and_stiffness(robot: Robot, q2: float) -> tuple[float, fl
     """Paper eq. (9) as a generalized force on q2 (sign: it acts to shorten a stretched spring)
     and its derivative with the sin^2 correction of eq. (11)."""
     g = robot.compensator_geometry()
-    p = robot.params()
-    k_c, s0 = p.compensator_stiffness, p.compensator_preload
+    spring = robot.params().springs["compensator"]
+    k_c, s0 = spring.stiffness, spring.preload
     psi, s = g.angle(q2), g.length(q2)
     lcl2 = g.l_c * g.l_2
     torque = -k_c * lcl2 * (1 - s0 / s) * np.sin(psi)
@@ -83,7 +83,8 @@ def tendon_torque_j2(robot: Robot, q2: float) -> float:
     m, d = robot.model, robot.data
     d.qpos[:] = robot.rigid_qpos(np.array([0.0, q2, 0.0, 0.0, 0.0, 0.0]))
     mujoco.mj_fwdPosition(m, d)
-    force = -m.tendon_stiffness[robot.tendon] * (d.ten_length[robot.tendon] - m.tendon_lengthspring[robot.tendon][0])
+    t = robot.tendons[0]
+    force = -m.tendon_stiffness[t] * (d.ten_length[t] - m.tendon_lengthspring[t][0])
     return float(robot.tendon_moment(d)[robot.act_dof[1]] * force)
 
 
@@ -104,11 +105,11 @@ def test_printed_eq11_is_a_misprint():
     """Eq. (11) as printed (sin q2, not sin^2) disagrees with the model's derivative."""
     robot = make_robot()
     g = robot.compensator_geometry()
-    p = robot.params()
+    p = robot.params().springs["compensator"]
     q2 = np.radians(60.0)
     psi, s = g.angle(q2), g.length(q2)
-    s0, lcl2 = p.compensator_preload, g.l_c * g.l_2
-    printed = p.compensator_stiffness * lcl2 * (np.cos(psi) + s0 * lcl2 * np.sin(psi) / s**3 - s0 / s * np.cos(psi))
+    s0, lcl2 = p.preload, g.l_c * g.l_2
+    printed = p.stiffness * lcl2 * (np.cos(psi) + s0 * lcl2 * np.sin(psi) / s**3 - s0 / s * np.cos(psi))
     _, correct = compensator_torque_and_stiffness(robot, q2)
     assert abs(printed - correct) > 0.05 * abs(correct)
 
@@ -121,7 +122,7 @@ def test_compensator_angle_offset_from_geometry():
     for q2 in np.radians([0.0, 47.0, 120.0]):
         d.qpos[:] = robot.rigid_qpos(np.array([0.3, q2, -0.2, 0.0, 0.0, 0.0]))
         mujoco.mj_fwdPosition(m, d)
-        assert d.ten_length[robot.tendon] == pytest.approx(g.length(q2), rel=1e-6)
+        assert d.ten_length[robot.tendons[0]] == pytest.approx(g.length(q2), rel=1e-6)
 
 
 def test_motor2_spring_keeps_forearm_orientation():
@@ -348,8 +349,8 @@ def test_tangent_matches_finite_differences_of_solved_equilibria():
     wrench = np.array([1200.0, -900.0, -6000.0, 300.0, -150.0, 200.0])
     robot, solver, load, _, e1 = solved(TABLE5[6], tol=1e-12, wrench=wrench)
     params = robot.params()
-    theta = np.r_[params.compliance, params.compensator_stiffness, params.compensator_preload]
-    to_params = lambda t: Params(t[:6], float(t[6]), float(t[7]))  # noqa: E731
+    theta = robot.layout.theta(params)
+    to_params = robot.layout.params
     robot.set_command(e1.command)
     robot.data.qpos[:] = e1.qpos
     mujoco.mj_fwdPosition(robot.model, robot.data)

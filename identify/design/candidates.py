@@ -7,7 +7,8 @@ of ``lateral_force`` newtons perpendicular to the arm's vertical plane, directio
 (-sin q1, cos q1, 0) times a random sign. Like a ``[[pose]] wrench``, the pull REPLACES the
 payload in the loaded state.
 
-Parameters and prior guess. theta = [k1..k6, K_C, s0] normalised by a nominal value:
+Parameters and prior guess. theta = the robot's layout (bench/params.py; the FANUC's
+[k1..k6, K_C, s0]) normalised by a nominal value:
 u_i = theta_i / theta0_i. A design needs a prior guess of theta (the information of the nonlinear
 model depends on it); a design study uses the scenario's ``[truth]``, which is the natural
 nominal (in a real cell: the manufacturer's values or a previous identification).
@@ -20,14 +21,15 @@ KKT matrix, d g / d theta from ``Robot.dforce_dtheta``), J_r = (J_site dq/dtheta
 Cov(reading unloaded) + Cov(reading loaded) (bench.tracker.noise_covariance in the tracker frame, rotated to the world; 2 sigma^2 I for the
 isotropic tracker, one repeat). The candidate's block is the whitened regressor
 R = blockdiag(L_r^-1) [J_r], L_r L_r^T = Sigma_r: rows = the 3 coordinates of each reflector
-(9 rows for 3 reflectors), columns = the 8 normalised parameters, and the Fisher information of a
+(9 rows for 3 reflectors), columns = the p normalised parameters, and the Fisher information of a
 plan is sum_i R_i^T R_i (with repeats n: n R_i^T R_i).
 
 Feasibility rules (each named; :func:`Feasibility.check` returns the violated ones):
 
 * ``joint_limits``: q inside the MJCF's controller ranges (q4, q6 sampled in [-180, 180]).
-* ``parallelogram``: q3 - q2 at least ``bench.robot.PARALLELOGRAM_MARGIN`` (10 deg) away from
-  the degenerate -120 / 60 deg (``bench.robot.Robot.parallelogram_ok``).
+* ``degenerate_loop``: every kinematic loop at least ``bench.robot.LOOP_MARGIN`` from degenerate
+  (``bench.robot.Robot.loop_ok``: the inverse condition number of its passive-joint Jacobian;
+  on the FANUC q3 - q2 at least 10 deg away from the degenerate -120 / 60 deg).
 * ``min_height`` / ``min_radius``: the WRIST CENTRE (origin of body ``link5``, on the J5 axis,
   the point of the paper's Fig. 6) at z >= min_height and at least min_radius from axis 1
   (horizontal distance), at the commanded (rigid) pose. Paper: 0.5 m and 1 m.
@@ -75,9 +77,7 @@ from calbench.bench.scenario import Scenario, parse_scenario
 from calbench.bench.statics import Equilibrium, Load, StaticsSolver
 from calbench.bench.tracker import noise_covariance, to_tracker_frame, tracker_rotation, visible_sites
 
-from ..forward import NP
-
-RULES = ("joint_limits", "parallelogram", "min_height", "min_radius", "self_collision",
+RULES = ("joint_limits", "degenerate_loop", "min_height", "min_radius", "self_collision",
          "compensator_discontinuity", "statics", "visibility")
 WRIST_BODY = "link5"
 MASS_COMPENSATORS = ("m1", "m2")
@@ -168,17 +168,19 @@ def load_design_scenario(path: str | Path) -> tuple[Scenario, DesignSettings]:
     return parse_scenario(stripped, path), settings
 
 
-def nominal_theta(scn: Scenario) -> np.ndarray:
+def nominal_theta(scn: Scenario, robot: Robot) -> np.ndarray:
     """The prior guess theta0 = the scenario's [truth] (see the module docstring)."""
-    p = scenario_params(scn)
-    return np.concatenate([p.compliance, [p.compensator_stiffness, p.compensator_preload]])
+    return robot.layout.theta(scenario_params(scn, robot))
 
 
 def nominal_robot(scn: Scenario) -> Robot:
     """The design model: the scenario's MJCF with theta0 written in, WITHOUT the hidden
     ``[truth.effects]`` (a design knows the model, not what the model lacks)."""
-    robot = Robot.from_file(scn.robot)
-    robot.set_params(scenario_params(scn))
+    try:
+        robot = Robot.from_file(scn.robot)
+    except ValueError as exc:  # MuJoCo compile errors, the robot description
+        raise InputError(scn.path, "robot", "a loadable MJCF robot", f"{scn.robot}: {exc}") from None
+    robot.set_params(scenario_params(scn, robot))
     return robot
 
 
@@ -225,8 +227,8 @@ class Feasibility:
         lo, hi = self.limits[:, 0], self.limits[:, 1]
         return bool(np.all(q >= lo - 1e-9) and np.all(q <= hi + 1e-9))
 
-    def parallelogram(self, q) -> bool:
-        return self.robot.parallelogram_ok(q)
+    def loop(self, q) -> bool:
+        return self.robot.loop_ok(q)
 
     def wrist_centre(self, qpos) -> np.ndarray:
         d = self._kd
@@ -275,8 +277,8 @@ class Feasibility:
         bad = []
         if not self.joint_limits(q):
             bad.append("joint_limits")
-        if not self.parallelogram(q):
-            bad.append("parallelogram")
+        if not self.loop(q):
+            bad.append("degenerate_loop")
         qpos = self.robot.rigid_qpos(q)
         w = self.wrist_centre(qpos)
         if w[2] < self.settings.min_height:
@@ -314,7 +316,7 @@ class PoseInfo:
     q: np.ndarray
     wrench: np.ndarray            # (6,) world: payload weight or the pull
     kind: str
-    block: np.ndarray             # (3 n_visible, 8) whitened, normalised regressor
+    block: np.ndarray             # (3 n_visible, p) whitened, normalised regressor
     visible: np.ndarray           # (n,) bool
     violations: list[str]
     dp: np.ndarray | None = None  # (n, 3) deflections (visible rows meaningful)
@@ -327,8 +329,9 @@ class InfoEngine:
         self.scn = scn
         self.settings = settings
         self.robot = nominal_robot(scn)
-        self.theta0 = nominal_theta(scn)
-        self.params0 = scenario_params(scn)
+        self.params0 = scenario_params(scn, self.robot)
+        self.theta0 = self.robot.layout.theta(self.params0)
+        self.n_params = self.robot.layout.n
         self.solver = StaticsSolver(self.robot, tol=1e-10)
         self.feas = Feasibility(self.robot, scn, settings)
         self.rot = tracker_rotation(scn.tracker)
@@ -339,7 +342,7 @@ class InfoEngine:
         return Load.wrench(self.robot, wrench)
 
     def _dforce(self, e: Equilibrium) -> np.ndarray:
-        """dg/dtheta at fixed q (nv, 8) at equilibrium e, for the prior guess theta0."""
+        """dg/dtheta at fixed q (nv, p) at equilibrium e, for the prior guess theta0."""
         rb = self.robot
         rb.set_command(e.command)
         rb.data.qpos[:] = e.qpos
@@ -347,7 +350,7 @@ class InfoEngine:
         return rb.dforce_dtheta(self.params0)
 
     def _site_jac(self, e: Equilibrium, load: Load | None) -> tuple[np.ndarray, np.ndarray]:
-        """Reflector positions (n,3) and d position / d theta (n,3,8) at equilibrium e."""
+        """Reflector positions (n,3) and d position / d theta (n,3,p) at equilibrium e."""
         rb = self.robot
         tan = self.solver.tangent(e, load, self._dforce(e))
         m, d = rb.model, rb.data
@@ -355,7 +358,7 @@ class InfoEngine:
         mujoco.mj_kinematics(m, d)
         mujoco.mj_comPos(m, d)
         pos = d.site_xpos[rb.reflector_sites].copy()
-        jac = np.empty((len(rb.reflector_sites), 3, NP))
+        jac = np.empty((len(rb.reflector_sites), 3, self.n_params))
         for i, s in enumerate(rb.reflector_sites):
             mujoco.mj_jacSite(m, d, self._js, None, int(s))
             jac[i] = self._js @ tan
@@ -373,8 +376,8 @@ class InfoEngine:
         q = np.asarray(q, float)
         wrench = np.asarray(wrench, float)
         bad = self.feas.check_command(q) if check else []
-        if check and any(r in bad for r in ("joint_limits", "parallelogram")):
-            return PoseInfo(q, wrench, kind, np.zeros((0, NP)), np.zeros(0, bool), bad)
+        if check and any(r in bad for r in ("joint_limits", "degenerate_loop")):
+            return PoseInfo(q, wrench, kind, np.zeros((0, self.n_params)), np.zeros(0, bool), bad)
         load = self.load_for(wrench)
         if e0 is None:
             e0 = self.solver.solve(q)
@@ -389,11 +392,11 @@ class InfoEngine:
         jac = (j1 - j0)[vis] * self.theta0                 # normalised columns
         cov = self.sigma_dp(p0[vis], p1[vis]) / repeats
         linv = np.linalg.inv(np.linalg.cholesky(cov))
-        block = np.einsum("nij,njk->nik", linv, jac).reshape(-1, NP)
+        block = np.einsum("nij,njk->nik", linv, jac).reshape(-1, self.n_params)
         return PoseInfo(q, wrench, kind, block, vis, bad, p1 - p0)
 
     def work_jacobian(self, q, wrench) -> np.ndarray:
-        """G (3, 8): d(payload-site deflection under the work wrench)/d(theta normalised)."""
+        """G (3, p): d(payload-site deflection under the work wrench)/d(theta normalised)."""
         rb = self.robot
         load = self.load_for(wrench)
         e0 = self.solver.solve(np.asarray(q, float))
@@ -414,30 +417,30 @@ class InfoEngine:
 
 @dataclass
 class CandidateSet:
-    q: np.ndarray          # (N, 6) rad
+    q: np.ndarray          # (N, n_joints) rad
     wrench: np.ndarray     # (N, 6)
     kind: np.ndarray       # (N,) 0 vertical, 1 lateral
-    blocks: np.ndarray     # (N, m, 8)
+    blocks: np.ndarray     # (N, m, p)
     theta0: np.ndarray
     settings: DesignSettings
     stats: dict = field(default_factory=dict)
+    param_names: tuple[str, ...] = ()     # the p parameters (the robot's layout)
 
     def __len__(self) -> int:
         return len(self.q)
 
     def save_npz(self, path: str | Path, normalise: bool = False) -> None:
         """The NPZ of identify/design/candidate_file.py (``normalise``: unit column scales)."""
-        from ..forward import PARAM_NAMES
         from .candidate_file import write_candidates
-        write_candidates(path, self.q, self.blocks, self.wrench, self.kind, self.theta0, PARAM_NAMES, normalise)
+        write_candidates(path, self.q, self.blocks, self.wrench, self.kind, self.theta0, self.param_names,
+                         normalise)
 
 
 def sample_commands(rng: np.random.Generator, limits: np.ndarray, n: int) -> np.ndarray:
-    """n commands uniform in the joint ranges (q4, q6 in [-180, 180]: the statics is periodic)."""
-    lo, hi = limits[:, 0].copy(), limits[:, 1].copy()
-    for j in (3, 5):
-        lo[j], hi[j] = max(lo[j], -np.pi), min(hi[j], np.pi)
-    return lo + (hi - lo) * rng.random((n, 6))
+    """n commands uniform in the joint ranges, each clipped to [-180, 180] deg (a hinge's
+    statics is periodic: the FANUC's q4, q6 range over +-360)."""
+    lo, hi = np.maximum(limits[:, 0], -np.pi), np.minimum(limits[:, 1], np.pi)
+    return lo + (hi - lo) * rng.random((n, len(limits)))
 
 
 _ENGINE: InfoEngine | None = None
@@ -545,14 +548,14 @@ def generate_candidates(scn: Scenario, settings: DesignSettings, n: int | None =
             pool.close()
             pool.join()
     m = max(b.shape[0] for b in blocks)
-    out = np.zeros((n, m, NP))
+    out = np.zeros((n, m, eng.n_params))
     for i, b in enumerate(blocks[:n]):
         out[i, : b.shape[0]] = b
     stats = {"raw_commands": raw, "passed_command_rules": screened,
              "rejected_first_rule": rejected, "seconds": time.perf_counter() - t0,
              "processes": processes}
     return CandidateSet(np.array(qs[:n]), np.array(ws[:n]), np.array(kinds[:n], int), out,
-                        eng.theta0, settings, stats)
+                        eng.theta0, settings, stats, eng.robot.layout.names)
 
 
 __all__ = ["DesignSettings", "read_design_settings", "load_design_scenario", "nominal_theta",
