@@ -84,6 +84,42 @@ def constraint_basis(jc: np.ndarray) -> np.ndarray:
     return out
 
 
+def constraint_basis_stack(jc: np.ndarray) -> np.ndarray:
+    """:func:`constraint_basis` of a stack of configurations: jc (n, 3L, nv) -> (n, 3L, r).
+
+    The same construction, vectorised over the stack (bench/batch_statics.py). A loop is
+    reduced to two directions only when it is planar in every configuration of the stack (as
+    the parallelogram always is); otherwise all three are kept, and the configurations where
+    it is in fact planar get a singular KKT matrix, which the batched solver reports as failed.
+    """
+    n = jc.shape[0]
+    blocks = []
+    for i in range(0, jc.shape[1], 3):
+        gram = np.einsum("nik,njk->nij", jc[:, i: i + 3], jc[:, i: i + 3])
+        cands = np.stack([np.cross(gram[:, 0], gram[:, 1]), np.cross(gram[:, 0], gram[:, 2]),
+                          np.cross(gram[:, 1], gram[:, 2])], axis=1)
+        pick = np.einsum("nkj,nkj->nk", cands, cands).argmax(axis=1)
+        nrm = cands[np.arange(n), pick]
+        nn = np.sqrt(np.einsum("nj,nj->n", nrm, nrm))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            nrm = nrm / nn[:, None]
+            off = np.abs(np.einsum("nij,nj->ni", gram, nrm)).max(axis=1)
+        planar = (nn > 0.0) & (off <= 1e-9 * np.abs(gram).max(axis=(1, 2)))
+        if not planar.all():
+            blocks.append(np.broadcast_to(np.eye(3), (n, 3, 3)))
+            continue
+        e = np.where((np.abs(nrm[:, 0]) < 0.9)[:, None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+        a = np.cross(nrm, e)
+        a /= np.sqrt(np.einsum("nj,nj->n", a, a))[:, None]
+        blocks.append(np.stack([a, np.cross(nrm, a)], axis=2))
+    out = np.zeros((n, jc.shape[1], sum(b.shape[2] for b in blocks)))
+    col = 0
+    for i, b in enumerate(blocks):
+        out[:, 3 * i: 3 * i + 3, col: col + b.shape[2]] = b
+        col += b.shape[2]
+    return out
+
+
 def loop_jacobian(robot: Robot, data: mujoco.MjData) -> np.ndarray:
     """J_c (3L, nv) alone (see :func:`loop_gap`)."""
     return loop_gap(robot, data)[1]

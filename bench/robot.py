@@ -209,6 +209,9 @@ class Robot:
         return cls(mujoco.MjModel.from_xml_string(text))
 
     # -- parameters ---------------------------------------------------------------------
+    # the model fields set_params writes (bench/batch_statics.py copies them into a batch)
+    PARAM_FIELDS = ("jnt_stiffness", "tendon_stiffness", "tendon_lengthspring")
+
     def set_params(self, params: Params) -> None:
         """Write the truth into the model: hinge stiffness 1/k_i and the compensator springs."""
         k = np.asarray(params.compliance, dtype=float)
@@ -247,6 +250,24 @@ class Robot:
             out[:, col + 1] = s.stiffness * mom
         return out
 
+    def dforce_dtheta_stack(self, params: Params, qpos: np.ndarray, command: np.ndarray,
+                            ten_j: np.ndarray, ten_length: np.ndarray) -> np.ndarray:
+        """:meth:`dforce_dtheta` of n configurations at once (n, nv, n_params), from their
+        stacked MjData fields (as mujoco.batch binds them): qpos (n, nq), the commands (n, n_act),
+        ten_J (n, nJ, MuJoCo's sparse values) and ten_length (n, ntendon), position stage
+        current. Same formulas, same order of columns."""
+        n = len(qpos)
+        k = np.asarray(params.compliance, dtype=float)
+        out = np.zeros((n, self.model.nv, self.layout.n))
+        out[:, self.act_dof, np.arange(self.n_act)] = (qpos[:, self.act_qpos] - command) / (k * k)
+        moments = self.tendon_moments_stack(ten_j)
+        for c, (name, t) in enumerate(zip(self.description.compensators, self.tendons)):
+            s = params.springs[name]
+            col = self.n_act + 2 * c
+            out[:, :, col] = -(ten_length[:, t] - s.preload)[:, None] * moments[:, c]
+            out[:, :, col + 1] = s.stiffness * moments[:, c]
+        return out
+
     def params(self) -> Params:
         """The parameters the model currently holds (for the simulator's truth only)."""
         m = self.model
@@ -270,15 +291,20 @@ class Robot:
         if not self.loops:
             return np.zeros(0)
         _, jc = self._gap(self.rigid_qpos(q))
-        out = np.empty(len(self.loops))
+        return self.loop_conditioning_stack(jc[None])[0]
+
+    def loop_conditioning_stack(self, jc: np.ndarray) -> np.ndarray:
+        """:meth:`loop_conditioning` (n, n_loops) from the loop Jacobians J_c (n, 3L, nv) at n
+        rigid configurations (bench/batch_statics.py has them for many at once); a row that is
+        not finite (a loop that did not close) counts as degenerate."""
+        out = np.zeros((len(jc), len(self.loops)))
         for i, dofs in enumerate(self._loop_passive_dof):
-            jp = jc[3 * i: 3 * i + 3, dofs]
-            norms = np.linalg.norm(jp, axis=0)
-            if not np.all(norms > 0):
-                out[i] = 0.0
-                continue
-            s = np.linalg.svd(jp / norms, compute_uv=False)
-            out[i] = s[-1] / s[0] if len(s) >= len(dofs) else 0.0
+            jp = jc[:, 3 * i: 3 * i + 3][:, :, dofs]
+            norms = np.sqrt(np.einsum("nij,nij->nj", jp, jp))
+            ok = np.all(norms > 0, axis=1) & np.all(np.isfinite(jp), axis=(1, 2)) & (len(dofs) <= 3)
+            if ok.any():
+                s = np.linalg.svd(jp[ok] / norms[ok][:, None, :], compute_uv=False)
+                out[ok, i] = s[:, -1] / s[:, 0]
         return out
 
     def loop_ok(self, q: np.ndarray) -> bool:
@@ -308,6 +334,26 @@ class Robot:
             qpos = self._close(qpos, ref)
         return qpos
 
+    def rigid_qpos_stack(self, q: np.ndarray, gaps=None) -> np.ndarray:
+        """:meth:`rigid_qpos` of n commands (n, n_act) -> (n, nq): the reference motor map for
+        all of them, then :meth:`rigid_qpos`'s closure only for the rows it leaves open by more
+        than LOOP_TOL (none for a parallel linkage). ``gaps(qpos)`` gives the loop gaps (n, 3L)
+        of stacked poses (e.g. on a mujoco.batch); default: this robot's kinematics row by row.
+        A row whose loops cannot be closed is NaN."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        qpos = np.tile(self.model.qpos0, (len(q), 1))
+        qpos[:, self.act_qpos] = q
+        if len(self.passive_joint) and len(q):
+            ref = self._ref
+            qpos[:, self.passive_qpos] = ref[self.passive_qpos] + (q - ref[self.act_qpos]) @ self._closure_map.T
+            c = gaps(qpos) if gaps is not None else np.array([self._gap(x)[0] for x in qpos])
+            for i in np.flatnonzero(~(np.abs(c).max(axis=1) <= LOOP_TOL)):
+                try:
+                    qpos[i] = self._close(qpos[i], ref)
+                except StaticsError:
+                    qpos[i] = np.nan
+        return qpos
+
     def tendon_moment(self, data: mujoco.MjData | None = None, which: int = 0) -> np.ndarray:
         """(nv,) dense dL/dq of compensator tendon ``which`` (description order; zeros without
         compensators). MuJoCo stores ten_J sparsely (values in data.ten_J, columns in
@@ -317,6 +363,14 @@ class Robot:
         if which < len(self._ten_pattern):
             rows, cols = self._ten_pattern[which]
             out[cols] = d.ten_J[rows]
+        return out
+
+    def tendon_moments_stack(self, ten_j: np.ndarray) -> np.ndarray:
+        """:meth:`tendon_moment` of every compensator for n configurations (n, C, nv), from
+        their stacked ten_J (n, nJ, MuJoCo's sparse values, as mujoco.batch binds them)."""
+        out = np.zeros((len(ten_j), len(self._ten_pattern), self.model.nv))
+        for c, (rows, cols) in enumerate(self._ten_pattern):
+            out[:, c, cols] = ten_j[:, rows]
         return out
 
     def compensator_joint(self, which: int = 0) -> int:

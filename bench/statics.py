@@ -101,10 +101,15 @@ class Equilibrium:
 
     @property
     def acceptable(self) -> bool:
-        """Converged for a campaign's or a design's purposes: residual within 1e-8 of the gravity
-        scale and loop closed to 1 nm (100 x looser than the solver's own tolerance, so only a
-        solve that failed trips it)."""
-        return self.residual <= 1e-8 * max(self.gravity_scale, 1.0) and self.loop_violation <= 1e-9
+        """Converged for a campaign's or a design's purposes (:func:`equilibrium_acceptable`)."""
+        return bool(equilibrium_acceptable(self.residual, self.gravity_scale, self.loop_violation))
+
+
+def equilibrium_acceptable(residual, gravity_scale, loop_violation):
+    """The acceptance rule of an equilibrium, elementwise over arrays of solves: residual within
+    1e-8 of the gravity scale and loop closed to 1 nm (100 x looser than the solver's own
+    tolerance, so only a solve that failed trips it)."""
+    return (np.asarray(residual) <= 1e-8 * np.maximum(gravity_scale, 1.0)) & (np.asarray(loop_violation) <= 1e-9)
 
 
 @dataclass(frozen=True)
@@ -158,12 +163,13 @@ class NewtonResult(NamedTuple):
 
 
 def kkt_matrix(a: np.ndarray, jc_r: np.ndarray) -> np.ndarray:
-    """[[A, J^T], [J, 0]] with A = d r / d q (nv, nv) and J = B^T J_c (nc, nv)."""
-    nv, nc = a.shape[0], jc_r.shape[0]
-    k = np.zeros((nv + nc, nv + nc))
-    k[:nv, :nv] = a
-    k[:nv, nv:] = jc_r.T
-    k[nv:, :nv] = jc_r
+    """[[A, J^T], [J, 0]] with A = d r / d q (nv, nv) and J = B^T J_c (nc, nv); leading
+    dimensions (a stack of solves, bench/batch_statics.py) carry through."""
+    nv, nc = a.shape[-1], jc_r.shape[-2]
+    k = np.zeros(a.shape[:-2] + (nv + nc, nv + nc))
+    k[..., :nv, :nv] = a
+    k[..., :nv, nv:] = np.swapaxes(jc_r, -1, -2)
+    k[..., nv:, :nv] = jc_r
     return k
 
 
@@ -171,10 +177,11 @@ def ift_tangent(kkt: np.ndarray, dforce: np.ndarray) -> np.ndarray:
     """d[q; lam]/dtheta (nv + nc, p) at an equilibrium by the implicit function theorem.
 
     dforce (nv, p): d g / d theta at fixed q (e.g. bench.robot.Robot.dforce_dtheta). The loop
-    stays closed: [[A, J^T], [J, 0]] [dq; dlam] = [-dforce; 0]."""
-    nv = dforce.shape[0]
-    rhs = np.zeros((kkt.shape[0], dforce.shape[1]))
-    rhs[:nv] = -dforce
+    stays closed: [[A, J^T], [J, 0]] [dq; dlam] = [-dforce; 0]. Leading dimensions of both
+    (a stack of equilibria) carry through."""
+    nv = dforce.shape[-2]
+    rhs = np.zeros(dforce.shape[:-2] + (kkt.shape[-1], dforce.shape[-1]))
+    rhs[..., :nv, :] = -dforce
     return np.linalg.solve(kkt, rhs)
 
 
@@ -378,6 +385,6 @@ class StaticsSolver:
         return ift_tangent(kkt_matrix(a, res.jc_r), dforce)[: robot.model.nv]
 
 
-__all__ = ["DISABLE_FLAGS", "LOOP_TOL", "CONTRACTION", "StaticsError", "statics_options", "Equilibrium",
+__all__ = ["DISABLE_FLAGS", "LOOP_TOL", "CONTRACTION", "StaticsError", "statics_options", "Equilibrium", "equilibrium_acceptable",
            "Load", "Residual", "NewtonPoint", "NewtonResult", "StiffnessProvider", "kkt_matrix",
            "ift_tangent", "StaticsSolver"]

@@ -1,7 +1,7 @@
 """Design of experiments benchmark (issue 4, §5-6). Prints JSON.
 
 * time to build 10^4 feasible candidates with their EXACT information blocks (IFT Jacobians of
-  the exact statics, 2 worker processes) and, separately, the exchange for 12 of them;
+  the exact statics, batched: identify/design/batch_info.py) and, separately, the exchange for 12 of them;
 * on the paper's robot and load (scenarios/paper_table5.toml, whose [work] table is a machining
   pose q = [30, 60, 0, 0, -60, 0] deg under a 2 kN process force [-1600, 800, 900] N), for each criterion A, D, AD, pose and M = 12 and 16: our plan, the
   paper's Table 5 plan (its 12 poses + the scenario's 4 lateral pulls, reflectors as seen) and the

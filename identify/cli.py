@@ -147,7 +147,7 @@ def add_design(sub) -> None:
                    help="random starts besides the greedy one (default: %(default)s)")
     p.add_argument("--no-refine", action="store_true", help="skip the continuous refinement")
     p.add_argument("--processes", type=int, default=None,
-                   help="worker processes for the candidates (default: the CPU count, at most 4)")
+                   help="CPU threads for the candidates (default: the CPUs this process may use)")
     p.add_argument("--study", action="store_true", help="reproduce the paper's §5 study (plots)")
     p.add_argument("--out-dir", type=Path, default=Path("logs/design_study"),
                    help="--study output folder (default: %(default)s)")

@@ -58,7 +58,6 @@ Feasibility rules (each named; :func:`Feasibility.check` returns the violated on
 from __future__ import annotations
 
 import math
-import multiprocessing as mp
 import os
 import re
 import time
@@ -79,6 +78,8 @@ from calbench.bench.tracker import noise_covariance, to_tracker_frame, tracker_r
 
 RULES = ("joint_limits", "degenerate_loop", "min_height", "min_radius", "self_collision",
          "compensator_discontinuity", "statics", "visibility")
+COMMAND_RULES = ("joint_limits", "degenerate_loop", "min_height", "min_radius", "self_collision")
+EQUILIBRIUM_RULES = ("statics", "self_collision", "compensator_discontinuity", "visibility")
 WRIST_BODY = "link5"
 MASS_COMPENSATORS = ("m1", "m2")
 PASSIVE_HINGES = ("elbow", "rod")
@@ -223,10 +224,6 @@ class Feasibility:
         self.hinges = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n) for n in PASSIVE_HINGES]
 
     # -- individual rules ---------------------------------------------------------------------
-    def joint_limits(self, q) -> bool:
-        lo, hi = self.limits[:, 0], self.limits[:, 1]
-        return bool(np.all(q >= lo - 1e-9) and np.all(q <= hi + 1e-9))
-
     def loop(self, q) -> bool:
         return self.robot.loop_ok(q)
 
@@ -243,6 +240,8 @@ class Feasibility:
         mujoco.mj_kinematics(m, d)
         mujoco.mj_collision(m, d)
         out = []
+        if d.ncon == 0:   # slicing d.contact costs ~120 us even when empty
+            return out
         for c in d.contact[: d.ncon]:
             b1, b2 = m.geom_bodyid[c.geom[0]], m.geom_bodyid[c.geom[1]]
             out.append((m.body(b1).name, m.body(b2).name))
@@ -254,59 +253,70 @@ class Feasibility:
         m, d = self.robot.model, self._kd
         d.qpos[:] = qpos
         mujoco.mj_kinematics(m, d)
-        best = np.inf
-        for b in self.masses:
-            c = d.xipos[b]
-            for j in self.hinges:
-                a, ax = d.xanchor[j], d.xaxis[j]
-                axh = np.array([ax[0], ax[1], 0.0])
-                n = np.linalg.norm(axh)
-                v = np.array([c[0] - a[0], c[1] - a[1], 0.0])
-                if n < 1e-9:  # a vertical hinge axis: distance to its foot point
-                    dist = np.linalg.norm(v)
-                else:
-                    axh /= n
-                    dist = np.linalg.norm(v - axh * (v @ axh))
-                best = min(best, dist)
-        return float(best)
+        return float(horizontal_clearance(d.xipos[self.masses][None], d.xanchor[self.hinges][None],
+                                          d.xaxis[self.hinges][None])[0])
+
+    # -- the rules' decisions, stacked over configurations (also identify/design/batch_info.py) --
+    def command_violations(self, q: np.ndarray, wrist: np.ndarray, collides, loop_ok=None) -> np.ndarray:
+        """(n, len(COMMAND_RULES)) bool, True where a rule fails, for commands q (n, joints) whose
+        rigid poses have wrist centres ``wrist`` (n, 3) and collision flags ``collides`` (n,);
+        ``loop_ok`` (n,): Robot.loop_ok of each, if already known (else asked here)."""
+        lo, hi = self.limits[:, 0], self.limits[:, 1]
+        loop_ok = [self.loop(x) for x in q] if loop_ok is None else loop_ok
+        return np.column_stack([
+            ~np.all((q >= lo - 1e-9) & (q <= hi + 1e-9), axis=1),
+            ~np.asarray(loop_ok, bool),
+            wrist[:, 2] < self.settings.min_height,
+            np.hypot(wrist[:, 0], wrist[:, 1]) < self.settings.min_radius,
+            np.asarray(collides, bool)])
+
+    def equilibrium_violations(self, acceptable, collides, clearance, visible,
+                               require_all_visible: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """(n, len(EQUILIBRIUM_RULES)) bool violations and the (n, k) reflectors seen in both
+        states, from per-state inputs with the states on axis 1: acceptable and collides (n, 2),
+        clearance (n, 2) m, visible (n, 2, k)."""
+        vis = np.asarray(visible, bool).all(axis=1)
+        seen = vis.all(axis=1) if require_all_visible else vis.any(axis=1)
+        return np.column_stack([~np.asarray(acceptable, bool).all(axis=1), np.asarray(collides, bool).any(axis=1),
+                                np.asarray(clearance).min(axis=1) < self.settings.compensator_margin,
+                                ~seen]), vis
 
     # -- combined -----------------------------------------------------------------------------
     def check_command(self, q) -> list[str]:
         """Rules decided at the commanded (rigid) pose, cheapest first; all violations."""
         q = np.asarray(q, float)
-        bad = []
-        if not self.joint_limits(q):
-            bad.append("joint_limits")
-        if not self.loop(q):
-            bad.append("degenerate_loop")
         qpos = self.robot.rigid_qpos(q)
-        w = self.wrist_centre(qpos)
-        if w[2] < self.settings.min_height:
-            bad.append("min_height")
-        if math.hypot(w[0], w[1]) < self.settings.min_radius:
-            bad.append("min_radius")
-        if self.collides(qpos):
-            bad.append("self_collision")
-        return bad
+        bad = self.command_violations(q[None], self.wrist_centre(qpos)[None], [bool(self.collides(qpos))])[0]
+        return [r for r, b in zip(COMMAND_RULES, bad) if b]
 
     def check_equilibria(self, e0: Equilibrium, e1: Equilibrium, require_all_visible=True):
         """Rules decided at the solved equilibria: (violations, visible mask (n,) both states)."""
-        bad = []
-        if not (e0.acceptable and e1.acceptable):
-            bad.append("statics")
-        if any(self.collides(e.qpos) for e in (e0, e1)):
-            bad.append("self_collision")
-        if min(self.compensator_clearance(e.qpos) for e in (e0, e1)) < self.settings.compensator_margin:
-            bad.append("compensator_discontinuity")
         m, d = self.robot.model, self._kd
-        vis = np.ones(len(self.robot.reflector_sites), bool)
+        vis = []
         for e in (e0, e1):
             d.qpos[:] = e.qpos
             mujoco.mj_kinematics(m, d)
-            vis &= visible_sites(m, d, self.scn.tracker, self.robot.reflector_sites)
-        if (require_all_visible and not vis.all()) or not vis.any():
-            bad.append("visibility")
-        return bad, vis
+            vis.append(visible_sites(m, d, self.scn.tracker, self.robot.reflector_sites))
+        states = (e0, e1)
+        bad, seen = self.equilibrium_violations(
+            [[e.acceptable for e in states]], [[bool(self.collides(e.qpos)) for e in states]],
+            [[self.compensator_clearance(e.qpos) for e in states]], [vis], require_all_visible)
+        return [r for r, b in zip(EQUILIBRIUM_RULES, bad[0]) if b], seen[0]
+
+
+def horizontal_clearance(centres: np.ndarray, anchors: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """Smallest horizontal distance (n,) from k points (n, k, 3) to h axis lines through
+    ``anchors`` along ``axes`` (n, h, 3), in the horizontal plane (the §3.3 rule: a vertical
+    line through a mass compensator's centre must not cross a passive hinge's axis); a vertical
+    axis counts by its foot point."""
+    v = (centres[:, :, None, :2] - anchors[:, None, :, :2])             # (n, k, h, 2)
+    axh = axes[:, None, :, :2]
+    n = np.sqrt(np.einsum("...i,...i->...", axh, axh))
+    vertical = n < 1e-9
+    u = axh / np.where(vertical, 1.0, n)[..., None]
+    along = np.where(vertical, 0.0, np.einsum("...i,...i->...", v, u))
+    w = v - u * along[..., None]
+    return np.sqrt(np.einsum("...i,...i->...", w, w)).min(axis=(1, 2))
 
 
 # --------------------------------------------------------------------------- information
@@ -443,40 +453,64 @@ def sample_commands(rng: np.random.Generator, limits: np.ndarray, n: int) -> np.
     return lo + (hi - lo) * rng.random((n, len(limits)))
 
 
-_ENGINE: InfoEngine | None = None
+CANDIDATE_BLOCK = 512   # raw commands per chunk (a few tenths of a second of batched work)
+BATCH = 4096            # commands drawn at a time (the order of the random stream)
 
 
-def _worker_init(scn, settings):
-    global _ENGINE
-    _ENGINE = InfoEngine(scn, settings)
-
-
-def _worker(job):
-    """(q, [(wrench, kind), ...]) -> list of (index in the list, block) for feasible ones."""
-    q, loads = job
-    eng = _ENGINE
-    e0 = eng.solver.solve(q)
-    out = []
-    for k, (w, kind) in enumerate(loads):
-        try:
-            info = eng.pose(q, w, kind, e0=e0, check=True)
-        except (np.linalg.LinAlgError, RuntimeError):
+def scalar_block(eng: InfoEngine, q, signs, u_lat, u_vert, p_vertical: float, p_lateral: float) -> dict:
+    """One chunk of raw commands, one candidate at a time (InfoEngine.pose): the reference that
+    identify/design/batch_info.BatchInfo.block reproduces. Returns the feasible candidates as
+    (q, wrench, kind, block) in command order, the rejections by first rule, and how many
+    commands passed the command rules with a load."""
+    st = eng.settings
+    vertical = np.concatenate([eng.robot.weight(eng.scn.load_mass), np.zeros(3)])
+    rejected = {r: 0 for r in RULES}
+    out, passed = [], 0
+    for qi, s, ul, uv in zip(np.asarray(q, float), signs, u_lat, u_vert):
+        bad = eng.feas.check_command(qi)
+        if bad:
+            rejected[bad[0]] += 1
             continue
-        if not info.violations:
-            out.append((k, info.block))
-    return out
+        loads = []
+        if uv < p_vertical:
+            loads.append((vertical, 0))
+        if ul < p_lateral and st.lateral_force > 0:
+            loads.append((lateral_wrench(qi[0], s, st.lateral_force), 1))
+        if not loads:
+            continue
+        passed += 1
+        try:
+            e0 = eng.solver.solve(qi)
+        except (np.linalg.LinAlgError, RuntimeError):
+            e0 = None
+        for w, kind in loads:
+            info = None
+            if e0 is not None:
+                try:
+                    info = eng.pose(qi, w, LOAD_KINDS[kind], e0=e0, check=True)
+                except (np.linalg.LinAlgError, RuntimeError):
+                    pass
+            if info is not None and not info.violations:
+                out.append((qi, w, kind, info.block))
+            else:
+                rejected["visibility"] += 1       # equilibrium rules, mostly visibility
+    return {"candidates": out, "rejected": rejected, "passed": passed}
 
 
 def generate_candidates(scn: Scenario, settings: DesignSettings, n: int | None = None,
-                        processes: int | None = None, progress: ProgressSink | None = None) -> CandidateSet:
+                        processes: int | None = None, progress: ProgressSink | None = None,
+                        batched: bool = True) -> CandidateSet:
     """At least ``n`` (default settings.candidates) feasible candidates, exactly n returned.
 
     Raw commands are drawn uniformly in the joint ranges (seeded by settings.seed or the
-    scenario's), screened at the rigid pose in this process (cheap rules), then solved in
-    ``processes`` workers (default: the CPU count, at most 4) for the equilibria, the remaining
-    rules and the exact information. Each surviving command yields a vertical candidate and,
-    with probability lateral_fraction / (1 - lateral_fraction) capped at 1, a lateral one; the
-    result is deterministic for a given seed and n.
+    scenario's) in batches of BATCH and handled in chunks of CANDIDATE_BLOCK: the command rules,
+    the equilibria, the remaining rules and the exact information, by
+    identify/design/batch_info.BatchInfo.block on ``processes`` threads (default: the CPUs this
+    process may use; ``batched=False``: :func:`scalar_block`, one candidate at a time, the
+    reference). Each surviving command yields a vertical candidate and, with probability
+    lateral_fraction / (1 - lateral_fraction) capped at 1, a lateral one. The first n feasible
+    candidates in the order of the draws are kept, so the result is deterministic for a given
+    seed and n, whatever the thread count.
     """
     n = settings.candidates if n is None else n
     seed = scn.seed if settings.seed is None else settings.seed
@@ -484,80 +518,62 @@ def generate_candidates(scn: Scenario, settings: DesignSettings, n: int | None =
     t0 = time.perf_counter()
     eng = InfoEngine(scn, settings)
     limits = eng.robot.limits()
-    vertical = np.concatenate([eng.robot.weight(scn.load_mass), np.zeros(3)])
     frac = settings.lateral_fraction
     p_lat = 1.0 if frac >= 0.5 else frac / (1 - frac)
     p_vert = 1.0 if frac <= 0.5 else (1 - frac) / frac
-    processes = processes or min(4, os.cpu_count() or 1)
+    threads = processes or len(os.sched_getaffinity(0))
+    info = None
+    if batched:
+        from .batch_info import BatchInfo
+        info = BatchInfo(eng, nthread=threads)
+        work = info.block
+    else:
+        def work(*chunk):
+            return scalar_block(eng, *chunk)
     bar = sink(progress)
     bar.start(n, "candidates")
-    shown = 0
     rejected: dict[str, int] = {r: 0 for r in RULES}
     qs, ws, kinds, blocks = [], [], [], []
-    screened = raw = 0
-    pool = None
-    if processes > 1:
-        pool = mp.get_context("fork").Pool(processes, initializer=_worker_init, initargs=(scn, settings))
-    else:
-        _worker_init(scn, settings)
-    try:
-        while len(qs) < n:
-            batch = sample_commands(rng, limits, 4096)
-            signs = np.where(rng.random(len(batch)) < 0.5, -1.0, 1.0)
-            u_lat = rng.random(len(batch))
-            u_vert = rng.random(len(batch))
-            raw += len(batch)
-            jobs = []
-            for q, s, ul, uv in zip(batch, signs, u_lat, u_vert):
-                bad = eng.feas.check_command(q)
-                if bad:
-                    rejected[bad[0]] += 1
-                    continue
-                loads = []
-                if uv < p_vert:
-                    loads.append((vertical, 0))
-                if ul < p_lat and settings.lateral_force > 0:
-                    loads.append((lateral_wrench(q[0], s, settings.lateral_force), 1))
-                if loads:
-                    jobs.append((q, loads))
-            screened += len(jobs)
-            # ~1.6 candidates per job survive; solve in chunks so the progress bar moves
-            for start in range(0, len(jobs), 512):
-                chunk = jobs[start:start + 512]
-                res = pool.map(_worker, chunk, chunksize=16) if pool else [_worker(j) for j in chunk]
-                for (q, loads), got in zip(chunk, res):
-                    n_ok = 0
-                    for k, block in got:
-                        w, kind = loads[k]
-                        qs.append(q)
-                        ws.append(w)
-                        kinds.append(kind)
-                        blocks.append(block)
-                        n_ok += 1
-                    if n_ok < len(loads):
-                        rejected["visibility"] += len(loads) - n_ok  # equilibrium rules, mostly visibility
-                bar.update(f"candidates {min(len(qs), n)}/{n}", step=min(len(qs), n) - shown)
-                shown = min(len(qs), n)
-                if len(qs) >= n:
-                    break
-            if len(qs) < n and raw > 200 * n:  # give up only while still short of n
-                raise InputError(scn.path, "design", "settings that leave feasible configurations",
-                                 f"only {len(qs)} of {raw} sampled commands feasible")
-    finally:
-        if pool is not None:
-            pool.close()
-            pool.join()
+    screened = raw = shown = 0
+    while len(qs) < n:
+        batch = sample_commands(rng, limits, BATCH)
+        signs = np.where(rng.random(len(batch)) < 0.5, -1.0, 1.0)
+        u_lat = rng.random(len(batch))
+        u_vert = rng.random(len(batch))
+        for a in range(0, BATCH, CANDIDATE_BLOCK):
+            sl = slice(a, a + CANDIDATE_BLOCK)
+            got = work(batch[sl], signs[sl], u_lat[sl], u_vert[sl], p_vert, p_lat)
+            raw += len(batch[sl])
+            screened += got["passed"]
+            for r, k in got["rejected"].items():
+                rejected[r] += k
+            for q, w, kind, block in got["candidates"]:
+                qs.append(q)
+                ws.append(w)
+                kinds.append(kind)
+                blocks.append(block)
+            now = min(len(qs), n)
+            bar.update(f"candidates {now}/{n}", step=now - shown)
+            shown = now
+            if len(qs) >= n:
+                break
+        if len(qs) < n and raw > 200 * n:  # give up only while still short of n
+            raise InputError(scn.path, "design", "settings that leave feasible configurations",
+                             f"only {len(qs)} of {raw} sampled commands feasible")
     m = max(b.shape[0] for b in blocks)
     out = np.zeros((n, m, eng.n_params))
     for i, b in enumerate(blocks[:n]):
         out[i, : b.shape[0]] = b
     stats = {"raw_commands": raw, "passed_command_rules": screened,
              "rejected_first_rule": rejected, "seconds": time.perf_counter() - t0,
-             "processes": processes}
+             "threads": threads, "batched": batched}
+    if info is not None:
+        stats["phase_seconds"] = {k: round(v, 4) for k, v in info.seconds.items()}
     return CandidateSet(np.array(qs[:n]), np.array(ws[:n]), np.array(kinds[:n], int), out,
                         eng.theta0, settings, stats, eng.robot.layout.names)
 
 
 __all__ = ["DesignSettings", "read_design_settings", "load_design_scenario", "nominal_theta",
            "nominal_robot", "Feasibility", "InfoEngine", "PoseInfo", "CandidateSet",
-           "generate_candidates", "lateral_wrench", "collision_model", "EXCLUDED_PAIRS", "RULES"]
+           "generate_candidates", "scalar_block", "lateral_wrench", "collision_model", "horizontal_clearance",
+           "EXCLUDED_PAIRS", "RULES", "COMMAND_RULES", "EQUILIBRIUM_RULES"]
