@@ -29,10 +29,13 @@ springs, known analytically (-1/k_i on motor i; -K_C (t t^T + (L - s0) H_L) for 
 with t = dL/dq and H_L its Hessian), A_base everything else (gravity's and the load's geometric
 stiffness, the loop's constraint curvature), taken once by finite differences and reused.
 Convergence is judged on the exact residual, so the reuse only affects the convergence rate,
-never the solution. The Jacobian dq/dtheta (``bench.statics.ift_tangent``) uses the same KKT
-matrix at the solution; A_base's staleness is of the order of the configuration change since it
-was taken (<1e-4 rad) times gravity's share of the stiffness (~1e-2), i.e. a relative Jacobian
-error far below 1e-5 (checked against finite differences in tests/test_identify_forward.py).
+never the solution. These warm evaluations run for all (pose, state) equilibria at once on
+bench/batch_statics.py (the same Newton, stacked; a row it cannot converge goes through the
+scalar fallbacks), unless the model holds more than Robot.set_params writes (discovery's
+effects), which the batch's copy of the model would not see. The Jacobian dq/dtheta
+(``bench.statics.ift_tangent``) uses the same KKT matrix at the solution; A_base's staleness is
+of the order of the configuration change since it was taken (<1e-4 rad) times gravity's share
+of the stiffness (~1e-2), i.e. a relative Jacobian error far below 1e-5 (checked against finite differences in tests/test_identify_forward.py).
 """
 from __future__ import annotations
 
@@ -41,6 +44,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from calbench.bench.batch_statics import BatchStatics
 from calbench.bench.robot import Robot
 from calbench.bench.statics import (Load, NewtonPoint, NewtonResult, StaticsError, StaticsSolver,
                                     ift_tangent, kkt_matrix, statics_options)
@@ -95,9 +99,14 @@ class ForwardModel:
     ``n_base`` entries are the robot's layout (bench/params.py).
     """
 
+    BATCHED = True   # default of ``batched`` (benchmarks switch it to time the scalar loop)
+
     def __init__(self, robot: Robot, design: list[PoseDesign], tol: float = 1e-10,
-                 max_iter: int = 12, fd_step: float = 1e-7):
+                 max_iter: int = 12, fd_step: float = 1e-7, batched: bool | None = None):
         self.robot = robot
+        # warm evaluations of every equilibrium at once (_evaluate_stacked)
+        self.batched = self.BATCHED if batched is None else batched
+        self._batch: BatchStatics | None = None
         self.design = design
         self.max_iter = max_iter       # warm-started Newton steps before A_base is re-taken
         self.statics = StaticsSolver(robot, tol=tol, fd_step=fd_step)
@@ -106,7 +115,6 @@ class ForwardModel:
         self._cache: list[tuple[_Eq, _Eq]] | None = None
         self.n_obs = int(sum(len(d.sites) for d in design))
         self.act_dof = robot.act_dof
-        self._act_diag = robot.act_dof * (self.nv + 1)   # flat indices of their diagonal entries
         self.stats = {"evaluations": 0, "newton_iterations": 0, "refreshes": 0, "fallbacks": 0}
         self.layout = robot.layout
         self.n_base = self.layout.n
@@ -136,12 +144,18 @@ class ForwardModel:
     def _spring_part(self, theta, t: np.ndarray, h_len) -> np.ndarray:
         """S(theta): the springs' part of d(g)/dq at the pose held in data (t (C, nv) = dL/dq
         there, h_len (C, nv, nv) the tendons' length Hessians)."""
-        s = np.zeros((self.nv, self.nv))
-        for c, tid in enumerate(self.robot.tendons):
-            length = float(self.robot.data.ten_length[tid])
+        length = self.robot.data.ten_length[self.robot.tendons]
+        return self._springs(theta, t[None], length[None], h_len[None])[0]
+
+    def _springs(self, theta, t: np.ndarray, length: np.ndarray, h_len: np.ndarray) -> np.ndarray:
+        """S(theta) of n poses (n, nv, nv) from their tendon moments t (n, C, nv), lengths (n, C)
+        and length Hessians (n, C, nv, nv): -1/k_i on motor i, -K_C (t t^T + (L - s0) H_L) per
+        compensator."""
+        s = np.zeros((len(t), self.nv, self.nv))
+        for c in range(len(self.robot.tendons)):
             kc, s0 = theta[self._kc[c]], theta[self._s0[c]]
-            s -= kc * (t[c][:, None] * t[c] + (length - s0) * h_len[c])
-        s.flat[self._act_diag] -= 1.0 / theta[: self.layout.n_joints]
+            s -= kc * (t[:, c, :, None] * t[:, c, None, :] + (length[:, c] - s0)[:, None, None] * h_len[:, c])
+        s[:, self.act_dof, self.act_dof] -= 1.0 / theta[: self.layout.n_joints]
         return s
 
     def _stiffness(self, eq: _Eq, theta) -> np.ndarray:
@@ -254,6 +268,8 @@ class ForwardModel:
                 self._init_cache(theta)
                 self._p_kkt = theta[nb:].copy()
             refresh = self._p_kkt is None or not np.array_equal(self._p_kkt, theta[nb:])
+            if self._stacked(refresh):
+                return self._evaluate_stacked(theta, jacobian)
             row = 0
             for des, pair in zip(self.design, self._cache):
                 robot.set_command(des.q)
@@ -277,6 +293,89 @@ class ForwardModel:
                     jac[row: row + n] = jsite[1] - jsite[0]
                 row += n
             self._p_kkt = theta[nb:].copy()
+        return dp, jac
+
+    # -- every (pose, state) at once --------------------------------------------------------------
+    def _stacked(self, refresh: bool) -> bool:
+        """Warm evaluations run stacked on bench/batch_statics.py, unless the model holds more than
+        Robot.set_params writes (a subclass's own parameters and write: discovery's effects),
+        which the batch's copy of the model would not see."""
+        return (self.batched and not refresh and self.n_params == self.n_base and type(self).write is ForwardModel.write
+                and type(self)._dforce is ForwardModel._dforce)
+
+    def _evaluate_stacked(self, theta, jacobian: bool):
+        """evaluate()'s loop for all (pose, state) equilibria at once: the same warm Newton (the
+        cached solution moved by its tangent, A = A_base + S(theta), giving up on a row that
+        still stalls after two steps), rows it did not converge through the scalar _solve (its
+        re-taken A_base and cold fallbacks), then the same IFT tangents, stacked. Inside
+        statics_options, the cache initialised."""
+        robot, nv = self.robot, self.nv
+        rows = [(des, load, eq) for des, pair in zip(self.design, self._cache)
+                for load, eq in zip((None, des.load), pair)]
+        n = len(rows)
+        if self._batch is None:
+            self._batch = BatchStatics(self.statics, nsim=n, nthread=1)
+        bs = self._batch
+        bs.sync(*Robot.PARAM_FIELDS)
+        q = np.array([des.q for des, _, _ in rows])
+        zero = np.zeros(3)
+        load = Load(np.array([zero if ld is None else ld.force for _, ld, _ in rows]),
+                    np.array([zero if ld is None else ld.moment for _, ld, _ in rows]),
+                    np.array([robot.payload_site if ld is None else ld.site for _, ld, _ in rows]))
+        qpos = np.array([eq.qpos for *_, eq in rows])
+        lam = np.array([eq.lam for *_, eq in rows])
+        for i, (*_, eq) in enumerate(rows):
+            if eq.tangent is not None and eq.theta is not None:   # first-order prediction
+                step = eq.tangent @ (theta - eq.theta)
+                qpos[i] += step[:nv]
+                lam[i] += step[nv:]
+        basis = np.array([eq.basis for *_, eq in rows])
+        a_base = np.array([eq.a_base for *_, eq in rows])
+        h_len = np.array([eq.h_len for *_, eq in rows])
+
+        def springs(ids) -> np.ndarray:
+            """S(theta) at the poses the batch holds for simulations ids."""
+            return self._springs(theta, robot.tendon_moments_stack(bs.ten_j[ids]),
+                                 bs.ten_length[ids][:, robot.tendons], h_len[ids])
+
+        def stiffness(idx, qp, lm, r, stalled, iteration):
+            return a_base[idx] + springs(idx), stalled & (iteration > 2)
+
+        sol = bs.newton(q, qpos, basis, load, lam=lam, stiffness=stiffness, max_iter=self.max_iter)
+        self.stats["newton_iterations"] += int(sol.iterations[sol.converged].sum())
+        qpos, lam = sol.qpos, sol.lam
+        for i in np.flatnonzero(~sol.converged):      # rare: the scalar path's fallbacks
+            des, ld, eq = rows[i]
+            robot.set_command(des.q)
+            one = self._solve(des, ld, eq, theta, False)
+            qpos[i], lam[i] = one.qpos, one.lam
+            a_base[i], h_len[i], basis[i] = eq.a_base, eq.h_len, eq.basis
+        for i, (*_, eq) in enumerate(rows):
+            eq.qpos, eq.lam, eq.theta, eq.tangent = qpos[i], lam[i], theta.copy(), None
+        # the solutions' forward pass (positions, tendon, J_c), then the tangents
+        res = bs.residual(np.arange(n), qpos, load, lam, basis)
+        ids = np.arange(n)
+        pos = bs.site_xpos[ids]
+        dp = np.empty((self.n_obs, 3))
+        jac = None
+        if jacobian:
+            kkt = kkt_matrix(a_base + springs(ids), res.jc_r)
+            tangent = ift_tangent(kkt, robot.dforce_dtheta_stack(self._params, qpos, q, bs.ten_j[ids],
+                                                                  bs.ten_length[ids]))
+            for i, (*_, eq) in enumerate(rows):
+                eq.tangent = tangent[i]
+            used = np.unique(np.concatenate([des.sites for des in self.design]))
+            jsite = np.stack([bs.site_jacobian(ids, int(s)) for s in used], axis=1) @ tangent[:, None, :nv]
+            jac = np.empty((self.n_obs, 3, self.n_params))
+        row = 0
+        for k, des in enumerate(self.design):
+            m = len(des.sites)
+            dp[row: row + m] = pos[2 * k + 1, des.sites] - pos[2 * k, des.sites]
+            if jacobian:
+                cols = np.searchsorted(used, des.sites)
+                jac[row: row + m] = jsite[2 * k + 1, cols] - jsite[2 * k, cols]
+            row += m
+        self._p_kkt = theta[self.n_base:].copy()
         return dp, jac
 
 
