@@ -4,23 +4,35 @@ Everything lives in the MJCF as MuJoCo's own user data, ``<custom><text name="ca
 data="name name ..."/></custom>`` (space-separated element names; docs/contract.md, "Robot
 description"):
 
-==========================  ========================================================  ==========
-``calbench:actuated``       the actuated hinge joints in controller order; each        required
-                            carries the VJM spring (``stiffness``, ``springref`` =
-                            the command, paper eq. 1); N of them give ``k1 … kN``
-``calbench:loops``          ``connect`` equalities between two sites that the          optional
-                            statics close exactly (kinematic loops)
-``calbench:compensators``   spatial tendons between two sites that are                 optional
-                            gravity-compensator springs (eqs. 7-9)
-``calbench:reflectors``     the reflector sites the tracker reads (>= 3)               required
-``calbench:payload``        the site where the load hangs                              required
-``calbench:flange``         the flange site (drawn by the viewers)                     optional
-==========================  ========================================================  ==========
+============================  ==================================================  ========
+``calbench:actuated``         the actuated hinge joints in controller order; each  required
+                              carries the VJM spring (``stiffness``,
+                              ``springref`` = the command, paper eq. 1); N of
+                              them give ``k1 … kN``
+``calbench:loops``            ``connect`` equalities between two sites that the    optional
+                              statics close exactly (kinematic loops)
+``calbench:compensators``     spatial tendons between two sites that are           optional
+                              gravity-compensator springs (eqs. 7-9)
+``calbench:reflectors``       the reflector sites the tracker reads (>= 3)         required
+``calbench:payload``          the site where the load hangs                        required
+``calbench:flange``           the flange site (drawn by the viewers)               optional
+``calbench:mass_compensators``  bodies that are counterweights (paper §3.3: the     optional
+                              design keeps their vertical off the loops' passive
+                              hinges); none: the rule is not applied
+``calbench:wrist``            the body whose origin is the wrist centre (design's  optional
+                              min_height / min_radius); default: the body of the
+                              last-but-one actuated joint
+``calbench:links``            bodies whose root compliance discovery tries         optional
+                              (``link_compliance``); none: not a candidate
+``calbench:compensator_sites``  two sites between which discovery tries a          optional
+                              compensator spring; none: not a candidate
+============================  ==================================================  ========
 
-Everything else (passive joints, loop degeneracy, a compensator's joint and geometry) is
-derived from the model (bench/robot.py). :func:`read_description` checks names and element
-types only; ``calbench check-robot`` (bench/checkrobot.py) also checks the geometry (loops
-close, reflectors not collinear and visible, statics converge).
+Everything else (passive joints, loop degeneracy, a compensator's joint and geometry, the
+design's self-collision exclusions) is derived from the model (bench/robot.py,
+identify/design/candidates.py). :func:`read_description` checks names and element types only;
+``calbench check-robot`` (bench/checkrobot.py) also checks the geometry (loops close,
+reflectors not collinear and visible, statics converge).
 """
 from __future__ import annotations
 
@@ -45,17 +57,28 @@ class Description:
     loops: tuple[str, ...] = ()
     compensators: tuple[str, ...] = ()
     flange: str | None = None
+    mass_compensators: tuple[str, ...] = ()
+    wrist: str | None = None
+    links: tuple[str, ...] = ()
+    compensator_sites: tuple[str, ...] = ()
 
 
-# key -> (required, one name only, what it names)
-KEYS: dict[str, tuple[bool, bool, str]] = {
-    "actuated": (True, False, "the actuated hinge joints in controller order"),
-    "loops": (False, False, "connect equalities closed by the statics"),
-    "compensators": (False, False, "spatial tendons that are compensator springs"),
-    "reflectors": (True, False, "the reflector sites (at least 3)"),
-    "payload": (True, True, "the payload site"),
-    "flange": (False, True, "the flange site"),
+# key -> (required, how many names (None: any), element kind, what it names)
+KEYS: dict[str, tuple[bool, int | None, str, str]] = {
+    "actuated": (True, None, "joint", "the actuated hinge joints in controller order"),
+    "loops": (False, None, "equality", "connect equalities closed by the statics"),
+    "compensators": (False, None, "tendon", "spatial tendons that are compensator springs"),
+    "reflectors": (True, None, "site", "the reflector sites (at least 3)"),
+    "payload": (True, 1, "site", "the payload site"),
+    "flange": (False, 1, "site", "the flange site"),
+    "mass_compensators": (False, None, "body", "counterweight bodies (paper §3.3)"),
+    "wrist": (False, 1, "body", "the body whose origin is the wrist centre"),
+    "links": (False, None, "body", "bodies whose root compliance discovery tries"),
+    "compensator_sites": (False, 2, "site", "two sites between which discovery tries a spring"),
 }
+_KINDS = {"joint": mujoco.mjtObj.mjOBJ_JOINT, "equality": mujoco.mjtObj.mjOBJ_EQUALITY,
+          "tendon": mujoco.mjtObj.mjOBJ_TENDON, "site": mujoco.mjtObj.mjOBJ_SITE,
+          "body": mujoco.mjtObj.mjOBJ_BODY}
 MIN_REFLECTORS = 3
 
 
@@ -83,51 +106,45 @@ def read_description(model: mujoco.MjModel) -> Description:
             raise DescriptionError(f"custom text {PREFIX}{key}: unknown; known: "
                                    + ", ".join(PREFIX + k for k in KEYS))
     names: dict[str, tuple[str, ...]] = {}
-    for key, (required, single, what) in KEYS.items():
+    for key, (required, count, kind, what) in KEYS.items():
         words = tuple(texts.get(key, "").split())
         if required and not words:
             raise DescriptionError(f"custom text {PREFIX}{key}: required ({what}); add "
                                    f'<custom><text name="{PREFIX}{key}" data="..."/></custom>')
-        if single and len(words) > 1:
-            raise DescriptionError(f"custom text {PREFIX}{key}: one site name, got {list(words)}")
+        if count is not None and words and len(words) != count:
+            raise DescriptionError(f"custom text {PREFIX}{key}: {'one' if count == 1 else count} "
+                                   f"{kind} name{'s' if count > 1 else ''}, got {list(words)}")
         if len(set(words)) != len(words):
             raise DescriptionError(f"custom text {PREFIX}{key}: a name is listed twice in {list(words)}")
+        for w in words:
+            if _id(model, _KINDS[kind], w) < 0:
+                raise DescriptionError(f"{PREFIX}{key}: no {kind} named {w!r} in the MJCF")
         names[key] = words
 
     for j in names["actuated"]:
-        jid = _id(model, mujoco.mjtObj.mjOBJ_JOINT, j)
-        if jid < 0:
-            raise DescriptionError(f"{PREFIX}actuated: no joint named {j!r} in the MJCF")
-        if model.jnt_type[jid] != mujoco.mjtJoint.mjJNT_HINGE:
+        if model.jnt_type[_id(model, _KINDS["joint"], j)] != mujoco.mjtJoint.mjJNT_HINGE:
             raise DescriptionError(f"{PREFIX}actuated: joint {j!r} must be a hinge")
     for e in names["loops"]:
-        eid = _id(model, mujoco.mjtObj.mjOBJ_EQUALITY, e)
-        if eid < 0:
-            raise DescriptionError(f"{PREFIX}loops: no equality named {e!r} in the MJCF")
+        eid = _id(model, _KINDS["equality"], e)
         if (model.eq_type[eid] != mujoco.mjtEq.mjEQ_CONNECT
                 or model.eq_objtype[eid] != mujoco.mjtObj.mjOBJ_SITE):
             raise DescriptionError(f"{PREFIX}loops: equality {e!r} must be a <connect> between two "
                                    "sites (site1, site2)")
     for t in names["compensators"]:
-        tid = _id(model, mujoco.mjtObj.mjOBJ_TENDON, t)
-        if tid < 0:
-            raise DescriptionError(f"{PREFIX}compensators: no tendon named {t!r} in the MJCF")
+        tid = _id(model, _KINDS["tendon"], t)
         adr, num = model.tendon_adr[tid], model.tendon_num[tid]
         if num != 2 or any(model.wrap_type[adr + i] != mujoco.mjtWrap.mjWRAP_SITE for i in range(num)):
             raise DescriptionError(f"{PREFIX}compensators: tendon {t!r} must be a <spatial> tendon "
                                    "between exactly two sites (a straight spring)")
-    sites = [("reflectors", s) for s in names["reflectors"]] + [
-        (k, s) for k in ("payload", "flange") for s in names[k]]
-    for key, s in sites:
-        if _id(model, mujoco.mjtObj.mjOBJ_SITE, s) < 0:
-            raise DescriptionError(f"{PREFIX}{key}: no site named {s!r} in the MJCF")
     if len(names["reflectors"]) < MIN_REFLECTORS:
         raise DescriptionError(f"{PREFIX}reflectors: at least {MIN_REFLECTORS} sites, got "
                                f"{list(names['reflectors'])}")
+    one = {k: (v[0] if v else None) for k, v in names.items()}
     return Description(actuated=names["actuated"], reflectors=names["reflectors"],
-                       payload=names["payload"][0], loops=names["loops"],
-                       compensators=names["compensators"],
-                       flange=names["flange"][0] if names["flange"] else None)
+                       payload=one["payload"], loops=names["loops"],
+                       compensators=names["compensators"], flange=one["flange"],
+                       mass_compensators=names["mass_compensators"], wrist=one["wrist"],
+                       links=names["links"], compensator_sites=names["compensator_sites"])
 
 
 def spec_names(spec: mujoco.MjSpec, key: str) -> list[str]:

@@ -43,6 +43,7 @@ LOOP_MARGIN_ANGLE = math.radians(10.0)   # alpha of LOOP_MARGIN for a planar two
 _SNAP = 1e-9           # motor-map entries this close to an integer are that integer (a parallel linkage)
 _CLOSE_ITER = 20       # Gauss-Newton steps of the loop closure before continuation
 _CONTINUATION = 16     # steps of the continuation from the reference configuration
+_LINEAR_PROBES = 8     # random commands that decide whether the loops close linearly
 
 
 @dataclass(frozen=True)
@@ -68,7 +69,7 @@ class CompensatorGeometry:
         return float(np.sqrt(self.l_c**2 + self.l_2**2 - 2 * self.l_c * self.l_2 * np.cos(psi)))
 
 
-def _ancestors(model: mujoco.MjModel, body: int) -> list[int]:
+def ancestors(model: mujoco.MjModel, body: int) -> list[int]:
     """body, its parent, ..., the world (0)."""
     out = [int(body)]
     while out[-1] != 0:
@@ -79,7 +80,7 @@ def _ancestors(model: mujoco.MjModel, body: int) -> list[int]:
 def path_joints(model: mujoco.MjModel, body_a: int, body_b: int) -> list[int]:
     """Joint ids of the bodies between two bodies and their common ancestor (exclusive), i.e.
     the joints whose motion changes the relative pose of the two bodies (sorted)."""
-    up_a, up_b = _ancestors(model, body_a), _ancestors(model, body_b)
+    up_a, up_b = ancestors(model, body_a), ancestors(model, body_b)
     common = next(b for b in up_a if b in up_b)
     bodies = up_a[: up_a.index(common)] + up_b[: up_b.index(common)]
     return sorted(int(j) for b in bodies
@@ -151,10 +152,16 @@ class Robot:
         self._kd = mujoco.MjData(m)        # scratch for the closure (never the statics' data)
         self._ref = m.qpos0.copy()
         self._closure_map = np.zeros((len(self.passive_joint), self.n_act))
+        self.linear_loops = True           # the passive joints are exact linear maps of the motors
         if len(self.passive_joint):
             self._ref = self._close(self._ref, self._ref)
             n = self._passive_map(self._ref)
             self._closure_map = np.where(np.abs(n - np.round(n)) < _SNAP, np.round(n), n)
+            # a parallel linkage closes exactly along the map everywhere; decided on random
+            # commands within the limits (+-180 deg at most), once
+            lim = np.clip(self.limits(), -np.pi, np.pi)
+            probes = lim[:, 0] + (lim[:, 1] - lim[:, 0]) * np.random.default_rng(0).random((_LINEAR_PROBES, self.n_act))
+            self.linear_loops = all(np.abs(self._gap(self._predict(q))[0]).max() <= LOOP_TOL for q in probes)
 
     def _gap(self, qpos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         d = self._kd
@@ -284,13 +291,13 @@ class Robot:
         return mass * self.model.opt.gravity
 
     # -- loops ----------------------------------------------------------------------------
-    def loop_conditioning(self, q: np.ndarray) -> np.ndarray:
+    def loop_conditioning(self, q: np.ndarray, qpos: np.ndarray | None = None) -> np.ndarray:
         """(n_loops,) inverse condition number of each loop's column-normalised Jacobian with
-        respect to its passive joints at the command's rigid configuration (see LOOP_MARGIN):
-        1 for orthogonal gap directions, 0 at a degenerate loop."""
+        respect to its passive joints at the command's rigid configuration (``qpos`` if already
+        known; see LOOP_MARGIN): 1 for orthogonal gap directions, 0 at a degenerate loop."""
         if not self.loops:
             return np.zeros(0)
-        _, jc = self._gap(self.rigid_qpos(q))
+        _, jc = self._gap(self.rigid_qpos(q) if qpos is None else qpos)
         return self.loop_conditioning_stack(jc[None])[0]
 
     def loop_conditioning_stack(self, jc: np.ndarray) -> np.ndarray:
@@ -307,9 +314,9 @@ class Robot:
                 out[ok, i] = s[:, -1] / s[:, 0]
         return out
 
-    def loop_ok(self, q: np.ndarray) -> bool:
+    def loop_ok(self, q: np.ndarray, qpos: np.ndarray | None = None) -> bool:
         """Every loop at least LOOP_MARGIN from degenerate at the command (always, without loops)."""
-        return bool(np.all(self.loop_conditioning(q) >= LOOP_MARGIN))
+        return bool(np.all(self.loop_conditioning(q, qpos) >= LOOP_MARGIN))
 
     # -- commands -----------------------------------------------------------------------
     def set_command(self, q: np.ndarray) -> None:
@@ -323,15 +330,21 @@ class Robot:
         to close the loops: first by the motor map of the reference configuration (its entries
         snapped to integers within 1e-9: a parallel linkage, whose passive angles are exact
         sums and differences of motor angles, then closes exactly, e.g. a parallelogram's elbow
-        = q3 - q2), then by Gauss-Newton on the gap down to LOOP_TOL when that is not closed.
+        = q3 - q2, and ``linear_loops`` says so), then, for other loops, by Gauss-Newton on the
+        gap down to LOOP_TOL.
         """
-        q = np.asarray(q, dtype=float)
+        qpos = self._predict(np.asarray(q, dtype=float))
+        if not self.linear_loops:
+            qpos = self._close(qpos, self._ref)
+        return qpos
+
+    def _predict(self, q: np.ndarray) -> np.ndarray:
+        """The configuration at command q with the passive joints on the reference motor map."""
         qpos = self.model.qpos0.copy()
         qpos[self.act_qpos] = q
         if len(self.passive_joint):
             ref = self._ref
             qpos[self.passive_qpos] = ref[self.passive_qpos] + self._closure_map @ (q - ref[self.act_qpos])
-            qpos = self._close(qpos, ref)
         return qpos
 
     def rigid_qpos_stack(self, q: np.ndarray, gaps=None) -> np.ndarray:
@@ -346,6 +359,8 @@ class Robot:
         if len(self.passive_joint) and len(q):
             ref = self._ref
             qpos[:, self.passive_qpos] = ref[self.passive_qpos] + (q - ref[self.act_qpos]) @ self._closure_map.T
+            if self.linear_loops:   # closed exactly by the map (rigid_qpos)
+                return qpos
             c = gaps(qpos) if gaps is not None else np.array([self._gap(x)[0] for x in qpos])
             for i in np.flatnonzero(~(np.abs(c).max(axis=1) <= LOOP_TOL)):
                 try:
@@ -398,7 +413,7 @@ class Robot:
         a, b = m.wrap_objid[m.tendon_adr[t]: m.tendon_adr[t] + 2]
         joint = self.act_joint[i]
         # b: the attachment that the joint moves (its body below the joint's), a: the other
-        if int(m.jnt_bodyid[joint]) in _ancestors(m, m.site_bodyid[a]):
+        if int(m.jnt_bodyid[joint]) in ancestors(m, m.site_bodyid[a]):
             a, b = b, a
         axis_pt = d.xanchor[joint]
         axis = d.xaxis[joint]
@@ -412,5 +427,5 @@ class Robot:
         return CompensatorGeometry(float(l_c), float(l_2), float(psi), i)
 
 
-__all__ = ["Robot", "Params", "Spring", "ParamLayout", "CompensatorGeometry", "LOOP_MARGIN",
+__all__ = ["Robot", "Params", "Spring", "ParamLayout", "CompensatorGeometry", "LOOP_MARGIN", "ancestors",
            "LOOP_MARGIN_ANGLE", "path_joints"]

@@ -20,7 +20,6 @@ import numpy as np
 from .errors import InputError
 from .params import LEGACY_COMPENSATOR, Params, Spring
 
-LINKS = ("forearm", "upper_arm")
 TRACKER_MODELS = ("isotropic", "spec")
 DEFAULT_SIGMA = 20e-6
 DEFAULT_DISTANCE = (10e-6, 0.3e-6)      # Leica AT500 ADM: 10 um + 0.3 um/m
@@ -217,7 +216,7 @@ def _effects(c: _Checker) -> dict[str, dict]:
     if c.has("link_compliance"):
         e = c.sub("link_compliance")
         e.only(("link", "compliance"))
-        out["link_compliance"] = {"link": e.string("link", LINKS),
+        out["link_compliance"] = {"link": e.string("link"),     # a body of the robot (its MJCF decides)
                                   "compliance": _frozen(e.vector("compliance", 3, nonneg=True))}
     if c.has("base_compliance"):
         e = c.sub("base_compliance")
@@ -230,7 +229,7 @@ def _effects(c: _Checker) -> dict[str, dict]:
     if c.has("joint_nonlinearity"):
         e = c.sub("joint_nonlinearity")
         e.only(("joint", "cubic"))
-        out["joint_nonlinearity"] = {"joint": e.integer("joint", 1, 6),
+        out["joint_nonlinearity"] = {"joint": e.integer("joint", 1),          # 1..N: the robot decides
                                      "cubic": e.number("cubic")}
     return out
 

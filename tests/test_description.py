@@ -18,7 +18,7 @@ from calbench.bench.robot import Robot
 from calbench.bench.scenario import load_scenario, scenario_params
 from calbench.bench.statics import Load, StaticsSolver
 from conftest import MJCF, PAPER
-from robots import serial_mjcf
+from robots import fourbar_mjcf, serial_mjcf
 
 
 def test_the_fanuc_model_carries_its_description():
@@ -167,3 +167,35 @@ def test_scenario_truth_is_matched_against_the_robot(tmp_path):
     assert info.value.key == "truth.compliance"
     assert read_description(fanuc.model) == fanuc.description
     assert scenario_params(load_scenario(PAPER), 6, ("compensator",)).springs["compensator"].preload > 0
+
+
+def test_a_non_parallel_loop_closes_by_newton_and_its_rule_is_its_angle():
+    """A four-bar with unequal links: the passive angles are no linear map of the motors', so
+    the rigid pose comes from Gauss-Newton on the gap (closed to bench.loop.LOOP_TOL = 1e-12 m);
+    the derived loop rule is still tan(alpha / 2), alpha the acute angle between the two
+    passive hinges' levers in the loop's plane (knee -> anchor, coupler -> its end), from the
+    geometry. The statics
+    converge with the loop closed."""
+    robot = Robot.from_xml(fourbar_mjcf())
+    m, d = robot.model, mujoco.MjData(robot.model)
+    assert [m.joint(j).name for j in robot.passive_joint] == ["knee", "coupler"]
+    assert not robot.linear_loops
+    robot.set_params(Params(np.array([1.0, 2.0, 3.0]) * 1e-7))
+    solver = StaticsSolver(robot)
+    rng = np.random.default_rng(3)
+    anchor = lambda name: d.xanchor[m.joint(name).id]  # noqa: E731
+    site = lambda name: d.site_xpos[m.site(name).id]   # noqa: E731
+    for q in np.radians(rng.uniform([-90, -20, -30], [90, 40, 30], (6, 3))):
+        qpos = robot.rigid_qpos(q)
+        np.testing.assert_array_equal(qpos[robot.act_qpos], q)
+        d.qpos[:] = qpos
+        mujoco.mj_kinematics(m, d)
+        assert np.abs(site("link_end") - site("anchor")).max() <= 1e-12
+        # the levers in the loop's plane (perpendicular to the hinges' common axis)
+        ax = d.xaxis[m.joint("knee").id]
+        u, v = site("anchor") - anchor("knee"), site("link_end") - anchor("coupler")
+        u, v = u - ax * (u @ ax), v - ax * (v @ ax)
+        alpha = np.arctan2(np.linalg.norm(np.cross(u, v)), abs(u @ v))
+        assert robot.loop_conditioning(q)[0] == pytest.approx(np.tan(alpha / 2), abs=1e-12)
+        e = solver.solve(q, Load.mass(robot, 30.0))
+        assert e.acceptable and e.loop_violation < 1e-9

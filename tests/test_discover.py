@@ -95,12 +95,20 @@ def ratios(rep):
 # --------------------------------------------------------------------------- the library
 
 def test_library_is_the_contract_effects_with_options():
-    lib = library()
+    lib = library(Robot.from_file(MJCF))
     assert {e.name for e in lib} == set(DISCOVERY_EFFECTS) == {
         "compensator", "joint_nonlinearity", "link_compliance", "base_compliance"}
     assert "tool_compliance" in REGISTRY and "tool_compliance" not in {e.name for e in lib}
+    # the options come from the robot description: its calbench:links, its actuated joints
     assert sorted(e.detail for e in lib if e.name == "link_compliance") == ["forearm", "upper_arm"]
     assert sorted(e.detail for e in lib if e.name == "joint_nonlinearity") == [f"j{j}" for j in range(1, 7)]
+    assert [e.options["body"] for e in lib if e.name == "base_compliance"] == ["base"]
+    # a robot that names no links and no compensator mounts gets neither candidate
+    from robots import serial_mjcf
+    serial = library(Robot.from_xml(serial_mjcf()))
+    assert {e.name for e in serial} == {"joint_nonlinearity", "base_compliance"}
+    assert [e.options["body"] for e in serial if e.name == "base_compliance"] == ["pedestal"]
+    assert len([e for e in serial if e.name == "joint_nonlinearity"]) == 4
 
 
 def test_tool_compliance_truth_effect(tmp_path):

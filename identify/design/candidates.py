@@ -30,23 +30,27 @@ Feasibility rules (each named; :func:`Feasibility.check` returns the violated on
 * ``degenerate_loop``: every kinematic loop at least ``bench.robot.LOOP_MARGIN`` from degenerate
   (``bench.robot.Robot.loop_ok``: the inverse condition number of its passive-joint Jacobian;
   on the FANUC q3 - q2 at least 10 deg away from the degenerate -120 / 60 deg).
-* ``min_height`` / ``min_radius``: the WRIST CENTRE (origin of body ``link5``, on the J5 axis,
-  the point of the paper's Fig. 6) at z >= min_height and at least min_radius from axis 1
-  (horizontal distance), at the commanded (rigid) pose. Paper: 0.5 m and 1 m.
+* ``min_height`` / ``min_radius``: the WRIST CENTRE (the origin of the robot's calbench:wrist
+  body, by default of the body of the last-but-one actuated joint: on a six-axis arm the J5
+  axis, the point of the paper's Fig. 6; the FANUC's link5) at z >= min_height and at least
+  min_radius from axis 1 (distance from the first actuated joint's axis line), at the commanded
+  (rigid) pose. Paper: 0.5 m and 1 m.
 * ``self_collision``: MuJoCo collision detection on a copy of the MJCF with every geom made
   collidable (contype = conaffinity = 1, margin = ``clearance``), at the rigid pose and at both
-  equilibria. Not counted: parent-child pairs (MuJoCo's own filter, which includes bodies welded
-  to their parent: m1 on the crank, m2 on the forearm) and the pairs in ``EXCLUDED_PAIRS``:
-  the four links of the parallelogram among themselves (upper_arm, crank, rod, forearm and the
-  compensator masses welded to them: they meet by design at the loop's hinges), the coupler rod
-  against the turret (the rod's foot runs alongside the turret at the crank hinge) and the forearm
-  against link5 (the wrist's pitch housing sits in the forearm's end, across the J4 bearing).
-  Everything else counts, e.g. the wrist or the tool against the upper arm, turret, crank or m1,
-  and m2 against the turret.
+  equilibria. Not counted (:func:`excluded_pairs`, derived from the model, no table): parent-
+  child pairs (MuJoCo's own filter, which includes bodies welded to their parent, e.g. the
+  FANUC's counterweight on the crank); the bodies of a kinematic loop among themselves (the
+  bodies on its path between its two sites and the bodies welded to them: they meet by design
+  at the loop's hinges; the FANUC's upper arm, crank, rod, forearm and the masses on them);
+  and the pairs that come within REFERENCE_GAP = 2 cm of each other in the model's reference
+  configuration (they touch by design, a housing across a bearing: the FANUC's coupler rod
+  foot beside the turret, the forearm's end around the wrist's pitch housing). Everything else
+  counts, e.g. the wrist or the tool against the upper arm, the turret or a counterweight.
 * ``compensator_discontinuity`` (paper §3.3): the vertical through a mass compensator's centre
-  (bodies m1, m2) must not cross a passive joint of the parallelogram (hinges ``elbow``,
-  ``rod``): the horizontal distance from the compensator's centre to each passive hinge's axis
-  line is at least ``compensator_margin`` (default 0.02 m) in both the unloaded and the loaded
+  (the robot's calbench:mass_compensators; the FANUC's m1, m2; none: the rule is void) must not
+  cross a passive joint of a loop (derived from the loops: the FANUC's elbow and rod): the
+  horizontal distance from the compensator's centre to each passive hinge's axis line is at
+  least ``compensator_margin`` (default 0.02 m) in both the unloaded and the loaded
   equilibrium. The discontinuity needs the external load to carry the vertical across the hinge;
   the load moves those points by < 1 mm (0.2 mm on Table 5 with 700 kg), so 2 cm is a wide
   margin. (Gravity's sag of J2, up to 1.8 deg, moves them by centimetres: that is why the rule is
@@ -71,7 +75,7 @@ import numpy as np
 from calbench.bench.campaign import scenario_params
 from calbench.bench.errors import InputError
 from calbench.bench.progress import ProgressSink, sink
-from calbench.bench.robot import Robot
+from calbench.bench.robot import Robot, ancestors
 from calbench.bench.scenario import Scenario, parse_scenario
 from calbench.bench.statics import Equilibrium, Load, StaticsSolver
 from calbench.bench.tracker import noise_covariance, to_tracker_frame, tracker_rotation, visible_sites
@@ -80,12 +84,7 @@ RULES = ("joint_limits", "degenerate_loop", "min_height", "min_radius", "self_co
          "compensator_discontinuity", "statics", "visibility")
 COMMAND_RULES = ("joint_limits", "degenerate_loop", "min_height", "min_radius", "self_collision")
 EQUILIBRIUM_RULES = ("statics", "self_collision", "compensator_discontinuity", "visibility")
-WRIST_BODY = "link5"
-MASS_COMPENSATORS = ("m1", "m2")
-PASSIVE_HINGES = ("elbow", "rod")
-LOOP_BODIES = ("upper_arm", "crank", "m1", "rod", "forearm", "m2")
-EXCLUDED_PAIRS = tuple(sorted({tuple(sorted((a, b))) for a in LOOP_BODIES for b in LOOP_BODIES if a != b}
-                              | {("rod", "turret"), ("forearm", "link5")}))
+REFERENCE_GAP = 0.02     # m: closer than this in the reference configuration = touching by design
 LOAD_KINDS = ("vertical", "lateral")
 
 
@@ -185,25 +184,71 @@ def nominal_robot(scn: Scenario) -> Robot:
     return robot
 
 
+def wrist_body(robot: Robot) -> int:
+    """The body whose origin is the wrist centre: calbench:wrist, else the body of the
+    last-but-one actuated joint (a six-axis arm's J5; the joint itself with fewer than two)."""
+    m = robot.model
+    if robot.description.wrist:
+        return mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, robot.description.wrist)
+    return int(m.jnt_bodyid[robot.act_joint[max(robot.n_act - 2, 0)]])
+
+
 def lateral_wrench(q1: float, sign: float, force: float) -> np.ndarray:
     return np.array([-math.sin(q1) * sign * force, math.cos(q1) * sign * force, 0.0, 0.0, 0.0, 0.0])
 
 
 # --------------------------------------------------------------------------- feasibility
 
-def collision_model(robot_path: Path, clearance: float = 0.0) -> mujoco.MjModel:
-    """A copy of the MJCF where every geom collides (margin = clearance), EXCLUDED_PAIRS off."""
+def _collidable(robot_path: Path, margin: float) -> mujoco.MjSpec:
     spec = mujoco.MjSpec.from_file(str(robot_path))
     for g in spec.geoms:
         g.contype = 1
         g.conaffinity = 1
-        g.margin = clearance
+        g.margin = margin
         g.gap = 0.0
-    names = {b.name for b in spec.bodies}
-    for a, b in EXCLUDED_PAIRS:
-        if a in names and b in names:
-            ex = spec.add_exclude()
-            ex.bodyname1, ex.bodyname2 = a, b
+    return spec
+
+
+def _welded(model: mujoco.MjModel, body: int) -> list[int]:
+    """The body and its descendants reached without crossing a joint."""
+    out = [body]
+    for b in range(model.nbody):
+        if model.body_parentid[b] == body and b != body and model.body_jntnum[b] == 0:
+            out += _welded(model, b)
+    return out
+
+
+def excluded_pairs(robot: Robot, robot_path: Path) -> tuple[tuple[str, str], ...]:
+    """Body pairs the self-collision rule does not count (module docstring), derived from the
+    model: the bodies of each loop among themselves, and the pairs within REFERENCE_GAP at the
+    reference configuration (the rigid pose at q = 0). Sorted name pairs."""
+    m = robot.model
+    pairs: set[tuple[str, str]] = set()
+    for a, b in robot.loops:
+        up_a, up_b = ancestors(m, m.site_bodyid[a]), ancestors(m, m.site_bodyid[b])
+        root = next(x for x in up_a if x in up_b)
+        path = up_a[: up_a.index(root)] + up_b[: up_b.index(root)]
+        bodies = sorted({w for x in path for w in _welded(m, x)})
+        pairs |= {(m.body(x).name, m.body(y).name) for x in bodies for y in bodies if x != y}
+    ref = _collidable(robot_path, REFERENCE_GAP).compile()
+    d = mujoco.MjData(ref)
+    d.qpos[:] = robot.rigid_qpos(np.zeros(robot.n_act))
+    mujoco.mj_kinematics(ref, d)
+    mujoco.mj_collision(ref, d)
+    for c in d.contact[: d.ncon]:
+        b1, b2 = int(ref.geom_bodyid[c.geom[0]]), int(ref.geom_bodyid[c.geom[1]])
+        if ref.body_parentid[b1] != b2 and ref.body_parentid[b2] != b1:   # MuJoCo filters those
+            pairs.add((ref.body(b1).name, ref.body(b2).name))
+    return tuple(sorted({tuple(sorted(p)) for p in pairs}))
+
+
+def collision_model(robot: Robot, robot_path: Path, clearance: float = 0.0) -> mujoco.MjModel:
+    """A copy of the MJCF where every geom collides (margin = clearance), the
+    :func:`excluded_pairs` off."""
+    spec = _collidable(robot_path, clearance)
+    for a, b in excluded_pairs(robot, robot_path):
+        ex = spec.add_exclude()
+        ex.bodyname1, ex.bodyname2 = a, b
     return spec.compile()
 
 
@@ -216,12 +261,18 @@ class Feasibility:
         self.settings = settings
         self.limits = robot.limits()
         m = robot.model
-        self.cmodel = collision_model(Path(scn.robot), settings.clearance)
+        self.cmodel = collision_model(robot, Path(scn.robot), settings.clearance)
         self.cdata = mujoco.MjData(self.cmodel)
         self._kd = mujoco.MjData(m)
-        self.wrist = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, WRIST_BODY)
-        self.masses = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, n) for n in MASS_COMPENSATORS]
-        self.hinges = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n) for n in PASSIVE_HINGES]
+        self.wrist = wrist_body(robot)
+        self.masses = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, n)
+                       for n in robot.description.mass_compensators]
+        self.hinges = list(robot.passive_joint)
+        # axis 1: the first actuated joint's axis line, fixed in the world (its body hangs from
+        # the world: it does not move with the command)
+        self._kd.qpos[:] = robot.rigid_qpos(np.zeros(robot.n_act))
+        mujoco.mj_kinematics(m, self._kd)
+        self.axis1 = (self._kd.xanchor[robot.act_joint[0]].copy(), self._kd.xaxis[robot.act_joint[0]].copy())
 
     # -- individual rules ---------------------------------------------------------------------
     def loop(self, q) -> bool:
@@ -249,12 +300,18 @@ class Feasibility:
 
     def compensator_clearance(self, qpos) -> float:
         """Smallest horizontal distance from a mass compensator's centre to a passive hinge's
-        axis line (m) at qpos (§3.3)."""
+        axis line (m) at qpos (§3.3); infinite without mass compensators or passive hinges."""
         m, d = self.robot.model, self._kd
         d.qpos[:] = qpos
         mujoco.mj_kinematics(m, d)
         return float(horizontal_clearance(d.xipos[self.masses][None], d.xanchor[self.hinges][None],
                                           d.xaxis[self.hinges][None])[0])
+
+    def radius(self, points: np.ndarray) -> np.ndarray:
+        """(n,) distance of points (n, 3) from axis 1 (m)."""
+        p, a = self.axis1
+        v = np.asarray(points, float) - p
+        return np.linalg.norm(v - np.outer(v @ a, a), axis=1)
 
     # -- the rules' decisions, stacked over configurations (also identify/design/batch_info.py) --
     def command_violations(self, q: np.ndarray, wrist: np.ndarray, collides, loop_ok=None) -> np.ndarray:
@@ -267,7 +324,7 @@ class Feasibility:
             ~np.all((q >= lo - 1e-9) & (q <= hi + 1e-9), axis=1),
             ~np.asarray(loop_ok, bool),
             wrist[:, 2] < self.settings.min_height,
-            np.hypot(wrist[:, 0], wrist[:, 1]) < self.settings.min_radius,
+            self.radius(wrist) < self.settings.min_radius,
             np.asarray(collides, bool)])
 
     def equilibrium_violations(self, acceptable, collides, clearance, visible,
@@ -308,7 +365,9 @@ def horizontal_clearance(centres: np.ndarray, anchors: np.ndarray, axes: np.ndar
     """Smallest horizontal distance (n,) from k points (n, k, 3) to h axis lines through
     ``anchors`` along ``axes`` (n, h, 3), in the horizontal plane (the §3.3 rule: a vertical
     line through a mass compensator's centre must not cross a passive hinge's axis); a vertical
-    axis counts by its foot point."""
+    axis counts by its foot point. No points or no axes: infinitely far (the rule is void)."""
+    if centres.shape[1] == 0 or anchors.shape[1] == 0:
+        return np.full(len(centres), np.inf)
     v = (centres[:, :, None, :2] - anchors[:, None, :, :2])             # (n, k, h, 2)
     axh = axes[:, None, :, :2]
     n = np.sqrt(np.einsum("...i,...i->...", axh, axh))
@@ -576,4 +635,4 @@ def generate_candidates(scn: Scenario, settings: DesignSettings, n: int | None =
 __all__ = ["DesignSettings", "read_design_settings", "load_design_scenario", "nominal_theta",
            "nominal_robot", "Feasibility", "InfoEngine", "PoseInfo", "CandidateSet",
            "generate_candidates", "scalar_block", "lateral_wrench", "collision_model", "horizontal_clearance",
-           "EXCLUDED_PAIRS", "RULES", "COMMAND_RULES", "EQUILIBRIUM_RULES"]
+           "excluded_pairs", "wrist_body", "REFERENCE_GAP", "RULES", "COMMAND_RULES", "EQUILIBRIUM_RULES"]

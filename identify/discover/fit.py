@@ -1,8 +1,10 @@
 """Discovery, part 1: the candidate library and fitting a model with effects in the loop.
 
 The LIBRARY is every effect that bench/effects.py's ``@register`` puts in discovery, with the
-structural options it declares there: `link_compliance` on the upper arm and on the forearm,
-`joint_nonlinearity` on every actuated joint, `base_compliance`, `compensator`, with their priors. These
+structural options it declares there for the robot: `link_compliance` on the robot's
+calbench:links (the FANUC's upper arm and forearm), `joint_nonlinearity` on every actuated
+joint, `base_compliance`, `compensator` where calbench:compensator_sites names its mounts, with
+their priors. These
 are the same MjSpec edits the bench puts in the simulated truth. Nothing here chooses between
 them: identify/discover/workflow.py does, through identify/discover/stats.py, and knows nothing
 about any single effect. Adding a candidate = registering an effect in bench/effects.py.
@@ -57,9 +59,10 @@ COST_TOL = 1e-3              # chi2 units: a step gaining (or promising) less en
 DISCOVERY_EFFECTS = tuple(DISCOVERY_OPTIONS)   # the effects @register puts in discovery's library
 
 
-def library() -> list[Effect]:
-    """Every candidate effect with its structural options (bench/effects.py's registry)."""
-    return discovery_library()
+def library(robot: Robot) -> list[Effect]:
+    """Every candidate effect with its structural options on this robot (bench/effects.py's
+    registry)."""
+    return discovery_library(robot)
 
 
 def label(effect: Effect) -> str:

@@ -62,7 +62,7 @@ def pose_features(fit, obs) -> dict[str, np.ndarray]:
     q2, ext, ang = [], [], []
     tau = []
     for p, (q0, q1) in zip(obs.poses, eqs):
-        q2.append(math.degrees(p.q[1]))
+        q2.append(math.degrees(p.q[1]) if len(p.q) > 1 else 0.0)
         dq = q1[robot.act_qpos] - q0[robot.act_qpos]
         tau.append(np.abs(dq / k))
         d.qpos[:] = q0

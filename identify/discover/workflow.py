@@ -140,7 +140,7 @@ def discover(log_path, model=None, *, out_model=None, plot=None, view_json=None,
     named: list[str] = []
     steps: list[dict] = []
     rounds: list[dict] = []
-    lib = library()
+    lib = library(robot)
     hints: list[dict] = []
     for rnd in range(max_rounds):
         fits_noise = chi2_p(current.chi2, current.dof) >= ALPHA_FIT
