@@ -1,4 +1,4 @@
-"""The bench's command-line verbs: `simulate`, `view` and `export`.
+"""The bench's command-line verbs: `simulate`, `view`, `export` and `check-robot`.
 
 The console script itself lives in identify/cli.py, which sits on top of both packages and
 registers these; bench never imports identify. This module and identify/cli.py are the only
@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 from .campaign import run_campaign
+from .checkrobot import DEFAULT_MASS, check_robot
 from .idreport import IdentificationReport
 from .progress import Progress
 from .scenario import load_scenario
@@ -102,6 +103,35 @@ def cmd_view(args: argparse.Namespace) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- check-robot
+
+def add_check_robot(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("check-robot", help="validate a robot's MJCF and its calbench description",
+                       description="Checks that ROBOT.xml names the elements calbench needs "
+                                   "(docs/contract.md, Robot description), that its loops close, its "
+                                   "reflectors are seen and its statics converge over a grid of poses.")
+    p.add_argument("robot", type=Path, help="robot MJCF")
+    p.add_argument("--tracker", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
+                   help="tracker position (m, world) for the line-of-sight check (default: 5 m from "
+                        "axis 1, 3 m up, 45 deg beside the payload)")
+    p.add_argument("--mass", type=float, default=DEFAULT_MASS,
+                   help="payload (kg) of the loaded grid (default: %(default)g)")
+    p.add_argument("--grid", type=int, default=3,
+                   help="values per joint of the grid of poses (default: %(default)s)")
+    p.set_defaults(func=cmd_check_robot)
+
+
+def cmd_check_robot(args: argparse.Namespace) -> int:
+    from .errors import InputError
+    if args.grid < 1:
+        raise InputError("--grid", "grid", "an integer >= 1", args.grid)
+    if not args.mass > 0:
+        raise InputError("--mass", "mass", "a mass > 0 (kg)", args.mass)
+    res = check_robot(args.robot, args.tracker, args.mass, args.grid)
+    print("\n".join(res.lines()))
+    return 0
+
+
 # --------------------------------------------------------------------------- export
 
 def add_export(sub: argparse._SubParsersAction) -> None:
@@ -121,4 +151,5 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
-__all__ = ["add_simulate", "cmd_simulate", "add_view", "cmd_view", "add_export", "cmd_export"]
+__all__ = ["add_simulate", "cmd_simulate", "add_view", "cmd_view", "add_export", "cmd_export",
+           "add_check_robot", "cmd_check_robot"]

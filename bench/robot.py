@@ -148,6 +148,7 @@ class Robot:
         self.passive_joint = np.array(sorted(passive), dtype=int)
         self.passive_qpos = m.jnt_qposadr[self.passive_joint]
         self.passive_dof = m.jnt_dofadr[self.passive_joint]
+        self.loop_passive = per_loop       # joint ids of each loop's passive joints
         self._loop_passive_dof = [m.jnt_dofadr[js] for js in per_loop]
         self._kd = mujoco.MjData(m)        # scratch for the closure (never the statics' data)
         self._ref = m.qpos0.copy()

@@ -18,7 +18,7 @@ import time
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
-from calbench.bench.cli import add_export, add_simulate, add_view
+from calbench.bench.cli import add_check_robot, add_export, add_simulate, add_view
 from calbench.bench.errors import CalbenchError, InputError
 from calbench.bench.outputs import atomic_path, check_outputs, write_text
 from calbench.bench.progress import terminal_progress
@@ -395,6 +395,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_view(sub)
     add_discover(sub)
     add_report(sub)
+    add_check_robot(sub)
     add_import(sub)
     add_export(sub)
     return parser
