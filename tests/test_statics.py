@@ -218,6 +218,26 @@ def test_apparent_j2_stiffness_varies_over_plan_q2_range():
     assert max(k) / min(k) - 1.0 >= 0.15
 
 
+def relaxed_flange(robot: Robot, q: np.ndarray, load: Load, damping: float, max_steps: int) -> np.ndarray:
+    """Where MuJoCo's own dynamics bring the flange to rest: mj_step from the rigid pose with
+    heavy joint damping (statics ignore it), the load by mj_applyFT and the joint ranges off
+    (they are controller limits), until every joint speed is below 1e-9 rad/s."""
+    m, d = robot.model, robot.data
+    m.dof_damping[:] = damping
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
+    d.qpos[:] = robot.rigid_qpos(q)
+    d.qvel[:] = 0.0
+    mujoco.mj_forward(m, d)
+    for step in range(max_steps):
+        d.qfrc_applied[:] = 0.0
+        mujoco.mj_applyFT(m, d, load.force, load.moment, d.site_xpos[load.site], m.site_bodyid[load.site],
+                          d.qfrc_applied)
+        mujoco.mj_step(m, d)
+        if step > 100 and np.abs(d.qvel).max() < 1e-9:
+            break
+    return d.site_xpos[robot.flange_site].copy()
+
+
 def test_second_solver_time_stepping_relaxation_agrees():
     """An independent solution: MuJoCo's own soft loop closure relaxed with mj_step.
 
@@ -229,20 +249,7 @@ def test_second_solver_time_stepping_relaxation_agrees():
     q = TABLE5[2]  # q3 = 30 deg sits on j3's range: limits must not act
     load = Load.mass(robot, 700.0)
     e = solver.solve(q, load)
-    m, d = robot.model, robot.data
-    m.dof_damping[:] = 4.0e5  # heavy damping to settle quickly; statics ignore it
-    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_LIMIT)  # ranges are controller limits
-    d.qpos[:] = robot.rigid_qpos(q)
-    d.qvel[:] = 0.0
-    mujoco.mj_forward(m, d)
-    for _ in range(4000):
-        d.xfrc_applied[:] = 0.0
-        mujoco.mj_applyFT(m, d, load.force, load.moment, d.site_xpos[load.site], m.site_bodyid[load.site], d.qfrc_applied)
-        mujoco.mj_step(m, d)
-        d.qfrc_applied[:] = 0.0
-        if np.abs(d.qvel).max() < 1e-9 and _ > 100:
-            break
-    relaxed = d.site_xpos[robot.flange_site].copy()
+    relaxed = relaxed_flange(robot, q, load, damping=4.0e5, max_steps=4000)
     newton, _ = site_pose(robot, e.qpos, robot.flange_site)
     assert np.linalg.norm(relaxed - newton) < 5e-6
 
