@@ -206,6 +206,8 @@ class BatchStatics:
             jacs.append(self.site_jacobian(ids, a) - self.site_jacobian(ids, b))
         if len(gaps) == 1:
             return gaps[0], jacs[0]
+        if not gaps:                    # a serial robot: no loop, no constraint rows
+            return np.zeros((len(ids), 0)), np.zeros((len(ids), 0, self.robot.model.nv))
         return np.concatenate(gaps, axis=1), np.concatenate(jacs, axis=1)
 
     def basis(self, ids: np.ndarray, qpos: np.ndarray) -> np.ndarray:
@@ -358,7 +360,7 @@ class BatchStatics:
             norm = np.abs(res.r).max(axis=1)
             out_r[act], out_jc[act], out_norm[act] = res.r, res.jc_r, norm
             out_gap[act], out_grav[act] = res.gap, res.gravity
-            done = (norm <= force_tol[act]) & (np.abs(res.c_r).max(axis=1) <= LOOP_TOL)
+            done = (norm <= force_tol[act]) & (np.abs(res.c_r).max(axis=1, initial=0.0) <= LOOP_TOL)
             converged[act[done]] = True
             bad = ~np.isfinite(norm)
             out_norm[act[bad]] = np.inf
