@@ -8,8 +8,9 @@ joint equality. Its URDF defaults differ from MJCF's (docs: modeling.rst, "URDF 
 XMLreference.rst, ``compiler``): ``fusestatic`` (fixed links merge into their parent and lose
 their names), ``discardvisual`` (only ``<collision>`` geometry is kept) and
 ``inertiafromgeom="auto"``, under which a body without ``<inertial>`` gets the mass of its geoms
-at 1000 kg/m^3 (measured: a link holding a 0.2 m box came out at 8 kg) or, without geoms, zero
-(then the compile fails for a moving leaf body). This module changes what calbench needs:
+at 1000 kg/m^3 (a link holding a 0.25 x 0.2 x 0.2 m box comes out at 10 kg, tests/test_urdf.py)
+or, without geoms, zero (then the compile fails for a moving leaf body). This module changes
+what calbench needs:
 
 * **Masses** come from the URDF's ``<inertial>`` elements only (``inertiafromgeom="false"``).
   A link that moves (below a non-fixed joint) and has no ``<inertial>`` is an error naming it,

@@ -224,6 +224,16 @@ def test_bad_input_names_the_file_and_key_and_writes_nothing(case, tmp_path, cap
     assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["arm.toml", "arm.urdf"]
 
 
+def test_why_a_missing_inertial_is_an_error_mujoco_would_invent_a_mass(tmp_path):
+    """What MuJoCo makes of a URDF link without <inertial> (its URDF default
+    inertiafromgeom="auto"): the mass of its collision geometry at 1000 kg/m^3. link_4's box
+    is 0.25 x 0.2 x 0.2 m: 10 kg, where the URDF says nothing."""
+    path = tmp_path / "arm.urdf"
+    path.write_text(arm_urdf(no_inertial="link_4"))
+    model = mujoco.MjSpec.from_file(str(path)).compile()
+    assert model.body("link_4").mass[0] == pytest.approx(1000.0 * 0.25 * 0.2 * 0.2, rel=1e-12)
+
+
 def test_a_link_without_inertial_is_an_error_even_without_geometry_unless_it_is_a_frame(tmp_path, capsys):
     """A moving link with no geometry and no <inertial> on a moving joint has no mass by
     omission (MuJoCo would refuse it, or, with geometry, invent one); a geometry-less link fixed
