@@ -325,15 +325,20 @@ def _poses(file: Path, value: Any, n_joints: int | None) -> tuple[Pose, ...]:
 _LINE = re.compile(r"line (\d+)")
 
 
-def _document(text: str, path: Path) -> "_Checker":
-    """The TOML document as a checked top-level table (syntax errors name the line)."""
+def _toml(text: str, path: Path) -> "_Checker":
+    """A TOML document as a checked top-level table (syntax errors name the line)."""
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         m = _LINE.search(str(exc))
         raise InputError(path, f"line {m.group(1)}" if m else "(syntax)",
                          "valid TOML", str(exc)) from None
-    top = _Checker(path, doc, "")
+    return _Checker(path, doc, "")
+
+
+def _document(text: str, path: Path) -> "_Checker":
+    """The scenario's top-level table: TOML, known keys, name and description strings."""
+    top = _toml(text, path)
     top.only(TOP_KEYS)
     for name in ("name", "description"):
         if top.has(name):

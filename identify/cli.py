@@ -1,9 +1,9 @@
 """`calbench`: the one console script.
 
-Subcommands from both packages: bench/cli.py owns `simulate` and `view`; this module owns the
-estimation verbs (identify, montecarlo, design, discover) and `demo`. These two modules are the
-only ones that parse arguments or print; every workflow they call is a library function that
-returns its result, so it can be called from a notebook as well.
+Subcommands from both packages: bench/cli.py owns `simulate`, `view`, `export` and
+`from-urdf`; this module owns the estimation verbs (identify, montecarlo, design, discover) and
+`demo`. These two modules are the only ones that parse arguments or print; every workflow they
+call is a library function that returns its result, so it can be called from a notebook as well.
 
 Exit status: 0 success, 1 a check failed, 2 bad input (any CalbenchError: one line naming the
 file, the key and what was expected).
@@ -18,7 +18,7 @@ import time
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
-from calbench.bench.cli import add_check_robot, add_export, add_simulate, add_view
+from calbench.bench.cli import add_check_robot, add_export, add_from_urdf, add_simulate, add_view
 from calbench.bench.errors import CalbenchError, InputError
 from calbench.bench.outputs import atomic_path, check_outputs, write_text
 from calbench.bench.progress import terminal_progress
@@ -398,6 +398,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_check_robot(sub)
     add_import(sub)
     add_export(sub)
+    add_from_urdf(sub)
     return parser
 
 

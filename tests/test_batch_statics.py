@@ -22,9 +22,11 @@ import pytest
 
 from calbench.bench.batch_statics import BatchStatics, take_load
 from calbench.bench.loop import constraint_basis, constraint_basis_stack, loop_gap
+from calbench.bench.params import Params
 from calbench.bench.robot import Robot
 from calbench.bench.statics import (Load, StaticsError, StaticsSolver, ift_tangent, kkt_matrix, statics_options)
 from conftest import K_TRUE, MJCF, TABLE5, fanuc_params
+from robots import serial_mjcf
 
 PARAMS = fanuc_params(K_TRUE, 2.6e6, 0.83)
 N = 40
@@ -223,3 +225,20 @@ def test_stacked_rigid_poses_and_loop_conditioning_are_the_robots(robot, command
         np.testing.assert_allclose(cond[i], robot.loop_conditioning(x), rtol=0, atol=1e-12)
     flags = [robot.loop_ok(x) for x in q]
     assert not all(flags) and any(flags)
+
+
+def test_a_robot_without_loops_solves_as_the_scalar_statics():
+    """No loop: no constraint rows (nc = 0); the equilibria are the scalar ones within the same
+    bound (K^-1 applied to the two residuals, no loop term)."""
+    rb = Robot.from_xml(serial_mjcf())
+    rb.set_params(Params(np.array([2.0, 1.0, 3.0, 5.0]) * 1e-6))
+    solver = StaticsSolver(rb)
+    q = np.radians([[0.0, 20.0, -30.0, 40.0], [60.0, -10.0, 70.0, -90.0], [-120.0, 45.0, 10.0, 170.0]])
+    load = Load(np.tile(rb.weight(50.0), (len(q), 1)), np.zeros((len(q), 3)), rb.payload_site)
+    e = BatchStatics(solver, nsim=4, nthread=1).solve(q, load)
+    assert e.basis.shape == (len(q), 0, 0) and e.converged.all()
+    for i in range(len(q)):
+        one = solver.solve(q[i], take_load(load, i))
+        kinv = _kkt_inverse(solver, one, take_load(load, i))
+        bound = 2 * np.abs(kinv).sum(axis=1).max() * (e.residual[i] + one.residual)
+        assert np.abs(e.qpos[i] - one.qpos).max() <= bound
