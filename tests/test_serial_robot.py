@@ -138,3 +138,14 @@ def test_candidates_of_one_robot_do_not_fit_another(arm, tmp_path, capsys):
                  "--out", str(tmp_path / "p.toml")]) == 2
     err = capsys.readouterr().err
     assert f"{npz}: q: expected N x 6 joint angles" in err and "got 'N x 4'" in err
+
+
+def test_the_wrist_centre_is_derived_or_named():
+    """Design's wrist centre: the body of the last-but-one actuated joint, unless calbench:wrist
+    names another body."""
+    from calbench.bench.robot import Robot
+    from calbench.identify.design.candidates import wrist_body
+    plain = Robot.from_xml(serial_mjcf())
+    assert plain.model.body(wrist_body(plain)).name == "lever"          # elbow_pitch's body
+    named = Robot.from_xml(serial_mjcf({"wrist": "hand"}))
+    assert named.model.body(wrist_body(named)).name == "hand"
