@@ -18,8 +18,9 @@ from .effects import apply_effects, effect_from_truth
 from .errors import InputError
 from .foxglove import FoxgloveWriter
 from .logformat import LogHeader, LogWriter
-from .robot import PARALLELOGRAM_MARGIN, Params, Robot
+from .robot import LOOP_MARGIN, LOOP_MARGIN_ANGLE, Params, Robot
 from .scenario import Scenario, check_joint_limits
+from .scenario import scenario_params as _scenario_params
 from .statics import Equilibrium, Load, StaticsError, StaticsSolver
 from .tracker import measure, to_tracker_frame, visible_sites
 from .progress import ProgressSink, sink
@@ -40,8 +41,9 @@ class PosePlan:
     visible: np.ndarray                                # (2, n) bool
 
 
-def scenario_params(scn: Scenario) -> Params:
-    return Params(np.asarray(scn.compliance, float), scn.compensator.stiffness, scn.compensator.preload)
+def scenario_params(scn: Scenario, robot: Robot) -> Params:
+    """The scenario's truth for this robot (InputError naming a key that does not fit it)."""
+    return _scenario_params(scn, robot.n_act, robot.description.compensators)
 
 
 def truth_robot(scn: Scenario) -> Robot:
@@ -58,7 +60,7 @@ def truth_robot(scn: Scenario) -> Robot:
         except (ValueError, NotImplementedError) as exc:
             raise InputError(scn.path, "truth.effects", "effects that apply to the robot's MJCF",
                              f"{scn.robot}: {exc}") from exc
-    robot.set_params(scenario_params(scn))
+    robot.set_params(scenario_params(scn, robot))
     return robot
 
 
@@ -76,11 +78,14 @@ def plan_campaign(scn: Scenario, robot: Robot | None = None, progress: ProgressS
     plans = []
     for i, pose in enumerate(scn.poses):
         key = f"pose[{i}].q"
-        if not robot.parallelogram_ok(pose.q):
+        cond = robot.loop_conditioning(pose.q)
+        if np.any(cond < LOOP_MARGIN):
+            worst = robot.description.loops[int(np.argmin(cond))]
             raise InputError(
                 scn.path, key,
-                f"q3 - q2 at least {np.degrees(PARALLELOGRAM_MARGIN):.0f} deg away from -120 and 60 deg "
-                "(there the parallelogram's crank is parallel to the upper arm and the loop degenerates)",
+                f"a command where loop {worst!r} is well conditioned: inverse condition number of its "
+                f"passive-joint Jacobian >= {LOOP_MARGIN:.3f} (for a planar two-hinge loop, its links "
+                f"{np.degrees(LOOP_MARGIN_ANGLE):.0f} deg or more from parallel), got {cond.min():.3f}",
                 [round(float(np.degrees(x)), 3) for x in pose.q],
             )
         load, mass = pose_load(robot, scn, pose)
@@ -109,8 +114,8 @@ def plan_campaign(scn: Scenario, robot: Robot | None = None, progress: ProgressS
     return plans
 
 
-def truth_record(scn: Scenario) -> dict:
-    d = scenario_params(scn).as_dict()
+def truth_record(scn: Scenario, robot: Robot) -> dict:
+    d = scenario_params(scn, robot).as_dict()
     d["effects"] = {
         name: {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in e.items()}
         for name, e in scn.effects.items()
@@ -136,18 +141,19 @@ def run_campaign(scn: Scenario, out: str | Path, progress: ProgressSink | None =
         robot_filename=Path(scn.robot).name,
         mjcf_text=Path(scn.robot).read_text(),
         reflectors=list(robot.reflector_names),
-        payload_site="payload",
+        payload_site=robot.payload_name,
+        n_joints=robot.n_act,
         tracker=scn.tracker.to_dict(),
         seed=int(scn.seed),
     )
     with LogWriter(out, header) as log:
-        log.truth_parameters(truth_record(scn))
+        log.truth_parameters(truth_record(scn, robot))
         fox = FoxgloveWriter(log, Robot.from_file(scn.robot), robot, scn.tracker, robot.reflector_names)
-        fox.start(n, plans[0].q if plans else np.zeros(6))
+        fox.start(n, plans[0].q if plans else np.zeros(robot.n_act))
         for plan, pose in zip(plans, scn.poses):
             log.pose(plan.index, "unloaded", plan.q)
             log.pose(plan.index, "loaded", plan.q)
-            log.wrench(plan.index, plan.load.force, plan.load.moment, "payload", plan.mass)
+            log.wrench(plan.index, plan.load.force, plan.load.moment, robot.payload_name, plan.mass)
             readings: tuple[list, list] = ([], [])
             for s, state in enumerate(STATES):
                 for rep in range(pose.repeats):

@@ -22,6 +22,7 @@ from typing import Any, Generic, Mapping, Sequence, TypeVar
 
 import numpy as np
 
+from .params import Params, Spring, springs_from_message
 from .scenario import TrackerSpec
 
 STATES = ("unloaded", "loaded")
@@ -89,20 +90,20 @@ class WrenchRecord:
 class TruthParameters:
     """The simulated robot's true parameters (``/truth/parameters``)."""
 
-    compliance: np.ndarray            # (6,) rad/(N*m), motors 1..6
-    compensator_stiffness: float      # N/m
-    compensator_preload: float        # m
+    compliance: np.ndarray            # (N,) rad/(N*m), motors 1..N
+    springs: Mapping[str, Spring]     # compensator springs by tendon name
     effects: Mapping[str, Any]        # hidden effects, as the scenario's [truth.effects.*]
 
     @classmethod
     def from_message(cls, m: Mapping[str, Any]) -> "TruthParameters":
         """Parse the JSON message; raises KeyError, TypeError or ValueError when malformed."""
         k = np.asarray(m["compliance"], dtype=float)
-        if k.shape != (6,):
-            raise ValueError(f"compliance: expected 6 numbers, got shape {k.shape}")
-        comp = m["compensator"]
-        return cls(k, float(comp["stiffness"]), float(comp["preload"]),
-                   dict(m.get("effects") or {}))
+        if k.ndim != 1 or k.size == 0:
+            raise ValueError(f"compliance: expected one number per actuated joint, got shape {k.shape}")
+        return cls(k, springs_from_message(m), dict(m.get("effects") or {}))
+
+    def params(self) -> Params:
+        return Params(self.compliance, dict(self.springs))
 
 
 @dataclass(frozen=True)
@@ -118,7 +119,7 @@ class TruthJoints:
     """True equilibrium of one pose and state (``/truth/joints``)."""
 
     qpos: np.ndarray                  # full MuJoCo qpos
-    deflection: np.ndarray            # (6,) rad, motor-space deflection from the command
+    deflection: np.ndarray            # (N,) rad, motor-space deflection from the command
 
 
 @dataclass(frozen=True)
@@ -148,7 +149,7 @@ class CampaignLog:
     header: dict
     scenario_text: str | None
     mjcf_text: str | None
-    poses: dict[int, PerState[np.ndarray]] = field(default_factory=dict)  # q (6,) rad
+    poses: dict[int, PerState[np.ndarray]] = field(default_factory=dict)  # q (N,) rad
     wrenches: dict[int, WrenchRecord] = field(default_factory=dict)
     measurements: list[MeasurementRecord] = field(default_factory=list)
     complete_poses: list[int] = field(default_factory=list)

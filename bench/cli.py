@@ -1,4 +1,4 @@
-"""The bench's command-line verbs: `simulate`, `view` and `export`.
+"""The bench's command-line verbs: `simulate`, `view`, `export`, `check-robot` and `from-urdf`.
 
 The console script itself lives in identify/cli.py, which sits on top of both packages and
 registers these; bench never imports identify. This module and identify/cli.py are the only
@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 from .campaign import run_campaign
+from .checkrobot import DEFAULT_MASS, check_robot
 from .idreport import IdentificationReport
 from .progress import Progress
 from .scenario import load_scenario
@@ -102,6 +103,35 @@ def cmd_view(args: argparse.Namespace) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- check-robot
+
+def add_check_robot(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("check-robot", help="validate a robot's MJCF and its calbench description",
+                       description="Checks that ROBOT.xml names the elements calbench needs "
+                                   "(docs/contract.md, Robot description), that its loops close, its "
+                                   "reflectors are seen and its statics converge over a grid of poses.")
+    p.add_argument("robot", type=Path, help="robot MJCF")
+    p.add_argument("--tracker", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
+                   help="tracker position (m, world) for the line-of-sight check (default: 5 m from "
+                        "axis 1, 3 m up, 45 deg beside the payload)")
+    p.add_argument("--mass", type=float, default=DEFAULT_MASS,
+                   help="payload (kg) of the loaded grid (default: %(default)g)")
+    p.add_argument("--grid", type=int, default=3,
+                   help="values per joint of the grid of poses (default: %(default)s)")
+    p.set_defaults(func=cmd_check_robot)
+
+
+def cmd_check_robot(args: argparse.Namespace) -> int:
+    from .errors import InputError
+    if args.grid < 1:
+        raise InputError("--grid", "grid", "an integer >= 1", args.grid)
+    if not args.mass > 0:
+        raise InputError("--mass", "mass", "a mass > 0 (kg)", args.mass)
+    res = check_robot(args.robot, args.tracker, args.mass, args.grid)
+    print("\n".join(res.lines()))
+    return 0
+
+
 # --------------------------------------------------------------------------- export
 
 def add_export(sub: argparse._SubParsersAction) -> None:
@@ -121,4 +151,36 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
-__all__ = ["add_simulate", "cmd_simulate", "add_view", "cmd_view", "add_export", "cmd_export"]
+# --------------------------------------------------------------------------- from-urdf
+
+def add_from_urdf(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("from-urdf", help="a calbench MJCF from a URDF and an overlay (TOML)",
+                       description="Build the calbench MJCF of a robot from its URDF (links, joints, "
+                                   "inertials, geometry) and an overlay naming what a URDF cannot say: "
+                                   "the actuated joints, reflectors, payload, compensators and loops "
+                                   "(docs/contract.md, 'From a URDF').")
+    p.add_argument("urdf", type=Path, help="the robot's URDF (run xacro first if it is a .xacro)")
+    p.add_argument("--overlay", type=Path, required=True, help="overlay TOML")
+    p.add_argument("--out", type=Path, required=True, help="output MJCF")
+    p.set_defaults(func=cmd_from_urdf)
+
+
+def cmd_from_urdf(args: argparse.Namespace) -> int:
+    from .urdf import PLACEHOLDER_STIFFNESS, convert
+    from .urdfoverlay import load_overlay
+    check_outputs({"--out": args.out}, {"URDF": args.urdf, "--overlay": args.overlay})
+    conv = convert(args.urdf, load_overlay(args.overlay))
+    write_text(args.out, conv.xml)
+    for w in conv.warnings:
+        print(f"calbench from-urdf: warning: {w}", file=sys.stderr)
+    print(f"wrote {args.out}: {len(conv.actuated)} actuated joints ({' '.join(conv.actuated)})"
+          + (f", passive {' '.join(conv.passive)}" if conv.passive else "")
+          + f"; moving mass {conv.moving_mass:.1f} kg from the URDF's inertials; {conv.geoms} geoms"
+          + (f" ({conv.meshes} meshes inline)" if conv.meshes else "")
+          + f"; joint stiffness placeholders {PLACEHOLDER_STIFFNESS:g} N*m/rad (a scenario's [truth] "
+          "replaces them)")
+    return 0
+
+
+__all__ = ["add_simulate", "cmd_simulate", "add_view", "cmd_view", "add_export", "cmd_export",
+           "add_check_robot", "cmd_check_robot", "add_from_urdf", "cmd_from_urdf"]

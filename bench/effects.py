@@ -9,9 +9,14 @@ same model.
 
 Adding an effect = one factory function decorated with :func:`register`, which carries
 everything about it: the scenario parser (`from_truth`, if the truth may carry it), the
-structural options discovery tries (`discover`; none = a truth-only effect) and, where the
-per-unit defaults (:data:`UNIT_PRIORS`) do not fit, its parameters' priors. Nothing else in the
-project needs to change.
+structural options discovery tries (`discover`, a list or a function of the robot; none = a
+truth-only effect) and, where the per-unit defaults (:data:`UNIT_PRIORS`) do not fit, its
+parameters' priors. Nothing else in the project needs to change.
+
+Effects know no robot by name: what they need comes from the robot description the MJCF
+carries (bench/description.py: the actuated joints, the payload and reflector sites, the
+optional ``calbench:links`` and ``calbench:compensator_sites``) or from the model's tree (the
+body fixed to the world that carries the arm).
 
 Every new joint has ref 0 and springref 0, so its qpos0 and qpos_spring are 0 and
 :meth:`bench.robot.Robot.rigid_qpos` leaves it at 0 (only the actuated and passive joints are
@@ -28,17 +33,15 @@ from typing import Callable
 import mujoco
 import numpy as np
 
-from .robot import COMPENSATOR, Robot
+from .description import set_spec_names, spec_names
+from .params import LEGACY_COMPENSATOR as COMPENSATOR
+from .robot import Robot
 
 RIGID_COMPLIANCE = 1e-12     # rad/(N*m): the lock used for a present hinge set to compliance 0
 AXES = "xyz"
-LINKS = ("upper_arm", "forearm")
 BEAM_SUFFIX = "_beam"
 HUB_MASS_FRACTION = 1e-3      # MuJoCo needs mass on a moving body: the hub keeps this share
 BASE_POINT_MASS = 1.0         # kg at the base's hinge point when the base has no mass of its own
-# Compensator attachment sites (same geometry as mjcf/m900ib700.xml), in the parent body frames
-COMP_SITES = {"comp_base": ("turret", (-0.1685, 0.42, 1.3294)),
-              "comp_arm": ("upper_arm", (0.0, 0.42, 0.45))}
 _TMP_PREFIX = "__effects_move__"
 
 
@@ -112,24 +115,28 @@ UNIT_PRIORS: dict[str, Prior] = {
 
 REGISTRY: dict[str, Callable[..., Effect]] = {}
 _FROM_TRUTH: dict[str, Callable[[dict], tuple[dict, np.ndarray]]] = {}
-DISCOVERY_OPTIONS: dict[str, tuple[dict, ...]] = {}    # effect -> structural options discovery tries
+# effect -> the structural options discovery tries on a robot (a function of the Robot)
+DISCOVERY_OPTIONS: dict[str, Callable[[Robot], list[dict]]] = {}
 _PRIORS: dict[str, dict[str, Prior]] = {}             # effect -> parameter name -> prior override
 
 
 def register(name: str, from_truth: Callable[[dict], tuple[dict, np.ndarray]] | None = None, *,
-             discover: list[dict] | None = None, priors: dict[str, Prior] | None = None):
+             discover: list[dict] | Callable[[Robot], list[dict]] | None = None,
+             priors: dict[str, Prior] | None = None):
     """Decorator: add an effect factory (keyword options -> Effect) to the library.
 
     from_truth maps a scenario table (bench.scenario, SI) to (factory options, parameters).
-    discover lists the structural options (factory keyword arguments) that discovery tries as
-    candidates; None keeps the effect out of discovery (truth only). priors overrides
+    discover gives the structural options (factory keyword arguments) that discovery tries as
+    candidates: a list, or a function of the robot returning one (e.g. one per actuated
+    joint); None keeps the effect out of discovery (truth only). priors overrides
     :data:`UNIT_PRIORS` for named parameters."""
     def deco(factory: Callable[..., Effect]) -> Callable[..., Effect]:
         REGISTRY[name] = factory
         if from_truth is not None:
             _FROM_TRUTH[name] = from_truth
         if discover is not None:
-            DISCOVERY_OPTIONS[name] = tuple(dict(o) for o in discover)
+            fixed = None if callable(discover) else tuple(dict(o) for o in discover)
+            DISCOVERY_OPTIONS[name] = discover if fixed is None else (lambda robot: [dict(o) for o in fixed])
         if priors:
             _PRIORS[name] = dict(priors)
         return factory
@@ -142,9 +149,10 @@ def priors(effect: Effect) -> list[Prior]:
     return [own.get(n) or UNIT_PRIORS[u] for n, u in zip(effect.param_names, effect.units)]
 
 
-def discovery_library() -> list[Effect]:
-    """Every discovery candidate: each registered effect with each of its structural options."""
-    return [REGISTRY[name](**opts) for name, options in DISCOVERY_OPTIONS.items() for opts in options]
+def discovery_library(robot: Robot) -> list[Effect]:
+    """Every discovery candidate on this robot: each registered effect with each of the
+    structural options it declares for the robot."""
+    return [REGISTRY[name](**opts) for name, options in DISCOVERY_OPTIONS.items() for opts in options(robot)]
 
 
 def effect_from_truth(name: str, table: dict) -> tuple[Effect, np.ndarray]:
@@ -220,6 +228,28 @@ def _body(spec: mujoco.MjSpec, name: str):
     if b is None:
         raise ValueError(f"the MJCF has no body {name!r}")
     return b
+
+
+def _root_body(spec: mujoco.MjSpec) -> str:
+    """The body fixed to the world that carries the arm: the first actuated joint's ancestor
+    whose parent is the world (calbench:actuated)."""
+    names = spec_names(spec, "actuated")
+    j = spec.joint(names[0]) if names else None
+    if j is None:
+        raise ValueError("the MJCF's robot description names no actuated joint (calbench:actuated)")
+    b = j.parent
+    while b.parent is not None and b.parent.name != "world":
+        b = b.parent
+    return b.name
+
+
+def root_body_name(robot: Robot) -> str:
+    """:func:`_root_body` of a compiled robot."""
+    m = robot.model
+    b = int(m.jnt_bodyid[robot.act_joint[0]])
+    while m.body_parentid[b] != 0:
+        b = int(m.body_parentid[b])
+    return m.body(b).name
 
 
 def _stiffness(c: float) -> float:
@@ -304,17 +334,18 @@ def _beam_hinge(link: str, axis: str) -> str:
 
 
 @register("link_compliance", from_truth=_link_truth,
-          discover=[{"link": "upper_arm"}, {"link": "forearm"}])
-def link_compliance(link: str = "forearm", axes: str = AXES, pivot: tuple = (0.0, 0.0, 0.0)) -> Effect:
-    """Bending and torsion springs at the root of a link (upper_arm or forearm).
+          discover=lambda robot: [{"link": b} for b in robot.description.links])
+def link_compliance(link: str, axes: str = AXES, pivot: tuple = (0.0, 0.0, 0.0)) -> Effect:
+    """Bending and torsion springs at the root of a link: any body of the arm (discovery tries
+    the robot's ``calbench:links``; the FANUC's upper arm and forearm).
 
     Physics: the link is split at its root into a HUB and a BEAM. The hub keeps the link's
-    existing joint (j2 / elbow), its sites (the compensator attachment `comp_arm`; the
-    parallelogram attachment `rod_anchor`) and its jointless child bodies (the rear wrist
-    motors `m2`); a new child body `<link>_beam`, at the link's origin with the link's own
-    frame, holds hinges `<link>_rx/_ry/_rz` about the link frame's x, y, z (stiffness 1/c,
-    springref 0), the link's mass (a 1e-3 share stays on the hub at its origin, mass and first
-    moment preserved) and the rest of the serial chain (forearm / link4). So the root springs
+    existing joint (the FANUC's j2 / elbow), its sites (e.g. a compensator's or a loop's
+    attachment) and its jointless child bodies (e.g. the FANUC's rear wrist motors); a new child
+    body `<link>_beam`, at the link's origin with the link's own frame, holds hinges
+    `<link>_rx/_ry/_rz` about the link frame's x, y, z (stiffness 1/c, springref 0), the link's
+    mass (a 1e-3 share stays on the hub at its origin, mass and first moment preserved) and the
+    rest of the serial chain (the child bodies that carry joints). So the root springs
     carry the moment of everything outboard of the root (beam weight, wrist, payload) about
     the root point, and deflect the beam by c * moment about each axis (eq. 1 with three more
     virtual springs). Geoms stay on the hub (drawing and line of sight only).
@@ -338,8 +369,8 @@ def link_compliance(link: str = "forearm", axes: str = AXES, pivot: tuple = (0.0
 
     Parameters cx, cy, cz in rad/(N*m), for the axes listed in `axes` only.
     """
-    if link not in LINKS:
-        raise ValueError(f"link_compliance: link must be one of {LINKS}, got {link!r}")
+    if not isinstance(link, str) or not link:
+        raise ValueError(f"link_compliance: link must be a body name, got {link!r}")
     if not axes or any(a not in AXES for a in axes) or len(set(axes)) != len(axes):
         raise ValueError(f"link_compliance: axes must be a non-empty subset of 'xyz', got {axes!r}")
     axes = "".join(a for a in AXES if a in axes)
@@ -392,13 +423,14 @@ def _base_truth(t: dict) -> tuple[dict, np.ndarray]:
     return {"axes": axes}, c[c != 0.0]
 
 
-@register("base_compliance", from_truth=_base_truth, discover=[{}])
-def base_compliance(axes: str = "xy", body: str = "base") -> Effect:
+@register("base_compliance", from_truth=_base_truth,
+          discover=lambda robot: [{"body": root_body_name(robot)}])
+def base_compliance(axes: str = "xy", body: str | None = None) -> Effect:
     """Tilt of the robot's base on its foundation (anchor bolts, floor plate).
 
-    Physics: the base body, fixed to the world in the MJCF, gets hinges `base_rx`, `base_ry`
-    about its frame's x and y (world x and y for this robot) through its origin (the floor
-    point under axis 1), stiffness 1/c, springref 0. The whole robot then tilts by c times the
+    Physics: the base body (default: the body fixed to the world that carries the arm),
+    gets hinges `<base>_rx`, `<base>_ry` about its frame's x and y (world x and y for the
+    FANUC) through its origin (the floor point under axis 1), stiffness 1/c, springref 0. The whole robot then tilts by c times the
     moment, about that point, of everything it carries (gravity of all links, the load): for a
     wrench (F at p, M) the tilt is c_x (p x F + M)_x and c_y (p x F + M)_y. If the base has no
     mass of its own (it needs some to move in MuJoCo) it gets a 1 kg point mass at the hinge
@@ -411,12 +443,13 @@ def base_compliance(axes: str = "xy", body: str = "base") -> Effect:
     axes = "".join(a for a in "xy" if a in axes)
 
     def apply(spec, p, o):
-        b = _body(spec, o["body"])
+        name = o["body"] or _root_body(spec)
+        b = _body(spec, name)
         if b.find_all(mujoco.mjtObj.mjOBJ_JOINT) and any(
-                j.name.startswith(o["body"] + "_r") for j in b.joints):
+                j.name.startswith(name + "_r") for j in b.joints):
             raise ValueError("base_compliance is already applied")
         for a, c in zip(o["axes"], p):
-            _add_hinge(b, f"{o['body']}_r{a}", np.eye(3)[AXES.index(a)], c)
+            _add_hinge(b, f"{name}_r{a}", np.eye(3)[AXES.index(a)], c)
         if not (float(b.mass) > 0):
             b.explicitinertial = True
             b.mass = BASE_POINT_MASS
@@ -425,8 +458,9 @@ def base_compliance(axes: str = "xy", body: str = "base") -> Effect:
             b.inertia = [1.0, 1.0, 1.0]
 
     def set_(robot, p, o):
+        name = o["body"] or root_body_name(robot)
         for a, c in zip(o["axes"], p):
-            robot.model.jnt_stiffness[_joint_id(robot, f"{o['body']}_r{a}")] = _stiffness(c)
+            robot.model.jnt_stiffness[_joint_id(robot, f"{name}_r{a}")] = _stiffness(c)
 
     return Effect("base_compliance", tuple(f"c{a}" for a in axes), {"axes": axes, "body": body},
                   ("rad/(N*m)",) * len(axes), apply, set_)
@@ -438,9 +472,11 @@ def _nonlin_truth(t: dict) -> tuple[dict, np.ndarray]:
     return {"joint": int(t["joint"])}, np.array([float(t["cubic"])])
 
 
-@register("joint_nonlinearity", from_truth=_nonlin_truth, discover=[{"joint": j} for j in range(1, 7)])
+@register("joint_nonlinearity", from_truth=_nonlin_truth,
+          discover=lambda robot: [{"joint": j} for j in range(1, robot.n_act + 1)])
 def joint_nonlinearity(joint: int = 2) -> Effect:
-    """A hardening (cubic > 0) or softening (< 0) drive spring on actuated axis `joint` (1..6).
+    """A hardening (cubic > 0) or softening (< 0) drive spring on actuated axis `joint` (1..N,
+    the robot's calbench:actuated order).
 
     Physics: torque = K theta + cubic theta^3, theta = joint angle - command. MuJoCo's joint
     stiffness polynomial gives force -(a x + b x^2 + c x^3) with x = qpos - qpos_spring
@@ -448,18 +484,20 @@ def joint_nonlinearity(joint: int = 2) -> Effect:
     jnt_stiffnesspoly[j] = [b, c], mjNPOLY = 2 in MuJoCo 4.0.1). The effect writes only c; the
     linear K (Robot.set_params) is left untouched. Parameter cubic in N*m/rad^3.
     """
-    if joint not in range(1, 7):
-        raise ValueError(f"joint_nonlinearity: joint must be 1..6, got {joint!r}")
-    name = f"j{joint}"
+    if isinstance(joint, bool) or not isinstance(joint, (int, np.integer)) or joint < 1:
+        raise ValueError(f"joint_nonlinearity: joint must be an actuated axis 1..N, got {joint!r}")
 
     def apply(spec, p, o):
-        j = spec.joint(name)
-        if j is None:
-            raise ValueError(f"the MJCF has no joint {name!r}")
-        j.stiffness[2] = p[0]
+        names = spec_names(spec, "actuated")
+        if joint > len(names):
+            raise ValueError(f"joint_nonlinearity: the robot has {len(names)} actuated joints "
+                             f"(calbench:actuated), not {joint}")
+        spec.joint(names[joint - 1]).stiffness[2] = p[0]
 
     def set_(robot, p, o):
-        robot.model.jnt_stiffnesspoly[_joint_id(robot, name), 1] = p[0]
+        if joint > robot.n_act:
+            raise ValueError(f"joint_nonlinearity: the robot has {robot.n_act} actuated joints, not {joint}")
+        robot.model.jnt_stiffnesspoly[robot.act_joint[joint - 1], 1] = p[0]
 
     return Effect("joint_nonlinearity", ("cubic",), {"joint": joint}, ("N*m/rad^3",), apply, set_)
 
@@ -470,46 +508,57 @@ def _comp_truth(t: dict) -> tuple[dict, np.ndarray]:
     return {}, np.array([float(t["stiffness"]), float(t["preload"])])
 
 
-@register("compensator", from_truth=_comp_truth, discover=[{}])
+@register("compensator", from_truth=_comp_truth,
+          discover=lambda robot: [{}] if robot.description.compensator_sites else [])
 def compensator() -> Effect:
-    """The spring gravity compensator of axis 2 (paper eqs. 7-11), for a model that lacks one.
+    """A spring gravity compensator (paper eqs. 7-11), for a model that lacks one: discovery
+    tries it where the robot description names its mounts (``calbench:compensator_sites``;
+    the FANUC's balancer mounts, l_c = 0.90 m and l_2 = 0.45 m from the J2 axis).
 
-    Physics: a linear spring tendon `compensator` between `comp_base` on the turret (l_c = 0.90
-    m from the J2 axis) and `comp_arm` on the upper arm (l_2 = 0.45 m), both in the plane
-    y = +0.42 m, the geometry of mjcf/m900ib700.xml: force K_C (s - s0) along the line between
-    the sites, s its length. Missing sites and the tendon are added; on a model that has them,
-    only K_C and s0 are set. Parameters K_C in N/m, s0 in m.
+    Physics: a linear spring tendon between the two sites: force K_C (s - s0) along the line
+    between them, s its length. The tendon (named `compensator`) is added if the model has none
+    between those sites; on a model that has one, only its K_C and s0 are set. Parameters K_C
+    in N/m, s0 in m.
     """
     def apply(spec, p, o):
-        t = spec.tendon(COMPENSATOR)
+        sites = spec_names(spec, "compensator_sites")
+        if len(sites) != 2 or any(spec.site(x) is None for x in sites):
+            raise ValueError("compensator: the robot description names no two sites to mount a "
+                             "spring between (calbench:compensator_sites)")
+        t = next((t for t in spec.tendons
+                  if sorted(w.target.name for w in t.path) == sorted(sites)), None)
         if t is None:
-            for site, (parent, pos) in COMP_SITES.items():
-                if spec.site(site) is None:
-                    _body(spec, parent).add_site(name=site, pos=list(pos))
             t = spec.add_tendon(name=COMPENSATOR)
-            t.wrap_site(list(COMP_SITES)[0])
-            t.wrap_site(list(COMP_SITES)[1])
+            t.wrap_site(sites[0])
+            t.wrap_site(sites[1])
             t.width = 0.03
             t.rgba = [0.1, 0.6, 0.9, 1.0]
         t.stiffness[0] = p[0]
         t.springlength = [p[1], p[1]]
 
     def set_(robot, p, o):
-        if robot.tendon < 0:
-            raise ValueError("the model has no compensator tendon: apply the effect (and recompile) first")
-        robot.model.tendon_stiffness[robot.tendon] = p[0]
-        robot.model.tendon_lengthspring[robot.tendon] = p[1]
+        m = robot.model
+        sites = sorted(mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, x)
+                       for x in robot.description.compensator_sites)
+        t = next((t for t in range(m.ntendon)
+                  if sorted(m.wrap_objid[m.tendon_adr[t]: m.tendon_adr[t] + m.tendon_num[t]]) == sites), -1)
+        if len(sites) != 2 or t < 0:
+            raise ValueError("the model has no spring between its calbench:compensator_sites: apply the "
+                             "effect (and recompile) first")
+        robot.model.tendon_stiffness[t] = p[0]
+        robot.model.tendon_lengthspring[t] = p[1]
 
     return Effect("compensator", ("K_C", "s0"), {}, ("N/m", "m"), apply, set_)
 
 
 def without_compensator(xml_or_path) -> str:
-    """The MJCF with the compensator tendon and its two sites removed: a user's model that
+    """The MJCF with its compensator tendons (calbench:compensators) removed from the model and
+    the description; the mounting sites stay (calbench:compensator_sites): a user's model that
     lacks the effect above (for testing that discovery names it). Returns XML text."""
     spec = load_spec(xml_or_path)
-    spec.delete(spec.tendon(COMPENSATOR))
-    for site in COMP_SITES:
-        spec.delete(spec.site(site))
+    for name in spec_names(spec, "compensators"):
+        spec.delete(spec.tendon(name))
+    set_spec_names(spec, "compensators", [])
     spec.compiler.savecompiled = False  # keep full precision (see EffectRobot.to_xml)
     return spec.to_xml()
 
@@ -523,33 +572,42 @@ def _tool_truth(t: dict) -> tuple[dict, np.ndarray]:
 
 
 TOOL_BODY = "tool"
-TOOL_MOUNT = (0.04, 0.0, 0.0)      # link6 frame, m: the flange face (flange_geom is 0.04 thick)
 TOOL_MASS = 1.0                    # kg on the moving tool body (MuJoCo needs mass there)
 
 
 @register("tool_compliance", from_truth=_tool_truth)
-def tool_compliance(axes: str = "yz", body: str = "link6", mount: tuple = TOOL_MOUNT) -> Effect:
+def tool_compliance(axes: str = "yz", body: str | None = None, mount: tuple | None = None) -> Effect:
     """Bending of the tool on its mount at the flange (a TRUTH-ONLY effect: it is not one of
     docs/contract.md's discovery candidates; the discovery tests use it as a disagreement that no
     candidate explains).
 
-    Physics: a child body `tool` of link6 at the flange face (`mount`, link6 frame) carries
-    hinges `tool_ry`, `tool_rz` about link6's y and z (stiffness 1/c, springref 0) and takes
-    over link6's payload site and reflectors (same world positions), so the load bends the
-    tool by c times its moment about the mount point, and the reflectors on the tool see it.
-    The tool's mass stays on link6 (the new body holds a 1 kg point mass at the mount).
+    Physics: a child body `tool` of the payload site's body (``body``, the FANUC's link6) at the
+    mount point (``mount`` in that body's frame; default the flange site, else the body's
+    origin) carries hinges `tool_ry`, `tool_rz` about the body's y and z (stiffness 1/c,
+    springref 0) and takes over the body's payload and reflector sites (calbench:payload,
+    calbench:reflectors; same world positions), so the load bends the tool by c times its
+    moment about the mount point, and the reflectors on the tool see it. The tool's mass stays
+    on the body (the new body holds a 1 kg point mass at the mount).
     Parameters cy, cz in rad/(N*m), for the axes listed.
     """
     if not axes or any(a not in "yz" for a in axes) or len(set(axes)) != len(axes):
         raise ValueError(f"tool_compliance: axes must be a non-empty subset of 'yz', got {axes!r}")
     axes = "".join(a for a in "yz" if a in axes)
-    mount = tuple(float(x) for x in mount)
+    mount = None if mount is None else tuple(float(x) for x in mount)
 
     def apply(spec, p, o):
-        b = _body(spec, o["body"])
+        payload = spec_names(spec, "payload")
+        if not payload or spec.site(payload[0]) is None:
+            raise ValueError("tool_compliance: the robot description names no payload site")
+        b = _body(spec, o["body"]) if o["body"] else spec.site(payload[0]).parent
+        flange = spec_names(spec, "flange")
+        at = o["mount"]
+        if at is None:
+            f = spec.site(flange[0]) if flange else None
+            at = tuple(np.asarray(f.pos, float)) if f is not None and f.parent.name == b.name else (0.0, 0.0, 0.0)
         if spec.body(TOOL_BODY) is not None:
             raise ValueError("tool_compliance is already applied")
-        tool = b.add_body(name=TOOL_BODY, pos=list(o["mount"]))
+        tool = b.add_body(name=TOOL_BODY, pos=list(at))
         for a, c in zip(o["axes"], p):
             _add_hinge(tool, f"tool_r{a}", np.eye(3)[AXES.index(a)], c)
         tool.explicitinertial = True
@@ -557,9 +615,10 @@ def tool_compliance(axes: str = "yz", body: str = "link6", mount: tuple = TOOL_M
         tool.ipos = [0.0, 0.0, 0.0]
         tool.iquat = [1.0, 0.0, 0.0, 0.0]
         tool.inertia = [1e-3, 1e-3, 1e-3]
-        moving = [s for s in b.sites if s.name == "payload" or s.name.startswith("refl_")]
+        carried = set(payload) | set(spec_names(spec, "reflectors"))
+        moving = [s for s in b.sites if s.name in carried]
         for s in moving:
-            keep = dict(name=s.name, pos=list(np.asarray(s.pos, float) - np.asarray(o["mount"])),
+            keep = dict(name=s.name, pos=list(np.asarray(s.pos, float) - np.asarray(at)),
                         quat=list(s.quat), size=list(s.size), rgba=list(s.rgba))
             spec.delete(s)
             tool.add_site(**keep)

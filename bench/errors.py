@@ -34,7 +34,7 @@ class InputError(CalbenchError):
 
 class StaticsError(CalbenchError, np.linalg.LinAlgError):
     """No equilibrium can be computed: the KKT matrix is singular (a degenerate configuration,
-    e.g. the parallelogram's crank parallel to the upper arm) or the solution is not finite.
+    e.g. a degenerate kinematic loop) or the solution is not finite.
     Also a LinAlgError, so numerical callers that catch those keep working."""
 
 

@@ -8,7 +8,7 @@ shipped in ``foxglove_schemas/`` (npm ``@foxglove/schemas``, MIT, notice in its 
 Topics (fixed frame ``world``; metres)
 --------------------------------------
 ``/foxglove/tf``           per pose: world -> ``tracker``, world -> each body (its MJCF name) and
-                           world -> ``flange`` at the commanded angles (rigid closed loop: what a
+                           world -> the flange site (calbench:flange) at the commanded angles (rigid closed loop: what a
                            real campaign knows); a first one at log time ~0 at pose 0's command
 ``/foxglove/robot``        one message: the robot's MJCF geoms as primitives, each body's in its
                            own frame (frame-locked, so the tf above poses them), and the tracker
@@ -16,7 +16,7 @@ Topics (fixed frame ``world``; metres)
                            orange loaded), the measured deflections as arrows x``MAGNIFY`` from the
                            unloaded reflector, the lines of sight, the compensator spring
 ``/foxglove/log``          one line per pose: command, deflections in µm
-``/truth/foxglove/tf``     per pose: world -> ``true_<state>/<body>`` and ``true_flange_<state>``
+``/truth/foxglove/tf``     per pose: world -> ``true_<state>/<body>`` and ``true_<flange>_<state>``
                            at the true unloaded and loaded equilibria
 ``/truth/foxglove/robot``  one message: the robot as translucent ghosts in those frames
 ``/truth/foxglove/scene``  per pose: the true reflectors, the true deflections x``MAGNIFY``, the
@@ -49,7 +49,7 @@ from .tracker import mean_reading, tracker_rotation
 
 MAGNIFY = 200.0
 STATES = ("unloaded", "loaded")
-WORLD, TRACKER, FLANGE = "world", "tracker", "flange"
+WORLD, TRACKER = "world", "tracker"
 TF, ROBOT, SCENE, LOG = "/foxglove/tf", "/foxglove/robot", "/foxglove/scene", "/foxglove/log"
 TRUTH_TF, TRUTH_ROBOT, TRUTH_SCENE = "/truth/foxglove/tf", "/truth/foxglove/robot", \
     "/truth/foxglove/scene"
@@ -350,6 +350,7 @@ class FoxgloveWriter:
                  magnify: float = MAGNIFY):
         self.log, self.spec, self.names, self.magnify = log, spec, list(names), float(magnify)
         self.rigid_qpos = nominal.rigid_qpos
+        self.flange_name = nominal.description.flange or ""   # the frame of the flange site
         self.nominal = Poser(nominal.model, "", nominal.flange_site)
         self.truth = {s: Poser(truth.model, f"true_{s}/", truth.flange_site) for s in STATES}
         for topic, name in TOPICS.items():   # validity: tests/test_foxglove.py, every message
@@ -365,7 +366,7 @@ class FoxgloveWriter:
         return t
 
     def _tf(self, t: int, q: np.ndarray) -> tuple[dict, list[np.ndarray]]:
-        tfs, tendons = self.nominal.at(t, self.rigid_qpos(q), FLANGE)
+        tfs, tendons = self.nominal.at(t, self.rigid_qpos(q), self.flange_name)
         return frame_transforms([transform(t, WORLD, TRACKER, self.spec.position, self._yaw)]
                                 + tfs), tendons
 
@@ -411,7 +412,7 @@ class FoxgloveWriter:
             out = []
             for s, state in enumerate(STATES):
                 tfs, true_tendons[state] = self.truth[state].at(t, truth_qpos[s],
-                                                                f"true_flange_{state}")
+                                                                f"true_{self.flange_name}_{state}")
                 out += tfs
             return frame_transforms(out)
         self._put(TRUTH_TF, truth_tf)

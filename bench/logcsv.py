@@ -104,6 +104,10 @@ def write_imported_log(plan: Plan, table: ReadingsTable, tracker: TrackerSpec, m
     ``/campaign/info``. Everything is checked before the file is created."""
     robot = Robot.from_file(model)
     names = list(robot.reflector_names)
+    for i, pose in enumerate(plan.poses):
+        if len(pose.q) != robot.n_act:
+            raise InputError(plan.path, f"pose[{i}].q", f"an array of {robot.n_act} numbers (one per "
+                             f"actuated joint of {model.name})", f"{len(pose.q)} elements")
     order = measured_order(table)
     loads = {p: pose_load(robot, plan, plan.poses[p]) for p in order}
     grouped = {(p, s): group(table.of(p, s), names) for p in order for s in STATES}
@@ -112,7 +116,7 @@ def write_imported_log(plan: Plan, table: ReadingsTable, tracker: TrackerSpec, m
         robot_filename=model.name, mjcf_text=model.read_text(encoding="utf-8"),
         reflectors=names, payload_site=robot.model.site(robot.payload_site).name,
         tracker=tracker.to_dict(), seed=int(plan.seed), n_poses=len(plan.poses),
-        imported=imported)
+        imported=imported, n_joints=robot.n_act)
     n_read = 0
     with LogWriter(out, header) as log:
         for p in order:

@@ -81,6 +81,8 @@ _POSE = {"type": "integer", "minimum": 0, "description": "pose index in the plan
 _STATE = {"type": "string", "enum": list(STATES)}
 _NAMES = {"type": "array", "items": {"type": "string"}}
 _MAT3 = {"type": "array", "minItems": 3, "maxItems": 3, "items": _num_array(3)}
+_SPRING = _obj({"stiffness": {"type": "number", "description": "N/m"},
+                "preload": {"type": "number", "description": "m"}})
 
 SCHEMAS: dict[str, dict] = {
     "/campaign/info": _obj({
@@ -105,7 +107,7 @@ SCHEMAS: dict[str, dict] = {
                  "seed", "calbench_version"), title="calbench.CampaignInfo"),
     "/campaign/pose": _obj({
         "pose": _POSE, "state": _STATE,
-        "q": _num_array(6, "rad, commanded, controller convention"),
+        "q": _num_array(None, "rad, commanded, one per actuated joint (calbench:actuated order)"),
     }, title="calbench.Pose"),
     "/campaign/wrench": _obj({
         "pose": _POSE,
@@ -127,11 +129,12 @@ SCHEMAS: dict[str, dict] = {
     }, title="calbench.TrackerMeasurement"),
     "/campaign/pose_done": _obj({"pose": _POSE}, title="calbench.PoseDone"),
     "/truth/parameters": _obj({
-        "compliance": _num_array(6, "rad/(N*m)"),
-        "compensator": _obj({"stiffness": {"type": "number", "description": "N/m"},
-                             "preload": {"type": "number", "description": "m"}}),
+        "compliance": _num_array(None, "rad/(N*m), one per actuated joint"),
+        "compensator": _SPRING,
+        "compensators": {"type": "object", "additionalProperties": _SPRING,
+                         "description": "compensator tendons other than 'compensator', by name"},
         "effects": {"type": "object"},
-    }, title="calbench.TruthParameters"),
+    }, required=("compliance", "effects"), title="calbench.TruthParameters"),
     "/truth/reflectors": _obj({
         "pose": _POSE, "state": _STATE, "reflectors": _NAMES,
         "position_world": {"type": "array", "items": _num_array(3), "description": "m"},
@@ -139,7 +142,7 @@ SCHEMAS: dict[str, dict] = {
     "/truth/joints": _obj({
         "pose": _POSE, "state": _STATE,
         "qpos": _num_array(None, "full MuJoCo qpos at equilibrium"),
-        "deflection": _num_array(6, "rad, motor-space deflection from the command"),
+        "deflection": _num_array(None, "rad, motor-space deflection from the command, per actuated joint"),
     }, title="calbench.TruthJoints"),
 }
 TOPICS = tuple(SCHEMAS)
@@ -261,7 +264,9 @@ class LogHeader:
     ``/campaign/info`` schema (position [3] m, yaw rad, model, sigma m, distance [2],
     transverse [2]); extra keys are kept. ``n_poses`` (an addition to the brief) defaults to
     the number of ``[[pose]]`` entries of the scenario. ``imported`` (a log made by
-    ``calbench import``) says from which file and with which registration.
+    ``calbench import``) says from which file and with which registration. ``n_joints``, the
+    robot's number of actuated joints, fixes the length of every q and deflection written
+    (None: any length).
     """
 
     scenario_name: str
@@ -275,6 +280,7 @@ class LogHeader:
     seed: int
     n_poses: int | None = None
     imported: dict | None = None
+    n_joints: int | None = None
 
     def planned_poses(self) -> int:
         """Number of poses planned: ``n_poses`` or the scenario's ``[[pose]]`` count."""
@@ -317,6 +323,7 @@ class LogWriter:
         self._last_time = -1
         self._seq: dict[str, int] = {}
         self._truth_params: dict | None = None
+        self._joints = None if header.n_joints is None else (int(header.n_joints),)
         self._closed = True  # until the file is open
         h = header
         info = {
@@ -429,7 +436,7 @@ class LogWriter:
         """Commanded joint angles (rad, controller convention) of one pose and load state."""
         p, s = _pose_index(pose), _state(state)
         self._write("/campaign/pose",
-                    {"pose": p, "state": s, "q": _list(_floats(q, (6,), "q"))}, _time(p, s))
+                    {"pose": p, "state": s, "q": _list(_floats(q, self._joints, "q"))}, _time(p, s))
 
     def wrench(self, pose: int, force, moment, site: str, mass: float | None) -> None:
         """The load of the loaded state: force (N) and moment (N*m) in the world frame,
@@ -477,6 +484,8 @@ class LogWriter:
         ``ground_truth`` metadata record when the log is closed."""
         msg = _jsonable(dict(params))
         msg.setdefault("effects", {})
+        if self._joints is not None:
+            _floats(msg.get("compliance"), self._joints, "compliance")
         self._write("/truth/parameters", msg, _time(None, slot=1))
         self._truth_params = msg
 
@@ -490,12 +499,12 @@ class LogWriter:
                     _time(p, s, slot=90_000_000))
 
     def truth_joints(self, pose, state, qpos, deflection) -> None:
-        """Full MuJoCo qpos at equilibrium and the motor-space deflection (rad, [6]) from the
-        commanded angles."""
+        """Full MuJoCo qpos at equilibrium and the motor-space deflection (rad, one per actuated
+        joint) from the commanded angles."""
         p, s = _pose_index(pose), _state(state)
         self._write("/truth/joints", {
             "pose": p, "state": s, "qpos": _list(_floats(qpos, None, "qpos")),
-            "deflection": _list(_floats(deflection, (6,), "deflection")),
+            "deflection": _list(_floats(deflection, self._joints, "deflection")),
         }, _time(p, s, slot=91_000_000))
 
     def pose_done(self, pose: int) -> None:
@@ -589,7 +598,8 @@ _JSON_TYPES = {
 
 def validate(instance: Any, schema: dict, where: str = "$") -> list[str]:
     """Problems of ``instance`` against ``schema`` (empty list: valid). Supports type (and
-    type lists), enum, minimum, required, properties, items, minItems, maxItems."""
+    type lists), enum, minimum, required, properties, additionalProperties (a schema), items,
+    minItems, maxItems."""
     errs: list[str] = []
     types = schema.get("type")
     if types is not None:
@@ -607,6 +617,11 @@ def validate(instance: Any, schema: dict, where: str = "$") -> list[str]:
         for k, sub in schema.get("properties", {}).items():
             if k in instance:
                 errs += validate(instance[k], sub, f"{where}.{k}")
+        extra = schema.get("additionalProperties")
+        if isinstance(extra, dict):
+            for k, v in instance.items():
+                if k not in schema.get("properties", {}):
+                    errs += validate(v, extra, f"{where}.{k}")
     if isinstance(instance, list):
         if "minItems" in schema and len(instance) < schema["minItems"]:
             errs.append(f"{where}: {len(instance)} items < minItems {schema['minItems']}")
@@ -795,7 +810,7 @@ def _truth_parameters(path: Path, m: dict | None) -> TruthParameters | None:
         return TruthParameters.from_message(m)
     except (KeyError, TypeError, ValueError) as e:
         raise InputError(path, "/truth/parameters",
-                         "compliance [6 numbers] and compensator {stiffness, preload}",
+                         "compliance [one number per actuated joint] and compensator(s) {stiffness, preload}",
                          str(e)) from None
 
 

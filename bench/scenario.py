@@ -18,8 +18,8 @@ from typing import Any, Callable
 import numpy as np
 
 from .errors import InputError
+from .params import LEGACY_COMPENSATOR, Params, Spring
 
-LINKS = ("forearm", "upper_arm")
 TRACKER_MODELS = ("isotropic", "spec")
 DEFAULT_SIGMA = 20e-6
 DEFAULT_DISTANCE = (10e-6, 0.3e-6)      # Leica AT500 ADM: 10 um + 0.3 um/m
@@ -34,13 +34,6 @@ def _frozen(a: Any) -> np.ndarray:
     arr = np.array(a, dtype=float)
     arr.setflags(write=False)
     return arr
-
-
-@dataclass(frozen=True)
-class Compensator:
-    """Spring gravity compensator of axis 2: stiffness K_C (N/m), preload length s0 (m)."""
-    stiffness: float
-    preload: float
 
 
 @dataclass(frozen=True)
@@ -96,8 +89,8 @@ class Scenario:
     text: str
     robot: Path
     seed: int
-    compliance: np.ndarray
-    compensator: Compensator
+    compliance: np.ndarray                # (N,) rad/(N*m), N = the robot's calbench:actuated
+    compensators: dict[str, Spring]       # by tendon ([truth.compensator] is the tendon "compensator")
     effects: dict[str, dict]
     tracker: TrackerSpec
     load_mass: float
@@ -163,13 +156,14 @@ class _Checker:
             raise self.fail(name, "one of " + ", ".join(f'"{c}"' for c in choices), value)
         return value
 
-    def vector(self, name: str, n: int, *, positive: bool = False,
+    def vector(self, name: str, n: int | None, *, positive: bool = False,
                nonneg: bool = False) -> np.ndarray:
+        """An array of n numbers (n None: any number >= 1)."""
         value = self.raw(name)
-        what = f"an array of {n} numbers"
+        what = f"an array of {n} numbers" if n is not None else "a non-empty array of numbers"
         if not isinstance(value, list):
             raise self.fail(name, what, _describe(value))
-        if len(value) != n:
+        if (n is not None and len(value) != n) or not value:
             raise self.fail(name, what, f"{len(value)} elements")
         key = self.key(name)
         return np.array([_number(self.file, f"{key}[{i}]", v, positive, nonneg)
@@ -222,7 +216,7 @@ def _effects(c: _Checker) -> dict[str, dict]:
     if c.has("link_compliance"):
         e = c.sub("link_compliance")
         e.only(("link", "compliance"))
-        out["link_compliance"] = {"link": e.string("link", LINKS),
+        out["link_compliance"] = {"link": e.string("link"),     # a body of the robot (its MJCF decides)
                                   "compliance": _frozen(e.vector("compliance", 3, nonneg=True))}
     if c.has("base_compliance"):
         e = c.sub("base_compliance")
@@ -235,7 +229,7 @@ def _effects(c: _Checker) -> dict[str, dict]:
     if c.has("joint_nonlinearity"):
         e = c.sub("joint_nonlinearity")
         e.only(("joint", "cubic"))
-        out["joint_nonlinearity"] = {"joint": e.integer("joint", 1, 6),
+        out["joint_nonlinearity"] = {"joint": e.integer("joint", 1),          # 1..N: the robot decides
                                      "cubic": e.number("cubic")}
     return out
 
@@ -268,7 +262,50 @@ def _tracker_spec(c: _Checker, yaw_to_rad: Callable[[float], float]) -> TrackerS
     )
 
 
-def _poses(file: Path, value: Any) -> tuple[Pose, ...]:
+def _joint_vector(c: _Checker, name: str, n: int | None) -> np.ndarray:
+    """Joint angles in degrees -> rad: one per actuated joint, as many as truth.compliance."""
+    value = c.raw(name)
+    if n is not None and isinstance(value, list) and len(value) != n:
+        raise c.fail(name, f"an array of {n} numbers (one per actuated joint, as in truth.compliance)",
+                     f"{len(value)} elements")
+    return _frozen(np.radians(c.vector(name, n)))
+
+
+def _joint_count(top: dict, truth: dict) -> int | None:
+    """The number of actuated joints the file speaks of: the most common length among
+    truth.compliance and every pose's q (ties: truth.compliance's), so that the odd one out is
+    the key reported. None when there is nothing to count."""
+    lengths = [len(truth["compliance"])] if isinstance(truth.get("compliance"), list) else []
+    poses = top.get("pose")
+    for p in poses if isinstance(poses, list) else []:
+        if isinstance(p, dict) and isinstance(p.get("q"), list):
+            lengths.append(len(p["q"]))
+    lengths = [n for n in lengths if n > 0]
+    if not lengths:
+        return None
+    return max(dict.fromkeys(lengths), key=lengths.count)   # first (compliance) wins ties
+
+
+def _spring(c: _Checker) -> Spring:
+    c.only(("stiffness", "preload"))
+    return Spring(stiffness=c.number("stiffness", nonneg=True), preload=c.number("preload", nonneg=True))
+
+
+def _compensators(truth: _Checker) -> dict[str, Spring]:
+    """``[truth.compensator]`` (the tendon named "compensator") and ``[truth.compensators.T]``."""
+    out: dict[str, Spring] = {}
+    if truth.has("compensator"):
+        out[LEGACY_COMPENSATOR] = _spring(truth.sub("compensator"))
+    if truth.has("compensators"):
+        tables = truth.sub("compensators")
+        for name in tables.table:
+            if name in out:
+                raise tables.fail(name, f"one table per tendon: [truth.{LEGACY_COMPENSATOR}] already gives it")
+            out[name] = _spring(tables.sub(name))
+    return out
+
+
+def _poses(file: Path, value: Any, n_joints: int | None) -> tuple[Pose, ...]:
     if not isinstance(value, list) or not value:
         raise InputError(file, "pose", "at least one [[pose]] table", _describe(value))
     poses = []
@@ -276,7 +313,7 @@ def _poses(file: Path, value: Any) -> tuple[Pose, ...]:
         p = _Checker(file, entry, f"pose[{i}]")
         p.only(("q", "wrench", "repeats"))
         poses.append(Pose(
-            q=_frozen(np.radians(p.vector("q", 6))),
+            q=_joint_vector(p, "q", n_joints),
             wrench=_frozen(p.vector("wrench", 6)) if p.has("wrench") else None,
             repeats=p.integer("repeats", lo=1) if p.has("repeats") else 1,
         ))
@@ -288,15 +325,20 @@ def _poses(file: Path, value: Any) -> tuple[Pose, ...]:
 _LINE = re.compile(r"line (\d+)")
 
 
-def _document(text: str, path: Path) -> "_Checker":
-    """The TOML document as a checked top-level table (syntax errors name the line)."""
+def _toml(text: str, path: Path) -> "_Checker":
+    """A TOML document as a checked top-level table (syntax errors name the line)."""
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         m = _LINE.search(str(exc))
         raise InputError(path, f"line {m.group(1)}" if m else "(syntax)",
                          "valid TOML", str(exc)) from None
-    top = _Checker(path, doc, "")
+    return _Checker(path, doc, "")
+
+
+def _document(text: str, path: Path) -> "_Checker":
+    """The scenario's top-level table: TOML, known keys, name and description strings."""
+    top = _toml(text, path)
     top.only(TOP_KEYS)
     for name in ("name", "description"):
         if top.has(name):
@@ -312,20 +354,21 @@ def _robot(top: "_Checker", path: Path) -> Path:
     return robot
 
 
-def _truth(top: "_Checker") -> tuple[np.ndarray, Compensator, dict[str, dict]]:
+def _truth(top: "_Checker") -> tuple[np.ndarray, dict[str, Spring], dict[str, dict]]:
+    """The [truth] table: N compliances, the compensator springs by tendon, the effects."""
     truth = top.sub("truth")
-    truth.only(("compliance", "compensator", "effects"))
-    compliance = _frozen(truth.vector("compliance", 6, positive=True))
-    comp = truth.sub("compensator")
-    comp.only(("stiffness", "preload"))
-    compensator = Compensator(stiffness=comp.number("stiffness", nonneg=True),
-                              preload=comp.number("preload", nonneg=True))
+    truth.only(("compliance", "compensator", "compensators", "effects"))
+    compliance = _frozen(truth.vector("compliance", _joint_count(top.table, truth.table), positive=True))
+    compensators = _compensators(truth)
     effects = _effects(truth.sub("effects")) if truth.has("effects") else {}
-    return compliance, compensator, effects
+    return compliance, compensators, effects
 
 
-def _campaign(top: "_Checker", path: Path) -> dict[str, Any]:
-    """What a scenario and a plan share: the load, the work pose, the poses, the name."""
+def _campaign(top: "_Checker", path: Path, n_joints: int | None) -> dict[str, Any]:
+    """What a scenario and a plan share: the load, the work pose, the poses, the name. Every q
+    has ``n_joints`` angles (None: as many as the file's poses mostly have)."""
+    if n_joints is None:
+        n_joints = _joint_count(top.table, {})
     load = top.sub("load")
     load.only(("mass",))
     if top.has("design"):
@@ -334,9 +377,9 @@ def _campaign(top: "_Checker", path: Path) -> dict[str, Any]:
     if top.has("work"):
         w = top.sub("work")
         w.only(("q", "wrench"))
-        work = Work(q=_frozen(np.radians(w.vector("q", 6))), wrench=_frozen(w.vector("wrench", 6)))
+        work = Work(q=_joint_vector(w, "q", n_joints), wrench=_frozen(w.vector("wrench", 6)))
     return {"load_mass": load.number("mass", positive=True), "work": work,
-            "poses": _poses(path, top.raw("pose")),
+            "poses": _poses(path, top.raw("pose"), n_joints),
             "name": top.string("name") if top.has("name") else path.stem}
 
 
@@ -358,17 +401,17 @@ def parse_scenario(text: str, path: str | Path, seed: int | None = None) -> Scen
             raise InputError("--seed", "seed", "an integer >= 0", seed)
         seed = int(seed)
 
-    compliance, compensator, effects = _truth(top)
+    compliance, compensators, effects = _truth(top)
     return Scenario(
         path=path,
         text=text,
         robot=robot,
         seed=seed,
         compliance=compliance,
-        compensator=compensator,
+        compensators=compensators,
         effects=effects,
         tracker=_tracker(top.sub("tracker")),
-        **_campaign(top, path),
+        **_campaign(top, path, len(compliance)),
     )
 
 
@@ -403,8 +446,9 @@ def parse_plan(text: str, path: str | Path) -> Plan:
     top = _document(text, path)
     robot = _robot(top, path)
     seed = top.integer("seed", lo=0) if top.has("seed") else 0
+    n_joints = None
     if top.has("truth"):
-        _truth(top)
+        n_joints = len(_truth(top)[0])
     tr = top.sub("tracker")
     placed = tr.has("position")
     if not placed and tr.has("yaw"):
@@ -413,7 +457,7 @@ def parse_plan(text: str, path: str | Path) -> Plan:
     if not placed:
         tr = _Checker(path, {**tr.table, "position": [0.0, 0.0, 0.0]}, tr.prefix)
     return Plan(path=path, text=text, robot=robot, seed=seed, tracker=_tracker(tr),
-                tracker_placed=placed, **_campaign(top, path))
+                tracker_placed=placed, **_campaign(top, path, n_joints))
 
 
 def load_plan(path: str | Path) -> Plan:
@@ -470,16 +514,40 @@ def scenario_variant(src: str | Path, out: str | Path, *, name: str | None = Non
     return out
 
 
+def scenario_params(scn: Scenario, n_joints: int, compensators: tuple[str, ...]) -> Params:
+    """The truth as Params for a robot with ``n_joints`` actuated joints and the named
+    compensator tendons (its calbench:actuated and calbench:compensators); InputError naming
+    the key that does not fit the robot."""
+    if len(scn.compliance) != n_joints:
+        raise InputError(scn.path, "truth.compliance", f"an array of {n_joints} numbers (one per actuated "
+                         f"joint of {scn.robot.name})", f"{len(scn.compliance)} elements")
+    def key(t: str) -> str:
+        return f"truth.{LEGACY_COMPENSATOR}" if t == LEGACY_COMPENSATOR else f"truth.compensators.{t}"
+    for t in compensators:
+        if t not in scn.compensators:
+            raise InputError(scn.path, key(t), f"this table (stiffness, preload): {scn.robot.name} has the "
+                             f"compensator tendon {t!r}")
+    for t in scn.compensators:
+        if t not in compensators:
+            raise InputError(scn.path, key(t), "a compensator tendon of the robot (calbench:compensators: "
+                             + (", ".join(compensators) or "none") + ")", t)
+    return Params(np.asarray(scn.compliance, dtype=float), {t: scn.compensators[t] for t in compensators})
+
+
 def check_joint_limits(scn: Scenario, limits: np.ndarray) -> None:
-    """Reject poses (and the work pose) outside the robot's joint ``limits`` ((6, 2) rad)."""
+    """Reject poses (and the work pose) outside the robot's joint ``limits`` ((N, 2) rad)."""
     limits = np.asarray(limits, dtype=float)
-    if limits.shape != (6, 2):
-        raise ValueError(f"limits must have shape (6, 2), got {limits.shape}")
+    n = len(limits)
+    if limits.shape != (n, 2):
+        raise ValueError(f"limits must have shape (N, 2), got {limits.shape}")
     named = [(f"pose[{i}].q", p.q) for i, p in enumerate(scn.poses)]
     if scn.work is not None:
         named.append(("work.q", scn.work.q))
     for key, q in named:
-        for j in range(6):
+        if len(q) != n:
+            raise InputError(scn.path, key, f"an array of {n} numbers (one per actuated joint of "
+                             f"{scn.robot.name})", f"{len(q)} elements")
+        for j in range(n):
             lo, hi = limits[j]
             if not lo - JOINT_LIMIT_TOL <= q[j] <= hi + JOINT_LIMIT_TOL:
                 raise InputError(
@@ -505,11 +573,7 @@ def scenario_as_dict(scn: Scenario, relative_to: str | Path) -> dict:
         **header,
         "robot": Path(os.path.relpath(scn.robot, Path(relative_to).resolve())).as_posix(),
         "seed": scn.seed,
-        "truth": {
-            "compliance": scn.compliance.tolist(),
-            "compensator": {"stiffness": scn.compensator.stiffness,
-                            "preload": scn.compensator.preload},
-        },
+        "truth": Params(scn.compliance, scn.compensators).as_dict(),
         "tracker": {"sigma": tr.sigma, "position": tr.position.tolist(),
                     "yaw": round(math.degrees(tr.yaw), 10), "model": tr.model,
                     "distance": list(tr.distance), "transverse": list(tr.transverse)},

@@ -6,11 +6,11 @@ It solves paper eq. (17) in its generalized form,
     r(q, lam) = g(q) + J_c(q)^T B lam = 0,   B^T c(q) = 0,
     g(q) = qfrc_spring(q) - qfrc_bias(q; qvel=0) + J_site(q)^T W,
 
-where c is the loop gap (bench/loop.py: rod end minus anchor) held as a HARD constraint: MuJoCo's
+where c is the loops' gap (bench/loop.py: site 1 minus site 2 of each) held as a HARD constraint: MuJoCo's
 own equality constraints are soft and would open the loop by millimetres under load
 (PHYSICS.md), so they are switched off (:func:`statics_options`) and the loop is closed here by a
 KKT-Newton iteration. g includes the virtual joint springs (eq. 1), the compensator tendon
-(eqs. 7-9), gravity of every body (links, the mass compensators m1 and m2; the model's own
+(eqs. 7-9), gravity of every body (links and mass compensators; the model's own
 ``<option gravity>``) and the external wrench W at a site. B is an orthonormal basis of the
 loop's independent constraint directions (bench.loop.constraint_basis: the planar loop's third
 row is identically zero and would make the KKT matrix singular), taken once per solve.
@@ -51,7 +51,7 @@ import mujoco
 import numpy as np
 
 from .errors import StaticsError
-from .loop import constraint_basis, loop_gap
+from .loop import LOOP_TOL, constraint_basis, loop_gap
 from .robot import Robot
 
 # The loop is closed by us; contacts and joint-range stops play no part in the statics (ranges
@@ -61,7 +61,6 @@ DISABLE_FLAGS = (
     | int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
     | int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
 )
-LOOP_TOL = 1e-12      # m, converged loop gap (module docstring)
 CONTRACTION = 0.2     # a step gaining less than this factor re-assembles the chord matrix
 
 
@@ -102,10 +101,15 @@ class Equilibrium:
 
     @property
     def acceptable(self) -> bool:
-        """Converged for a campaign's or a design's purposes: residual within 1e-8 of the gravity
-        scale and loop closed to 1 nm (100 x looser than the solver's own tolerance, so only a
-        solve that failed trips it)."""
-        return self.residual <= 1e-8 * max(self.gravity_scale, 1.0) and self.loop_violation <= 1e-9
+        """Converged for a campaign's or a design's purposes (:func:`equilibrium_acceptable`)."""
+        return bool(equilibrium_acceptable(self.residual, self.gravity_scale, self.loop_violation))
+
+
+def equilibrium_acceptable(residual, gravity_scale, loop_violation):
+    """The acceptance rule of an equilibrium, elementwise over arrays of solves: residual within
+    1e-8 of the gravity scale and loop closed to 1 nm (100 x looser than the solver's own
+    tolerance, so only a solve that failed trips it)."""
+    return (np.asarray(residual) <= 1e-8 * np.maximum(gravity_scale, 1.0)) & (np.asarray(loop_violation) <= 1e-9)
 
 
 @dataclass(frozen=True)
@@ -159,12 +163,13 @@ class NewtonResult(NamedTuple):
 
 
 def kkt_matrix(a: np.ndarray, jc_r: np.ndarray) -> np.ndarray:
-    """[[A, J^T], [J, 0]] with A = d r / d q (nv, nv) and J = B^T J_c (nc, nv)."""
-    nv, nc = a.shape[0], jc_r.shape[0]
-    k = np.zeros((nv + nc, nv + nc))
-    k[:nv, :nv] = a
-    k[:nv, nv:] = jc_r.T
-    k[nv:, :nv] = jc_r
+    """[[A, J^T], [J, 0]] with A = d r / d q (nv, nv) and J = B^T J_c (nc, nv); leading
+    dimensions (a stack of solves, bench/batch_statics.py) carry through."""
+    nv, nc = a.shape[-1], jc_r.shape[-2]
+    k = np.zeros(a.shape[:-2] + (nv + nc, nv + nc))
+    k[..., :nv, :nv] = a
+    k[..., :nv, nv:] = np.swapaxes(jc_r, -1, -2)
+    k[..., nv:, :nv] = jc_r
     return k
 
 
@@ -172,10 +177,11 @@ def ift_tangent(kkt: np.ndarray, dforce: np.ndarray) -> np.ndarray:
     """d[q; lam]/dtheta (nv + nc, p) at an equilibrium by the implicit function theorem.
 
     dforce (nv, p): d g / d theta at fixed q (e.g. bench.robot.Robot.dforce_dtheta). The loop
-    stays closed: [[A, J^T], [J, 0]] [dq; dlam] = [-dforce; 0]."""
-    nv = dforce.shape[0]
-    rhs = np.zeros((kkt.shape[0], dforce.shape[1]))
-    rhs[:nv] = -dforce
+    stays closed: [[A, J^T], [J, 0]] [dq; dlam] = [-dforce; 0]. Leading dimensions of both
+    (a stack of equilibria) carry through."""
+    nv = dforce.shape[-2]
+    rhs = np.zeros(dforce.shape[:-2] + (kkt.shape[-1], dforce.shape[-1]))
+    rhs[..., :nv, :] = -dforce
     return np.linalg.solve(kkt, rhs)
 
 
@@ -278,7 +284,7 @@ class StaticsSolver:
         force_tol = self.tol * max(1.0, float(np.abs(d.qfrc_bias).max()))
         while True:
             res_norm = float(np.abs(res.r).max())
-            if res_norm <= force_tol and float(np.abs(res.c_r).max()) <= LOOP_TOL:
+            if res_norm <= force_tol and float(np.abs(res.c_r).max(initial=0.0)) <= LOOP_TOL:
                 return NewtonResult(qpos, lam, res.jc_r, res_norm, it, True, factor, stalls)
             if not math.isfinite(res_norm):
                 raise StaticsError(f"statics diverged at command {self._command_deg()} deg")
@@ -296,7 +302,7 @@ class StaticsSolver:
                 except np.linalg.LinAlgError:
                     raise StaticsError(
                         f"singular stiffness (KKT) matrix at command {self._command_deg()} deg: "
-                        "a degenerate configuration (is the parallelogram flat?)") from None
+                        "a degenerate configuration (is a kinematic loop degenerate?)") from None
             prev = res_norm
             # the inverse of a 10x10 KKT matrix (condition ~1e7) is accurate to ~1e-9 relative:
             # ample for Newton steps, whose errors the next residual corrects
@@ -379,6 +385,6 @@ class StaticsSolver:
         return ift_tangent(kkt_matrix(a, res.jc_r), dforce)[: robot.model.nv]
 
 
-__all__ = ["DISABLE_FLAGS", "LOOP_TOL", "CONTRACTION", "StaticsError", "statics_options", "Equilibrium",
+__all__ = ["DISABLE_FLAGS", "LOOP_TOL", "CONTRACTION", "StaticsError", "statics_options", "Equilibrium", "equilibrium_acceptable",
            "Load", "Residual", "NewtonPoint", "NewtonResult", "StiffnessProvider", "kkt_matrix",
            "ift_tangent", "StaticsSolver"]

@@ -135,18 +135,29 @@ def visible_sites(model: mujoco.MjModel, data: mujoco.MjData, spec: TrackerSpec,
     ids = np.atleast_1d(np.asarray(site_ids, dtype=int))
     if np.any((ids < 0) | (ids >= model.nsite)):
         raise ValueError(f"site ids must be in 0..{model.nsite - 1}, got {ids.tolist()}")
-    origin = np.asarray(spec.position, dtype=float).copy()
+    origin, unit, dist = sight_lines(spec, data.site_xpos[ids])
     geomid = np.full(1, -1, dtype=np.int32)
-    out = np.empty(len(ids), dtype=bool)
-    for k, sid in enumerate(ids):
-        d = data.site_xpos[sid] - origin
-        dist = float(np.linalg.norm(d))
-        if dist <= OCCLUSION_TOL:
-            out[k] = True
-            continue
-        hit = mujoco.mj_ray(model, data, origin, d / dist, BLOCKING_GROUPS, 1, -1, geomid)
-        out[k] = hit < 0 or hit >= dist - OCCLUSION_TOL
-    return out
+    hit = np.array([mujoco.mj_ray(model, data, origin, u, BLOCKING_GROUPS, 1, -1, geomid) for u in unit])
+    return unoccluded(hit, dist)
+
+
+def sight_lines(spec: TrackerSpec, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rays of :func:`visible_sites` to world points (..., 3): the tracker position (3,), unit
+    directions (..., 3) and distances (...). A point within OCCLUSION_TOL of the tracker gets
+    the direction +z (any ray will do: :func:`unoccluded` sees it regardless)."""
+    origin = np.asarray(spec.position, dtype=float).copy()
+    d = np.asarray(points, dtype=float) - origin
+    dist = np.sqrt(np.einsum("...i,...i->...", d, d))
+    near = dist <= OCCLUSION_TOL
+    unit = np.where(near[..., None], [0.0, 0.0, 1.0], d / np.where(near, 1.0, dist)[..., None])
+    return origin, unit, dist
+
+
+def unoccluded(hit: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """The visibility rule (elementwise): mj_ray's first hit along a sight line (-1: none) is
+    not more than OCCLUSION_TOL before the site at ``dist``, or the site is at the tracker."""
+    hit = np.asarray(hit, dtype=float)
+    return (dist <= OCCLUSION_TOL) | (hit < 0) | (hit >= dist - OCCLUSION_TOL)
 
 
 def measure(spec: TrackerSpec, points_world: np.ndarray, visible: np.ndarray,

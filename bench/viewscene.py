@@ -32,14 +32,12 @@ from .campaignlog import STATES, CampaignLog, PerState, WrenchRecord
 from .errors import InputError
 from .geoms import tendon_sites
 from .idreport import IdentificationReport
-from .robot import Params, Robot
+from .robot import Robot
 from .statics import Load, StaticsError, StaticsSolver
 from .tracker import MeanReading, mean_reading
 
 HALF_FOV_TAN = 0.46   # tangent of the half field of view the framing allows (a margin inside
                       # the viewer's own: the view is wider than tall, and labels need room)
-BASE_PARAMETERS = tuple(f"k{i}" for i in range(1, 7)) + ("compensator_stiffness",
-                                                          "compensator_preload")
 
 
 @dataclass(frozen=True)
@@ -86,7 +84,7 @@ class PoseScene:
     mean of the repeats, NaN where not seen), the load, and what truth or model adds."""
 
     index: int
-    command: np.ndarray                       # (6,) rad
+    command: np.ndarray                       # (N,) rad, one per actuated joint
     robot: RobotPose                          # at the command
     reflector_sites: np.ndarray               # (n, 3) world, the sites at the command
     measured: dict[str, np.ndarray]           # state -> (n, 3)
@@ -120,13 +118,14 @@ def mean_measurements(log: CampaignLog, names: list[str]) -> dict[tuple[int, str
     return {key: mean_reading(spec, readings) for key, readings in groups.items()}
 
 
-def command_of(log: CampaignLog, pose: int) -> np.ndarray:
-    """The commanded angles of a complete pose (the unloaded one; both states share it)."""
+def command_of(log: CampaignLog, pose: int, n_joints: int) -> np.ndarray:
+    """The commanded angles of a complete pose (the unloaded one; both states share it), one
+    per actuated joint of the robot."""
     per = log.poses.get(pose, PerState())
     q = per.unloaded if per.unloaded is not None else per.loaded
-    if q is None or np.asarray(q).shape != (6,):
+    if q is None or np.asarray(q).shape != (n_joints,):
         raise InputError(log.path, f"/campaign/pose (pose {pose})",
-                         "the commanded joint angles q[6] of every complete pose",
+                         f"the commanded joint angles q[{n_joints}] of every complete pose",
                          None if q is None else np.asarray(q).tolist())
     return np.asarray(q, dtype=float)
 
@@ -154,24 +153,25 @@ def model_deflections(log: CampaignLog, robot_xml: str, ident: IdentificationRep
     estimates. A compliance the campaign could not identify is taken as rigid (it is the one
     no load of the plan excites), and ``why`` says so."""
     est = {p.name: p.estimate for p in ident.parameters}
-    extra = [n for n in est if n not in BASE_PARAMETERS]
+    robot = Robot.from_xml(robot_xml)
+    lay = robot.layout
+    extra = [n for n in est if n not in lay.names]
     if extra:
         return {}, (f"none (the model has parameters beyond the motor springs and the "
-                    f"compensator: {', '.join(extra[:3])}{'...' if len(extra) > 3 else ''})")
-    missing = [n for n in BASE_PARAMETERS[6:] if est.get(n) is None]
+                    f"compensators: {', '.join(extra[:3])}{'...' if len(extra) > 3 else ''})")
+    missing = [n for n in lay.names[lay.n_joints:] if est.get(n) is None]
     if missing:
         return {}, f"none (no estimate of {', '.join(missing)})"
-    rigid = [n for n in BASE_PARAMETERS[:6] if est.get(n) is None]
-    k = np.array([est.get(n) or 0.0 for n in BASE_PARAMETERS[:6]])
-    robot = Robot.from_xml(robot_xml)
+    rigid = [n for n in lay.names[:lay.n_joints] if est.get(n) is None]
+    theta = np.array([est.get(n) or 0.0 for n in lay.names])
     # a compliance of 0 would be an infinite stiffness: a stiff spring stands for "rigid"
-    robot.set_params(Params(np.maximum(k, 1e-15), float(est["compensator_stiffness"]),
-                            float(est["compensator_preload"])))
+    theta[lay.compliance] = np.maximum(theta[lay.compliance], 1e-15)
+    robot.set_params(lay.params(theta))
     solver = StaticsSolver(robot)
     out = {}
     for p in log.complete_poses:
         w = log.wrenches.get(p)
-        q = command_of(log, p)
+        q = command_of(log, p, robot.n_act)
         try:
             e0 = solver.solve(q)
             e1 = e0 if w is None else \
@@ -201,7 +201,7 @@ def pose_scenes(log: CampaignLog, robot: Robot, names: list[str], magnify: float
     sites = [mujoco.mj_name2id(robot.model, mujoco.mjtObj.mjOBJ_SITE, n) for n in names]
     scenes = []
     for p in log.complete_poses:
-        q = command_of(log, p)
+        q = command_of(log, p, robot.n_act)
         at_command = poser.at(robot.rigid_qpos(q))
         refl_sites = np.array([poser.site(s) if s >= 0 else np.full(3, np.nan) for s in sites])
         w = log.wrenches.get(p)
@@ -260,5 +260,4 @@ def framing(scenes: list[PoseScene], tracker: np.ndarray, magnify: float,
 
 
 __all__ = ["RobotPose", "Poser", "PoseScene", "deformed_command", "mean_measurements",
-           "command_of", "true_deflections", "model_deflections", "pose_scenes", "framing",
-           "BASE_PARAMETERS"]
+           "command_of", "true_deflections", "model_deflections", "pose_scenes", "framing"]

@@ -14,7 +14,7 @@ On the paper scenario's candidates (scenarios/paper_table5.toml, blocks 9 x 8), 
 
     .venv/bin/python benchmarks/certificate_bench.py [CANDS.npz ...] [--repeats 3]
 
-Without NPZ files the candidates are generated (2000 and 10^4; ~20 s for 10^4 on 2 processes).
+Without NPZ files the candidates are generated (2000 and 10^4; ~2 s of CPU for 10^4).
 """
 from __future__ import annotations
 

@@ -1,8 +1,7 @@
 """Design of experiments benchmark (issue 4, §5-6). Prints JSON.
 
 * time to build 10^4 feasible candidates with their EXACT information blocks (IFT Jacobians of
-  the exact statics, on the executor `calbench design` would choose: a local Dask cluster of one
-  worker per CPU) and, separately, the exchange for 12 of them;
+  the exact statics, batched: identify/design/batch_info.py) and, separately, the exchange for 12 of them;
 * on the paper's robot and load (scenarios/paper_table5.toml, whose [work] table is a machining
   pose q = [30, 60, 0, 0, -60, 0] deg under a 2 kN process force [-1600, 800, 900] N), for each criterion A, D, AD, pose and M = 12 and 16: our plan, the
   paper's Table 5 plan (its 12 poses + the scenario's 4 lateral pulls, reflectors as seen) and the
@@ -28,11 +27,9 @@ ROOT = Path(__file__).resolve().parent.parent
 from calbench.bench.scenario import load_scenario
 from calbench.identify.design.plan import (design_plan, plan_measures, plan_scenario_text,
                              scenario_plan_information, work_jacobian)
-from calbench.identify.design.candidates import (SECONDS_PER_CANDIDATE, InfoEngine, generate_candidates,
-                                                load_design_scenario)
+from calbench.identify.design.candidates import InfoEngine, generate_candidates, load_design_scenario
 from calbench.identify.design.criteria import information, measures
 from calbench.identify.design.exchange import Exchanger
-from calbench.identify.executor import choose, open_executor
 from calbench.identify.montecarlo import run_montecarlo
 
 def work_scenario() -> Path:
@@ -68,21 +65,17 @@ def main() -> int:
     scn, st = load_design_scenario(path)
     n = 2000 if args.quick else 10000
     t0 = time.perf_counter()
-    with open_executor(choose(None, n * SECONDS_PER_CANDIDATE, n // 300)) as ex:
-        t1 = time.perf_counter()
-        cands = generate_candidates(scn, st, n=n, progress=False, executor=ex)
-        t_c = time.perf_counter() - t1
-    t_start_stop = time.perf_counter() - t0 - t_c
+    cands = generate_candidates(scn, st, n=n, progress=False)
+    t_c = time.perf_counter() - t0
     engine = InfoEngine(scn, st)
     G = work_jacobian(engine, scn)
     F_paper, viol = scenario_plan_information(engine, scn)
     out = {"machine_cpus": __import__("os").cpu_count(),
            "candidates": {"n": len(cands), "lateral": int(cands.kind.sum()), "seconds_exact_information": t_c,
-                          "executor_start_and_stop_s": t_start_stop,
                           **{k: v for k, v in cands.stats.items() if k != "seconds"}},
            "work_pose": {"q_deg": [30, 60, 0, 0, -60, 0], "wrench": [-1600, 800, 900, 0, 0, 0]},
-           "paper_plan": {"configs": 16, "measures": short(plan_measures(F_paper, cands.theta0, G)),
-                          "relative_std": plan_measures(F_paper, cands.theta0, G)["relative_std"],
+           "paper_plan": {"configs": 16, "measures": short(plan_measures(F_paper, cands.theta0, G, cands.param_names)),
+                          "relative_std": plan_measures(F_paper, cands.theta0, G, cands.param_names)["relative_std"],
                           "violates_our_rules": viol},
            "plans": {}}
     rng = np.random.default_rng(11)

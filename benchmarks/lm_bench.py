@@ -26,7 +26,6 @@ import scipy.optimize
 from calbench.bench.campaign import plan_campaign, truth_robot
 from calbench.bench.robot import Robot
 from calbench.bench.scenario import load_scenario
-from calbench.identify.forward import NP
 from calbench.identify.identifiability import whiten_factors
 from calbench.identify.montecarlo import campaign_observations
 from calbench.identify.onestep import OneStep, generic_start, sanitize_start, to_phi, to_theta
@@ -42,25 +41,26 @@ def problem(seed: int):
     robot = Robot.from_file(scn.robot)
     obs = campaign_observations(scn, truth_robot(scn), plans, np.random.default_rng(seed))
     linv = whiten_factors(obs.cov)
-    start, _ = sanitize_start(two_step(robot, obs).theta, generic_start(robot, obs))
+    start, _ = sanitize_start(two_step(robot, obs).theta, generic_start(robot, obs), robot.layout)
     return robot, obs, linv, start
 
 
 def library_runs(est: OneStep, obs, linv, start, ours) -> dict:
     """scipy and mujoco on the same problem in phi = [k, K_C, K_C s0] scaled by |phi(start)|."""
     model = est.model
+    lay = est.robot.layout
     yw = np.einsum("mij,mj->mi", linv, obs.dp).reshape(-1)
-    phi0 = to_phi(start)
+    phi0 = to_phi(start, lay)
     scale = np.abs(phi0)
     cache: dict = {}
 
     def fj(z):
         key = z.tobytes()
         if key not in cache:
-            f, j = model.evaluate(to_theta(z * scale))
+            f, j = model.evaluate(to_theta(z * scale, lay))
             cache.clear()
             cache[key] = (np.einsum("mij,mj->mi", linv, f).reshape(-1),
-                          np.einsum("mij,mjk->mik", linv, j).reshape(-1, NP))
+                          np.einsum("mij,mjk->mik", linv, j).reshape(-1, lay.n))
         return cache[key]
 
     n_eval = {"n": 0}
@@ -73,12 +73,12 @@ def library_runs(est: OneStep, obs, linv, start, ours) -> dict:
 
     def jac(z, *_):
         n0 = model.stats["evaluations"]
-        th = to_theta(z * scale)
+        th = to_theta(z * scale, lay)
         _, jw = fj(z)
         n_eval["n"] += model.stats["evaluations"] - n0
         # d theta / d phi for the compensator pair, then the scaling
         from calbench.identify.onestep import dtheta_dphi
-        return jw @ dtheta_dphi(z * scale) * scale if th is not None else None
+        return jw @ dtheta_dphi(z * scale, lay) * scale if th is not None else None
 
     out = {}
     sd = np.sqrt(np.diag(ours.cov))
@@ -91,7 +91,7 @@ def library_runs(est: OneStep, obs, linv, start, ours) -> dict:
         t = time.perf_counter()
         z = run()
         dt = time.perf_counter() - t
-        th = to_theta(z * scale)
+        th = to_theta(z * scale, lay)
         out[name] = {"evaluations": n_eval["n"], "seconds": dt,
                      "max_abs_difference_in_sigma": float(np.nanmax(np.abs(th - ours.theta) / sd))}
     return out
@@ -133,7 +133,7 @@ def main() -> None:
                                      plan_campaign(load_scenario(PAPER)), np.random.default_rng(seed + 100))
         n0 = est.model.stats["evaluations"]
         t = time.perf_counter()
-        r2 = est.fit(obs2.dp, linv2, theta0, scale=np.abs(to_phi(theta0)), start_eval=(f0, j0),
+        r2 = est.fit(obs2.dp, linv2, theta0, scale=np.abs(to_phi(theta0, robot.layout)), start_eval=(f0, j0),
                      final_eval=False, step_tol=1e-2)
         mc = {"seed": seed + 100, "calbench": {"evaluations": est.model.stats["evaluations"] - n0,
                                                "seconds": time.perf_counter() - t}}

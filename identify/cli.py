@@ -1,9 +1,9 @@
 """`calbench`: the one console script.
 
-Subcommands from both packages: bench/cli.py owns `simulate` and `view`; this module owns the
-estimation verbs (identify, montecarlo, design, discover) and `demo`. These two modules are the
-only ones that parse arguments or print; every workflow they call is a library function that
-returns its result, so it can be called from a notebook as well.
+Subcommands from both packages: bench/cli.py owns `simulate`, `view`, `export` and
+`from-urdf`; this module owns the estimation verbs (identify, montecarlo, design, discover) and
+`demo`. These two modules are the only ones that parse arguments or print; every workflow they
+call is a library function that returns its result, so it can be called from a notebook as well.
 
 Exit status: 0 success, 1 a check failed, 2 bad input (any CalbenchError: one line naming the
 file, the key and what was expected).
@@ -18,7 +18,7 @@ import time
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
-from calbench.bench.cli import add_export, add_simulate, add_view
+from calbench.bench.cli import add_check_robot, add_export, add_from_urdf, add_simulate, add_view
 from calbench.bench.errors import CalbenchError, InputError
 from calbench.bench.outputs import atomic_path, check_outputs, write_text
 from calbench.bench.progress import terminal_progress
@@ -43,7 +43,8 @@ def add_identify(sub) -> None:
     p.add_argument("--model", type=Path, default=None, help="robot MJCF (default: the one in the log)")
     p.add_argument("--method", choices=METHODS, default="one-step",
                    help="one-step: all parameters at once on the exact statics; two-step: the paper's "
-                        "§4 (default: %(default)s)")
+                        "§4, for robots with at most one compensator across one actuated hinge "
+                        "(default: %(default)s)")
     p.add_argument("--json", type=Path, default=None, help="write the report as JSON")
     p.add_argument("--check", action="store_true",
                    help=f"exit 1 when the log has ground truth and any |z| > {Z_CHECK:g}")
@@ -99,7 +100,9 @@ def add_montecarlo(sub) -> None:
     p.add_argument("scenario", type=Path, help="scenario TOML file")
     p.add_argument("--runs", type=int, required=True, help="number of noise seeds")
     p.add_argument("--method", choices=("both", "one-step", "two-step"), default="both",
-                   help="estimators to run; two-step runs both step-2 variants (default: %(default)s)")
+                   help="estimators to run; two-step runs both step-2 variants, for robots with at most "
+                        "one compensator across one actuated hinge; both: one-step alone on other robots "
+                        "(default: %(default)s)")
     p.add_argument("--seed", type=int, default=None, help="base noise seed (default: the scenario's)")
     p.add_argument("--json", type=Path, default=None, help="write the summary as JSON")
     add_scheduler(p)
@@ -107,15 +110,26 @@ def add_montecarlo(sub) -> None:
 
 
 def cmd_montecarlo(args) -> int:
+    from calbench.bench.robot import Robot
     from calbench.bench.scenario import load_scenario
     from .executor import Interrupted
     from .montecarlo import METHODS, RUNS_PER_TASK, estimated_seconds, format_summary, run_montecarlo
+    from .twostep import TwoStepError, two_step_applies
     if args.runs < 2:
         raise InputError("--runs", "runs", "an integer >= 2", args.runs)
     scn = load_scenario(args.scenario, seed=args.seed)
     check_outputs({"--json": args.json}, {"SCENARIO": args.scenario, "robot": scn.robot})
     methods = {"both": METHODS, "one-step": ("one-step",),
                "two-step": ("two-step", "two-step-weighted")}[args.method]
+    try:
+        two_step_applies(Robot.from_file(scn.robot))
+    except TwoStepError as exc:
+        if args.method == "two-step":
+            raise InputError(scn.robot, "--method two-step", "a robot with at most one compensator, across "
+                             "one actuated hinge (paper §4)", str(exc)) from None
+        methods = ("one-step",)
+    except ValueError as exc:   # the MJCF itself: reported where the campaign loads it
+        raise InputError(scn.path, "robot", "a loadable MJCF robot", f"{scn.robot}: {exc}") from None
     interrupted = None
     with open_pieces(args, estimated_seconds(args.runs, methods), -(-args.runs // RUNS_PER_TASK)) as ex:
         bar = terminal_progress()
@@ -166,8 +180,10 @@ def add_design(sub) -> None:
     p.add_argument("--starts", type=int, default=8,
                    help="random starts besides the greedy one (default: %(default)s)")
     p.add_argument("--no-refine", action="store_true", help="skip the continuous refinement")
+    p.add_argument("--processes", type=int, default=None,
+                   help="CPU threads for the candidates in each process (default: all the CPUs of this "
+                        "process; one on a Dask worker)")
     add_scheduler(p)
-    p.add_argument("--processes", type=int, dest="workers", help=argparse.SUPPRESS)  # the old spelling
     p.add_argument("--study", action="store_true", help="reproduce the paper's §5 study (plots)")
     p.add_argument("--out-dir", type=Path, default=Path("logs/design_study"),
                    help="--study output folder (default: %(default)s)")
@@ -205,7 +221,7 @@ def cmd_design(args) -> int:
     n = settings.candidates if args.candidates is None else args.candidates
     with open_pieces(args, n * SECONDS_PER_CANDIDATE, -(-n // 300)) as ex:
         bar = terminal_progress()
-        cands = generate_candidates(scn, settings, n=n, progress=bar, executor=ex)
+        cands = generate_candidates(scn, settings, n=n, processes=args.processes, progress=bar, executor=ex)
         bar.close()
     t_c = time.perf_counter() - t0
     print(f"{len(cands)} feasible candidates ({int(cands.kind.sum())} lateral pulls) in {t_c:.1f} s "
@@ -255,6 +271,9 @@ def _design_from_candidates(args) -> int:
     scn = G = None
     if args.scenario is not None:
         scn, settings = load_design_scenario(args.scenario)
+        if cf.q.shape[1] != len(scn.compliance):
+            raise InputError(cf.path, "q", f"N x {len(scn.compliance)} joint angles (one per actuated joint of "
+                             f"{scn.robot.name})", f"N x {cf.q.shape[1]}")
     if args.out is not None and (scn is None or cf.wrench is None or cf.kind is None):
         raise InputError(cf.path if scn is not None else "(command line)", "wrench" if scn is not None else "SCENARIO",
                          "the scenario and the arrays wrench and load_kind in the candidate file for --out", None)
@@ -475,8 +494,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_view(sub)
     add_discover(sub)
     add_report(sub)
+    add_check_robot(sub)
     add_import(sub)
     add_export(sub)
+    add_from_urdf(sub)
     add_study(sub)
     return parser
 

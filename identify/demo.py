@@ -12,14 +12,27 @@ from typing import Iterator
 from calbench.bench.campaign import run_campaign
 from calbench.bench.outputs import write_text
 from calbench.bench.resources import PAPER_SCENARIO, scenario_path
+from calbench.bench.robot import Robot
 from calbench.bench.scenario import load_scenario, scenario_variant
 from calbench.bench.view import write_recording
 
 PAPER = scenario_path(PAPER_SCENARIO)   # package data: works outside a checkout
+HIDDEN_COMPLIANCE = "[1.8e-7, 0.0, 1.8e-7]"   # rad/(N*m): lateral bending + torsion at the link root
 
-HIDDEN_DEMO = """[truth.effects.link_compliance]      # hidden: lateral bending + torsion at the forearm root
-link = "forearm"
-compliance = [1.8e-7, 0.0, 1.8e-7]"""
+
+def hidden_link(scenario: Path = PAPER) -> str:
+    """The link the demo hides a compliance in: the last of the robot's calbench:links (the
+    FANUC's forearm)."""
+    links = Robot.from_file(load_scenario(scenario).robot).description.links
+    if not links:
+        raise ValueError(f"{scenario}: the robot names no calbench:links for the discovery demo")
+    return links[-1]
+
+
+def hidden_demo(link: str) -> str:
+    """The hidden effect's [truth.effects] table."""
+    return (f"[truth.effects.link_compliance]      # hidden: lateral bending + torsion at the {link} root\n"
+            f'link = "{link}"\ncompliance = {HIDDEN_COMPLIANCE}')
 
 
 def run_demo(logs: Path) -> Iterator[str]:
@@ -41,12 +54,14 @@ def run_demo(logs: Path) -> Iterator[str]:
 
 
 def discover_step(logs: Path) -> Iterator[str]:
-    """Last demo step: a campaign whose robot has a forearm compliance the model lacks;
-    `calbench discover` finds where they disagree, names it, adds it, shows the gap shrink."""
+    """Last demo step: a campaign whose robot has a link compliance (the FANUC's forearm) the
+    model lacks; `calbench discover` finds where they disagree, names it, adds it, shows the gap
+    shrink."""
     from .discover.workflow import clean, discover, story
     logs.mkdir(parents=True, exist_ok=True)
+    link = hidden_link()
     scn_path = scenario_variant(PAPER, logs / "paper_table5_hidden.toml", name="paper_table5_hidden",
-                                extra=HIDDEN_DEMO)
+                                extra=hidden_demo(link))
     log = logs / "paper_table5_hidden.mcap"
     run_campaign(load_scenario(scn_path), log)
     yield f"4. discover: a campaign on a robot with a hidden effect the model lacks -> {log}"
@@ -56,9 +71,9 @@ def discover_step(logs: Path) -> Iterator[str]:
                    view_rrd=js.with_suffix(".rrd"))
     write_text(js, json.dumps(clean(rep), indent=2, allow_nan=False))
     yield "\n".join("   " + line for line in story(rep).splitlines())
-    yield ("   (the hidden truth, read only now: link_compliance forearm, compliance [1.8e-7, 0, 1.8e-7] "
+    yield (f"   (the hidden truth, read only now: link_compliance {link}, compliance [1.8e-7, 0, 1.8e-7] "
            "rad/(N*m))")
     yield f"   report -> {js}"
 
 
-__all__ = ["run_demo", "discover_step", "PAPER", "HIDDEN_DEMO"]
+__all__ = ["run_demo", "discover_step", "PAPER", "hidden_demo", "hidden_link", "HIDDEN_COMPLIANCE"]

@@ -1,15 +1,16 @@
 """The exact forward model dp(theta) of a campaign and its Jacobian (implicit function theorem).
 
-theta = [k1..k6, K_C, s0] in SI: actuator compliances (rad/(N*m), paper eq. 1), compensator
-stiffness (N/m) and preload length (m, eq. 8). For each pose the unloaded and loaded static
+theta = [k1..kN, then K_C, s0 per compensator] in SI (the robot's ``layout``, bench/params.py):
+actuator compliances (rad/(N*m), paper eq. 1), compensator stiffness (N/m) and preload length
+(m, eq. 8). For each pose the unloaded and loaded static
 equilibria are solved on the robot's MJCF with theta written into it (``Robot.set_params``: the
 MJCF's own stiffness values are overwritten, never read), and
 
     dp_jr(theta) = x_r(q_loaded(theta)) - x_r(q_unloaded(theta))
 
 This is paper eq. (17) solved exactly (gravity of all links and mass compensators, the load's
-and gravity's geometric stiffness H00 of eq. 18, the compensator's eqs. 7-9 as a MuJoCo tendon,
-the parallelogram closed as a hard constraint) instead of its linearisation eqs. (19)-(22).
+and gravity's geometric stiffness H00 of eq. 18, the compensators' eqs. 7-9 as MuJoCo tendons,
+the loops closed as hard constraints) instead of its linearisation eqs. (19)-(22).
 
 The equilibrium itself is bench/statics.py's, the one definition (residual, Newton, its
 tolerances, the implicit-function tangent); d g / d theta is ``Robot.dforce_dtheta``. This module
@@ -24,14 +25,17 @@ Speed. The first evaluation solves every equilibrium with :meth:`StaticsSolver.s
 rigid configuration. Later evaluations warm-start from the last solution, moved by the
 first-order prediction tangent x (theta - theta_cached) when a Jacobian was computed, and run
 :meth:`StaticsSolver.newton` with a KKT matrix split as A = A_base + S(theta): S holds the
-springs, known analytically (-1/k_i on motor i; -K_C (t t^T + (L - s0) H_L) for the tendon with
-t = dL/dq and H_L its Hessian), A_base everything else (gravity's and the load's geometric
+springs, known analytically (-1/k_i on motor i; -K_C (t t^T + (L - s0) H_L) for each tendon
+with t = dL/dq and H_L its Hessian), A_base everything else (gravity's and the load's geometric
 stiffness, the loop's constraint curvature), taken once by finite differences and reused.
 Convergence is judged on the exact residual, so the reuse only affects the convergence rate,
-never the solution. The Jacobian dq/dtheta (``bench.statics.ift_tangent``) uses the same KKT
-matrix at the solution; A_base's staleness is of the order of the configuration change since it
-was taken (<1e-4 rad) times gravity's share of the stiffness (~1e-2), i.e. a relative Jacobian
-error far below 1e-5 (checked against finite differences in tests/test_identify_forward.py).
+never the solution. These warm evaluations run for all (pose, state) equilibria at once on
+bench/batch_statics.py (the same Newton, stacked; a row it cannot converge goes through the
+scalar fallbacks), unless the model holds more than Robot.set_params writes (discovery's
+effects), which the batch's copy of the model would not see. The Jacobian dq/dtheta
+(``bench.statics.ift_tangent``) uses the same KKT matrix at the solution; A_base's staleness is
+of the order of the configuration change since it was taken (<1e-4 rad) times gravity's share
+of the stiffness (~1e-2), i.e. a relative Jacobian error far below 1e-5 (checked against finite differences in tests/test_identify_forward.py).
 """
 from __future__ import annotations
 
@@ -40,21 +44,12 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from calbench.bench.robot import Params, Robot
+from calbench.bench.batch_statics import BatchStatics
+from calbench.bench.robot import Robot
 from calbench.bench.statics import (Load, NewtonPoint, NewtonResult, StaticsError, StaticsSolver,
                                     ift_tangent, kkt_matrix, statics_options)
 
 from .observations import Observations
-
-PARAM_NAMES = ("k1", "k2", "k3", "k4", "k5", "k6", "compensator_stiffness", "compensator_preload")
-PARAM_UNITS = ("rad/(N*m)",) * 6 + ("N/m", "m")
-NP = len(PARAM_NAMES)
-
-
-def to_params(theta: np.ndarray) -> Params:
-    theta = np.asarray(theta, dtype=float)
-    return Params(theta[:6].copy(), float(theta[6]), float(theta[7]))
-
 
 @dataclass(frozen=True)
 class PoseDesign:
@@ -85,7 +80,8 @@ def design_from_observations(robot: Robot, obs: Observations) -> list[PoseDesign
 
 
 class _Eq:
-    """Cache of one (pose, state) equilibrium: warm start and the reusable KKT pieces."""
+    """Cache of one (pose, state) equilibrium: warm start and the reusable KKT pieces
+    (h_len: the compensator tendons' length Hessians, (C, nv, nv))."""
 
     __slots__ = ("qpos", "lam", "basis", "a_base", "h_len", "theta", "tangent")
 
@@ -98,13 +94,19 @@ class _Eq:
 class ForwardModel:
     """dp(theta) and d dp/d theta for a fixed campaign design on one robot model.
 
-    Not thread-safe (owns the robot's MjData). ``evaluate`` returns (dp (M,3), jac (M,3,8) or
-    None) with rows in design order (poses, then their reflectors).
+    Not thread-safe (owns the robot's MjData). ``evaluate`` returns (dp (M,3), jac (M,3,P) or
+    None) with rows in design order (poses, then their reflectors); theta's first
+    ``n_base`` entries are the robot's layout (bench/params.py).
     """
 
+    BATCHED = True   # default of ``batched`` (benchmarks switch it to time the scalar loop)
+
     def __init__(self, robot: Robot, design: list[PoseDesign], tol: float = 1e-10,
-                 max_iter: int = 12, fd_step: float = 1e-7):
+                 max_iter: int = 12, fd_step: float = 1e-7, batched: bool | None = None):
         self.robot = robot
+        # warm evaluations of every equilibrium at once (_evaluate_stacked)
+        self.batched = self.BATCHED if batched is None else batched
+        self._batch: BatchStatics | None = None
         self.design = design
         self.max_iter = max_iter       # warm-started Newton steps before A_base is re-taken
         self.statics = StaticsSolver(robot, tol=tol, fd_step=fd_step)
@@ -113,16 +115,19 @@ class ForwardModel:
         self._cache: list[tuple[_Eq, _Eq]] | None = None
         self.n_obs = int(sum(len(d.sites) for d in design))
         self.act_dof = robot.act_dof
-        self._act_diag = robot.act_dof * (self.nv + 1)   # flat indices of their diagonal entries
         self.stats = {"evaluations": 0, "newton_iterations": 0, "refreshes": 0, "fallbacks": 0}
-        self._p_kkt: np.ndarray | None = None     # parameters beyond the eight A_base was taken at
-        self._params: Params | None = None         # the base parameters last written
-
-    n_params = NP   # a subclass appending parameters (identify/discover/fit.py) overrides it
+        self.layout = robot.layout
+        self.n_base = self.layout.n
+        # a subclass appending parameters (identify/discover/fit.py) sets a larger n_params
+        self.n_params = self.n_base
+        self._kc = self.layout.stiffness_index
+        self._s0 = self.layout.preload_index
+        self._p_kkt: np.ndarray | None = None     # parameters beyond the base A_base was taken at
+        self._params = None                        # the base parameters last written (Params)
 
     def write(self, theta: np.ndarray) -> None:
         """Put theta into the robot model (a subclass writes its extra parameters too)."""
-        self._params = to_params(theta[:NP])
+        self._params = self.layout.params(theta[: self.n_base])
         self.robot.set_params(self._params)
 
     def _dforce(self, theta: np.ndarray) -> np.ndarray:
@@ -131,33 +136,45 @@ class ForwardModel:
         return self.robot.dforce_dtheta(self._params)
 
     # -- the stiffness matrix A = A_base + S(theta) ---------------------------------------------
+    def _moments(self) -> np.ndarray:
+        """(C, nv) the compensator tendons' moments dL/dq at the pose held in data."""
+        rb = self.robot
+        return np.array([rb.tendon_moment(None, c) for c in range(len(rb.tendons))]).reshape(-1, self.nv)
+
     def _spring_part(self, theta, t: np.ndarray, h_len) -> np.ndarray:
-        """S(theta): the springs' part of d(g)/dq at the pose held in data (t = dL/dq there)."""
-        if self.robot.tendon >= 0:
-            length = float(self.robot.data.ten_length[self.robot.tendon])
-            s = -theta[6] * (t[:, None] * t + (length - theta[7]) * h_len)
-        else:
-            s = np.zeros((self.nv, self.nv))
-        s.flat[self._act_diag] -= 1.0 / theta[:6]
+        """S(theta): the springs' part of d(g)/dq at the pose held in data (t (C, nv) = dL/dq
+        there, h_len (C, nv, nv) the tendons' length Hessians)."""
+        length = self.robot.data.ten_length[self.robot.tendons]
+        return self._springs(theta, t[None], length[None], h_len[None])[0]
+
+    def _springs(self, theta, t: np.ndarray, length: np.ndarray, h_len: np.ndarray) -> np.ndarray:
+        """S(theta) of n poses (n, nv, nv) from their tendon moments t (n, C, nv), lengths (n, C)
+        and length Hessians (n, C, nv, nv): -1/k_i on motor i, -K_C (t t^T + (L - s0) H_L) per
+        compensator."""
+        s = np.zeros((len(t), self.nv, self.nv))
+        for c in range(len(self.robot.tendons)):
+            kc, s0 = theta[self._kc[c]], theta[self._s0[c]]
+            s -= kc * (t[:, c, :, None] * t[:, c, None, :] + (length[:, c] - s0)[:, None, None] * h_len[:, c])
+        s[:, self.act_dof, self.act_dof] -= 1.0 / theta[: self.layout.n_joints]
         return s
 
     def _stiffness(self, eq: _Eq, theta) -> np.ndarray:
         """A = A_base + S(theta) at the pose held in data."""
-        return eq.a_base + self._spring_part(theta, self.robot.tendon_moment(), eq.h_len)
+        return eq.a_base + self._spring_part(theta, self._moments(), eq.h_len)
 
     def _kkt_fd(self, qpos, load, lam, basis, theta) -> tuple[np.ndarray, np.ndarray]:
-        """A_base = A_fd - S(theta) and the tendon length Hessian H_L, by forward differences
-        (the statics' exact matrix, the tendon moment differenced at the same points)."""
+        """A_base = A_fd - S(theta) and the tendons' length Hessians H_L, by forward differences
+        (the statics' exact matrix, the tendon moments differenced at the same points)."""
         st, nv = self.statics, self.nv
         r = st.residual(qpos, load, lam, basis).r
-        t0 = self.robot.tendon_moment()
-        h = np.empty((nv, nv))
+        t0 = self._moments()
+        h = np.empty((len(t0), nv, nv))
 
         def tap(j: int) -> None:
-            h[:, j] = (self.robot.tendon_moment() - t0) / st.fd_step
+            h[:, :, j] = (self._moments() - t0) / st.fd_step
 
         a = st.stiffness_fd(qpos, load, lam, basis, r, tap=tap)
-        h = 0.5 * (h + h.T)
+        h = 0.5 * (h + h.transpose(0, 2, 1))
         st.forward(qpos, velocity=False)  # data back at qpos for S
         return a - self._spring_part(theta, t0, h), h
 
@@ -231,12 +248,14 @@ class ForwardModel:
         return sol
 
     def evaluate(self, theta, jacobian: bool = True):
-        """dp (M,3) and, with ``jacobian``, d dp / d theta (M,3,P): P = n_params, the eight
+        """dp (M,3) and, with ``jacobian``, d dp / d theta (M,3,P): P = n_params, the robot's
         parameters plus any a subclass appends (discovery's effects). Parameters beyond the
-        eight enter the stiffness matrix A_base, so it is re-taken when they change."""
+        robot's enter the stiffness matrix A_base, so it is re-taken when they change."""
         theta = np.asarray(theta, dtype=float)
         npar = self.n_params
-        if theta.shape != (npar,) or not np.all(np.isfinite(theta)) or np.any(theta[:6] <= 0):
+        nb = self.n_base
+        if (theta.shape != (npar,) or not np.all(np.isfinite(theta))
+                or np.any(theta[: self.layout.n_joints] <= 0)):
             raise ValueError(f"theta must be {npar} finite values with positive compliances, got {theta}")
         robot = self.robot
         m, d = robot.model, robot.data
@@ -247,8 +266,10 @@ class ForwardModel:
         with statics_options(robot):
             if self._cache is None:
                 self._init_cache(theta)
-                self._p_kkt = theta[NP:].copy()
-            refresh = self._p_kkt is None or not np.array_equal(self._p_kkt, theta[NP:])
+                self._p_kkt = theta[nb:].copy()
+            refresh = self._p_kkt is None or not np.array_equal(self._p_kkt, theta[nb:])
+            if self._stacked(refresh):
+                return self._evaluate_stacked(theta, jacobian)
             row = 0
             for des, pair in zip(self.design, self._cache):
                 robot.set_command(des.q)
@@ -271,9 +292,91 @@ class ForwardModel:
                 if jacobian:
                     jac[row: row + n] = jsite[1] - jsite[0]
                 row += n
-            self._p_kkt = theta[NP:].copy()
+            self._p_kkt = theta[nb:].copy()
+        return dp, jac
+
+    # -- every (pose, state) at once --------------------------------------------------------------
+    def _stacked(self, refresh: bool) -> bool:
+        """Warm evaluations run stacked on bench/batch_statics.py, unless the model holds more than
+        Robot.set_params writes (a subclass's own parameters and write: discovery's effects),
+        which the batch's copy of the model would not see."""
+        return (self.batched and not refresh and self.n_params == self.n_base and type(self).write is ForwardModel.write
+                and type(self)._dforce is ForwardModel._dforce)
+
+    def _evaluate_stacked(self, theta, jacobian: bool):
+        """evaluate()'s loop for all (pose, state) equilibria at once: the same warm Newton (the
+        cached solution moved by its tangent, A = A_base + S(theta), giving up on a row that
+        still stalls after two steps), rows it did not converge through the scalar _solve (its
+        re-taken A_base and cold fallbacks), then the same IFT tangents, stacked. Inside
+        statics_options, the cache initialised."""
+        robot, nv = self.robot, self.nv
+        rows = [(des, load, eq) for des, pair in zip(self.design, self._cache)
+                for load, eq in zip((None, des.load), pair)]
+        n = len(rows)
+        if self._batch is None:
+            self._batch = BatchStatics(self.statics, nsim=n, nthread=1)
+        bs = self._batch
+        bs.sync(*Robot.PARAM_FIELDS)
+        q = np.array([des.q for des, _, _ in rows])
+        zero = np.zeros(3)
+        load = Load(np.array([zero if ld is None else ld.force for _, ld, _ in rows]),
+                    np.array([zero if ld is None else ld.moment for _, ld, _ in rows]),
+                    np.array([robot.payload_site if ld is None else ld.site for _, ld, _ in rows]))
+        qpos = np.array([eq.qpos for *_, eq in rows])
+        lam = np.array([eq.lam for *_, eq in rows])
+        for i, (*_, eq) in enumerate(rows):
+            if eq.tangent is not None and eq.theta is not None:   # first-order prediction
+                step = eq.tangent @ (theta - eq.theta)
+                qpos[i] += step[:nv]
+                lam[i] += step[nv:]
+        basis = np.array([eq.basis for *_, eq in rows])
+        a_base = np.array([eq.a_base for *_, eq in rows])
+        h_len = np.array([eq.h_len for *_, eq in rows])
+
+        def springs(ids) -> np.ndarray:
+            """S(theta) at the poses the batch holds for simulations ids."""
+            return self._springs(theta, robot.tendon_moments_stack(bs.ten_j[ids]),
+                                 bs.ten_length[ids][:, robot.tendons], h_len[ids])
+
+        def stiffness(idx, qp, lm, r, stalled, iteration):
+            return a_base[idx] + springs(idx), stalled & (iteration > 2)
+
+        sol = bs.newton(q, qpos, basis, load, lam=lam, stiffness=stiffness, max_iter=self.max_iter)
+        self.stats["newton_iterations"] += int(sol.iterations[sol.converged].sum())
+        qpos, lam = sol.qpos, sol.lam
+        for i in np.flatnonzero(~sol.converged):      # rare: the scalar path's fallbacks
+            des, ld, eq = rows[i]
+            robot.set_command(des.q)
+            one = self._solve(des, ld, eq, theta, False)
+            qpos[i], lam[i] = one.qpos, one.lam
+            a_base[i], h_len[i], basis[i] = eq.a_base, eq.h_len, eq.basis
+        for i, (*_, eq) in enumerate(rows):
+            eq.qpos, eq.lam, eq.theta, eq.tangent = qpos[i], lam[i], theta.copy(), None
+        # the solutions' forward pass (positions, tendon, J_c), then the tangents
+        res = bs.residual(np.arange(n), qpos, load, lam, basis)
+        ids = np.arange(n)
+        pos = bs.site_xpos[ids]
+        dp = np.empty((self.n_obs, 3))
+        jac = None
+        if jacobian:
+            kkt = kkt_matrix(a_base + springs(ids), res.jc_r)
+            tangent = ift_tangent(kkt, robot.dforce_dtheta_stack(self._params, qpos, q, bs.ten_j[ids],
+                                                                  bs.ten_length[ids]))
+            for i, (*_, eq) in enumerate(rows):
+                eq.tangent = tangent[i]
+            used = np.unique(np.concatenate([des.sites for des in self.design]))
+            jsite = np.stack([bs.site_jacobian(ids, int(s)) for s in used], axis=1) @ tangent[:, None, :nv]
+            jac = np.empty((self.n_obs, 3, self.n_params))
+        row = 0
+        for k, des in enumerate(self.design):
+            m = len(des.sites)
+            dp[row: row + m] = pos[2 * k + 1, des.sites] - pos[2 * k, des.sites]
+            if jacobian:
+                cols = np.searchsorted(used, des.sites)
+                jac[row: row + m] = jsite[2 * k + 1, cols] - jsite[2 * k, cols]
+            row += m
+        self._p_kkt = theta[self.n_base:].copy()
         return dp, jac
 
 
-__all__ = ["PARAM_NAMES", "PARAM_UNITS", "NP", "PoseDesign", "ForwardModel",
-           "design_from_observations", "to_params"]
+__all__ = ["PoseDesign", "ForwardModel", "design_from_observations"]

@@ -11,12 +11,13 @@ tolerance is not critical anywhere in between. A column below 1e-12 of the large
 column (the parameter has no effect at all). Parameters with a component larger than NULL_TOL
 in the numerical null space are reported unidentifiable, with a reason:
 
-* k_i's column is zero because no load puts a torque on motor i: for k1 with loads that are all
-  vertical, paper §5.1; generally "no pose loads motor i";
+* k_i's column is zero because no load puts a torque on motor i: for a vertical axis (the
+  FANUC's k1) with loads that are all vertical, paper §5.1; generally "no pose loads motor i";
 * k_i's column is zero although motor i is loaded: the reflectors seen do not move when motor i
   turns (e.g. every reflector on the J6 axis: the reflector set sees no rotation about it);
-* k2, K_C, s0 mixed in the null space with fewer than three distinct q2: paper §4, step 2
-  needs the aggregated J2 stiffness at three or more q2 to separate K_theta2, K_C and s0. (The
+* a compensator's K_C, s0 and the compliance of the joint it spans (the FANUC's k2) mixed in the
+  null space with fewer than three distinct angles of that joint (q2): paper §4, step 2 needs
+  the aggregated J2 stiffness at three or more q2 to separate K_theta2, K_C and s0. (The
   exact model also sees the compensator's static torque, eq. 9, through the J2 sag it causes,
   one more equation per q2: on this robot the one-step estimator separates them from two q2,
   and fails with one.)
@@ -32,6 +33,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from calbench.bench.params import ParamLayout
 
 RANK_TOL = 1e-6
 ZERO_COLUMN_TOL = 1e-12
@@ -87,25 +90,31 @@ def analyze(jw: np.ndarray, names: tuple[str, ...]) -> Identifiability:
     return Identifiability(tuple(names), s_full, rank, ident, null, norms)
 
 
-def explain(ident: Identifiability, *, motor_torque_seen: np.ndarray, loads_vertical: bool,
-            n_distinct_q2: int, compensator_in_model: bool = True) -> dict[str, str]:
+def explain(ident: Identifiability, layout: ParamLayout, facts: dict) -> dict[str, str]:
     """Name the reason for every unidentifiable parameter (fills ``ident.reasons``).
 
-    motor_torque_seen (6,) bool: whether some pose's load puts a torque on motor i.
+    ``facts`` (identify/twostep.py's plan_facts): motor_torque_seen (N,) bool, whether some
+    pose's load puts a torque on motor i; loads_vertical; vertical_axes (N,) bool, motor axes
+    along gravity at every pose; compensator_joint, the compensator's joint (or None) and
+    n_distinct_q2, the distinct angles of that joint in the plan.
     """
     names = ident.names
     reasons: dict[str, str] = {}
-    comp = {"k2", "compensator_stiffness", "compensator_preload"}
+    seen, vertical_axes = facts["motor_torque_seen"], facts.get("vertical_axes")
+    j2, n_q2 = facts.get("compensator_joint"), facts["n_distinct_q2"]
+    comp = set()
+    if j2 is not None and layout.compensators:
+        comp = {f"k{j2 + 1}", layout.names[layout.stiffness_index[0]], layout.names[layout.preload_index[0]]}
     for i, name in enumerate(names):
         if ident.identifiable[i]:
             continue
         if name.startswith("k") and name[1:].isdigit():
             j = int(name[1:]) - 1
             zero_col = ident.column_norms[i] <= ZERO_COLUMN_TOL * max(ident.column_norms.max(), 1e-300)
-            if zero_col and not motor_torque_seen[j]:
-                if j == 0 and loads_vertical:
-                    reasons[name] = ("every load is vertical, so none turns the J1 axis (paper §5.1): "
-                                     "k1 needs a non-vertical load with the arm outstretched")
+            if zero_col and not seen[j]:
+                if facts["loads_vertical"] and vertical_axes is not None and vertical_axes[j]:
+                    reasons[name] = (f"every load is vertical, so none turns the J{j + 1} axis (paper §5.1): "
+                                     f"k{j + 1} needs a non-vertical load with the arm outstretched")
                 else:
                     reasons[name] = f"no pose's load puts a torque on motor {j + 1}"
                 continue
@@ -113,14 +122,12 @@ def explain(ident: Identifiability, *, motor_torque_seen: np.ndarray, loads_vert
                 reasons[name] = (f"no reflector seen moves when motor {j + 1} turns: the reflector "
                                  "set sees no rotation about that axis")
                 continue
-        if name in comp and n_distinct_q2 < 3:
-            if not compensator_in_model and name != "k2":
-                reasons[name] = "the model has no compensator tendon"
-            else:
-                reasons[name] = (f"only {n_distinct_q2} distinct q2 in the plan: too few to separate "
-                                 "K_theta2, K_C and s0 (the paper's step 2, eqs. 21-22, needs the J2 "
-                                 "stiffness at three q2; the exact model adds the compensator's torque, "
-                                 "one more equation per q2)")
+        if name in comp and n_q2 < 3:
+            q, jn = f"q{j2 + 1}", f"J{j2 + 1}"
+            reasons[name] = (f"only {n_q2} distinct {q} in the plan: too few to separate "
+                             f"K_theta{j2 + 1}, K_C and s0 (the paper's step 2, eqs. 21-22, needs the {jn} "
+                             f"stiffness at three {q}; the exact model adds the compensator's torque, "
+                             f"one more equation per {q})")
             continue
         mix = [names[k] for k in range(len(names))
                if ident.null_vectors.size and np.sqrt((ident.null_vectors[k] ** 2).sum()) > NULL_TOL]

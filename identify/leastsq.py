@@ -1,6 +1,6 @@
 """The one least-squares core: Levenberg–Marquardt on a whitened residual, and its result type.
 
-Both estimators use it: the one-step identification (identify/onestep.py; eight parameters,
+Both estimators use it: the one-step identification (identify/onestep.py; the robot's parameters,
 paper eq. 20 solved on the exact statics) and discovery's candidate fits
 (identify/discover/fit.py; base parameters plus an effect's). It minimises
 

@@ -34,31 +34,40 @@ from pathlib import Path
 
 import numpy as np
 
+from calbench.bench.batch_statics import BatchStatics
 from calbench.bench.campaign import PosePlan, plan_campaign, truth_robot, scenario_params
 from calbench.bench.progress import ProgressSink, sink
 from calbench.bench.robot import Robot
 from calbench.bench.scenario import Scenario
+from calbench.bench.statics import StaticsSolver
 from calbench.bench.tracker import Measurement, measure, noise_covariance, to_tracker_frame
 
-from .forward import NP, PARAM_NAMES, PARAM_UNITS
-from .identifiability import whiten_factors
 from .executor import Executor, InProcess, Interrupted
+from .identifiability import whiten_factors
 from .observations import Observations, pose_observation
 from .onestep import OneStep, generic_start, sanitize_start, to_phi
 from .portable import PortableScenario
-from .twostep import linear_plan, two_step
+from .twostep import TwoStepError, linear_plan, two_step, two_step_applies
 
 METHODS = ("one-step", "two-step", "two-step-weighted")
 MC_STEP_TOL = 1e-2   # sigma: see identify/onestep.py, stopping rule
-RUNS_PER_TASK = 50   # a task of ~0.5-1 s: the ~3 ms per-task overhead of Dask stays < 1 %
+RUNS_PER_TASK = 50   # a task of ~0.5-1 s: Dask's ~5 ms of scheduling per task stays < 1 %
 # in-process seconds per run on the paper campaign (measured here: noise and observations, then
 # each estimator), for the choice of executor only
-SECONDS_PER_RUN = {"observations": 0.005, "one-step": 0.012, "two-step": 0.002, "two-step-weighted": 0.002}
+SECONDS_PER_RUN = {"observations": 0.004, "one-step": 0.007, "two-step": 0.002, "two-step-weighted": 0.002}
 
 
-def true_theta(scn: Scenario) -> np.ndarray:
-    p = scenario_params(scn)
-    return np.concatenate([p.compliance, [p.compensator_stiffness, p.compensator_preload]])
+def true_theta(scn: Scenario, robot: Robot) -> np.ndarray:
+    return robot.layout.theta(scenario_params(scn, robot))
+
+
+def two_step_ok(robot: Robot) -> bool:
+    """Whether the paper's two-step method applies to the robot (identify/twostep.py)."""
+    try:
+        two_step_applies(robot)
+    except TwoStepError:
+        return False
+    return True
 
 
 def campaign_observations(scn: Scenario, robot: Robot, plans: list[PosePlan],
@@ -99,11 +108,13 @@ class MonteCarlo:
     runs: int
     truth: np.ndarray
     crb: np.ndarray
-    estimates: dict[str, np.ndarray]      # method -> (N, 8), NaN where not identified
-    stds: dict[str, np.ndarray]           # method -> (N, 8) reported
+    estimates: dict[str, np.ndarray]      # method -> (runs, P), NaN where not identified
+    stds: dict[str, np.ndarray]           # method -> (runs, P) reported
     times: dict[str, float]
-    noise_free: dict[str, np.ndarray]     # method -> (8,) estimate on exact data (model error)
+    noise_free: dict[str, np.ndarray]     # method -> (P,) estimate on exact data (model error)
     setup_time: float
+    names: tuple[str, ...] = ()           # the parameters (the robot's layout)
+    units: tuple[str, ...] = ()
     executor: str = "in this process"     # where the runs ran (identify/executor.py)
     wall_seconds: float = float("nan")
 
@@ -112,7 +123,7 @@ class MonteCarlo:
         crb_sd0 = np.sqrt(np.diag(self.crb))
         model_error = {
             meth: {name: (None if not np.isfinite(v) else float((v - t) / sd))
-                   for name, v, t, sd in zip(PARAM_NAMES, est, self.truth, crb_sd0)}
+                   for name, v, t, sd in zip(self.names, est, self.truth, crb_sd0)}
             for meth, est in self.noise_free.items()}
         out = {"scenario": self.scenario, "runs": n,
                "sampling_error": {"bias_over_sigma": 1 / np.sqrt(n),
@@ -121,17 +132,17 @@ class MonteCarlo:
                "setup_seconds": self.setup_time, "wall_seconds": self.wall_seconds,
                "executor": self.executor,
                "noise_free_error_over_crb_std": model_error,
-               "crb_std": {n_: float(v) for n_, v in zip(PARAM_NAMES, crb_sd0)},
+               "crb_std": {n_: float(v) for n_, v in zip(self.names, crb_sd0)},
                "methods": {}}
         crb_sd = np.sqrt(np.diag(self.crb))
         for meth, est in self.estimates.items():
             sd = self.stds[meth]
             rows = []
-            for i, name in enumerate(PARAM_NAMES):
+            for i, name in enumerate(self.names):
                 col = est[:, i]
                 ok = np.isfinite(col)
                 if ok.sum() < 2:
-                    rows.append({"name": name, "unit": PARAM_UNITS[i], "identified_runs": int(ok.sum())})
+                    rows.append({"name": name, "unit": self.units[i], "identified_runs": int(ok.sum())})
                     continue
                 c = col[ok]
                 emp_sd = float(c.std(ddof=1))
@@ -139,7 +150,7 @@ class MonteCarlo:
                 rep = float(np.sqrt(np.mean(sd[ok, i] ** 2)))
                 z = (c - self.truth[i]) / sd[ok, i]
                 rows.append({
-                    "name": name, "unit": PARAM_UNITS[i], "truth": float(self.truth[i]),
+                    "name": name, "unit": self.units[i], "truth": float(self.truth[i]),
                     "identified_runs": int(ok.sum()), "mean": mean,
                     "bias": mean - float(self.truth[i]),
                     "bias_over_sigma": (mean - float(self.truth[i])) / emp_sd,
@@ -178,7 +189,7 @@ class _Setup:
     plans: list[PosePlan]
     robot: Robot
     obs0: Observations
-    lp: object
+    lp: object                   # the two-step's linear plan (None when it does not apply)
     est: OneStep                 # after the noise-free fit: every run starts from a copy of it
     theta0: np.ndarray
     scale: np.ndarray
@@ -197,30 +208,37 @@ def _setup(job: MonteCarloJob) -> _Setup:
     truth_rb = truth_robot(scn)
     plans = plan_campaign(scn, truth_rb)
     robot = Robot.from_file(scn.robot)              # the estimator's own model: geometry only
+    lay = robot.layout
+    if any(m != "one-step" for m in job.methods):
+        two_step_applies(robot)
     obs0 = campaign_observations(scn, truth_rb, plans, None)
     linv0 = whiten_factors(obs0.cov)
-    lp = linear_plan(robot, obs0)
     est = OneStep(robot, obs0)
-    theta_true = true_theta(scn)
+    theta_true = true_theta(scn, robot)
 
     noise_free: dict[str, np.ndarray] = {}
-    two0 = two_step(robot, obs0, False, lp=lp, linv=linv0)
-    noise_free["two-step"] = two0.theta
-    noise_free["two-step-weighted"] = two_step(robot, obs0, True, lp=lp, linv=linv0).theta
-    # diagnostic: the linear model at the true (sagged) unloaded configuration -- what is left
-    # of the two-step's model error is H00 (eq. 18) and the nonlinearity over the deflection
-    lp_true = linear_plan(robot, obs0, {p.index: p.equilibria[0].qpos for p in plans})
-    noise_free["two-step at the true sagged configuration"] = two_step(
-        robot, obs0, False, lp=lp_true, linv=linv0).theta
-    start, _ = sanitize_start(two0.theta, generic_start(robot, obs0))
-    nf = est.fit(obs0.dp, linv0, start, start_method="two-step")
+    generic = generic_start(robot, obs0)
+    start, method0, lp = generic, "generic", None
+    if two_step_ok(robot):
+        lp = linear_plan(robot, obs0)
+        two0 = two_step(robot, obs0, False, lp=lp, linv=linv0)
+        noise_free["two-step"] = two0.theta
+        noise_free["two-step-weighted"] = two_step(robot, obs0, True, lp=lp, linv=linv0).theta
+        # diagnostic: the linear model at the true (sagged) unloaded configuration -- what is left
+        # of the two-step's model error is H00 (eq. 18) and the nonlinearity over the deflection
+        lp_true = linear_plan(robot, obs0, {p.index: p.equilibria[0].qpos for p in plans})
+        noise_free["two-step at the true sagged configuration"] = two_step(
+            robot, obs0, False, lp=lp_true, linv=linv0).theta
+        start, _ = sanitize_start(two0.theta, generic, lay)
+        method0 = "two-step"
+    nf = est.fit(obs0.dp, linv0, start, start_method=method0)
     noise_free["one-step"] = nf.theta
     theta0 = np.where(np.isfinite(nf.theta), nf.theta, start)
-    scale = np.abs(to_phi(theta0))
+    scale = np.abs(to_phi(theta0, lay))
     f0, j0 = est.model.evaluate(theta0)
     # Cramer-Rao bound at the truth (exact model), on a copy: the runs' start state stays f0's
     _, jt = _fresh(est).model.evaluate(theta_true)
-    jtw = np.einsum("mij,mjk->mik", linv0, jt).reshape(-1, NP) * theta_true  # scaled columns
+    jtw = np.einsum("mij,mjk->mik", linv0, jt).reshape(-1, lay.n) * theta_true  # scaled columns
     crb = np.linalg.pinv(jtw.T @ jtw) * np.outer(theta_true, theta_true)
     return _Setup(scn, truth_rb, plans, robot, obs0, lp, est, theta0, scale, f0, j0, theta_true, crb,
                   noise_free, time.perf_counter() - t0)
@@ -228,10 +246,13 @@ def _setup(job: MonteCarloJob) -> _Setup:
 
 def _fresh(est: OneStep) -> OneStep:
     """A copy of the estimator in the state it was left in (its forward model warm-starts from
-    its last solution, so a run's last bits would depend on the runs before it). The robot
-    (whose model and data every evaluation rewrites) and the observations (read-only) are
-    shared: ~0.5 ms instead of ~2 ms for a full copy."""
-    return copy.deepcopy(est, {id(est.robot): est.robot, id(est.obs): est.obs})
+    its last solution, so a run's last bits would depend on the runs before it). Its workspaces
+    are shared, not copied: the robot and the statics solvers (bench/statics.py,
+    bench/batch_statics.py), whose MuJoCo model parameters, state and buffers every evaluation
+    rewrites, and the observations (read-only); what is copied is the warm-start cache."""
+    shared = [est.robot, est.obs] + [v for v in vars(est.model).values()
+                                     if isinstance(v, (StaticsSolver, BatchStatics))]
+    return copy.deepcopy(est, {id(o): o for o in shared})
 
 
 def run_block(job: MonteCarloJob, first: int, stop: int) -> dict:
@@ -240,9 +261,9 @@ def run_block(job: MonteCarloJob, first: int, stop: int) -> dict:
     Run r draws its noise from the generator seeded by (job.seed, r) and starts from the same
     estimator state, so its result depends on nothing but (job, r)."""
     s = _setup(job)
-    n = stop - first
-    est_out = {m: np.full((n, NP), np.nan) for m in job.methods}
-    std_out = {m: np.full((n, NP), np.nan) for m in job.methods}
+    n, p = stop - first, s.robot.layout.n
+    est_out = {m: np.full((n, p), np.nan) for m in job.methods}
+    std_out = {m: np.full((n, p), np.nan) for m in job.methods}
     times = {m: 0.0 for m in job.methods}
     iters = []
     for k, r in enumerate(range(first, stop)):
@@ -274,7 +295,8 @@ def estimated_seconds(runs: int, methods=METHODS) -> float:
 
 def run_montecarlo(scn: Scenario, runs: int, methods=METHODS, progress: ProgressSink | None = None,
                    seed: int | None = None, executor: Executor | None = None) -> MonteCarlo:
-    """N runs of the estimators on the scenario's campaign; see the module docstring.
+    """N runs of the estimators on the scenario's campaign; see the module docstring. The
+    two-step methods need a robot the two-step applies to (TwoStepError otherwise).
 
     The runs go to ``executor`` (identify/executor.py; default: this process) in blocks of
     RUNS_PER_TASK. Ctrl-C raises :class:`Interrupted` carrying the Monte Carlo of the runs that
@@ -283,10 +305,11 @@ def run_montecarlo(scn: Scenario, runs: int, methods=METHODS, progress: Progress
     methods = tuple(methods)
     job = MonteCarloJob(PortableScenario.from_scenario(scn), methods, scn.seed if seed is None else int(seed))
     s = _setup(job)
+    lay = s.robot.layout
     executor = executor or InProcess()
     blocks = [(job, a, min(a + RUNS_PER_TASK, runs)) for a in range(0, runs, RUNS_PER_TASK)]
-    estimates = {m: np.full((runs, NP), np.nan) for m in methods}
-    stds = {m: np.full((runs, NP), np.nan) for m in methods}
+    estimates = {m: np.full((runs, lay.n), np.nan) for m in methods}
+    stds = {m: np.full((runs, lay.n), np.nan) for m in methods}
     times = {m: 0.0 for m in methods}
     iters: dict[int, list] = {}
     done = np.zeros(runs, bool)
@@ -296,7 +319,7 @@ def run_montecarlo(scn: Scenario, runs: int, methods=METHODS, progress: Progress
     def result(keep: np.ndarray) -> MonteCarlo:
         mc = MonteCarlo(str(scn.path), int(keep.sum()), s.theta_true, s.crb,
                         {m: v[keep] for m, v in estimates.items()}, {m: v[keep] for m, v in stds.items()},
-                        times, s.noise_free, s.seconds, executor.choice.describe(),
+                        times, s.noise_free, s.seconds, lay.names, lay.units, executor.choice.describe(),
                         time.perf_counter() - t_wall)
         mc.iterations = np.array([it for i in sorted(iters) for it in iters[i]])
         return mc
@@ -338,4 +361,4 @@ def format_summary(s: dict) -> str:
 
 
 __all__ = ["campaign_observations", "run_montecarlo", "run_block", "estimated_seconds", "MonteCarlo",
-           "MonteCarloJob", "format_summary", "true_theta", "RUNS_PER_TASK"]
+           "MonteCarloJob", "format_summary", "true_theta", "two_step_ok", "RUNS_PER_TASK"]

@@ -32,7 +32,7 @@ class PoseObservation:
     """One complete pose: known inputs and the measured deflections of its reflectors."""
 
     index: int                 # pose index in the plan
-    q: np.ndarray              # (6,) rad, commanded (controller convention)
+    q: np.ndarray              # (N,) rad, commanded, one per actuated joint
     force: np.ndarray          # (3,) N, world frame, applied in the loaded state
     moment: np.ndarray         # (3,) N*m, world frame
     site: str                  # MJCF site the wrench acts at

@@ -23,11 +23,10 @@ from calbench.bench.units import DISPLAY
 
 from .model import check_sites, load_model
 
-from .forward import NP, PARAM_NAMES, PARAM_UNITS
 from .identifiability import OUTLIER_SIGMA, outliers
 from .observations import Observations, from_log
 from .onestep import one_step
-from .twostep import two_step
+from .twostep import TwoStepError, two_step, two_step_applies
 
 METHODS = ("one-step", "two-step")
 Z_CHECK = 4.0
@@ -48,6 +47,8 @@ class Identified:
     outliers: list
     dropped: list
     extra: dict
+    names: tuple[str, ...] = ()    # the parameters (the robot's layout) and their units
+    units: tuple[str, ...] = ()
 
 
 def _estimate(robot: Robot, obs: Observations, method: str):
@@ -70,6 +71,13 @@ def identify(robot: Robot, obs: Observations, method: str = "one-step",
     """Estimate, flag outliers (> 5 sigma), optionally refit without them."""
     if method not in METHODS:
         raise InputError("--method", "method", " or ".join(METHODS), method)
+    if method == "two-step":
+        try:
+            two_step_applies(robot)
+        except TwoStepError as exc:
+            raise InputError(robot.source or "robot model", "--method two-step",
+                             "a robot with at most one compensator, across one actuated hinge (paper §4)",
+                             str(exc)) from None
     r, extra = _estimate(robot, obs, method)
     found = outliers(r.residual_w, obs.labels, OUTLIER_SIGMA)
     dropped: list = []
@@ -81,15 +89,19 @@ def identify(robot: Robot, obs: Observations, method: str = "one-step",
         r, extra = _estimate(robot, obs, method)
         found = outliers(r.residual_w, obs.labels, OUTLIER_SIGMA)
     return Identified(method, obs, r.theta, r.cov, r.identifiable, dict(r.reasons), r.residual,
-                      r.residual_w, float(r.chi2), int(r.dof), found, dropped, extra)
+                      r.residual_w, float(r.chi2), int(r.dof), found, dropped, extra,
+                      robot.layout.names, robot.layout.units)
 
 
-def truth_vector(truth: CampaignTruth | None) -> np.ndarray | None:
-    """The true theta (PARAM_NAMES order) of a log read with truth, or None without."""
+def truth_vector(truth: CampaignTruth | None, robot: Robot) -> np.ndarray | None:
+    """The true theta (the robot's layout) of a log read with truth; None without truth, or
+    when the truth is of another robot than the model identified (a --model of another family)."""
     if truth is None or truth.parameters is None:
         return None
-    t = truth.parameters
-    return np.array([*t.compliance, t.compensator_stiffness, t.compensator_preload], dtype=float)
+    try:
+        return robot.layout.theta(truth.parameters.params())
+    except ValueError:
+        return None
 
 
 def _num(x) -> float | None:
@@ -103,13 +115,14 @@ def build_report(res: Identified, truth: np.ndarray | None, log_path, model_name
     obs = res.obs
     sd = np.sqrt(np.where(np.isfinite(np.diag(res.cov)), np.diag(res.cov), np.nan))
     params = []
-    for i, name in enumerate(PARAM_NAMES):
+    names, units = res.names, res.units
+    for i, name in enumerate(names):
         est = _num(res.theta[i]) if res.identifiable[i] else None
         std = _num(sd[i]) if res.identifiable[i] else None
         t = None if truth is None else float(truth[i])
         err = None if (est is None or t is None) else est - t
         z = None if (err is None or not std) else err / std
-        params.append(ParameterEstimate(name, PARAM_UNITS[i], est, std, t, err, z,
+        params.append(ParameterEstimate(name, units[i], est, std, t, err, z,
                                         bool(res.identifiable[i]), res.reasons.get(name)))
     n = res.residual.size
     cov_diag = np.concatenate([np.diagonal(c) for c in obs.cov]) if obs.poses else np.zeros(0)
@@ -122,7 +135,7 @@ def build_report(res: Identified, truth: np.ndarray | None, log_path, model_name
         chi2=res.chi2, dof=res.dof,
         expected_residual_rms=float(np.sqrt(np.mean(cov_diag) * res.dof / max(n, 1))) if n else None,
         whitened_residual_rms=float(np.sqrt(np.mean(res.residual_w ** 2))) if n else None,
-        covariance=tuple(tuple(_num(res.cov[i, j]) for j in range(NP)) for i in range(NP)),
+        covariance=tuple(tuple(_num(res.cov[i, j]) for j in range(len(names))) for i in range(len(names))),
         log=str(log_path), model=model_name,
         n_poses_planned=obs.n_planned, n_poses_used=len(obs.poses),
         lost_poses=tuple(obs.lost_poses), truncated=bool(obs.truncated),
@@ -190,12 +203,10 @@ def run_identify(log_path, model=None, method: str = "one-step",
     log = read_log(log_path)                 # no truth: nothing below can see it
     obs = from_log(log)
     robot = load_model(log, model)
-    if robot.tendon < 0:
-        raise InputError(model or log.path, "tendon 'compensator'", "the compensator tendon in the robot model", "none")
     check_sites(robot, obs, model or log.path)
     res = identify(robot, obs, method, drop_outliers)
     seconds = time.perf_counter() - t0
-    truth = truth_vector(read_log(log_path, include_truth=True).truth)   # for the report only
+    truth = truth_vector(read_log(log_path, include_truth=True).truth, robot)   # for the report only
     model_name = str(model) if model is not None else f"{log.header.get('robot', 'MJCF')} (from the log)"
     return build_report(res, truth, log_path, model_name, seconds)
 

@@ -23,3 +23,16 @@ TABLE5 = np.radians([
     [-90, 35, 30, 135, 30, 135], [-90, 35, 30, -45, -30, -45], [0, 120, -30, -135, 30, -135],
     [0, 120, -30, 135, -30, -45], [180, 120, 30, -135, 30, -135], [-180, 120, 30, 135, 30, 135],
 ])
+
+
+def fanuc_params(compliance, stiffness: float, preload: float):
+    """Params of the FANUC model (its one compensator tendon, named "compensator")."""
+    from calbench.bench.params import Params, Spring
+    return Params(np.asarray(compliance, dtype=float), {"compensator": Spring(float(stiffness), float(preload))})
+
+
+def fanuc_truth(scn):
+    """The scenario's truth as Params of the FANUC model (bench.campaign.scenario_params)."""
+    from calbench.bench.campaign import scenario_params
+    from calbench.bench.robot import Robot
+    return scenario_params(scn, Robot.from_file(MJCF))

@@ -61,7 +61,7 @@ def _scenario_with_poses(scn, poses, tmp: Path, name="plan.toml") -> Path:
     ([0, 60, 0, 0, 122, 0], "self_collision"),          # wrist folded down: the tool hits the forearm
     ([90, 0, 30, 45, -30, 45], "visibility"),           # Table 5 pose 4: refl_c hidden from the tracker
     ([0, 0, -30, -45, 30, 135], "min_radius"),          # Table 5 pose 1: wrist centre 0.84 m from axis 1
-    ([0, 60, -65, 0, 0, 0], "parallelogram"),           # q3 - q2 = -125: 5 deg from the degenerate -120
+    ([0, 60, -65, 0, 0, 0], "degenerate_loop"),         # q3 - q2 = -125: 5 deg from the degenerate -120
 ])
 def test_a_pose_violating_a_rule_is_rejected_with_the_rule_named(engine, q, rule):
     info = engine.pose(np.radians(q), WEIGHT)
@@ -94,7 +94,9 @@ def test_candidates_are_all_feasible(engine, cands):
     for i in range(0, len(cands), 97):
         info = engine.pose(cands.q[i], cands.wrench[i])
         assert info.violations == []
-        np.testing.assert_allclose(info.block, cands.blocks[i], rtol=1e-9, atol=1e-9 * np.abs(info.block).max())
+        # the candidates are computed batched: the same blocks up to the finite-difference noise both
+        # carry (tests/test_design_batch.py)
+        np.testing.assert_allclose(info.block, cands.blocks[i], rtol=0, atol=1e-6 * np.abs(info.block).max())
     assert 0 < cands.kind.sum() < len(cands)        # both vertical loads and lateral pulls
 
 

@@ -95,12 +95,20 @@ def ratios(rep):
 # --------------------------------------------------------------------------- the library
 
 def test_library_is_the_contract_effects_with_options():
-    lib = library()
+    lib = library(Robot.from_file(MJCF))
     assert {e.name for e in lib} == set(DISCOVERY_EFFECTS) == {
         "compensator", "joint_nonlinearity", "link_compliance", "base_compliance"}
     assert "tool_compliance" in REGISTRY and "tool_compliance" not in {e.name for e in lib}
+    # the options come from the robot description: its calbench:links, its actuated joints
     assert sorted(e.detail for e in lib if e.name == "link_compliance") == ["forearm", "upper_arm"]
     assert sorted(e.detail for e in lib if e.name == "joint_nonlinearity") == [f"j{j}" for j in range(1, 7)]
+    assert [e.options["body"] for e in lib if e.name == "base_compliance"] == ["base"]
+    # a robot that names no links and no compensator mounts gets neither candidate
+    from robots import serial_mjcf
+    serial = library(Robot.from_xml(serial_mjcf()))
+    assert {e.name for e in serial} == {"joint_nonlinearity", "base_compliance"}
+    assert [e.options["body"] for e in serial if e.name == "base_compliance"] == ["pedestal"]
+    assert len([e for e in serial if e.name == "joint_nonlinearity"]) == 4
 
 
 def test_tool_compliance_truth_effect(tmp_path):
@@ -189,7 +197,9 @@ def test_compensator_missing_from_the_user_model(logs):
     est = {p["name"]: p["estimate"] for p in rep["steps"][0]["parameters"]}
     assert est["K_C"] == pytest.approx(6e6, rel=0.3) and est["s0"] == pytest.approx(0.83, abs=0.1)
     aug = Robot.from_file(logs["tmp"] / "c.xml")
-    assert aug.tendon >= 0 and aug.model.tendon_stiffness[aug.tendon] == pytest.approx(est["K_C"], rel=1e-9)
+    # the tendon the effect added is a compensator of the augmented robot description
+    assert aug.description.compensators == ("compensator",)
+    assert aug.model.tendon_stiffness[aug.tendons[0]] == pytest.approx(est["K_C"], rel=1e-9)
     # the shipped compensator (2.6e6 N/m) is below the paper plan's noise floor: nothing named,
     # but the targeted likelihood-ratio test points at it
     rep = discover(logs["comp_default"], logs["bare"])

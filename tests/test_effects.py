@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from calbench.bench.campaign import run_campaign, scenario_params, truth_robot
+from calbench.bench.campaign import run_campaign, truth_robot
 from calbench.bench.effects import (REGISTRY, Effect, EffectRobot, apply_effects, base_compliance, compensator,
                            effect_from_truth, joint_nonlinearity, link_compliance)
 from calbench.bench.logformat import read_log
@@ -23,10 +23,10 @@ from calbench.bench.loop import loop_jacobian
 from calbench.bench.robot import Params, Robot
 from calbench.bench.scenario import load_scenario
 from calbench.bench.statics import Load, StaticsSolver
-from conftest import MJCF, PAPER
+from conftest import MJCF, PAPER, fanuc_params, fanuc_truth
 
 K = np.array([0.25e-6, 0.12e-6, 0.07e-6, 0.35e-6, 0.40e-6, 0.60e-6])
-NO_COMP = Params(K, 0.0, 0.83)                      # compensator off
+NO_COMP = fanuc_params(K, 0.0, 0.83)                # compensator off
 Q = np.radians([30.0, 60.0, -10.0, 20.0, 30.0, 40.0])  # a generic pose, far from the loop's singularity
 FORCE = np.array([30.0, -20.0, -50.0])              # N: small load
 MOMENT = np.array([5.0, 8.0, -3.0])                 # N*m
@@ -109,8 +109,8 @@ def test_zero_compliance_in_truth_means_no_hinge():
     assert eff.options["axes"] == "y" and eff.param_names == ("cy",) and p.tolist() == [4e-8]
     robot = apply_effects(MJCF, [(eff, p)])
     assert robot.model.nv == Robot.from_file(MJCF).model.nv + 1
-    with pytest.raises(ValueError):
-        link_compliance("wrist")
+    with pytest.raises(ValueError, match="no body 'wrist'"):      # any body of the MJCF, checked there
+        apply_effects(MJCF, [(link_compliance("wrist"), [1e-8, 1e-8, 1e-8])])
     with pytest.raises(ValueError):
         eff.apply(mujoco.MjSpec.from_file(str(MJCF)), [1.0, 2.0])
 
@@ -143,7 +143,7 @@ def test_forearm_compliance_is_eq1_with_three_more_springs():
 def test_forearm_compliance_closed_loop_under_gravity_and_700kg():
     scn = load_scenario(PAPER)
     robot = apply_effects(MJCF, [(link_compliance("forearm"), [1e-7, 1e-8, 1e-7])])
-    robot.set_params(scenario_params(scn))
+    robot.set_params(fanuc_truth(scn))
     solver = StaticsSolver(robot)
     for pose in scn.poses[:12]:
         e0 = solver.solve(pose.q)
@@ -232,24 +232,28 @@ def test_cubic_equilibrium_solves_the_cubic():
 # --------------------------------------------------------------------------- compensator
 
 def without_compensator() -> str:
+    """The FANUC without its spring: the tendon and its description entry gone, the mounts
+    (calbench:compensator_sites) kept."""
     spec = mujoco.MjSpec.from_file(str(MJCF))
     spec.delete(spec.tendon("compensator"))
-    spec.delete(spec.site("comp_base"))
-    spec.delete(spec.site("comp_arm"))
+    spec.delete(next(t for t in spec.texts if t.name == "calbench:compensators"))
     spec.compiler.savecompiled = False   # exact numbers (the compiled values are rounded)
     return spec.to_xml()
 
 
 def test_compensator_added_to_a_model_without_one_reproduces_the_tendon():
     bare = without_compensator()
-    assert "compensator" not in bare
+    assert "<tendon" not in bare and "calbench:compensators" not in bare
+    assert mujoco.MjModel.from_xml_string(bare).ntendon == 0
     scn = load_scenario(PAPER)
-    params = scenario_params(scn)
+    params = fanuc_truth(scn)
     orig = Robot.from_file(MJCF)
     orig.set_params(params)
-    added = apply_effects(bare, [(compensator(), [params.compensator_stiffness, params.compensator_preload])])
-    assert added.tendon >= 0 and added.model.nv == orig.model.nv
-    added.set_params(params)
+    spring = params.springs["compensator"]
+    added = apply_effects(bare, [(compensator(), [spring.stiffness, spring.preload])])
+    assert added.model.ntendon == 1 and added.model.nv == orig.model.nv
+    assert added.layout.n == 6          # not described: the effect's own spring, not a parameter
+    added.set_params(Params(params.compliance))
     for qdeg in ([0, 0, -30, 0, 0, 0], [0, 35, 10, 0, 0, 0], [0, 120, 30, 0, 0, 0], [40, 80, -20, 10, 20, 30]):
         q = np.radians(qdeg)
         for r in (orig, added):
@@ -258,7 +262,7 @@ def test_compensator_added_to_a_model_without_one_reproduces_the_tendon():
             r.data.qvel[:] = 0.0
             mujoco.mj_forward(r.model, r.data)
         j2 = orig.act_dof[1]
-        assert added.data.ten_length[added.tendon] == pytest.approx(orig.data.ten_length[orig.tendon], rel=1e-12)
+        assert added.data.ten_length[0] == pytest.approx(orig.data.ten_length[orig.tendons[0]], rel=1e-12)
         np.testing.assert_allclose(added.data.qfrc_spring, orig.data.qfrc_spring, rtol=1e-10, atol=1e-6)
         assert abs(orig.data.qfrc_spring[j2]) > 1e3
     e_orig = StaticsSolver(orig).solve(scn.poses[8].q, Load.mass(orig, 700.0))
@@ -293,10 +297,10 @@ def loaded(robot: Robot, q) -> np.ndarray:
 def test_set_params_equals_apply_and_compile(eff, a, b):
     scn = load_scenario(PAPER)
     fast = apply_effects(MJCF, [(eff, a)])
-    fast.set_params(scenario_params(scn))
+    fast.set_params(fanuc_truth(scn))
     eff.set_params(fast, b)
     fresh = apply_effects(MJCF, [(eff, b)])
-    fresh.set_params(scenario_params(scn))
+    fresh.set_params(fanuc_truth(scn))
     if eff.name == "compensator":  # Robot.set_params writes the scenario's tendon values: redo
         eff.set_params(fast, b)
         eff.set_params(fresh, b)
@@ -318,8 +322,8 @@ def test_augmented_xml_round_trips(eff, a, b, tmp_path):
     for q in (scn.poses[0].q, scn.poses[10].q):
         np.testing.assert_allclose(loaded(again, q), loaded(robot, q), atol=1e-12)
     # and after the scenario's truth is written into both
-    again.set_params(scenario_params(scn))
-    robot.set_params(scenario_params(scn))
+    again.set_params(fanuc_truth(scn))
+    robot.set_params(fanuc_truth(scn))
     np.testing.assert_allclose(loaded(again, scn.poses[5].q), loaded(robot, scn.poses[5].q), atol=1e-12)
 
 
@@ -382,7 +386,7 @@ def test_register_carries_discovery_options_and_priors():
         return Effect("toy_spring", ("c", "k"), {"axis": axis}, ("rad/(N*m)", "N/m"))
 
     try:
-        toys = [e for e in library() if e.name == "toy_spring"]
+        toys = [e for e in library(Robot.from_file(MJCF)) if e.name == "toy_spring"]
         assert [e.options["axis"] for e in toys] == ["x", "y"]
         start, lower, upper, size = effect_priors(toys[0])
         assert start.tolist() == [2e-9, fx.UNIT_PRIORS["N/m"].start]      # own prior, then the unit's
@@ -391,4 +395,4 @@ def test_register_carries_discovery_options_and_priors():
         fx.REGISTRY.pop("toy_spring")
         fx.DISCOVERY_OPTIONS.pop("toy_spring")
         fx._PRIORS.pop("toy_spring")
-    assert all(e.name != "toy_spring" for e in library())
+    assert all(e.name != "toy_spring" for e in library(Robot.from_file(MJCF)))

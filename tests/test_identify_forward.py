@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 
 from calbench.bench.campaign import plan_campaign, truth_robot
-from calbench.bench.robot import Params, Robot
+from calbench.bench.robot import Robot
 from calbench.bench.scenario import load_scenario
 from calbench.identify.forward import ForwardModel, design_from_observations
 from calbench.identify.montecarlo import campaign_observations, true_theta
 from calbench.identify.twostep import step2_rows
-from conftest import MJCF, PAPER
+from conftest import MJCF, PAPER, fanuc_params
 
 
 
@@ -38,10 +38,10 @@ def test_forward_model_reproduces_the_simulator(paper):
     scn, plans, obs = paper
     robot = Robot.from_file(scn.robot)
     fm = ForwardModel(robot, design_from_observations(robot, obs))
-    dp, _ = fm.evaluate(true_theta(scn), jacobian=False)
+    dp, _ = fm.evaluate(true_theta(scn, Robot.from_file(scn.robot)), jacobian=False)
     assert np.abs(dp - obs.dp).max() < 1e-10     # both at ~3e-11 m solver precision
     # a second, warm-started evaluation (the fast path) gives the same
-    dp2, _ = fm.evaluate(true_theta(scn) * 1.0, jacobian=False)
+    dp2, _ = fm.evaluate(true_theta(scn, Robot.from_file(scn.robot)) * 1.0, jacobian=False)
     assert np.abs(dp2 - obs.dp).max() < 1e-10
 
 
@@ -49,7 +49,7 @@ def test_ift_jacobian_matches_finite_differences(paper):
     scn, _, obs = paper
     robot = Robot.from_file(scn.robot)
     fm = ForwardModel(robot, design_from_observations(robot, obs), tol=1e-12)
-    th = true_theta(scn) * np.array([1.1, 0.9, 1.05, 1.2, 0.95, 1.1, 0.8, 1.05])  # off the truth
+    th = true_theta(scn, Robot.from_file(scn.robot)) * np.array([1.1, 0.9, 1.05, 1.2, 0.95, 1.1, 0.8, 1.05])  # off the truth
     _, jac = fm.evaluate(th)
     for j in range(8):
         h = 1e-3 * th[j]
@@ -67,7 +67,7 @@ def test_compensator_stiffness_has_sin_squared_and_the_model_angle():
     O(h^2) ~ 1e-12 relative; round-off 1e-16 * 1e5 N*m / 1e-6 ~ 1e-5 N*m/rad)."""
     robot = Robot.from_file(MJCF)
     k_c, s0 = 2.6e6, 0.83
-    robot.set_params(Params(np.full(6, 1e-7), k_c, s0))
+    robot.set_params(fanuc_params(np.full(6, 1e-7), k_c, s0))
     geom = robot.compensator_geometry()
     m, d = robot.model, robot.data
     j2 = robot.act_dof[1]
@@ -75,7 +75,7 @@ def test_compensator_stiffness_has_sin_squared_and_the_model_angle():
     def torque(q2):
         d.qpos[:] = robot.rigid_qpos(np.array([0.0, q2, 0, 0, 0, 0]))
         mujoco.mj_fwdPosition(m, d)
-        return -k_c * (d.ten_length[robot.tendon] - s0) * robot.tendon_moment()[j2]
+        return -k_c * (d.ten_length[robot.tendons[0]] - s0) * robot.tendon_moment()[j2]
 
     q2s = np.radians([0.0, 35.0, 77.0, 120.0])
     rows = step2_rows(geom, q2s)
@@ -97,7 +97,7 @@ def test_effect_columns_and_overridden_base_columns(paper):
     from calbench.identify.discover.fit import build
 
     scn, _, obs = paper
-    theta = true_theta(scn)
+    theta = true_theta(scn, Robot.from_file(scn.robot))
     robot = Robot.from_file(scn.robot)
     dp, jac = ForwardModel(robot, design_from_observations(robot, obs)).evaluate(theta)
     _, aug = build(scn.robot, [(compensator(), theta[6:8])], obs)

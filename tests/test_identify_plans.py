@@ -53,7 +53,7 @@ def test_one_step_recovers_the_truth_from_noise_free_data(paper):
     scn, robot, obs = paper
     res = one_step(robot, obs)
     assert res.converged and res.chi2 < 1e-6
-    truth = true_theta(scn)
+    truth = true_theta(scn, Robot.from_file(scn.robot))
     sd = crb_std(robot, obs, truth)
     assert np.all(np.abs(res.theta - truth) < 1e-4 * sd), (res.theta - truth) / sd
 
@@ -63,7 +63,7 @@ def test_two_step_is_exact_on_its_own_linear_model_and_biased_on_the_real_static
     data the linear model's error (H00 and the configuration sagged by gravity and the
     compensator, left out by eqs. 19-22) shows up as a bias, quantified here in CRB sigmas."""
     scn, robot, obs = paper
-    truth = true_theta(scn)
+    truth = true_theta(scn, Robot.from_file(scn.robot))
     lp = linear_plan(robot, obs)
     geom = robot.compensator_geometry()
     ll = geom.l_c * geom.l_2

@@ -24,6 +24,7 @@ from calbench.bench.errors import InputError
 from rerun_cli import rerun_env, rerun_exe
 from calbench.bench.logformat import (TRUTH_PREFIX, LogHeader, LogWriter, has_truth, read_log,
                              redact_truth, strip_truth)
+from calbench.bench.params import Spring
 from calbench.bench.scenario import TrackerSpec
 
 REFLECTORS = ["R1", "R2", "R3"]
@@ -66,7 +67,7 @@ def make_header() -> LogHeader:
         payload_site="payload",
         tracker={"position": [3.0, 0.0, 0.0], "yaw": 0.5, "model": "iso10360",
                  "sigma": 2e-5, "distance": [1e-5, 3e-7], "transverse": [1.5e-5, 6e-6]},
-        seed=7)
+        seed=7, n_joints=6)
 
 
 def pose_data(p: int) -> dict:
@@ -146,6 +147,9 @@ def schema_errors(v, s, at="$") -> list[str]:
         e += [f"{at}.{k}: missing" for k in s.get("required", []) if k not in v]
         e += sum((schema_errors(v[k], sub, f"{at}.{k}")
                   for k, sub in s.get("properties", {}).items() if k in v), [])
+        if isinstance(s.get("additionalProperties"), dict):
+            e += sum((schema_errors(x, s["additionalProperties"], f"{at}.{k}")
+                      for k, x in v.items() if k not in s.get("properties", {})), [])
     if isinstance(v, list):
         if len(v) < s.get("minItems", 0) or len(v) > s.get("maxItems", 1 << 30):
             e.append(f"{at}: length {len(v)}")
@@ -196,7 +200,7 @@ def test_round_trip_every_topic(log):
     assert any(not m.visible.all() for m in c.measurements)     # NaN path exercised
     tp = c.truth.parameters
     np.testing.assert_array_equal(tp.compliance, TRUTH_PARAMS["compliance"])
-    assert (tp.compensator_stiffness, tp.compensator_preload) == (987654.0, 0.4321)
+    assert tp.springs == {"compensator": Spring(987654.0, 0.4321)}
     assert tp.effects == TRUTH_PARAMS["effects"]
     assert tomllib.loads(c.truth.scenario_text)["truth"]["compensator"]["preload"] == 0.4321
 
@@ -287,11 +291,20 @@ def test_every_message_validates_against_its_schema(log):
             counts[channel.topic] = counts.get(channel.topic, 0) + 1
     assert set(counts) == set(lf.TOPICS)          # every topic exercised
     assert counts["/tracker/measurement"] == 16 and counts["/campaign/pose_done"] == 4
-    # the schemas really constrain: a 5-vector q and a missing field are rejected
+    # the schemas really constrain: an empty q, a non-number and a missing field are rejected;
+    # q has one angle per actuated joint, any number of them (the writer holds each log to its
+    # robot's count: test_writer_rejects_malformed_input)
     js = lf.SCHEMAS["/campaign/pose"]
-    assert schema_errors({"pose": 0, "state": "loaded", "q": [0.0] * 5}, js)
+    assert schema_errors({"pose": 0, "state": "loaded", "q": []}, js)
+    assert schema_errors({"pose": 0, "state": "loaded", "q": [0.0, "x"]}, js)
     assert schema_errors({"pose": 0, "q": [0.0] * 6}, js)
-    assert schema_errors({"pose": 0, "state": "loaded", "q": [0.0] * 6}, js) == []
+    for n in (4, 6, 7):
+        assert schema_errors({"pose": 0, "state": "loaded", "q": [0.0] * n}, js) == []
+    jt = lf.SCHEMAS["/truth/parameters"]
+    spring = {"stiffness": 1.0, "preload": 0.5}
+    assert schema_errors({"compliance": [1e-7] * 7, "effects": {}}, jt) == []        # a serial robot
+    assert schema_errors({"compliance": [1e-7], "compensators": {"b": spring}, "effects": {}}, jt) == []
+    assert schema_errors({"compliance": [1e-7], "compensators": {"b": {"stiffness": 1.0}}, "effects": {}}, jt)
 
 
 def test_writer_rejects_malformed_input(tmp_path):
@@ -303,8 +316,10 @@ def test_writer_rejects_malformed_input(tmp_path):
         with pytest.raises(ValueError):            # visible reflector with NaN position
             w.measurement(0, "loaded", 0, ["R1"], [[np.nan, 0, 0]], np.eye(3)[None],
                           [True])
-        with pytest.raises(ValueError):            # truth parameters missing the compensator
-            w.truth_parameters({"compliance": K_TRUE})
+        with pytest.raises(ValueError):            # a compliance per actuated joint: 6 here
+            w.truth_parameters({"compliance": K_TRUE[:5]})
+        with pytest.raises(ValueError):            # a compensator spring without its preload
+            w.truth_parameters({"compliance": K_TRUE, "compensator": {"stiffness": 1e6}})
 
 
 def test_rerun_reads_the_log(log, tmp_path):

@@ -15,7 +15,7 @@ def test_a_portable_scenario_rebuilds_the_same_scenario_without_the_users_files(
     back = p.scenario()
     assert back.robot != scn.robot and back.robot.name == scn.robot.name
     assert back.robot.read_text() == MJCF.read_text()
-    for f in ("seed", "load_mass", "compensator", "effects"):
+    for f in ("seed", "load_mass", "compensators", "effects"):
         assert getattr(back, f) == getattr(scn, f), f
     assert np.array_equal(back.compliance, scn.compliance)
     assert all(np.array_equal(a.q, b.q) for a, b in zip(back.poses, scn.poses))

@@ -1,9 +1,10 @@
-"""The robot's own rules held to independent computations: the parallelogram rule against the
-MJCF's kinematics, d g / d theta against MuJoCo's passive force, the weight against the model's
-gravity.
+"""The robot's own rules held to independent computations: the derived loop rule against the
+parallelogram's crank-to-arm angle from the MJCF's kinematics, d g / d theta against MuJoCo's
+passive force, the weight against the model's gravity.
 
-Tolerances: the kinematic angle is exact up to rounding (~1e-15 rad per operation, allowed
-1e-12); central differences of a force linear in K_C and s0 and in 1/k_i with a relative step
+Tolerances: the kinematic angle is exact up to rounding (~1e-15 rad per operation); the loop
+rule's inverse condition number comes from an SVD of the normalised 3 x 2 Jacobian (relative
+error ~1e-15), allowed 1e-12; central differences of a force linear in K_C and s0 and in 1/k_i with a relative step
 h = 1e-6 carry O(h^2) = 1e-12 truncation and eps |g| / (h |dg/dtheta_i| theta_i) ~ 1e-7
 round-off at worst here, allowed 1e-6 of each column.
 """
@@ -14,14 +15,14 @@ import numpy as np
 import pytest
 
 from calbench.bench.campaign import pose_load
-from calbench.bench.robot import PARALLELOGRAM_MARGIN, Params, Robot, parallelogram_angle
+from calbench.bench.robot import LOOP_MARGIN, LOOP_MARGIN_ANGLE, Params, Robot, Spring
 from calbench.bench.scenario import load_scenario
 from conftest import K_TRUE, MJCF, PAPER
 
 
 def make_robot() -> Robot:
     robot = Robot.from_file(MJCF)
-    robot.set_params(Params(K_TRUE, 2.6e6, 0.83))
+    robot.set_params(Params(K_TRUE, {"compensator": Spring(2.6e6, 0.83)}))
     return robot
 
 
@@ -37,19 +38,28 @@ def crank_arm_angle(robot: Robot, q: np.ndarray) -> float:
     return float(np.arctan2(np.linalg.norm(np.cross(u, c)), abs(u @ c)))
 
 
-def test_parallelogram_rule_is_the_crank_to_arm_angle():
+def test_derived_loop_rule_is_the_crank_to_arm_angle_on_the_fanuc():
+    """The loop rule derived from the loop Jacobian's conditioning (no table of angles) is, on
+    the parallelogram, tan(alpha / 2) of the crank-to-arm angle alpha: LOOP_MARGIN = tan(5 deg)
+    rejects exactly the 10 deg band around both degenerate configurations that the FANUC's
+    old table rule (q3 - q2 at least 10 deg from -120 and 60 deg) rejected."""
     robot = make_robot()
     rng = np.random.default_rng(11)
     lim = robot.limits()
     for q in lim[:, 0] + (lim[:, 1] - lim[:, 0]) * rng.random((40, robot.n_act)):
-        a = parallelogram_angle(q)
-        assert min(a, np.pi - a) == pytest.approx(crank_arm_angle(robot, q), abs=1e-12)
+        (cond,) = robot.loop_conditioning(q)
+        assert cond == pytest.approx(np.tan(crank_arm_angle(robot, q) / 2), abs=1e-12)
+        old = np.mod(q[2] - q[1] + np.radians(120.0), np.pi)       # the old table's angle
+        assert robot.loop_ok(q) is bool(min(old, np.pi - old) >= np.radians(10.0))
+    assert LOOP_MARGIN == pytest.approx(np.tan(LOOP_MARGIN_ANGLE / 2), rel=1e-15)
     # the margin's two sides, at both degenerate configurations (q3 - q2 = -120 and 60 deg)
     for degenerate in (-120.0, 60.0):
         for off, ok in ((9.99, False), (10.01, True), (-9.99, False), (-10.01, True)):
             q = np.radians([0.0, 40.0, 40.0 + degenerate + off, 0.0, 0.0, 0.0])
-            assert robot.parallelogram_ok(q) is ok
-            assert bool(crank_arm_angle(robot, q) >= PARALLELOGRAM_MARGIN) is ok
+            assert robot.loop_ok(q) is ok
+            assert bool(crank_arm_angle(robot, q) >= LOOP_MARGIN_ANGLE) is ok
+        # at the degenerate configuration itself the conditioning is 0 (to rounding)
+        assert robot.loop_conditioning(np.radians([0.0, 40.0, 40.0 + degenerate, 0, 0, 0]))[0] < 1e-7
 
 
 def passive_force(robot: Robot, qpos: np.ndarray, params: Params) -> np.ndarray:
@@ -70,7 +80,7 @@ def test_dforce_dtheta_is_the_derivative_of_the_passive_force():
     qpos = robot.rigid_qpos(q)
     qpos[robot.act_qpos] += rng.normal(scale=2e-3, size=robot.n_act)   # deflected springs
     theta = np.r_[K_TRUE, 2.6e6, 0.83]
-    to_params = lambda t: Params(t[:6], float(t[6]), float(t[7]))  # noqa: E731
+    to_params = robot.layout.params
     passive_force(robot, qpos, to_params(theta))
     got = robot.dforce_dtheta(to_params(theta))
     assert got.shape == (robot.model.nv, 8)

@@ -14,6 +14,7 @@ from calbench.bench.scenario import (
     DEFAULT_DISTANCE, DEFAULT_SIGMA, DEFAULT_TRANSVERSE, TRACKER_MODELS, Scenario, TrackerSpec,
     check_joint_limits, load_scenario, parse_scenario, scenario_as_dict, scenario_to_toml,
 )
+from calbench.bench.params import Spring
 from calbench.bench.tracker import noise_covariance
 from conftest import PAPER
 
@@ -84,7 +85,7 @@ def test_valid_scenario_parses_in_si_units(tmp_path):
     assert scn.robot == (tmp_path / "robot.xml").resolve()
     assert scn.seed == 7
     np.testing.assert_array_equal(scn.compliance, [1e-7, 2e-7, 3e-7, 4e-7, 5e-7, 6e-7])
-    assert (scn.compensator.stiffness, scn.compensator.preload) == (1.0e6, 0.5)
+    assert scn.compensators == {"compensator": Spring(1.0e6, 0.5)}
     assert scn.effects["link_compliance"]["link"] == "forearm"
     np.testing.assert_array_equal(scn.effects["link_compliance"]["compliance"], [1e-8, 0, 2e-8])
     np.testing.assert_array_equal(scn.effects["base_compliance"]["compliance"], [1e-9, 2e-9])
@@ -128,7 +129,7 @@ q = [0, 0, 0, 0, 0, 0]
     assert (t.yaw, t.model, t.sigma) == (0.0, "isotropic", DEFAULT_SIGMA)
     assert (t.distance, t.transverse) == (DEFAULT_DISTANCE, DEFAULT_TRANSVERSE)
     assert scn.effects == {} and scn.work is None
-    assert isinstance(scn.compensator.stiffness, float)
+    assert isinstance(scn.compensators["compensator"].stiffness, float)
 
 
 def test_robot_resolved_relative_to_scenario_not_cwd(tmp_path, monkeypatch):
@@ -174,8 +175,8 @@ BAD = {
     "sigma string": ("sigma = 2.5e-5", 'sigma = "20um"', "tracker.sigma"),
     "q element bool": ("q = [0, 0, 0, 0, 0, 0]", "q = [0, 0, true, 0, 0, 0]", "pose[0].q[2]"),
     "q not array": ("q = [0, 0, 0, 0, 0, 0]", "q = 0", "pose[0].q"),
-    "link unknown": ('link = "forearm"', 'link = "elbow"', "truth.effects.link_compliance.link"),
-    "joint out of range": ("joint = 3", "joint = 7", "truth.effects.joint_nonlinearity.joint"),
+    "link not a name": ('link = "forearm"', 'link = 3', "truth.effects.link_compliance.link"),
+    "joint out of range": ("joint = 3", "joint = 0", "truth.effects.joint_nonlinearity.joint"),
     "joint float": ("joint = 3", "joint = 3.0", "truth.effects.joint_nonlinearity.joint"),
     "model unknown": ('model = "spec"', 'model = "fancy"', "tracker.model"),
     "compliance length": ("compliance = [1e-7, 2e-7, 3e-7, 4e-7, 5e-7, 6e-7]",
@@ -301,7 +302,7 @@ def _assert_same(a: Scenario, b: Scenario) -> None:
     close = dict(rtol=1e-14, atol=0)
     assert a.robot == b.robot and a.seed == b.seed and a.load_mass == b.load_mass
     np.testing.assert_array_equal(a.compliance, b.compliance)
-    assert a.compensator == b.compensator
+    assert a.compensators == b.compensators
     assert a.effects.keys() == b.effects.keys()
     for name in a.effects:
         for k, v in a.effects[name].items():
@@ -376,7 +377,7 @@ def test_scenario_variant_overrides_and_validates(tmp_path):
                            extra="[truth.effects.base_compliance]\ncompliance = [4e-9, 4e-9]")
     scn = load_scenario(out)
     assert (scn.name, scn.seed) == ("v", 7)
-    assert (scn.compensator.stiffness, scn.compensator.preload) == (6e6, 0.7)
+    assert scn.compensators == {"compensator": Spring(6e6, 0.7)}
     np.testing.assert_array_equal(scn.effects["base_compliance"]["compliance"], [4e-9, 4e-9])
     assert scn.robot == (paper.parent.parent / "mjcf" / "m900ib700.xml").resolve()
     assert "Table 5" in out.read_text()                      # comments kept

@@ -12,15 +12,15 @@ import numpy as np
 import pytest
 
 from calbench.bench.loop import loop_gap, motor_jacobian, motor_map
-from calbench.bench.robot import Params, Robot
+from calbench.bench.robot import Robot
 from calbench.bench.statics import LOOP_TOL, Load, NewtonPoint, StaticsError, StaticsSolver, statics_options
-from conftest import K_TRUE, MJCF, TABLE5
+from conftest import K_TRUE, MJCF, TABLE5, fanuc_params
 
 
 
 def make_robot(k_c: float = 2.6e6, s0: float = 0.83) -> Robot:
     robot = Robot.from_file(MJCF)
-    robot.set_params(Params(K_TRUE, k_c, s0))
+    robot.set_params(fanuc_params(K_TRUE, k_c, s0))
     return robot
 
 
@@ -69,8 +69,8 @@ def compensator_torque_and_stiffness(robot: Robot, q2: float) -> tuple[float, fl
     """Paper eq. (9) as a generalized force on q2 (sign: it acts to shorten a stretched spring)
     and its derivative with the sin^2 correction of eq. (11)."""
     g = robot.compensator_geometry()
-    p = robot.params()
-    k_c, s0 = p.compensator_stiffness, p.compensator_preload
+    spring = robot.params().springs["compensator"]
+    k_c, s0 = spring.stiffness, spring.preload
     psi, s = g.angle(q2), g.length(q2)
     lcl2 = g.l_c * g.l_2
     torque = -k_c * lcl2 * (1 - s0 / s) * np.sin(psi)
@@ -83,7 +83,8 @@ def tendon_torque_j2(robot: Robot, q2: float) -> float:
     m, d = robot.model, robot.data
     d.qpos[:] = robot.rigid_qpos(np.array([0.0, q2, 0.0, 0.0, 0.0, 0.0]))
     mujoco.mj_fwdPosition(m, d)
-    force = -m.tendon_stiffness[robot.tendon] * (d.ten_length[robot.tendon] - m.tendon_lengthspring[robot.tendon][0])
+    t = robot.tendons[0]
+    force = -m.tendon_stiffness[t] * (d.ten_length[t] - m.tendon_lengthspring[t][0])
     return float(robot.tendon_moment(d)[robot.act_dof[1]] * force)
 
 
@@ -104,11 +105,11 @@ def test_printed_eq11_is_a_misprint():
     """Eq. (11) as printed (sin q2, not sin^2) disagrees with the model's derivative."""
     robot = make_robot()
     g = robot.compensator_geometry()
-    p = robot.params()
+    p = robot.params().springs["compensator"]
     q2 = np.radians(60.0)
     psi, s = g.angle(q2), g.length(q2)
-    s0, lcl2 = p.compensator_preload, g.l_c * g.l_2
-    printed = p.compensator_stiffness * lcl2 * (np.cos(psi) + s0 * lcl2 * np.sin(psi) / s**3 - s0 / s * np.cos(psi))
+    s0, lcl2 = p.preload, g.l_c * g.l_2
+    printed = p.stiffness * lcl2 * (np.cos(psi) + s0 * lcl2 * np.sin(psi) / s**3 - s0 / s * np.cos(psi))
     _, correct = compensator_torque_and_stiffness(robot, q2)
     assert abs(printed - correct) > 0.05 * abs(correct)
 
@@ -121,7 +122,7 @@ def test_compensator_angle_offset_from_geometry():
     for q2 in np.radians([0.0, 47.0, 120.0]):
         d.qpos[:] = robot.rigid_qpos(np.array([0.3, q2, -0.2, 0.0, 0.0, 0.0]))
         mujoco.mj_fwdPosition(m, d)
-        assert d.ten_length[robot.tendon] == pytest.approx(g.length(q2), rel=1e-6)
+        assert d.ten_length[robot.tendons[0]] == pytest.approx(g.length(q2), rel=1e-6)
 
 
 def test_motor2_spring_keeps_forearm_orientation():
@@ -217,6 +218,26 @@ def test_apparent_j2_stiffness_varies_over_plan_q2_range():
     assert max(k) / min(k) - 1.0 >= 0.15
 
 
+def relaxed_flange(robot: Robot, q: np.ndarray, load: Load, damping: float, max_steps: int) -> np.ndarray:
+    """Where MuJoCo's own dynamics bring the flange to rest: mj_step from the rigid pose with
+    heavy joint damping (statics ignore it), the load by mj_applyFT and the joint ranges off
+    (they are controller limits), until every joint speed is below 1e-9 rad/s."""
+    m, d = robot.model, robot.data
+    m.dof_damping[:] = damping
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
+    d.qpos[:] = robot.rigid_qpos(q)
+    d.qvel[:] = 0.0
+    mujoco.mj_forward(m, d)
+    for step in range(max_steps):
+        d.qfrc_applied[:] = 0.0
+        mujoco.mj_applyFT(m, d, load.force, load.moment, d.site_xpos[load.site], m.site_bodyid[load.site],
+                          d.qfrc_applied)
+        mujoco.mj_step(m, d)
+        if step > 100 and np.abs(d.qvel).max() < 1e-9:
+            break
+    return d.site_xpos[robot.flange_site].copy()
+
+
 def test_second_solver_time_stepping_relaxation_agrees():
     """An independent solution: MuJoCo's own soft loop closure relaxed with mj_step.
 
@@ -228,20 +249,7 @@ def test_second_solver_time_stepping_relaxation_agrees():
     q = TABLE5[2]  # q3 = 30 deg sits on j3's range: limits must not act
     load = Load.mass(robot, 700.0)
     e = solver.solve(q, load)
-    m, d = robot.model, robot.data
-    m.dof_damping[:] = 4.0e5  # heavy damping to settle quickly; statics ignore it
-    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_LIMIT)  # ranges are controller limits
-    d.qpos[:] = robot.rigid_qpos(q)
-    d.qvel[:] = 0.0
-    mujoco.mj_forward(m, d)
-    for _ in range(4000):
-        d.xfrc_applied[:] = 0.0
-        mujoco.mj_applyFT(m, d, load.force, load.moment, d.site_xpos[load.site], m.site_bodyid[load.site], d.qfrc_applied)
-        mujoco.mj_step(m, d)
-        d.qfrc_applied[:] = 0.0
-        if np.abs(d.qvel).max() < 1e-9 and _ > 100:
-            break
-    relaxed = d.site_xpos[robot.flange_site].copy()
+    relaxed = relaxed_flange(robot, q, load, damping=4.0e5, max_steps=4000)
     newton, _ = site_pose(robot, e.qpos, robot.flange_site)
     assert np.linalg.norm(relaxed - newton) < 5e-6
 
@@ -348,8 +356,8 @@ def test_tangent_matches_finite_differences_of_solved_equilibria():
     wrench = np.array([1200.0, -900.0, -6000.0, 300.0, -150.0, 200.0])
     robot, solver, load, _, e1 = solved(TABLE5[6], tol=1e-12, wrench=wrench)
     params = robot.params()
-    theta = np.r_[params.compliance, params.compensator_stiffness, params.compensator_preload]
-    to_params = lambda t: Params(t[:6], float(t[6]), float(t[7]))  # noqa: E731
+    theta = robot.layout.theta(params)
+    to_params = robot.layout.params
     robot.set_command(e1.command)
     robot.data.qpos[:] = e1.qpos
     mujoco.mj_fwdPosition(robot.model, robot.data)

@@ -3,13 +3,13 @@
 Arrays written by calbench (only ``q`` and ``blocks`` are required on reading, so any other
 tool's candidates can be optimised by calbench, and calbench's by any other tool):
 
-* ``q`` (N, 6): commanded joint angles, degrees (controller convention).
+* ``q`` (N, n): commanded joint angles, degrees, one per actuated joint (the FANUC's 6).
 * ``blocks`` (N, m, p): candidate i's regressor R_i, so that sum_i R_i^T R_i over a plan is its
   Fisher information. Rows: the x, y, z deflection of each reflector (m = 9 for 3; rows of
-  reflectors a candidate cannot see are zero). Columns: the p = 8 parameters theta_k / theta0_k
-  (k1..k6, K_C, s0). Each row is WHITENED by the tracker noise (R = L^-1 J with L L^T the
-  covariance of a deflection, i.e. of two readings: sqrt(2) x 20 um per axis on the paper
-  scenario), and each column is SCALED BY theta0 (J = d deflection / d(theta / theta0)). So an
+  reflectors a candidate cannot see are zero). Columns: the p parameters theta_k / theta0_k
+  of the robot's layout (bench/params.py; the FANUC's 8: k1..k6, K_C, s0). Each row is
+  WHITENED by the tracker noise (R = L^-1 J with L L^T the covariance of a deflection, i.e.
+  of two readings: sqrt(2) x 20 um per axis on the paper scenario), and each column is SCALED BY theta0 (J = d deflection / d(theta / theta0)). So an
   entry is "how many noise sigmas this reflector coordinate moves when parameter k changes by
   100 % of its prior value".
   Column scales (RMS over all rows of the 10^4 candidates of scenarios/paper_table5.toml):
@@ -53,7 +53,7 @@ class CandidateFile:
     """Candidates read from an NPZ: only q and blocks are required."""
 
     path: Path
-    q: np.ndarray                    # (N, 6) rad
+    q: np.ndarray                    # (N, n) rad
     blocks: np.ndarray               # (N, m, p)
     wrench: np.ndarray | None        # (N, 6) N, N*m
     kind: np.ndarray | None          # (N,) 0 vertical, 1 lateral
@@ -111,9 +111,10 @@ def read_candidates(path: str | Path) -> CandidateFile:
     if not isinstance(z, np.lib.npyio.NpzFile):
         raise InputError(path, "(file)", "an NPZ archive (numpy.savez) with arrays q and blocks", "a single array")
     with z:
-        q_exp, b_exp = "N x 6 finite joint angles in degrees", "N x m x p finite numbers, N as in q"
+        q_exp = "N x n finite joint angles in degrees (one per actuated joint)"
+        b_exp = "N x m x p finite numbers, N as in q"
         q = _finite(path, "q", _array(z, path, "q", q_exp), q_exp)
-        if q.ndim != 2 or q.shape[1] != 6 or q.shape[0] < 1:
+        if q.ndim != 2 or min(q.shape) < 1:
             raise InputError(path, "q", q_exp, f"shape {q.shape}")
         n = q.shape[0]
         blocks = _finite(path, "blocks", _array(z, path, "blocks", b_exp), b_exp)

@@ -7,7 +7,8 @@ of ``lateral_force`` newtons perpendicular to the arm's vertical plane, directio
 (-sin q1, cos q1, 0) times a random sign. Like a ``[[pose]] wrench``, the pull REPLACES the
 payload in the loaded state.
 
-Parameters and prior guess. theta = [k1..k6, K_C, s0] normalised by a nominal value:
+Parameters and prior guess. theta = the robot's layout (bench/params.py; the FANUC's
+[k1..k6, K_C, s0]) normalised by a nominal value:
 u_i = theta_i / theta0_i. A design needs a prior guess of theta (the information of the nonlinear
 model depends on it); a design study uses the scenario's ``[truth]``, which is the natural
 nominal (in a real cell: the manufacturer's values or a previous identification).
@@ -20,31 +21,36 @@ KKT matrix, d g / d theta from ``Robot.dforce_dtheta``), J_r = (J_site dq/dtheta
 Cov(reading unloaded) + Cov(reading loaded) (bench.tracker.noise_covariance in the tracker frame, rotated to the world; 2 sigma^2 I for the
 isotropic tracker, one repeat). The candidate's block is the whitened regressor
 R = blockdiag(L_r^-1) [J_r], L_r L_r^T = Sigma_r: rows = the 3 coordinates of each reflector
-(9 rows for 3 reflectors), columns = the 8 normalised parameters, and the Fisher information of a
+(9 rows for 3 reflectors), columns = the p normalised parameters, and the Fisher information of a
 plan is sum_i R_i^T R_i (with repeats n: n R_i^T R_i).
 
 Feasibility rules (each named; :func:`Feasibility.check` returns the violated ones):
 
 * ``joint_limits``: q inside the MJCF's controller ranges (q4, q6 sampled in [-180, 180]).
-* ``parallelogram``: q3 - q2 at least ``bench.robot.PARALLELOGRAM_MARGIN`` (10 deg) away from
-  the degenerate -120 / 60 deg (``bench.robot.Robot.parallelogram_ok``).
-* ``min_height`` / ``min_radius``: the WRIST CENTRE (origin of body ``link5``, on the J5 axis,
-  the point of the paper's Fig. 6) at z >= min_height and at least min_radius from axis 1
-  (horizontal distance), at the commanded (rigid) pose. Paper: 0.5 m and 1 m.
+* ``degenerate_loop``: every kinematic loop at least ``bench.robot.LOOP_MARGIN`` from degenerate
+  (``bench.robot.Robot.loop_ok``: the inverse condition number of its passive-joint Jacobian;
+  on the FANUC q3 - q2 at least 10 deg away from the degenerate -120 / 60 deg).
+* ``min_height`` / ``min_radius``: the WRIST CENTRE (the origin of the robot's calbench:wrist
+  body, by default of the body of the last-but-one actuated joint: on a six-axis arm the J5
+  axis, the point of the paper's Fig. 6; the FANUC's link5) at z >= min_height and at least
+  min_radius from axis 1 (distance from the first actuated joint's axis line), at the commanded
+  (rigid) pose. Paper: 0.5 m and 1 m.
 * ``self_collision``: MuJoCo collision detection on a copy of the MJCF with every geom made
   collidable (contype = conaffinity = 1, margin = ``clearance``), at the rigid pose and at both
-  equilibria. Not counted: parent-child pairs (MuJoCo's own filter, which includes bodies welded
-  to their parent: m1 on the crank, m2 on the forearm) and the pairs in ``EXCLUDED_PAIRS``:
-  the four links of the parallelogram among themselves (upper_arm, crank, rod, forearm and the
-  compensator masses welded to them: they meet by design at the loop's hinges), the coupler rod
-  against the turret (the rod's foot runs alongside the turret at the crank hinge) and the forearm
-  against link5 (the wrist's pitch housing sits in the forearm's end, across the J4 bearing).
-  Everything else counts, e.g. the wrist or the tool against the upper arm, turret, crank or m1,
-  and m2 against the turret.
+  equilibria. Not counted (:func:`excluded_pairs`, derived from the model, no table): parent-
+  child pairs (MuJoCo's own filter, which includes bodies welded to their parent, e.g. the
+  FANUC's counterweight on the crank); the bodies of a kinematic loop among themselves (the
+  bodies on its path between its two sites and the bodies welded to them: they meet by design
+  at the loop's hinges; the FANUC's upper arm, crank, rod, forearm and the masses on them);
+  and the pairs that come within REFERENCE_GAP = 2 cm of each other in the model's reference
+  configuration (they touch by design, a housing across a bearing: the FANUC's coupler rod
+  foot beside the turret, the forearm's end around the wrist's pitch housing). Everything else
+  counts, e.g. the wrist or the tool against the upper arm, the turret or a counterweight.
 * ``compensator_discontinuity`` (paper §3.3): the vertical through a mass compensator's centre
-  (bodies m1, m2) must not cross a passive joint of the parallelogram (hinges ``elbow``,
-  ``rod``): the horizontal distance from the compensator's centre to each passive hinge's axis
-  line is at least ``compensator_margin`` (default 0.02 m) in both the unloaded and the loaded
+  (the robot's calbench:mass_compensators; the FANUC's m1, m2; none: the rule is void) must not
+  cross a passive joint of a loop (derived from the loops: the FANUC's elbow and rod): the
+  horizontal distance from the compensator's centre to each passive hinge's axis line is at
+  least ``compensator_margin`` (default 0.02 m) in both the unloaded and the loaded
   equilibrium. The discontinuity needs the external load to carry the vertical across the hinge;
   the load moves those points by < 1 mm (0.2 mm on Table 5 with 700 kg), so 2 cm is a wide
   margin. (Gravity's sag of J2, up to 1.8 deg, moves them by centimetres: that is why the rule is
@@ -57,6 +63,7 @@ from __future__ import annotations
 
 import functools
 import math
+import os
 import re
 import time
 import tomllib
@@ -69,23 +76,19 @@ import numpy as np
 from calbench.bench.campaign import scenario_params
 from calbench.bench.errors import InputError
 from calbench.bench.progress import ProgressSink, sink
-from calbench.bench.robot import Robot
+from calbench.bench.robot import Robot, ancestors
 from calbench.bench.scenario import Scenario, parse_scenario
 from calbench.bench.statics import Equilibrium, Load, StaticsSolver
 from calbench.bench.tracker import noise_covariance, to_tracker_frame, tracker_rotation, visible_sites
 
-from ..executor import Executor, InProcess
-from ..forward import NP
+from ..executor import IN_PROCESS, Executor, InProcess
 from ..portable import PortableScenario
 
-RULES = ("joint_limits", "parallelogram", "min_height", "min_radius", "self_collision",
+RULES = ("joint_limits", "degenerate_loop", "min_height", "min_radius", "self_collision",
          "compensator_discontinuity", "statics", "visibility")
-WRIST_BODY = "link5"
-MASS_COMPENSATORS = ("m1", "m2")
-PASSIVE_HINGES = ("elbow", "rod")
-LOOP_BODIES = ("upper_arm", "crank", "m1", "rod", "forearm", "m2")
-EXCLUDED_PAIRS = tuple(sorted({tuple(sorted((a, b))) for a in LOOP_BODIES for b in LOOP_BODIES if a != b}
-                              | {("rod", "turret"), ("forearm", "link5")}))
+COMMAND_RULES = ("joint_limits", "degenerate_loop", "min_height", "min_radius", "self_collision")
+EQUILIBRIUM_RULES = ("statics", "self_collision", "compensator_discontinuity", "visibility")
+REFERENCE_GAP = 0.02     # m: closer than this in the reference configuration = touching by design
 LOAD_KINDS = ("vertical", "lateral")
 
 
@@ -169,18 +172,29 @@ def load_design_scenario(path: str | Path) -> tuple[Scenario, DesignSettings]:
     return parse_scenario(stripped, path), settings
 
 
-def nominal_theta(scn: Scenario) -> np.ndarray:
+def nominal_theta(scn: Scenario, robot: Robot) -> np.ndarray:
     """The prior guess theta0 = the scenario's [truth] (see the module docstring)."""
-    p = scenario_params(scn)
-    return np.concatenate([p.compliance, [p.compensator_stiffness, p.compensator_preload]])
+    return robot.layout.theta(scenario_params(scn, robot))
 
 
 def nominal_robot(scn: Scenario) -> Robot:
     """The design model: the scenario's MJCF with theta0 written in, WITHOUT the hidden
     ``[truth.effects]`` (a design knows the model, not what the model lacks)."""
-    robot = Robot.from_file(scn.robot)
-    robot.set_params(scenario_params(scn))
+    try:
+        robot = Robot.from_file(scn.robot)
+    except ValueError as exc:  # MuJoCo compile errors, the robot description
+        raise InputError(scn.path, "robot", "a loadable MJCF robot", f"{scn.robot}: {exc}") from None
+    robot.set_params(scenario_params(scn, robot))
     return robot
+
+
+def wrist_body(robot: Robot) -> int:
+    """The body whose origin is the wrist centre: calbench:wrist, else the body of the
+    last-but-one actuated joint (a six-axis arm's J5; the joint itself with fewer than two)."""
+    m = robot.model
+    if robot.description.wrist:
+        return mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, robot.description.wrist)
+    return int(m.jnt_bodyid[robot.act_joint[max(robot.n_act - 2, 0)]])
 
 
 def lateral_wrench(q1: float, sign: float, force: float) -> np.ndarray:
@@ -189,19 +203,56 @@ def lateral_wrench(q1: float, sign: float, force: float) -> np.ndarray:
 
 # --------------------------------------------------------------------------- feasibility
 
-def collision_model(robot_path: Path, clearance: float = 0.0) -> mujoco.MjModel:
-    """A copy of the MJCF where every geom collides (margin = clearance), EXCLUDED_PAIRS off."""
+def _collidable(robot_path: Path, margin: float) -> mujoco.MjSpec:
     spec = mujoco.MjSpec.from_file(str(robot_path))
     for g in spec.geoms:
         g.contype = 1
         g.conaffinity = 1
-        g.margin = clearance
+        g.margin = margin
         g.gap = 0.0
-    names = {b.name for b in spec.bodies}
-    for a, b in EXCLUDED_PAIRS:
-        if a in names and b in names:
-            ex = spec.add_exclude()
-            ex.bodyname1, ex.bodyname2 = a, b
+    return spec
+
+
+def _welded(model: mujoco.MjModel, body: int) -> list[int]:
+    """The body and its descendants reached without crossing a joint."""
+    out = [body]
+    for b in range(model.nbody):
+        if model.body_parentid[b] == body and b != body and model.body_jntnum[b] == 0:
+            out += _welded(model, b)
+    return out
+
+
+def excluded_pairs(robot: Robot, robot_path: Path) -> tuple[tuple[str, str], ...]:
+    """Body pairs the self-collision rule does not count (module docstring), derived from the
+    model: the bodies of each loop among themselves, and the pairs within REFERENCE_GAP at the
+    reference configuration (the rigid pose at q = 0). Sorted name pairs."""
+    m = robot.model
+    pairs: set[tuple[str, str]] = set()
+    for a, b in robot.loops:
+        up_a, up_b = ancestors(m, m.site_bodyid[a]), ancestors(m, m.site_bodyid[b])
+        root = next(x for x in up_a if x in up_b)
+        path = up_a[: up_a.index(root)] + up_b[: up_b.index(root)]
+        bodies = sorted({w for x in path for w in _welded(m, x)})
+        pairs |= {(m.body(x).name, m.body(y).name) for x in bodies for y in bodies if x != y}
+    ref = _collidable(robot_path, REFERENCE_GAP).compile()
+    d = mujoco.MjData(ref)
+    d.qpos[:] = robot.rigid_qpos(np.zeros(robot.n_act))
+    mujoco.mj_kinematics(ref, d)
+    mujoco.mj_collision(ref, d)
+    for c in d.contact[: d.ncon]:
+        b1, b2 = int(ref.geom_bodyid[c.geom[0]]), int(ref.geom_bodyid[c.geom[1]])
+        if ref.body_parentid[b1] != b2 and ref.body_parentid[b2] != b1:   # MuJoCo filters those
+            pairs.add((ref.body(b1).name, ref.body(b2).name))
+    return tuple(sorted({tuple(sorted(p)) for p in pairs}))
+
+
+def collision_model(robot: Robot, robot_path: Path, clearance: float = 0.0) -> mujoco.MjModel:
+    """A copy of the MJCF where every geom collides (margin = clearance), the
+    :func:`excluded_pairs` off."""
+    spec = _collidable(robot_path, clearance)
+    for a, b in excluded_pairs(robot, robot_path):
+        ex = spec.add_exclude()
+        ex.bodyname1, ex.bodyname2 = a, b
     return spec.compile()
 
 
@@ -214,20 +265,22 @@ class Feasibility:
         self.settings = settings
         self.limits = robot.limits()
         m = robot.model
-        self.cmodel = collision_model(Path(scn.robot), settings.clearance)
+        self.cmodel = collision_model(robot, Path(scn.robot), settings.clearance)
         self.cdata = mujoco.MjData(self.cmodel)
         self._kd = mujoco.MjData(m)
-        self.wrist = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, WRIST_BODY)
-        self.masses = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, n) for n in MASS_COMPENSATORS]
-        self.hinges = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n) for n in PASSIVE_HINGES]
+        self.wrist = wrist_body(robot)
+        self.masses = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, n)
+                       for n in robot.description.mass_compensators]
+        self.hinges = list(robot.passive_joint)
+        # axis 1: the first actuated joint's axis line, fixed in the world (its body hangs from
+        # the world: it does not move with the command)
+        self._kd.qpos[:] = robot.rigid_qpos(np.zeros(robot.n_act))
+        mujoco.mj_kinematics(m, self._kd)
+        self.axis1 = (self._kd.xanchor[robot.act_joint[0]].copy(), self._kd.xaxis[robot.act_joint[0]].copy())
 
     # -- individual rules ---------------------------------------------------------------------
-    def joint_limits(self, q) -> bool:
-        lo, hi = self.limits[:, 0], self.limits[:, 1]
-        return bool(np.all(q >= lo - 1e-9) and np.all(q <= hi + 1e-9))
-
-    def parallelogram(self, q) -> bool:
-        return self.robot.parallelogram_ok(q)
+    def loop(self, q) -> bool:
+        return self.robot.loop_ok(q)
 
     def wrist_centre(self, qpos) -> np.ndarray:
         d = self._kd
@@ -242,6 +295,8 @@ class Feasibility:
         mujoco.mj_kinematics(m, d)
         mujoco.mj_collision(m, d)
         out = []
+        if d.ncon == 0:   # slicing d.contact costs ~120 us even when empty
+            return out
         for c in d.contact[: d.ncon]:
             b1, b2 = m.geom_bodyid[c.geom[0]], m.geom_bodyid[c.geom[1]]
             out.append((m.body(b1).name, m.body(b2).name))
@@ -249,63 +304,82 @@ class Feasibility:
 
     def compensator_clearance(self, qpos) -> float:
         """Smallest horizontal distance from a mass compensator's centre to a passive hinge's
-        axis line (m) at qpos (§3.3)."""
+        axis line (m) at qpos (§3.3); infinite without mass compensators or passive hinges."""
         m, d = self.robot.model, self._kd
         d.qpos[:] = qpos
         mujoco.mj_kinematics(m, d)
-        best = np.inf
-        for b in self.masses:
-            c = d.xipos[b]
-            for j in self.hinges:
-                a, ax = d.xanchor[j], d.xaxis[j]
-                axh = np.array([ax[0], ax[1], 0.0])
-                n = np.linalg.norm(axh)
-                v = np.array([c[0] - a[0], c[1] - a[1], 0.0])
-                if n < 1e-9:  # a vertical hinge axis: distance to its foot point
-                    dist = np.linalg.norm(v)
-                else:
-                    axh /= n
-                    dist = np.linalg.norm(v - axh * (v @ axh))
-                best = min(best, dist)
-        return float(best)
+        return float(horizontal_clearance(d.xipos[self.masses][None], d.xanchor[self.hinges][None],
+                                          d.xaxis[self.hinges][None])[0])
+
+    def radius(self, points: np.ndarray) -> np.ndarray:
+        """(n,) distance of points (n, 3) from axis 1 (m)."""
+        p, a = self.axis1
+        v = np.asarray(points, float) - p
+        return np.linalg.norm(v - np.outer(v @ a, a), axis=1)
+
+    # -- the rules' decisions, stacked over configurations (also identify/design/batch_info.py) --
+    def command_violations(self, q: np.ndarray, wrist: np.ndarray, collides, loop_ok=None) -> np.ndarray:
+        """(n, len(COMMAND_RULES)) bool, True where a rule fails, for commands q (n, joints) whose
+        rigid poses have wrist centres ``wrist`` (n, 3) and collision flags ``collides`` (n,);
+        ``loop_ok`` (n,): Robot.loop_ok of each, if already known (else asked here)."""
+        lo, hi = self.limits[:, 0], self.limits[:, 1]
+        loop_ok = [self.loop(x) for x in q] if loop_ok is None else loop_ok
+        return np.column_stack([
+            ~np.all((q >= lo - 1e-9) & (q <= hi + 1e-9), axis=1),
+            ~np.asarray(loop_ok, bool),
+            wrist[:, 2] < self.settings.min_height,
+            self.radius(wrist) < self.settings.min_radius,
+            np.asarray(collides, bool)])
+
+    def equilibrium_violations(self, acceptable, collides, clearance, visible,
+                               require_all_visible: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """(n, len(EQUILIBRIUM_RULES)) bool violations and the (n, k) reflectors seen in both
+        states, from per-state inputs with the states on axis 1: acceptable and collides (n, 2),
+        clearance (n, 2) m, visible (n, 2, k)."""
+        vis = np.asarray(visible, bool).all(axis=1)
+        seen = vis.all(axis=1) if require_all_visible else vis.any(axis=1)
+        return np.column_stack([~np.asarray(acceptable, bool).all(axis=1), np.asarray(collides, bool).any(axis=1),
+                                np.asarray(clearance).min(axis=1) < self.settings.compensator_margin,
+                                ~seen]), vis
 
     # -- combined -----------------------------------------------------------------------------
     def check_command(self, q) -> list[str]:
         """Rules decided at the commanded (rigid) pose, cheapest first; all violations."""
         q = np.asarray(q, float)
-        bad = []
-        if not self.joint_limits(q):
-            bad.append("joint_limits")
-        if not self.parallelogram(q):
-            bad.append("parallelogram")
         qpos = self.robot.rigid_qpos(q)
-        w = self.wrist_centre(qpos)
-        if w[2] < self.settings.min_height:
-            bad.append("min_height")
-        if math.hypot(w[0], w[1]) < self.settings.min_radius:
-            bad.append("min_radius")
-        if self.collides(qpos):
-            bad.append("self_collision")
-        return bad
+        bad = self.command_violations(q[None], self.wrist_centre(qpos)[None], [bool(self.collides(qpos))])[0]
+        return [r for r, b in zip(COMMAND_RULES, bad) if b]
 
     def check_equilibria(self, e0: Equilibrium, e1: Equilibrium, require_all_visible=True):
         """Rules decided at the solved equilibria: (violations, visible mask (n,) both states)."""
-        bad = []
-        if not (e0.acceptable and e1.acceptable):
-            bad.append("statics")
-        if any(self.collides(e.qpos) for e in (e0, e1)):
-            bad.append("self_collision")
-        if min(self.compensator_clearance(e.qpos) for e in (e0, e1)) < self.settings.compensator_margin:
-            bad.append("compensator_discontinuity")
         m, d = self.robot.model, self._kd
-        vis = np.ones(len(self.robot.reflector_sites), bool)
+        vis = []
         for e in (e0, e1):
             d.qpos[:] = e.qpos
             mujoco.mj_kinematics(m, d)
-            vis &= visible_sites(m, d, self.scn.tracker, self.robot.reflector_sites)
-        if (require_all_visible and not vis.all()) or not vis.any():
-            bad.append("visibility")
-        return bad, vis
+            vis.append(visible_sites(m, d, self.scn.tracker, self.robot.reflector_sites))
+        states = (e0, e1)
+        bad, seen = self.equilibrium_violations(
+            [[e.acceptable for e in states]], [[bool(self.collides(e.qpos)) for e in states]],
+            [[self.compensator_clearance(e.qpos) for e in states]], [vis], require_all_visible)
+        return [r for r, b in zip(EQUILIBRIUM_RULES, bad[0]) if b], seen[0]
+
+
+def horizontal_clearance(centres: np.ndarray, anchors: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """Smallest horizontal distance (n,) from k points (n, k, 3) to h axis lines through
+    ``anchors`` along ``axes`` (n, h, 3), in the horizontal plane (the §3.3 rule: a vertical
+    line through a mass compensator's centre must not cross a passive hinge's axis); a vertical
+    axis counts by its foot point. No points or no axes: infinitely far (the rule is void)."""
+    if centres.shape[1] == 0 or anchors.shape[1] == 0:
+        return np.full(len(centres), np.inf)
+    v = (centres[:, :, None, :2] - anchors[:, None, :, :2])             # (n, k, h, 2)
+    axh = axes[:, None, :, :2]
+    n = np.sqrt(np.einsum("...i,...i->...", axh, axh))
+    vertical = n < 1e-9
+    u = axh / np.where(vertical, 1.0, n)[..., None]
+    along = np.where(vertical, 0.0, np.einsum("...i,...i->...", v, u))
+    w = v - u * along[..., None]
+    return np.sqrt(np.einsum("...i,...i->...", w, w)).min(axis=(1, 2))
 
 
 # --------------------------------------------------------------------------- information
@@ -315,7 +389,7 @@ class PoseInfo:
     q: np.ndarray
     wrench: np.ndarray            # (6,) world: payload weight or the pull
     kind: str
-    block: np.ndarray             # (3 n_visible, 8) whitened, normalised regressor
+    block: np.ndarray             # (3 n_visible, p) whitened, normalised regressor
     visible: np.ndarray           # (n,) bool
     violations: list[str]
     dp: np.ndarray | None = None  # (n, 3) deflections (visible rows meaningful)
@@ -328,8 +402,9 @@ class InfoEngine:
         self.scn = scn
         self.settings = settings
         self.robot = nominal_robot(scn)
-        self.theta0 = nominal_theta(scn)
-        self.params0 = scenario_params(scn)
+        self.params0 = scenario_params(scn, self.robot)
+        self.theta0 = self.robot.layout.theta(self.params0)
+        self.n_params = self.robot.layout.n
         self.solver = StaticsSolver(self.robot, tol=1e-10)
         self.feas = Feasibility(self.robot, scn, settings)
         self.rot = tracker_rotation(scn.tracker)
@@ -340,7 +415,7 @@ class InfoEngine:
         return Load.wrench(self.robot, wrench)
 
     def _dforce(self, e: Equilibrium) -> np.ndarray:
-        """dg/dtheta at fixed q (nv, 8) at equilibrium e, for the prior guess theta0."""
+        """dg/dtheta at fixed q (nv, p) at equilibrium e, for the prior guess theta0."""
         rb = self.robot
         rb.set_command(e.command)
         rb.data.qpos[:] = e.qpos
@@ -348,7 +423,7 @@ class InfoEngine:
         return rb.dforce_dtheta(self.params0)
 
     def _site_jac(self, e: Equilibrium, load: Load | None) -> tuple[np.ndarray, np.ndarray]:
-        """Reflector positions (n,3) and d position / d theta (n,3,8) at equilibrium e."""
+        """Reflector positions (n,3) and d position / d theta (n,3,p) at equilibrium e."""
         rb = self.robot
         tan = self.solver.tangent(e, load, self._dforce(e))
         m, d = rb.model, rb.data
@@ -356,7 +431,7 @@ class InfoEngine:
         mujoco.mj_kinematics(m, d)
         mujoco.mj_comPos(m, d)
         pos = d.site_xpos[rb.reflector_sites].copy()
-        jac = np.empty((len(rb.reflector_sites), 3, NP))
+        jac = np.empty((len(rb.reflector_sites), 3, self.n_params))
         for i, s in enumerate(rb.reflector_sites):
             mujoco.mj_jacSite(m, d, self._js, None, int(s))
             jac[i] = self._js @ tan
@@ -374,8 +449,8 @@ class InfoEngine:
         q = np.asarray(q, float)
         wrench = np.asarray(wrench, float)
         bad = self.feas.check_command(q) if check else []
-        if check and any(r in bad for r in ("joint_limits", "parallelogram")):
-            return PoseInfo(q, wrench, kind, np.zeros((0, NP)), np.zeros(0, bool), bad)
+        if check and any(r in bad for r in ("joint_limits", "degenerate_loop")):
+            return PoseInfo(q, wrench, kind, np.zeros((0, self.n_params)), np.zeros(0, bool), bad)
         load = self.load_for(wrench)
         if e0 is None:
             e0 = self.solver.solve(q)
@@ -390,11 +465,11 @@ class InfoEngine:
         jac = (j1 - j0)[vis] * self.theta0                 # normalised columns
         cov = self.sigma_dp(p0[vis], p1[vis]) / repeats
         linv = np.linalg.inv(np.linalg.cholesky(cov))
-        block = np.einsum("nij,njk->nik", linv, jac).reshape(-1, NP)
+        block = np.einsum("nij,njk->nik", linv, jac).reshape(-1, self.n_params)
         return PoseInfo(q, wrench, kind, block, vis, bad, p1 - p0)
 
     def work_jacobian(self, q, wrench) -> np.ndarray:
-        """G (3, 8): d(payload-site deflection under the work wrench)/d(theta normalised)."""
+        """G (3, p): d(payload-site deflection under the work wrench)/d(theta normalised)."""
         rb = self.robot
         load = self.load_for(wrench)
         e0 = self.solver.solve(np.asarray(q, float))
@@ -415,82 +490,102 @@ class InfoEngine:
 
 @dataclass
 class CandidateSet:
-    q: np.ndarray          # (N, 6) rad
+    q: np.ndarray          # (N, n_joints) rad
     wrench: np.ndarray     # (N, 6)
     kind: np.ndarray       # (N,) 0 vertical, 1 lateral
-    blocks: np.ndarray     # (N, m, 8)
+    blocks: np.ndarray     # (N, m, p)
     theta0: np.ndarray
     settings: DesignSettings
     stats: dict = field(default_factory=dict)
+    param_names: tuple[str, ...] = ()     # the p parameters (the robot's layout)
 
     def __len__(self) -> int:
         return len(self.q)
 
     def save_npz(self, path: str | Path, normalise: bool = False) -> None:
         """The NPZ of identify/design/candidate_file.py (``normalise``: unit column scales)."""
-        from ..forward import PARAM_NAMES
         from .candidate_file import write_candidates
-        write_candidates(path, self.q, self.blocks, self.wrench, self.kind, self.theta0, PARAM_NAMES, normalise)
+        write_candidates(path, self.q, self.blocks, self.wrench, self.kind, self.theta0, self.param_names,
+                         normalise)
 
 
 def sample_commands(rng: np.random.Generator, limits: np.ndarray, n: int) -> np.ndarray:
-    """n commands uniform in the joint ranges (q4, q6 in [-180, 180]: the statics is periodic)."""
-    lo, hi = limits[:, 0].copy(), limits[:, 1].copy()
-    for j in (3, 5):
-        lo[j], hi[j] = max(lo[j], -np.pi), min(hi[j], np.pi)
-    return lo + (hi - lo) * rng.random((n, 6))
+    """n commands uniform in the joint ranges, each clipped to [-180, 180] deg (a hinge's
+    statics is periodic: the FANUC's q4, q6 range over +-360)."""
+    lo, hi = np.maximum(limits[:, 0], -np.pi), np.minimum(limits[:, 1], np.pi)
+    return lo + (hi - lo) * rng.random((n, len(limits)))
 
 
-CANDIDATE_BLOCK = 512          # raw commands per task (about 0.5 s of screening and statics)
-SECONDS_PER_CANDIDATE = 2.7e-3  # in-process, per feasible candidate (for the choice of executor)
-BATCH = 4096                   # commands drawn at a time (the order of the random stream)
+CANDIDATE_BLOCK = 512   # raw commands per chunk (a few tenths of a second of batched work)
+BATCH = 4096            # commands drawn at a time (the order of the random stream)
+SECONDS_PER_CANDIDATE = 2e-4   # in-process, batched (10^4 in ~1.7 s of CPU), for the executor choice
 
 
 @dataclass(frozen=True)
 class CandidateJob:
-    """What a block of raw commands needs on any machine: the scenario's texts and the settings."""
+    """What a chunk of raw commands needs on any machine (identify/executor.py): the scenario's
+    texts, the settings, the load probabilities, and how to compute (batched, threads)."""
 
     scenario: PortableScenario
     settings: DesignSettings
     p_vertical: float
     p_lateral: float
+    batched: bool = True
+    threads: int = 1
 
 
 @functools.lru_cache(maxsize=2)
 def _engine(scenario: PortableScenario, settings: DesignSettings) -> InfoEngine:
-    """One InfoEngine per process and design problem (its results do not depend on its history:
-    every equilibrium is solved from the rigid configuration of its own command)."""
     return InfoEngine(scenario.scenario(), settings)
 
 
-def candidate_block(job: CandidateJob, q: np.ndarray, signs: np.ndarray, u_lat: np.ndarray,
-                    u_vert: np.ndarray) -> dict:
-    """The task: screen raw commands (the command rules), solve the survivors' equilibria and
-    return the feasible candidates in command order, with the count of rejections per first rule."""
-    eng = _engine(job.scenario, job.settings)
-    st = job.settings
+@functools.lru_cache(maxsize=2)
+def _batch(job: CandidateJob):
+    from .batch_info import BatchInfo
+    return BatchInfo(_engine(job.scenario, job.settings), nthread=job.threads)
+
+
+def candidate_block(job: CandidateJob, q, signs, u_lat, u_vert) -> dict:
+    """The task: one chunk of raw commands (see :func:`scalar_block`), on this process's engine
+    for the job (built once per process; a chunk's result does not depend on the chunks before)."""
+    if job.batched:
+        return _batch(job).block(q, signs, u_lat, u_vert, job.p_vertical, job.p_lateral)
+    return scalar_block(_engine(job.scenario, job.settings), q, signs, u_lat, u_vert, job.p_vertical, job.p_lateral)
+
+
+def scalar_block(eng: InfoEngine, q, signs, u_lat, u_vert, p_vertical: float, p_lateral: float) -> dict:
+    """One chunk of raw commands, one candidate at a time (InfoEngine.pose): the reference that
+    identify/design/batch_info.BatchInfo.block reproduces. Returns the feasible candidates as
+    (q, wrench, kind, block) in command order, the rejections by first rule, and how many
+    commands passed the command rules with a load."""
+    st = eng.settings
     vertical = np.concatenate([eng.robot.weight(eng.scn.load_mass), np.zeros(3)])
     rejected = {r: 0 for r in RULES}
     out, passed = [], 0
-    for qi, s, ul, uv in zip(q, signs, u_lat, u_vert):
+    for qi, s, ul, uv in zip(np.asarray(q, float), signs, u_lat, u_vert):
         bad = eng.feas.check_command(qi)
         if bad:
             rejected[bad[0]] += 1
             continue
         loads = []
-        if uv < job.p_vertical:
+        if uv < p_vertical:
             loads.append((vertical, 0))
-        if ul < job.p_lateral and st.lateral_force > 0:
+        if ul < p_lateral and st.lateral_force > 0:
             loads.append((lateral_wrench(qi[0], s, st.lateral_force), 1))
         if not loads:
             continue
         passed += 1
-        e0 = eng.solver.solve(qi)
+        try:
+            e0 = eng.solver.solve(qi)
+        except (np.linalg.LinAlgError, RuntimeError):
+            e0 = None
         for w, kind in loads:
-            try:
-                info = eng.pose(qi, w, LOAD_KINDS[kind], e0=e0, check=True)
-            except (np.linalg.LinAlgError, RuntimeError):
-                info = None
+            info = None
+            if e0 is not None:
+                try:
+                    info = eng.pose(qi, w, LOAD_KINDS[kind], e0=e0, check=True)
+                except (np.linalg.LinAlgError, RuntimeError):
+                    pass
             if info is not None and not info.violations:
                 out.append((qi, w, kind, info.block))
             else:
@@ -499,35 +594,43 @@ def candidate_block(job: CandidateJob, q: np.ndarray, signs: np.ndarray, u_lat: 
 
 
 def generate_candidates(scn: Scenario, settings: DesignSettings, n: int | None = None,
-                        progress: ProgressSink | None = None, executor: Executor | None = None) -> CandidateSet:
+                        processes: int | None = None, progress: ProgressSink | None = None,
+                        batched: bool = True, executor: Executor | None = None) -> CandidateSet:
     """At least ``n`` (default settings.candidates) feasible candidates, exactly n returned.
 
     Raw commands are drawn uniformly in the joint ranges (seeded by settings.seed or the
-    scenario's) in batches of BATCH, cut into tasks of CANDIDATE_BLOCK commands that ``executor``
-    runs (identify/executor.py; default: this process): the command rules, the equilibria, the
-    remaining rules and the exact information. Each surviving command yields a vertical
-    candidate and, with probability lateral_fraction / (1 - lateral_fraction) capped at 1, a
-    lateral one. The first n feasible candidates in the order of the draws are kept, so the
-    result is deterministic for a given seed and n, wherever the tasks ran.
+    scenario's) in batches of BATCH and handled in chunks of CANDIDATE_BLOCK: the command rules,
+    the equilibria, the remaining rules and the exact information, by
+    identify/design/batch_info.BatchInfo.block (``batched=False``: :func:`scalar_block`, one
+    candidate at a time, the reference). The chunks are tasks of ``executor``
+    (identify/executor.py; default: this process, on ``processes`` threads, default the CPUs it
+    may use; a Dask worker uses ``processes`` threads, default one: one worker per core). Each
+    surviving command yields a vertical candidate and, with probability lateral_fraction /
+    (1 - lateral_fraction) capped at 1, a lateral one. The first n feasible candidates in the
+    order of the draws are kept, so the result is deterministic for a given seed and n, whatever
+    the executor, worker and thread count.
     """
     n = settings.candidates if n is None else n
     seed = scn.seed if settings.seed is None else settings.seed
     rng = np.random.default_rng([seed, 4])
     t0 = time.perf_counter()
+    executor = executor or InProcess()
+    here = executor.choice.kind == IN_PROCESS
+    threads = processes or (len(os.sched_getaffinity(0)) if here else 1)
     frac = settings.lateral_fraction
     p_lat = 1.0 if frac >= 0.5 else frac / (1 - frac)
     p_vert = 1.0 if frac <= 0.5 else (1 - frac) / frac
-    job = CandidateJob(PortableScenario.from_scenario(scn), settings, p_vert, p_lat)
+    job = CandidateJob(PortableScenario.from_scenario(scn), settings, p_vert, p_lat, batched, threads)
     eng = _engine(job.scenario, job.settings)
     limits = eng.robot.limits()
-    executor = executor or InProcess()
+    phase0 = dict(_batch(job).seconds) if here and batched else None
     bar = sink(progress)
     bar.start(n, "candidates")
     rejected: dict[str, int] = {r: 0 for r in RULES}
     qs, ws, kinds, blocks = [], [], [], []
     screened = raw = shown = 0
 
-    def tasks():
+    def chunks():
         while True:
             batch = sample_commands(rng, limits, BATCH)
             signs = np.where(rng.random(len(batch)) < 0.5, -1.0, 1.0)
@@ -537,7 +640,7 @@ def generate_candidates(scn: Scenario, settings: DesignSettings, n: int | None =
                 sl = slice(a, a + CANDIDATE_BLOCK)
                 yield job, batch[sl], signs[sl], u_lat[sl], u_vert[sl]
 
-    results = executor.ordered(candidate_block, tasks())
+    results = executor.ordered(candidate_block, chunks())
     try:
         for got in results:
             raw += CANDIDATE_BLOCK
@@ -558,19 +661,22 @@ def generate_candidates(scn: Scenario, settings: DesignSettings, n: int | None =
                 raise InputError(scn.path, "design", "settings that leave feasible configurations",
                                  f"only {len(qs)} of {raw} sampled commands feasible")
     finally:
-        results.close()           # cancels the blocks drawn ahead
+        results.close()           # cancels the chunks drawn ahead
     m = max(b.shape[0] for b in blocks)
-    out = np.zeros((n, m, NP))
+    out = np.zeros((n, m, eng.n_params))
     for i, b in enumerate(blocks[:n]):
         out[i, : b.shape[0]] = b
     stats = {"raw_commands": raw, "passed_command_rules": screened,
              "rejected_first_rule": rejected, "seconds": time.perf_counter() - t0,
-             "executor": executor.choice.describe()}
+             "threads": threads, "batched": batched, "executor": executor.choice.describe()}
+    if phase0 is not None:
+        stats["phase_seconds"] = {k: round(v - phase0.get(k, 0.0), 4) for k, v in _batch(job).seconds.items()}
     return CandidateSet(np.array(qs[:n]), np.array(ws[:n]), np.array(kinds[:n], int), out,
-                        eng.theta0, settings, stats)
+                        eng.theta0, settings, stats, eng.robot.layout.names)
 
 
 __all__ = ["DesignSettings", "read_design_settings", "load_design_scenario", "nominal_theta",
            "nominal_robot", "Feasibility", "InfoEngine", "PoseInfo", "CandidateSet",
-           "generate_candidates", "candidate_block", "CandidateJob", "lateral_wrench", "collision_model",
-           "EXCLUDED_PAIRS", "RULES"]
+           "generate_candidates", "scalar_block", "candidate_block", "CandidateJob", "SECONDS_PER_CANDIDATE",
+           "lateral_wrench", "collision_model", "horizontal_clearance",
+           "excluded_pairs", "wrist_body", "REFERENCE_GAP", "RULES", "COMMAND_RULES", "EQUILIBRIUM_RULES"]

@@ -33,7 +33,6 @@ from .candidates import (LOAD_KINDS, CandidateSet, DesignSettings, InfoEngine,
 from .criteria import CRITERIA, criterion_value, information, measures
 from .certificate import SingularCandidates
 from .selection import Selection, select_rows, selection_text
-from ..forward import PARAM_NAMES
 
 REFINE_STEPS_DEG = (4.0, 2.0, 1.0)
 
@@ -66,13 +65,14 @@ def work_jacobian(engine: InfoEngine, scn: Scenario) -> np.ndarray | None:
     return None if scn.work is None else engine.work_jacobian(scn.work.q, scn.work.wrench)
 
 
-def plan_measures(F: np.ndarray, theta0: np.ndarray, G: np.ndarray | None) -> dict:
+def plan_measures(F: np.ndarray, theta0: np.ndarray, G: np.ndarray | None, names) -> dict:
+    """The criteria of information F and each parameter's (``names``) std at the prior theta0."""
     m = measures(F, G)
     out = {k: float(m[k]) for k in ("A", "D", "AD", "pose") if k in m}
     if "pose" in out and np.isfinite(out["pose"]):
         out["pose_rms_um"] = float(np.sqrt(out["pose"]) * 1e6)
-    out["relative_std"] = {n: float(s) for n, s in zip(PARAM_NAMES, m["std"])}
-    out["std"] = {n: float(s * t) for n, s, t in zip(PARAM_NAMES, m["std"], theta0)}
+    out["relative_std"] = {n: float(s) for n, s in zip(names, m["std"])}
+    out["std"] = {n: float(s * t) for n, s, t in zip(names, m["std"], theta0)}
     return out
 
 
@@ -107,7 +107,7 @@ def refine(engine: InfoEngine, poses: list[PlanPose], criterion: str, G, steps=R
     force = engine.settings.lateral_force
     for step in steps:
         for k, p in enumerate(poses):
-            for j in range(6):
+            for j in range(len(p.q)):
                 for sgn in (1.0, -1.0):
                     if time.perf_counter() - t0 > budget_s:
                         break
@@ -174,13 +174,13 @@ def design_plan(scn: Scenario, settings: DesignSettings, cands: CandidateSet, M:
     if progress:
         progress.update("exchange done")
     poses = poses_of_rows(cands.q, cands.wrench, cands.kind, cands.blocks, r.idx)
-    exch_meas = plan_measures(information(cands.blocks, r.idx), cands.theta0, G)
+    exch_meas = plan_measures(information(cands.blocks, r.idx), cands.theta0, G, cands.param_names)
     ref = {}
     if do_refine:
         ref = refine(engine, poses, criterion, G, progress=progress)
     merged = merge_repeats(poses)
     F = sum(p.repeats * p.block.T @ p.block for p in merged)
-    return DesignResult(criterion, merged, plan_measures(F, cands.theta0, G), exch_meas,
+    return DesignResult(criterion, merged, plan_measures(F, cands.theta0, G, cands.param_names), exch_meas,
                         {**sel.seconds, "refine_s": ref.get("seconds", 0.0)},
                         {"value": r.value, "start_values": r.start_values, "start_results": r.start_results,
                          "passes": r.passes, "swaps": r.swaps, "scans": sel.exchanger_stats["scans"],
@@ -214,7 +214,7 @@ def result_json(res: DesignResult, scn: Scenario, cands: CandidateSet, extra: di
         "candidates": {"count": len(cands), "lateral": int(cands.kind.sum()), **cands.stats,
                        "settings": cands.settings.as_dict()},
         "exchange": res.exchange, "refinement": res.refine, "timings": res.timings,
-        "prior_theta": {n: float(t) for n, t in zip(PARAM_NAMES, cands.theta0)},
+        "prior_theta": {n: float(t) for n, t in zip(cands.param_names, cands.theta0)},
     }
     if res.selection is not None:
         out.update(res.selection.as_json(cands.q, [LOAD_KINDS[k] for k in cands.kind]))
@@ -231,7 +231,8 @@ def input_plan_measures(engine: InfoEngine, scn: Scenario, theta0: np.ndarray) -
     """The scenario's own [[pose]] plan, measured like a designed one, with its rule violations."""
     F_in, viol = scenario_plan_information(engine, scn)
     return {"configs": int(sum(p.repeats for p in scn.poses)),
-            "measures": plan_measures(F_in, theta0, work_jacobian(engine, scn)), "violations": viol}
+            "measures": plan_measures(F_in, theta0, work_jacobian(engine, scn), engine.robot.layout.names),
+            "violations": viol}
 
 
 def summary_text(res: DesignResult, cands: CandidateSet, input_plan: dict) -> str:

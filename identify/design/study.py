@@ -8,10 +8,12 @@ q2 in [0, 120], q3 in [-30, 30] is used as the paper states it; our wrist-centre
 the q2 = 0, q3 = -30 corner (0.84 m from axis 1), which the study reports but does not enforce.
 Reflectors count where seen. In our model q3 - q2 = -120 deg is the degenerate parallelogram
 (crank parallel to the upper arm), which lies INSIDE the paper's box (q2 = 90, q3 = -30): for
-q2 in (80, 100) only q3 = +30 is used. Measures: the 8-parameter normalised covariance of the one-step
-estimator (O1 = trace, O2 = det^(1/8), O3 = (O1 + O2)/2). The paper's measures are over its
+q2 in (80, 100) only q3 = +30 is used (``bench.robot.Robot.loop_ok``). Measures: the p-parameter
+normalised covariance of the one-step estimator (the FANUC's 8: O1 = trace, O2 = det^(1/8),
+O3 = (O1 + O2)/2). The paper's measures are over its
 "aggregated parameters" of the two-step method with the linear model, so absolute values are not
-comparable; shapes are.
+comparable; shapes are. The study is the paper's, on a six-axis robot (q1..q6 as above);
+another robot gets an InputError.
 
 Outputs in DIR: study.json, table1 (3/4/5 distinct q2), fig7_measures_vs_middle_q2.png with the
 10/20/50 % intervals (Table 2), fig8_std_vs_middle_q2.png (per-parameter relative std, Tables
@@ -25,9 +27,10 @@ from pathlib import Path
 
 import numpy as np
 
+from calbench.bench.errors import InputError
+
 from .candidates import InfoEngine, load_design_scenario
 from .criteria import measures
-from ..forward import PARAM_NAMES
 
 WRISTS = ((-45.0, 30.0, 135.0), (45.0, -30.0, 45.0))
 Q3 = (-30.0, 30.0)
@@ -40,9 +43,14 @@ def run_study(scenario: Path, out_dir: Path, progress=None, step: float = 5.0) -
 
     scn, st = load_design_scenario(scenario)
     eng = InfoEngine(scn, st)
+    if eng.robot.n_act != 6:
+        raise InputError(scn.robot, "calbench:actuated", "the six axes of the paper's robot for --study",
+                         eng.robot.n_act)
+    names = eng.robot.layout.names
+    npar = len(names)
     out_dir.mkdir(parents=True, exist_ok=True)
     weight = np.r_[eng.robot.weight(scn.load_mass), 0, 0, 0.0]
-    F_lat = np.zeros((8, 8))
+    F_lat = np.zeros((npar, npar))
     for p in scn.poses:
         if p.wrench is not None:
             b = eng.pose(p.q, p.wrench, require_all_visible=False, check=False).block
@@ -51,9 +59,9 @@ def run_study(scenario: Path, out_dir: Path, progress=None, step: float = 5.0) -
 
     def info_q2(q2: float) -> np.ndarray:
         if q2 not in cache:
-            F = np.zeros((8, 8))
+            F = np.zeros((npar, npar))
             for q3 in Q3:
-                if not eng.feas.parallelogram(np.radians([0.0, q2, q3, 0, 0, 0])):
+                if not eng.feas.loop(np.radians([0.0, q2, q3, 0, 0, 0])):
                     continue  # q3 - q2 within 10 deg of -120: the loop degenerates (q2 ~ 90, q3 = -30)
                 for w in WRISTS:
                     b = eng.pose(np.radians([0.0, q2, q3, *w]), weight, require_all_visible=False,
@@ -101,7 +109,7 @@ def run_study(scenario: Path, out_dir: Path, progress=None, step: float = 5.0) -
     table3 = {n: {"argmin_q2": float(grid[int(np.argmin(stds[:, j]))]),
                   "min_relative_std": float(stds[:, j].min()),
                   "max_over_min": float(stds[:, j].max() / stds[:, j].min())}
-              for j, n in enumerate(PARAM_NAMES)}
+              for j, n in enumerate(names)}
 
     fig, ax = plt.subplots(1, 3, figsize=(13, 4))
     for a, (k, v) in zip(ax, curves.items()):
@@ -116,7 +124,7 @@ def run_study(scenario: Path, out_dir: Path, progress=None, step: float = 5.0) -
     fig.savefig(out_dir / "fig7_measures_vs_middle_q2.png", dpi=110)
     plt.close(fig)
     fig, ax = plt.subplots(figsize=(7, 4.5))
-    for j, n in enumerate(PARAM_NAMES):
+    for j, n in enumerate(names):
         ax.semilogy(grid, stds[:, j], label=n)
     ax.set_xlabel("middle q2 (deg)")
     ax.set_ylabel("relative std")
@@ -126,7 +134,7 @@ def run_study(scenario: Path, out_dir: Path, progress=None, step: float = 5.0) -
     plt.close(fig)
     res = {"table1": table1, "table2": table2, "table3_parameters": table3,
            "curves": {"middle_q2": grid.tolist(), **{k: list(map(float, v)) for k, v in curves.items()},
-                      "relative_std": {n: stds[:, j].tolist() for j, n in enumerate(PARAM_NAMES)}}}
+                      "relative_std": {n: stds[:, j].tolist() for j, n in enumerate(names)}}}
     (out_dir / "study.json").write_text(json.dumps(res, indent=1))
     return res
 

@@ -1,15 +1,17 @@
 """Discovery, part 1: the candidate library and fitting a model with effects in the loop.
 
 The LIBRARY is every effect that bench/effects.py's ``@register`` puts in discovery, with the
-structural options it declares there: `link_compliance` on the upper arm and on the forearm,
-`joint_nonlinearity` on joints 1..6, `base_compliance`, `compensator`, with their priors. These
+structural options it declares there for the robot: `link_compliance` on the robot's
+calbench:links (the FANUC's upper arm and forearm), `joint_nonlinearity` on every actuated
+joint, `base_compliance`, `compensator` where calbench:compensator_sites names its mounts, with
+their priors. These
 are the same MjSpec edits the bench puts in the simulated truth. Nothing here chooses between
 them: identify/discover/workflow.py does, through identify/discover/stats.py, and knows nothing
 about any single effect. Adding a candidate = registering an effect in bench/effects.py.
 
 FITTING. A candidate model is the user's MJCF with the effects applied (`apply_effects`); its
-parameters are theta = [k1..k6, K_C, s0] (identify/forward.py) followed by every effect's own
-parameters, in order. :class:`AugmentedForward` is the exact forward model of
+parameters are the robot's theta (bench/params.py; the FANUC's [k1..k6, K_C, s0]) followed by
+every effect's own parameters, in order. :class:`AugmentedForward` is the exact forward model of
 identify/forward.py (same KKT-Newton statics, warm starts, implicit-function Jacobian) with
 three generalisations:
 
@@ -41,7 +43,9 @@ import numpy as np
 from calbench.bench.effects import DISCOVERY_OPTIONS, Effect, apply_effects, discovery_library, priors
 from calbench.bench.robot import Robot
 
-from ..forward import NP, PARAM_NAMES, PARAM_UNITS, ForwardModel, PoseDesign, design_from_observations
+from calbench.bench.params import ParamLayout
+
+from ..forward import ForwardModel, PoseDesign, design_from_observations
 from ..identifiability import analyze
 from ..leastsq import Fit, at_bounds, covariance, levenberg_marquardt
 
@@ -49,16 +53,16 @@ from ..leastsq import Fit, at_bounds, covariance, levenberg_marquardt
 
 DISCOVER_RANK_TOL = 1e-5     # singular value (column-normalised) below which a direction is unseen
 COST_TOL = 1e-3              # chi2 units: a step gaining (or promising) less ends the fit
-BASE_LOWER = np.array([1e-12] * 6 + [1.0, 1e-3])
-BASE_UPPER = np.array([1e-5] * 6 + [1e9, 10.0])
+# the base parameters' bounds: ParamLayout.lower / .upper (bench/params.py)
 
 
 DISCOVERY_EFFECTS = tuple(DISCOVERY_OPTIONS)   # the effects @register puts in discovery's library
 
 
-def library() -> list[Effect]:
-    """Every candidate effect with its structural options (bench/effects.py's registry)."""
-    return discovery_library()
+def library(robot: Robot) -> list[Effect]:
+    """Every candidate effect with its structural options on this robot (bench/effects.py's
+    registry)."""
+    return discovery_library(robot)
 
 
 def label(effect: Effect) -> str:
@@ -71,12 +75,12 @@ def effect_priors(effect: Effect) -> tuple[np.ndarray, np.ndarray, np.ndarray, n
     return tuple(np.array([getattr(p, k) for p in pri], float) for k in ("start", "lower", "upper", "size"))
 
 
-def param_names(effects: list[Effect]) -> list[str]:
-    return list(PARAM_NAMES) + [f"{label(e)}.{n}" for e in effects for n in e.param_names]
+def param_names(layout: ParamLayout, effects: list[Effect]) -> list[str]:
+    return list(layout.names) + [f"{label(e)}.{n}" for e in effects for n in e.param_names]
 
 
-def param_units(effects: list[Effect]) -> list[str]:
-    return list(PARAM_UNITS) + [u for e in effects for u in e.units]
+def param_units(layout: ParamLayout, effects: list[Effect]) -> list[str]:
+    return list(layout.units) + [u for e in effects for u in e.units]
 
 
 # --------------------------------------------------------------------------- forward model
@@ -88,15 +92,16 @@ class AugmentedForward(ForwardModel):
         super().__init__(robot, design, **kw)
         self.effects = list(effects)
         self.sizes = [len(e.param_names) for e in self.effects]
-        self.n_params = NP + sum(self.sizes)
+        nb = self.n_base
+        self.n_params = nb + sum(self.sizes)
         self._fd_size = np.ones(self.n_params)
         if self.effects:
-            self._fd_size[NP:] = np.concatenate([effect_priors(e)[3] for e in self.effects])
+            self._fd_size[nb:] = np.concatenate([effect_priors(e)[3] for e in self.effects])
         self._overridden: np.ndarray | None = None
 
     def write(self, theta: np.ndarray) -> None:
         super().write(theta)
-        off = NP
+        off = self.n_base
         for e, n in zip(self.effects, self.sizes):
             e.set_params(self.robot, theta[off: off + n])
             off += n
@@ -106,10 +111,11 @@ class AugmentedForward(ForwardModel):
         return): the base columns from ``Robot.dforce_dtheta`` (zero where an effect owns the
         quantity), the effects' by central differences of the passive force."""
         m, d = self.robot.model, self.robot.data
+        nb = self.n_base
         out = np.zeros((self.nv, self.n_params))
-        out[:, :NP] = super()._dforce(theta)
-        out[:, :NP][:, self._base_overridden(theta)] = 0.0
-        for i in range(NP, self.n_params):
+        out[:, :nb] = super()._dforce(theta)
+        out[:, :nb][:, self._base_overridden(theta)] = 0.0
+        for i in range(nb, self.n_params):
             h = 1e-6 * (abs(theta[i]) if theta[i] != 0 else self._fd_size[i])
             tp, tm = theta.copy(), theta.copy()
             tp[i] += h
@@ -134,15 +140,16 @@ class AugmentedForward(ForwardModel):
         return out
 
     def _base_overridden(self, theta) -> np.ndarray:
-        """(NP,) bool: base parameters an effect writes over (the compensator effect owns K_C
-        and s0), found once by writing changed base values and reading the model back."""
+        """(n_base,) bool: base parameters an effect writes over (the compensator effect on a
+        model that has it owns K_C and s0), found once by writing changed base values and
+        reading the model back."""
         if self._overridden is None:
+            nb = self.n_base
             probe = theta.copy()
-            probe[:NP] *= 1.5
+            probe[:nb] *= 1.5
             self.write(probe)
-            p = self.robot.params()
-            back = np.r_[p.compliance, p.compensator_stiffness, p.compensator_preload]
-            self._overridden = ~np.isclose(back, probe[:NP], rtol=1e-9, atol=0.0)
+            back = self.layout.theta(self.robot.params())
+            self._overridden = ~np.isclose(back, probe[:nb], rtol=1e-9, atol=0.0)
             self.write(theta)
         return self._overridden
 
@@ -208,11 +215,11 @@ def fit(model: AugmentedForward, dp: np.ndarray, linv: np.ndarray, start: np.nda
     resid = np.einsum("mij,mj->mi", np.linalg.inv(linv), resid_w)
     return Fit(theta, cov, ident, resid, resid_w, sol.cost, sol.r_w.size, rank, sol.iterations,
                model.stats["evaluations"] - n0, sol.converged, time.perf_counter() - t0,
-               names=tuple(param_names(model.effects)), units=tuple(param_units(model.effects)),
+               names=tuple(param_names(model.layout, model.effects)),
+               units=tuple(param_units(model.layout, model.effects)),
                predicted=last["f"], at_bound=~free & ~hold, start=theta0, effects=list(model.effects),
                model=model, robot=model.robot)
 
 
 __all__ = ["DISCOVERY_EFFECTS", "library", "label", "effect_priors",
-           "param_names", "param_units", "AugmentedForward", "Fit", "build", "fit", "BASE_LOWER",
-           "BASE_UPPER"]
+           "param_names", "param_units", "AugmentedForward", "Fit", "build", "fit"]

@@ -58,11 +58,11 @@ def pose_features(fit, obs) -> dict[str, np.ndarray]:
     robot = fit.robot
     m, d = robot.model, robot.data
     eqs = fit.model.equilibria()
-    k = fit.values[:6]
+    k = fit.values[: robot.n_act]
     q2, ext, ang = [], [], []
     tau = []
     for p, (q0, q1) in zip(obs.poses, eqs):
-        q2.append(math.degrees(p.q[1]))
+        q2.append(math.degrees(p.q[1]) if len(p.q) > 1 else 0.0)
         dq = q1[robot.act_qpos] - q0[robot.act_qpos]
         tau.append(np.abs(dq / k))
         d.qpos[:] = q0
@@ -76,7 +76,7 @@ def pose_features(fit, obs) -> dict[str, np.ndarray]:
     tau = np.array(tau)
     feats = {"q2 (deg)": np.array(q2), "load angle from vertical (deg)": np.array(ang),
              "arm extension (m)": np.array(ext)}
-    for i in range(6):
+    for i in range(robot.n_act):
         feats[f"load torque on motor {i + 1} (N*m)"] = tau[:, i]
     return feats
 

@@ -39,10 +39,11 @@ from calbench.bench.effects import augmented_xml, load_spec
 from calbench.bench.idreport import IdentificationReport, ObservationFit, ParameterEstimate
 from calbench.bench.logformat import read_log
 from calbench.bench.outputs import atomic_path, write_text
-from calbench.bench.robot import ACTUATED, COMPENSATOR, Robot
+from calbench.bench.description import set_spec_names, spec_names
+from calbench.bench.robot import Robot
 from calbench.bench.view import Discovery, write_discovery_recording
 
-from .fit import (BASE_LOWER, BASE_UPPER, NP, Fit, build, effect_priors, fit, label, library)
+from .fit import Fit, build, effect_priors, fit, label, library
 from .stats import (ALPHA_EFFECT, ALPHA_FIT, MIN_EXPLAINED, chi2_p, compare, diagnose,
                              expected_rms, rms)
 from ..identifiability import whiten_factors
@@ -57,18 +58,20 @@ UNEXPLAINED = "unexplained"
 def _base_fit(src, obs, linv) -> Fit:
     robot, fm = build(src, [], obs)
     r = one_step(robot, obs, step_tol=1e-3)
+    lo, hi = robot.layout.lower, robot.layout.upper
     start = np.where(np.isfinite(r.theta), r.theta, r.start)
-    start = np.clip(start, BASE_LOWER, BASE_UPPER)
-    return fit(fm, obs.dp, linv, start, BASE_LOWER, BASE_UPPER, ~np.asarray(r.identifiable, bool))
+    start = np.clip(start, lo, hi)
+    return fit(fm, obs.dp, linv, start, lo, hi, ~np.asarray(r.identifiable, bool))
 
 
 def _candidate_fit(src, obs, linv, current: Fit, hold_base: np.ndarray, effect) -> Fit:
     start, lower, upper, _ = effect_priors(effect)
     applied = current.effect_params()
     _, fm = build(src, applied + [(effect, start)], obs)
-    n_prev = current.values.size - NP
-    lo = np.concatenate([BASE_LOWER] + [effect_priors(e)[1] for e, _ in applied] + [lower])
-    hi = np.concatenate([BASE_UPPER] + [effect_priors(e)[2] for e, _ in applied] + [upper])
+    lay = fm.layout
+    n_prev = current.values.size - lay.n
+    lo = np.concatenate([lay.lower] + [effect_priors(e)[1] for e, _ in applied] + [lower])
+    hi = np.concatenate([lay.upper] + [effect_priors(e)[2] for e, _ in applied] + [upper])
     hold = np.concatenate([hold_base, np.zeros(n_prev + start.size, bool)])
     return fit(fm, obs.dp, linv, np.concatenate([current.values, start]), lo, hi, hold)
 
@@ -91,18 +94,27 @@ def _step_record(effect, cand: Fit, before: Fit, stats_: dict, obs) -> dict:
 def augmented_mjcf(src, fitted: Fit) -> str:
     """The user's MJCF with the identified base parameters and every effect written in."""
     spec = load_spec(Path(src) if isinstance(src, Path) else src)
-    k = fitted.values[:6]
-    for name, ki in zip(ACTUATED, k):
+    rb: Robot = fitted.robot
+    lay = rb.layout
+    k = fitted.values[lay.compliance]
+    for name, ki in zip(rb.description.actuated, k):
         j = spec.joint(name)
         if j is not None:
             j.stiffness[0] = 1.0 / ki
-    t = spec.tendon(COMPENSATOR)
-    if t is not None and fitted.free[6]:
-        t.stiffness[0] = fitted.values[6]
-        t.springlength = [fitted.values[7], fitted.values[7]]
+    for c, name in enumerate(lay.compensators):
+        t = spec.tendon(name)
+        kc, s0 = lay.stiffness_index[c], lay.preload_index[c]
+        if t is not None and fitted.free[kc]:
+            t.stiffness[0] = fitted.values[kc]
+            t.springlength = [fitted.values[s0], fitted.values[s0]]
     effects = fitted.effect_params()
+    tendons = {t.name for t in spec.tendons}
     for e, p in effects:
         e.apply(spec, p)
+    # a spring tendon an effect added (the compensator) is a compensator of the augmented robot
+    added = [t.name for t in spec.tendons if t.name not in tendons]
+    if added:
+        set_spec_names(spec, "compensators", spec_names(spec, "compensators") + added)
     return augmented_xml(spec, effects)
 
 
@@ -121,13 +133,14 @@ def discover(log_path, model=None, *, out_model=None, plot=None, view_json=None,
     sigma = float(obs.noise_sigma)
 
     base = _base_fit(src, obs, linv)
-    hold_base = ~base.free[:NP] & ~base.at_bound[:NP]
+    nb = robot.layout.n
+    hold_base = ~base.free[:nb] & ~base.at_bound[:nb]
     diag_before = diagnose(base, obs, sigma)
     current = base
     named: list[str] = []
     steps: list[dict] = []
     rounds: list[dict] = []
-    lib = library()
+    lib = library(robot)
     hints: list[dict] = []
     for rnd in range(max_rounds):
         fits_noise = chi2_p(current.chi2, current.dof) >= ALPHA_FIT

@@ -4,7 +4,7 @@ For each replicate: ``simulate`` the cell's scenario with the campaign's seed in
 private temporary folder, ``identify`` it (the log without its truth; the truth is read only
 afterwards, for the error and z columns, as in identify/report.py), and, where the study asks,
 ``discover`` on the log with the user's model (the log's MJCF, or it without the effects of
-``discover_without``). The record of a campaign is one flat dict of RESULT_COLUMNS: per
+``discover_without``). The record of a campaign is one flat dict of :func:`result_columns`: per
 parameter the estimate, reported std, truth, error and z; the fit's chi2; what discover named;
 the timings; and the error, if the campaign failed (then the numbers are NaN).
 
@@ -27,7 +27,6 @@ from calbench.bench.campaign import run_campaign
 from calbench.bench.effects import without_compensator
 from calbench.bench.outputs import write_text
 
-from ..forward import PARAM_NAMES
 from ..portable import PortableScenario
 
 # effects discover's starting model can lack (campaign.discover_without): MJCF text -> MJCF text
@@ -36,16 +35,23 @@ PARAM_FIELDS = ("estimate", "std", "truth", "error", "z")
 NOTHING = "nothing"
 
 _F, _I, _S, _B = pa.float64(), pa.int64(), pa.string(), pa.bool_()
-RESULT_COLUMNS: dict[str, pa.DataType] = {
-    "cell": _I, "replicate": _I, "seed": _I, "cell_id": _S,
-    **{f"{p}_{f}": _F for p in PARAM_NAMES for f in PARAM_FIELDS},
-    "chi2": _F, "dof": _I, "chi2_per_dof": _F, "residual_rms": _F, "noise_sigma": _F,
-    "n_poses_planned": _I, "n_poses_used": _I, "converged": _B,
-    "expected": _S, "named_first": _S, "named_effects": _S, "detected": _B,
-    "rms_before": _F, "rms_after": _F, "noise_rms_before": _F, "noise_rms_after": _F,
-    "simulate_s": _F, "identify_s": _F, "discover_s": _F, "campaign_s": _F,
-    "worker": _S, "error": _S,
-}
+
+
+def result_columns(param_names) -> dict[str, pa.DataType]:
+    """The measured columns of a study's rows, for a robot whose parameters are ``param_names``
+    (its layout: k1..kN, then each compensator's stiffness and preload)."""
+    return {
+        "cell": _I, "replicate": _I, "seed": _I, "cell_id": _S,
+        **{f"{p}_{f}": _F for p in param_names for f in PARAM_FIELDS},
+        "chi2": _F, "dof": _I, "chi2_per_dof": _F, "residual_rms": _F, "noise_sigma": _F,
+        "n_poses_planned": _I, "n_poses_used": _I, "converged": _B,
+        "expected": _S, "named_first": _S, "named_effects": _S, "detected": _B,
+        "rms_before": _F, "rms_after": _F, "noise_rms_before": _F, "noise_rms_after": _F,
+        "simulate_s": _F, "identify_s": _F, "discover_s": _F, "campaign_s": _F,
+        "worker": _S, "error": _S,
+    }
+
+
 TIMING_COLUMNS = ("simulate_s", "identify_s", "discover_s", "campaign_s", "worker")
 
 
@@ -136,10 +142,10 @@ def discover_model_text(mjcf: str, without: tuple[str, ...]) -> str | None:
     return mjcf
 
 
-def empty_record() -> dict:
+def empty_record(columns: dict[str, pa.DataType]) -> dict:
     """A record with every result column missing (NaN numbers, None elsewhere)."""
-    return {k: (math.nan if t == _F else None) for k, t in RESULT_COLUMNS.items()}
+    return {k: (math.nan if t == _F else None) for k, t in columns.items()}
 
 
-__all__ = ["CampaignJob", "run_campaigns", "one_campaign", "discover_model_text", "RESULT_COLUMNS",
+__all__ = ["CampaignJob", "run_campaigns", "one_campaign", "discover_model_text", "result_columns",
            "TIMING_COLUMNS", "REMOVABLE", "empty_record"]

@@ -15,7 +15,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..forward import PARAM_NAMES
 from .spec import Study
 
 
@@ -55,7 +54,7 @@ def accuracy_plots(study: Study, pooled: dict, folder: Path) -> list[Path]:
         rows = pooled[a.name]
         x, labels = _x([r["value"] for r in rows])
         fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
-        for p in PARAM_NAMES:
+        for p in study.param_names:
             y = [r["parameters"][p].get("rms_relative_error") for r in rows]
             if all(v is None for v in y):
                 continue

@@ -23,7 +23,7 @@ from pathlib import Path
 import pyarrow as pa
 
 from ..executor import Executor, InProcess, Interrupted
-from .campaign import RESULT_COLUMNS, CampaignJob, discover_model_text, empty_record, run_campaigns
+from .campaign import CampaignJob, discover_model_text, empty_record, result_columns, run_campaigns
 from .spec import Cell, Study, digest
 from .store import ResultStore
 
@@ -54,7 +54,7 @@ def schema(study: Study) -> pa.Schema:
     """The results' columns: cell and replicate first, then the axes, then the measurements."""
     fields = [pa.field("cell", pa.int64()), pa.field("replicate", pa.int64())]
     fields += [pa.field(a.name, _axis_type(a.column)) for a in study.axes]
-    fields += [pa.field(k, t) for k, t in RESULT_COLUMNS.items() if k not in ("cell", "replicate")]
+    fields += [pa.field(k, t) for k, t in result_columns(study.param_names).items() if k not in ("cell", "replicate")]
     return pa.schema(fields)
 
 
@@ -200,12 +200,13 @@ def run_study(pending: Pending, executor: Executor | None = None, progress=None)
                 fanout.append({r: by_rep[r] for r in chunk})
         bar.start(pending.campaigns, "campaigns")
         last, merge_s = time.perf_counter(), 0.0
+        blank = empty_record(result_columns(study.param_names))
         results = executor.run(run_campaigns, jobs, shared=(study.mjcf, models))
         for j, records in results:
             rows = []
             for rec in records:
                 for cell in fanout[j][rec["replicate"]]:
-                    row = {**empty_record(), **rec, "cell": cell.index, "cell_id": cell.cell_id,
+                    row = {**blank, **rec, "cell": cell.index, "cell_id": cell.cell_id,
                            **{k: _axis_value(study, k, v) for k, v in cell.values.items()}}
                     rows.append(row)
             store.add(rows)

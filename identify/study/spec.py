@@ -116,6 +116,7 @@ class Study:
     seed: int
     campaign: CampaignSettings
     axes: tuple[Axis, ...]
+    param_names: tuple[str, ...]          # the robot's parameters (its layout), in order
     cells: tuple[Cell, ...] = field(repr=False)
 
     def campaign_seed(self, replicate: int) -> int:
@@ -351,9 +352,15 @@ def load_study(path: str | Path) -> Study:
         raise InputError(path, "axis", "[[axis]] tables", axes_raw)
     axes = tuple(_axis(path, i, a) for i, a in enumerate(axes_raw))
     names = [a.name for a in axes]
-    from .campaign import RESULT_COLUMNS
+    from calbench.bench.robot import Robot
+    from .campaign import result_columns
+    try:
+        param_names = tuple(Robot.from_file(base.robot).layout.names)
+    except ValueError as exc:
+        raise InputError(path, "scenario", "a base scenario whose robot loads", f"{base.robot}: {exc}") from None
+    reserved = result_columns(param_names)
     for a in axes:
-        if names.count(a.name) > 1 or a.name in RESULT_COLUMNS:
+        if names.count(a.name) > 1 or a.name in reserved:
             raise InputError(path, f"{a.where}.name", "a column name used once and by no result column", a.name)
         if a.scales is not None and (a.scales not in names or a.scales == a.name):
             raise InputError(path, f"{a.where}.scales", "the name of another axis", a.scales)
@@ -370,7 +377,7 @@ def load_study(path: str | Path) -> Study:
     base_doc.pop("robot", None)
     base_doc["seed"] = seed              # designs use it; each campaign replaces it by its own
     study = Study(path, text, str(top.get("name", path.stem)), base, mjcf, robot.name, seeds, seed,
-                  campaign0, axes, ())
+                  campaign0, axes, param_names, ())
     cells = []
     plans: dict[str, tuple[str, list | None]] = {}
     for index, combo in enumerate(np.ndindex(*[len(a.column) for a in axes]) if axes else [()]):
@@ -407,7 +414,8 @@ def load_study(path: str | Path) -> Study:
         inputs = digest(doc, spec, camp_settings.__dict__, hashlib.sha256(mjcf.encode()).hexdigest())
         cells.append(Cell(index, values, doc, spec, camp_settings, inputs, digest(inputs, values),
                           expected_effect(scn, camp_settings)))
-    return Study(path, text, study.name, base, mjcf, robot.name, seeds, seed, campaign0, axes, tuple(cells))
+    return Study(path, text, study.name, base, mjcf, robot.name, seeds, seed, campaign0, axes, param_names,
+                 tuple(cells))
 
 
 def _culprit(axes, combo, fixed: dict, key: str, plan_where: str) -> str:

@@ -17,7 +17,6 @@ from collections import Counter
 import numpy as np
 import pyarrow as pa
 
-from ..forward import PARAM_NAMES
 from .spec import Study
 
 COVERAGE_K = 2.0
@@ -40,12 +39,12 @@ def _rms(x: np.ndarray) -> float | None:
     return float(np.sqrt(np.mean(x ** 2))) if x.size else None
 
 
-def _stats(c: dict, rows: np.ndarray) -> dict:
+def _stats(c: dict, rows: np.ndarray, names) -> dict:
     """The statistics of the module docstring over the campaign rows ``rows`` (bool mask)."""
     ok = rows & (c["error"] == "")
     out = {"campaigns": int(rows.sum()), "failed": int((rows & (c["error"] != "")).sum()), "parameters": {}}
     zs = []
-    for p in PARAM_NAMES:
+    for p in names:
         z = c[f"{p}_z"][ok]
         err = c[f"{p}_error"][ok]
         truth = c[f"{p}_truth"][ok]
@@ -70,26 +69,27 @@ def _stats(c: dict, rows: np.ndarray) -> dict:
     return out
 
 
+def _study_columns(study: Study, table: pa.Table) -> dict[str, np.ndarray]:
+    return columns(table, ["cell", "error", "detected", "named_first", "campaign_s"] + [
+        f"{p}_{f}" for p in study.param_names for f in ("z", "error", "truth")])
+
+
 def cell_summaries(study: Study, table: pa.Table) -> list[dict]:
     """One dict per cell: its axis values, expected effect and :func:`_stats`."""
-    names = ["cell", "error", "detected", "named_first", "campaign_s"] + [
-        f"{p}_{f}" for p in PARAM_NAMES for f in ("z", "error", "truth")]
-    c = columns(table, names)
+    c = _study_columns(study, table)
     return [{"cell": cell.index, "values": cell.values, "plan": cell.plan, "expected": cell.expected,
-             **_stats(c, c["cell"] == cell.index)} for cell in study.cells]
+             **_stats(c, c["cell"] == cell.index, study.param_names)} for cell in study.cells]
 
 
 def pooled_by_axis(study: Study, table: pa.Table) -> dict[str, list[dict]]:
     """Per axis, per value: the statistics pooled over the other axes (for the plots)."""
-    names = ["cell", "error", "detected", "named_first", "campaign_s"] + [
-        f"{p}_{f}" for p in PARAM_NAMES for f in ("z", "error", "truth")]
-    c = columns(table, names)
+    c = _study_columns(study, table)
     out = {}
     for a in study.axes:
         rows = []
         for v in a.column:
             cells = [cell.index for cell in study.cells if cell.values[a.name] == v]
-            rows.append({"value": v, **_stats(c, np.isin(c["cell"], cells))})
+            rows.append({"value": v, **_stats(c, np.isin(c["cell"], cells), study.param_names)})
         out[a.name] = rows
     return out
 
