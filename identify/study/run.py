@@ -33,7 +33,7 @@ TARGET_TASK_S = 2.0      # campaigns per task: about this long (scheduling ~5 ms
 # in-process seconds per campaign on the paper plan (measured: simulate 0.09, identify 0.07,
 # discover 1.1 with nothing to find to ~3 with an effect), for the executor choice and task sizes
 SECONDS_PER_CAMPAIGN = {"identify": 0.2, "discover": 2.0}
-SECONDS_PER_DESIGN = 30.0
+SECONDS_PER_DESIGN = 10.0   # 2000 candidates (batched), exchange and refinement
 
 
 def campaign_seconds(cell: Cell) -> float:
