@@ -179,6 +179,7 @@ def cmd_from_urdf(args: argparse.Namespace) -> int:
           + (f" ({conv.meshes} meshes inline)" if conv.meshes else "")
           + f"; joint stiffness placeholders {PLACEHOLDER_STIFFNESS:g} N*m/rad (a scenario's [truth] "
           "replaces them)")
+    print(f"check it with: calbench check-robot {args.out}")
     return 0
 
 
