@@ -17,7 +17,8 @@ import pytest
 from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
 from mcap.writer import CompressionType, Writer
 
-from calbench.bench.logformat import _records, read_log, strip_truth
+from calbench.bench.logformat import read_log, strip_truth
+from calbench.bench.mcapscan import Cut, Damage, scan
 from calbench.identify.cli import main
 from calbench.bench.idreport import IdentificationReport
 from calbench.identify.report import run_identify
@@ -49,7 +50,9 @@ def rewrite(src: Path, dst: Path, message=None, metadata=None, drop_topic: str |
         schemas: dict[int, Schema] = {}
         sid_map: dict[int, int] = {}
         cid_map: dict[int, int] = {}
-        for rec in _records(src):
+        for rec in scan(src):
+            if isinstance(rec, (Cut, Damage)):
+                continue
             if isinstance(rec, Header):
                 w.start(profile=rec.profile, library=rec.library)
             elif isinstance(rec, Schema):
