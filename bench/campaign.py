@@ -19,7 +19,7 @@ from .errors import InputError
 from .foxglove import FoxgloveWriter
 from .logformat import LogHeader, LogWriter
 from .robot import LOOP_MARGIN, LOOP_MARGIN_ANGLE, Params, Robot
-from .timeline import check_size, estimate
+from .timeline import check_size, estimate, repeats_key
 from .scenario import Scenario, check_joint_limits
 from .scenario import scenario_params as _scenario_params
 from .statics import Equilibrium, Load, StaticsError, StaticsSolver
@@ -132,7 +132,8 @@ def run_campaign(scn: Scenario, out: str | Path, progress: ProgressSink | None =
     out = Path(out)
     robot = truth_robot(scn)
     if not force:
-        check_size(estimate([p.repeats for p in scn.poses], len(robot.reflector_names)), scn.path)
+        repeats = [p.repeats for p in scn.poses]
+        check_size(estimate(repeats, len(robot.reflector_names)), scn.path, repeats_key(repeats))
     n = len(scn.poses)
     progress = sink(progress)
     progress.start(2 * n)

@@ -55,6 +55,7 @@ LATEST = datetime(2200, 1, 1, tzinfo=timezone.utc)
 
 SECONDS_PER_READING = 3e-4          # simulated, this machine, rounded up from 0.2 ms
 SECONDS_PER_POSE = 0.01             # the pose's two equilibria and checks
+SECONDS_PER_FIT = 0.05              # one Monte Carlo run's identification (paper plan: ~0.02 s)
 BYTES_PER_REFLECTOR_READING = 50    # compressed log, rounded up from ~37
 MAX_SECONDS = 600.0                 # refuse what would run more than 10 min without --force
 MAX_LOG_BYTES = 1e9                 # or write more than 1 GB
@@ -120,8 +121,12 @@ class Estimate:
     seconds: float          # simulation on this machine
     log_bytes: float
     real_seconds: float     # the campaign on a robot, by the clock above
+    runs: int = 1           # Monte Carlo runs (no log written)
 
     def words(self) -> str:
+        if self.runs > 1:
+            return (f"{self.runs:,} runs of {self.readings:,} readings: ~{duration(self.seconds)} "
+                    "to simulate and identify here")
         return (f"{self.readings:,} readings: ~{duration(self.seconds)} to simulate here and "
                 f"~{size(self.log_bytes)} of log; on a real robot ~{duration(self.real_seconds)}")
 
@@ -137,16 +142,36 @@ def estimate(repeats: Sequence[int], n_reflectors: int) -> Estimate:
         real_seconds=n * (MOVE_S + LOAD_S + UNLOAD_S) + readings * reading_seconds(n_reflectors))
 
 
-def check_size(est: Estimate, file: object, key: str = "pose[].repeats", runs: int = 1) -> None:
-    """Refuse a campaign (``runs`` times over) that would run more than MAX_SECONDS or write
-    more than MAX_LOG_BYTES (InputError naming the estimate); callers skip it when forced."""
-    seconds, nbytes = est.seconds * runs, est.log_bytes
-    if seconds <= MAX_SECONDS and nbytes <= MAX_LOG_BYTES:
+def montecarlo_estimate(repeats: Sequence[int], n_reflectors: int, runs: int) -> Estimate:
+    """A Monte Carlo study: the plan is solved once, then each run draws every reading and
+    identifies; no log is written."""
+    one = estimate(repeats, n_reflectors)
+    return Estimate(one.poses, one.readings, SECONDS_PER_POSE * one.poses + runs * (
+        SECONDS_PER_READING * one.readings + SECONDS_PER_FIT), 0.0, one.real_seconds, int(runs))
+
+
+def check_size(est: Estimate, file: object, key: str) -> None:
+    """Refuse what would run more than MAX_SECONDS or write more than MAX_LOG_BYTES (InputError
+    naming ``key`` and saying the estimate); callers skip it when forced (--force)."""
+    if est.seconds <= MAX_SECONDS and est.log_bytes <= MAX_LOG_BYTES:
         return
-    times = f" x {runs} runs" if runs > 1 else ""
-    raise InputError(file, key, f"a campaign this machine finishes in reasonable time (at most "
-                     f"{duration(MAX_SECONDS)} and {size(MAX_LOG_BYTES)} of log; --force runs it "
-                     f"anyway)", f"{est.words()}{times}")
+    limit = duration(MAX_SECONDS) + ("" if est.runs > 1 else f" and {size(MAX_LOG_BYTES)} of log")
+    raise InputError(file, key, f"a {'study' if est.runs > 1 else 'campaign'} this machine "
+                     f"finishes in reasonable time (at most {limit}; --force runs it anyway)",
+                     Said(est.words()))
+
+
+class Said(str):
+    """Text an InputError shows as it is (its repr is the text)."""
+
+    def __repr__(self) -> str:
+        return str(self)
+
+
+def repeats_key(repeats: Sequence[int]) -> str:
+    """The scenario key to blame for a campaign's size: the pose with the most repeats."""
+    i = max(range(len(repeats)), key=lambda k: repeats[k]) if repeats else 0
+    return f"pose[{i}].repeats" if repeats and repeats[i] > 1 else "pose"
 
 
 def duration(seconds: float) -> str:
@@ -155,14 +180,16 @@ def duration(seconds: float) -> str:
         return "forever"
     for unit, s in (("years", 365.25 * 86400), ("days", 86400), ("h", 3600), ("min", 60)):
         if seconds >= 2 * s:
-            return f"{seconds / s:,.3g} {unit}"
+            v = seconds / s
+            return f"{v:,.0f} {unit}" if v >= 100 else f"{v:.3g} {unit}"
     return f"{seconds:.3g} s"
 
 
 def size(nbytes: float) -> str:
     for unit, b in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
         if nbytes >= b:
-            return f"{nbytes / b:,.3g} {unit}"
+            v = nbytes / b
+            return f"{v:,.0f} {unit}" if v >= 100 else f"{v:.3g} {unit}"
     return f"{nbytes:.0f} B"
 
 
@@ -173,5 +200,6 @@ def iso(t_ns: int) -> str:
 
 
 __all__ = ["DEFAULT_START", "MOVE_S", "READING_PER_REFLECTOR_S", "LOAD_S", "UNLOAD_S",
-           "CampaignClock", "Estimate", "estimate", "check_size", "parse_start_time", "start_ns",
+           "CampaignClock", "Estimate", "estimate", "montecarlo_estimate", "check_size",
+           "repeats_key", "parse_start_time", "start_ns",
            "reading_seconds", "duration", "size", "iso", "MAX_SECONDS", "MAX_LOG_BYTES"]

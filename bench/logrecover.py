@@ -1,0 +1,202 @@
+"""`calbench recover`: rewrite a cut-short or damaged campaign log as a valid MCAP file.
+
+A campaign killed with SIGKILL (or a crash, or power loss) leaves a file without its summary
+and footer: calbench reads it up to its last finished pose, but other MCAP readers
+(``make_reader``, ``rerun mcap``, Foxglove) refuse it. A damaged log (a flipped bit) is refused
+by every calbench verb (bench/logread.py). :func:`recover_log` writes a new file that every
+reader opens and that bench/logread.py accepts:
+
+* every record that can be read is kept, in order, with its time (copied by
+  bench/logformat.py's :func:`copy_log`, with a summary and a footer);
+* a pose is kept only when it is complete (its ``/campaign/pose_done`` marker is there) and all
+  of it is trustworthy. A damaged record taints every pose that may have had messages in it: the
+  poses in progress between the last marker before it and the first marker after it (a chunk
+  ends at each marker, so usually just the one pose). A message that breaks its schema, a pose
+  index outside the plan, a duplicate: that pose is dropped too. Dropped and incomplete poses
+  are named in the result and in a ``recovered`` metadata record, so the recovered log reports
+  them as lost;
+* messages on topics the reader does not decode (the Foxglove view) follow their pose.
+
+It cannot recover a log whose ``/campaign/info`` message is damaged (CorruptLogError), and a
+file that is not MCAP is an InputError: both exit status 2.
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from mcap.records import Attachment, Channel, DataEnd, Message, Metadata
+
+from .campaignlog import pose_list
+from .logformat import copy_log
+from .logread import (DECODED, END_METADATA, RECOVERED_METADATA, CorruptLogError, decode,
+                      message_problems)
+from .mcapscan import Cut, Damage, scan
+
+
+@dataclass
+class Recovery:
+    """What :func:`recover_log` kept and left out."""
+
+    source: Path
+    source_end: str                                   # "finished", "was cut short", ...
+    complete_poses: list[int] = field(default_factory=list)
+    dropped: dict[int, str] = field(default_factory=dict)   # pose -> why it was left out
+    damage: list[str] = field(default_factory=list)         # damaged records, in words
+    n_planned: int = 0
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def lost_poses(self) -> list[int]:
+        return sorted(set(range(self.n_planned)) - set(self.complete_poses))
+
+    def summary(self) -> str:
+        """One line for the command line."""
+        text = (f"{len(self.complete_poses)} of {self.n_planned} planned poses kept"
+                f" {pose_list(self.complete_poses)}" if self.complete_poses else
+                f"no complete pose of {self.n_planned} planned")
+        if self.dropped:
+            text += "; dropped " + ", ".join(f"pose {p} ({why})" for p, why in
+                                             sorted(self.dropped.items())[:5])
+            text += "" if len(self.dropped) <= 5 else f" and {len(self.dropped) - 5} more"
+        return f"{text}; the source {self.source_end}"
+
+
+def _pose(m: Any) -> int | None:
+    p = m.get("pose") if isinstance(m, dict) else None
+    return p if isinstance(p, int) and not isinstance(p, bool) else None
+
+
+class _Salvage:
+    """Pass over the events of a log: which messages to keep (see the module docstring)."""
+
+    def __init__(self, src: Path, events: list):
+        self.src = src
+        self.topics = {r.id: r.topic for r in events if isinstance(r, Channel)}
+        self.n_poses: int | None = None
+        self.valid: set[int] = set()            # decoded messages that pass every check
+        self.pose_of: dict[int, int] = {}       # event index -> pose of a valid message
+        self.span_of: dict[int, int] = {}       # event index -> the marker closing its span
+        self.done: dict[int, int] = {}          # pose -> event index of its marker
+        self.bad: dict[int, str] = {}           # pose -> why it is left out
+        self._span: list[int] = []
+        self._poses: set[int] = set()
+        self._taint: str | None = None
+        self._seen: set[tuple] = set()
+        for i, e in enumerate(events):
+            if isinstance(e, Damage):
+                self._taint = self._taint or f"damaged {e.record} at byte {e.offset}"
+            elif isinstance(e, Message) and e.channel_id in self.topics:
+                self._message(i, e, self.topics[e.channel_id])
+
+    def _message(self, i: int, e: Message, topic: str) -> None:
+        if topic not in DECODED:
+            if self._poses:                       # inside a pose: it follows the pose
+                self._span.append(i)
+            return
+        m, why = decode(topic, e.data, e.sequence)
+        pose = _pose(m)
+        if why is None:
+            found = message_problems(topic, m, self.n_poses)
+            why = (f"{topic} {found[0].field}: expected {found[0].expected}".replace(" :", ":")
+                   if found else None)
+        key = (topic, pose, *((m.get("state"), m.get("repeat")) if isinstance(m, dict) else ()))
+        if why is None and key in self._seen:
+            why = f"a second {topic} message"
+        self._seen.add(key)
+        if topic == "/campaign/info":
+            if why is not None or self.n_poses is not None:
+                raise CorruptLogError(self.src, "/campaign/info", "one valid campaign info message "
+                                      "to recover from", why or "two")
+            self.n_poses = m["n_poses"]
+        if why is not None:
+            if pose is None:
+                self._taint = self._taint or why
+            elif self.n_poses is None or pose < self.n_poses:
+                self.bad.setdefault(pose, why)
+            return                                # out of the plan: left out alone
+        self.valid.add(i)
+        if pose is None:
+            return
+        self.pose_of[i] = pose
+        self._span.append(i)
+        self._poses.add(pose)
+        if topic == "/campaign/pose_done":
+            if self._taint:
+                for p in self._poses:
+                    self.bad.setdefault(p, self._taint)
+            self.done[pose] = i
+            for j in self._span:
+                self.span_of[j] = i
+            self._span, self._poses, self._taint = [], set(), None
+
+    def complete(self) -> list[int]:
+        return sorted(p for p in self.done if p not in self.bad)
+
+
+def recover_log(src: str | os.PathLike, dst: str | os.PathLike) -> Recovery:
+    """Rewrite ``src`` as a valid MCAP file at ``dst`` (see the module docstring). Reads ``src``
+    whole before ``dst`` is created."""
+    src = Path(src)
+    events = list(scan(src))                  # InputError when src is not MCAP
+    damage = [e for e in events if isinstance(e, Damage)]
+    sal = _Salvage(src, events)
+    if sal.n_poses is None:
+        raise CorruptLogError(src, "/campaign/info", "a campaign info message to recover from",
+                              "none")
+    complete = set(sal.complete())
+    markers = {sal.done[p] for p in complete}
+    metadata_ok = not any(d.record == "DataEnd" for d in damage)
+    index = {id(e): i for i, e in enumerate(events)}
+
+    def keep(r: Any) -> bool:
+        i = index[id(r)]
+        if isinstance(r, Message):
+            if i in sal.span_of:                  # a pose's message: its pose decides
+                return sal.span_of[i] in markers and (i not in sal.pose_of
+                                                      or sal.pose_of[i] in complete)
+            if sal.topics.get(r.channel_id) in DECODED:
+                return i in sal.valid and i not in sal.pose_of   # info, truth parameters
+            return not _in_open_pose(i)
+        if isinstance(r, Metadata):
+            return metadata_ok and r.name != RECOVERED_METADATA
+        return True                               # attachments (a damaged one is a Damage)
+
+    last_marker = max(sal.done.values(), default=-1)
+    open_from = min((j for j in sal.pose_of if j > last_marker), default=len(events))
+
+    def _in_open_pose(i: int) -> bool:
+        """An undecoded message after the first message of a pose never finished: lost with it."""
+        return i > open_from
+
+    rec = Recovery(src, _source_end(events, damage), complete_poses=sorted(complete),
+                   dropped={p: why for p, why in sorted(sal.bad.items()) if p < sal.n_poses},
+                   damage=[str(d) for d in damage], n_planned=sal.n_poses)
+    if not metadata_ok:
+        rec.notes.append("the data section's CRC failed: the metadata records were left out")
+    extra = {RECOVERED_METADATA: {"source": src.name, "source_end": rec.source_end,
+                                  "dropped_poses": json.dumps(sorted(rec.dropped)),
+                                  "damage": "; ".join(rec.damage)[:2000]}}
+    copy_log(events, dst, keep=keep, metadata=extra)
+    return rec
+
+
+def _source_end(events: list, damage: list[Damage]) -> str:
+    """How the source ended, as the end of "the source ..."."""
+    cut = any(isinstance(e, Cut) for e in events)
+    end = next((e for e in events if isinstance(e, Metadata) and e.name == END_METADATA), None)
+    words = []
+    if damage:
+        words.append(f"was damaged ({len(damage)} damaged record{'s' if len(damage) > 1 else ''})")
+    if cut:
+        words.append("was cut short (no footer)")
+    if end is not None and end.metadata.get("status", "finished") != "finished":
+        words.append(end.metadata["status"] + (f" ({end.metadata['reason']})"
+                                               if end.metadata.get("reason") else ""))
+    return " and ".join(words) or "finished"
+
+
+__all__ = ["recover_log", "Recovery"]
