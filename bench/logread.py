@@ -14,7 +14,8 @@ A log is input, and nothing it says is trusted blindly. The policy (docs/contrac
   5-element ``q``, a missing ``visible``, NaN or Infinity anywhere: bench/logschema.py), a pose
   index outside the plan (``n_poses`` of ``/campaign/info``), a reading whose lists disagree
   in length or whose visibility and nulls disagree, a covariance that is not symmetric positive
-  definite, a message given twice. Nothing is computed with such a log; ``calbench recover``
+  definite, a message given twice, a complete pose without its command in both states or its
+  load. Nothing is computed with such a log; ``calbench recover``
   (bench/logrecover.py) writes a new file with the valid poses only, naming the others, which
   this reader then reads as a campaign with lost poses.
 
@@ -283,6 +284,14 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
 
     complete = sorted(c.done)
     keep = set(complete)
+    for p in complete:                       # a complete pose is all there
+        states = c.poses.get(p, {})
+        if len(states) != 2:
+            raise CorruptLogError(path, f"/campaign/pose pose {p}", "the command of a complete "
+                                  "pose in both states", sorted(states) or "none")
+        if p not in c.wrenches:
+            raise CorruptLogError(path, f"/campaign/wrench pose {p}", "the load of a complete pose",
+                                  "none")
     truth = None
     if include_truth and saw_truth:
         t_meta = metadata.get(GROUND_TRUTH_METADATA) or {}

@@ -24,7 +24,7 @@ from .campaignlog import STATES
 TRUTH_PREFIX = "/truth/"
 GROUND_TRUTH_METADATA = "ground_truth"
 SCENARIO_METADATA = "scenario"
-REQUIRED_TOPICS = ("/campaign/info", "/campaign/pose", "/tracker/measurement")
+REQUIRED_TOPICS = ("/campaign/info", "/campaign/pose", "/campaign/wrench", "/tracker/measurement")
 
 # ---------------------------------------------------------------------------------------------
 # JSON Schemas, one per topic (draft 2020-12 subset: type, required, properties, items,

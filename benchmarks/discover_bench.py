@@ -27,6 +27,7 @@ from calbench.bench.campaign import plan_campaign, run_campaign, truth_robot
 from calbench.bench.effects import without_compensator
 from calbench.bench.scenario import load_scenario, scenario_variant
 from calbench.identify.discover.workflow import discover
+from steps import say
 
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
 MJCF = ROOT / "mjcf" / "m900ib700.xml"
@@ -113,10 +114,12 @@ def run_case(tmp: Path, tmpl: str, v: float, effect: str, detail: str, seeds: in
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--seeds", type=int, default=None, help="seeds per case (default: 20, --quick 4)")
     ap.add_argument("--effects", default=",".join(CASES))
-    ap.add_argument("--quick", action="store_true", help="tested magnitude only")
+    ap.add_argument("--quick", action="store_true", help="tested magnitude only, 4 seeds")
     args = ap.parse_args()
+    if args.seeds is None:
+        args.seeds = 4 if args.quick else 20
     out: dict = {"plan": "scenarios/paper_table5.toml", "tracker_sigma_um": 20, "seeds": args.seeds,
                  "criterion": "right effect (and option) named first", "effects": {}}
     with tempfile.TemporaryDirectory() as tmp_:
@@ -126,6 +129,7 @@ def main() -> None:
         out["no_effect"] = run_case(tmp, "", 0.0, "nothing", "", args.seeds, None)
         out["no_effect"]["false_alarm_rate"] = 1.0 - out["no_effect"]["named"].get("nothing", 0) / args.seeds
         for name in args.effects.split(","):
+            say("discover_bench", f"{name}: {args.seeds} seeds per magnitude")
             tmpl, v0, effect, detail = CASES[name]
             model = bare if effect == "compensator" else None
             rows = []

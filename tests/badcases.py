@@ -100,14 +100,14 @@ def drop_topic(src: Path, dst: Path, topic: str) -> Path:
 
 def edit_pose(topic: str, pose: int, fn: Callable[[dict], Any]) -> Callable[[str, dict], Any]:
     """An ``edit`` for :func:`rewrite_json` applying ``fn`` to the first message of ``topic``
-    for ``pose`` (fn edits in place or returns a replacement)."""
+    for ``pose`` (fn edits in place, or returns a replacement dict or raw bytes)."""
     done = [False]
 
     def edit(t: str, m: dict):
         if t == topic and m.get("pose") == pose and not done[0]:
             done[0] = True
             out = fn(m)
-            return m if out is None else out
+            return out if isinstance(out, (dict, bytes)) else m
         return m
     return edit
 

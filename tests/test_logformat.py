@@ -517,8 +517,8 @@ def test_not_mcap_and_missing_channel_raise_input_error(tmp_path):
         w.finish()
     with pytest.raises(InputError) as e:
         read_log(partial)
-    assert e.value.key == "/tracker/measurement"
-    assert "/tracker/measurement" in str(e.value)
+    assert e.value.key == "/campaign/wrench"         # the first required channel missing
+    assert "/campaign/wrench" in str(e.value)
 
 
 def test_redact_truth_variants():
