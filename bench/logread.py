@@ -328,9 +328,8 @@ def log_end(cut: bool, metadata: dict[str, dict]) -> tuple[str, bool]:
     the campaign stopped before its end."""
     rec = metadata.get(RECOVERED_METADATA)
     if rec is not None:
-        source = rec.get("source_end", "damaged")
-        return f"the log was recovered by `calbench recover` from one that {source}", \
-            source != "finished"
+        return (f"the log was recovered by `calbench recover` from one that "
+                f"{rec.get('source_end', 'was damaged')}", rec.get("campaign_finished") != "true")
     if cut:
         return ("the log was cut short: the file ends without its footer (the campaign was "
                 "killed or crashed)"), True

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from mcap.records import Attachment, Channel, DataEnd, Message, Metadata
+from mcap.records import Channel, Message, MessageIndex, Metadata
 
 from .campaignlog import pose_list
 from .logformat import copy_log
@@ -48,6 +48,7 @@ class Recovery:
     damage: list[str] = field(default_factory=list)         # damaged records, in words
     n_planned: int = 0
     notes: list[str] = field(default_factory=list)
+    finished: bool = True                             # the campaign itself ran to its end
 
     @property
     def lost_poses(self) -> list[int]:
@@ -86,11 +87,20 @@ class _Salvage:
         self._poses: set[int] = set()
         self._taint: str | None = None
         self._seen: set[tuple] = set()
+        closed = None                           # after a damaged chunk: did it end a pose?
         for i, e in enumerate(events):
             if isinstance(e, Damage):
                 self._taint = self._taint or f"damaged {e.record} at byte {e.offset}"
-            elif isinstance(e, Message) and e.channel_id in self.topics:
-                self._message(i, e, self.topics[e.channel_id])
+                closed = False if e.record == "Chunk" else None
+            elif isinstance(e, MessageIndex):
+                if closed is False and self.topics.get(e.channel_id) == "/campaign/pose_done":
+                    closed = True
+            else:
+                if closed:                          # the damaged chunk held a pose's marker:
+                    self._close(None)               # that pose is lost, the next one is clean
+                closed = None
+                if isinstance(e, Message) and e.channel_id in self.topics:
+                    self._message(i, e, self.topics[e.channel_id])
 
     def _message(self, i: int, e: Message, topic: str) -> None:
         if topic not in DECODED:
@@ -125,15 +135,34 @@ class _Salvage:
         self._span.append(i)
         self._poses.add(pose)
         if topic == "/campaign/pose_done":
-            if self._taint:
-                for p in self._poses:
-                    self.bad.setdefault(p, self._taint)
             self.done[pose] = i
-            for j in self._span:
-                self.span_of[j] = i
-            self._span, self._poses, self._taint = [], set(), None
+            self._close(i)
 
-    def complete(self) -> list[int]:
+    def _close(self, marker: int | None) -> None:
+        """End the span of messages at a pose_done ``marker`` (None: a marker lost in a damaged
+        chunk); a damaged record in the span taints every pose with messages in it."""
+        if self._taint:
+            for p in self._poses:
+                self.bad.setdefault(p, self._taint)
+        if marker is not None:
+            for j in self._span:
+                self.span_of[j] = marker
+        self._span, self._poses, self._taint = [], set(), None
+
+    def complete(self, events: list) -> list[int]:
+        """Poses with their marker, untainted, and all there (both commands and the load: what
+        bench/logread.py asks of a complete pose)."""
+        have: dict[int, set] = {}
+        for i, p in self.pose_of.items():
+            m = events[i]
+            topic = self.topics[m.channel_id]
+            state = json.loads(m.data).get("state") if topic == "/campaign/pose" else None
+            have.setdefault(p, set()).add((topic, state))
+        need = {("/campaign/pose", "unloaded"), ("/campaign/pose", "loaded"),
+                ("/campaign/wrench", None)}
+        for p in self.done:
+            if p not in self.bad and not need <= have.get(p, set()):
+                self.bad[p] = "its command or its load is missing"
         return sorted(p for p in self.done if p not in self.bad)
 
 
@@ -147,9 +176,11 @@ def recover_log(src: str | os.PathLike, dst: str | os.PathLike) -> Recovery:
     if sal.n_poses is None:
         raise CorruptLogError(src, "/campaign/info", "a campaign info message to recover from",
                               "none")
-    complete = set(sal.complete())
+    complete = set(sal.complete(events))
     markers = {sal.done[p] for p in complete}
-    metadata_ok = not any(d.record == "DataEnd" for d in damage)
+    # the data section's CRC covers every record: alone in failing, it points at one outside the
+    # chunks and attachments (which have CRCs of their own), i.e. a metadata record
+    metadata_ok = not damage or any(d.record not in ("DataEnd", "Statistics") for d in damage)
     index = {id(e): i for i, e in enumerate(events)}
 
     def keep(r: Any) -> bool:
@@ -172,31 +203,34 @@ def recover_log(src: str | os.PathLike, dst: str | os.PathLike) -> Recovery:
         """An undecoded message after the first message of a pose never finished: lost with it."""
         return i > open_from
 
-    rec = Recovery(src, _source_end(events, damage), complete_poses=sorted(complete),
+    end, finished = _source_end(events, damage)
+    rec = Recovery(src, end, finished=finished, complete_poses=sorted(complete),
                    dropped={p: why for p, why in sorted(sal.bad.items()) if p < sal.n_poses},
                    damage=[str(d) for d in damage], n_planned=sal.n_poses)
     if not metadata_ok:
         rec.notes.append("the data section's CRC failed: the metadata records were left out")
     extra = {RECOVERED_METADATA: {"source": src.name, "source_end": rec.source_end,
+                                  "campaign_finished": json.dumps(rec.finished),
                                   "dropped_poses": json.dumps(sorted(rec.dropped)),
                                   "damage": "; ".join(rec.damage)[:2000]}}
     copy_log(events, dst, keep=keep, metadata=extra)
     return rec
 
 
-def _source_end(events: list, damage: list[Damage]) -> str:
-    """How the source ended, as the end of "the source ..."."""
+def _source_end(events: list, damage: list[Damage]) -> tuple[str, bool]:
+    """How the source ended, as the end of "the source ...", and whether the campaign ran to its
+    end (a damaged but finished log: yes)."""
     cut = any(isinstance(e, Cut) for e in events)
     end = next((e for e in events if isinstance(e, Metadata) and e.name == END_METADATA), None)
+    status = end.metadata.get("status", "finished") if end is not None else "finished"
     words = []
     if damage:
-        words.append(f"was damaged ({len(damage)} damaged record{'s' if len(damage) > 1 else ''})")
+        words.append(f"was damaged ({damage[0]})")
     if cut:
         words.append("was cut short (no footer)")
-    if end is not None and end.metadata.get("status", "finished") != "finished":
-        words.append(end.metadata["status"] + (f" ({end.metadata['reason']})"
-                                               if end.metadata.get("reason") else ""))
-    return " and ".join(words) or "finished"
+    if status != "finished":
+        words.append(status + (f" ({end.metadata['reason']})" if end.metadata.get("reason") else ""))
+    return " and ".join(words) or "finished", not cut and status == "finished"
 
 
 __all__ = ["recover_log", "Recovery"]

@@ -18,9 +18,9 @@ Both happen to campaign logs and they call for different answers:
   - a record whose length runs past the end of a file that ends with MCAP's closing magic (a
     finished file cannot have been cut).
 
-:func:`scan` yields the records in file order (chunks opened into their records), a
-:class:`Damage` in place of each damaged record, and one :class:`Cut` last when the file ends
-before its footer. It does not stop at damage, so a salvage (``calbench recover``) can keep
+:func:`scan` yields the records in file order (chunks opened into their records, each followed
+by its MessageIndex records), a :class:`Damage` in place of each damaged record, and one
+:class:`Cut` last when the file ends before its footer. It does not stop at damage, so a salvage (``calbench recover``) can keep
 what follows; a strict reader stops at the first. Unknown opcodes are skipped, as MCAP asks.
 """
 from __future__ import annotations
@@ -164,6 +164,7 @@ def _scan(f, size: int, finished: bool) -> Iterator[Any]:
             elif chunk_counts is None and not chunk_damaged:
                 yield Damage(here, name, "indexes a chunk that is not there (a record before it "
                                          "was lost)")
+            yield rec                       # after a damaged chunk: which channels it held
             continue
         chunk_counts = None
         chunk_damaged = False
@@ -176,8 +177,9 @@ def _scan(f, size: int, finished: bool) -> Iterator[Any]:
                 continue
         elif isinstance(rec, DataEnd):
             if rec.data_section_crc and rec.data_section_crc != crc_before:
-                yield Damage(here, name, "the data section's CRC does not match: a record "
-                                         "outside the chunks (metadata) is damaged")
+                yield Damage(here, name, "the data section's CRC does not match (with every "
+                                         "chunk and attachment intact: a metadata record is "
+                                         "damaged)")
         elif isinstance(rec, Statistics):
             stats = rec
         elif isinstance(rec, Footer):

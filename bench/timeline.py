@@ -30,10 +30,12 @@ The size
 :func:`estimate` gives the campaign's readings, simulated run time on this machine, log size and
 real duration; :func:`check_size` refuses (InputError, exit 2) a campaign that would run longer
 than :data:`MAX_SECONDS` or write more than :data:`MAX_LOG_BYTES`, saying the estimate, unless
-forced. Per reading, measured on the 2-core machine with the paper robot (3 reflectors): about
-0.2 ms of simulation and ~110 bytes of compressed log (16 poses x 2 states x 1000 repeats:
-6.9 s, 3.4 MB); the estimate uses :data:`SECONDS_PER_READING` and
-:data:`BYTES_PER_REFLECTOR_READING`, rounded up.
+forced. Measured on the 2-core machine with the paper robot (3 reflectors): about 0.2 ms of
+simulation per reading (16 poses x 2 states x 1000 repeats: 6.9 s); the log takes ~36 bytes per
+reflector and reading, ~4.3 kB per pose (commands, load, truth, the Foxglove view) and ~50 kB
+once (schemas, scenario, MJCF). The estimate rounds each up (:data:`SECONDS_PER_READING`,
+:data:`BYTES_PER_REFLECTOR_READING`, :data:`BYTES_PER_POSE`, :data:`BYTES_FIXED`), so it is an
+upper bound of the log's size (tests/test_interrupt.py).
 """
 from __future__ import annotations
 
@@ -56,7 +58,9 @@ LATEST = datetime(2200, 1, 1, tzinfo=timezone.utc)
 SECONDS_PER_READING = 3e-4          # simulated, this machine, rounded up from 0.2 ms
 SECONDS_PER_POSE = 0.01             # the pose's two equilibria and checks
 SECONDS_PER_FIT = 0.05              # one Monte Carlo run's identification (paper plan: ~0.02 s)
-BYTES_PER_REFLECTOR_READING = 50    # compressed log, rounded up from ~37
+BYTES_PER_REFLECTOR_READING = 50    # compressed log, rounded up from ~36
+BYTES_PER_POSE = 6_000              # rounded up from ~4.3 kB
+BYTES_FIXED = 64_000                # rounded up from ~50 kB
 MAX_SECONDS = 600.0                 # refuse what would run more than 10 min without --force
 MAX_LOG_BYTES = 1e9                 # or write more than 1 GB
 
@@ -138,7 +142,8 @@ def estimate(repeats: Sequence[int], n_reflectors: int) -> Estimate:
     return Estimate(
         poses=n, readings=readings,
         seconds=SECONDS_PER_READING * readings + SECONDS_PER_POSE * n,
-        log_bytes=BYTES_PER_REFLECTOR_READING * max(n_reflectors, 1) * readings,
+        log_bytes=BYTES_FIXED + BYTES_PER_POSE * n
+        + BYTES_PER_REFLECTOR_READING * max(n_reflectors, 1) * readings,
         real_seconds=n * (MOVE_S + LOAD_S + UNLOAD_S) + readings * reading_seconds(n_reflectors))
 
 
