@@ -302,6 +302,7 @@ class LogWriter:
             raise ValueError(f"{topic}: message does not match its schema: {problems}")
         t = max(nominal_time, self._last_time + 1)  # strictly increasing, still deterministic
         self._last_time = t
+        self.clock.now = max(self.clock.now, t)       # the next step lasts from here
         seq = self._seq.get(topic, 0)
         self._seq[topic] = seq + 1
         data = json.dumps(msg, allow_nan=False, separators=(",", ":")).encode()
