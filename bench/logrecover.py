@@ -12,7 +12,8 @@ reader opens and that bench/logread.py accepts:
   of it is trustworthy. A damaged record taints every pose that may have had messages in it: the
   poses in progress between the last marker before it and the first marker after it (a chunk
   ends at each marker, so usually just the one pose). A message that breaks its schema, a pose
-  index outside the plan, a duplicate: that pose is dropped too. Dropped and incomplete poses
+  index outside the plan, a duplicate: the pose it sits among is dropped too, and the pose it
+  names. Dropped and incomplete poses
   are named in the result and in a ``recovered`` metadata record, so the recovered log reports
   them as lost;
 * messages on topics the reader does not decode (the Foxglove view) follow their pose.
@@ -32,8 +33,10 @@ from mcap.records import Channel, Message, MessageIndex, Metadata
 
 from .campaignlog import pose_list
 from .logformat import copy_log
+from .errors import InputError
 from .logread import (DECODED, END_METADATA, RECOVERED_METADATA, CorruptLogError, decode,
-                      message_problems)
+                      message_problems, read_log)
+from .logschema import REQUIRED_TOPICS
 from .mcapscan import Cut, Damage, scan
 
 
@@ -122,12 +125,11 @@ class _Salvage:
                 raise CorruptLogError(self.src, "/campaign/info", "one valid campaign info message "
                                       "to recover from", why or "two")
             self.n_poses = m["n_poses"]
-        if why is not None:
-            if pose is None:
-                self._taint = self._taint or why
-            elif self.n_poses is None or pose < self.n_poses:
+        if why is not None:                       # it taints the pose it sits among, and its
+            self._taint = self._taint or why      # own pose (when that is one of the plan)
+            if pose is not None and (self.n_poses is None or 0 <= pose < self.n_poses):
                 self.bad.setdefault(pose, why)
-            return                                # out of the plan: left out alone
+            return
         self.valid.add(i)
         if pose is None:
             return
@@ -176,6 +178,10 @@ def recover_log(src: str | os.PathLike, dst: str | os.PathLike) -> Recovery:
     if sal.n_poses is None:
         raise CorruptLogError(src, "/campaign/info", "a campaign info message to recover from",
                               "none")
+    for topic in REQUIRED_TOPICS:
+        if topic not in sal.topics.values():
+            raise CorruptLogError(src, topic, "a channel with this topic to recover from",
+                                  "no such channel")
     complete = set(sal.complete(events))
     markers = {sal.done[p] for p in complete}
     # the data section's CRC covers every record: alone in failing, it points at one outside the
@@ -214,6 +220,11 @@ def recover_log(src: str | os.PathLike, dst: str | os.PathLike) -> Recovery:
                                   "dropped_poses": json.dumps(sorted(rec.dropped)),
                                   "damage": "; ".join(rec.damage)[:2000]}}
     copy_log(events, dst, keep=keep, metadata=extra)
+    try:
+        read_log(dst, include_truth=True)         # what was written must read: else no file
+    except InputError:
+        Path(dst).unlink(missing_ok=True)
+        raise
     return rec
 
 
