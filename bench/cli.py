@@ -187,7 +187,7 @@ def cmd_check_robot(args: argparse.Namespace) -> int:
 def add_export(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("export", help="the tracker readings of a log as CSV (the form `calbench import` reads)")
     p.add_argument("log", type=Path, help="campaign MCAP log (simulated or imported)")
-    p.add_argument("--csv", type=Path, required=True, help="output CSV: pose,state,point,x,y,z,time[,sigma] (mm)")
+    p.add_argument("--csv", type=Path, required=True, help="output CSV: pose,state,point,x,y,z,time[,sigma] (mm; required)")
     p.set_defaults(func=cmd_export)
 
 

@@ -230,13 +230,14 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
             break
         if isinstance(rec, Channel):
             topics[rec.id] = rec.topic
-            saw_truth |= rec.topic.startswith(TRUTH_PREFIX)
         elif isinstance(rec, Message):
             topic = topics.get(rec.channel_id)
             if topic is None or topic not in DECODED:
                 continue
-            if topic.startswith(TRUTH_PREFIX) and not include_truth:
-                continue                                   # never decoded
+            if topic.startswith(TRUTH_PREFIX):
+                saw_truth = True
+                if not include_truth:
+                    continue                               # never decoded
             m, why = decode(topic, rec.data, rec.sequence)
             if why:
                 raise CorruptLogError(path, topic, "JSON messages", why)

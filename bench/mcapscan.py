@@ -183,6 +183,9 @@ def _scan(f, size: int, finished: bool) -> Iterator[Any]:
         elif isinstance(rec, Statistics):
             stats = rec
         elif isinstance(rec, Footer):
+            if pos + len(MAGIC) != size:
+                yield Damage(here, name, f"a footer {size - pos} bytes before the end of the file")
+                return
             yield from _check_summary(f, rec, here, stats, seen)
             yield rec
             return
@@ -198,6 +201,10 @@ def _chunk_problem(e: Exception) -> str:
 
 def _check_summary(f, footer: Footer, here: int, stats: Statistics | None,
                    seen: Counter) -> Iterator[Damage]:
+    if not (footer.summary_start <= footer.summary_offset_start <= here
+            or footer.summary_offset_start == 0 and footer.summary_start <= here):
+        yield Damage(here, "Footer", "its summary offsets point outside the file")
+        return
     if footer.summary_crc and footer.summary_start:
         f.seek(footer.summary_start)
         data = f.read(here - footer.summary_start) + struct.pack(

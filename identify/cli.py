@@ -151,12 +151,13 @@ def add_design(sub) -> None:
     p.add_argument("--export-candidates", type=Path, default=None, help="write the candidate set (NPZ; default: none)")
     p.add_argument("--normalise", action="store_true",
                    help="with --export-candidates: divide each block column by its RMS (unit mean information "
-                        "diagonal, for tools that divide by it; the D-optimal plan is unchanged)")
+                        "diagonal, for tools that divide by it; the D-optimal plan is unchanged; default: off)")
     p.add_argument("--from-candidates", type=Path, default=None, metavar="CANDS.npz",
                    help="optimise these candidates (the --export-candidates form: q N x 6 degrees, blocks N x m x p) "
-                        "instead of generating them; prints and records the chosen rows")
+                        "instead of generating them; prints and records the chosen rows (default: generate)")
     p.add_argument("--distinct", action="store_true",
-                   help="no candidate twice (no repeats); reports the cost against the plan with repeats")
+                   help="no candidate twice (no repeats); reports the cost against the plan with repeats "
+                        "(default: repeats allowed)")
     p.add_argument("--candidates", type=int, default=None,
                    help="number of candidates (default: the scenario's [design] candidates, else 10000)")
     p.add_argument("--starts", type=int, default=8,
@@ -371,8 +372,8 @@ def add_import(sub) -> None:
                                    "PLAN.toml: a scenario without [truth]. Without a tracker position in the "
                                    "plan the tracker is registered from the unloaded readings.")
     p.add_argument("readings", type=Path, help="READINGS.csv")
-    p.add_argument("--plan", type=Path, required=True, help="the plan the readings were taken along (TOML)")
-    p.add_argument("--out", type=Path, required=True, help="output MCAP log")
+    p.add_argument("--plan", type=Path, required=True, help="the plan the readings were taken along (TOML; required)")
+    p.add_argument("--out", type=Path, required=True, help="output MCAP log (required)")
     p.add_argument("--units", choices=("mm", "m"), default="mm",
                    help="unit of x, y, z and sigma in the CSV (default: %(default)s)")
     p.add_argument("--model", type=Path, default=None, help="robot MJCF (default: the plan's `robot`)")
