@@ -140,6 +140,8 @@ def cmd_view(args: argparse.Namespace) -> int:
             s = log_view(rec, plan)
             rec.flush()
             print(f"sent to the Rerun viewer: {_view_summary(s, magnify)}")
+            if s.completeness:
+                print(f"  campaign: {s.completeness}")
             return 0
     out = args.rrd if args.rrd is not None else default_rrd_path(args.log)
     check_outputs({"--rrd": out}, inputs)

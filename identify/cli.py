@@ -203,6 +203,10 @@ def cmd_design(args) -> int:
     if args.criterion == "pose" and scn.work is None and (args.out or args.json):
         raise InputError(scn.path, "work", "a [work] table (q in degrees, wrench in N and N*m) for "
                          "--criterion pose", None)
+    n_cands = args.candidates if args.candidates is not None else settings.candidates
+    if (args.out or args.json) and args.configs > n_cands:      # before minutes of candidates
+        raise InputError("--configs", "configs", f"at most the {n_cands} candidates (more "
+                         "--candidates give more)", args.configs)
     t0 = time.perf_counter()
     bar = terminal_progress()
     cands = generate_candidates(scn, settings, n=args.candidates, processes=args.processes, progress=bar)

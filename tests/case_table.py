@@ -168,19 +168,25 @@ def main() -> None:
     if r is not None and r.returncode == 0:
         R.row("  ... FIXED.mcap", "-", f"{make_reader_opens(tmp / 'fixed.mcap')}; "
               f"{rerun_info(tmp / 'fixed.mcap', tmp)}")
+    R.cmd("recover FLIPPED.mcap --out FIXED2.mcap (the bit-flipped log)", "recover", flip,
+          "--out", tmp / "fixed2.mcap")
     (tmp / "notmcap.mcap").write_text("hello\n")
     R.cmd("recover on a non-MCAP file", "recover", tmp / "notmcap.mcap", "--out", tmp / "x.mcap")
     huge = tmp / "huge.toml"
     huge.write_text(bc.scenario_text(n_poses=2, repeats=1000000000))
     R.cmd("simulate: repeats = 1000000000", "simulate", huge, "--out", tmp / "huge.mcap", timeout=20)
     # checks that can be trusted
-    two = tmp / "two.toml"
-    two.write_text(bc.scenario_text(poses=[[0, 0, -30, -45, 30, 135], [0, 120, -30, -135, 30, -135]]))
-    R.run("simulate", two, "--out", tmp / "two.mcap")
-    r = R.run("identify", tmp / "two.mcap", "--check")
-    stiff = [x.strip() for x in r.stdout.splitlines() if "compensator_stiffness" in x]
-    R.row("identify --check, 2 poses q2 in {0, 120}", r.returncode,
-          (stiff[0] if stiff else "") + " / " + r.stdout.strip().splitlines()[-1][:80])
+    for seed in (1, 7):
+        two = tmp / f"two{seed}.toml"
+        two.write_text(bc.scenario_text(poses=[[0, 0, -30, 0, 0, 0], [0, 120, 30, 0, 0, 0]])
+                       .replace("seed = 3", f"seed = {seed}"))
+        R.run("simulate", two, "--out", tmp / f"two{seed}.mcap")
+        r = R.run("identify", tmp / f"two{seed}.mcap", "--check")
+        stiff = [" ".join(x.split()) for x in r.stdout.splitlines()
+                 if x.strip().startswith("compensator_stiffness")]
+        warn = " (did not converge)" if "did not converge" in r.stdout else ""
+        R.row(f"identify --check, 2 poses q2 in {{0, 120}}, seed {seed}", r.returncode,
+              (stiff[0] if stiff else "") + warn + " / " + r.stdout.strip().splitlines()[-1][:90])
     R.cmd("design --configs 30 --candidates 20", "design", PAPER, "--configs", 30, "--candidates", 20,
           "--json", tmp / "d.json")
     R.cmd("design --candidates 0", "design", PAPER, "--candidates", 0, "--json", tmp / "d0.json")

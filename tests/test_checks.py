@@ -122,7 +122,7 @@ def test_identifiability_dict_reports_the_resolution():
 
 
 @pytest.mark.parametrize("argv, words", [
-    (["--configs", "30", "--candidates", "20"], ["--configs", "at most the 20 feasible candidates"]),
+    (["--configs", "30", "--candidates", "20"], ["--configs", "at most the 20 candidates"]),
     (["--candidates", "0"], ["--candidates", "an integer >= 1"]),
     (["--configs", "0"], ["--configs", "an integer >= 1"]),
     (["--starts", "-1"], ["--starts", "an integer >= 0"]),
@@ -133,6 +133,6 @@ def test_design_impossible_sizes_exit_2_one_line(tmp_path, capsys, argv, words):
     rc = main(["design", str(PAPER), "--json", str(js), *argv])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2
-    assert len([x for x in err if "error" in x]) == 1 and "Traceback" not in "\n".join(err)
-    assert all(w in err[-1] for w in words), err
+    assert len(err) == 1 and "Traceback" not in err[0]
+    assert all(w in err[0] for w in words), err
     assert not js.exists()
