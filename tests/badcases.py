@@ -45,10 +45,12 @@ def _records_tolerant(path: Path) -> list:
 
 
 def rewrite_json(src: Path, dst: Path, edit: Callable[[str, dict], Any] | None = None,
-                 drop: str | None = None, finish: bool = True) -> Path:
+                 drop: str | None = None, finish: bool = True,
+                 metadata: Callable[[str, dict], dict] | None = None) -> Path:
     """Copy a log record by record; ``edit(topic, message)`` returns the new message (a dict,
-    or raw bytes written as they are) or None to drop it. A chunk ends after each pose_done, as
-    in calbench's writer. ``drop`` removes a topic's channel."""
+    or raw bytes written as they are) or None to drop it; ``metadata(name, record)`` the new
+    metadata record. A chunk ends after each pose_done, as in calbench's writer. ``drop``
+    removes a topic's channel."""
     topics: dict[int, str] = {}
     schemas: dict[int, Schema] = {}
     sid_map: dict[int, int] = {}
@@ -84,7 +86,8 @@ def rewrite_json(src: Path, dst: Path, edit: Callable[[str, dict], Any] | None =
                 if topic == "/campaign/pose_done":
                     w.flush()
             elif isinstance(rec, Metadata):
-                w.add_metadata(rec.name, dict(rec.metadata))
+                md = dict(rec.metadata)
+                w.add_metadata(rec.name, md if metadata is None else metadata(rec.name, md))
             elif isinstance(rec, Attachment):
                 w.add_attachment(rec.create_time, rec.log_time, rec.name, rec.media_type, rec.data)
         if finish:
