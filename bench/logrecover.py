@@ -81,6 +81,7 @@ class _Salvage:
         self.src = src
         self.topics = {r.id: r.topic for r in events if isinstance(r, Channel)}
         self.n_poses: int | None = None
+        self.n_joints: int | None = None
         self.valid: set[int] = set()            # decoded messages that pass every check
         self.pose_of: dict[int, int] = {}       # event index -> pose of a valid message
         self.span_of: dict[int, int] = {}       # event index -> the marker closing its span
@@ -113,7 +114,7 @@ class _Salvage:
         m, why = decode(topic, e.data, e.sequence)
         pose = _pose(m)
         if why is None:
-            found = message_problems(topic, m, self.n_poses)
+            found = message_problems(topic, m, self.n_poses, self.n_joints)
             why = (f"{topic} {found[0].field}: expected {found[0].expected}".replace(" :", ":")
                    if found else None)
         key = (topic, pose, *((m.get("state"), m.get("repeat")) if isinstance(m, dict) else ()))
@@ -125,12 +126,15 @@ class _Salvage:
                 raise CorruptLogError(self.src, "/campaign/info", "one valid campaign info message "
                                       "to recover from", why or "two")
             self.n_poses = m["n_poses"]
+            self.n_joints = m.get("n_joints")
         if why is not None:                       # it taints the pose it sits among, and its
             self._taint = self._taint or why      # own pose (when that is one of the plan)
             if pose is not None and (self.n_poses is None or 0 <= pose < self.n_poses):
                 self.bad.setdefault(pose, why)
             return
         self.valid.add(i)
+        if topic == "/campaign/pose" and self.n_joints is None:
+            self.n_joints = len(m["q"])           # the first command fixes it (old logs)
         if pose is None:
             return
         self.pose_of[i] = pose

@@ -17,6 +17,7 @@ import pytest
 
 import badcases as bc
 from calbench.bench.idreport import IdentificationReport, ParameterEstimate
+from calbench.bench.params import ParamLayout
 from calbench.identify.cli import main
 from calbench.identify.identifiability import (MAX_RELATIVE_STD, Identifiability, analyze,
                                                explain, resolve)
@@ -99,7 +100,7 @@ def test_resolution_after_rank_on_a_synthetic_matrix():
     q, _ = np.linalg.qr(rng.normal(size=(20, 2)))
     for s2, resolved in ((10.0, True), (0.1, False)):
         jw = q * np.array([1e3, s2])                 # columns: d f_w / d (theta / |theta|)
-        ident = analyze(jw, ("a", "b"))
+        ident = analyze(jw, ("k1", "k2"))
         assert ident.rank == 2 and ident.identifiable.all()      # the rank says yes
         cov = np.linalg.inv(jw.T @ jw)
         theta = np.ones(2)
@@ -107,11 +108,12 @@ def test_resolution_after_rank_on_a_synthetic_matrix():
         assert ident.relative_std[1] == pytest.approx(1 / s2)
         assert list(unresolved) == [False, not resolved]
         assert list(ident.identifiable) == [True, resolved]
-        reasons = explain(ident, motor_torque_seen=np.ones(6, bool), loads_vertical=False,
-                          n_distinct_q2=3)
-        assert ("b" in reasons) is (not resolved)
+        reasons = explain(ident, ParamLayout(2), {"motor_torque_seen": np.ones(2, bool),
+                                                  "loads_vertical": False, "n_distinct_q2": 3,
+                                                  "compensator_joint": None})
+        assert ("k2" in reasons) is (not resolved)
         if not resolved:
-            assert "+-1,000 % of its value" in reasons["b"]
+            assert "+-1,000 % of its value" in reasons["k2"]
 
 
 def test_identifiability_dict_reports_the_resolution():

@@ -121,7 +121,7 @@ def test_sigkill_then_recover(tmp_path, capsys):
     assert rec.lost_poses == list(range(5, 16))
     for a, b in zip(rec.measurements, cut.measurements):
         assert a.pose == b.pose and a.position.tobytes() == b.position.tobytes()
-    assert rec.truth.parameters.compensator_stiffness == cut.truth.parameters.compensator_stiffness
+    assert rec.truth.parameters.springs == cut.truth.parameters.springs
     # the half-begun pose 5 is not in the recovered file at all
     with open(fixed, "rb") as f:
         poses = {json.loads(m.data)["pose"] for _, ch, m in make_reader(f).iter_messages()
