@@ -16,7 +16,8 @@ Why this format
   ``/campaign/pose_done`` marker; ``calbench recover`` rewrites such a file with its footer).
   An exception inside the writer's ``with`` block, Ctrl-C included, finishes the file properly
   (summary and footer, so every MCAP reader opens it) with a ``campaign_end`` metadata record
-  saying how the campaign ended.
+  saying how the campaign ended; Ctrl-C and SIGTERM are deferred while mcap's writer changes
+  its state (:class:`SignalGuard`), so they land between two messages, never inside one.
 * Integrity: chunk and attachment CRCs (mcap's defaults) and the data section CRC, so a
   damaged byte is found (bench/mcapscan.py).
 * Time: messages are stamped by the campaign's clock from the scenario's ``start_time``, in
@@ -30,9 +31,12 @@ Units: SI throughout (m, rad, N, N*m; covariances in m^2).
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
+import signal
+import threading
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -199,6 +203,65 @@ class LogHeader:
             return 0
 
 
+class SignalGuard:
+    """Ctrl-C (SIGINT) and SIGTERM wait while mcap's writer changes its state.
+
+    A KeyboardInterrupt raised inside mcap's writer can leave a chunk written without its
+    message indexes reset, and the file finished afterwards then indexes messages its last chunk
+    does not hold: a damaged log. Blocking the signals in the main thread is not enough (another
+    thread, e.g. a BLAS worker, can take the signal and Python raises it in the main thread all
+    the same), so while a writer is open its own handler stands in front of the previous one:
+    inside :meth:`critical` it only notes the signal, which the previous handler then gets as
+    soon as the critical block ends; outside it passes the signal on at once. Main thread only
+    (Python sets handlers there); elsewhere it does nothing."""
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        self.depth = 0
+        self.pending: int | None = None
+        self.previous: dict[int, Any] = {}
+
+    def install(self) -> None:
+        if threading.current_thread() is not threading.main_thread():
+            return
+        for s in self.SIGNALS:
+            self.previous[s] = signal.getsignal(s)
+            signal.signal(s, self._handle)
+
+    def uninstall(self) -> None:
+        for s, h in self.previous.items():
+            signal.signal(s, h)
+        self.previous = {}
+
+    @contextlib.contextmanager
+    def critical(self):
+        self.depth += 1
+        try:
+            yield
+        finally:
+            self.depth -= 1
+            if self.depth == 0 and self.pending is not None:
+                signum, self.pending = self.pending, None
+                self._deliver(signum, None)
+
+    def _handle(self, signum, frame) -> None:
+        if self.depth:
+            self.pending = signum
+        else:
+            self._deliver(signum, frame)
+
+    def _deliver(self, signum, frame) -> None:
+        h = self.previous.get(signum, signal.SIG_DFL)
+        if callable(h):
+            h(signum, frame)
+        elif h == signal.SIG_DFL:
+            if signum == signal.SIGINT:
+                raise KeyboardInterrupt
+            self.uninstall()                      # the default action: end the process
+            os.kill(os.getpid(), signum)
+
+
 class LogWriter:
     """Writes one campaign log. Use as a context manager.
 
@@ -244,6 +307,8 @@ class LogWriter:
         public_scenario = redact_truth(h.scenario_text)
         self._file = open(self.path, "wb")
         self._closed = False
+        self._guard = SignalGuard()
+        self._guard.install()
         self._writer = Writer(self._file, chunk_size=chunk_size,
                               compression=CompressionType.ZSTD, enable_data_crcs=True)
         # The library string is the only free-form header field; mcap would put its own
@@ -306,8 +371,9 @@ class LogWriter:
         seq = self._seq.get(topic, 0)
         self._seq[topic] = seq + 1
         data = json.dumps(msg, allow_nan=False, separators=(",", ":")).encode()
-        self._writer.add_message(channel_id=self._channels[topic], log_time=t, data=data,
-                                 publish_time=t, sequence=seq)
+        with self._guard.critical():
+            self._writer.add_message(channel_id=self._channels[topic], log_time=t, data=data,
+                                     publish_time=t, sequence=seq)
 
     # -- extra channels (the Foxglove topics of bench/foxglove.py) ----------------------------
     def add_channel(self, topic: str, schema_name: str, schema_text: str,
@@ -442,13 +508,14 @@ class LogWriter:
         self._done += 1
 
     def _sync(self) -> None:
-        flush = getattr(self._writer, "flush", None)
-        if flush is not None:
-            flush()
-        else:  # mcap < 1.3 has no public flush: use the chunk finaliser it calls itself
-            self._writer._Writer__finalize_chunk()  # type: ignore[attr-defined]
-            self._writer._Writer__flush()  # type: ignore[attr-defined]
-        self._file.flush()
+        with self._guard.critical():
+            flush = getattr(self._writer, "flush", None)
+            if flush is not None:
+                flush()
+            else:  # mcap < 1.3 has no public flush: use the chunk finaliser it calls itself
+                self._writer._Writer__finalize_chunk()  # type: ignore[attr-defined]
+                self._writer._Writer__flush()  # type: ignore[attr-defined]
+            self._file.flush()
         try:
             os.fsync(self._file.fileno())
         except OSError:  # e.g. a pipe or a file system without fsync
@@ -460,16 +527,18 @@ class LogWriter:
         summary, footer. Calling it again does nothing."""
         if self._closed:
             return
-        self._writer.add_metadata(END_METADATA, {"status": status, "reason": reason,
-                                                 "complete_poses": str(self._done)})
-        if self._truth_params is not None:
-            self._writer.add_metadata(GROUND_TRUTH_METADATA, {
-                "parameters": json.dumps(self._truth_params, sort_keys=True, allow_nan=False),
-                "scenario_text": self._header.scenario_text,
-            })
-        self._writer.finish()
-        self._closed = True
-        self._file.close()
+        with self._guard.critical():
+            self._writer.add_metadata(END_METADATA, {"status": status, "reason": reason,
+                                                     "complete_poses": str(self._done)})
+            if self._truth_params is not None:
+                self._writer.add_metadata(GROUND_TRUTH_METADATA, {
+                    "parameters": json.dumps(self._truth_params, sort_keys=True, allow_nan=False),
+                    "scenario_text": self._header.scenario_text,
+                })
+            self._writer.finish()
+            self._closed = True
+            self._file.close()
+            self._guard.uninstall()
 
     def _abandon(self) -> None:
         """When the file cannot be finished: keep the complete chunks already on disk, write
@@ -486,6 +555,7 @@ class LogWriter:
             self._file.close()
         except Exception:
             pass
+        self._guard.uninstall()
 
 
 def _jsonable(x: Any) -> Any:
