@@ -212,8 +212,8 @@ def add_from_urdf(sub: argparse._SubParsersAction) -> None:
                                    "the actuated joints, reflectors, payload, compensators and loops "
                                    "(docs/contract.md, 'From a URDF').")
     p.add_argument("urdf", type=Path, help="the robot's URDF (run xacro first if it is a .xacro)")
-    p.add_argument("--overlay", type=Path, required=True, help="overlay TOML")
-    p.add_argument("--out", type=Path, required=True, help="output MJCF")
+    p.add_argument("--overlay", type=Path, required=True, help="overlay TOML (required)")
+    p.add_argument("--out", type=Path, required=True, help="output MJCF (required)")
     p.set_defaults(func=cmd_from_urdf)
 
 
