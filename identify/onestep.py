@@ -114,8 +114,12 @@ class OneStep:
         def evaluate(ph):
             return whiten(ph, *model.evaluate(to_theta(ph, lay)))
 
+        # Positivity as bounds (an active set), not only as a validity test: when the data prefer
+        # a spring that is not there (K_C -> 0, a realistic balancer), the fit then converges ON
+        # the bound instead of damping its way through max_iter.
+        lower = to_phi(lay.lower, lay)
         sol = levenberg_marquardt(
-            evaluate, yw, phi0, scale, valid=valid_phi,
+            evaluate, yw, np.maximum(phi0, lower), scale, valid=valid_phi, lower=lower,
             free_fn=lambda jw: analyze(jw, names).identifiable,
             step_tol=step_tol, rank_tol=RANK_TOL, max_iter=max_iter, max_damping=30,
             accept_within_sigma=True, final_eval=final_eval,

@@ -138,3 +138,18 @@ def test_design_impossible_sizes_exit_2_one_line(tmp_path, capsys, argv, words):
     assert len(err) == 1 and "Traceback" not in err[0]
     assert all(w in err[0] for w in words), err
     assert not js.exists()
+
+
+def test_a_realistic_balancer_converges_on_its_bound_and_passes_the_check(tmp_path):
+    """The shipped realistic balancer: the data prefer a spring without preload (P = K_C s0 on
+    its bound); the fit must converge there, name K_C and s0 unidentifiable, and pass --check."""
+    from calbench.identify.cli import main
+    from conftest import ROOT
+    log = tmp_path / "br.mcap"
+    assert main(["simulate", str(ROOT / "scenarios" / "balancer_realistic.toml"), "--out", str(log)]) == 0
+    assert main(["identify", str(log), "--check", "--json", str(tmp_path / "br.json")]) == 0
+    import json
+    rep = json.loads((tmp_path / "br.json").read_text())
+    est = {p["name"]: p for p in rep["parameters"]}
+    assert est["compensator_stiffness"]["estimate"] is None and est["compensator_preload"]["estimate"] is None
+    assert rep["converged"] is True
