@@ -208,8 +208,6 @@ class BatchStatics:
             return np.zeros((len(ids), 0)), np.zeros((len(ids), 0, self.nv))
         if len(gaps) == 1:
             return gaps[0], jacs[0]
-        if not gaps:                    # a serial robot: no loop, no constraint rows
-            return np.zeros((len(ids), 0)), np.zeros((len(ids), 0, self.robot.model.nv))
         return np.concatenate(gaps, axis=1), np.concatenate(jacs, axis=1)
 
     def basis(self, ids: np.ndarray, qpos: np.ndarray) -> np.ndarray:

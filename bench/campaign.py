@@ -19,6 +19,7 @@ from .errors import InputError
 from .foxglove import FoxgloveWriter
 from .logformat import LogHeader, LogWriter
 from .robot import LOOP_MARGIN, LOOP_MARGIN_ANGLE, Params, Robot
+from .timeline import check_size, estimate, repeats_key
 from .scenario import Scenario, check_joint_limits
 from .scenario import scenario_params as _scenario_params
 from .statics import Equilibrium, Load, StaticsError, StaticsSolver
@@ -123,11 +124,16 @@ def truth_record(scn: Scenario, robot: Robot) -> dict:
     return d
 
 
-def run_campaign(scn: Scenario, out: str | Path, progress: ProgressSink | None = None) -> list[PosePlan]:
+def run_campaign(scn: Scenario, out: str | Path, progress: ProgressSink | None = None,
+                 force: bool = False) -> list[PosePlan]:
     """Simulate the whole campaign into one MCAP log at `out`. Returns the solved plan.
-    ``progress`` (bench/progress.py) hears of every solved and every measured pose."""
+    ``progress`` (bench/progress.py) hears of every solved and every measured pose. A campaign
+    beyond bench/timeline.py's size limits is refused (InputError) unless ``force``."""
     out = Path(out)
     robot = truth_robot(scn)
+    if not force:
+        repeats = [p.repeats for p in scn.poses]
+        check_size(estimate(repeats, len(robot.reflector_names)), scn.path, repeats_key(repeats))
     n = len(scn.poses)
     progress = sink(progress)
     progress.start(2 * n)
@@ -145,17 +151,19 @@ def run_campaign(scn: Scenario, out: str | Path, progress: ProgressSink | None =
         n_joints=robot.n_act,
         tracker=scn.tracker.to_dict(),
         seed=int(scn.seed),
+        start_time=scn.start_time,
     )
     with LogWriter(out, header) as log:
         log.truth_parameters(truth_record(scn, robot))
         fox = FoxgloveWriter(log, Robot.from_file(scn.robot), robot, scn.tracker, robot.reflector_names)
         fox.start(n, plans[0].q if plans else np.zeros(robot.n_act))
         for plan, pose in zip(plans, scn.poses):
-            log.pose(plan.index, "unloaded", plan.q)
-            log.pose(plan.index, "loaded", plan.q)
-            log.wrench(plan.index, plan.load.force, plan.load.moment, robot.payload_name, plan.mass)
             readings: tuple[list, list] = ([], [])
-            for s, state in enumerate(STATES):
+            for s, state in enumerate(STATES):     # in causal order, stamped by the log's clock
+                if state == "loaded":
+                    log.wrench(plan.index, plan.load.force, plan.load.moment, robot.payload_name,
+                               plan.mass)
+                log.pose(plan.index, state, plan.q)
                 for rep in range(pose.repeats):
                     m = measure(scn.tracker, plan.reflectors_world[s], plan.visible[s], rng)
                     log.measurement(plan.index, state, rep, robot.reflector_names, m.position, m.covariance, m.visible)

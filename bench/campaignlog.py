@@ -140,8 +140,10 @@ class CampaignLog:
     """A campaign log as read back: complete poses only.
 
     ``header`` is the ``/campaign/info`` message (its ``tracker`` parsed by
-    :meth:`tracker_spec`). ``truncated`` is True when the file has no footer (the campaign did
-    not finish). ``truth`` is None unless read with ``include_truth=True`` and the log carries
+    :meth:`tracker_spec`). ``truncated`` is True when the campaign did not run to its end (the
+    file has no footer, was interrupted, or was recovered from such a file); ``end`` says how the
+    log ended, in words ("finished", "the campaign was interrupted (Ctrl-C) ..."); ``dropped_poses`` are the poses ``calbench recover`` found damaged and
+    left out. ``truth`` is None unless read with ``include_truth=True`` and the log carries
     truth.
     """
 
@@ -156,6 +158,25 @@ class CampaignLog:
     n_poses_planned: int = 0
     truncated: bool = False
     truth: CampaignTruth | None = None
+    end: str = "finished"
+    dropped_poses: list[int] = field(default_factory=list)
+
+    @property
+    def lost_poses(self) -> list[int]:
+        """Planned poses the log does not hold complete."""
+        return sorted(set(range(self.n_poses_planned)) - set(self.complete_poses))
+
+    def completeness(self) -> str | None:
+        """One line on what is missing, the same words for every verb; None when the campaign
+        finished with every planned pose."""
+        lost = self.lost_poses
+        if not lost and not self.truncated:
+            return None
+        text = (f"{len(self.complete_poses)} of {self.n_poses_planned} planned poses complete"
+                + (f", {len(lost)} lost {pose_list(lost)}" if lost else ""))
+        if self.dropped_poses:
+            text += f" (damaged and dropped: {pose_list(self.dropped_poses)})"
+        return f"{text}; {self.end}"
 
     def tracker_spec(self) -> TrackerSpec:
         """The tracker of the header (position m, yaw rad, noise model); InputError naming the
@@ -175,5 +196,19 @@ class CampaignLog:
         return list(self._by_state.get((pose, state), ()))
 
 
-__all__ = ["STATES", "PerState", "MeasurementRecord", "WrenchRecord", "TruthParameters",
+def pose_list(poses: Sequence[int]) -> str:
+    """``[0, 1, 2, 5]`` as "[0-2, 5]": runs of consecutive poses shortened."""
+    out: list[str] = []
+    ps = sorted(poses)
+    i = 0
+    while i < len(ps):
+        j = i
+        while j + 1 < len(ps) and ps[j + 1] == ps[j] + 1:
+            j += 1
+        out.append(str(ps[i]) if j == i else f"{ps[i]}-{ps[j]}")
+        i = j + 1
+    return "[" + ", ".join(out) + "]"
+
+
+__all__ = ["pose_list", "STATES", "PerState", "MeasurementRecord", "WrenchRecord", "TruthParameters",
            "TruthReflectors", "TruthJoints", "CampaignTruth", "CampaignLog"]

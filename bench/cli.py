@@ -1,4 +1,5 @@
-"""The bench's command-line verbs: `simulate`, `view`, `export`, `check-robot` and `from-urdf`.
+"""The bench's command-line verbs: `simulate`, `view`, `export`, `check-robot`, `from-urdf`
+and `recover`.
 
 The console script itself lives in identify/cli.py, which sits on top of both packages and
 registers these; bench never imports identify. This module and identify/cli.py are the only
@@ -7,6 +8,8 @@ ones that parse arguments or print: every library function they call returns its
 from __future__ import annotations
 
 import argparse
+import contextlib
+import signal
 import sys
 from pathlib import Path
 
@@ -17,26 +20,71 @@ from .progress import Progress
 from .scenario import load_scenario
 from .view import (DEFAULT_MAGNIFY, Summary, build_blueprint, default_rrd_path, has_display,
                    log_view, plan_view, recording_stream, write_recording)
-from .logformat import read_log
-from .outputs import check_outputs, write_text
+from .logread import read_log
+from .logrecover import recover_log
+from .outputs import atomic_path, check_outputs, write_text
+from .timeline import MAX_LOG_BYTES, MAX_SECONDS, duration, size
 
 
 # --------------------------------------------------------------------------- simulate
 
 def add_simulate(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("simulate", help="run a calibration campaign and write one MCAP log")
+    p = sub.add_parser("simulate", help="run a calibration campaign and write one MCAP log",
+                       description="Run a calibration campaign and write one MCAP log. Ctrl-C "
+                       "(or SIGTERM) finishes the log with the poses done so far.")
     p.add_argument("scenario", type=Path, help="scenario TOML file")
-    p.add_argument("--out", type=Path, required=True, help="output MCAP log")
+    p.add_argument("--out", type=Path, required=True, help="output MCAP log (required)")
     p.add_argument("--seed", type=int, default=None,
                    help="noise seed (default: the scenario's `seed`)")
+    p.add_argument("--force", action="store_true",
+                   help=f"run a campaign estimated to take more than {duration(MAX_SECONDS)} or "
+                        f"{size(MAX_LOG_BYTES)} of log (default: refuse it)")
     p.set_defaults(func=cmd_simulate)
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """SIGTERM (``kill PID``) ends the campaign like Ctrl-C: the log is finished properly.
+    (SIGKILL cannot be caught: `calbench recover` mends what it leaves.)"""
+    def handler(signum, frame):
+        raise KeyboardInterrupt
+    try:
+        old = signal.signal(signal.SIGTERM, handler)
+    except ValueError:           # not the main thread (a notebook worker): leave it alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+def _stamp(path: Path) -> tuple | None:
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return (st.st_ino, st.st_mtime_ns, st.st_size)
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     scn = load_scenario(args.scenario, seed=args.seed)
     check_outputs({"--out": args.out}, {"SCENARIO": args.scenario, "robot": scn.robot})
     bar = Progress(total=2 * len(scn.poses), enabled=sys.stderr.isatty())
-    plans = run_campaign(scn, args.out, progress=bar)
+    before = _stamp(args.out)
+    try:
+        with _sigterm_as_interrupt():
+            plans = run_campaign(scn, args.out, progress=bar, force=args.force)
+    except KeyboardInterrupt:
+        bar.close()
+        if _stamp(args.out) == before:
+            print(f"calbench simulate: interrupted before the log was started; {args.out} "
+                  "untouched", file=sys.stderr)
+            return 130
+        log = read_log(args.out)
+        print(f"calbench simulate: interrupted: {args.out} is a finished MCAP log with "
+              f"{len(log.complete_poses)} of {log.n_poses_planned} poses", file=sys.stderr)
+        return 130
     bar.close()
     n_meas = sum(p.visible.sum() for p in plans)
     print(f"wrote {args.out}: {len(plans)} poses, unloaded and loaded, {n_meas} reflector sightings "
@@ -57,7 +105,7 @@ def add_view(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--identified", type=Path, default=None,
                    help="JSON report of `calbench identify --json` (the parameters by name, the "
                         "model's deformation; predicted deflections and residuals when it "
-                        "carries them)")
+                        "carries them; default: none)")
     p.add_argument("--magnify", type=float, default=DEFAULT_MAGNIFY,
                    help="magnification of the deformation and the deflection arrows (default: "
                         "%(default)g; residuals 10 times more; stated in the 3D view's title)")
@@ -92,6 +140,8 @@ def cmd_view(args: argparse.Namespace) -> int:
             s = log_view(rec, plan)
             rec.flush()
             print(f"sent to the Rerun viewer: {_view_summary(s, magnify)}")
+            if s.completeness:
+                print(f"  campaign: {s.completeness}")
             return 0
     out = args.rrd if args.rrd is not None else default_rrd_path(args.log)
     check_outputs({"--rrd": out}, inputs)
@@ -99,6 +149,8 @@ def cmd_view(args: argparse.Namespace) -> int:
     for w in s.warnings:
         print(f"calbench view: warning: {w}", file=sys.stderr)
     print(f"wrote {out}{'' if args.rrd is not None else why}: {_view_summary(s, magnify)}")
+    if s.completeness:
+        print(f"  campaign: {s.completeness}")
     print(f"open it with: rerun {out}")
     return 0
 
@@ -137,7 +189,7 @@ def cmd_check_robot(args: argparse.Namespace) -> int:
 def add_export(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("export", help="the tracker readings of a log as CSV (the form `calbench import` reads)")
     p.add_argument("log", type=Path, help="campaign MCAP log (simulated or imported)")
-    p.add_argument("--csv", type=Path, required=True, help="output CSV: pose,state,point,x,y,z,time[,sigma] (mm)")
+    p.add_argument("--csv", type=Path, required=True, help="output CSV: pose,state,point,x,y,z,time[,sigma] (mm; required)")
     p.set_defaults(func=cmd_export)
 
 
@@ -160,8 +212,8 @@ def add_from_urdf(sub: argparse._SubParsersAction) -> None:
                                    "the actuated joints, reflectors, payload, compensators and loops "
                                    "(docs/contract.md, 'From a URDF').")
     p.add_argument("urdf", type=Path, help="the robot's URDF (run xacro first if it is a .xacro)")
-    p.add_argument("--overlay", type=Path, required=True, help="overlay TOML")
-    p.add_argument("--out", type=Path, required=True, help="output MJCF")
+    p.add_argument("--overlay", type=Path, required=True, help="overlay TOML (required)")
+    p.add_argument("--out", type=Path, required=True, help="output MJCF (required)")
     p.set_defaults(func=cmd_from_urdf)
 
 
@@ -179,8 +231,33 @@ def cmd_from_urdf(args: argparse.Namespace) -> int:
           + (f" ({conv.meshes} meshes inline)" if conv.meshes else "")
           + f"; joint stiffness placeholders {PLACEHOLDER_STIFFNESS:g} N*m/rad (a scenario's [truth] "
           "replaces them)")
+    print(f"check it with: calbench check-robot {args.out}")
+    return 0
+
+
+# --------------------------------------------------------------------------- recover
+
+def add_recover(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("recover", help="rewrite a cut-short or damaged log as a valid MCAP file",
+                       description="Rewrite a campaign log that was cut short (a campaign killed "
+                       "with SIGKILL, a crash) or damaged as a valid MCAP file with its summary "
+                       "and footer, which every MCAP reader opens. Complete, intact poses are "
+                       "kept; the others are named, and the new log reports them as lost.")
+    p.add_argument("log", type=Path, help="the broken campaign MCAP log (read only)")
+    p.add_argument("--out", type=Path, required=True, help="the recovered MCAP log (required)")
+    p.set_defaults(func=cmd_recover)
+
+
+def cmd_recover(args: argparse.Namespace) -> int:
+    check_outputs({"--out": args.out}, {"LOG": args.log})
+    with atomic_path(args.out) as tmp:
+        rec = recover_log(args.log, tmp)
+    print(f"wrote {args.out}: {rec.summary()}")
+    for note in rec.notes:
+        print(f"  note: {note}")
     return 0
 
 
 __all__ = ["add_simulate", "cmd_simulate", "add_view", "cmd_view", "add_export", "cmd_export",
-           "add_check_robot", "cmd_check_robot", "add_from_urdf", "cmd_from_urdf"]
+           "add_check_robot", "cmd_check_robot", "add_from_urdf", "cmd_from_urdf",
+           "add_recover", "cmd_recover"]

@@ -27,8 +27,8 @@ last message of each topic before the new time. Everything true lives under ``/t
 :func:`bench.logformat.strip_truth` leaves what a real campaign would have
 (tests/test_foxglove.py checks that no true position is on the other topics). The messages of
 pose p are written just before its ``pose_done`` marker (crash tolerance: they share its
-chunk), at log time (p+1) s + 0.5 s in logformat's synthetic clock, and every Foxglove ``time``
-stamp is its message's log time. Coordinates are rounded to 0.1 µm and unit quantities to 1e-9,
+chunk), right after its last reading on the log's clock (bench/timeline.py), and every Foxglove
+``time`` stamp is its message's log time. Coordinates are rounded to 0.1 µm and unit quantities to 1e-9,
 far below what a 3D view shows: it halves the bytes. docs/foxglove-layout.json opens a 3D panel
 on these topics beside a Log panel.
 
@@ -57,7 +57,6 @@ TOPICS = {TF: "foxglove.FrameTransforms", ROBOT: "foxglove.SceneUpdate",
           SCENE: "foxglove.SceneUpdate", LOG: "foxglove.Log",
           TRUTH_TF: "foxglove.FrameTransforms", TRUTH_ROBOT: "foxglove.SceneUpdate",
           TRUTH_SCENE: "foxglove.SceneUpdate"}
-POSE_SLOT = 500_000_000        # ns after the pose's second: after its readings, before pose_done
 LOG_INFO = 2                   # foxglove.LogLevel INFO
 
 GREY, ORANGE, GREEN = (0.55, 0.55, 0.55, 1.0), (1.0, 0.55, 0.0, 1.0), (0.15, 0.75, 0.3, 1.0)
@@ -394,7 +393,7 @@ class FoxgloveWriter:
             msg, tl = self._tf(t, q)
             tendons[:] = tl
             return msg
-        self._put(TF, tf, (index + 1) * 1_000_000_000 + POSE_SLOT)
+        self._put(TF, tf)
         mu, ml = (mean_reading(self.spec, r).position for r in readings)
         self._put(SCENE, lambda t: scene_update(
             [tendon_entity(t, "compensator", tendons)]

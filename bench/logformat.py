@@ -4,7 +4,7 @@ Why this format
 ---------------
 * Any MCAP reader (Foxglove, ``rerun mcap``, the ``mcap`` CLI) can open and decode the log
   without this project: every channel is ``message_encoding="json"`` with a real
-  ``jsonschema`` schema (types, required fields, array lengths).
+  ``jsonschema`` schema (types, required fields, array lengths: bench/logschema.py).
 * Ground truth lives only on topics beginning with :data:`TRUTH_PREFIX` plus one metadata
   record named ``ground_truth`` (docs/contract.md, "MCAP log"). :func:`strip_truth` removes exactly
   those and leaves what a real campaign would have recorded. The scenario TOML carries the
@@ -12,140 +12,49 @@ Why this format
   (:func:`redact_truth`); the original text goes into the ``ground_truth`` record.
 * Crash tolerance: chunks are small and :meth:`LogWriter.pose_done` closes the chunk in progress,
   so a campaign killed mid-way leaves a file whose complete poses are readable with a
-  non-seeking reader. :func:`read_log` keeps only poses that carry a ``/campaign/pose_done``
-  marker.
-* Determinism: log times are synthetic (derived from pose, state and repeat), attachments carry
-  time 0 and the MCAP header names the library versions only, so the same scenario and seed
-  give a byte-identical file. The mcap ``Writer`` itself reads no clock (checked in mcap 1.6:
-  only ``start(library=...)`` stores a free-form string, which we set ourselves).
+  non-seeking reader (bench/logread.py, the one reader, keeps only poses that carry a
+  ``/campaign/pose_done`` marker; ``calbench recover`` rewrites such a file with its footer).
+  An exception inside the writer's ``with`` block, Ctrl-C included, finishes the file properly
+  (summary and footer, so every MCAP reader opens it) with a ``campaign_end`` metadata record
+  saying how the campaign ended; Ctrl-C and SIGTERM are deferred while mcap's writer changes
+  its state (:class:`SignalGuard`), so they land between two messages, never inside one.
+* Integrity: chunk and attachment CRCs (mcap's defaults) and the data section CRC, so a
+  damaged byte is found (bench/mcapscan.py).
+* Time: messages are stamped by the campaign's clock from the scenario's ``start_time``, in
+  causal order (bench/timeline.py); a message may also carry an explicit time (an imported log).
+* Determinism: the clock is synthetic, attachments carry the start time and the MCAP header
+  names the library versions only, so the same scenario and seed give a byte-identical file.
+  The mcap ``Writer`` itself reads no clock (checked in mcap 1.6: only
+  ``start(library=...)`` stores a free-form string, which we set ourselves).
 
 Units: SI throughout (m, rad, N, N*m; covariances in m^2).
 """
 from __future__ import annotations
 
+import contextlib
 import json
-import math
 import os
 import re
-import struct
+import signal
+import threading
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator, Mapping, Sequence
+from typing import Any, Callable, Iterable, Mapping
 
 import numpy as np
-from mcap.exceptions import McapError
 from mcap.records import Attachment, Channel, Footer, Header, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from .campaignlog import (STATES, CampaignLog, CampaignTruth, MeasurementRecord, PerState,
                           TruthJoints, TruthParameters, TruthReflectors, WrenchRecord)
-from .errors import InputError
-
-TRUTH_PREFIX = "/truth/"
-GROUND_TRUTH_METADATA = "ground_truth"
-SCENARIO_METADATA = "scenario"
-REQUIRED_TOPICS = ("/campaign/info", "/campaign/pose", "/tracker/measurement")
-MCAP_MAGIC = b"\x89MCAP0\r\n"
-_MAGIC_TEXT = "an MCAP file (magic bytes 89 4D 43 41 50 30 0D 0A)"
-
-# ---------------------------------------------------------------------------------------------
-# JSON Schemas, one per topic (draft 2020-12 subset: type, required, properties, items,
-# minItems, maxItems, enum). Exposed so tools and tests can validate messages independently.
-# ---------------------------------------------------------------------------------------------
-
-
-def _num_array(n: int | None, desc: str = "") -> dict:
-    """Schema of a fixed-length (n given) or free-length array of numbers."""
-    s: dict[str, Any] = {"type": "array", "items": {"type": "number"}}
-    if n is not None:
-        s["minItems"] = n
-        s["maxItems"] = n
-    else:
-        s["minItems"] = 1
-    if desc:
-        s["description"] = desc
-    return s
-
-
-def _obj(props: dict, required: Sequence[str] | None = None, title: str = "") -> dict:
-    s: dict[str, Any] = {"type": "object", "properties": props,
-                         "required": list(props if required is None else required)}
-    if title:
-        s = {"$schema": "https://json-schema.org/draft/2020-12/schema", "title": title, **s}
-    return s
-
-
-_POSE = {"type": "integer", "minimum": 0, "description": "pose index in the plan"}
-_STATE = {"type": "string", "enum": list(STATES)}
-_NAMES = {"type": "array", "items": {"type": "string"}}
-_MAT3 = {"type": "array", "minItems": 3, "maxItems": 3, "items": _num_array(3)}
-_SPRING = _obj({"stiffness": {"type": "number", "description": "N/m"},
-                "preload": {"type": "number", "description": "m"}})
-
-SCHEMAS: dict[str, dict] = {
-    "/campaign/info": _obj({
-        "scenario_name": {"type": "string"},
-        "robot": {"type": "string", "description": "MJCF file name"},
-        "n_poses": {"type": "integer", "minimum": 0},
-        "reflectors": _NAMES,
-        "payload_site": {"type": "string"},
-        "tracker": _obj({
-            "position": _num_array(3, "m, world frame"),
-            "yaw": {"type": "number", "description": "rad about world z"},
-            "model": {"type": "string"},
-            "sigma": {"type": "number", "description": "m, per axis"},
-            "distance": _num_array(2, "ISO 10360-10 style [a m, b m/m]"),
-            "transverse": _num_array(2, "ISO 10360-10 style [a m, b m/m]"),
-        }),
-        "seed": {"type": "integer"},
-        "calbench_version": {"type": "string"},
-        "imported": {"type": "object", "description": "present when the log was made by "
-                     "`calbench import` from real readings: file, units, registration"},
-    }, required=("scenario_name", "robot", "n_poses", "reflectors", "payload_site", "tracker",
-                 "seed", "calbench_version"), title="calbench.CampaignInfo"),
-    "/campaign/pose": _obj({
-        "pose": _POSE, "state": _STATE,
-        "q": _num_array(None, "rad, commanded, one per actuated joint (calbench:actuated order)"),
-    }, title="calbench.Pose"),
-    "/campaign/wrench": _obj({
-        "pose": _POSE,
-        "state": {"type": "string", "enum": ["loaded"]},
-        "force": _num_array(3, "N, world frame"),
-        "moment": _num_array(3, "N*m, world frame"),
-        "site": {"type": "string", "description": "MJCF site where the wrench is applied"},
-        "mass": {"type": ["number", "null"], "description": "kg, hanging payload, or null"},
-    }, title="calbench.Wrench"),
-    "/tracker/measurement": _obj({
-        "pose": _POSE, "state": _STATE,
-        "repeat": {"type": "integer", "minimum": 0},
-        "reflectors": _NAMES,
-        "position": {"type": "array", "items": {**_num_array(3), "type": ["array", "null"]},
-                     "description": "m, tracker frame; null when not visible"},
-        "covariance": {"type": "array", "items": {**_MAT3, "type": ["array", "null"]},
-                       "description": "m^2; null when not visible"},
-        "visible": {"type": "array", "items": {"type": "boolean"}},
-    }, title="calbench.TrackerMeasurement"),
-    "/campaign/pose_done": _obj({"pose": _POSE}, title="calbench.PoseDone"),
-    "/truth/parameters": _obj({
-        "compliance": _num_array(None, "rad/(N*m), one per actuated joint"),
-        "compensator": _SPRING,
-        "compensators": {"type": "object", "additionalProperties": _SPRING,
-                         "description": "compensator tendons other than 'compensator', by name"},
-        "effects": {"type": "object"},
-    }, required=("compliance", "effects"), title="calbench.TruthParameters"),
-    "/truth/reflectors": _obj({
-        "pose": _POSE, "state": _STATE, "reflectors": _NAMES,
-        "position_world": {"type": "array", "items": _num_array(3), "description": "m"},
-    }, title="calbench.TruthReflectors"),
-    "/truth/joints": _obj({
-        "pose": _POSE, "state": _STATE,
-        "qpos": _num_array(None, "full MuJoCo qpos at equilibrium"),
-        "deflection": _num_array(None, "rad, motor-space deflection from the command, per actuated joint"),
-    }, title="calbench.TruthJoints"),
-}
-TOPICS = tuple(SCHEMAS)
+from .logread import END_METADATA, CorruptLogError, has_truth, read_log
+from .logschema import (GROUND_TRUTH_METADATA, REQUIRED_TOPICS, SCENARIO_METADATA, SCHEMAS,
+                        TOPICS, TRUTH_PREFIX, validate)
+from .mcapscan import MAGIC as MCAP_MAGIC
+from .mcapscan import Cut, Damage, scan
+from .timeline import (DEFAULT_START, LOAD_S, MOVE_S, UNLOAD_S, CampaignClock, reading_seconds,
+                       start_ns)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -266,7 +175,8 @@ class LogHeader:
     the number of ``[[pose]]`` entries of the scenario. ``imported`` (a log made by
     ``calbench import``) says from which file and with which registration. ``n_joints``, the
     robot's number of actuated joints, fixes the length of every q and deflection written
-    (None: any length).
+    (None: any length). ``start_time`` (an aware datetime) is when the campaign starts, default
+    bench/timeline.py's DEFAULT_START.
     """
 
     scenario_name: str
@@ -281,6 +191,7 @@ class LogHeader:
     n_poses: int | None = None
     imported: dict | None = None
     n_joints: int | None = None
+    start_time: Any = None
 
     def planned_poses(self) -> int:
         """Number of poses planned: ``n_poses`` or the scenario's ``[[pose]]`` count."""
@@ -292,20 +203,63 @@ class LogHeader:
             return 0
 
 
-def _time(pose: int | None, state: str | None = None, repeat: int | None = None,
-          slot: int = 0) -> int:
-    """Synthetic log time in ns: pose (p+1) s, state 0/100 ms, repeat (r+1) ms, slot ns.
+class SignalGuard:
+    """Ctrl-C (SIGINT) and SIGTERM wait while mcap's writer changes its state.
 
-    Deterministic by construction; the writer additionally keeps times strictly increasing.
-    """
-    if pose is None:
-        return slot
-    t = (pose + 1) * 1_000_000_000
-    if state is not None:
-        t += STATES.index(state) * 100_000_000
-    if repeat is not None:
-        t += (repeat + 1) * 1_000_000
-    return t + slot
+    A KeyboardInterrupt raised inside mcap's writer can leave a chunk written without its
+    message indexes reset, and the file finished afterwards then indexes messages its last chunk
+    does not hold: a damaged log. Blocking the signals in the main thread is not enough (another
+    thread, e.g. a BLAS worker, can take the signal and Python raises it in the main thread all
+    the same), so while a writer is open its own handler stands in front of the previous one:
+    inside :meth:`critical` it only notes the signal, which the previous handler then gets as
+    soon as the critical block ends; outside it passes the signal on at once. Main thread only
+    (Python sets handlers there); elsewhere it does nothing."""
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        self.depth = 0
+        self.pending: int | None = None
+        self.previous: dict[int, Any] = {}
+
+    def install(self) -> None:
+        if threading.current_thread() is not threading.main_thread():
+            return
+        for s in self.SIGNALS:
+            self.previous[s] = signal.getsignal(s)
+            signal.signal(s, self._handle)
+
+    def uninstall(self) -> None:
+        for s, h in self.previous.items():
+            signal.signal(s, h)
+        self.previous = {}
+
+    @contextlib.contextmanager
+    def critical(self):
+        self.depth += 1
+        try:
+            yield
+        finally:
+            self.depth -= 1
+            if self.depth == 0 and self.pending is not None:
+                signum, self.pending = self.pending, None
+                self._deliver(signum, None)
+
+    def _handle(self, signum, frame) -> None:
+        if self.depth:
+            self.pending = signum
+        else:
+            self._deliver(signum, frame)
+
+    def _deliver(self, signum, frame) -> None:
+        h = self.previous.get(signum, signal.SIG_DFL)
+        if callable(h):
+            h(signum, frame)
+        elif h == signal.SIG_DFL:
+            if signum == signal.SIGINT:
+                raise KeyboardInterrupt
+            self.uninstall()                      # the default action: end the process
+            os.kill(os.getpid(), signum)
 
 
 class LogWriter:
@@ -315,6 +269,11 @@ class LogWriter:
     :meth:`pose_done` ends the chunk in progress, so a crash loses at most the pose being
     measured. Each message is checked against its topic's schema before it is written, so a
     log never holds a message its own schema rejects.
+
+    Times: called in the campaign's causal order (pose, unloaded readings, wrench, loaded pose
+    and readings, pose_done), the messages are stamped by bench/timeline.py's clock; each
+    method also takes ``at`` (ns since 1970) for a log whose times are known (an import).
+    Times are kept strictly increasing.
     """
 
     def __init__(self, path: str | os.PathLike, header: LogHeader, chunk_size: int = 16 * 1024):
@@ -325,7 +284,9 @@ class LogWriter:
         self._truth_params: dict | None = None
         self._joints = None if header.n_joints is None else (int(header.n_joints),)
         self._closed = True  # until the file is open
+        self._done = 0
         h = header
+        self.clock = CampaignClock(start_ns(h.start_time or DEFAULT_START))
         info = {
             "scenario_name": str(h.scenario_name),
             "robot": str(h.robot_filename),
@@ -336,6 +297,8 @@ class LogWriter:
             "seed": int(h.seed),
             "calbench_version": _version(),
         }
+        if h.n_joints is not None:
+            info["n_joints"] = int(h.n_joints)
         if h.imported is not None:
             info["imported"] = _jsonable(h.imported)
         problems = validate(info, SCHEMAS["/campaign/info"])
@@ -344,8 +307,10 @@ class LogWriter:
         public_scenario = redact_truth(h.scenario_text)
         self._file = open(self.path, "wb")
         self._closed = False
+        self._guard = SignalGuard()
+        self._guard.install()
         self._writer = Writer(self._file, chunk_size=chunk_size,
-                              compression=CompressionType.ZSTD)
+                              compression=CompressionType.ZSTD, enable_data_crcs=True)
         # The library string is the only free-form header field; mcap would put its own
         # version there. Ours names both versions and nothing time- or host-dependent.
         self._writer.start(profile="",
@@ -360,14 +325,15 @@ class LogWriter:
             self._channels[topic] = self._writer.register_channel(
                 topic=topic, message_encoding="json", schema_id=sid)
 
-        self._write("/campaign/info", info, _time(None, slot=0))
+        t0 = self.clock.start
+        self._write("/campaign/info", info, t0)
         self._writer.add_metadata(SCENARIO_METADATA,
                                   {"name": str(h.scenario_name), "text": public_scenario})
-        self._writer.add_attachment(create_time=0, log_time=0,
+        self._writer.add_attachment(create_time=t0, log_time=t0,
                                     name=Path(h.scenario_filename).name,
                                     media_type="application/toml",
                                     data=public_scenario.encode())
-        self._writer.add_attachment(create_time=0, log_time=0,
+        self._writer.add_attachment(create_time=t0, log_time=t0,
                                     name=Path(h.robot_filename).name,
                                     media_type="application/xml",
                                     data=h.mjcf_text.encode())
@@ -380,7 +346,16 @@ class LogWriter:
     def __exit__(self, exc_type, exc, tb) -> None:
         if exc_type is None:
             self.close()
+            return
+        # Ctrl-C or an error: finish the file anyway, so that every MCAP reader opens it; the
+        # pose in progress has no pose_done marker and stays out of every campaign read.
+        if issubclass(exc_type, KeyboardInterrupt):
+            status, reason = "was interrupted", "Ctrl-C"
         else:
+            status, reason = "stopped on an error", f"{exc_type.__name__}: {str(exc)[:200]}"
+        try:
+            self.close(status, f"{reason} after {self._done} complete poses")
+        except Exception:  # noqa: BLE001  e.g. the disk is full: keep what is on disk
             self._abandon()
 
     # -- messages ----------------------------------------------------------------------------
@@ -392,11 +367,13 @@ class LogWriter:
             raise ValueError(f"{topic}: message does not match its schema: {problems}")
         t = max(nominal_time, self._last_time + 1)  # strictly increasing, still deterministic
         self._last_time = t
+        self.clock.now = max(self.clock.now, t)       # the next step lasts from here
         seq = self._seq.get(topic, 0)
         self._seq[topic] = seq + 1
         data = json.dumps(msg, allow_nan=False, separators=(",", ":")).encode()
-        self._writer.add_message(channel_id=self._channels[topic], log_time=t, data=data,
-                                 publish_time=t, sequence=seq)
+        with self._guard.critical():
+            self._writer.add_message(channel_id=self._channels[topic], log_time=t, data=data,
+                                     publish_time=t, sequence=seq)
 
     # -- extra channels (the Foxglove topics of bench/foxglove.py) ----------------------------
     def add_channel(self, topic: str, schema_name: str, schema_text: str,
@@ -432,33 +409,41 @@ class LogWriter:
             raise ValueError(f"{topic}: log time {log_time} is not after {self._last_time}")
         self._write(topic, msg, log_time)
 
-    def pose(self, pose: int, state: str, q) -> None:
-        """Commanded joint angles (rad, controller convention) of one pose and load state."""
+    def pose(self, pose: int, state: str, q, at: int | None = None) -> None:
+        """Commanded joint angles (rad, controller convention) of one pose and load state.
+        The unloaded command starts the pose: the robot then drives there and settles."""
         p, s = _pose_index(pose), _state(state)
         self._write("/campaign/pose",
-                    {"pose": p, "state": s, "q": _list(_floats(q, self._joints, "q"))}, _time(p, s))
+                    {"pose": p, "state": s, "q": _list(_floats(q, self._joints, "q"))},
+                    self.clock.at(at))
+        if s == "unloaded":
+            self.clock.advance(MOVE_S)
 
-    def wrench(self, pose: int, force, moment, site: str, mass: float | None) -> None:
+    def wrench(self, pose: int, force, moment, site: str, mass: float | None,
+               at: int | None = None) -> None:
         """The load of the loaded state: force (N) and moment (N*m) in the world frame,
-        applied at MJCF ``site``; ``mass`` (kg) when it is a hanging payload, else None."""
+        applied at MJCF ``site``; ``mass`` (kg) when it is a hanging payload, else None.
+        Stamped when the load hangs still."""
         p = _pose_index(pose)
+        t = self.clock.at(at) if at is not None else self.clock.advance(LOAD_S)
         self._write("/campaign/wrench", {
             "pose": p, "state": "loaded",
             "force": _list(_floats(force, (3,), "force")),
             "moment": _list(_floats(moment, (3,), "moment")),
             "site": str(site),
             "mass": None if mass is None else float(mass),
-        }, _time(p, "loaded", slot=1))
+        }, t)
 
     def measurement(self, pose, state, repeat, reflectors, position, covariance,
-                    visible) -> None:
+                    visible, at: int | None = None) -> None:
         """One tracker reading of all reflectors: ``position`` (n,3) m in the tracker frame,
         NaN rows (or anything) where ``visible`` is False; ``covariance`` (n,3,3) m^2.
-        Invisible reflectors are written as null."""
+        Invisible reflectors are written as null. Stamped when the reading is complete."""
         p, s = _pose_index(pose), _state(state)
         r = _pose_index(repeat)
         names = [str(x) for x in reflectors]
         n = len(names)
+        t = self.clock.at(at) if at is not None else self.clock.advance(reading_seconds(n))
         vis = np.asarray(visible, dtype=bool).reshape(-1)
         pos = np.asarray(position, dtype=float)
         cov = np.asarray(covariance, dtype=float)
@@ -477,7 +462,7 @@ class LogWriter:
         self._write("/tracker/measurement", {
             "pose": p, "state": s, "repeat": r, "reflectors": names,
             "position": pos_out, "covariance": cov_out, "visible": [bool(v) for v in vis],
-        }, _time(p, s, r))
+        }, t)
 
     def truth_parameters(self, params: dict) -> None:
         """The simulated robot's true parameters (``/truth/parameters``); also written as the
@@ -486,7 +471,7 @@ class LogWriter:
         msg.setdefault("effects", {})
         if self._joints is not None:
             _floats(msg.get("compliance"), self._joints, "compliance")
-        self._write("/truth/parameters", msg, _time(None, slot=1))
+        self._write("/truth/parameters", msg, self.clock.now)
         self._truth_params = msg
 
     def truth_reflectors(self, pose, state, reflectors, position_world) -> None:
@@ -496,7 +481,7 @@ class LogWriter:
         pw = _floats(position_world, (len(names), 3), "position_world")
         self._write("/truth/reflectors", {"pose": p, "state": s, "reflectors": names,
                                           "position_world": _list(pw)},
-                    _time(p, s, slot=90_000_000))
+                    self.clock.now)
 
     def truth_joints(self, pose, state, qpos, deflection) -> None:
         """Full MuJoCo qpos at equilibrium and the motor-space deflection (rad, one per actuated
@@ -505,10 +490,11 @@ class LogWriter:
         self._write("/truth/joints", {
             "pose": p, "state": s, "qpos": _list(_floats(qpos, None, "qpos")),
             "deflection": _list(_floats(deflection, self._joints, "deflection")),
-        }, _time(p, s, slot=91_000_000))
+        }, self.clock.now)
 
-    def pose_done(self, pose: int) -> None:
-        """Mark ``pose`` complete and make everything written so far durable.
+    def pose_done(self, pose: int, at: int | None = None) -> None:
+        """Mark ``pose`` complete (stamped when the load is off) and make everything written
+        so far durable.
 
         Chunk boundary: ``Writer.flush()`` (public in mcap >= 1.3) finalises the chunk in
         progress — compresses it, writes the Chunk record and its MessageIndex records — and
@@ -516,40 +502,48 @@ class LogWriter:
         this pose's marker and all its messages in complete chunks.
         """
         p = _pose_index(pose)
-        self._write("/campaign/pose_done", {"pose": p}, _time(p, slot=900_000_000))
+        t = self.clock.at(at) if at is not None else self.clock.advance(UNLOAD_S)
+        self._write("/campaign/pose_done", {"pose": p}, t)
         self._sync()
+        self._done += 1
 
     def _sync(self) -> None:
-        flush = getattr(self._writer, "flush", None)
-        if flush is not None:
-            flush()
-        else:  # mcap < 1.3 has no public flush: use the chunk finaliser it calls itself
-            self._writer._Writer__finalize_chunk()  # type: ignore[attr-defined]
-            self._writer._Writer__flush()  # type: ignore[attr-defined]
-        self._file.flush()
+        with self._guard.critical():
+            flush = getattr(self._writer, "flush", None)
+            if flush is not None:
+                flush()
+            else:  # mcap < 1.3 has no public flush: use the chunk finaliser it calls itself
+                self._writer._Writer__finalize_chunk()  # type: ignore[attr-defined]
+                self._writer._Writer__flush()  # type: ignore[attr-defined]
+            self._file.flush()
         try:
             os.fsync(self._file.fileno())
         except OSError:  # e.g. a pipe or a file system without fsync
             pass
 
-    def close(self) -> None:
-        """Finish the file: ground_truth metadata (if truth was given), summary, footer.
-        Calling it again does nothing."""
+    def close(self, status: str = "finished", reason: str = "") -> None:
+        """Finish the file: the ``campaign_end`` record (``status`` "finished", "was
+        interrupted", ...; ``reason`` in words), the ground_truth metadata (if truth was given),
+        summary, footer. Calling it again does nothing."""
         if self._closed:
             return
-        if self._truth_params is not None:
-            self._writer.add_metadata(GROUND_TRUTH_METADATA, {
-                "parameters": json.dumps(self._truth_params, sort_keys=True, allow_nan=False),
-                "scenario_text": self._header.scenario_text,
-            })
-        self._writer.finish()
-        self._closed = True
-        self._file.close()
+        with self._guard.critical():
+            self._writer.add_metadata(END_METADATA, {"status": status, "reason": reason,
+                                                     "complete_poses": str(self._done)})
+            if self._truth_params is not None:
+                self._writer.add_metadata(GROUND_TRUTH_METADATA, {
+                    "parameters": json.dumps(self._truth_params, sort_keys=True, allow_nan=False),
+                    "scenario_text": self._header.scenario_text,
+                })
+            self._writer.finish()
+            self._closed = True
+            self._file.close()
+            self._guard.uninstall()
 
     def _abandon(self) -> None:
-        """After an exception: keep the complete chunks already on disk, write what is buffered
-        as one more chunk (its pose has no pose_done marker, so readers ignore it) and close
-        the file without a footer, so it reads as truncated. Never raises."""
+        """When the file cannot be finished: keep the complete chunks already on disk, write
+        what is buffered as one more chunk (its pose has no pose_done marker, so readers ignore
+        it) and close the file without a footer, so it reads as cut short. Never raises."""
         if self._closed:
             return
         self._closed = True
@@ -561,6 +555,7 @@ class LogWriter:
             self._file.close()
         except Exception:
             pass
+        self._guard.uninstall()
 
 
 def _jsonable(x: Any) -> Any:
@@ -580,248 +575,67 @@ def _jsonable(x: Any) -> Any:
     return x
 
 
-# ---------------------------------------------------------------------------------------------
-# schema validation (the subset the schemas above use)
-# ---------------------------------------------------------------------------------------------
-
-_JSON_TYPES = {
-    "object": lambda v: isinstance(v, dict),
-    "array": lambda v: isinstance(v, list),
-    "string": lambda v: isinstance(v, str),
-    "boolean": lambda v: isinstance(v, bool),
-    "null": lambda v: v is None,
-    "integer": lambda v: isinstance(v, int) and not isinstance(v, bool),
-    "number": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool)
-    and math.isfinite(v),
-}
-
-
-def validate(instance: Any, schema: dict, where: str = "$") -> list[str]:
-    """Problems of ``instance`` against ``schema`` (empty list: valid). Supports type (and
-    type lists), enum, minimum, required, properties, additionalProperties (a schema), items,
-    minItems, maxItems."""
-    errs: list[str] = []
-    types = schema.get("type")
-    if types is not None:
-        tl = [types] if isinstance(types, str) else list(types)
-        if not any(_JSON_TYPES[t](instance) for t in tl):
-            return [f"{where}: expected {types}, got {type(instance).__name__}"]
-    if "enum" in schema and instance not in schema["enum"]:
-        errs.append(f"{where}: {instance!r} not in {schema['enum']}")
-    if "minimum" in schema and _JSON_TYPES["number"](instance) and instance < schema["minimum"]:
-        errs.append(f"{where}: {instance} < minimum {schema['minimum']}")
-    if isinstance(instance, dict):
-        for k in schema.get("required", []):
-            if k not in instance:
-                errs.append(f"{where}: missing required field {k!r}")
-        for k, sub in schema.get("properties", {}).items():
-            if k in instance:
-                errs += validate(instance[k], sub, f"{where}.{k}")
-        extra = schema.get("additionalProperties")
-        if isinstance(extra, dict):
-            for k, v in instance.items():
-                if k not in schema.get("properties", {}):
-                    errs += validate(v, extra, f"{where}.{k}")
-    if isinstance(instance, list):
-        if "minItems" in schema and len(instance) < schema["minItems"]:
-            errs.append(f"{where}: {len(instance)} items < minItems {schema['minItems']}")
-        if "maxItems" in schema and len(instance) > schema["maxItems"]:
-            errs.append(f"{where}: {len(instance)} items > maxItems {schema['maxItems']}")
-        if "items" in schema:
-            for i, v in enumerate(instance):
-                errs += validate(v, schema["items"], f"{where}[{i}]")
-    return errs
-
-
-# ---------------------------------------------------------------------------------------------
-# reader
-# ---------------------------------------------------------------------------------------------
-
-
-try:
-    from zstandard import ZstdError as _ZstdError
-except ImportError:  # pragma: no cover - mcap's writer needs zstandard anyway
-    class _ZstdError(Exception):
-        pass
-
-# What mcap raises when the stream ends inside a record: EndOfFile (a McapError) at a record
-# boundary, struct.error for a cut fixed-size field, a zstd/lz4 error (RuntimeError for lz4) or
-# UnicodeDecodeError (a ValueError) for a cut chunk body or string.
-_TRUNCATION_ERRORS = (McapError, struct.error, ValueError, RuntimeError, _ZstdError)
-
-
-def _records(path: Path) -> Iterator[Any]:
-    """All records of an MCAP file in order, read without seeking; yields the string
-    ``"TRUNCATED"`` last when the file ends before its footer (crash) or a record is cut.
-
-    Raises InputError when the file is missing or not MCAP.
-    """
-    try:
-        f = open(path, "rb")
-    except OSError as e:
-        raise InputError(path, "file", "a readable MCAP file", e.strerror) from None
-    with f:
-        magic = f.read(len(MCAP_MAGIC))
-        if magic != MCAP_MAGIC:
-            raise InputError(path, "file", _MAGIC_TEXT, magic.hex(" ") if magic else "empty")
-        f.seek(0)
-        reader = StreamReader(f, record_size_limit=1 << 31)
-        it = reader.records
-        while True:
-            try:
-                rec = next(it)
-            except StopIteration:  # footer and closing magic read
-                return
-            except _TRUNCATION_ERRORS:
-                # a cut-short record, chunk or compressed frame: everything before is complete
-                yield "TRUNCATED"
-                return
-            yield rec
-
-
-def _nan_rows(rows: list, shape: tuple[int, ...]) -> np.ndarray:
-    out = np.full((len(rows), *shape), np.nan)
-    for i, r in enumerate(rows):
-        if r is not None:
-            out[i] = np.asarray(r, dtype=float)
-    return out
-
-
-def _per_state(d: dict[int, dict[str, Any]], keep: set[int]) -> dict[int, PerState]:
-    return {p: PerState(v.get("unloaded"), v.get("loaded")) for p, v in sorted(d.items())
-            if p in keep}
-
-
-def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLog:
-    """Read a campaign log, keeping only poses with a ``/campaign/pose_done`` marker.
-
-    Uses mcap's non-seeking ``StreamReader`` so a file cut short by a crash is read up to its
-    last complete chunk. With ``include_truth=False`` messages on ``/truth/`` topics and the
-    ``ground_truth`` metadata are skipped before any JSON decoding.
-    """
-    path = Path(path)
+def copy_log(records: Iterable[Any], dst: str | os.PathLike, *,
+             keep_topic: Callable[[str], bool] = lambda t: True,
+             keep: Callable[[Any], bool] = lambda r: True,
+             metadata: Mapping[str, Mapping[str, str]] = (), finish: bool = True,
+             chunk_size: int = 16 * 1024) -> None:
+    """Write ``records`` (as :func:`bench.mcapscan.scan` yields them, Damage and Cut skipped) to
+    a new MCAP file: channels whose topic passes ``keep_topic`` (with their schemas), and the
+    messages, metadata and attachments that pass ``keep``; then the extra ``metadata`` records.
+    Messages keep their times and sequence numbers; a chunk ends after each ``pose_done`` as in
+    the writer. ``finish=False`` leaves the copy without a footer (a cut-short copy of a
+    cut-short log)."""
+    schemas: dict[int, Schema] = {}
+    new_schema: dict[int, int] = {}
+    new_channel: dict[int, int] = {}
     topics: dict[int, str] = {}
-    info: dict | None = None
-    scenario_text = scenario_att = mjcf_text = None
-    poses: dict[int, dict[str, np.ndarray]] = {}
-    wrenches: dict[int, WrenchRecord] = {}
-    meas: list[MeasurementRecord] = []
-    done: set[int] = set()
-    truncated = True
-    t_params: dict | None = None
-    t_meta: dict | None = None
-    t_refl: dict[int, dict[str, TruthReflectors]] = {}
-    t_joints: dict[int, dict[str, TruthJoints]] = {}
-    saw_truth = False
-
-    for rec in _records(path):
-        if isinstance(rec, Channel):
-            topics[rec.id] = rec.topic
-        elif isinstance(rec, Message):
-            topic = topics.get(rec.channel_id)
-            if topic is None:
+    with open(dst, "wb") as f:
+        w = Writer(f, chunk_size=chunk_size, compression=CompressionType.ZSTD,
+                   enable_data_crcs=True)
+        started = False
+        for rec in records:
+            if isinstance(rec, Header) and not started:
+                w.start(profile=rec.profile, library=rec.library)
+                started = True
+            elif not started or isinstance(rec, (Damage, Cut)):
                 continue
-            if topic.startswith(TRUTH_PREFIX):
-                saw_truth = True
-                if not include_truth:
-                    continue  # never decoded
-            try:
-                m = json.loads(rec.data)
-            except (json.JSONDecodeError, UnicodeDecodeError) as e:
-                raise InputError(path, topic, "a JSON message", str(e)) from None
-            if topic == "/campaign/info":
-                info = m
-            elif topic == "/campaign/pose":
-                poses.setdefault(m["pose"], {})[m["state"]] = np.asarray(m["q"], dtype=float)
-            elif topic == "/campaign/wrench":
-                wrenches[m["pose"]] = WrenchRecord(
-                    pose=m["pose"], force=np.asarray(m["force"], dtype=float),
-                    moment=np.asarray(m["moment"], dtype=float), site=m["site"], mass=m["mass"])
-            elif topic == "/tracker/measurement":
-                meas.append(MeasurementRecord(
-                    pose=m["pose"], state=m["state"], repeat=m["repeat"],
-                    reflectors=list(m["reflectors"]),
-                    position=_nan_rows(m["position"], (3,)),
-                    covariance=_nan_rows(m["covariance"], (3, 3)),
-                    visible=np.asarray(m["visible"], dtype=bool), time=int(rec.log_time)))
-            elif topic == "/campaign/pose_done":
-                done.add(m["pose"])
-            elif topic == "/truth/parameters":
-                t_params = m
-            elif topic == "/truth/reflectors":
-                t_refl.setdefault(m["pose"], {})[m["state"]] = TruthReflectors(
-                    tuple(m["reflectors"]), np.asarray(m["position_world"], dtype=float))
-            elif topic == "/truth/joints":
-                t_joints.setdefault(m["pose"], {})[m["state"]] = TruthJoints(
-                    np.asarray(m["qpos"], dtype=float), np.asarray(m["deflection"], dtype=float))
-        elif isinstance(rec, Metadata):
-            if rec.name == GROUND_TRUTH_METADATA:
-                saw_truth = True
-                if include_truth:
-                    t_meta = dict(rec.metadata)
-            elif rec.name == SCENARIO_METADATA:
-                scenario_text = rec.metadata.get("text")
-        elif isinstance(rec, Attachment):
-            if rec.media_type == "application/toml" and scenario_att is None:
-                scenario_att = rec.data.decode("utf-8", "replace")
-            elif rec.media_type == "application/xml" and mjcf_text is None:
-                mjcf_text = rec.data.decode("utf-8", "replace")
-        elif isinstance(rec, Footer):
-            truncated = False
-
-    present = set(topics.values())
-    for topic in REQUIRED_TOPICS:
-        if topic not in present:
-            raise InputError(path, topic, "a channel with this topic in the campaign log",
-                             "no such channel")
-    if info is None:
-        raise InputError(path, "/campaign/info", "one campaign info message", "none")
-
-    complete = sorted(done)
-    keep = set(complete)
-    truth = None
-    if include_truth and saw_truth:
-        if t_params is None and t_meta and "parameters" in t_meta:
-            t_params = json.loads(t_meta["parameters"])
-        truth = CampaignTruth(
-            parameters=_truth_parameters(path, t_params),
-            reflectors=_per_state(t_refl, keep),
-            joints=_per_state(t_joints, keep),
-            scenario_text=(t_meta or {}).get("scenario_text"),
-        )
-    return CampaignLog(
-        path=path, header=info,
-        scenario_text=scenario_text if scenario_text is not None else scenario_att,
-        mjcf_text=mjcf_text,
-        poses=_per_state(poses, keep),
-        wrenches={p: v for p, v in sorted(wrenches.items()) if p in keep},
-        measurements=[m for m in meas if m.pose in keep],
-        complete_poses=complete,
-        n_poses_planned=int(info.get("n_poses", 0)),
-        truncated=truncated,
-        truth=truth,
-    )
-
-
-def _truth_parameters(path: Path, m: dict | None) -> TruthParameters | None:
-    if m is None:
-        return None
-    try:
-        return TruthParameters.from_message(m)
-    except (KeyError, TypeError, ValueError) as e:
-        raise InputError(path, "/truth/parameters",
-                         "compliance [one number per actuated joint] and compensator(s) {stiffness, preload}",
-                         str(e)) from None
-
-
-def has_truth(path: str | os.PathLike) -> bool:
-    """True when the log has any ``/truth/`` channel or a ``ground_truth`` metadata record."""
-    for rec in _records(Path(path)):
-        if isinstance(rec, Channel) and rec.topic.startswith(TRUTH_PREFIX):
-            return True
-        if isinstance(rec, Metadata) and rec.name == GROUND_TRUTH_METADATA:
-            return True
-    return False
+            elif isinstance(rec, Schema):
+                schemas.setdefault(rec.id, rec)
+            elif isinstance(rec, Channel):
+                topics.setdefault(rec.id, rec.topic)
+                if not keep_topic(rec.topic) or rec.id in new_channel:
+                    continue
+                sid = 0
+                if rec.schema_id and rec.schema_id in schemas:
+                    if rec.schema_id not in new_schema:
+                        sc = schemas[rec.schema_id]
+                        new_schema[rec.schema_id] = w.register_schema(sc.name, sc.encoding, sc.data)
+                    sid = new_schema[rec.schema_id]
+                new_channel[rec.id] = w.register_channel(rec.topic, rec.message_encoding, sid,
+                                                         dict(rec.metadata))
+            elif isinstance(rec, Message):
+                cid = new_channel.get(rec.channel_id)
+                if cid is None or not keep(rec):
+                    continue
+                w.add_message(cid, rec.log_time, rec.data, rec.publish_time, rec.sequence)
+                if topics.get(rec.channel_id) == "/campaign/pose_done":
+                    w.flush()  # same chunk boundaries as the writer: a pose ends a chunk
+            elif isinstance(rec, Metadata):
+                if keep(rec):
+                    w.add_metadata(rec.name, dict(rec.metadata))
+            elif isinstance(rec, Attachment):
+                if keep(rec):
+                    w.add_attachment(rec.create_time, rec.log_time, rec.name, rec.media_type,
+                                     rec.data)
+        if not started:
+            w.start(profile="", library=f"calbench/{_version()}; mcap-python/{_mcap_version()}")
+        for name, md in dict(metadata).items():
+            w.add_metadata(name, dict(md))
+        if finish:
+            w.finish()
+        else:
+            w.flush()
 
 
 def strip_truth(src: str | os.PathLike, dst: str | os.PathLike,
@@ -830,69 +644,26 @@ def strip_truth(src: str | os.PathLike, dst: str | os.PathLike,
     the ``ground_truth`` metadata: what a real campaign would have recorded.
 
     Messages keep their times and sequence numbers; a chunk boundary follows each
-    ``pose_done`` as in the original. A truncated source gives a truncated copy (no footer),
-    so the copy reads as the same state of the campaign.
+    ``pose_done`` as in the original. A cut-short source gives a cut-short copy (no footer),
+    so the copy reads as the same state of the campaign. A damaged source is refused
+    (CorruptLogError) before ``dst`` is created.
     """
     src, dst = Path(src), Path(dst)
     if src.resolve() == dst.resolve():
         raise ValueError(f"strip_truth: source and destination are the same file: {src}")
-    records = list(_records(src))  # validates src before dst is created
-    truncated = not any(isinstance(r, Footer) for r in records)
-    schemas: dict[int, Schema] = {}
-    new_schema: dict[int, int] = {}
-    new_channel: dict[int, int] = {}
-    done_channel = _channel_id_of(records, "/campaign/pose_done")
-    with open(dst, "wb") as f:
-        w = Writer(f, chunk_size=chunk_size, compression=CompressionType.ZSTD)
-        started = False
-        for rec in records:
-            if isinstance(rec, Header):
-                w.start(profile=rec.profile, library=rec.library)
-                started = True
-            elif not started:
-                continue
-            elif isinstance(rec, Schema):
-                schemas[rec.id] = rec
-            elif isinstance(rec, Channel):
-                if rec.topic.startswith(TRUTH_PREFIX) or rec.id in new_channel:
-                    continue
-                sid = 0
-                if rec.schema_id:
-                    if rec.schema_id not in new_schema:
-                        s = schemas[rec.schema_id]
-                        new_schema[rec.schema_id] = w.register_schema(s.name, s.encoding, s.data)
-                    sid = new_schema[rec.schema_id]
-                new_channel[rec.id] = w.register_channel(rec.topic, rec.message_encoding, sid,
-                                                         dict(rec.metadata))
-            elif isinstance(rec, Message):
-                cid = new_channel.get(rec.channel_id)
-                if cid is None:
-                    continue
-                w.add_message(cid, rec.log_time, rec.data, rec.publish_time, rec.sequence)
-                if rec.channel_id == done_channel:
-                    w.flush()  # same chunk boundaries as the writer: a pose ends a chunk
-            elif isinstance(rec, Metadata):
-                if rec.name != GROUND_TRUTH_METADATA:
-                    w.add_metadata(rec.name, dict(rec.metadata))
-            elif isinstance(rec, Attachment):
-                w.add_attachment(rec.create_time, rec.log_time, rec.name, rec.media_type,
-                                 rec.data)
-        if truncated:
-            w.flush()
-        else:
-            w.finish()
-
-
-def _channel_id_of(records: list, topic: str) -> int | None:
+    records = list(scan(src))  # validates src before dst is created
     for r in records:
-        if isinstance(r, Channel) and r.topic == topic:
-            return r.id
-    return None
+        if isinstance(r, Damage):
+            raise CorruptLogError(src, f"byte {r.offset}", f"an undamaged {r.record} record", r.why)
+    copy_log(records, dst, keep_topic=lambda t: not t.startswith(TRUTH_PREFIX),
+             keep=lambda r: not (isinstance(r, Metadata) and r.name == GROUND_TRUTH_METADATA),
+             finish=not any(isinstance(r, Cut) for r in records), chunk_size=chunk_size)
 
 
 __all__ = [
     "TRUTH_PREFIX", "SCHEMAS", "TOPICS", "LogHeader", "LogWriter", "MeasurementRecord",
     "CampaignLog", "CampaignTruth", "PerState", "WrenchRecord", "TruthParameters",
     "TruthReflectors", "TruthJoints", "read_log", "strip_truth", "has_truth", "redact_truth",
-    "validate",
+    "validate", "copy_log", "MCAP_MAGIC", "REQUIRED_TOPICS", "GROUND_TRUTH_METADATA",
+    "SCENARIO_METADATA",
 ]

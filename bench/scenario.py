@@ -12,6 +12,7 @@ import os
 import re
 import tomllib
 from dataclasses import dataclass
+from datetime import date, datetime
 from pathlib import Path
 from typing import Any, Callable
 
@@ -19,6 +20,7 @@ import numpy as np
 
 from .errors import InputError
 from .params import LEGACY_COMPENSATOR, Params, Spring
+from .timeline import DEFAULT_START, parse_start_time
 
 TRACKER_MODELS = ("isotropic", "spec")
 DEFAULT_SIGMA = 20e-6
@@ -97,6 +99,7 @@ class Scenario:
     work: Work | None
     poses: tuple[Pose, ...]
     name: str = ""               # the file's `name`, else its stem
+    start_time: datetime = DEFAULT_START   # UTC; when the campaign's log clock starts
 
 
 # --------------------------------------------------------------------------- field checks
@@ -202,7 +205,8 @@ def _number(file: Path, key: str, value: Any, positive: bool, nonneg: bool) -> f
 
 # --------------------------------------------------------------------------- sections
 
-TOP_KEYS = ("name", "description", "robot", "seed", "truth", "tracker", "load", "work", "pose", "design")
+TOP_KEYS = ("name", "description", "start_time", "robot", "seed", "truth", "tracker", "load", "work",
+            "pose", "design")
 # [design]: settings of `calbench design` (identify/design_candidates.py validates the values)
 DESIGN_KEYS = ("min_height", "min_radius", "candidates", "seed", "clearance", "compensator_margin",
                "lateral_force", "lateral_fraction")
@@ -412,6 +416,8 @@ def parse_scenario(text: str, path: str | Path, seed: int | None = None) -> Scen
         effects=effects,
         tracker=_tracker(top.sub("tracker")),
         **_campaign(top, path, len(compliance)),
+        start_time=(parse_start_time(top.raw("start_time"), path) if top.has("start_time")
+                    else DEFAULT_START),
     )
 
 
@@ -568,7 +574,8 @@ def scenario_as_dict(scn: Scenario, relative_to: str | Path) -> dict:
         return np.round(np.degrees(q), 10).tolist()
 
     tr = scn.tracker
-    header = {k: v for k, v in tomllib.loads(scn.text).items() if k in ("name", "description")}
+    header = {k: v for k, v in tomllib.loads(scn.text).items()
+              if k in ("name", "description", "start_time")}
     doc: dict[str, Any] = {
         **header,
         "robot": Path(os.path.relpath(scn.robot, Path(relative_to).resolve())).as_posix(),
@@ -638,6 +645,8 @@ def _toml_value(v: Any) -> str:
         return repr(v)                          # shortest text that reads back bit-exact
     if isinstance(v, str):
         return _toml_string(v)
+    if isinstance(v, (datetime, date)):
+        return v.isoformat()                    # a TOML date-time literal
     if isinstance(v, Path):
         return _toml_string(v.as_posix())
     if isinstance(v, (list, tuple)):

@@ -32,7 +32,8 @@ what calbench needs:
   moving joint must be a loop's passive joint (no spring): an extra free joint would leave the
   statics without an equilibrium. Continuous joints get the range +-360 deg.
 * **Sites, springs, loops** from the overlay (bench/urdfoverlay.py), and the ``calbench:*``
-  description texts (bench/description.py).
+  description texts (bench/description.py), the optional hints (wrist, links, counterweights,
+  a compensator's mounts for discovery) included.
 
 The result is checked as calbench will use it: compiled, read as a :class:`~bench.robot.Robot`
 (description, loop closure at the zero pose, each compensator across one actuated hinge), and
@@ -189,10 +190,10 @@ def check_overlay(tree: UrdfTree, ov: Overlay) -> None:
     """The overlay's names against the URDF: links exist, actuated joints are revolute or
     continuous, passive joints move, every moving joint is one or the other."""
     joints = tree.joints
-    for a in ov.sites():
-        if a.link not in tree.links:
-            raise InputError(ov.path, f"{a.key}.link", f"a link of {tree.path.name} ("
-                             + ", ".join(tree.links) + ")", a.link)
+    named = [(f"{a.key}.link", a.link) for a in ov.sites()] + ov.named_links()
+    for key, link in named:
+        if link not in tree.links:
+            raise InputError(ov.path, key, f"a link of {tree.path.name} (" + ", ".join(tree.links) + ")", link)
     for i, name in enumerate(ov.actuated):
         j = joints.get(name)
         if j is None or j.type not in ("revolute", "continuous"):
@@ -320,6 +321,8 @@ def _additions(spec: mujoco.MjSpec, ov: Overlay) -> None:
         _site(spec, lp.site2, [0.3, 0.3, 0.3, 1.0])
         spec.add_equality(name=lp.name, type=mujoco.mjtEq.mjEQ_CONNECT, objtype=mujoco.mjtObj.mjOBJ_SITE,
                           name1=lp.site1.name, name2=lp.site2.name)
+    for mount in ov.mounts:
+        _site(spec, mount, [0.1, 0.6, 0.9, 1.0])
     set_spec_names(spec, "actuated", ov.actuated)
     set_spec_names(spec, "loops", [lp.name for lp in ov.loops])
     set_spec_names(spec, "compensators", [c.name for c in ov.compensators])
@@ -327,6 +330,10 @@ def _additions(spec: mujoco.MjSpec, ov: Overlay) -> None:
     set_spec_names(spec, "payload", [ov.payload.name])
     if ov.flange:
         set_spec_names(spec, "flange", [ov.flange.name])
+    set_spec_names(spec, "wrist", [ov.wrist] if ov.wrist else [])
+    set_spec_names(spec, "links", ov.links)
+    set_spec_names(spec, "mass_compensators", ov.mass_compensators)
+    set_spec_names(spec, "compensator_sites", ov.compensator_sites or [])
 
 
 def _check_built(model: mujoco.MjModel, ov: Overlay) -> Robot:

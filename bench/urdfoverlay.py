@@ -13,6 +13,10 @@ overlay says so (docs/contract.md, "From a URDF")::
     [compensators.NAME]   stiffness, preload, from = {link, pos}, to = {link, pos}   # optional
     [loops.NAME]          passive = [...], site1 = {link, pos}, site2 = {link, pos}  # optional
     [packages]            NAME = "folder"       # optional: where package://NAME/ points
+    wrist = "link_5"                            # optional hints for design and discovery:
+    links = ["link_2", "link_3"]                #   calbench:wrist, :links, :mass_compensators
+    mass_compensators = ["counterweight"]       #   (links of the URDF)
+    compensator_sites = "NAME" or {from = {link, pos}, to = {link, pos}}   # :compensator_sites
 
 Positions are metres in the named link's URDF frame. Everything is validated like a scenario
 (bench/scenario.py): an :class:`~bench.errors.InputError` naming the file, the key and what was
@@ -26,9 +30,11 @@ from pathlib import Path
 from .errors import InputError
 from .scenario import _Checker, _describe, _read, _toml
 
-TOP_KEYS = ("actuated", "payload", "flange", "reflectors", "compensators", "loops", "packages")
+TOP_KEYS = ("actuated", "payload", "flange", "reflectors", "compensators", "loops", "packages",
+            "wrist", "links", "mass_compensators", "compensator_sites")
 PAYLOAD_SITE = "payload"
 FLANGE_SITE = "flange"
+MOUNT_SITES = ("compensator_mount_from", "compensator_mount_to")
 
 
 @dataclass(frozen=True)
@@ -79,6 +85,13 @@ class Overlay:
     compensators: tuple[CompensatorSpec, ...] = ()
     loops: tuple[LoopSpec, ...] = ()
     packages: dict[str, Path] = field(default_factory=dict)
+    # optional hints (bench/description.py): links named as they are, and the two sites between
+    # which discovery tries a compensator spring: a compensator's own, or mounts of their own
+    wrist: str | None = None
+    links: tuple[str, ...] = ()
+    mass_compensators: tuple[str, ...] = ()
+    compensator_sites: tuple[str, str] | None = None
+    mounts: tuple[Attach, ...] = ()
 
     def sites(self) -> list[Attach]:
         """Every site the overlay adds, in the order they are added to the MJCF."""
@@ -87,7 +100,13 @@ class Overlay:
             out += [c.start, c.end]
         for lp in self.loops:
             out += [lp.site1, lp.site2]
-        return out
+        return out + list(self.mounts)
+
+    def named_links(self) -> list[tuple[str, str]]:
+        """(overlay key, link) of every link the hints name."""
+        return ([("wrist", self.wrist)] if self.wrist else []) + [
+            (f"{key}[{i}]", link) for key in ("links", "mass_compensators")
+            for i, link in enumerate(getattr(self, key))]
 
 
 def _name(c: _Checker, name: str, what: str) -> str:
@@ -97,10 +116,10 @@ def _name(c: _Checker, name: str, what: str) -> str:
     return name
 
 
-def _names(c: _Checker, key: str, what: str, non_empty: bool = True) -> tuple[str, ...]:
+def _names(c: _Checker, key: str, what: str) -> tuple[str, ...]:
     value = c.raw(key)
-    expected = f"a{' non-empty' if non_empty else 'n'} array of {what} names (strings)"
-    if not isinstance(value, list) or (non_empty and not value):
+    expected = f"a non-empty array of {what} names (strings)"
+    if not isinstance(value, list) or not value:
         raise c.fail(key, expected, _describe(value))
     for i, v in enumerate(value):
         if not isinstance(v, str) or not v:
@@ -135,6 +154,22 @@ def _loop(tables: _Checker, name: str) -> LoopSpec:
                     _names(c, "passive", "joint"), c.prefix)
 
 
+def _mounts(top: _Checker, compensators: tuple[CompensatorSpec, ...]) -> tuple[tuple[str, str], tuple[Attach, ...]]:
+    """``compensator_sites``: the name of an overlay compensator (its two sites) or a table
+    {from, to} of two new sites (:data:`MOUNT_SITES`)."""
+    value = top.raw("compensator_sites")
+    if isinstance(value, str):
+        for c in compensators:
+            if c.name == value:
+                return (c.start.name, c.end.name), ()
+        raise top.fail("compensator_sites", "the name of a [compensators.NAME] table ("
+                       + (", ".join(c.name for c in compensators) or "none") + ") or a table {from, to}", value)
+    c = top.sub("compensator_sites")
+    c.only(("from", "to"))
+    mounts = (_attach(c, "from", MOUNT_SITES[0]), _attach(c, "to", MOUNT_SITES[1]))
+    return MOUNT_SITES, mounts
+
+
 def _named_tables(top: _Checker, key: str, what: str) -> list[tuple[_Checker, str]]:
     if not top.has(key):
         return []
@@ -161,7 +196,14 @@ def parse_overlay(text: str, path: str | Path) -> Overlay:
         pk = top.sub("packages")
         for name in pk.table:
             packages[name] = (path.parent / pk.string(name)).resolve()
-    ov = Overlay(path, actuated, payload, reflectors, flange, compensators, loops, packages)
+    sites, mounts = _mounts(top, compensators) if top.has("compensator_sites") else (None, ())
+    wrist = top.string("wrist") if top.has("wrist") else None
+    if wrist == "":
+        raise top.fail("wrist", "a link name of the URDF", wrist)
+    ov = Overlay(path, actuated, payload, reflectors, flange, compensators, loops, packages, wrist=wrist,
+                 links=_names(top, "links", "link") if top.has("links") else (),
+                 mass_compensators=_names(top, "mass_compensators", "link") if top.has("mass_compensators") else (),
+                 compensator_sites=sites, mounts=mounts)
     seen: dict[str, str] = {}
     for s in ov.sites():
         if s.name in seen:

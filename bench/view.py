@@ -74,7 +74,8 @@ from . import viewparams, viewtext
 from .errors import InputError
 from .geoms import GeomShape, ReflectorPost, geom_shapes, reflector_posts
 from .idreport import IdentificationReport
-from .logformat import STATES, CampaignLog, read_log
+from .campaignlog import STATES, CampaignLog
+from .logread import read_log
 from .outputs import atomic_path, check_outputs
 from .robot import Robot
 from .viewscene import (PoseScene, RobotPose, framing, mean_measurements, model_deflections,
@@ -428,6 +429,7 @@ class Summary:
     predicted: int
     ghost: str                      # where the ghost's joint deflections come from
     warnings: list[str] = field(default_factory=list)   # about the --identified report
+    completeness: str | None = None # lost poses, how the log ended (CampaignLog.completeness)
 
 
 def _log_robot_geoms(rec, rr, shapes: list[GeomShape], bodies: list[str]) -> None:
@@ -666,7 +668,8 @@ def log_view(rec, plan: ViewPlan) -> Summary:
                 truth, media_type=rr.MediaType.MARKDOWN), static=True)
     sources = {"truth": "true joint deflections (/truth/joints)", "model": "the identified model"}
     ghost = " and ".join(v for k, v in sources.items() if plan.has_ghost(k)) or "none"
-    return Summary(len(plan.scenes), arrows, plan.has_truth, n_pred, ghost)
+    return Summary(len(plan.scenes), arrows, plan.has_truth, n_pred, ghost,
+                   completeness=plan.log.completeness())
 
 
 def log_campaign(rec, log: CampaignLog, identified: IdentificationReport | None = None,

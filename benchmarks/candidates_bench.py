@@ -17,7 +17,9 @@ Every figure carries the load average at its start (other work on the machine sl
 CPU seconds much less). Usage:
 
     .venv/bin/python benchmarks/candidates_bench.py [--n 10000] [--scalar 1000] [--repeats 2]
-        [--baseline-cli /path/to/old/.venv/bin/calbench]
+        [--baseline-cli /path/to/old/.venv/bin/calbench] [--quick]
+
+(--quick: 1000 candidates, 100 one at a time, one repeat, no command run.)
 """
 from __future__ import annotations
 
@@ -34,6 +36,7 @@ import time
 from pathlib import Path
 
 from calbench.identify.design.candidates import generate_candidates, load_design_scenario
+from steps import say
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
@@ -112,15 +115,21 @@ def main() -> int:
     ap.add_argument("--scalar", type=int, default=1000, help="candidates of the one-at-a-time runs")
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--baseline-cli", default=None, help="another calbench executable, run back to back")
-    ap.add_argument("--no-cli", action="store_true")
+    ap.add_argument("--no-cli", action="store_true", help="skip the end-to-end command (default: run it)")
+    ap.add_argument("--quick", action="store_true",
+                    help="1000 candidates, 100 one at a time, one repeat, no command run")
     args = ap.parse_args()
+    if args.quick:
+        args.n, args.scalar, args.repeats, args.no_cli = 1000, 100, 1, True
+    say("candidates_bench", f"profile of {args.scalar} candidates one at a time")
     scn, st = load_design_scenario(PAPER)
     generate_candidates(scn, st, n=100, processes=1, progress=False)      # imports, first-call costs
     out = {"machine_cpus": len(os.sched_getaffinity(0)), "scenario": str(PAPER.relative_to(ROOT)),
            "scalar_profile": scalar_profile(scn, st, args.scalar)}
     # side by side: scalar, batched 1 thread, batched 2 threads, alternating
     runs = {"scalar": [], "batched_1": [], "batched_2": []}
-    for _ in range(args.repeats):
+    for i in range(args.repeats):
+        say("candidates_bench", f"scalar and batched, repeat {i + 1}/{args.repeats}")
         runs["scalar"].append(scalar_plain(scn, st, args.scalar))
         runs["batched_1"].append(batched(scn, st, args.n, 1))
         runs["batched_2"].append(batched(scn, st, args.n, 2))

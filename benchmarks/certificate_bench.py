@@ -33,18 +33,20 @@ from calbench.identify.design.candidates import generate_candidates, load_design
 from calbench.identify.design.certificate import ALGORITHMS, approximate_design
 from calbench.identify.design.exchange import Exchanger
 from calbench.identify.design.selection import select_rows
+from steps import say
 
 ROOT = Path(__file__).resolve().parent.parent
 M = 12
 GAPS = (1e-2, 1e-3, 1e-4)
 
 
-def blocks_sets(files: list[str]) -> list[tuple[str, np.ndarray, float | None]]:
+def blocks_sets(files: list[str], sizes=(2000, 10000)) -> list[tuple[str, np.ndarray, float | None]]:
     if files:
         return [(f, read_candidates(f).blocks, None) for f in files]
     scn, st = load_design_scenario(ROOT / "scenarios" / "paper_table5.toml")
     out = []
-    for n in (2000, 10000):
+    for n in sizes:
+        say("certificate_bench", f"generating {n} candidates")
         t = time.perf_counter()
         c = generate_candidates(scn, st, n=n)
         out.append((f"generated {n}", c.blocks, time.perf_counter() - t))
@@ -111,12 +113,16 @@ def main() -> int:
     ap.add_argument("npz", nargs="*", help="candidate files (default: generate 2000 and 10^4)")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--no-threads", action="store_true", help="skip the BLAS-threads comparison")
+    ap.add_argument("--quick", action="store_true", help="2000 candidates only, no BLAS-threads comparison")
     args = ap.parse_args()
+    if args.quick:
+        args.no_threads = True
     from threadpoolctl import threadpool_info
     res = {"machine_cpus": os.cpu_count(), "loadavg_at_start": os.getloadavg(), "M": M,
            "blas": [{k: i.get(k) for k in ("internal_api", "num_threads", "version")} for i in threadpool_info()],
            "sets": {}}
-    for name, blocks, t_gen in blocks_sets(args.npz):
+    for name, blocks, t_gen in blocks_sets(args.npz, (2000,) if args.quick else (2000, 10000)):
+        say("certificate_bench", f"{name}: certificates and convergence")
         r = {"N": len(blocks), "block_shape": list(blocks.shape[1:]), "candidates_s": t_gen}
         r["D"] = certified(blocks, "D")
         r["A"] = certified(blocks, "A")

@@ -31,6 +31,7 @@ from calbench.identify.design.candidates import InfoEngine, generate_candidates,
 from calbench.identify.design.criteria import information, measures
 from calbench.identify.design.exchange import Exchanger
 from calbench.identify.montecarlo import run_montecarlo
+from steps import say
 
 def work_scenario() -> Path:
     """The paper scenario; it carries the [work] pose the pose measure needs (a machining
@@ -61,6 +62,7 @@ def main() -> int:
     ap.add_argument("--runs", type=int, default=200)
     ap.add_argument("--quick", action="store_true", help="2000 candidates, no Monte Carlo")
     args = ap.parse_args()
+    say("design_bench", f"{2000 if args.quick else 10000} candidates")
     path = work_scenario()
     scn, st = load_design_scenario(path)
     n = 2000 if args.quick else 10000
@@ -85,6 +87,7 @@ def main() -> int:
                 for _ in range(100)]
         med = {k: float(np.median([r[k] for r in rand])) for k in rand[0]}
         for crit in ("A", "D", "AD", "pose"):
+            say("design_bench", f"{crit}-optimal plan of {M}")
             t = time.perf_counter()
             res = design_plan(scn, st, cands, M, crit, n_random=8, engine=engine)
             total = time.perf_counter() - t
@@ -111,6 +114,7 @@ def main() -> int:
     out["random_blocks_D_12_of_10k"] = {"seconds": time.perf_counter() - t,
                                         "logdet_F": float(np.linalg.slogdet(information(rb, r.idx))[1])}
     if not args.quick:
+        say("design_bench", f"Monte Carlo checks, {args.runs} runs each")
         mc = {"paper_plan": mc_check(ROOT / "scenarios" / "paper_table5.toml", F_paper, args.runs)}
         for key in ("A_M16", "A_M12"):
             res = plans[key]

@@ -33,6 +33,7 @@ from calbench.bench.campaign import plan_campaign, truth_robot
 from calbench.bench.scenario import scenario_to_toml
 from calbench.identify.executor import choose, open_executor
 from calbench.identify.study import load_study, prepare, read_results, run_study
+from steps import LineProgress, say
 
 STUDY = ROOT / "studies" / "discovery_power.toml"
 
@@ -103,12 +104,14 @@ def case_row(r: dict, magnitude: float) -> dict:
 
 def main() -> int:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--seeds", type=int, default=None, help="seeds per cell (default: 20, --quick 4)")
     ap.add_argument("--effects", default=None, help="comma-separated case labels (default: all)")
-    ap.add_argument("--quick", action="store_true", help="tested magnitude only")
+    ap.add_argument("--quick", action="store_true", help="tested magnitude only, 4 seeds")
     ap.add_argument("--scheduler", default=None, help="as calbench study --scheduler")
     ap.add_argument("--out", type=Path, default=None, help="keep the study's Parquet here (default: temporary)")
     args = ap.parse_args()
+    if args.seeds is None:
+        args.seeds = 4 if args.quick else 20
     with tempfile.TemporaryDirectory() as tmp_:
         tmp = Path(tmp_)
         study = load_study(study_file(tmp, args.seeds, args.effects.split(",") if args.effects else None, args.quick))
@@ -116,8 +119,9 @@ def main() -> int:
         pending = prepare(study, out)
         t0 = time.perf_counter()
         with open_executor(choose(args.scheduler, pending.estimated_seconds(), pending.tasks())) as ex:
-            outcome = run_study(pending, ex)
             where = ex.choice.describe()
+            say("discover_bench", f"{pending.campaigns} campaigns of studies/discovery_power.toml, {where}")
+            outcome = run_study(pending, ex, progress=LineProgress("discover_bench", "campaigns"))
         total = time.perf_counter() - t0
         table, _ = read_results(out)
         res: dict = {"plan": "scenarios/paper_table5.toml", "tracker_sigma_um": 20, "seeds": args.seeds,

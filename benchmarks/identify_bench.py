@@ -4,6 +4,7 @@ Carlo (1000 runs by default) of the one-step and two-step estimators with its fi
 Prints JSON. Targets (issue 3): one-step identification <= 2 s; 1000 Monte Carlo runs of the
 one-step estimator <= 30 s; one-step variance / CRB within 0.9-1.1, reported std within 10 % of
 the empirical one, |bias| < 0.1 sigma. Usage: python benchmarks/identify_bench.py [--runs N]
+[--quick] (100 runs, 2 timed identifications).
 """
 from __future__ import annotations
 
@@ -20,6 +21,7 @@ from calbench.bench.campaign import run_campaign
 from calbench.bench.scenario import load_scenario
 from calbench.identify.montecarlo import run_montecarlo
 from calbench.identify.report import run_identify
+from steps import LineProgress, say
 
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
 
@@ -28,7 +30,10 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--runs", type=int, default=1000)
     ap.add_argument("--scenario", type=Path, default=PAPER)
+    ap.add_argument("--quick", action="store_true", help="100 Monte Carlo runs, 2 timings each")
     args = ap.parse_args()
+    if args.quick:
+        args.runs = min(args.runs, 100)
     scn = load_scenario(args.scenario)
     out: dict = {"scenario": str(args.scenario.relative_to(ROOT) if args.scenario.is_relative_to(ROOT)
                                  else args.scenario)}
@@ -36,8 +41,9 @@ def main() -> None:
         log = Path(tmp) / "paper.mcap"
         run_campaign(scn, log)
         for method in ("one-step", "two-step"):
+            say("identify_bench", f"timing {method} identification")
             times, internal = [], []
-            for _ in range(5):
+            for _ in range(2 if args.quick else 5):
                 t = time.perf_counter()
                 rep = run_identify(log, method=method)
                 times.append(time.perf_counter() - t)
@@ -46,7 +52,8 @@ def main() -> None:
                 "median_wall_incl_log_reading": statistics.median(times),
                 "median_estimation": statistics.median(internal), "target": 2.0 if method == "one-step" else None}
     t = time.perf_counter()
-    mc = run_montecarlo(scn, args.runs, progress=False)
+    say("identify_bench", f"Monte Carlo, {args.runs} runs")
+    mc = run_montecarlo(scn, args.runs, progress=LineProgress("identify_bench", "Monte Carlo runs"))
     total = time.perf_counter() - t
     s = mc.summary()
     out["montecarlo"] = {

@@ -30,6 +30,7 @@ from calbench.identify.identifiability import whiten_factors
 from calbench.identify.montecarlo import campaign_observations
 from calbench.identify.onestep import OneStep, generic_start, sanitize_start, to_phi, to_theta
 from calbench.identify.twostep import two_step
+from steps import say
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
@@ -113,9 +114,13 @@ def _mujoco(resid, jac, z0):
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--quick", action="store_true", help="one seed")
     args = ap.parse_args()
+    if args.quick:
+        args.repeats = 1
     out: dict = {"identify": [], "montecarlo_run": []}
     for seed in range(args.repeats):
+        say("lm_bench", f"seed {seed + 1}/{args.repeats}: calbench, scipy and mujoco.minimize")
         robot, obs, linv, start = problem(seed)
         est = OneStep(robot, obs)
         t = time.perf_counter()

@@ -45,6 +45,7 @@ ROOT = Path(__file__).resolve().parent.parent
 from calbench.identify import executor as X
 from calbench.identify.study import load_study, prepare, run_study
 from calbench.identify.study.campaign import TIMING_COLUMNS
+from steps import say
 
 STUDY = """
 name = "scaling"
@@ -119,6 +120,7 @@ def run(study_path: Path, out: Path, choice: X.ExecutorChoice) -> dict:
 
 
 def best(study_path: Path, out: Path, choice: X.ExecutorChoice, repeats: int) -> dict:
+    say("scaling_bench", f"the study, {repeats} x {choice.kind} of {choice.workers}")
     runs = [run(study_path, out, choice) for _ in range(repeats)]
     return {**min(runs, key=lambda r: r["wall_s"]), "wall_s_all": [r["wall_s"] for r in runs]}
 
@@ -140,6 +142,7 @@ def main() -> int:
     seeds = 5 if args.quick else args.seeds
     reps = 1 if args.quick else args.repeats
     out: dict = {"machine_cpus": os.cpu_count(), "load_average_before": os.getloadavg()}
+    say("scaling_bench", "local cluster start, stop and trivial tasks")
     out["local_cluster"] = local_cluster()
     with tempfile.TemporaryDirectory() as tmp_:
         tmp = Path(tmp_)
@@ -164,6 +167,7 @@ def main() -> int:
                                        seeds=1 if args.quick else 3, discover="true", sigmas="[2e-5]")
                           + '[set]\n"truth.effects.link_compliance" = {link = "forearm", '
                             'compliance = [1.8e-7, 0.0, 1.8e-7]}\n')
+        say("scaling_bench", "campaigns with discover")
         d = run(dstudy, tmp / "d.parquet", X.ExecutorChoice(X.IN_PROCESS, None, 1, "benchmark"))
     c_id = runs["in_process"]["compute_s"] / runs["in_process"]["campaigns"]
     c_disc = d["compute_s"] / d["campaigns"]

@@ -14,7 +14,8 @@ relaxation loop and against relaxation given the same batching. Times are CPU se
 process where marked ``cpu`` (robust to other load on the machine) and wall seconds otherwise;
 the load average is recorded. And the estimator's forward model, whose warm evaluations run
 stacked the same way, in a Monte Carlo of the one-step estimator against its scalar loop.
-Usage: python benchmarks/statics_bench.py [--batch 1024] [--mc-runs 200]
+Usage: python benchmarks/statics_bench.py [--batch 1024] [--mc-runs 200] [--quick]
+(--quick: 2 relaxations, one campaign, a batch of 64, 20 Monte Carlo runs).
 """
 from __future__ import annotations
 
@@ -36,6 +37,7 @@ from calbench.bench.loop import loop_gap
 from calbench.bench.scenario import load_scenario
 from calbench.bench.batch_statics import BatchStatics
 from calbench.bench.statics import Load, StaticsSolver
+from steps import say
 
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
 
@@ -193,14 +195,21 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--batch", type=int, default=1024, help="configurations of the batched runs")
     ap.add_argument("--mc-runs", type=int, default=200, help="Monte Carlo runs, stacked vs scalar forward model")
+    ap.add_argument("--quick", action="store_true",
+                    help="2 relaxations, one campaign, a batch of 64, 20 Monte Carlo runs")
     args = ap.parse_args()
+    if args.quick:
+        args.batch, args.mc_runs = min(args.batch, 64), min(args.mc_runs, 20)
     load_before = os.getloadavg()
     scn = load_scenario(PAPER)
     robot = truth_robot(scn)
+    say("statics_bench", "Newton-KKT equilibria")
     times, loops, sols = newton_times(scn, robot)
     relax_times, relax_gaps, relax_errs, relax_steps, relax_cpu = [], [], [], [], []
     newton_same, newton_cpu = [], []
-    for pose, load, e1 in sols[:6]:
+    n_relax = 2 if args.quick else 6
+    for k, (pose, load, e1) in enumerate(sols[:n_relax]):
+        say("statics_bench", f"mj_step relaxation {k + 1}/{n_relax}")
         target = flange(robot, e1.qpos)
         t, steps, gap, err, cpu = relax(robot, pose.q, load, target)
         relax_times.append(t)
@@ -216,7 +225,8 @@ def main() -> None:
         newton_cpu.append(time.process_time() - c0)
     with tempfile.TemporaryDirectory() as tmp:
         campaign = []
-        for _ in range(3):
+        say("statics_bench", "whole campaigns")
+        for _ in range(1 if args.quick else 3):
             t = time.perf_counter()
             run_campaign(scn, Path(tmp) / "bench.mcap")
             campaign.append(time.perf_counter() - t)
@@ -238,6 +248,7 @@ def main() -> None:
         "speedup_vs_relaxation": med_relax / (statistics.median(newton_same) / 2),
         "targets": {"equilibrium_ms": 1.0, "speedup": 50.0},
     }
+    say("statics_bench", f"batched equilibria, {args.batch} configurations")
     batched = {f"newton_{t}_threads": batched_newton(robot, scn, args.batch, t) for t in (1, 2)}
     batched.update({f"relaxation_{t}_threads": batched_relax(robot, scn, sols, args.batch, t) for t in (1, 2)})
     # the lead, per equilibrium, in wall and in CPU seconds (the CPU ratio is the one that does
@@ -254,6 +265,7 @@ def main() -> None:
                 batched[f"relaxation_{t}_threads"][key] / nt)
     out["batched"] = batched
     out["lead_over_relaxation"] = lead
+    say("statics_bench", f"Monte Carlo forward model, {args.mc_runs} runs")
     out["monte_carlo_forward_model"] = monte_carlo(scn, args.mc_runs)
     out["load_average"] = {"before": list(load_before), "after": list(os.getloadavg())}
     print(json.dumps(out, indent=2))

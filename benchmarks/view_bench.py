@@ -12,10 +12,12 @@ Prints JSON: median seconds (of REPEATS) of
     Python start-up and imports included: what a user waits for (importing rerun and mujoco
     alone takes ~1 s of it, and it varies with the machine's load);
 and the ratios view / arrows_only. ``under_goal`` is the build's verdict (the issue's 2 s),
-``cli_under_goal`` the whole command's. Usage: python benchmarks/view_bench.py
+``cli_under_goal`` the whole command's. Usage: python benchmarks/view_bench.py [--quick]
+(--quick: 2 repeats, one command run).
 """
 from __future__ import annotations
 
+import argparse
 import json
 import statistics
 import subprocess
@@ -35,15 +37,16 @@ from calbench.bench.scenario import load_scenario
 from calbench.bench.view import (log_view, measured_deflections, plan_view, recording_stream,
                                  write_recording)
 from calbench.identify.report import run_identify
+from steps import say
 
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
 REPEATS = 5
 GOAL_S = 2.0
 
 
-def median_time(fn, repeats: int = REPEATS) -> float:
+def median_time(fn, repeats: int | None = None) -> float:
     times = []
-    for _ in range(repeats):
+    for _ in range(repeats or REPEATS):
         t = time.perf_counter()
         fn()
         times.append(time.perf_counter() - t)
@@ -78,7 +81,10 @@ def split(log_path: Path, ident: IdentificationReport | None, rrd: Path) -> tupl
     return t1 - t0, time.perf_counter() - t1
 
 
-def main() -> dict:
+def main(quick: bool = False) -> dict:
+    global REPEATS
+    if quick:
+        REPEATS = 2
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         log = tmp / "paper.mcap"
@@ -94,6 +100,7 @@ def main() -> dict:
                 rrd.unlink(missing_ok=True)
                 fn()
             return run
+        say("view_bench", f"read_log, arrows only, view, view --identified: {REPEATS} each")
         t_read = median_time(lambda: read_log(log, include_truth=True))
         t_base = median_time(fresh(lambda: arrows_only(log, rrd)))
         t_view = median_time(fresh(lambda: write_recording(log, rrd)))
@@ -101,7 +108,8 @@ def main() -> dict:
         parts = [split(log, ident, tmp / f"s{i}.rrd") for i in range(REPEATS)]
         exe = Path(sys.executable).with_name("calbench")
         cli = []
-        for _ in range(3):
+        say("view_bench", "the command in a fresh process")
+        for _ in range(1 if quick else 3):
             rrd.unlink(missing_ok=True)
             t = time.perf_counter()
             subprocess.run([str(exe), "view", str(log), "--identified", str(ident_path), "--rrd",
@@ -129,4 +137,6 @@ def main() -> dict:
 
 
 if __name__ == "__main__":
-    print(json.dumps(main(), indent=2))
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="2 repeats, one command run")
+    print(json.dumps(main(ap.parse_args().quick), indent=2))

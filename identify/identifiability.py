@@ -23,6 +23,22 @@ in the numerical null space are reported unidentifiable, with a reason:
   and fails with one.)
 * anything else: "the plan does not separate these parameters" with the combination.
 
+Resolution. The rank is a statement about numbers, not about noise: RANK_TOL asks whether a
+direction is there at all, and the exact model makes directions that the linear model lacks
+faintly there. With two distinct q2 the compensator is seen only through its static torque's
+effect on the J2 sag (a second-order effect): its direction sits at ~0.05 of s_1, far above
+1e-6, so the rank analysis calls K_C and s0 identifiable -- and the fit then reports, for a
+2-pose plan with q2 in {0, 120} deg, K_C = 1196 +- 159207 kN/m, or runs off to K_C -> 0,
+s0 -> infinity without converging. So after the fit, :func:`resolve` also asks the statistical
+question on the estimate's covariance (inverse Fisher information, the tracker's noise in it):
+a parameter whose standard deviation exceeds MAX_RELATIVE_STD (1) times its own size is not
+determined by the plan -- the data do not tell its size, nor that it is not zero -- and is
+reported unidentifiable like a structurally lost one, with the reason (fewer than three q2 for
+the compensator, else the parameter it is confounded with). The threshold is not tuned: below
+it the estimate is at least one standard deviation from zero; every parameter of the paper plan
+is determined to better than 0.2 of its size (k4, the worst: 0.09), the compensator of a
+2-pose plan to 0.3 ... 1e10 depending on the poses.
+
 Outliers. After the fit each observation's whitened residual r_w = L^-1 (dp - f), L L^T = Cov,
 gives the Mahalanobis distance d = |r_w|; d > OUTLIER_SIGMA (5) flags the (pose, reflector):
 a tracker reading more than 5 sigma off. For a correct reading d^2 ~ chi^2(3) (slightly less:
@@ -40,6 +56,7 @@ RANK_TOL = 1e-6
 ZERO_COLUMN_TOL = 1e-12
 NULL_TOL = 1e-3
 OUTLIER_SIGMA = 5.0
+MAX_RELATIVE_STD = 1.0
 
 
 @dataclass
@@ -53,6 +70,9 @@ class Identifiability:
     null_vectors: np.ndarray             # (p, p - rank) in column-normalised coordinates
     column_norms: np.ndarray             # (p,)
     reasons: dict[str, str] = field(default_factory=dict)
+    relative_std: np.ndarray | None = None   # (p,) std / |estimate|, after :func:`resolve`
+    unresolved: np.ndarray | None = None     # (p,) bool: rank says yes, the noise says no
+    correlation: np.ndarray | None = None    # (p, p) of the estimate, after :func:`resolve`
 
     @property
     def condition(self) -> float:
@@ -67,6 +87,10 @@ class Identifiability:
             "condition_number": self.condition,
             "identifiable": {n: bool(b) for n, b in zip(self.names, self.identifiable)},
             "unidentifiable_reasons": dict(self.reasons),
+            "max_relative_std": MAX_RELATIVE_STD,
+            "relative_std": (None if self.relative_std is None else
+                             {n: (float(x) if np.isfinite(x) else None)
+                              for n, x in zip(self.names, self.relative_std)}),
         }
 
 
@@ -90,6 +114,23 @@ def analyze(jw: np.ndarray, names: tuple[str, ...]) -> Identifiability:
     return Identifiability(tuple(names), s_full, rank, ident, null, norms)
 
 
+def resolve(ident: Identifiability, theta: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """The statistical half of identifiability (module docstring, "Resolution"): mark as not
+    identifiable every parameter that the rank calls identifiable but whose standard deviation
+    (from ``cov``, the covariance of the estimate ``theta``, same units) exceeds
+    MAX_RELATIVE_STD times |theta|. Updates ``ident`` and returns the unresolved mask."""
+    theta = np.asarray(theta, dtype=float)
+    var = np.diag(np.asarray(cov, dtype=float))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sd = np.sqrt(np.where(var >= 0, var, np.nan))
+        rel = sd / np.abs(theta)
+        corr = np.asarray(cov, dtype=float) / np.outer(sd, sd)
+    unresolved = ident.identifiable & ~(rel <= MAX_RELATIVE_STD)     # NaN is unresolved too
+    ident.relative_std, ident.unresolved, ident.correlation = rel, unresolved, corr
+    ident.identifiable = ident.identifiable & ~unresolved
+    return unresolved
+
+
 def explain(ident: Identifiability, layout: ParamLayout, facts: dict) -> dict[str, str]:
     """Name the reason for every unidentifiable parameter (fills ``ident.reasons``).
 
@@ -107,6 +148,9 @@ def explain(ident: Identifiability, layout: ParamLayout, facts: dict) -> dict[st
         comp = {f"k{j2 + 1}", layout.names[layout.stiffness_index[0]], layout.names[layout.preload_index[0]]}
     for i, name in enumerate(names):
         if ident.identifiable[i]:
+            continue
+        if ident.unresolved is not None and ident.unresolved[i]:
+            reasons[name] = _unresolved_reason(ident, i, n_q2, j2 if name in comp else None)
             continue
         if name.startswith("k") and name[1:].isdigit():
             j = int(name[1:]) - 1
@@ -137,6 +181,28 @@ def explain(ident: Identifiability, layout: ParamLayout, facts: dict) -> dict[st
     return reasons
 
 
+def _unresolved_reason(ident: Identifiability, i: int, n_q2: int, j2: int | None) -> str:
+    """Why parameter i is unresolved; ``j2`` the compensator's joint when i is one of its
+    parameters (or of that joint's spring), else None."""
+    rel = ident.relative_std[i]
+    head = (f"the plan determines it only to +-{100 * rel:,.0f} % of its value, so not even "
+            "that it is not zero" if np.isfinite(rel) and rel < 1e4 else
+            "the plan does not determine it: its standard deviation dwarfs the estimate")
+    if j2 is not None and n_q2 < 3:
+        q = f"q{j2 + 1}"
+        return (head + f": only {n_q2} distinct {q} in the plan; K_theta{j2 + 1}, K_C and s0 "
+                f"need the J{j2 + 1} stiffness at three or more {q} (the paper's step 2, eqs. 21-22)")
+    corr = ident.correlation[i] if ident.correlation is not None else None
+    if corr is not None:
+        others = [(abs(c), k) for k, c in enumerate(corr) if k != i and np.isfinite(c)
+                  and ident.unresolved is not None and not ident.unresolved[k]]
+        if others:
+            c, k = max(others)
+            if c > 0.5:
+                return head + f": confounded with {ident.names[k]} (correlation {corr[k]:+.2f})"
+    return head
+
+
 def whiten_factors(cov: np.ndarray) -> np.ndarray:
     """(M,3,3) inverse Cholesky factors L^-1 with L L^T = cov (so L^-1 cov L^-T = I)."""
     chol = np.linalg.cholesky(cov)
@@ -151,5 +217,6 @@ def outliers(residual_w: np.ndarray, labels: list[tuple[int, str]],
             for i in np.flatnonzero(d > threshold)]
 
 
-__all__ = ["RANK_TOL", "NULL_TOL", "OUTLIER_SIGMA", "Identifiability", "analyze", "explain",
+__all__ = ["RANK_TOL", "NULL_TOL", "OUTLIER_SIGMA", "MAX_RELATIVE_STD", "Identifiability",
+           "analyze", "resolve", "explain",
            "whiten_factors", "outliers"]

@@ -35,7 +35,8 @@ the step is sum_i s_i / (s_i^2 + lam) (u_i . r) v_i over the singular values s_i
 starts at 0 and goes x10 up (from 1e-3) on a rejected trial, /10 down on an accepted one.
 
 Bounds: an active set (a parameter at its bound whose step points outward is fixed for that
-step), then projection of the trial onto the box. ``valid(x)`` rejects trials outright (e.g.
+step, the one pointing out furthest first, then the step is recomputed: correlated parameters
+change each other's direction), then projection of the trial onto the box. ``valid(x)`` rejects trials outright (e.g.
 the one-step's positivity of every compliance).
 
 Stopping (any of):
@@ -245,13 +246,15 @@ def levenberg_marquardt(evaluate: Evaluate, y_w: np.ndarray, x0: np.ndarray, sca
         lo, hi = at_bounds(x, lower, upper)
         du = np.zeros(p)
         sd = np.full(p, np.inf)
-        for _ in range(p):                       # fix bound parameters whose step points out
-            du[:] = 0.0
+        for _ in range(p):                       # fix bound parameters whose step points out,
+            du[:] = 0.0                          # the worst one at a time: fixing one changes the
+            sd[:] = np.inf                       # others' steps when they are correlated
             du[free], sd[free], _ = svd_step(j[:, free], r, 0.0, rank_tol)
             out = free & ((lo & (du < 0)) | (hi & (du > 0)))
             if not out.any():
                 break
-            free = free & ~out
+            worst = np.flatnonzero(out)[np.argmax(np.abs(du[out]) / np.where(np.isfinite(sd[out]), sd[out], 1.0))]
+            free[worst] = False
         seen = free & np.isfinite(sd) & (sd > 0)
         step = float(np.max(np.abs(du[seen]) / sd[seen])) if seen.any() else 0.0   # in sigmas
         gain = float(np.sum((j[:, free] @ du[free]) ** 2))                        # promised chi2 drop

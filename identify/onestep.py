@@ -25,7 +25,10 @@ paper solves eq. (20) once, we iterate because the model is nonlinear in theta.
   Monte Carlo uses 1e-2 (adds < 1e-4 to a variance ratio), which on the paper plan usually
   stops after one evaluation (rho ~ 0.03 there).
 * Unidentifiable parameters (rank analysis at each iterate) are held at their start and
-  reported as null.
+  reported as null; so are parameters the rank keeps but the noise buries (relative standard
+  deviation above 1 at the estimate: identify/identifiability.py's :func:`resolve`), which are
+  estimated with the others -- the others' covariances stay marginal over them -- and then
+  reported as null with the reason.
 * Covariance: inverse Fisher information (J^T Sigma^-1 J)^-1 at the estimate (at the last
   linearisation point when ``final_eval`` is False, within a step of it).
 """
@@ -38,7 +41,7 @@ from calbench.bench.robot import Robot
 from calbench.bench.params import ParamLayout
 
 from .forward import ForwardModel, design_from_observations
-from .identifiability import RANK_TOL, analyze, explain, whiten_factors
+from .identifiability import RANK_TOL, analyze, explain, resolve, whiten_factors
 from .leastsq import Fit, covariance, levenberg_marquardt
 from .observations import Observations
 from .twostep import TwoStepError, TwoStepResult, group_q2, plan_facts, two_step
@@ -111,8 +114,12 @@ class OneStep:
         def evaluate(ph):
             return whiten(ph, *model.evaluate(to_theta(ph, lay)))
 
+        # Positivity as bounds (an active set), not only as a validity test: when the data prefer
+        # a spring that is not there (K_C -> 0, a realistic balancer), the fit then converges ON
+        # the bound instead of damping its way through max_iter.
+        lower = to_phi(lay.lower, lay)
         sol = levenberg_marquardt(
-            evaluate, yw, phi0, scale, valid=valid_phi,
+            evaluate, yw, np.maximum(phi0, lower), scale, valid=valid_phi, lower=lower,
             free_fn=lambda jw: analyze(jw, names).identifiable,
             step_tol=step_tol, rank_tol=RANK_TOL, max_iter=max_iter, max_damping=30,
             accept_within_sigma=True, final_eval=final_eval,
@@ -125,7 +132,8 @@ class OneStep:
         dt = dtheta_dphi(phi, lay)
         cov = dt @ cov_phi @ dt.T
         theta = to_theta(phi, lay)
-        bad = ~free.copy()
+        resolve(ident, theta, cov)          # the noise, not just the rank
+        bad = ~ident.identifiable.copy()
         for kc, s0 in zip(lay.stiffness_index, lay.preload_index):
             bad[s0] = bad[kc] or bad[s0]    # s0 = P / K_C needs both
         cov[bad, :] = np.nan

@@ -23,7 +23,7 @@ from calbench.bench.units import DISPLAY
 
 from .model import check_sites, load_model
 
-from .identifiability import OUTLIER_SIGMA, outliers
+from .identifiability import MAX_RELATIVE_STD, OUTLIER_SIGMA, outliers
 from .observations import Observations, from_log
 from .onestep import one_step
 from .twostep import TwoStepError, two_step, two_step_applies
@@ -212,8 +212,22 @@ def run_identify(log_path, model=None, method: str = "one-step",
 
 
 def check_failed(rep: IdentificationReport, z_max: float = Z_CHECK) -> list[str]:
-    """Parameters whose |z| exceeds z_max (empty without truth)."""
-    return [p.name for p in rep.parameters if p.z is not None and abs(p.z) > z_max]
+    """Why ``identify --check`` fails, one phrase each (empty: it passes). Always: the fit did
+    not converge; a parameter is reported as a number although the data do not determine it
+    (no finite std, or a std above MAX_RELATIVE_STD of the estimate: identify/identifiability.py).
+    With the log's truth: a parameter with |z| > z_max."""
+    bad = []
+    if rep.details.get("converged") is False:
+        bad.append("the estimator did not converge")
+    for p in rep.parameters:
+        if p.estimate is None:
+            continue
+        if not p.identifiable or p.std is None or not p.std > 0 \
+                or p.std > MAX_RELATIVE_STD * abs(p.estimate):
+            bad.append(f"{p.name} is reported as a number the plan does not determine")
+        elif p.z is not None and abs(p.z) > z_max:
+            bad.append(f"{p.name}: |z| = {abs(p.z):.2f} > {z_max:g}")
+    return bad
 
 
 __all__ = ["run_identify", "identify", "format_table", "build_report", "check_failed", "METHODS",

@@ -326,4 +326,4 @@ def test_the_writer_hook_keeps_channels_and_times_honest(tmp_path):
             del msg["name"]
             w.write(fx.LOG, msg, w.next_time(0))
     msgs = messages(tmp_path / "x.mcap")
-    assert [(tp, t_, m["message"]) for tp, _, t_, m in msgs] == [(fx.LOG, 5, "hello")]
+    assert [(tp, t_, m["message"]) for tp, _, t_, m in msgs] == [(fx.LOG, t, "hello")]

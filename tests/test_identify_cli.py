@@ -14,13 +14,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
-from mcap.writer import CompressionType, Writer
 
-from calbench.bench.logformat import _records, read_log, strip_truth
+from calbench.bench.logformat import read_log, strip_truth
 from calbench.identify.cli import main
 from calbench.bench.idreport import IdentificationReport
 from calbench.identify.report import run_identify
+import badcases as bc
 from conftest import K_TRUE, PAPER
 
 NAMES = ["k1", "k2", "k3", "k4", "k5", "k6", "compensator_stiffness", "compensator_preload"]
@@ -42,43 +41,8 @@ def paper_report(paper_log, tmp_path_factory) -> dict:
 
 def rewrite(src: Path, dst: Path, message=None, metadata=None, drop_topic: str | None = None) -> None:
     """Copy an MCAP log record by record, letting ``message(topic, dict) -> dict`` edit JSON
-    messages and ``metadata(name, dict) -> dict`` edit metadata records."""
-    topics: dict[int, str] = {}
-    with open(dst, "wb") as f:
-        w = Writer(f, compression=CompressionType.ZSTD)
-        schemas: dict[int, Schema] = {}
-        sid_map: dict[int, int] = {}
-        cid_map: dict[int, int] = {}
-        for rec in _records(src):
-            if isinstance(rec, Header):
-                w.start(profile=rec.profile, library=rec.library)
-            elif isinstance(rec, Schema):
-                schemas[rec.id] = rec
-            elif isinstance(rec, Channel):
-                topics[rec.id] = rec.topic
-                if rec.topic == drop_topic or rec.id in cid_map:
-                    continue
-                if rec.schema_id not in sid_map:
-                    s = schemas[rec.schema_id]
-                    sid_map[rec.schema_id] = w.register_schema(s.name, s.encoding, s.data)
-                cid_map[rec.id] = w.register_channel(rec.topic, rec.message_encoding,
-                                                     sid_map[rec.schema_id], dict(rec.metadata))
-            elif isinstance(rec, Message):
-                if rec.channel_id not in cid_map:
-                    continue
-                data = rec.data
-                if message is not None:
-                    data = json.dumps(message(topics[rec.channel_id], json.loads(data))).encode()
-                w.add_message(cid_map[rec.channel_id], rec.log_time, data, rec.publish_time,
-                              rec.sequence)
-            elif isinstance(rec, Metadata):
-                md = dict(rec.metadata)
-                if metadata is not None:
-                    md = metadata(rec.name, md)
-                w.add_metadata(rec.name, md)
-            elif isinstance(rec, Attachment):
-                w.add_attachment(rec.create_time, rec.log_time, rec.name, rec.media_type, rec.data)
-        w.finish()
+    messages and ``metadata(name, dict) -> dict`` edit metadata records (tests/badcases.py)."""
+    bc.rewrite_json(src, dst, message, drop=drop_topic, metadata=metadata)
 
 
 def estimates(rep: dict | IdentificationReport) -> np.ndarray:

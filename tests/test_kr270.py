@@ -15,9 +15,12 @@ import pytest
 from calbench.bench.campaign import run_campaign, scenario_params
 from calbench.bench.params import Params, Spring
 from calbench.bench.robot import Robot
-from calbench.bench.scenario import load_scenario
+from calbench.bench.scenario import load_scenario, scenario_variant
 from calbench.bench.statics import Load, StaticsSolver
 from calbench.identify.cli import main
+from calbench.identify.design.candidates import InfoEngine, load_design_scenario
+from calbench.identify.design.plan import scenario_plan_information
+from calbench.identify.discover.workflow import discover
 from calbench.identify.montecarlo import run_montecarlo
 from conftest import ROOT
 from test_statics import (deflection_twist, relaxed_flange, site_pose, small_load_response,
@@ -244,3 +247,73 @@ def test_one_step_is_efficient_unbiased_and_reports_its_std(summary):
         assert abs(p["variance_over_crb"] - 1) < 4 * se_var, p
         assert abs(p["bias_over_sigma"]) < 4 / np.sqrt(N), p
         assert abs(p["empirical_over_reported_std"] - 1) < 4 * se_sd, p
+
+
+# --------------------------------------------------------------------------- design
+
+KR270_DESIGNED = ROOT / "scenarios" / "kr270_designed.toml"
+
+
+@pytest.fixture(scope="module")
+def engine():
+    return InfoEngine(*load_design_scenario(KR270_PAPER))
+
+
+def test_design_cli_plan_is_feasible_and_identifies(tmp_path, engine):
+    """`calbench design` on this robot (a small candidate set for speed): every pose of the plan
+    passes every feasibility rule, and a campaign along it identifies with --check."""
+    plan, log = tmp_path / "plan.toml", tmp_path / "plan.mcap"
+    assert main(["design", str(KR270_PAPER), "--configs", "10", "--criterion", "A", "--out", str(plan),
+                 "--candidates", "300", "--starts", "2", "--processes", "1"]) == 0
+    _, violations = scenario_plan_information(engine, load_scenario(plan))
+    assert violations == []
+    assert main(["simulate", str(plan), "--out", str(log)]) == 0
+    assert main(["identify", str(log), "--check"]) == 0
+
+
+def test_shipped_designed_plan_beats_the_paper_plan_and_meets_its_prediction(paper, engine):
+    """scenarios/kr270_designed.toml (`calbench design scenarios/kr270_paper.toml --configs 12
+    --criterion A --out scenarios/kr270_designed.toml`): feasible, O1 (trace of the normalised
+    covariance) below half the paper-style plan's, and a 150-run Monte Carlo of the one-step
+    estimator meets that covariance: trace and each variance within 4 standard errors of the
+    sample covariance (tests/test_design.py's bounds)."""
+    designed = load_scenario(KR270_DESIGNED)
+    f_des, violations = scenario_plan_information(engine, designed)
+    assert violations == []
+    f_paper, _ = scenario_plan_information(engine, paper)
+    c = np.linalg.inv(f_des)
+    assert np.trace(c) < 0.5 * np.trace(np.linalg.inv(f_paper))
+    n = 150
+    mc = run_montecarlo(designed, n, methods=("one-step",), progress=False)
+    emp = np.cov((mc.estimates["one-step"] / mc.truth).T, ddof=1)
+    se = np.sqrt(2 * np.trace(c @ c) / (n - 1))
+    assert abs(np.trace(emp) - np.trace(c)) < 4 * se, (np.trace(emp), np.trace(c), se)
+    assert np.all(np.abs(np.diag(emp) / np.diag(c) - 1) < 4 * np.sqrt(2 / (n - 1)))
+
+
+# --------------------------------------------------------------------------- discovery
+
+# A soft foundation (the robot on a riser or a track carriage): 3e-8 rad/(N*m) of base tilt
+# about x and y, i.e. 3.3e7 N*m/rad. The paper-style plan sees it at 1.4-1.7x the noise
+# (seeds 1-6); it is named in each of them. (4e-9, the FANUC's, stays below the noise here:
+# a 270 kg load's moment is a fifth of 700 kg's, and the tilt is largely a k2 change: the user's
+# model then fits to the noise with k2 4 % (8 sigma) too soft, and nothing can be named.)
+HIDDEN_BASE = "[truth.effects.base_compliance]\ncompliance = [3e-8, 3e-8]"
+
+
+def test_discovery_names_a_hidden_base_compliance(tmp_path):
+    """Hidden in the truth, missing from the user's model: discovery names base_compliance and
+    the residual drops to the noise (RMS after <= 1.3x the noise, as for the FANUC)."""
+    scn = scenario_variant(KR270_PAPER, tmp_path / "base.toml", extra=HIDDEN_BASE)
+    log = tmp_path / "base.mcap"
+    run_campaign(load_scenario(scn), log)
+    rep = discover(log, None, out_model=tmp_path / "base.augmented.xml")
+    assert rep["named_effects"] == ["base_compliance"]
+    assert rep["rms_before"] > 1.3 * rep["noise_rms_before"]
+    assert rep["rms_after"] <= 1.3 * rep["noise_rms_after"]
+
+
+def test_discovery_names_nothing_on_a_null_campaign(paper_log, tmp_path):
+    rep = discover(paper_log, None, out_model=tmp_path / "null.augmented.xml")
+    assert rep["named_effects"] == []
+    assert rep["rms_after"] == pytest.approx(rep["rms_before"])

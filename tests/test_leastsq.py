@@ -127,3 +127,23 @@ def test_failed_evaluations_are_damped_not_fatal():
     x0 = 0.5 * exact
     sol = levenberg_marquardt(ev, y, x0, np.ones(4), step_tol=1e-9, final_eval=True, max_iter=50)
     np.testing.assert_allclose(sol.x, exact, rtol=1e-8)
+
+
+def test_active_set_frees_a_correlated_parameter_the_bound_does_not_hold():
+    """Two correlated parameters both start on their lower bounds; the constrained optimum has
+    only one of them there. Fixing both because both undamped steps point outward (the old rule)
+    stops at the corner; fixing the worst one first finds the optimum (scipy's bounded linear
+    least squares as the independent reference)."""
+    rng = np.random.default_rng(7)
+    t = rng.standard_normal((50, 1))
+    # anti-correlated columns, unconstrained optimum (-3, -0.5): both undamped steps from the
+    # corner point outward, yet with x0 held at 0 the best x1 is positive
+    a = np.column_stack([t[:, 0], -0.9 * t[:, 0] + 0.1 * rng.standard_normal(50)])
+    y = a @ np.array([-3.0, -0.5]) + 0.01 * rng.standard_normal(50)
+    lower = np.zeros(2)
+    ref = scipy.optimize.lsq_linear(a, y, bounds=(lower, np.inf)).x
+    assert ref[0] < 1e-9 and ref[1] > 0.1                      # the case: one bound active
+    sol = levenberg_marquardt(lambda x: (a @ x, a), y, lower.copy(), np.ones(2), lower=lower,
+                              step_tol=1e-9, max_iter=50)
+    assert sol.converged
+    np.testing.assert_allclose(sol.x, ref, atol=1e-9)

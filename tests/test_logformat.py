@@ -26,6 +26,8 @@ from calbench.bench.logformat import (TRUTH_PREFIX, LogHeader, LogWriter, has_tr
                              redact_truth, strip_truth)
 from calbench.bench.params import Spring
 from calbench.bench.scenario import TrackerSpec
+from calbench.bench.mcapscan import Cut, Damage, scan
+from calbench.bench.timeline import DEFAULT_START, start_ns
 
 REFLECTORS = ["R1", "R2", "R3"]
 K_TRUE = [1.1e-9, 1.2345e-09, 2.2e-9, 3.3e-8, 4.4e-8, 5.5e-8]   # distinctive values
@@ -254,14 +256,18 @@ def test_file_layout_metadata_attachments_and_times(log):
     assert json.loads(meta["ground_truth"]["parameters"]) == TRUTH_PARAMS
     times = [m.log_time for m in recs if isinstance(m, Message)]
     assert times == sorted(times) and len(set(times)) == len(times)
-    assert max(times) < 10**12                    # synthetic clock, not the wall clock (~1e18)
+    # the campaign's clock from the default start time, not the wall clock
+    assert times[0] == start_ns(DEFAULT_START)
+    topic = {c.id: c.topic for c in recs if isinstance(c, Channel)}
+    done_times = [m.log_time for m in recs
+                  if isinstance(m, Message) and topic[m.channel_id] == "/campaign/pose_done"]
+    assert len(done_times) == 4
     # a chunk boundary follows every pose_done: messages of a pose never share a chunk
     # with the next pose (count chunks when reading with emit_chunks)
     with open(log, "rb") as f:
         chunks = [r for r in StreamReader(f, emit_chunks=True).records
                   if type(r).__name__ == "Chunk"]
     assert len(chunks) >= 5                       # header chunk + one per pose at least
-    done_times = [(p + 1) * 10**9 + 9 * 10**8 for p in range(4)]
     for t in done_times:                          # each pose_done ends its chunk
         assert any(ch.message_end_time == t for ch in chunks)
 
@@ -371,19 +377,31 @@ def test_crash_mid_campaign_keeps_complete_poses(tmp_path):
 
 
 def raw_records_tolerant(path) -> list:
-    return [r for r in lf._records(Path(path)) if r != "TRUNCATED"]
+    return [r for r in scan(Path(path)) if not isinstance(r, (Cut, Damage))]
 
 
-def test_exception_inside_with_leaves_a_truncated_but_readable_log(tmp_path):
+@pytest.mark.parametrize("exc, status", [(RuntimeError("tracker lost"), "stopped on an error"),
+                                         (KeyboardInterrupt(), "was interrupted")])
+def test_exception_inside_with_finishes_a_log_every_reader_opens(tmp_path, exc, status):
+    """An error or Ctrl-C in the campaign: the file gets its summary and footer (mcap's seeking
+    reader opens it), the finished pose is kept, the one in progress is not, and the log says
+    how the campaign ended."""
     path = tmp_path / "exc.mcap"
-    with pytest.raises(RuntimeError, match="tracker lost"):
+    with pytest.raises(type(exc)):
         with LogWriter(path, make_header()) as w:
             write_pose(w, 0)
             write_pose(w, 1, done=False)
-            raise RuntimeError("tracker lost")
+            raise exc
     c = read_log(path)
-    assert c.truncated and c.complete_poses == [0]
-    assert not isinstance(raw_records_tolerant(path)[-1], Footer)
+    assert c.truncated and c.complete_poses == [0] and c.lost_poses == list(range(1, 8))
+    assert c.end.startswith(f"the campaign {status}") and "after 1 complete poses" in c.end
+    assert isinstance(raw_records_tolerant(path)[-1], Footer)
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        assert reader.get_summary() is not None
+        poses = {json.loads(m.data)["pose"] for _, ch, m in reader.iter_messages()
+                 if ch.topic == "/campaign/pose"}
+    assert poses == {0, 1}                 # the half pose is in the file, but not complete
 
 
 def all_record_bytes(path) -> bytes:
@@ -492,12 +510,15 @@ def test_not_mcap_and_missing_channel_raise_input_error(tmp_path):
         for topic in ("/campaign/info", "/campaign/pose"):
             sid = w.register_schema(topic, "jsonschema", json.dumps(lf.SCHEMAS[topic]).encode())
             w.register_channel(topic, "json", sid)
-        w.add_message(1, 0, json.dumps({"n_poses": 1}).encode(), 0)
+        info = {"scenario_name": "s", "robot": "r.xml", "n_poses": 1, "reflectors": ["R1"],
+                "payload_site": "payload", "tracker": make_header().tracker, "seed": 1,
+                "calbench_version": "0"}
+        w.add_message(1, 0, json.dumps(info).encode(), 0)
         w.finish()
     with pytest.raises(InputError) as e:
         read_log(partial)
-    assert e.value.key == "/tracker/measurement"
-    assert "/tracker/measurement" in str(e.value)
+    assert e.value.key == "/campaign/wrench"         # the first required channel missing
+    assert "/campaign/wrench" in str(e.value)
 
 
 def test_redact_truth_variants():

@@ -24,7 +24,7 @@ import pytest
 from calbench.bench.robot import Robot
 from calbench.bench.urdf import CONTINUOUS_RANGE, PLACEHOLDER_STIFFNESS
 from calbench.identify.cli import main
-from urdf_robots import ACTUATED, TRUTH_K, arm_overlay, arm_urdf, joints, link_masses, scenario
+from urdf_robots import ACTUATED, MOUNTS, TRUTH_K, arm_overlay, arm_urdf, joints, link_masses, scenario
 
 VARIANTS = {"serial": (False, False), "compensator": (True, False), "loop": (False, True)}
 
@@ -69,6 +69,30 @@ def test_a_robot_from_urdf_simulates_and_identifies(built, tag, tmp_path, capsys
     for p in rep["parameters"]:                   # every parameter determined, none skipped by --check
         assert p["estimate"] is not None and p["z"] is not None and abs(p["z"]) < 4.0
     assert [p["truth"] for p in rep["parameters"][:6]] == pytest.approx(TRUTH_K, rel=1e-12)
+
+
+def test_discovery_names_a_compensator_between_the_mounts_the_overlay_gives(built, tmp_path, capsys):
+    """The user's model, built from the URDF with the balancer's mounts but no spring
+    (compensator_sites), against a campaign on the robot that has it: discovery names the
+    compensator and estimates it within 4 standard deviations of the truth."""
+    rc, model = build(tmp_path / "model", overlay=arm_overlay(top=MOUNTS))
+    assert rc == 0
+    scn = tmp_path / "scn.toml"
+    scn.write_text(scenario(built["compensator"].as_posix(), compensator=True))
+    log, js = tmp_path / "arm.mcap", tmp_path / "d.json"
+    assert main(["simulate", str(scn), "--out", str(log)]) == 0
+    assert main(["discover", str(log), "--model", str(model), "--json", str(js)]) == 0
+    rep = json.loads(js.read_text())
+    assert rep["named_effects"] == ["compensator"]
+    est = {p["name"]: p for p in rep["parameters"]}
+    for name, truth in (("compensator.K_C", 1.5e6), ("compensator.s0", 0.8)):
+        assert abs(est[name]["estimate"] - truth) <= 4.0 * est[name]["std"], est[name]
+
+
+def test_the_robots_pass_check_robot(built, capsys):
+    for path in built.values():
+        assert main(["check-robot", str(path)]) == 0
+    assert capsys.readouterr().out.count("a calbench robot") == len(built)
 
 
 # --------------------------------------------------------------------------- the conversion
@@ -144,6 +168,26 @@ def test_the_same_urdf_and_overlay_give_the_same_bytes(built, tmp_path):
     assert rc == 0 and again.read_bytes() == built["compensator"].read_bytes()
 
 
+def test_hints_for_design_and_discovery_reach_the_description(tmp_path):
+    top = ('wrist = "link_5"\nlinks = ["link_2", "link_3"]\nmass_compensators = ["link_1"]\n'
+           'compensator_sites = "balancer"\n')
+    rc, out = build(tmp_path / "named", compensator=True, overlay=arm_overlay(True, top=top))
+    assert rc == 0
+    d = Robot.from_file(out).description
+    assert (d.wrist, d.links, d.mass_compensators) == ("link_5", ("link_2", "link_3"), ("link_1",))
+    assert d.compensator_sites == ("balancer_from", "balancer_to")
+    # mounts of their own sit where the spring's ends do on the robot that has one
+    rc, mounts = build(tmp_path / "mounts", overlay=arm_overlay(top=MOUNTS))
+    assert rc == 0
+    a, b = Robot.from_file(mounts), Robot.from_file(out)
+    assert a.description.compensator_sites == ("compensator_mount_from", "compensator_mount_to")
+    for r in (a, b):
+        r.data.qpos[:] = r.rigid_qpos(np.radians([10.0, 20.0, 30.0, 0.0, 0.0, 0.0]))
+        mujoco.mj_kinematics(r.model, r.data)
+    for x, y in zip(a.description.compensator_sites, b.description.compensator_sites):
+        np.testing.assert_array_equal(a.data.site(x).xpos, b.data.site(y).xpos)
+
+
 def test_the_parallelogram_closes_as_its_geometry_says(built):
     """Crank and upper arm are two sides of a parallelogram: the forearm's absolute pitch is the
     crank angle (q2 + elbow = q3) and the rod stays parallel to the upper arm (q3 + rod = q2)."""
@@ -200,6 +244,10 @@ BAD = {
                               "arm.toml", "loops.parallelogram.passive[1]: expected a moving, not actuated joint"),
     "loop that cannot close": (_sub("pos = [-0.4, -0.35, 0.0]", "pos = [-0.4, -0.2, 0.0]", loop=True), "loop",
                                "arm.toml", "loops.parallelogram: expected sites that the passive joints can bring together"),
+    "mounts of no spring": (arm_overlay(top='compensator_sites = "spring"\n'), None, "arm.toml",
+                            "compensator_sites: expected the name of a [compensators.NAME] table (none)"),
+    "hint of no link": (arm_overlay(top='links = ["link_2", "link_9"]\n'), None, "arm.toml",
+                        "links[1]: expected a link of arm.urdf"),
     "missing inertial": (arm_overlay(), arm_urdf(no_inertial="link_3"), "arm.urdf",
                          "link 'link_3': expected an <inertial> on every moving link"),
     "mimic joint": (arm_overlay(), arm_urdf().replace('<axis xyz="1.0 0.0 0.0"/><limit effort="20000" velocity="2"/></joint>\n'

@@ -125,13 +125,18 @@ pos = [0.15, 0.0, -0.35]
 
 # Compensator across J2 (paper Fig. 4): l_c = 0.9 m from J2 on the turret, 40 deg behind the
 # vertical; l_2 = 0.45 m up the upper arm; both 0.35 m off the arm's plane.
-COMPENSATOR = """
+BAL_FROM = '{{ link = "link_1", pos = [{!r}, 0.35, {!r}] }}'.format(
+    float(0.3 - 0.9 * np.sin(np.radians(40.0))), float(0.55 + 0.9 * np.cos(np.radians(40.0))))
+BAL_TO = '{ link = "link_2", pos = [0.0, 0.35, 0.45] }'
+COMPENSATOR = f"""
 [compensators.balancer]
 stiffness = 1.5e6
 preload = 0.8
-from = {{ link = "link_1", pos = [{fx!r}, 0.35, {fz!r}] }}
-to = {{ link = "link_2", pos = [0.0, 0.35, 0.45] }}
-""".format(fx=float(0.3 - 0.9 * np.sin(np.radians(40.0))), fz=float(0.55 + 0.9 * np.cos(np.radians(40.0))))
+from = {BAL_FROM}
+to = {BAL_TO}
+"""
+# The balancer's two mounts alone, for a model that lacks the spring (discovery tries one there).
+MOUNTS = f"compensator_sites = {{ from = {BAL_FROM}, to = {BAL_TO} }}\n"
 
 LOOP_OVERLAY = """
 [loops.parallelogram]
@@ -141,9 +146,10 @@ site2 = { link = "link_3", pos = [-0.4, -0.35, 0.0] }
 """
 
 
-def arm_overlay(compensator: bool = False, loop: bool = False, actuated=None, extra: str = "") -> str:
+def arm_overlay(compensator: bool = False, loop: bool = False, actuated=None, extra: str = "", top: str = "") -> str:
+    """The overlay; ``top`` adds top-level keys (before the first table), ``extra`` tables."""
     text = OVERLAY.format(actuated="[" + ", ".join(f'"{a}"' for a in (actuated or ACTUATED)) + "]")
-    return text + (COMPENSATOR if compensator else "") + (LOOP_OVERLAY if loop else "") + extra
+    return top + text + (COMPENSATOR if compensator else "") + (LOOP_OVERLAY if loop else "") + extra
 
 
 # Compliances of a heavy robot's drives (rad/(N*m)), stiff base to soft wrist.

@@ -37,7 +37,7 @@ import numpy as np
 
 from calbench.bench.effects import augmented_xml, load_spec
 from calbench.bench.idreport import IdentificationReport, ObservationFit, ParameterEstimate
-from calbench.bench.logformat import read_log
+from calbench.bench.logread import read_log
 from calbench.bench.outputs import atomic_path, write_text
 from calbench.bench.description import set_spec_names, spec_names
 from calbench.bench.robot import Robot
@@ -215,6 +215,8 @@ def discover(log_path, model=None, *, out_model=None, plot=None, view_json=None,
         "parameters": _parameters(final),
         "log": str(log_path), "model": str(model) if model is not None else "MJCF from the log",
         "n_observations": obs.n_obs(), "n_poses": len(obs.poses),
+        "n_poses_planned": log.n_poses_planned, "lost_poses": log.lost_poses,
+        "truncated": log.truncated, "completeness": log.completeness(),
         "per_pose": [{"pose": a["pose"], "rms_before": a["rms"], "rms_after": b["rms"]}
                      for a, b in zip(diag_before["per_pose"], diag_after["per_pose"])],
         "seconds": seconds,
@@ -313,6 +315,7 @@ def story(rep: dict) -> str:
     um = 1e6
     lines = [f"calbench discover: {rep['log']} (model: {rep['model']}; {rep['n_poses']} poses, "
              f"{rep['n_observations']} reflector deflections, {rep['seconds']:.1f} s)",
+             *([f"  campaign: {rep['completeness']}"] if rep.get("completeness") else []),
              "Where the model and the measurements disagree:"]
     lines += ["  " + w for w in rep["where_before"]["words"]]
     if rep["rounds"]:
