@@ -45,7 +45,7 @@ def engine(paper):
 @pytest.fixture(scope="module")
 def cands(paper):
     scn, st = paper
-    return generate_candidates(scn, st, n=400, progress=False)
+    return generate_candidates(scn, st, n=400, processes=1, progress=False)
 
 
 def _scenario_with_poses(scn, poses, tmp: Path, name="plan.toml") -> Path:
