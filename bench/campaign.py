@@ -23,7 +23,8 @@ from .timeline import check_size, estimate, repeats_key
 from .scenario import Scenario, check_joint_limits
 from .scenario import scenario_params as _scenario_params
 from .statics import Equilibrium, Load, StaticsError, StaticsSolver
-from .tracker import measure, to_tracker_frame, visible_sites
+from .measuring import measure_campaign, reading_times
+from .tracker import to_tracker_frame, visible_sites
 from .progress import ProgressSink, sink
 
 STATES = ("unloaded", "loaded")
@@ -140,6 +141,9 @@ def run_campaign(scn: Scenario, out: str | Path, progress: ProgressSink | None =
     plans = plan_campaign(scn, robot, progress)  # raises before any file exists
     out.parent.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(scn.seed)
+    repeats = [p.repeats for p in scn.poses]
+    measured = measure_campaign(scn.tracker, [p.reflectors_world for p in plans], [p.visible for p in plans],
+                                repeats, rng, reading_times(repeats, len(robot.reflector_names)))
     header = LogHeader(
         scenario_name=scn.name,
         scenario_text=scn.text,
@@ -165,7 +169,7 @@ def run_campaign(scn: Scenario, out: str | Path, progress: ProgressSink | None =
                                plan.mass)
                 log.pose(plan.index, state, plan.q)
                 for rep in range(pose.repeats):
-                    m = measure(scn.tracker, plan.reflectors_world[s], plan.visible[s], rng)
+                    m = measured[(plan.index, state, rep)]
                     log.measurement(plan.index, state, rep, robot.reflector_names, m.position, m.covariance, m.visible)
                     readings[s].append(m)
                 e = plan.equilibria[s]

@@ -34,12 +34,29 @@ from .campaign import pose_load
 from .errors import InputError
 from .campaignlog import CampaignLog
 from .logformat import LogHeader, LogWriter
+from .measuring import schedule
 from .readings import ReadingsTable, Row, group
 from .robot import Robot
 from .scenario import Plan, TrackerSpec
 from .tracker import noise_covariance
 
 STATES = ("unloaded", "loaded")
+
+
+@dataclass(frozen=True)
+class ImportedReading:
+    """One ``/tracker/measurement`` to write: the k-th reading of every reflector of a pose and
+    state (bench.readings.GroupedReading) with its covariances; it reads like a
+    :class:`bench.tracker.Measurement` (tracker frame, NaN rows where not seen)."""
+
+    repeat: int
+    position: np.ndarray        # (n, 3) m
+    covariance: np.ndarray      # (n, 3, 3) m^2
+    visible: np.ndarray         # (n,) bool
+    time: float                 # s: the table's (its kind), or the campaign clock's
+
+
+Readings = dict[tuple[int, str], list[ImportedReading]]
 
 
 @dataclass(frozen=True)
@@ -97,20 +114,36 @@ def measured_order(table: ReadingsTable) -> list[int]:
     return order
 
 
-def write_imported_log(plan: Plan, table: ReadingsTable, tracker: TrackerSpec, model: Path,
-                       out: Path, imported: dict) -> ImportSummary:
-    """Write the log of ``table``'s readings taken along ``plan`` with the tracker at
-    ``tracker``'s pose, the robot described by the MJCF ``model``; ``imported`` goes into
-    ``/campaign/info``. Everything is checked before the file is created."""
+def campaign_readings(table: ReadingsTable, names: list[str], tracker: TrackerSpec) -> Readings:
+    """The table's rows as log readings per (pose, state), reflectors in ``names`` order, with
+    their covariances (:func:`reading_covariance`); poses in measured order. Every reading has a
+    time: the table's, or, without a time column, the campaign clock's for these poses and
+    readings (bench.measuring.schedule, s since the first reading)."""
+    order = measured_order(table)
+    grouped = {(p, s): group(table.of(p, s), names) for p in order for s in STATES}
+    clock = None if table.has_time else schedule(
+        [(p, len(grouped[(p, "unloaded")]), len(grouped[(p, "loaded")])) for p in order], len(names))
+    return {(p, s): [ImportedReading(g.repeat, g.position,
+                                     reading_covariance(tracker, g.position, g.sigma), g.visible,
+                                     g.time if clock is None else clock[(p, s, g.repeat)])
+                     for g in gs]
+            for (p, s), gs in grouped.items()}
+
+
+def write_imported_log(plan: Plan, readings: Readings, tracker: TrackerSpec, model: Path,
+                       out: Path, imported: dict, rows: int) -> ImportSummary:
+    """Write the log of ``readings`` (:func:`campaign_readings`, ``rows`` CSV rows) taken along
+    ``plan`` with the tracker at ``tracker``'s pose, the robot described by the MJCF ``model``;
+    ``imported`` goes into ``/campaign/info``. Everything is checked before the file exists."""
     robot = Robot.from_file(model)
     names = list(robot.reflector_names)
     for i, pose in enumerate(plan.poses):
         if len(pose.q) != robot.n_act:
             raise InputError(plan.path, f"pose[{i}].q", f"an array of {robot.n_act} numbers (one per "
                              f"actuated joint of {model.name})", f"{len(pose.q)} elements")
-    order = measured_order(table)
+    order = list(dict.fromkeys(p for p, _ in readings))
     loads = {p: pose_load(robot, plan, plan.poses[p]) for p in order}
-    grouped = {(p, s): group(table.of(p, s), names) for p in order for s in STATES}
+    grouped = readings
     header = LogHeader(
         scenario_name=plan.name, scenario_text=plan.text, scenario_filename=plan.path.name,
         robot_filename=model.name, mjcf_text=model.read_text(encoding="utf-8"),
@@ -128,13 +161,12 @@ def write_imported_log(plan: Plan, table: ReadingsTable, tracker: TrackerSpec, m
                     log.wrench(p, load.force, load.moment, site, mass)
                 log.pose(p, state, q)
                 for g in grouped[(p, state)]:
-                    log.measurement(p, state, g.repeat, names, g.position,
-                                    reading_covariance(tracker, g.position, g.sigma), g.visible)
+                    log.measurement(p, state, g.repeat, names, g.position, g.covariance, g.visible)
                     n_read += 1
             log.pose_done(p)
     one = [p for p in order if not (grouped[(p, "unloaded")] and grouped[(p, "loaded")])]
     lost = sorted(set(range(len(plan.poses))) - set(order))
-    return ImportSummary(order, lost, one, len(table.readings), n_read)
+    return ImportSummary(order, lost, one, rows, n_read)
 
 
 def isotropic_sigma(cov: np.ndarray) -> float | None:
@@ -162,5 +194,6 @@ def export_rows(log: CampaignLog) -> list[Row]:
     return rows
 
 
-__all__ = ["ImportSummary", "reading_covariance", "measured_order", "write_imported_log",
+__all__ = ["ImportedReading", "Readings", "ImportSummary", "reading_covariance", "measured_order",
+           "campaign_readings", "write_imported_log",
            "export_rows", "isotropic_sigma"]

@@ -74,7 +74,15 @@ SCHEMAS: dict[str, dict] = {
             "sigma": {"type": "number", "description": "m, per axis"},
             "distance": _num_array(2, "ISO 10360-10 style [a m, b m/m]"),
             "transverse": _num_array(2, "ISO 10360-10 style [a m, b m/m]"),
-        }),
+            "rotation": {"type": "array", "minItems": 3, "maxItems": 3, "items": _num_array(3),
+                         "description": "world-from-tracker rotation matrix, when the tracker was "
+                                        "registered (any orientation); yaw is then its heading"},
+            "random": {"type": "number", "description": "iso10360: share of the 1-sigma that is "
+                                                        "independent noise"},
+            "correlation_angle": {"type": "number", "description": "iso10360: rad"},
+            "correlation_range": {"type": "number", "description": "iso10360: m"},
+            "drift": _num_array(2, "iso10360: [a m, b m/m] per sqrt(hour)"),
+        }, required=("position", "yaw", "model", "sigma", "distance", "transverse")),
         "seed": {"type": "integer"},
         "calbench_version": {"type": "string"},
         "n_joints": {"type": "integer", "minimum": 1,

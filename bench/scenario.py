@@ -11,7 +11,7 @@ import math
 import os
 import re
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import date, datetime
 from pathlib import Path
 from typing import Any, Callable
@@ -22,10 +22,17 @@ from .errors import InputError
 from .params import LEGACY_COMPENSATOR, Params, Spring
 from .timeline import DEFAULT_START, parse_start_time
 
-TRACKER_MODELS = ("isotropic", "spec")
+TRACKER_MODELS = ("isotropic", "spec", "iso10360")
 DEFAULT_SIGMA = 20e-6
 DEFAULT_DISTANCE = (10e-6, 0.3e-6)      # Leica AT500 ADM: 10 um + 0.3 um/m
 DEFAULT_TRANSVERSE = (15e-6, 6e-6)      # Leica AT500 angular: 15 um + 6 um/m
+# model = "iso10360" (bench/iso10360.py, where each default is argued): the share of a reading's
+# 1-sigma that is independent noise, the systematic field's correlation lengths, the drift.
+DEFAULT_RANDOM = 0.25
+DEFAULT_CORRELATION_ANGLE = math.radians(10.0)
+DEFAULT_CORRELATION_RANGE = 1.0         # m
+DEFAULT_DRIFT = (5e-6, 1e-6)            # m and m/m per sqrt(hour)
+ISO10360_KEYS = ("random", "correlation_angle", "correlation_range", "drift")
 JOINT_LIMIT_TOL = 1e-9                  # rad, absorbs degree->radian round-off at a limit
 
 
@@ -43,7 +50,14 @@ class TrackerSpec:
     """Laser tracker placement (world frame) and noise model.
 
     ``model == "isotropic"`` uses ``sigma`` per axis; ``"spec"`` uses the 1-sigma distance and
-    transverse errors ``a + b * range`` of an ISO 10360-10 style specification.
+    transverse errors ``a + b * range`` of an ISO 10360-10 style specification; ``"iso10360"``
+    splits that single-point error into a smooth systematic field, independent noise (the share
+    ``random`` of the 1-sigma) and a drift in time (bench/iso10360.py; ``correlation_angle``
+    rad, ``correlation_range`` m, ``drift`` [a m, b m/m] per sqrt(hour)).
+
+    The tracker frame is rotated by ``yaw`` about world z, or, when ``rotation`` is given (a
+    registered tracker, identify/registration.py: any orientation), by that world-from-tracker
+    matrix; ``yaw`` is then the rotation's heading, for readers that know only yaw.
     """
     position: np.ndarray
     yaw: float = 0.0
@@ -51,14 +65,34 @@ class TrackerSpec:
     sigma: float = DEFAULT_SIGMA
     distance: tuple[float, float] = DEFAULT_DISTANCE
     transverse: tuple[float, float] = DEFAULT_TRANSVERSE
+    rotation: np.ndarray | None = None
+    random: float = DEFAULT_RANDOM
+    correlation_angle: float = DEFAULT_CORRELATION_ANGLE
+    correlation_range: float = DEFAULT_CORRELATION_RANGE
+    drift: tuple[float, float] = DEFAULT_DRIFT
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON form of the log header's ``tracker`` (CONTRACT.md, ``/campaign/info``):
-        SI throughout (position m, yaw rad, sigma m, ``[a m, b m/m]`` error laws)."""
-        return {"position": [float(x) for x in self.position], "yaw": float(self.yaw),
-                "model": self.model, "sigma": float(self.sigma),
-                "distance": [float(x) for x in self.distance],
-                "transverse": [float(x) for x in self.transverse]}
+        SI throughout (position m, yaw rad, sigma m, ``[a m, b m/m]`` error laws; ``rotation``,
+        3 rows of 3, only when set)."""
+        d = {"position": [float(x) for x in self.position], "yaw": float(self.yaw),
+             "model": self.model, "sigma": float(self.sigma),
+             "distance": [float(x) for x in self.distance],
+             "transverse": [float(x) for x in self.transverse]}
+        if self.rotation is not None:
+            d["rotation"] = np.asarray(self.rotation, dtype=float).tolist()
+        if self.model == "iso10360":
+            d.update(random=float(self.random), correlation_angle=float(self.correlation_angle),
+                     correlation_range=float(self.correlation_range),
+                     drift=[float(x) for x in self.drift])
+        return d
+
+    def placed(self, position: np.ndarray, rotation: np.ndarray) -> "TrackerSpec":
+        """This tracker (same noise model) at ``position`` (m) with world-from-tracker
+        ``rotation``."""
+        rot = _rotation_matrix(rotation, "<rotation>", "rotation")
+        return replace(self, position=_frozen(position), rotation=rot,
+                       yaw=float(math.atan2(rot[1, 0], rot[0, 0])))
 
     @classmethod
     def from_dict(cls, d: Any, file: object = "<tracker>", key: str = "tracker") -> "TrackerSpec":
@@ -249,20 +283,59 @@ def _pair(c: _Checker, name: str, default: tuple[float, float]) -> tuple[float, 
 
 
 def _tracker(c: _Checker) -> TrackerSpec:
-    """The scenario's ``[tracker]`` table (yaw in degrees)."""
-    c.only(("sigma", "position", "yaw", "model", "distance", "transverse"))
+    """The scenario's ``[tracker]`` table (yaw and correlation_angle in degrees)."""
+    c.only(("sigma", "position", "yaw", "model", "distance", "transverse") + ISO10360_KEYS)
     return _tracker_spec(c, yaw_to_rad=math.radians)
+
+
+ROTATION_TOL = 1e-9      # |R^T R - I| and |det R - 1| of a rotation read back from JSON
+
+
+def _rotation_matrix(value: Any, file: object, key: str) -> np.ndarray:
+    """A proper rotation matrix (3 rows of 3 finite numbers, orthonormal, det +1), frozen."""
+    try:
+        rot = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        rot = np.zeros(0)
+    ok = rot.shape == (3, 3) and bool(np.all(np.isfinite(rot)))
+    if ok:
+        ok = (np.abs(rot.T @ rot - np.eye(3)).max() < ROTATION_TOL
+              and abs(np.linalg.det(rot) - 1) < ROTATION_TOL)
+    if not ok:
+        raise InputError(file, key, "a rotation matrix (3 rows of 3 numbers, orthonormal, det +1)",
+                         _describe(value) if not isinstance(value, list) else value)
+    return _frozen(rot)
 
 
 def _tracker_spec(c: _Checker, yaw_to_rad: Callable[[float], float]) -> TrackerSpec:
     """A TrackerSpec from a checked table; ``yaw_to_rad`` converts the table's yaw unit."""
-    return TrackerSpec(
+    rotation = _rotation_matrix(c.raw("rotation"), c.file, c.key("rotation")) if c.has("rotation") else None
+    model = c.string("model", TRACKER_MODELS) if c.has("model") else "isotropic"
+    iso = {}
+    if model != "iso10360":
+        for name in ISO10360_KEYS:
+            if c.has(name):
+                raise c.fail(name, 'model = "iso10360" for this key (a correlated error model)')
+    else:
+        if c.has("random"):
+            iso["random"] = c.number("random", positive=True)
+            if iso["random"] > 1:
+                raise c.fail("random", "the share of the 1-sigma that is independent noise, in (0, 1]",
+                             iso["random"])
+        if c.has("correlation_angle"):
+            iso["correlation_angle"] = yaw_to_rad(c.number("correlation_angle", positive=True))
+        if c.has("correlation_range"):
+            iso["correlation_range"] = c.number("correlation_range", positive=True)
+        if c.has("drift"):
+            iso["drift"] = tuple(float(x) for x in c.vector("drift", 2, nonneg=True))
+    return TrackerSpec(**iso,
         position=_frozen(c.vector("position", 3)),
         yaw=yaw_to_rad(c.number("yaw")) if c.has("yaw") else 0.0,
-        model=c.string("model", TRACKER_MODELS) if c.has("model") else "isotropic",
+        model=model,
         sigma=c.number("sigma", positive=True) if c.has("sigma") else DEFAULT_SIGMA,
         distance=_pair(c, "distance", DEFAULT_DISTANCE),
         transverse=_pair(c, "transverse", DEFAULT_TRANSVERSE),
+        rotation=rotation,
     )
 
 
@@ -583,7 +656,10 @@ def scenario_as_dict(scn: Scenario, relative_to: str | Path) -> dict:
         "truth": Params(scn.compliance, scn.compensators).as_dict(),
         "tracker": {"sigma": tr.sigma, "position": tr.position.tolist(),
                     "yaw": round(math.degrees(tr.yaw), 10), "model": tr.model,
-                    "distance": list(tr.distance), "transverse": list(tr.transverse)},
+                    "distance": list(tr.distance), "transverse": list(tr.transverse),
+                    **({"random": tr.random, "correlation_angle": round(math.degrees(tr.correlation_angle), 10),
+                        "correlation_range": tr.correlation_range, "drift": list(tr.drift)}
+                       if tr.model == "iso10360" else {})},
         "load": {"mass": scn.load_mass},
     }
     if scn.effects:

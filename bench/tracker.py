@@ -1,7 +1,7 @@
 """The simulated laser tracker: frames, noise model, line-of-sight visibility, measurement.
 
 The tracker frame has its origin at ``TrackerSpec.position`` and is rotated by ``yaw`` about
-world z. Measurements are reported in that frame, as a real tracker would report them; the
+world z (or by ``TrackerSpec.rotation``, a registered tracker's full orientation). Measurements are reported in that frame, as a real tracker would report them; the
 noise model lives there too (it only depends on the line of sight from the tracker origin).
 """
 from __future__ import annotations
@@ -36,7 +36,10 @@ def _points(points: np.ndarray) -> np.ndarray:
 
 
 def tracker_rotation(spec: TrackerSpec) -> np.ndarray:
-    """World-from-tracker rotation: a yaw of ``spec.yaw`` radians about world z."""
+    """World-from-tracker rotation: ``spec.rotation`` when set (a registered tracker), else a
+    yaw of ``spec.yaw`` radians about world z."""
+    if spec.rotation is not None:
+        return np.asarray(spec.rotation, dtype=float)
     c, s = np.cos(spec.yaw), np.sin(spec.yaw)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
@@ -54,18 +57,31 @@ def to_world_frame(spec: TrackerSpec, points_tracker: np.ndarray) -> np.ndarray:
 
 
 def noise_covariance(spec: TrackerSpec, points_tracker: np.ndarray) -> np.ndarray:
-    """Measurement covariance (n, 3, 3) at tracker-frame points.
+    """Covariance (n, 3, 3) of a reading's independent error at tracker-frame points: what a
+    ``/tracker/measurement`` carries.
 
     Isotropic: sigma^2 I. Spec: sd^2 u u^T + st^2 (I - u u^T), with u the unit line of sight,
     sd = a_d + b_d*range along it (distance meter) and st = a_t + b_t*range across it (angles).
+    iso10360: random^2 times the spec form, the rest of its error being correlated between
+    readings (bench/iso10360.py).
     """
     p = _points(points_tracker)
     n = len(p)
     eye = np.broadcast_to(np.eye(3), (n, 3, 3))
     if spec.model == "isotropic":
         return spec.sigma**2 * eye.copy()
+    if spec.model == "iso10360":
+        return spec.random ** 2 * spec_covariance(spec, p)
     if spec.model != "spec":
         raise ValueError(f"unknown tracker noise model {spec.model!r}")
+    return spec_covariance(spec, p)
+
+
+def spec_covariance(spec: TrackerSpec, points_tracker: np.ndarray) -> np.ndarray:
+    """The single-point covariance (n, 3, 3) of the distance and transverse laws
+    (``spec.distance``, ``spec.transverse``): sd^2 u u^T + st^2 (I - u u^T)."""
+    p = _points(points_tracker)
+    eye = np.broadcast_to(np.eye(3), (len(p), 3, 3))
     rng = np.linalg.norm(p, axis=1)
     if np.any(rng == 0):
         raise ValueError("a point at the tracker origin has no line of sight")

@@ -26,7 +26,7 @@ import scipy.optimize
 from calbench.bench.campaign import plan_campaign, truth_robot
 from calbench.bench.robot import Robot
 from calbench.bench.scenario import load_scenario
-from calbench.identify.identifiability import whiten_factors
+from calbench.identify.whitening import Whitener
 from calbench.identify.montecarlo import campaign_observations
 from calbench.identify.onestep import OneStep, generic_start, sanitize_start, to_phi, to_theta
 from calbench.identify.twostep import two_step
@@ -41,16 +41,16 @@ def problem(seed: int):
     plans = plan_campaign(scn, truth_robot(scn))
     robot = Robot.from_file(scn.robot)
     obs = campaign_observations(scn, truth_robot(scn), plans, np.random.default_rng(seed))
-    linv = whiten_factors(obs.cov)
+    white = Whitener.from_observations(obs)
     start, _ = sanitize_start(two_step(robot, obs).theta, generic_start(robot, obs), robot.layout)
-    return robot, obs, linv, start
+    return robot, obs, white, start
 
 
-def library_runs(est: OneStep, obs, linv, start, ours) -> dict:
+def library_runs(est: OneStep, obs, white, start, ours) -> dict:
     """scipy and mujoco on the same problem in phi = [k, K_C, K_C s0] scaled by |phi(start)|."""
     model = est.model
     lay = est.robot.layout
-    yw = np.einsum("mij,mj->mi", linv, obs.dp).reshape(-1)
+    yw = white.vec(obs.dp)
     phi0 = to_phi(start, lay)
     scale = np.abs(phi0)
     cache: dict = {}
@@ -60,8 +60,7 @@ def library_runs(est: OneStep, obs, linv, start, ours) -> dict:
         if key not in cache:
             f, j = model.evaluate(to_theta(z * scale, lay))
             cache.clear()
-            cache[key] = (np.einsum("mij,mj->mi", linv, f).reshape(-1),
-                          np.einsum("mij,mjk->mik", linv, j).reshape(-1, lay.n))
+            cache[key] = (white.vec(f), white.mat(j))
         return cache[key]
 
     n_eval = {"n": 0}
@@ -121,29 +120,29 @@ def main() -> None:
     out: dict = {"identify": [], "montecarlo_run": []}
     for seed in range(args.repeats):
         say("lm_bench", f"seed {seed + 1}/{args.repeats}: calbench, scipy and mujoco.minimize")
-        robot, obs, linv, start = problem(seed)
+        robot, obs, white, start = problem(seed)
         est = OneStep(robot, obs)
         t = time.perf_counter()
         n0 = est.model.stats["evaluations"]
-        ours = est.fit(obs.dp, linv, start, start_method="two-step")
+        ours = est.fit(obs.dp, white, start, start_method="two-step")
         row = {"seed": seed, "calbench": {"evaluations": est.model.stats["evaluations"] - n0,
                                           "seconds": time.perf_counter() - t}}
-        row.update(library_runs(OneStep(robot, obs, est.model), obs, linv, start, ours))
+        row.update(library_runs(OneStep(robot, obs, est.model), obs, white, start, ours))
         out["identify"].append(row)
         # the Monte Carlo case: start at a known estimate with its evaluation in hand
         theta0 = ours.theta
         f0, j0 = est.model.evaluate(theta0)
-        _, _, linv2, _ = problem(seed + 100)
+        _, _, white2, _ = problem(seed + 100)
         obs2 = campaign_observations(load_scenario(PAPER), truth_robot(load_scenario(PAPER)),
                                      plan_campaign(load_scenario(PAPER)), np.random.default_rng(seed + 100))
         n0 = est.model.stats["evaluations"]
         t = time.perf_counter()
-        r2 = est.fit(obs2.dp, linv2, theta0, scale=np.abs(to_phi(theta0, robot.layout)), start_eval=(f0, j0),
+        r2 = est.fit(obs2.dp, white2, theta0, scale=np.abs(to_phi(theta0, robot.layout)), start_eval=(f0, j0),
                      final_eval=False, step_tol=1e-2)
         mc = {"seed": seed + 100, "calbench": {"evaluations": est.model.stats["evaluations"] - n0,
                                                "seconds": time.perf_counter() - t}}
-        mc.update(library_runs(OneStep(robot, obs2, est.model), obs2, linv2, theta0,
-                               est.fit(obs2.dp, linv2, theta0)))
+        mc.update(library_runs(OneStep(robot, obs2, est.model), obs2, white2, theta0,
+                               est.fit(obs2.dp, white2, theta0)))
         out["montecarlo_run"].append(mc)
         del r2
     print(json.dumps(out, indent=2))

@@ -424,6 +424,7 @@ def add_import(sub) -> None:
 
 
 def cmd_import(args) -> int:
+    import numpy as np
     from .importer import import_readings
     check_outputs({"--out": args.out}, {"READINGS": args.readings, "--plan": args.plan, "--model": args.model})
     res = import_readings(args.readings, args.plan, args.out, args.units, args.model)
@@ -434,6 +435,14 @@ def cmd_import(args) -> int:
           f"in {s.readings} tracker messages ({args.units})"
           + (f"; no readings for poses {s.lost}" if s.lost else "")
           + (f"; one state only (no deflection) for poses {s.one_state}" if s.one_state else ""))
+    if res.registration is None:
+        print("tracker pose: the plan's")
+    else:
+        f = res.registration.fit
+        print(f"tracker registered at ({', '.join(f'{v:.4f}' for v in f.position)}) m "
+              f"± {max(f.position_std) * 1e6:.1f} um, turned {np.degrees(np.arccos(np.clip((np.trace(f.rotation) - 1) / 2, -1, 1))):.3f} deg "
+              f"± {max(f.rotation_std) * 1e6:.1f} urad; residual {f.rms * 1e6:.1f} um RMS per axis "
+              f"(the tracker alone: {f.expected_rms * 1e6:.1f} um)")
     return 0
 
 

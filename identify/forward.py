@@ -96,7 +96,9 @@ class ForwardModel:
 
     Not thread-safe (owns the robot's MjData). ``evaluate`` returns (dp (M,3), jac (M,3,P) or
     None) with rows in design order (poses, then their reflectors); theta's first
-    ``n_base`` entries are the robot's layout (bench/params.py).
+    ``n_base`` entries are the robot's layout (bench/params.py). It leaves the unloaded
+    reflectors' world positions and their Jacobian, same rows, in ``unloaded`` (the tracker's
+    registration, identify/registration.py, fits them).
     """
 
     BATCHED = True   # default of ``batched`` (benchmarks switch it to time the scalar loop)
@@ -124,6 +126,7 @@ class ForwardModel:
         self._s0 = self.layout.preload_index
         self._p_kkt: np.ndarray | None = None     # parameters beyond the base A_base was taken at
         self._params = None                        # the base parameters last written (Params)
+        self.unloaded: tuple[np.ndarray, np.ndarray | None] | None = None   # x0 (M,3), d x0/d theta
 
     def write(self, theta: np.ndarray) -> None:
         """Put theta into the robot model (a subclass writes its extra parameters too)."""
@@ -263,6 +266,8 @@ class ForwardModel:
         self.stats["evaluations"] += 1
         dp = np.empty((self.n_obs, 3))
         jac = np.empty((self.n_obs, 3, npar)) if jacobian else None
+        x0 = np.empty((self.n_obs, 3))
+        j0 = np.empty((self.n_obs, 3, npar)) if jacobian else None
         with statics_options(robot):
             if self._cache is None:
                 self._init_cache(theta)
@@ -289,10 +294,13 @@ class ForwardModel:
                             js[i] = self._js @ dq
                         jsite.append(js)
                 dp[row: row + n] = pos[1] - pos[0]
+                x0[row: row + n] = pos[0]
                 if jacobian:
                     jac[row: row + n] = jsite[1] - jsite[0]
+                    j0[row: row + n] = jsite[0]
                 row += n
             self._p_kkt = theta[nb:].copy()
+        self.unloaded = (x0, j0)
         return dp, jac
 
     # -- every (pose, state) at once --------------------------------------------------------------
@@ -367,15 +375,20 @@ class ForwardModel:
             used = np.unique(np.concatenate([des.sites for des in self.design]))
             jsite = np.stack([bs.site_jacobian(ids, int(s)) for s in used], axis=1) @ tangent[:, None, :nv]
             jac = np.empty((self.n_obs, 3, self.n_params))
+        x0 = np.empty((self.n_obs, 3))
+        j0 = np.empty((self.n_obs, 3, self.n_params)) if jacobian else None
         row = 0
         for k, des in enumerate(self.design):
             m = len(des.sites)
             dp[row: row + m] = pos[2 * k + 1, des.sites] - pos[2 * k, des.sites]
+            x0[row: row + m] = pos[2 * k, des.sites]
             if jacobian:
                 cols = np.searchsorted(used, des.sites)
                 jac[row: row + m] = jsite[2 * k + 1, cols] - jsite[2 * k, cols]
+                j0[row: row + m] = jsite[2 * k, cols]
             row += m
         self._p_kkt = theta[self.n_base:].copy()
+        self.unloaded = (x0, j0)
         return dp, jac
 
 

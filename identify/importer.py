@@ -18,11 +18,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from calbench.bench.errors import InputError
-from calbench.bench.logcsv import ImportSummary, write_imported_log
+from calbench.bench.logcsv import ImportSummary, campaign_readings, write_imported_log
 from calbench.bench.outputs import atomic_path
 from calbench.bench.readings import ReadingsTable, read_readings
 from calbench.bench.robot import Robot
 from calbench.bench.scenario import Plan, TrackerSpec, check_joint_limits, load_plan
+
+from .registration import Registration, check_placed, register
 
 
 @dataclass
@@ -35,6 +37,7 @@ class ImportResult:
     tracker: TrackerSpec
     summary: ImportSummary
     imported: dict
+    registration: Registration | None = None
     warnings: list[str] = field(default_factory=list)
 
 
@@ -68,18 +71,25 @@ def import_readings(csv_path: str | Path, plan_path: str | Path, out: str | Path
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise InputError(csv_path, "(file)", "a UTF-8 CSV file", str(exc)) from None
-    table = read_readings(csv_path, len(plan.poses), robot.reflector_names, units, text=text)
-    warnings: list[str] = []
-    if not plan.tracker_placed:
-        raise InputError(plan.path, "tracker.position", "the tracker's position (m, world frame)",
-                         "none")
-    tracker = plan.tracker
+    names = list(robot.reflector_names)
+    table = read_readings(csv_path, len(plan.poses), names, units, text=text)
+    readings = campaign_readings(table, names, plan.tracker)
+    registration = None
+    if plan.tracker_placed:
+        tracker = plan.tracker
+        check_placed(plan, model_path, readings, table, tracker)
+    else:
+        registration = register(plan, model_path, readings, table, plan.tracker)
+        tracker = plan.tracker.placed(registration.fit.position, registration.fit.rotation)
     imported = {"source": csv_path.name, "sha256": hashlib.sha256(raw).hexdigest(),
-                "units": units, "rows": len(table.readings), "tracker_pose": "plan",
-                "registration": None}
+                "units": units, "rows": len(table.readings),
+                "tracker_pose": "plan" if registration is None else "registered",
+                "registration": None if registration is None else registration.as_dict()}
     with atomic_path(out) as tmp:
-        summary = write_imported_log(plan, table, tracker, model_path, tmp, imported)
-    return ImportResult(out, plan, table, tracker, summary, imported, warnings)
+        summary = write_imported_log(plan, readings, tracker, model_path, tmp, imported,
+                                     len(table.readings))
+    return ImportResult(out, plan, table, tracker, summary, imported, registration,
+                        [] if registration is None else list(registration.warnings))
 
 
 __all__ = ["ImportResult", "import_readings", "load_robot"]

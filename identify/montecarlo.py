@@ -40,14 +40,15 @@ from calbench.bench.progress import ProgressSink, sink
 from calbench.bench.robot import Robot
 from calbench.bench.scenario import Scenario
 from calbench.bench.statics import StaticsSolver
-from calbench.bench.tracker import Measurement, measure, noise_covariance, to_tracker_frame
+from calbench.bench.measuring import measure_campaign, reading_times
+from calbench.bench.tracker import Measurement, noise_covariance, to_tracker_frame
 
 from .executor import Executor, InProcess, Interrupted
-from .identifiability import whiten_factors
 from .observations import Observations, pose_observation
 from .onestep import OneStep, generic_start, sanitize_start, to_phi
 from .portable import PortableScenario
 from .twostep import TwoStepError, linear_plan, two_step, two_step_applies
+from .whitening import Whitener
 
 METHODS = ("one-step", "two-step", "two-step-weighted")
 MC_STEP_TOL = 1e-2   # sigma: see identify/onestep.py, stopping rule
@@ -72,17 +73,22 @@ def two_step_ok(robot: Robot) -> bool:
 
 def campaign_observations(scn: Scenario, robot: Robot, plans: list[PosePlan],
                           rng: np.random.Generator | None) -> Observations:
-    """Observations of a solved campaign: noisy readings (rng) or exact ones (rng None, with
-    the tracker's covariances still attached as weights). Same noise consumption order as
-    bench.campaign.run_campaign (pose, state, repeat)."""
+    """Observations of a solved campaign: noisy readings (rng; bench.measuring.measure_campaign,
+    the generator consumed as by bench.campaign.run_campaign) or exact ones (rng None, with the
+    tracker's covariances still attached as weights), on the campaign's timeline."""
     spec = scn.tracker
     names = list(robot.reflector_names)
+    repeats = [p.repeats for p in scn.poses]
+    times = reading_times(repeats, len(names))
+    if rng is not None:
+        measured = measure_campaign(spec, [p.reflectors_world for p in plans], [p.visible for p in plans],
+                                    repeats, rng, times)
     poses = []
     for plan, pose in zip(plans, scn.poses):
         readings = []
-        for s in range(2):
+        for s, state in enumerate(("unloaded", "loaded")):
             reps = []
-            for _ in range(pose.repeats):
+            for r in range(pose.repeats):
                 if rng is None:
                     p = to_tracker_frame(spec, plan.reflectors_world[s])
                     vis = plan.visible[s]
@@ -92,11 +98,13 @@ def campaign_observations(scn: Scenario, robot: Robot, plans: list[PosePlan],
                         cov[vis] = noise_covariance(spec, p[vis])
                     reps.append(Measurement(pos, cov, vis))
                 else:
-                    reps.append(measure(spec, plan.reflectors_world[s], plan.visible[s], rng))
+                    reps.append(measured[(plan.index, state, r)])
             readings.append(reps)
         site = robot.model.site(plan.load.site).name
+        when = tuple([times[(plan.index, state, r)] for r in range(pose.repeats)]
+                     for state in ("unloaded", "loaded"))
         ob = pose_observation(plan.index, plan.q, plan.load.force, plan.load.moment, site, names,
-                              readings[0], readings[1], spec)
+                              readings[0], readings[1], spec, when)
         if len(ob.reflectors):
             poses.append(ob)
     return Observations(poses, spec, float(spec.sigma), len(scn.poses), [], False, str(scn.path))
@@ -212,7 +220,7 @@ def _setup(job: MonteCarloJob) -> _Setup:
     if any(m != "one-step" for m in job.methods):
         two_step_applies(robot)
     obs0 = campaign_observations(scn, truth_rb, plans, None)
-    linv0 = whiten_factors(obs0.cov)
+    white0 = Whitener.from_observations(obs0)
     est = OneStep(robot, obs0)
     theta_true = true_theta(scn, robot)
 
@@ -221,24 +229,24 @@ def _setup(job: MonteCarloJob) -> _Setup:
     start, method0, lp = generic, "generic", None
     if two_step_ok(robot):
         lp = linear_plan(robot, obs0)
-        two0 = two_step(robot, obs0, False, lp=lp, linv=linv0)
+        two0 = two_step(robot, obs0, False, lp=lp, white=white0)
         noise_free["two-step"] = two0.theta
-        noise_free["two-step-weighted"] = two_step(robot, obs0, True, lp=lp, linv=linv0).theta
+        noise_free["two-step-weighted"] = two_step(robot, obs0, True, lp=lp, white=white0).theta
         # diagnostic: the linear model at the true (sagged) unloaded configuration -- what is left
         # of the two-step's model error is H00 (eq. 18) and the nonlinearity over the deflection
         lp_true = linear_plan(robot, obs0, {p.index: p.equilibria[0].qpos for p in plans})
         noise_free["two-step at the true sagged configuration"] = two_step(
-            robot, obs0, False, lp=lp_true, linv=linv0).theta
+            robot, obs0, False, lp=lp_true, white=white0).theta
         start, _ = sanitize_start(two0.theta, generic, lay)
         method0 = "two-step"
-    nf = est.fit(obs0.dp, linv0, start, start_method=method0)
+    nf = est.fit(obs0.dp, white0, start, start_method=method0)
     noise_free["one-step"] = nf.theta
     theta0 = np.where(np.isfinite(nf.theta), nf.theta, start)
     scale = np.abs(to_phi(theta0, lay))
     f0, j0 = est.model.evaluate(theta0)
     # Cramer-Rao bound at the truth (exact model), on a copy: the runs' start state stays f0's
     _, jt = _fresh(est).model.evaluate(theta_true)
-    jtw = np.einsum("mij,mjk->mik", linv0, jt).reshape(-1, lay.n) * theta_true  # scaled columns
+    jtw = white0.mat(jt) * theta_true  # scaled columns
     crb = np.linalg.pinv(jtw.T @ jtw) * np.outer(theta_true, theta_true)
     return _Setup(scn, truth_rb, plans, robot, obs0, lp, est, theta0, scale, f0, j0, theta_true, crb,
                   noise_free, time.perf_counter() - t0)
@@ -271,17 +279,17 @@ def run_block(job: MonteCarloJob, first: int, stop: int) -> dict:
         obs = campaign_observations(s.scn, s.truth_rb, s.plans, rng)
         if obs.labels != s.obs0.labels:
             raise RuntimeError("visibility changed between runs")  # cannot happen: fixed plan
-        linv = whiten_factors(obs.cov)
+        white = Whitener.from_observations(obs)
         for meth in job.methods:
             t = time.perf_counter()
             if meth == "one-step":
                 est = _fresh(s.est)
                 n_eval = est.model.stats["evaluations"]
-                res = est.fit(obs.dp, linv, s.theta0, scale=s.scale, start_eval=(s.f0, s.j0),
+                res = est.fit(obs.dp, white, s.theta0, scale=s.scale, start_eval=(s.f0, s.j0),
                               final_eval=False, step_tol=MC_STEP_TOL, start_method="noise-free estimate")
                 iters.append((res.iterations, est.model.stats["evaluations"] - n_eval))
             else:
-                res = two_step(s.robot, obs, meth == "two-step-weighted", lp=s.lp, linv=linv)
+                res = two_step(s.robot, obs, meth == "two-step-weighted", lp=s.lp, white=white)
             times[meth] += time.perf_counter() - t
             est_out[meth][k] = res.theta
             std_out[meth][k] = np.sqrt(np.diag(res.cov))

@@ -5,18 +5,22 @@ the deflection
 
     dp_jr = mean(loaded readings of r) - mean(unloaded readings of r)     (world frame, m)
 
-with covariance Cov(mean loaded) + Cov(mean unloaded) (the two states are read independently;
-each reading is used in exactly one dp, so the dp are mutually independent). The means and their
-covariances are :func:`bench.tracker.mean_reading`'s, the viewer's too. A reflector counts
-only when it is visible in both states of the pose. The known inputs are the commanded angles q,
-the applied wrench (force, moment, site) and the tracker pose from the log header.
+The means are :func:`bench.tracker.mean_reading`'s, the viewer's too. Their covariance is
+bench.iso10360.deflection_covariance's, one block per pose over all its reflectors: for an
+isotropic or spec tracker Cov(mean loaded) + Cov(mean unloaded) per reflector (readings are
+independent, each used in exactly one dp); for the iso10360 tracker also the field and drift
+that the pose's readings share, which correlates its loaded and unloaded readings and its
+reflectors (the readings' times, from the log, give the drift). Poses are independent
+(identify/whitening.py). A reflector counts only when it is visible in both states of the pose.
+The known inputs are the commanded angles q, the applied wrench (force, moment, site) and the
+tracker pose from the log header.
 
 Nothing here reads a ``/truth/`` topic or the ``ground_truth`` record: :func:`from_log` takes a
 :class:`bench.logformat.CampaignLog`, and the caller reads it with ``include_truth=False``.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Iterable, Sequence
 
 import numpy as np
@@ -24,7 +28,8 @@ import numpy as np
 from calbench.bench.errors import InputError
 from calbench.bench.logformat import STATES, CampaignLog, PerState
 from calbench.bench.scenario import TrackerSpec
-from calbench.bench.tracker import mean_reading
+from calbench.bench.iso10360 import deflection_covariance
+from calbench.bench.tracker import mean_reading, tracker_rotation
 
 
 @dataclass(frozen=True)
@@ -38,7 +43,24 @@ class PoseObservation:
     site: str                  # MJCF site the wrench acts at
     reflectors: tuple[str, ...]  # reflectors seen in both states (rows of dp)
     dp: np.ndarray             # (n, 3) m, world frame
-    cov: np.ndarray            # (n, 3, 3) m^2
+    cov: np.ndarray            # (n, 3, 3) m^2, each reflector's own (the diagonal blocks)
+    cov_block: np.ndarray | None = None   # (n, 3, n, 3) m^2, all of the pose; None: no correlation
+
+    def block(self) -> np.ndarray:
+        """The pose's covariance as a (3n, 3n) matrix (rows: reflectors, then x y z)."""
+        n = len(self.reflectors)
+        if self.cov_block is not None:
+            return self.cov_block.reshape(3 * n, 3 * n)
+        out = np.zeros((n, 3, n, 3))
+        for i in range(n):
+            out[i, :, i, :] = self.cov[i]
+        return out.reshape(3 * n, 3 * n)
+
+    def subset(self, rows: Sequence[int]) -> "PoseObservation":
+        rows = list(rows)
+        block = None if self.cov_block is None else self.cov_block[np.ix_(rows, range(3), rows, range(3))]
+        return replace(self, reflectors=tuple(self.reflectors[i] for i in rows), dp=self.dp[rows],
+                       cov=self.cov[rows], cov_block=block)
 
 
 @dataclass
@@ -76,25 +98,29 @@ class Observations:
         for p in self.poses:
             rows = [i for i, r in enumerate(p.reflectors) if (p.index, r) in keep]
             if rows:
-                poses.append(PoseObservation(p.index, p.q, p.force, p.moment, p.site,
-                                             tuple(p.reflectors[i] for i in rows),
-                                             p.dp[rows], p.cov[rows]))
+                poses.append(p.subset(rows))
         return Observations(poses, self.tracker, self.noise_sigma, self.n_planned,
                             list(self.lost_poses), self.truncated, self.source)
 
 
 def pose_observation(index: int, q, force, moment, site: str, names: Sequence[str],
-                     unloaded: Sequence, loaded: Sequence, spec: TrackerSpec) -> PoseObservation:
+                     unloaded: Sequence, loaded: Sequence, spec: TrackerSpec,
+                     times: tuple[Sequence[float], Sequence[float]] | None = None) -> PoseObservation:
     """dp and its covariance for one pose from its readings in both states (eq. 2); the
-    readings' rows are in ``names`` order."""
+    readings' rows are in ``names`` order; ``times`` (s since the campaign's first reading, per
+    reading) are needed by the iso10360 tracker only."""
     m0 = mean_reading(spec, unloaded)
     m1 = mean_reading(spec, loaded)
     rows = np.flatnonzero(m0.seen & m1.seen)
+    rot = tracker_rotation(spec)
+    block = np.einsum("ia,ranb,jb->rinj", rot, deflection_covariance(spec, unloaded, loaded, rows, times), rot)
+    n = len(rows)
     return PoseObservation(
         index=int(index), q=np.asarray(q, dtype=float), force=np.asarray(force, dtype=float),
         moment=np.asarray(moment, dtype=float), site=str(site),
         reflectors=tuple(names[i] for i in rows), dp=m1.position[rows] - m0.position[rows],
-        cov=m0.covariance[rows] + m1.covariance[rows])
+        cov=block[np.arange(n), :, np.arange(n), :],
+        cov_block=block if spec.model == "iso10360" else None)
 
 
 def from_log(log: CampaignLog) -> Observations:
@@ -106,6 +132,8 @@ def from_log(log: CampaignLog) -> Observations:
     path = log.path
     spec = log.tracker_spec()
     poses: list[PoseObservation] = []
+    timed = bool(log.measurements) and all(m.time is not None for m in log.measurements)
+    t0 = min(m.time for m in log.measurements) if timed else 0
     for p in log.complete_poses:
         cmd = log.poses.get(p, PerState())
         if not cmd.both():
@@ -128,7 +156,8 @@ def from_log(log: CampaignLog) -> Observations:
             raise InputError(path, "/tracker/measurement",
                              f"pose {p}: the same reflector list in every reading", "different lists")
         w = log.wrenches[p]
-        ob = pose_observation(p, q, w.force, w.moment, w.site, names, u, ld, spec)
+        times = ([(r.time - t0) / 1e9 for r in u], [(r.time - t0) / 1e9 for r in ld]) if timed else None
+        ob = pose_observation(p, q, w.force, w.moment, w.site, names, u, ld, spec, times)
         if len(ob.reflectors):
             poses.append(ob)
     if not poses:

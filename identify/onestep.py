@@ -41,10 +41,11 @@ from calbench.bench.robot import Robot
 from calbench.bench.params import ParamLayout
 
 from .forward import ForwardModel, design_from_observations
-from .identifiability import RANK_TOL, analyze, explain, resolve, whiten_factors
+from .identifiability import RANK_TOL, analyze, explain, resolve
 from .leastsq import Fit, covariance, levenberg_marquardt
 from .observations import Observations
 from .twostep import TwoStepError, TwoStepResult, group_q2, plan_facts, two_step
+from .whitening import Whitener
 
 
 def generic_start(robot: Robot, obs: Observations) -> np.ndarray:
@@ -85,10 +86,10 @@ class OneStep:
         self.model = model or ForwardModel(robot, design_from_observations(robot, obs))
         self.facts = plan_facts(robot, obs)
 
-    def fit(self, dp: np.ndarray, linv: np.ndarray, start: np.ndarray, *, scale=None,
+    def fit(self, dp: np.ndarray, white: Whitener, start: np.ndarray, *, scale=None,
             start_eval: tuple[np.ndarray, np.ndarray] | None = None, step_tol: float = 1e-6,
             max_iter: int = 40, final_eval: bool = True, start_method: str = "given") -> Fit:
-        """Fit to observations dp (M,3) with whitening factors linv (M,3,3).
+        """Fit to observations dp (M,3) whitened by ``white`` (identify/whitening.py).
 
         Iterates in phi = theta with every compensator's s0 replaced by P = K_C s0 (the spring's
         force K_C (L - s0) is linear in K_C and P, as in eq. 21's unknowns), scaled by ``scale``
@@ -103,13 +104,11 @@ class OneStep:
         names, npar = lay.names, lay.n
         phi0 = to_phi(np.array(start, dtype=float), lay)
         scale = np.where(np.abs(phi0) > 0, np.abs(phi0), 1.0) if scale is None else np.asarray(scale)
-        yw = np.einsum("mij,mj->mi", linv, dp).reshape(-1)
+        yw = white.vec(dp)
         n_eval0 = model.stats["evaluations"]
 
         def whiten(ph, f, j):
-            fw = np.einsum("mij,mj->mi", linv, f).reshape(-1)
-            jw = np.einsum("mij,mjk->mik", linv, j).reshape(-1, npar) @ dtheta_dphi(ph, lay)
-            return fw, jw
+            return white.vec(f), white.mat(j) @ dtheta_dphi(ph, lay)
 
         def evaluate(ph):
             return whiten(ph, *model.evaluate(to_theta(ph, lay)))
@@ -144,7 +143,7 @@ class OneStep:
             if bad[s0] and names[s0] not in reasons:
                 reasons[names[s0]] = "s0 = (K_C s0) / K_C and K_C is not identified"
         resid_w = sol.r_w.reshape(-1, 3)
-        resid = np.einsum("mij,mj->mi", np.linalg.inv(linv), resid_w)
+        resid = white.unwhiten(resid_w)
         return Fit(theta, cov, ~bad, resid, resid_w, sol.cost, sol.r_w.size, int(free.sum()), sol.iterations, model.stats["evaluations"] - n_eval0, sol.converged,
                    sol.seconds, names=names, units=lay.units, reasons=reasons,
                    start=np.array(start, float), start_method=start_method, ident=ident, model=model,
@@ -183,7 +182,7 @@ def one_step(robot: Robot, obs: Observations, start: np.ndarray | None = None,
              two: TwoStepResult | None = None, **kw) -> Fit:
     """Identify all parameters at once from the observations (see the module docstring)."""
     est = OneStep(robot, obs)
-    linv = whiten_factors(obs.cov)
+    white = Whitener.from_observations(obs)
     generic = generic_start(robot, obs)
     method = "given"
     replaced: list[str] = []
@@ -194,7 +193,7 @@ def one_step(robot: Robot, obs: Observations, start: np.ndarray | None = None,
             method = "two-step" if not replaced else "two-step (generic: " + ", ".join(replaced) + ")"
         except (np.linalg.LinAlgError, ValueError, TwoStepError):
             start, method = generic, "generic"
-    res = est.fit(obs.dp, linv, start, start_method=method, **kw)
+    res = est.fit(obs.dp, white, start, start_method=method, **kw)
     res.extra["start_replaced"] = replaced
     return res
 

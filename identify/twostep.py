@@ -48,8 +48,9 @@ import numpy as np
 from calbench.bench.loop import motor_jacobian
 from calbench.bench.robot import Robot
 
-from .identifiability import Identifiability, analyze, explain, whiten_factors
+from .identifiability import Identifiability, analyze, explain
 from .observations import Observations
+from .whitening import Whitener
 
 Q2_GROUP_TOL = 1e-6  # rad
 
@@ -185,7 +186,7 @@ def step1_columns(lp: LinearPlan) -> list[tuple[int, int | None]]:
             for g in (range(len(lp.q2_values)) if i == lp.joint else (None,))]
 
 
-def step1(lp: LinearPlan, dp: np.ndarray, linv: np.ndarray):
+def step1(lp: LinearPlan, dp: np.ndarray, white: Whitener):
     """Weighted LS of eqs. (19)-(20). Returns k, cov, names, whitened B, identifiability."""
     unknowns = step1_columns(lp)
     nk = len(unknowns)
@@ -200,8 +201,8 @@ def step1(lp: LinearPlan, dp: np.ndarray, linv: np.ndarray):
         else:
             rows = g_row == g
             b[rows, :, col] = lp.cols[rows, :, i]
-    bw = np.einsum("mij,mjk->mik", linv, b).reshape(3 * M, nk)
-    yw = np.einsum("mij,mj->mi", linv, dp).reshape(3 * M)
+    bw = white.mat(b)
+    yw = white.vec(dp)
     ident = analyze(bw, tuple(names))
     keep = ident.identifiable
     k = np.full(nk, np.nan)
@@ -223,7 +224,7 @@ def step2_rows(geom, q2_values: np.ndarray) -> np.ndarray:
 
 
 def two_step(robot: Robot, obs: Observations, weighted: bool = False,
-             lp: LinearPlan | None = None, linv: np.ndarray | None = None) -> TwoStepResult:
+             lp: LinearPlan | None = None, white: Whitener | None = None) -> TwoStepResult:
     """Paper §4 on the observations. ``weighted``: GLS step 2 (else the paper's eq. 21).
     TwoStepError when the robot is outside the method (module docstring)."""
     two_step_applies(robot)
@@ -231,13 +232,13 @@ def two_step(robot: Robot, obs: Observations, weighted: bool = False,
     lay = robot.layout
     npar = lay.n
     dp = obs.dp
-    linv = whiten_factors(obs.cov) if linv is None else linv
-    k, kcov, names, b, bw, yw, ident = step1(lp, dp, linv)
+    white = Whitener.from_observations(obs) if white is None else white
+    k, kcov, names, b, bw, yw, ident = step1(lp, dp, white)
     m = len(lp.q2_values)
     M = dp.shape[0]
     kk = np.where(np.isfinite(k), k, 0.0)
     resid = dp - np.einsum("mij,j->mi", b, kk)
-    resid_w = np.einsum("mij,mj->mi", linv, resid)
+    resid_w = white.vec(resid).reshape(-1, 3)
     dof = 3 * M - int(ident.identifiable.sum())
     chi2 = float((resid_w ** 2).sum())
 

@@ -35,11 +35,16 @@ def plan_text(position: bool = True) -> str:
     return s
 
 
+def simulate_and_export(d: Path) -> None:
+    """The paper campaign in d/paper.mcap and its readings in d/paper.csv."""
+    assert main(["simulate", str(PAPER), "--out", str(d / "paper.mcap")]) == 0
+    assert main(["export", str(d / "paper.mcap"), "--csv", str(d / "paper.csv")]) == 0
+
+
 @pytest.fixture(scope="module")
 def work(tmp_path_factory) -> Path:
     d = tmp_path_factory.mktemp("import")
-    assert main(["simulate", str(PAPER), "--out", str(d / "paper.mcap")]) == 0
-    assert main(["export", str(d / "paper.mcap"), "--csv", str(d / "paper.csv")]) == 0
+    simulate_and_export(d)
     (d / "plan.toml").write_text(plan_text(True))
     (d / "plan_unplaced.toml").write_text(plan_text(False))
     return d
@@ -139,6 +144,7 @@ def test_single_state_and_unmeasured_poses(work, capsys):
     assert main(["import", str(p), "--plan", str(work / "plan.toml"), "--out", str(out)]) == 0
     said = capsys.readouterr().out
     assert "no readings for poses [3]" in said and "one state only (no deflection) for poses [5]" in said
+    assert "tracker pose: the plan's" in said
     rep = identify_json(out, work / "partial.json")
     assert rep["parameters"][1]["estimate"] == pytest.approx(0.12e-6, rel=0.1)
 
@@ -220,3 +226,14 @@ def test_read_readings_groups_repeats(tmp_path):
     assert len(g) == 2 and g[0].visible.tolist() == [True, True, False]
     assert g[1].visible.tolist() == [True, False, False]
     assert g[1].position[0] == pytest.approx([-2.2243, 3.0332, -0.0597])
+
+
+def test_a_wrong_tracker_pose_in_the_plan_is_refused(work, capsys):
+    """The plan's tracker turned by 90 degrees: the readings land metres from its poses."""
+    p = work / "plan_turned.toml"
+    p.write_text(plan_text(True).replace("position = [3.5, -3.5, 3.2]", "yaw = 90.0\nposition = [3.5, -3.5, 3.2]"))
+    out = work / "turned_plan.mcap"
+    assert main(["import", str(work / "paper.csv"), "--plan", str(p), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"{work / 'paper.csv'}: line " in err and "seen from its [tracker] position and yaw" in err
+    assert not out.exists()

@@ -67,7 +67,7 @@ def make_header() -> LogHeader:
         scenario_name="synthetic", scenario_text=SCENARIO, scenario_filename="dir/synth.toml",
         robot_filename="m900ib700.xml", mjcf_text=MJCF, reflectors=list(REFLECTORS),
         payload_site="payload",
-        tracker={"position": [3.0, 0.0, 0.0], "yaw": 0.5, "model": "iso10360",
+        tracker={"position": [3.0, 0.0, 0.0], "yaw": 0.5, "model": "photogrammetry",
                  "sigma": 2e-5, "distance": [1e-5, 3e-7], "transverse": [1.5e-5, 6e-6]},
         seed=7, n_joints=6)
 

@@ -394,6 +394,9 @@ TRACKERS = {
                              sigma=25e-6),
     "spec": TrackerSpec(position=np.array([-2.0, 4.0, 1.1]), yaw=-1.2, model="spec", sigma=7e-6,
                         distance=(12e-6, 0.4e-6), transverse=(18e-6, 5e-6)),
+    "iso10360": TrackerSpec(position=np.array([1.0, 5.0, 2.2]), yaw=0.7, model="iso10360",
+                            distance=(11e-6, 0.5e-6), transverse=(16e-6, 4e-6), random=0.4,
+                            correlation_angle=0.2, correlation_range=0.6, drift=(3e-6, 2e-6)),
 }
 
 
@@ -401,13 +404,16 @@ def assert_same_tracker(a: TrackerSpec, b: TrackerSpec) -> None:
     np.testing.assert_array_equal(a.position, b.position)
     assert (a.yaw, a.model, a.sigma, a.distance, a.transverse) == \
            (b.yaw, b.model, b.sigma, b.distance, b.transverse)
+    assert (a.random, a.correlation_angle, a.correlation_range, a.drift) == \
+           (b.random, b.correlation_angle, b.correlation_range, b.drift)
 
 
 @pytest.mark.parametrize("model", TRACKER_MODELS)
 def test_tracker_dict_round_trip_keeps_the_noise_model(model):
     spec = TRACKERS[model]
     d = spec.to_dict()
-    assert list(d) == ["position", "yaw", "model", "sigma", "distance", "transverse"]
+    assert list(d) == ["position", "yaw", "model", "sigma", "distance", "transverse"] + (
+        ["random", "correlation_angle", "correlation_range", "drift"] if model == "iso10360" else [])
     back = TrackerSpec.from_dict(json.loads(json.dumps(d)))      # through JSON, as in a log
     assert_same_tracker(back, spec)
     assert back.to_dict() == d

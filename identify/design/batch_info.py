@@ -132,9 +132,8 @@ class BatchInfo:
         """Whitened, normalised regressors (n, 3k, p) from both states (InfoEngine.pose)."""
         n, k = p0.shape[:2]
         jac = (g1 - g0) * self.eng.theta0
-        cov = self.eng.sigma_dp(p0.reshape(-1, 3), p1.reshape(-1, 3)).reshape(n, k, 3, 3)
-        linv = np.linalg.inv(np.linalg.cholesky(cov))
-        return np.einsum("nkij,nkjp->nkip", linv, jac).reshape(n, 3 * k, self.eng.n_params)
+        linv = np.linalg.inv(np.linalg.cholesky(self.eng.sigma_dp_blocks(p0, p1)))
+        return np.einsum("nij,njp->nip", linv, jac.reshape(n, 3 * k, self.eng.n_params))
 
     # -- the chunk -----------------------------------------------------------------------------
     def block(self, q, signs, u_lat, u_vert, p_vertical: float, p_lateral: float) -> dict:

@@ -17,12 +17,15 @@ Information. For one candidate with reflectors r, the deflection dp_r = x_r(load
 x_r(unloaded) is the exact-statics one of identify/forward.py; its Jacobian with respect to u
 comes from the implicit function theorem at both equilibria (``StaticsSolver.tangent``, exact
 KKT matrix, d g / d theta from ``Robot.dforce_dtheta``), J_r = (J_site dq/dtheta)|loaded -
-(...)|unloaded, times theta0 column-wise. The deflection's covariance is Sigma_r =
-Cov(reading unloaded) + Cov(reading loaded) (bench.tracker.noise_covariance in the tracker frame, rotated to the world; 2 sigma^2 I for the
-isotropic tracker, one repeat). The candidate's block is the whitened regressor
-R = blockdiag(L_r^-1) [J_r], L_r L_r^T = Sigma_r: rows = the 3 coordinates of each reflector
-(9 rows for 3 reflectors), columns = the p normalised parameters, and the Fisher information of a
-plan is sum_i R_i^T R_i (with repeats n: n R_i^T R_i).
+(...)|unloaded, times theta0 column-wise. The deflections' covariance Sigma is
+bench.iso10360.deflection_covariance's (the estimator's: Cov(reading unloaded) + Cov(reading
+loaded) per reflector, 2 sigma^2 I for the isotropic tracker, one repeat; for the iso10360
+tracker also the field and drift shared by the pose's readings, on the campaign clock). The
+candidate's block is the whitened regressor R = L^-1 [J_r], L L^T = Sigma: rows = the 3
+coordinates of each reflector (9 rows for 3 reflectors), columns = the p normalised parameters,
+and the Fisher information of a plan is sum_i R_i^T R_i (with repeats n: n R_i^T R_i, exact
+for independent readings; for the iso10360 tracker repeats do not average its correlated part
+and this overstates what they add).
 
 Feasibility rules (each named; :func:`Feasibility.check` returns the violated ones):
 
@@ -79,7 +82,10 @@ from calbench.bench.progress import ProgressSink, sink
 from calbench.bench.robot import Robot, ancestors
 from calbench.bench.scenario import Scenario, parse_scenario
 from calbench.bench.statics import Equilibrium, Load, StaticsSolver
-from calbench.bench.tracker import noise_covariance, to_tracker_frame, tracker_rotation, visible_sites
+from calbench.bench.iso10360 import deflection_covariance
+from calbench.bench.measuring import reading_times
+from calbench.bench.tracker import (Measurement, noise_covariance, to_tracker_frame, tracker_rotation,
+                                    visible_sites)
 
 from ..executor import IN_PROCESS, Executor, InProcess
 from ..portable import PortableScenario
@@ -437,11 +443,35 @@ class InfoEngine:
             jac[i] = self._js @ tan
         return pos, jac
 
-    def sigma_dp(self, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
-        """(n,3,3) world covariance of the deflections (one reading per state)."""
+    def sigma_dp_blocks(self, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
+        """(n, 3k, 3k): :meth:`sigma_dp` of n candidates at once (p0, p1: (n, k, 3), one reading
+        per state); block diagonal by reflector, vectorised, unless the tracker's error is
+        correlated (iso10360: one candidate at a time)."""
+        n, k = p0.shape[:2]
+        if self.scn.tracker.model == "iso10360":
+            return np.stack([self.sigma_dp(a, b) for a, b in zip(p0, p1)])
         spec = self.scn.tracker
-        c = noise_covariance(spec, to_tracker_frame(spec, p0)) + noise_covariance(spec, to_tracker_frame(spec, p1))
-        return self.rot @ c @ self.rot.T
+        c = (noise_covariance(spec, to_tracker_frame(spec, p0.reshape(-1, 3)))
+             + noise_covariance(spec, to_tracker_frame(spec, p1.reshape(-1, 3))))
+        c = (self.rot @ c @ self.rot.T).reshape(n, k, 3, 3)
+        out = np.zeros((n, k, 3, k, 3))
+        for i in range(k):
+            out[:, i, :, i, :] = c[:, i]
+        return out.reshape(n, 3 * k, 3 * k)
+
+    def sigma_dp(self, p0: np.ndarray, p1: np.ndarray, repeats: int = 1) -> np.ndarray:
+        """(3n, 3n) world covariance of the n deflections of one pose read ``repeats`` times per
+        state on the campaign clock (bench.iso10360.deflection_covariance: block diagonal by
+        reflector unless the tracker's error is correlated)."""
+        spec = self.scn.tracker
+        n = len(p0)
+        reads, times = [], reading_times([repeats], n)
+        for p in (p0, p1):
+            y = to_tracker_frame(spec, p)
+            reads.append([Measurement(y, noise_covariance(spec, y), np.ones(n, bool))] * repeats)
+        when = tuple([times[(0, s, r)] for r in range(repeats)] for s in ("unloaded", "loaded"))
+        c = deflection_covariance(spec, reads[0], reads[1], np.arange(n), when)
+        return np.einsum("ia,ranb,jb->rinj", self.rot, c, self.rot).reshape(3 * n, 3 * n)
 
     def pose(self, q, wrench, kind="vertical", e0: Equilibrium | None = None,
              require_all_visible=True, check=True, repeats: int = 1) -> PoseInfo:
@@ -463,9 +493,8 @@ class InfoEngine:
         p0, j0 = self._site_jac(e0, None)
         p1, j1 = self._site_jac(e1, load)
         jac = (j1 - j0)[vis] * self.theta0                 # normalised columns
-        cov = self.sigma_dp(p0[vis], p1[vis]) / repeats
-        linv = np.linalg.inv(np.linalg.cholesky(cov))
-        block = np.einsum("nij,njk->nik", linv, jac).reshape(-1, self.n_params)
+        linv = np.linalg.inv(np.linalg.cholesky(self.sigma_dp(p0[vis], p1[vis], repeats)))
+        block = linv @ jac.reshape(-1, self.n_params)
         return PoseInfo(q, wrench, kind, block, vis, bad, p1 - p0)
 
     def work_jacobian(self, q, wrench) -> np.ndarray:

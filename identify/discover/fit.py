@@ -48,6 +48,7 @@ from calbench.bench.params import ParamLayout
 from ..forward import ForwardModel, PoseDesign, design_from_observations
 from ..identifiability import analyze
 from ..leastsq import Fit, at_bounds, covariance, levenberg_marquardt
+from ..whitening import Whitener
 
 # --------------------------------------------------------------------------- the library
 
@@ -173,7 +174,7 @@ def build(model_source, effects: list[tuple[Effect, np.ndarray]], obs) -> tuple[
     return robot, fm
 
 
-def fit(model: AugmentedForward, dp: np.ndarray, linv: np.ndarray, start: np.ndarray,
+def fit(model: AugmentedForward, dp: np.ndarray, white: Whitener, start: np.ndarray,
         lower: np.ndarray, upper: np.ndarray, hold: np.ndarray | None = None, *, step_tol: float = 1e-3,
         max_iter: int = 30) -> Fit:
     """Maximum-likelihood fit of the base + effect parameters (identify/leastsq.py's core, with
@@ -189,15 +190,14 @@ def fit(model: AugmentedForward, dp: np.ndarray, linv: np.ndarray, start: np.nda
     theta0 = np.array(start, dtype=float)
     hold = np.zeros(npar, bool) if hold is None else np.asarray(hold, bool).copy()
     scale = np.where(np.abs(theta0) > 0, np.abs(theta0), model._fd_size)
-    yw = np.einsum("mij,mj->mi", linv, dp).reshape(-1)
+    yw = white.vec(dp)
     n0 = model.stats["evaluations"]
     last: dict = {}
 
     def evaluate(th):
         f, j = model.evaluate(th)
         last["f"] = f
-        return (np.einsum("mij,mj->mi", linv, f).reshape(-1),
-                np.einsum("mij,mjk->mik", linv, j).reshape(-1, npar))
+        return white.vec(f), white.mat(j)
 
     sol = levenberg_marquardt(evaluate, yw, theta0, scale, lower=lower, upper=upper, hold=hold,
                               gain_tol=max(step_tol ** 2, 10 * COST_TOL), cost_tol=COST_TOL,
@@ -212,7 +212,7 @@ def fit(model: AugmentedForward, dp: np.ndarray, linv: np.ndarray, start: np.nda
     if idx.size:
         ident[idx] = analyze(jw[:, idx], tuple(str(i) for i in idx)).identifiable
     resid_w = sol.r_w.reshape(-1, 3)
-    resid = np.einsum("mij,mj->mi", np.linalg.inv(linv), resid_w)
+    resid = white.unwhiten(resid_w)
     return Fit(theta, cov, ident, resid, resid_w, sol.cost, sol.r_w.size, rank, sol.iterations,
                model.stats["evaluations"] - n0, sol.converged, time.perf_counter() - t0,
                names=tuple(param_names(model.layout, model.effects)),

@@ -46,7 +46,7 @@ from calbench.bench.view import Discovery, write_discovery_recording
 from .fit import Fit, build, effect_priors, fit, label, library
 from .stats import (ALPHA_EFFECT, ALPHA_FIT, MIN_EXPLAINED, chi2_p, compare, diagnose,
                              expected_rms, rms)
-from ..identifiability import whiten_factors
+from ..whitening import Whitener
 from ..observations import from_log
 from ..onestep import one_step
 from ..model import check_sites, load_model
@@ -55,16 +55,16 @@ MAX_ROUNDS = 3
 UNEXPLAINED = "unexplained"
 
 
-def _base_fit(src, obs, linv) -> Fit:
+def _base_fit(src, obs, white) -> Fit:
     robot, fm = build(src, [], obs)
     r = one_step(robot, obs, step_tol=1e-3)
     lo, hi = robot.layout.lower, robot.layout.upper
     start = np.where(np.isfinite(r.theta), r.theta, r.start)
     start = np.clip(start, lo, hi)
-    return fit(fm, obs.dp, linv, start, lo, hi, ~np.asarray(r.identifiable, bool))
+    return fit(fm, obs.dp, white, start, lo, hi, ~np.asarray(r.identifiable, bool))
 
 
-def _candidate_fit(src, obs, linv, current: Fit, hold_base: np.ndarray, effect) -> Fit:
+def _candidate_fit(src, obs, white, current: Fit, hold_base: np.ndarray, effect) -> Fit:
     start, lower, upper, _ = effect_priors(effect)
     applied = current.effect_params()
     _, fm = build(src, applied + [(effect, start)], obs)
@@ -73,7 +73,7 @@ def _candidate_fit(src, obs, linv, current: Fit, hold_base: np.ndarray, effect) 
     lo = np.concatenate([lay.lower] + [effect_priors(e)[1] for e, _ in applied] + [lower])
     hi = np.concatenate([lay.upper] + [effect_priors(e)[2] for e, _ in applied] + [upper])
     hold = np.concatenate([hold_base, np.zeros(n_prev + start.size, bool)])
-    return fit(fm, obs.dp, linv, np.concatenate([current.values, start]), lo, hi, hold)
+    return fit(fm, obs.dp, white, np.concatenate([current.values, start]), lo, hi, hold)
 
 
 def _step_record(effect, cand: Fit, before: Fit, stats_: dict, obs) -> dict:
@@ -129,10 +129,10 @@ def discover(log_path, model=None, *, out_model=None, plot=None, view_json=None,
     robot = load_model(log, model)                 # validates the MJCF (InputError)
     check_sites(robot, obs, model or log.path)
     src = Path(model) if model is not None else log.mjcf_text
-    linv = whiten_factors(obs.cov)
+    white = Whitener.from_observations(obs)
     sigma = float(obs.noise_sigma)
 
-    base = _base_fit(src, obs, linv)
+    base = _base_fit(src, obs, white)
     nb = robot.layout.n
     hold_base = ~base.free[:nb] & ~base.at_bound[:nb]
     diag_before = diagnose(base, obs, sigma)
@@ -152,7 +152,7 @@ def discover(log_path, model=None, *, out_model=None, plot=None, view_json=None,
         for e in cands:
             rec = {"effect": e.name, "detail": e.detail, "score": None}
             try:
-                cf = _candidate_fit(src, obs, linv, current, hold_base, e)
+                cf = _candidate_fit(src, obs, white, current, hold_base, e)
             except (ValueError, RuntimeError, NotImplementedError, np.linalg.LinAlgError) as exc:
                 rec["error"] = str(exc)
                 results.append((rec, None, None))
