@@ -18,6 +18,13 @@ unloaded readings before its loaded ones (how a campaign runs; it also keeps the
 different poses independent for a drifting tracker): an InputError names the first row that
 breaks this.
 
+Times. A reading is stamped with its own time when the CSV has a time column (ISO 8601 as it
+is, seconds counted from the plan's ``start_time``), and each pose's command, load and end a
+few milliseconds around its readings; without times the log's campaign clock stamps them
+(bench/timeline.py), the same schedule the readings are given here (bench.measuring.schedule),
+so that a drifting tracker's covariance (bench/iso10360.py) sees the same timeline in the
+registration and in identification.
+
 Export (:func:`export_rows`) writes every visible reflector of every reading of a log's complete
 poses, in log order, in the tracker frame; ``time`` is the reading's log time; ``sigma`` is
 written when every reading's covariance is isotropic (sigma^2 I), which is then exactly what the
@@ -26,6 +33,7 @@ import reads back; otherwise the plan's tracker model gives the covariances agai
 from __future__ import annotations
 
 from dataclasses import dataclass
+from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
@@ -35,12 +43,14 @@ from .errors import InputError
 from .campaignlog import CampaignLog
 from .logformat import LogHeader, LogWriter
 from .measuring import schedule
+from .timeline import NS
 from .readings import ReadingsTable, Row, group
 from .robot import Robot
 from .scenario import Plan, TrackerSpec
 from .tracker import noise_covariance
 
 STATES = ("unloaded", "loaded")
+TICK = 1_000_000          # ns: a pose's command, load and end stamped 1-3 ms around its readings
 
 
 @dataclass(frozen=True)
@@ -131,10 +141,16 @@ def campaign_readings(table: ReadingsTable, names: list[str], tracker: TrackerSp
 
 
 def write_imported_log(plan: Plan, readings: Readings, tracker: TrackerSpec, model: Path,
-                       out: Path, imported: dict, rows: int) -> ImportSummary:
+                       out: Path, imported: dict, rows: int, time_origin: int | None = None) -> ImportSummary:
     """Write the log of ``readings`` (:func:`campaign_readings`, ``rows`` CSV rows) taken along
     ``plan`` with the tracker at ``tracker``'s pose, the robot described by the MJCF ``model``;
-    ``imported`` goes into ``/campaign/info``. Everything is checked before the file exists."""
+    ``imported`` goes into ``/campaign/info``. Everything is checked before the file exists.
+
+    Times (module docstring): with ``time_origin`` (ns since 1970 of the readings' time zero:
+    0 for ISO 8601 times, the plan's ``start_time`` for seconds) every reading is stamped at its
+    own time and each pose's command, load and end a millisecond around its readings (TICK);
+    without, the log's campaign clock stamps them (bench/timeline.py), which is the schedule the
+    readings were given (bench.measuring.schedule)."""
     robot = Robot.from_file(model)
     names = list(robot.reflector_names)
     for i, pose in enumerate(plan.poses):
@@ -143,28 +159,40 @@ def write_imported_log(plan: Plan, readings: Readings, tracker: TrackerSpec, mod
                              f"actuated joint of {model.name})", f"{len(pose.q)} elements")
     order = list(dict.fromkeys(p for p, _ in readings))
     loads = {p: pose_load(robot, plan, plan.poses[p]) for p in order}
-    grouped = readings
+
+    def at(t: float | None, shift: int = 0) -> int | None:
+        return None if time_origin is None or t is None else time_origin + int(round(t * NS)) + shift
+
+    first = [r.time for p in order for s in STATES for r in readings[(p, s)]]
+    start = plan.start_time
+    if time_origin is not None and first:
+        start = min(start, datetime.fromtimestamp((at(min(first)) - NS) / NS, tz=timezone.utc))
     header = LogHeader(
         scenario_name=plan.name, scenario_text=plan.text, scenario_filename=plan.path.name,
         robot_filename=model.name, mjcf_text=model.read_text(encoding="utf-8"),
         reflectors=names, payload_site=robot.model.site(robot.payload_site).name,
         tracker=tracker.to_dict(), seed=int(plan.seed), n_poses=len(plan.poses),
-        imported=imported, n_joints=robot.n_act)
+        imported=imported, n_joints=robot.n_act, start_time=start)
     n_read = 0
     with LogWriter(out, header) as log:
         for p in order:
             q = plan.poses[p].q
             load, mass = loads[p]
             site = robot.model.site(load.site).name
-            for state in STATES:
+            u, ld = readings[(p, "unloaded")], readings[(p, "loaded")]
+            log.pose(p, "unloaded", q, at=at((u or ld)[0].time, -3 * TICK))
+            for state, reads in (("unloaded", u), ("loaded", ld)):
                 if state == "loaded":
-                    log.wrench(p, load.force, load.moment, site, mass)
-                log.pose(p, state, q)
-                for g in grouped[(p, state)]:
-                    log.measurement(p, state, g.repeat, names, g.position, g.covariance, g.visible)
+                    t_load = ld[0].time if ld else None
+                    log.wrench(p, load.force, load.moment, site, mass,
+                               at=at(t_load, -2 * TICK) if ld else at(u[-1].time, TICK))
+                    log.pose(p, "loaded", q, at=at(t_load, -TICK) if ld else at(u[-1].time, 2 * TICK))
+                for g in reads:
+                    log.measurement(p, state, g.repeat, names, g.position, g.covariance, g.visible,
+                                    at=at(g.time))
                     n_read += 1
-            log.pose_done(p)
-    one = [p for p in order if not (grouped[(p, "unloaded")] and grouped[(p, "loaded")])]
+            log.pose_done(p, at=at((ld or u)[-1].time, 3 * TICK))
+    one = [p for p in order if not (readings[(p, "unloaded")] and readings[(p, "loaded")])]
     lost = sorted(set(range(len(plan.poses))) - set(order))
     return ImportSummary(order, lost, one, rows, n_read)
 

@@ -21,15 +21,10 @@ import numpy as np
 
 from .iso10360 import draw_correlated
 from .scenario import TrackerSpec
+from .timeline import LOAD_S, MOVE_S, UNLOAD_S, reading_seconds
 from .tracker import Measurement, measure, to_tracker_frame
 
 STATES = ("unloaded", "loaded")
-# the campaign clock's steps, s (issue 10's bench/timeline.py: the log is stamped by them)
-MOVE_S, LOAD_S, UNLOAD_S, READING_PER_REFLECTOR_S = 60.0, 300.0, 180.0, 10.0
-
-
-def reading_seconds(n_reflectors: int) -> float:
-    return READING_PER_REFLECTOR_S * max(int(n_reflectors), 1)
 Key = tuple[int, str, int]          # (pose, state, repeat)
 
 

@@ -457,7 +457,9 @@ def _campaign(top: "_Checker", path: Path, n_joints: int | None) -> dict[str, An
         work = Work(q=_joint_vector(w, "q", n_joints), wrench=_frozen(w.vector("wrench", 6)))
     return {"load_mass": load.number("mass", positive=True), "work": work,
             "poses": _poses(path, top.raw("pose"), n_joints),
-            "name": top.string("name") if top.has("name") else path.stem}
+            "name": top.string("name") if top.has("name") else path.stem,
+            "start_time": (parse_start_time(top.raw("start_time"), path) if top.has("start_time")
+                           else DEFAULT_START)}
 
 
 def parse_scenario(text: str, path: str | Path, seed: int | None = None) -> Scenario:
@@ -489,8 +491,6 @@ def parse_scenario(text: str, path: str | Path, seed: int | None = None) -> Scen
         effects=effects,
         tracker=_tracker(top.sub("tracker")),
         **_campaign(top, path, len(compliance)),
-        start_time=(parse_start_time(top.raw("start_time"), path) if top.has("start_time")
-                    else DEFAULT_START),
     )
 
 
@@ -516,6 +516,7 @@ class Plan:
     work: Work | None
     poses: tuple[Pose, ...]
     name: str = ""
+    start_time: datetime = DEFAULT_START   # UTC; a readings file's seconds count from here
 
 
 def parse_plan(text: str, path: str | Path) -> Plan:

@@ -23,6 +23,7 @@ from calbench.bench.outputs import atomic_path
 from calbench.bench.readings import ReadingsTable, read_readings
 from calbench.bench.robot import Robot
 from calbench.bench.scenario import Plan, TrackerSpec, check_joint_limits, load_plan
+from calbench.bench.timeline import start_ns
 
 from .registration import Registration, check_placed, register
 
@@ -85,9 +86,10 @@ def import_readings(csv_path: str | Path, plan_path: str | Path, out: str | Path
                 "units": units, "rows": len(table.readings),
                 "tracker_pose": "plan" if registration is None else "registered",
                 "registration": None if registration is None else registration.as_dict()}
+    origin = None if not table.has_time else 0 if table.absolute_time else start_ns(plan.start_time)
     with atomic_path(out) as tmp:
         summary = write_imported_log(plan, readings, tracker, model_path, tmp, imported,
-                                     len(table.readings))
+                                     len(table.readings), origin)
     return ImportResult(out, plan, table, tracker, summary, imported, registration,
                         [] if registration is None else list(registration.warnings))
 

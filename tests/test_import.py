@@ -237,3 +237,40 @@ def test_a_wrong_tracker_pose_in_the_plan_is_refused(work, capsys):
     err = capsys.readouterr().err
     assert f"{work / 'paper.csv'}: line " in err and "seen from its [tracker] position and yaw" in err
     assert not out.exists()
+
+
+def test_times_travel_through_export_and_import(work):
+    """The log's reading times (the campaign clock: bench/timeline.py) go out as ISO 8601 and
+    come back as the imported log's times (to the microsecond the CSV keeps), and they are the
+    simulator's schedule (bench.measuring.reading_times), which the iso10360 tracker drifts on."""
+    from calbench.bench.measuring import reading_times
+    out = work / "imported_times.mcap"
+    assert main(["import", str(work / "paper.csv"), "--plan", str(work / "plan.toml"), "--out", str(out)]) == 0
+    orig = read_log(work / "paper.mcap")
+    back = read_log(out)
+    t0 = [m.time for m in orig.measurements]
+    assert [abs(a - b.time) <= 1000 for a, b in zip(t0, back.measurements)] == [True] * len(t0)
+    sched = reading_times([1] * 16, 3)
+    first = min(t0)
+    for m in orig.measurements:
+        assert abs((m.time - first) / 1e9 - sched[(m.pose, m.state, m.repeat)]) < 1e-6
+
+
+def test_times_in_seconds_count_from_the_plans_start(work):
+    from datetime import datetime
+    from calbench.bench.timeline import DEFAULT_START, start_ns
+    rows = rows_of(work / "paper.csv")
+    t = [datetime.fromisoformat(r["time"].replace("Z", "+00:00")) for r in rows]
+    for r, w in zip(rows, t):
+        r["time"] = f"{(w - t[0]).total_seconds() + 70.0:.6f}"
+    p = work / "seconds.csv"
+    with open(p, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    out = work / "seconds.mcap"
+    assert main(["import", str(p), "--plan", str(work / "plan.toml"), "--out", str(out)]) == 0
+    log = read_log(out)
+    got = sorted({(m.time - start_ns(DEFAULT_START)) / 1e9 for m in log.measurements})
+    want = sorted({float(r["time"]) for r in rows})
+    assert np.allclose(got, want, rtol=0, atol=1e-6)
