@@ -60,6 +60,21 @@ def rows_of(path: Path) -> list[dict]:
         return list(csv.DictReader(f))
 
 
+def write_rows(path: Path, rows: list[dict], transform=None, fields=None) -> Path:
+    """Rows (dicts) as a CSV at path, x y z mapped by ``transform`` (in mm) when given."""
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=fields or list(rows[0]))
+        w.writeheader()
+        for r in rows:
+            r = dict(r)
+            if transform is not None:
+                y = transform(np.array([float(r[c]) for c in "xyz"]))
+                r.update({c: f"{v:.6f}" for c, v in zip("xyz", y)})
+            w.writerow({k: r[k] for k in (fields or r)})
+    return path
+
+
+
 # --------------------------------------------------------------------------- export
 
 def test_export_writes_every_visible_reading(work):
@@ -135,11 +150,7 @@ def test_import_in_metres_and_reexport(work):
 def test_single_state_and_unmeasured_poses(work, capsys):
     rows = [r for r in rows_of(work / "paper.csv")
             if r["pose"] not in ("3",) and not (r["pose"] == "5" and r["state"] == "loaded")]
-    p = work / "partial.csv"
-    with open(p, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    p = write_rows(work / "partial.csv", rows)
     out = work / "partial.mcap"
     assert main(["import", str(p), "--plan", str(work / "plan.toml"), "--out", str(out)]) == 0
     said = capsys.readouterr().out
@@ -263,11 +274,7 @@ def test_times_in_seconds_count_from_the_plans_start(work):
     t = [datetime.fromisoformat(r["time"].replace("Z", "+00:00")) for r in rows]
     for r, w in zip(rows, t):
         r["time"] = f"{(w - t[0]).total_seconds() + 70.0:.6f}"
-    p = work / "seconds.csv"
-    with open(p, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    p = write_rows(work / "seconds.csv", rows)
     out = work / "seconds.mcap"
     assert main(["import", str(p), "--plan", str(work / "plan.toml"), "--out", str(out)]) == 0
     log = read_log(out)

@@ -12,7 +12,6 @@ Tolerances.
 """
 from __future__ import annotations
 
-import csv
 import json
 from pathlib import Path
 
@@ -23,24 +22,11 @@ from calbench.bench.logformat import read_log
 from calbench.bench.registration import fit_rigid, rotation_exp
 from calbench.identify.cli import main
 from conftest import MJCF, PAPER
-from test_import import identify_json, plan_text, rows_of, simulate_and_export
+from test_import import identify_json, plan_text, rows_of, simulate_and_export, write_rows
 
 AXIS = np.array([0.3, -0.5, 0.81])
 R_EXTRA = rotation_exp(np.radians(40.0) * AXIS / np.linalg.norm(AXIS))   # tens of degrees, tilted
 TRACKER = np.array([3.5, -3.5, 3.2])                                        # 5.9 m from the base
-
-
-def write_rows(path: Path, rows: list[dict], transform=None, fields=None) -> Path:
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=fields or list(rows[0]))
-        w.writeheader()
-        for r in rows:
-            r = dict(r)
-            if transform is not None:
-                y = transform(np.array([float(r[c]) for c in "xyz"]))
-                r.update({c: f"{v:.6f}" for c, v in zip("xyz", y)})
-            w.writerow({k: r[k] for k in (fields or r)})
-    return path
 
 
 @pytest.fixture(scope="module")
