@@ -8,13 +8,13 @@ in plan order, so the same scenario and seed give the same log, byte for byte.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import mujoco
 import numpy as np
 
-from .effects import apply_effects, effect_from_truth
+from .effects import Readings, apply_effects, effect_from_truth
 from .errors import InputError
 from .foxglove import FoxgloveWriter
 from .logformat import LogHeader, LogWriter
@@ -24,7 +24,7 @@ from .scenario import Scenario, check_joint_limits
 from .scenario import scenario_params as _scenario_params
 from .statics import Equilibrium, Load, StaticsError, StaticsSolver
 from .measuring import measure_campaign, reading_times
-from .tracker import to_tracker_frame, visible_sites
+from .tracker import Measurement, to_tracker_frame, tracker_rotation, visible_sites
 from .progress import ProgressSink, sink
 
 STATES = ("unloaded", "loaded")
@@ -64,6 +64,25 @@ def truth_robot(scn: Scenario) -> Robot:
                              f"{scn.robot}: {exc}") from exc
     robot.set_params(scenario_params(scn, robot))
     return robot
+
+
+def reading_drift(scn: Scenario, index: int, reflectors: list[str]) -> np.ndarray | None:
+    """(n, 3) m, tracker frame: what the truth's measurement-side effects (bench/effects.py,
+    e.g. `tracker_drift`) add to pose ``index``'s loaded readings of ``reflectors``; None when
+    the truth has none. The robot and the noise are untouched."""
+    rot = tracker_rotation(scn.tracker)
+    total = None
+    for name, table in scn.effects.items():
+        effect, params = effect_from_truth(name, table)
+        if effect.measurement_side:
+            term = effect.deflection_term(params, Readings(tuple((index, r) for r in reflectors), rot))
+            total = term if total is None else total + term
+    return None if total is None else total @ rot      # world -> tracker frame: R^T x
+
+
+def drifted(m: Measurement, shift: np.ndarray | None) -> Measurement:
+    """A reading with the measurement-side shift added (invisible rows stay NaN)."""
+    return m if shift is None else replace(m, position=m.position + shift)
 
 
 def pose_load(robot: Robot, scn: Scenario, pose) -> tuple[Load, float | None]:
@@ -168,8 +187,9 @@ def run_campaign(scn: Scenario, out: str | Path, progress: ProgressSink | None =
                     log.wrench(plan.index, plan.load.force, plan.load.moment, robot.payload_name,
                                plan.mass)
                 log.pose(plan.index, state, plan.q)
+                shift = reading_drift(scn, plan.index, robot.reflector_names) if s == 1 else None
                 for rep in range(pose.repeats):
-                    m = measured[(plan.index, state, rep)]
+                    m = drifted(measured[(plan.index, state, rep)], shift)
                     log.measurement(plan.index, state, rep, robot.reflector_names, m.position, m.covariance, m.visible)
                     readings[s].append(m)
                 e = plan.equilibria[s]
@@ -183,4 +203,4 @@ def run_campaign(scn: Scenario, out: str | Path, progress: ProgressSink | None =
     return plans
 
 
-__all__ = ["PosePlan", "plan_campaign", "run_campaign", "truth_robot", "scenario_params", "to_tracker_frame"]
+__all__ = ["PosePlan", "plan_campaign", "reading_drift", "drifted", "run_campaign", "truth_robot", "scenario_params", "to_tracker_frame"]

@@ -18,6 +18,11 @@ carries (bench/description.py: the actuated joints, the payload and reflector si
 optional ``calbench:links`` and ``calbench:compensator_sites``) or from the model's tree (the
 body fixed to the world that carries the arm).
 
+MEASUREMENT-SIDE effects (`tracker_drift`) change what the instrument reports, not the robot:
+they leave the spec alone and add a term to every predicted deflection instead
+(:meth:`Effect.deflection_term`, given the :class:`Readings` it applies to); the bench adds the
+same term to the simulated loaded readings. They register exactly like the others.
+
 Every new joint has ref 0 and springref 0, so its qpos0 and qpos_spring are 0 and
 :meth:`bench.robot.Robot.rigid_qpos` leaves it at 0 (only the actuated and passive joints are
 filled, by name). A compliance of exactly 0 in a scenario's truth means "rigid": that hinge is
@@ -48,11 +53,30 @@ _TMP_PREFIX = "__effects_move__"
 # --------------------------------------------------------------------------- the Effect type
 
 @dataclass(frozen=True)
+class Readings:
+    """What a measurement-side effect acts on: the observation rows of a campaign, one
+    (pose index, reflector name) per measured deflection, and the tracker's orientation
+    (world-from-tracker rotation, bench.tracker.tracker_rotation)."""
+
+    rows: tuple[tuple[int, str], ...]
+    tracker_rotation: np.ndarray
+
+
+def _no_edit(*_args) -> None:
+    """The spec and model edit of a measurement-side effect: none."""
+
+
+@dataclass(frozen=True)
 class Effect:
     """One candidate physical effect: a structural choice (options) and SI parameters.
 
     name: the docs/contract.md effect name; param_names / units: its parameters, in order;
-    options: structural choices (which link, which axes, which joint).
+    options: structural choices (which link, which axes, which joint). A robot-side effect edits
+    the spec (``_apply``) and writes its parameters into a compiled model (``_set``), and may
+    write nothing but spring stiffnesses and rest lengths there (discovery keeps the springs'
+    part of the stiffness matrix analytic, identify/discover/fit.py). A measurement-side effect
+    has ``_measure`` instead: params, options, :class:`Readings` -> (M, 3) world-frame term added
+    to every deflection.
     """
 
     name: str
@@ -61,6 +85,8 @@ class Effect:
     units: tuple[str, ...] = ()
     _apply: Callable[[mujoco.MjSpec, np.ndarray, dict], None] = field(default=None, repr=False, compare=False)
     _set: Callable[[Robot, np.ndarray, dict], None] = field(default=None, repr=False, compare=False)
+    _measure: Callable[[np.ndarray, dict, Readings], np.ndarray] | None = field(default=None, repr=False,
+                                                                               compare=False)
 
     def _check(self, params) -> np.ndarray:
         p = np.atleast_1d(np.asarray(params, dtype=float))
@@ -80,6 +106,18 @@ class Effect:
         self._set(robot, self._check(params), self.options)
 
     @property
+    def measurement_side(self) -> bool:
+        """True when the effect changes the readings, not the robot (no spec edit)."""
+        return self._measure is not None
+
+    def deflection_term(self, params, readings: Readings) -> np.ndarray:
+        """(M, 3) m, world frame: what a measurement-side effect adds to each measured
+        deflection (loaded minus unloaded reading); zeros for a robot-side effect."""
+        if self._measure is None:
+            return np.zeros((len(readings.rows), 3))
+        return np.asarray(self._measure(self._check(params), self.options, readings), dtype=float)
+
+    @property
     def detail(self) -> str:
         """Short human description of the structural choice, e.g. "forearm" or "j3"."""
         if "link" in self.options:
@@ -92,13 +130,15 @@ class Effect:
 @dataclass(frozen=True)
 class Prior:
     """What a fit assumes of one effect parameter: where it starts (its "absent" value, or a
-    generic size where absent makes the others meaningless), its bounds, and a typical size
-    (finite-difference steps at zero). SI units."""
+    generic size where absent makes the others meaningless), its bounds, a typical size
+    (finite-difference steps at zero) and whether the deflections are linear in it (then a
+    candidate fit needs no multi-start, identify/discover/search.py). SI units."""
 
     start: float
     lower: float
     upper: float
     size: float
+    linear: bool = False     # the deflections are linear in it: one start finds the optimum
 
 
 # Per physical UNIT: the default priors of any effect parameter with that unit. A new effect with
@@ -288,6 +328,8 @@ def _move_bodies(spec: mujoco.MjSpec, names: list[str], new_parent) -> None:
     for t in list(src.tendons):        # attach would bring the copy's tendons/equalities along
         src.delete(t)
     for e in list(src.equalities):
+        src.delete(e)
+    for e in list(src.texts) + list(src.numerics) + list(src.tuples):   # the robot description: kept once
         src.delete(e)
     eqs = [{f: getattr(e, f) for f in _EQ_FIELDS} for e in spec.equalities]
     eqs = [{k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in e.items()} for e in eqs]
@@ -632,7 +674,32 @@ def tool_compliance(axes: str = "yz", body: str | None = None, mount: tuple | No
                   ("rad/(N*m)",) * len(axes), apply, set_)
 
 
-__all__ = ["Effect", "EffectRobot", "REGISTRY", "register", "effect_from_truth", "apply_effects", "Prior",
+# --------------------------------------------------------------------------- tracker_drift
+
+def _drift_truth(t: dict) -> tuple[dict, np.ndarray]:
+    return {}, np.asarray(t["offset"], dtype=float)
+
+
+DRIFT_PRIOR = Prior(start=0.0, lower=-np.inf, upper=np.inf, size=1e-5, linear=True)   # m: 10 um
+
+
+@register("tracker_drift", from_truth=_drift_truth, discover=[{}],
+          priors={"bx": DRIFT_PRIOR, "by": DRIFT_PRIOR, "bz": DRIFT_PRIOR})
+def tracker_drift() -> Effect:
+    """A constant offset b between the unloaded and the loaded readings, in the tracker frame
+    (thermal drift of the instrument or of the reflector nests between the two readings of each
+    pose): a MEASUREMENT-SIDE effect. It moves no part of the robot; every measured deflection
+    is the robot's plus R b (R: world-from-tracker rotation), so its Jacobian is R for every row
+    and it is linear in b. Nothing in the MJCF changes (the augmented model's header names it).
+    Parameters bx, by, bz in m.
+    """
+    def measure(p, o, readings: Readings):
+        return np.tile(np.asarray(readings.tracker_rotation, float) @ p, (len(readings.rows), 1))
+
+    return Effect("tracker_drift", ("bx", "by", "bz"), {}, ("m", "m", "m"), _no_edit, _no_edit, measure)
+
+
+__all__ = ["Effect", "EffectRobot", "Readings", "tracker_drift", "REGISTRY", "register", "effect_from_truth", "apply_effects", "Prior",
            "UNIT_PRIORS", "DISCOVERY_OPTIONS", "priors", "discovery_library",
            "load_spec", "augmented_xml", "link_compliance", "base_compliance", "joint_nonlinearity", "compensator",
            "tool_compliance",

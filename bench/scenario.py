@@ -244,7 +244,7 @@ TOP_KEYS = ("name", "description", "start_time", "robot", "seed", "truth", "trac
 # [design]: settings of `calbench design` (identify/design_candidates.py validates the values)
 DESIGN_KEYS = ("min_height", "min_radius", "candidates", "seed", "clearance", "compensator_margin",
                "lateral_force", "lateral_fraction")
-EFFECT_KEYS = ("link_compliance", "base_compliance", "joint_nonlinearity", "tool_compliance")
+EFFECT_KEYS = ("link_compliance", "base_compliance", "joint_nonlinearity", "tool_compliance", "tracker_drift")
 
 
 def _effects(c: _Checker) -> dict[str, dict]:
@@ -269,6 +269,10 @@ def _effects(c: _Checker) -> dict[str, dict]:
         e.only(("joint", "cubic"))
         out["joint_nonlinearity"] = {"joint": e.integer("joint", 1),          # 1..N: the robot decides
                                      "cubic": e.number("cubic")}
+    if c.has("tracker_drift"):        # measurement side: an offset of the loaded readings
+        e = c.sub("tracker_drift")
+        e.only(("offset",))
+        out["tracker_drift"] = {"offset": _frozen(e.vector("offset", 3))}
     return out
 
 

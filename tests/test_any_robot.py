@@ -138,7 +138,7 @@ def test_the_renamed_copy_discovers_the_same(twins, tmp_path):
     assert [(c["effect"], detail(c), c["score"]) for c in a["candidates"]] == \
         [(c["effect"], c["detail"], c["score"]) for c in b["candidates"]]
     assert {c["effect"] for c in a["candidates"]} == {"compensator", "joint_nonlinearity",
-                                                     "link_compliance", "base_compliance"}
+                                                     "link_compliance", "base_compliance", "tracker_drift"}
 
 
 # --------------------------------------------------------------------------- the code itself

@@ -396,3 +396,32 @@ def test_register_carries_discovery_options_and_priors():
         fx.DISCOVERY_OPTIONS.pop("toy_spring")
         fx._PRIORS.pop("toy_spring")
     assert all(e.name != "toy_spring" for e in library(Robot.from_file(MJCF)))
+
+
+def test_tracker_drift_offsets_only_the_loaded_readings(tmp_path):
+    """The measurement-side effect: same scenario and seed with and without the drift give the
+    same unloaded readings and loaded readings shifted by exactly the offset (tracker frame,
+    here yawed), the same truth; discovery's deflection term is R b on every row."""
+    from calbench.bench.effects import Readings, tracker_drift
+    from calbench.bench.tracker import tracker_rotation
+    text = PAPER.read_text().replace("position = [3.5, -3.5, 3.2]", "position = [3.5, -3.5, 3.2]\nyaw = 30.0")
+    plain = tmp_path / "yawed.toml"
+    plain.write_text(text.replace('robot = "../mjcf/m900ib700.xml"', f'robot = "{MJCF}"'))
+    offset = np.array([30e-6, -20e-6, 25e-6])
+    drift = scenario_with_effect(tmp_path, f"[truth.effects.tracker_drift]\noffset = {offset.tolist()}")
+    drift.write_text(drift.read_text().replace("position = [3.5, -3.5, 3.2]", "position = [3.5, -3.5, 3.2]\nyaw = 30.0"))
+    scn = load_scenario(drift)
+    assert scn.effects["tracker_drift"]["offset"].tolist() == offset.tolist()
+    run_campaign(load_scenario(plain), tmp_path / "a.mcap")
+    run_campaign(scn, tmp_path / "b.mcap")
+    a, b = read_log(tmp_path / "a.mcap"), read_log(tmp_path / "b.mcap")
+    assert len(a.measurements) == len(b.measurements)
+    for ma, mb in zip(a.measurements, b.measurements):
+        vis = ma.visible
+        shift = offset if ma.state == "loaded" else np.zeros(3)
+        np.testing.assert_allclose(mb.position[vis] - ma.position[vis], np.tile(shift, (vis.sum(), 1)),
+                                   rtol=0, atol=1e-15)
+    rot = tracker_rotation(scn.tracker)
+    term = tracker_drift().deflection_term(offset, Readings(((0, "refl_a"), (1, "refl_b")), rot))
+    np.testing.assert_allclose(term, np.tile(rot @ offset, (2, 1)), rtol=1e-15)
+    assert tracker_drift().measurement_side and not link_compliance("forearm").measurement_side

@@ -1,10 +1,13 @@
 """calbench.identify.discover — the discrepancy workflow: where the model and the measurements
 disagree, and which physical effect is missing.
 
-fit (the candidate library and fitting a model with effects in the loop), stats (diagnostics
-and the model-selection statistics), workflow (the whole `calbench discover`).
+fit (the candidate library and fitting a model with effects in the loop), search (the global,
+multi-start fit of one candidate), stats (diagnostics), decide (the likelihood-ratio tests and
+near-ties), uncertainty (what a fit determines), aliasing (what a fit cannot see), story (what a
+person reads), workflow (the whole `calbench discover`).
 """
 from .fit import DISCOVERY_EFFECTS, AugmentedForward, Fit, library
-from .workflow import UNEXPLAINED, discover, story
+from .workflow import AMBIGUOUS, UNEXPLAINED, discover, discover_observations, story
 
-__all__ = ["DISCOVERY_EFFECTS", "AugmentedForward", "Fit", "library", "UNEXPLAINED", "discover", "story"]
+__all__ = ["DISCOVERY_EFFECTS", "AugmentedForward", "Fit", "library", "AMBIGUOUS", "UNEXPLAINED", "discover",
+           "discover_observations", "story"]

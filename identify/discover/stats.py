@@ -1,11 +1,11 @@
-"""Discovery, part 2: residual diagnostics and the statistics that decide between models.
+"""Discovery: residual diagnostics. Where the model and the measurements disagree.
 
 Everything here works on whitened residuals r_w = L^-1 (dp - f), L L^T = Cov (the tracker's own
 covariance of each measured deflection), so that for a model that is right r_w is standard
 normal and chi2 = |r_w|^2 follows a chi-square law with n - p degrees of freedom (n scalar
 residuals, p parameters the data determine). The tracker's sigma is known, so the likelihood
-ratio of two nested models is the chi2 difference itself and BIC = chi2 + p ln n (up to a
-constant shared by all models). Nothing here knows about any particular effect.
+ratio of two nested models is the chi2 difference itself (identify/discover/decide.py decides
+between models). Nothing here knows about any particular effect.
 """
 from __future__ import annotations
 
@@ -15,8 +15,6 @@ import numpy as np
 from scipy import stats
 
 ALPHA_FIT = 1e-3        # p-value below which the residual is not noise (the model is rejected)
-ALPHA_EFFECT = 1e-3     # family-wise level of the likelihood-ratio test over all candidates
-MIN_EXPLAINED = 0.5     # an accepted effect must remove at least this share of the excess chi2
 DIRECTIONS = ("x", "y", "z")
 
 
@@ -170,26 +168,4 @@ def _words(total, per_pose, per_refl, per_dir, corr, noise_sigma) -> list[str]:
     return w
 
 
-# --------------------------------------------------------------------------- which model
-
-def compare(base, cand, n_candidates: int) -> dict:
-    """Statistics of a candidate fit against the base fit (nested, known noise):
-    likelihood ratio LR = chi2_base - chi2_cand ~ chi2(k) under the base, k the extra parameters
-    the data determine; BIC gain = LR - k ln n (> 0: the candidate is preferred); share of the
-    base's excess chi2 (over its dof) that the candidate removes; the candidate's own fit p."""
-    k = max(cand.n_free - base.n_free, 0)
-    lr = base.chi2 - cand.chi2
-    n = base.n_res
-    p_lr = float(stats.chi2.sf(lr, k)) if k > 0 and lr > 0 else 1.0
-    excess = base.chi2 - base.dof
-    explained = lr / excess if excess > 0 else 0.0
-    alpha = ALPHA_EFFECT / max(n_candidates, 1)          # Bonferroni over the library
-    return {"k": int(k), "lr": float(lr), "p_lr": p_lr, "alpha": alpha,
-            "bic_gain": float(lr - k * math.log(n)), "explained": float(explained),
-            "chi2": float(cand.chi2), "dof": int(cand.dof), "p_fit": chi2_p(cand.chi2, cand.dof),
-            "significant": bool(k > 0 and p_lr < alpha),
-            "accept": bool(k > 0 and p_lr < alpha and lr - k * math.log(n) > 0 and explained >= MIN_EXPLAINED)}
-
-
-__all__ = ["ALPHA_FIT", "ALPHA_EFFECT", "MIN_EXPLAINED", "chi2_p", "expected_rms", "rms", "diagnose",
-           "pose_features", "compare"]
+__all__ = ["ALPHA_FIT", "chi2_p", "expected_rms", "rms", "diagnose", "pose_features"]

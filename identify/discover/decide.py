@@ -1,0 +1,95 @@
+"""Discovery, part 3: which model. The likelihood-ratio test of every candidate, and near-ties.
+
+The tracker's sigma is known, so for nested models the likelihood ratio is the chi2 drop itself,
+LR = chi2_current - chi2_candidate, distributed chi2(k) when the candidate is absent (k: the
+parameters the candidate adds that the data determine); BIC = chi2 + p ln n up to a constant.
+
+THE TEST, on every run. Every candidate of the round is tested at the family-wise level
+ALPHA_EFFECT (Bonferroni over the round's candidates): p_LR < ALPHA_EFFECT / n_candidates.
+There is no global gate in front of it: whether the current model "fits to the noise level"
+(global chi2) does not decide whether a targeted test may speak. A global chi2 spreads a
+missing effect's signature over all n - p degrees of freedom, a targeted test concentrates it on
+k: on the paper plan the compensator missing from the user's model at the shipped K_C gives a
+global p = 0.55 and an LR of 22 for 2 parameters (p = 2e-5, past the Bonferroni threshold of
+the library). A significant candidate is ACCEPTED when BIC prefers it too and it either leaves a
+fit consistent with the noise (chi2 p >= ALPHA_FIT) or removes at least MIN_EXPLAINED of the
+current model's excess chi2: a candidate that only nibbles at a disagreement it cannot explain
+is not named (that is `unexplained`). Under the null, at most one of the round's tests fires
+with probability <= ALPHA_EFFECT (Bonferroni; conservative where a parameter sits on its bound),
+measured in benchmarks/discover_bench.py --null.
+
+NEAR-TIES. Two candidates A (the best accepted) and B are AMBIGUOUS when their BIC gains differ
+by less than AMBIGUOUS_BIC (2: "not worth more than a bare mention", Kass & Raftery 1995) or
+their LR difference lies inside its own sampling spread. With the noise e and the two fits'
+misfits m_A, m_B (whitened), LR_A - LR_B = |m_B|^2 - |m_A|^2 + 2 e.(m_B - m_A), so its sampling
+standard deviation is 2 |f_A - f_B|_w, twice the whitened distance between the two fits'
+predictions; "inside" means within AMBIGUOUS_SPREAD of those standard deviations.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import stats
+
+from .stats import ALPHA_FIT, chi2_p
+
+ALPHA_EFFECT = 1e-3     # family-wise level of the likelihood-ratio tests over the round's candidates
+MIN_EXPLAINED = 0.5     # or: an accepted effect removes at least this share of the excess chi2
+AMBIGUOUS_BIC = 2.0     # BIC gains closer than this are a near-tie
+AMBIGUOUS_SPREAD = 1.0  # LR difference within this many of its sampling standard deviations
+
+
+def lr_threshold(k: int, n_candidates: int) -> float:
+    """The LR a candidate with k determined parameters must exceed to be significant."""
+    return float(stats.chi2.isf(ALPHA_EFFECT / max(n_candidates, 1), k)) if k > 0 else float("inf")
+
+
+def compare(base, cand, n_candidates: int) -> dict:
+    """Statistics of a candidate fit against the current fit (see the module docstring): LR, k,
+    p_LR, the Bonferroni level alpha, BIC gain (> 0: the candidate is preferred), the share of
+    the current model's excess chi2 it removes, its own fit p, significant and accept."""
+    k = max(cand.n_free - base.n_free, 0)
+    lr = base.chi2 - cand.chi2
+    n = base.n_res
+    p_lr = float(stats.chi2.sf(lr, k)) if k > 0 and lr > 0 else 1.0
+    excess = base.chi2 - base.dof
+    explained = lr / excess if excess > 0 else 0.0
+    alpha = ALPHA_EFFECT / max(n_candidates, 1)
+    bic = float(lr - k * math.log(n))
+    p_fit = chi2_p(cand.chi2, cand.dof)
+    significant = bool(k > 0 and p_lr < alpha)
+    return {"k": int(k), "lr": float(lr), "p_lr": p_lr, "alpha": alpha, "bic_gain": bic,
+            "explained": float(explained), "chi2": float(cand.chi2), "dof": int(cand.dof), "p_fit": p_fit,
+            "significant": significant,
+            "accept": bool(significant and bic > 0 and (p_fit >= ALPHA_FIT or explained >= MIN_EXPLAINED))}
+
+
+def lr_spread(fit_a, fit_b) -> float:
+    """Sampling standard deviation of LR_A - LR_B: 2 |f_A - f_B|_w (module docstring)."""
+    return 2.0 * float(np.linalg.norm(fit_a.residual_w - fit_b.residual_w))
+
+
+def near_ties(best: tuple, others: list[tuple]) -> list[dict]:
+    """The candidates tied with ``best`` = (label, fit, stats): each (label, fit, stats) of
+    ``others`` whose BIC gain is within AMBIGUOUS_BIC of the best's or whose LR difference is
+    within AMBIGUOUS_SPREAD sampling standard deviations. Returns records, best first."""
+    label_a, fit_a, st_a = best
+    out = []
+    for label_b, fit_b, st_b in others:
+        if st_b is None or st_b["k"] == 0:
+            continue
+        d_lr = st_a["lr"] - st_b["lr"]
+        d_bic = st_a["bic_gain"] - st_b["bic_gain"]
+        spread = lr_spread(fit_a, fit_b)
+        if d_bic < AMBIGUOUS_BIC or d_lr < AMBIGUOUS_SPREAD * spread:
+            out.append({"candidate": label_b, "lr": st_b["lr"], "k": st_b["k"], "bic_gain": st_b["bic_gain"],
+                        "lr_difference": d_lr, "bic_difference": d_bic, "lr_difference_spread": spread})
+    if out:
+        out.insert(0, {"candidate": label_a, "lr": st_a["lr"], "k": st_a["k"], "bic_gain": st_a["bic_gain"],
+                       "lr_difference": 0.0, "bic_difference": 0.0, "lr_difference_spread": 0.0})
+    return out
+
+
+__all__ = ["ALPHA_EFFECT", "MIN_EXPLAINED", "AMBIGUOUS_BIC", "AMBIGUOUS_SPREAD", "lr_threshold", "compare",
+           "lr_spread", "near_ties"]

@@ -1,0 +1,195 @@
+"""Discovery, part 6: what a person reads: the story (text), the per-pose plot, the view report.
+
+Everything here reads the report dict of identify/discover/workflow.py, so the text, the JSON
+and the augmented MJCF say the same numbers: each named effect's parameters are the FINAL joint
+refit's (``steps[i]["parameters"]``), the values written into the augmented MJCF.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from calbench.bench.idreport import IdentificationReport, ObservationFit, ParameterEstimate
+from calbench.bench.outputs import atomic_path
+
+from .stats import rms
+
+UM = 1e6
+
+
+def _num(x):
+    return None if x is None or not np.isfinite(x) else float(x)
+
+
+def view_report(f, obs, rep: dict, stage: str = "after", parameters: list[dict] | None = None) -> IdentificationReport:
+    """A fitted model as an identification report, for `calbench view --identified`: its
+    parameters (base and effect; ``identifiable`` = determined by the data; the report's final
+    ones unless ``parameters`` is given) and the measured, predicted and residual deflection of
+    every observation. ``stage``: "after" (the final model, with the named effects) or "before"
+    (the user's model as it is)."""
+    params = tuple(ParameterEstimate(p["name"], p["unit"], p["estimate"], p["std"], identifiable=p["determined"])
+                   for p in (rep["parameters"] if parameters is None else parameters))
+    fits = tuple(ObservationFit(int(pose), r, predicted=tuple(float(x) for x in f.predicted[i]),
+                                measured=tuple(float(x) for x in obs.dp[i]),
+                                residual=tuple(float(x) for x in f.residual[i]))
+                 for i, (pose, r) in enumerate(obs.labels))
+    method = "user model as is" if stage == "before" else (" + ".join(rep["named_effects"]) or "user model as is")
+    return IdentificationReport(
+        method="discover: " + method,
+        parameters=params, residual_rms=rep[f"rms_{stage}"], noise_sigma=rep["noise_sigma"],
+        chi2_per_dof=f.chi2 / f.dof if f.dof > 0 else None, chi2=float(f.chi2), dof=int(f.dof),
+        expected_residual_rms=rep[f"noise_rms_{stage}"],
+        whitened_residual_rms=rms(f.residual_w),
+        covariance=tuple(tuple(_num(x) for x in row) for row in f.cov),
+        log=rep["log"], model=rep["model"], n_poses_planned=obs.n_planned,
+        n_poses_used=len(obs.poses), lost_poses=tuple(obs.lost_poses),
+        truncated=bool(obs.truncated), n_observations=obs.n_obs(), seconds=rep["seconds"],
+        observations=fits,
+        details={"converged": bool(f.converged), "iterations": int(f.iterations),
+                 "evaluations": int(f.evaluations)})
+
+
+def plot_residuals(rep: dict, path) -> Path:
+    """Per-pose residual RMS before and after, against what noise alone leaves (PNG)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    pp = rep["per_pose"]
+    x = np.arange(len(pp))
+    before = np.array([p["rms_before"] for p in pp]) * UM
+    after = np.array([p["rms_after"] for p in pp]) * UM
+    fig, ax = plt.subplots(figsize=(9, 4.2), dpi=110)
+    ax.bar(x - 0.2, before, 0.4, label=f"user model (RMS {rep['rms_before'] * UM:.1f} µm)", color="#d62728")
+    ax.bar(x + 0.2, after, 0.4, color="#1f77b4",
+           label=("+ " + " + ".join(rep["named_effects"]) if rep["named_effects"] else "no effect named")
+           + f" (RMS {rep['rms_after'] * UM:.1f} µm)")
+    ax.axhline(rep["noise_rms_before"] * UM, color="k", ls="--", lw=1,
+               label=f"noise alone ({rep['noise_rms_before'] * UM:.1f} µm)")
+    ax.set_xticks(x, [str(p["pose"]) for p in pp])
+    ax.set_xlabel("pose")
+    ax.set_ylabel("residual RMS per coordinate (µm)")
+    ax.set_title("calbench discover: measured minus predicted deflection, per pose")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format=path.suffix.lstrip(".") or "png")
+    plt.close(fig)
+    return path
+
+
+def _value(p: dict) -> str:
+    s = f"{p['name']} = {p['estimate']:.4g}"
+    if p["std"] is not None:
+        s += f" ± {p['std']:.2g}"
+    return s + f" {p['unit']}" + ("" if p["determined"] else " (not determined)")
+
+
+def _combination(c: dict) -> str:
+    terms = " + ".join((f"{v:.3g}·" if abs(v - 1) > 1e-12 else "") + n for n, v in c["combination"].items()
+                       if abs(v) > 1e-3 * max(abs(x) for x in c["combination"].values()))
+    return f"{terms} = {c['estimate']:.4g} ± {c['std']:.2g}"
+
+
+def _alias_line(a: dict) -> str:
+    name = a["effect"] + (f" {a['detail']}" if a["detail"] else "") + f" ({a['parameter']})"
+    top = [b for b in a["biases"] if b["at_reference_sigma"] is not None][:3]
+    biased = ", ".join(f"{b['parameter']} {b['at_reference_sigma']:+.2g} sigma"
+                       + (f" ({b['at_reference_percent']:+.2g} %)" if b["at_reference_percent"] is not None else "")
+                       for b in top)
+    if a["effect"] == "load_scale":
+        per = ", ".join(f"{b['parameter']} {b['per_percent_mass_relative_percent']:+.2g} %"
+                        for b in a["biases"][:6] if b.get("per_percent_mass_relative_percent") is not None)
+        return f"  load_scale (payload mass known to +-x %): never visible in deflections; per 1 % of mass: {per}"
+    if not a.get("excited", True):
+        return f"  {name}: not excited by this plan at all (no load moves it): neither seen nor biasing"
+    if not a["visible"]:
+        return (f"  {name}: absorbed exactly, this plan cannot see it; at {a['reference_magnitude']:.3g} "
+                f"{a['unit']} it would bias {biased}")
+    return (f"  {name}: {100 * a['visible_share']:.0f} % of its signature is visible, named from "
+            f"{a['detectable_magnitude']:.3g} {a['unit']}; at {a['reference_magnitude']:.3g} it would bias {biased}")
+
+
+def story(rep: dict) -> str:
+    lines = [f"calbench discover: {rep['log']} (model: {rep['model']}; {rep['n_poses']} poses, "
+             f"{rep['n_observations']} reflector deflections, {rep['seconds']:.1f} s)",
+             *([f"  campaign: {rep['completeness']}"] if rep.get("completeness") else []),
+             "Where the model and the measurements disagree:"]
+    lines += ["  " + w for w in rep["where_before"]["words"]]
+    if rep["rounds"]:
+        lines.append("Candidates (first round; every one tested at the family-wise level "
+                     f"{rep['decision_rule']['alpha_effect_familywise']:g}; score = BIC gain, > 0 favours it):")
+        for c in rep["rounds"][0]["candidates"]:
+            if c["score"] is None:
+                lines.append(f"  {c['effect']:<20}{c['detail']:<11} not applicable: {c.get('error', '')}")
+                continue
+            lines.append(f"  {c['effect']:<20}{c['detail']:<11} score {c['score']:9.1f}  LR {c['lr']:8.1f} "
+                         f"(k={c['k']}, p={c['p_lr']:.1g})  explains {100 * c['explained']:5.1f} % of the excess  "
+                         f"RMS after {c['rms_after'] * UM:6.1f} um" + ("  ACCEPTED" if c["accepted"] else ""))
+    for s in rep["steps"]:
+        if s["effect"] == "unexplained":
+            lines.append(f"Named: unexplained: a significant disagreement remains that no candidate of the "
+                         f"library explains (RMS {s['rms_before'] * UM:.1f} um).")
+            continue
+        if s["effect"] == "ambiguous":
+            lines.append("Named: ambiguous: " + " and ".join(
+                f"{t['candidate']} (LR {t['lr']:.1f}, k={t['k']})" for t in s["candidates"])
+                + " explain the data almost equally well (BIC gains within "
+                f"{rep['decision_rule']['ambiguous_bic']:g} or LR difference inside its sampling spread); "
+                "more or better-placed measurements would tell them apart.")
+            continue
+        ps = ", ".join(_value(p) for p in s["parameters"])
+        lines.append(f"Named: {s['effect']} ({s['detail']}): {ps}; RMS {s['rms_before'] * UM:.1f} -> "
+                     f"{s['rms_after'] * UM:.1f} um (noise alone {s['noise_rms_after'] * UM:.1f} um), "
+                     f"LR {s['lr']:.1f} for {s['k']} parameter(s), p = {s['p_lr']:.1g}.")
+    if rep.get("combinations"):
+        lines.append("Determined only in combination (the split is not):")
+        lines += ["  " + _combination(c) for c in rep["combinations"]]
+    if not rep["named_effects"]:
+        lines.append("Named: nothing. No candidate passes its likelihood-ratio test; the user's model explains "
+                     "the data to the noise level.")
+        for h in rep.get("hints", []):
+            lines.append(f"  Hint below the family-wise threshold: adding {h['effect']} {h['detail']} would lower "
+                         f"chi2 by {h['lr']:.1f} for {h['k']} parameter(s) (p = {h['p_lr']:.1g}, needs < "
+                         f"{h['alpha']:.1g}): more or better-placed measurements would tell.")
+    if rep.get("aliasing"):
+        lines.append("What a model that fits does not tell you (aliasing of the effects not named, at the "
+                     "magnitude a plan would see if nothing absorbed it):")
+        lines += [_alias_line(a) for a in rep["aliasing"]]
+    lines.append(f"Gap: residual RMS {rep['rms_before'] * UM:.1f} um before "
+                 f"({rep['rms_before'] / rep['noise_rms_before']:.2f}x noise), {rep['rms_after'] * UM:.1f} um after "
+                 f"({rep['rms_after'] / rep['noise_rms_after']:.2f}x the {rep['noise_rms_after'] * UM:.1f} um noise "
+                 f"alone leaves; tracker sigma {rep['noise_sigma'] * UM:.3g} um per reading); chi2 p "
+                 f"{rep['p_before']:.2g} -> {rep['p_after']:.2g}.")
+    if rep.get("augmented_model"):
+        lines.append(f"Augmented model: {rep['augmented_model']}")
+    if rep.get("plot"):
+        lines.append(f"Per-pose residuals before/after: {rep['plot']}")
+    if rep.get("view_rrd"):
+        lines.append(f"Where the model disagreed, on the robot (Rerun): rerun {rep['view_rrd']}")
+    if rep.get("view_json"):
+        lines.append(f"Rerun view: calbench view {rep['log']} --identified {rep['view_json']}")
+    return "\n".join(lines)
+
+
+def clean(x):
+    """JSON-safe copy: numpy scalars/arrays to Python, NaN and infinities to null."""
+    if isinstance(x, dict):
+        return {str(k): clean(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [clean(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return clean(x.tolist())
+    if isinstance(x, (np.bool_, bool)):
+        return bool(x)
+    if isinstance(x, (np.integer, int)):
+        return int(x)
+    if isinstance(x, (np.floating, float)):
+        return float(x) if math.isfinite(x) else None
+    return x
+
+
+__all__ = ["story", "plot_residuals", "view_report", "clean"]

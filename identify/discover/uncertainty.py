@@ -1,0 +1,99 @@
+"""Discovery, part 4: what a fit determines, with honest standard deviations.
+
+The covariance of a fit is the inverse Fisher information (J^T J)^-1 of the whitened Jacobian at
+the estimate, over every parameter that is estimated (free or on a bound: a parameter pushed to
+its bound by the noise is still uncertain, and leaving it out would report the others'
+CONDITIONAL spread, too small). That is honest only where chi2 is close to quadratic over a
+standard deviation. When the data see only a combination of parameters (an upper-arm bending
+about x and z together, braced by the coupler rod; the J2 compliance, the compensator and an
+in-plane upper-arm bending), the Fisher information has a direction whose standard deviation is
+larger than the parameters themselves, the linearisation fails over it, and a per-parameter std
+can put the truth several sigma away.
+
+So, in relative coordinates u_i = theta_i / size_i (size: |theta_i|, not below the parameter's
+prior size, bench/effects.py), a parameter is DETERMINED when its marginal standard deviation is
+at most MAX_RELATIVE_STD (1: the data fix its order of magnitude) and it has no component in the
+Fisher information's numerical null space; otherwise it is reported "not determined" (no std),
+and what IS determined among the undetermined ones is reported instead: the eigenvectors of
+their marginal covariance whose standard deviation is within MAX_RELATIVE_STD (from its
+eigen-decomposition, i.e. the SVD of the Fisher information restricted to them), each as a
+combination sum_i c_i theta_i in SI with its estimate and std.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calbench.bench.effects import priors
+
+from ..leastsq import Fit
+from ..whitening import Whitener
+
+MAX_RELATIVE_STD = 1.0   # a parameter whose std exceeds its own size is not determined
+NULL_TOL = 1e-3          # component in the null space that makes a parameter unidentifiable
+RANK_TOL = 1e-8          # singular values of the relative Fisher factor below this x the largest are null
+
+
+@dataclass
+class Determination:
+    """Per parameter: std (NaN when not determined), determined; and the determined
+    combinations of the undetermined ones."""
+
+    std: np.ndarray
+    determined: np.ndarray
+    estimated: np.ndarray
+    combinations: list[dict] = field(default_factory=list)
+
+
+def sizes(f: Fit) -> np.ndarray:
+    """Each parameter's size for relative coordinates: |value|, not below its prior size."""
+    out = np.abs(np.asarray(f.values, dtype=float))
+    off = f.values.size - sum(len(e.param_names) for e in f.effects)
+    for e in f.effects:
+        n = len(e.param_names)
+        out[off: off + n] = np.maximum(out[off: off + n], [p.size for p in priors(e)])
+        off += n
+    return np.where(out > 0, out, 1.0)
+
+
+def determination(f: Fit, jw: np.ndarray) -> Determination:
+    """What the fit ``f`` determines (module docstring); jw: its whitened Jacobian (3M, P) at
+    the estimate."""
+    p = f.values.size
+    at_bound = f.at_bound if f.at_bound is not None else np.zeros(p, bool)
+    est = np.asarray(f.free, bool) | np.asarray(at_bound, bool)
+    std = np.full(p, np.nan)
+    det = np.zeros(p, bool)
+    idx = np.flatnonzero(est)
+    if idx.size == 0:
+        return Determination(std, det, est)
+    size = sizes(f)[idx]
+    jr = jw[:, idx] * size
+    _, s, vt = np.linalg.svd(jr, full_matrices=False)
+    keep = s > RANK_TOL * s[0] if s.size and s[0] > 0 else np.zeros(s.size, bool)
+    # the share of each parameter outside the kept directions (the numerical null space)
+    null_load = np.sqrt(np.clip(1.0 - (vt[keep] ** 2).sum(axis=0), 0.0, None))
+    cov_rel = (vt[keep].T / s[keep] ** 2) @ vt[keep]
+    rel_sd = np.sqrt(np.clip(np.diagonal(cov_rel), 0.0, None))
+    ok = (rel_sd <= MAX_RELATIVE_STD) & (null_load <= NULL_TOL)
+    std[idx[ok]] = rel_sd[ok] * size[ok]
+    det[idx[ok]] = True
+    combos = []
+    und = np.flatnonzero(~ok & (null_load <= NULL_TOL))
+    if und.size:
+        c_uu = cov_rel[np.ix_(und, und)]
+        w, vec = np.linalg.eigh(c_uu)
+        for lam, v in zip(w, vec.T):
+            sd = float(np.sqrt(max(lam, 0.0)))
+            if sd > MAX_RELATIVE_STD:
+                continue
+            coef = v / size[und]                       # in SI: sum coef_i theta_i, u_i = theta_i / size_i
+            norm = coef[np.argmax(np.abs(v))]          # the leading parameter's coefficient is 1
+            coef = coef / norm
+            combos.append({"combination": {f.names[idx[j]]: float(c) for j, c in zip(und, coef)},
+                           "estimate": float(coef @ f.values[idx[und]]), "std": sd / abs(norm)})
+    return Determination(std, det, est, combos)
+
+
+__all__ = ["MAX_RELATIVE_STD", "Determination", "sizes", "determination"]
