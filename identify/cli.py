@@ -45,8 +45,9 @@ def add_identify(sub) -> None:
     p.add_argument("--model", type=Path, default=None, help="robot MJCF (default: the one in the log)")
     p.add_argument("--method", choices=METHODS, default="one-step",
                    help="one-step: all parameters at once on the exact statics; two-step: the paper's "
-                        "§4, for robots with at most one compensator across one actuated hinge "
-                        "(default: %(default)s)")
+                        "§4, for robots with at most one compensator across one actuated hinge; "
+                        "two-step-iterated: the same with its Jacobians re-taken at the pose sagged by "
+                        "its own estimate (default: %(default)s)")
     p.add_argument("--json", type=Path, default=None, help="write the report as JSON (default: none, the table only)")
     p.add_argument("--check", action="store_true",
                    help=f"exit 1 when the fit did not converge, when a parameter is reported as "
@@ -106,10 +107,11 @@ def add_montecarlo(sub) -> None:
     p = sub.add_parser("montecarlo", help="re-measure a campaign with N noise seeds: bias, spread, CRB")
     p.add_argument("scenario", type=Path, help="scenario TOML file")
     p.add_argument("--runs", type=int, required=True, help="number of noise seeds (required)")
-    p.add_argument("--method", choices=("both", "one-step", "two-step"), default="both",
-                   help="estimators to run; two-step runs both step-2 variants, for robots with at most "
-                        "one compensator across one actuated hinge; both: one-step alone on other robots "
-                        "(default: %(default)s)")
+    p.add_argument("--method", choices=("both", "one-step", "two-step", "two-step-iterated"), default="both",
+                   help="estimators to run; two-step runs both step-2 variants, two-step-iterated the paper's "
+                        "method at its self-consistent sagged pose, both for robots with at most one "
+                        "compensator across one actuated hinge; both: all of them (one-step alone on other "
+                        "robots) (default: %(default)s)")
     p.add_argument("--seed", type=int, default=None, help="base noise seed (default: the scenario's)")
     p.add_argument("--json", type=Path, default=None, help="write the summary as JSON (default: none, the table only)")
     p.add_argument("--force", action="store_true",
@@ -135,13 +137,13 @@ def cmd_montecarlo(args) -> int:
         repeats, n_refl = [p.repeats for p in scn.poses], len(truth_robot(scn).reflector_names)
         check_size(estimate(repeats, n_refl), scn.path, repeats_key(repeats))   # one campaign
         check_size(montecarlo_estimate(repeats, n_refl, args.runs), "--runs", "runs")
-    methods = {"both": METHODS, "one-step": ("one-step",),
-               "two-step": ("two-step", "two-step-weighted")}[args.method]
+    methods = {"both": METHODS, "one-step": ("one-step",), "two-step": ("two-step", "two-step-weighted"),
+               "two-step-iterated": ("two-step-iterated",)}[args.method]
     try:
         two_step_applies(Robot.from_file(scn.robot))
     except TwoStepError as exc:
-        if args.method == "two-step":
-            raise InputError(scn.robot, "--method two-step", "a robot with at most one compensator, across "
+        if args.method.startswith("two-step"):
+            raise InputError(scn.robot, f"--method {args.method}", "a robot with at most one compensator, across "
                              "one actuated hinge (paper §4)", str(exc)) from None
         methods = ("one-step",)
     except ValueError as exc:   # the MJCF itself: reported where the campaign loads it

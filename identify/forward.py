@@ -128,6 +128,10 @@ class ForwardModel:
         self._params = None                        # the base parameters last written (Params)
         self.unloaded: tuple[np.ndarray, np.ndarray | None] | None = None   # x0 (M,3), d x0/d theta
 
+    # Newton iterations after which a stalling chord step gives up (A_base is then re-taken);
+    # a subclass whose stiffness matrix is exact but for A_base may allow more
+    stall_limit = 2
+
     def write(self, theta: np.ndarray) -> None:
         """Put theta into the robot model (a subclass writes its extra parameters too)."""
         self._params = self.layout.params(theta[: self.n_base])
@@ -213,7 +217,7 @@ class ForwardModel:
             lam += step[nv:]
 
         def stiffness(p: NewtonPoint) -> np.ndarray | None:
-            if p.stalled and p.iteration > 2:
+            if p.stalled and p.iteration > self.stall_limit:
                 return None    # still stalling: A_base is stale, the caller re-takes it
             return self._stiffness(eq, theta)
 

@@ -4,7 +4,9 @@ The campaign's physics is solved once (bench.campaign.plan_campaign: true reflec
 and visibility of every pose); each run redraws the tracker noise with bench.tracker.measure
 (generator seeded by (scenario seed, run)), builds the observations exactly as from a log
 (identify/observations.py) and runs the full estimators on them: the one-step estimator and the
-paper's two-step method, unweighted step 2 (eq. 21) and step-1-covariance-weighted.
+paper's two-step method, unweighted step 2 (eq. 21) and step-1-covariance-weighted, and the
+two-step at its self-consistent sagged pose (identify/twostep_iterated.py; every run starts
+at the noise-free sag, with the noise-free Newton Jacobian as its chord).
 
 Per parameter and method it reports: bias / empirical std (with its sampling error 1/sqrt(N)),
 empirical std / mean reported std, and empirical variance / Cramer-Rao bound, the CRB being the
@@ -35,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from calbench.bench.batch_statics import BatchStatics
-from calbench.bench.campaign import PosePlan, drifted, plan_campaign, reading_drift, truth_robot, scenario_params
+from calbench.bench.campaign import PosePlan, plan_campaign, truth_robot, scenario_params
 from calbench.bench.progress import ProgressSink, sink
 from calbench.bench.robot import Robot
 from calbench.bench.scenario import Scenario
@@ -48,14 +50,16 @@ from .observations import Observations, pose_observation
 from .onestep import OneStep, generic_start, sanitize_start, to_phi
 from .portable import PortableScenario
 from .twostep import TwoStepError, linear_plan, two_step, two_step_applies
+from .twostep_iterated import two_step_iterated
 from .whitening import Whitener
 
-METHODS = ("one-step", "two-step", "two-step-weighted")
+METHODS = ("one-step", "two-step", "two-step-weighted", "two-step-iterated")
 MC_STEP_TOL = 1e-2   # sigma: see identify/onestep.py, stopping rule
 RUNS_PER_TASK = 50   # a task of ~0.5-1 s: Dask's ~5 ms of scheduling per task stays < 1 %
 # in-process seconds per run on the paper campaign (measured here: noise and observations, then
 # each estimator), for the choice of executor only
-SECONDS_PER_RUN = {"observations": 0.004, "one-step": 0.007, "two-step": 0.002, "two-step-weighted": 0.002}
+SECONDS_PER_RUN = {"observations": 0.004, "one-step": 0.007, "two-step": 0.002, "two-step-weighted": 0.002,
+                   "two-step-iterated": 0.26}
 
 
 def true_theta(scn: Scenario, robot: Robot) -> np.ndarray:
@@ -88,7 +92,6 @@ def campaign_observations(scn: Scenario, robot: Robot, plans: list[PosePlan],
         readings = []
         for s, state in enumerate(("unloaded", "loaded")):
             reps = []
-            shift = reading_drift(scn, plan.index, names) if s == 1 else None   # measurement-side truth
             for r in range(pose.repeats):
                 if rng is None:
                     p = to_tracker_frame(spec, plan.reflectors_world[s])
@@ -97,9 +100,9 @@ def campaign_observations(scn: Scenario, robot: Robot, plans: list[PosePlan],
                     cov = np.full((len(p), 3, 3), np.nan)
                     if vis.any():
                         cov[vis] = noise_covariance(spec, p[vis])
-                    reps.append(drifted(Measurement(pos, cov, vis), shift))
+                    reps.append(Measurement(pos, cov, vis))
                 else:
-                    reps.append(drifted(measured[(plan.index, state, r)], shift))
+                    reps.append(measured[(plan.index, state, r)])
             readings.append(reps)
         site = robot.model.site(plan.load.site).name
         when = tuple([times[(plan.index, state, r)] for r in range(pose.repeats)]
@@ -208,6 +211,7 @@ class _Setup:
     crb: np.ndarray
     noise_free: dict[str, np.ndarray]
     seconds: float
+    sag0: tuple | None = None    # the iterated two-step's noise-free sag and Newton Jacobian
 
 
 @functools.lru_cache(maxsize=4)
@@ -226,6 +230,7 @@ def _setup(job: MonteCarloJob) -> _Setup:
     theta_true = true_theta(scn, robot)
 
     noise_free: dict[str, np.ndarray] = {}
+    sag0 = None
     generic = generic_start(robot, obs0)
     start, method0, lp = generic, "generic", None
     if two_step_ok(robot):
@@ -238,6 +243,12 @@ def _setup(job: MonteCarloJob) -> _Setup:
         lp_true = linear_plan(robot, obs0, {p.index: p.equilibria[0].qpos for p in plans})
         noise_free["two-step at the true sagged configuration"] = two_step(
             robot, obs0, False, lp=lp_true, white=white0).theta
+        if "two-step-iterated" in job.methods:
+            # the iterated method's self-consistent sag on exact data: every run starts there,
+            # with its Newton Jacobian as the chord (identify/twostep_iterated.py)
+            it0 = two_step_iterated(robot, obs0)
+            noise_free["two-step-iterated"] = it0.theta
+            sag0 = (it0.step2["sag_rad"], it0.step2["jacobian"])
         start, _ = sanitize_start(two0.theta, generic, lay)
         method0 = "two-step"
     nf = est.fit(obs0.dp, white0, start, start_method=method0)
@@ -250,7 +261,7 @@ def _setup(job: MonteCarloJob) -> _Setup:
     jtw = white0.mat(jt) * theta_true  # scaled columns
     crb = np.linalg.pinv(jtw.T @ jtw) * np.outer(theta_true, theta_true)
     return _Setup(scn, truth_rb, plans, robot, obs0, lp, est, theta0, scale, f0, j0, theta_true, crb,
-                  noise_free, time.perf_counter() - t0)
+                  noise_free, time.perf_counter() - t0, sag0)
 
 
 def _fresh(est: OneStep) -> OneStep:
@@ -289,6 +300,8 @@ def run_block(job: MonteCarloJob, first: int, stop: int) -> dict:
                 res = est.fit(obs.dp, white, s.theta0, scale=s.scale, start_eval=(s.f0, s.j0),
                               final_eval=False, step_tol=MC_STEP_TOL, start_method="noise-free estimate")
                 iters.append((res.iterations, est.model.stats["evaluations"] - n_eval))
+            elif meth == "two-step-iterated":
+                res = two_step_iterated(s.robot, obs, start=s.sag0[0], jacobian=s.sag0[1])
             else:
                 res = two_step(s.robot, obs, meth == "two-step-weighted", lp=s.lp, white=white)
             times[meth] += time.perf_counter() - t

@@ -27,8 +27,9 @@ from .identifiability import MAX_RELATIVE_STD, OUTLIER_SIGMA, outliers
 from .observations import Observations, from_log
 from .onestep import one_step
 from .twostep import TwoStepError, two_step, two_step_applies
+from .twostep_iterated import two_step_iterated
 
-METHODS = ("one-step", "two-step")
+METHODS = ("one-step", "two-step", "two-step-iterated")
 Z_CHECK = 4.0
 
 
@@ -52,8 +53,8 @@ class Identified:
 
 
 def _estimate(robot: Robot, obs: Observations, method: str):
-    if method == "two-step":
-        r = two_step(robot, obs)
+    if method in ("two-step", "two-step-iterated"):
+        r = two_step(robot, obs) if method == "two-step" else two_step_iterated(robot, obs)
         extra = {"step1": {"names": r.step1_names,
                            "estimate": [None if not np.isfinite(x) else float(x) for x in r.step1_k],
                            "std": [None if not np.isfinite(x) else float(math.sqrt(x))
@@ -71,11 +72,11 @@ def identify(robot: Robot, obs: Observations, method: str = "one-step",
     """Estimate, flag outliers (> 5 sigma), optionally refit without them."""
     if method not in METHODS:
         raise InputError("--method", "method", " or ".join(METHODS), method)
-    if method == "two-step":
+    if method != "one-step":
         try:
             two_step_applies(robot)
         except TwoStepError as exc:
-            raise InputError(robot.source or "robot model", "--method two-step",
+            raise InputError(robot.source or "robot model", f"--method {method}",
                              "a robot with at most one compensator, across one actuated hinge (paper §4)",
                              str(exc)) from None
     r, extra = _estimate(robot, obs, method)

@@ -84,6 +84,20 @@ def test_two_step_runs_and_reports_its_steps(paper_log, tmp_path):
     assert IdentificationReport.read(js).to_json() == js.read_text()
 
 
+def test_two_step_iterated_reports_its_sagged_pose(paper_log, tmp_path):
+    """`--method two-step-iterated`: the same report, and its step 2 names the pose it was
+    linearised at, the Newton iterations and a converged fixed point: the sag of the
+    compensator's joint per distinct q2 (|R| < 1e-9 rad)."""
+    js = tmp_path / "it.json"
+    assert main(["identify", str(paper_log), "--method", "two-step-iterated", "--json", str(js)]) == 0
+    rep = json.loads(js.read_text())
+    assert rep["method"] == "two-step-iterated"
+    st = rep["step2"]
+    assert st["converged"] and len(st["sag_rad"]) == 3 and st["newton_iterations"] >= 1
+    assert abs(np.array(st["history"][-1]["residual_deg"])).max() < np.degrees(1e-9)
+    assert IdentificationReport.read(js).to_json() == js.read_text()
+
+
 # --------------------------------------------------------------------------- the CI gate
 
 def test_check_fails_on_a_log_whose_truth_was_altered(paper_log, tmp_path):

@@ -1,4 +1,5 @@
-"""The one-step estimator is efficient and honest, checked by Monte Carlo on the paper campaign.
+"""The one-step estimator is efficient and honest, checked by Monte Carlo on the paper campaign;
+the paper's two-step is unbiased where its linear model holds.
 
 Bounds from sampling statistics only, N = 200 runs, 4 standard errors:
 * empirical variance / CRB: a variance estimate's relative sd is sqrt(2/(N-1)) = 0.10, so
@@ -26,7 +27,7 @@ N = 200
 
 @pytest.fixture(scope="module")
 def summary():
-    mc = run_montecarlo(load_scenario(PAPER), N, methods=("one-step", "two-step"), progress=False)
+    mc = run_montecarlo(load_scenario(PAPER), N, methods=("one-step",), progress=False)
     return mc.summary()
 
 
@@ -40,23 +41,46 @@ def test_one_step_is_efficient_unbiased_and_reports_its_std(summary):
         assert abs(p["empirical_over_reported_std"] - 1) < 4 * se_sd, p
 
 
-def test_two_step_model_error_is_visible_as_bias(summary):
-    """The two-step's noise-free error (its model error: the sagged configuration and H00 left
-    out of eqs. 19-22) is what its Monte Carlo bias is made of. Checked where it is large (K_C):
-    the bias is significant (> 4 standard errors of the mean) and agrees with the noise-free
-    error to within half of it -- the rest being sampling (4 standard errors) and the second
-    order term of step 2's reciprocal K_2i = 1/k2_i (E[1/x] - 1/E[x] ~ cv^2, ~1 % of K_2 at
-    q2 = 35 deg where k2_i's cv is ~9 %)."""
-    rows = {p["name"]: p for p in summary["methods"]["two-step"]["parameters"]}
-    kc = rows["compensator_stiffness"]
-    nf_bias = kc["noise_free_error_over_crb_std"] * summary["crb_std"]["compensator_stiffness"]
-    assert kc["bias"] < -4 * kc["empirical_std"] / np.sqrt(N) and nf_bias < 0
-    assert abs(kc["bias"] - nf_bias) < 4 * kc["empirical_std"] / np.sqrt(N) + 0.5 * abs(nf_bias)
+def test_two_step_is_unbiased_where_its_linear_model_holds(tmp_path):
+    """With gravity and the compensator off and the payload an explicit force
+    (tests/linear_case.py) the linear model of eqs. (19)-(22) is exact but for the load's
+    geometric stiffness (its noise-free effect: <= 0.15 sigma on k2, < 0.05 on the others,
+    tests/test_identify_plans.py), so the paper's two-step must be unbiased: |mean error| <
+    4 standard errors of the mean + that noise-free offset, over N noisy campaigns, for k1..k6
+    and K_C (whose truth is 0); and its reported std must be its spread (4 standard errors of
+    an sd). A two-step that mis-builds a regressor or a step-2 row fails this."""
+    from calbench.bench.campaign import plan_campaign, truth_robot
+    from calbench.bench.robot import Robot
+    from calbench.bench.scenario import parse_scenario
+    from calbench.identify.montecarlo import campaign_observations, true_theta
+    from calbench.identify.twostep import linear_plan, two_step
+    from linear_case import linear_world
+    path = linear_world(tmp_path)
+    scn = parse_scenario(path.read_text(), path)
+    tr = truth_robot(scn)
+    plans = plan_campaign(scn, tr)
+    robot = Robot.from_file(scn.robot)
+    truth = true_theta(scn, robot)
+    obs0 = campaign_observations(scn, tr, plans, None)
+    lp = linear_plan(robot, obs0)
+    nf = two_step(robot, obs0, lp=lp)
+    est, sd = [], []
+    for r in range(N):
+        res = two_step(robot, campaign_observations(scn, tr, plans, np.random.default_rng([7, r])), lp=lp)
+        est.append(res.theta[:7])
+        sd.append(np.sqrt(np.diag(res.cov))[:7])
+    est, sd = np.array(est), np.array(sd)
+    spread = est.std(axis=0, ddof=1)
+    offset = np.abs(nf.theta[:7] - truth[:7])
+    assert np.all(np.abs(est.mean(axis=0) - truth[:7]) < 4 * spread / np.sqrt(N) + offset), \
+        (est.mean(axis=0) - truth[:7]) / spread
+    np.testing.assert_allclose(spread / np.sqrt((sd ** 2).mean(axis=0)), 1.0, atol=4 * np.sqrt(1 / (2 * (N - 1))))
 
 
 def test_montecarlo_cli_writes_json(tmp_path):
     out = tmp_path / "mc.json"
     assert main(["montecarlo", str(PAPER), "--runs", "3", "--json", str(out)]) == 0
     s = json.loads(out.read_text())
-    assert s["runs"] == 3 and set(s["methods"]) == {"one-step", "two-step", "two-step-weighted"}
+    assert s["runs"] == 3 and set(s["methods"]) == {"one-step", "two-step", "two-step-weighted", "two-step-iterated"}
+    assert "two-step-iterated" in s["noise_free_error_over_crb_std"]
     assert main(["montecarlo", str(PAPER), "--runs", "1"]) == 2

@@ -59,6 +59,7 @@ from ..whitening import Whitener
 
 DISCOVER_RANK_TOL = 1e-5     # singular value (column-normalised) below which a direction is unseen
 COST_TOL = 1e-3              # chi2 units: a step gaining (or promising) less ends the fit
+STALL_LIMIT = 8              # Newton iterations a stalling step may re-assemble A_base + S (analytic S)
 # the base parameters' bounds: ParamLayout.lower / .upper (bench/params.py)
 
 
@@ -178,7 +179,11 @@ class AugmentedForward(ForwardModel):
         return super()._spring_part(theta, t[idx], h_len[idx])
 
     def _solve(self, des, load, eq, theta, refresh: bool):
-        return super()._solve(des, load, eq, theta, refresh and not (self._analytic and not self._deadband()))
+        analytic = self._analytic and not self._deadband()
+        # S is exact at every iterate, so a stalling step (a stiff cubic term) is worth a fresh
+        # matrix there rather than a re-taken A_base
+        self.stall_limit = STALL_LIMIT if analytic else ForwardModel.stall_limit
+        return super()._solve(des, load, eq, theta, refresh and not analytic)
 
     # -- dg/dtheta and the measurement side ----------------------------------------------------
     def _spring_values(self) -> np.ndarray:

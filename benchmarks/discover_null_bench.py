@@ -1,0 +1,137 @@
+"""False alarms of `calbench discover`: campaigns with no hidden effect (paper plan, 20 um).
+
+Every candidate is tested on every run at the family-wise level ALPHA_EFFECT = 0.1 %
+(identify/discover/decide.py), so on a campaign with nothing to find discovery should name
+something in at most 0.1 % of the seeds. N seeds (default 300) of the isotropic tracker and M
+(default 100) of the spec (distance/transverse) noise model are discovered; reported:
+
+* the false-alarm rate (anything named: an effect, `ambiguous` or `unexplained`) with its
+  binomial standard error and its one-sided 95 % Clopper-Pearson upper bound. With 300 seeds
+  and no alarm the bound is 1.0 %: a rate of 0.1 % itself needs ~3000 seeds to be resolved;
+* the CALIBRATION that N seeds can resolve: the share of seeds whose smallest Bonferroni-
+  adjusted p-value (n_candidates x the smallest p_LR of the first round) falls below a, for
+  a = 1 %, 5 %, 10 %, 20 %, with its standard error; a valid family-wise test keeps it <= a
+  (Bonferroni over correlated tests is conservative, parameters on a bound more so), and the
+  tail at 0.1 % is the same chi2 law;
+* the per-test calibration: the share of single tests (candidate x seed) with p_LR below
+  1 %, 5 %, 10 %;
+* the discovery time per seed (median, max; wall and CPU).
+
+The campaign is solved once; each seed redraws the tracker noise (identify/montecarlo.py's
+campaign_observations) and runs the whole discovery on the observations in memory
+(identify/discover/workflow.py's discover_observations). Prints JSON.
+
+    python benchmarks/discover_null_bench.py [--seeds 300] [--spec-seeds 100] [--processes 2]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+from scipy import stats
+
+ROOT = Path(__file__).resolve().parent.parent
+PAPER = ROOT / "scenarios" / "paper_table5.toml"
+LEVELS = (0.01, 0.05, 0.10, 0.20)
+
+_STATE: dict = {}
+
+
+def _setup(model: str) -> None:
+    """Per process: the solved campaign of the paper scenario with the tracker model."""
+    from calbench.bench.campaign import plan_campaign, truth_robot
+    from calbench.bench.scenario import load_scenario, scenario_variant
+    import tempfile
+    tmp = Path(tempfile.mkdtemp())
+    path = scenario_variant(PAPER, tmp / "null.toml")
+    if model == "spec":
+        path.write_text(path.read_text().replace("[tracker]\n", '[tracker]\nmodel = "spec"\n', 1))
+    scn = load_scenario(path)
+    robot = truth_robot(scn)
+    _STATE.update(scn=scn, robot=robot, plans=plan_campaign(scn, robot), model=model)
+
+
+def one_seed(args: tuple[str, int]) -> dict:
+    model, seed = args
+    if _STATE.get("model") != model:
+        _setup(model)
+    from calbench.identify.discover.workflow import discover_observations
+    from calbench.identify.montecarlo import campaign_observations
+    scn, robot, plans = _STATE["scn"], _STATE["robot"], _STATE["plans"]
+    obs = campaign_observations(scn, robot, plans, np.random.default_rng([20261, seed]))
+    t, c = time.perf_counter(), time.process_time()
+    rep, _ = discover_observations(obs, Path(scn.robot))
+    cands = [x for x in rep["rounds"][0]["candidates"] if x.get("k")]
+    n = len(rep["rounds"][0]["candidates"])
+    p = [x["p_lr"] for x in cands]
+    return {"seed": seed, "named": rep["named_effects"], "min_adjusted_p": min(1.0, n * min(p, default=1.0)),
+            "p_lr": p, "n_candidates": n, "wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c,
+            "p_before": rep["p_before"], "evaluations": rep["evaluations"]}
+
+
+def clopper_pearson_upper(k: int, n: int, conf: float = 0.95) -> float:
+    return 1.0 if k >= n else float(stats.beta.ppf(conf, k + 1, n - k))
+
+
+def summarise(rows: list[dict]) -> dict:
+    n = len(rows)
+    alarms = [r for r in rows if r["named"]]
+    rate = len(alarms) / n
+    out = {"seeds": n, "false_alarms": len(alarms), "false_alarm_rate": rate,
+           "false_alarm_rate_standard_error": float(np.sqrt(max(rate, 1.0 / n) * (1 - rate) / n)),
+           "false_alarm_rate_upper_95": clopper_pearson_upper(len(alarms), n),
+           "alarms": [{"seed": r["seed"], "named": r["named"]} for r in alarms],
+           "familywise_calibration": {}, "per_test_calibration": {}}
+    adj = np.array([r["min_adjusted_p"] for r in rows])
+    for a in LEVELS:
+        share = float(np.mean(adj <= a))
+        out["familywise_calibration"][f"{a:g}"] = {"share": share, "standard_error": float(np.sqrt(a * (1 - a) / n)),
+                                                   "valid_if_at_most": a}
+    p = np.concatenate([r["p_lr"] for r in rows]) if rows else np.zeros(0)
+    for a in (0.01, 0.05, 0.10):
+        out["per_test_calibration"][f"{a:g}"] = {"share": float(np.mean(p <= a)), "tests": int(p.size),
+                                                 "standard_error": float(np.sqrt(a * (1 - a) / max(p.size, 1)))}
+    for key in ("wall_s", "cpu_s"):
+        v = [r[key] for r in rows]
+        out[f"{key}_median"] = statistics.median(v)
+        out[f"{key}_max"] = max(v)
+    out["evaluations_median"] = statistics.median(r["evaluations"] for r in rows)
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seeds", type=int, default=300, help="isotropic-noise null seeds")
+    ap.add_argument("--spec-seeds", type=int, default=100, help="spec-noise null seeds")
+    ap.add_argument("--processes", type=int, default=1)
+    args = ap.parse_args()
+    t0 = time.perf_counter()
+    res = {"plan": "scenarios/paper_table5.toml", "tracker_sigma_um": 20, "alpha_familywise": 1e-3, "models": {}}
+    for model, n in (("isotropic", args.seeds), ("spec", args.spec_seeds)):
+        if n <= 0:
+            continue
+        jobs = [(model, s) for s in range(n)]
+        if args.processes > 1:
+            with ProcessPoolExecutor(args.processes) as ex:
+                rows = list(ex.map(one_seed, jobs, chunksize=4))
+        else:
+            rows = [one_seed(j) for j in jobs]
+        res["models"][model] = summarise(rows)
+        print(json.dumps({model: {k: v for k, v in res["models"][model].items() if k != "alarms"}}), file=sys.stderr)
+    all_rows = sum((m["seeds"] for m in res["models"].values()), 0)
+    alarms = sum((m["false_alarms"] for m in res["models"].values()), 0)
+    res["all"] = {"seeds": all_rows, "false_alarms": alarms, "false_alarm_rate": alarms / max(all_rows, 1),
+                  "false_alarm_rate_upper_95": clopper_pearson_upper(alarms, all_rows)}
+    res["total_seconds"] = time.perf_counter() - t0
+    print(json.dumps(res, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
