@@ -120,7 +120,12 @@ def aliasing_report(final, jw: np.ndarray, std: np.ndarray, columns: list[tuple]
     out = []
     for effect, block in columns:
         out += effect_aliasing(effect, block, final, jw, est, std, thr)
-    col = load_scale_column(final, obs, white)
+    try:
+        col = load_scale_column(final, obs, white)
+    except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:   # e.g. a near-rigid spring's statics
+        out.append({"effect": "load_scale", "detail": "hung weights", "parameter": "scale", "unit": "1",
+                    "error": f"the scaled-load statics failed: {exc}"})
+        col = None
     if col is not None:
         rec = alias_record("load_scale", "hung weights", "scale", "1", col, final, jw, est, std, thr, 1.0)
         for b in rec["biases"]:

@@ -94,23 +94,40 @@ def _combination(c: dict) -> str:
     return f"{terms} = {c['estimate']:.4g} ± {c['std']:.2g}"
 
 
-def _alias_line(a: dict) -> str:
-    name = a["effect"] + (f" {a['detail']}" if a["detail"] else "") + f" ({a['parameter']})"
-    top = [b for b in a["biases"] if b["at_reference_sigma"] is not None][:3]
-    biased = ", ".join(f"{b['parameter']} {b['at_reference_sigma']:+.2g} sigma"
-                       + (f" ({b['at_reference_percent']:+.2g} %)" if b["at_reference_percent"] is not None else "")
-                       for b in top)
-    if a["effect"] == "load_scale":
-        per = ", ".join(f"{b['parameter']} {b['per_percent_mass_relative_percent']:+.2g} %"
-                        for b in a["biases"][:6] if b.get("per_percent_mass_relative_percent") is not None)
-        return f"  load_scale (payload mass known to +-x %): never visible in deflections; per 1 % of mass: {per}"
-    if not a.get("excited", True):
-        return f"  {name}: not excited by this plan at all (no load moves it): neither seen nor biasing"
-    if not a["visible"]:
-        return (f"  {name}: absorbed exactly, this plan cannot see it; at {a['reference_magnitude']:.3g} "
-                f"{a['unit']} it would bias {biased}")
-    return (f"  {name}: {100 * a['visible_share']:.0f} % of its signature is visible, named from "
-            f"{a['detectable_magnitude']:.3g} {a['unit']}; at {a['reference_magnitude']:.3g} it would bias {biased}")
+def _biases(a: dict, n: int = 2) -> str:
+    top = [b for b in a["biases"] if b["at_reference_sigma"] is not None][:n]
+    return ", ".join(f"{b['parameter']} {b['at_reference_sigma']:+.2g} sigma"
+                     + (f" ({b['at_reference_percent']:+.2g} %)" if b["at_reference_percent"] is not None else "")
+                     for b in top)
+
+
+def alias_lines(aliasing: list[dict]) -> list[str]:
+    """One line per effect: what this plan cannot see of it and what that would bias."""
+    groups: dict[tuple, list[dict]] = {}
+    for a in aliasing:
+        groups.setdefault((a["effect"], a["detail"]), []).append(a)
+    out = []
+    for (effect, detail), rows in groups.items():
+        name = effect + (f" {detail}" if detail else "")
+        if any("error" in r for r in rows):
+            out.append(f"  {name}: not computed ({rows[0]['error'][:80]})")
+            continue
+        if effect == "load_scale":
+            per = ", ".join(f"{b['parameter']} {b['per_percent_mass_relative_percent']:+.2g} %"
+                            for b in rows[0]["biases"][:6] if b.get("per_percent_mass_relative_percent") is not None)
+            out.append(f"  load_scale (payload mass known to +-x %): never visible in deflections; "
+                       f"a mass 1 % high biases {per}")
+            continue
+        if not any(r.get("excited", True) for r in rows):
+            out.append(f"  {name}: not excited by this plan (no load moves it)")
+            continue
+        seen = [f"{r['parameter']} from {r['detectable_magnitude']:.2g} {r['unit']}" for r in rows if r["visible"]]
+        hidden = [f"{r['parameter']} (at {r['reference_magnitude']:.2g} {r['unit']}: {_biases(r)})"
+                  for r in rows if not r["visible"] and r.get("excited", True)]
+        parts = (["named " + ", ".join(seen)] if seen else []) + \
+                (["absorbed exactly, never seen: " + "; ".join(hidden)] if hidden else [])
+        out.append(f"  {name}: " + "; ".join(parts))
+    return out
 
 
 def story(rep: dict) -> str:
@@ -156,9 +173,10 @@ def story(rep: dict) -> str:
                          f"chi2 by {h['lr']:.1f} for {h['k']} parameter(s) (p = {h['p_lr']:.1g}, needs < "
                          f"{h['alpha']:.1g}): more or better-placed measurements would tell.")
     if rep.get("aliasing"):
-        lines.append("What a model that fits does not tell you (aliasing of the effects not named, at the "
-                     "magnitude a plan would see if nothing absorbed it):")
-        lines += [_alias_line(a) for a in rep["aliasing"]]
+        lines.append("What a model that fits does not tell you (aliasing of every effect not named: the "
+                     "size this plan names it from, or what it would bias unseen, in sigma and %, at the size "
+                     "a plan would name if nothing absorbed it):")
+        lines += alias_lines(rep["aliasing"])
     lines.append(f"Gap: residual RMS {rep['rms_before'] * UM:.1f} um before "
                  f"({rep['rms_before'] / rep['noise_rms_before']:.2f}x noise), {rep['rms_after'] * UM:.1f} um after "
                  f"({rep['rms_after'] / rep['noise_rms_after']:.2f}x the {rep['noise_rms_after'] * UM:.1f} um noise "
@@ -192,4 +210,4 @@ def clean(x):
     return x
 
 
-__all__ = ["story", "plot_residuals", "view_report", "clean"]
+__all__ = ["story", "alias_lines", "plot_residuals", "view_report", "clean"]

@@ -10,6 +10,10 @@ in-plane upper-arm bending), the Fisher information has a direction whose standa
 larger than the parameters themselves, the linearisation fails over it, and a per-parameter std
 can put the truth several sigma away.
 
+Where the linearisation fails is checked, not assumed, for the named effects' parameters
+(:func:`not_quadratic`): the chi2 profile of each at +-2 Fisher stds must rise within a factor
+2 of the quadratic's 4; a parameter that fails is "not determined" too.
+
 So, in relative coordinates u_i = theta_i / size_i (size: |theta_i|, not below the parameter's
 prior size, bench/effects.py), a parameter is DETERMINED when its marginal standard deviation is
 at most MAX_RELATIVE_STD (1: the data fix its order of magnitude) and it has no component in the
@@ -33,6 +37,8 @@ from ..whitening import Whitener
 MAX_RELATIVE_STD = 1.0   # a parameter whose std exceeds its own size is not determined
 NULL_TOL = 1e-3          # component in the null space that makes a parameter unidentifiable
 RANK_TOL = 1e-8          # singular values of the relative Fisher factor below this x the largest are null
+PROFILE_SIGMAS = 2.0     # the profile is checked this many Fisher stds from the estimate
+PROFILE_LOW, PROFILE_HIGH = 0.5, 2.0   # its rise there, over the quadratic's, must lie within these
 
 
 @dataclass
@@ -44,6 +50,7 @@ class Determination:
     determined: np.ndarray
     estimated: np.ndarray
     combinations: list[dict] = field(default_factory=list)
+    profile: dict = field(default_factory=dict)     # index -> chi2 rise at +-2 Fisher std
 
 
 def sizes(f: Fit) -> np.ndarray:
@@ -57,9 +64,9 @@ def sizes(f: Fit) -> np.ndarray:
     return np.where(out > 0, out, 1.0)
 
 
-def determination(f: Fit, jw: np.ndarray) -> Determination:
+def determination(f: Fit, jw: np.ndarray, undetermined: np.ndarray | None = None) -> Determination:
     """What the fit ``f`` determines (module docstring); jw: its whitened Jacobian (3M, P) at
-    the estimate."""
+    the estimate; ``undetermined``: parameters known not to be (:func:`not_quadratic`)."""
     p = f.values.size
     at_bound = f.at_bound if f.at_bound is not None else np.zeros(p, bool)
     est = np.asarray(f.free, bool) | np.asarray(at_bound, bool)
@@ -77,10 +84,15 @@ def determination(f: Fit, jw: np.ndarray) -> Determination:
     cov_rel = (vt[keep].T / s[keep] ** 2) @ vt[keep]
     rel_sd = np.sqrt(np.clip(np.diagonal(cov_rel), 0.0, None))
     ok = (rel_sd <= MAX_RELATIVE_STD) & (null_load <= NULL_TOL)
+    if undetermined is not None:
+        ok &= ~np.asarray(undetermined, bool)[idx]
     std[idx[ok]] = rel_sd[ok] * size[ok]
     det[idx[ok]] = True
     combos = []
-    und = np.flatnonzero(~ok & (null_load <= NULL_TOL))
+    # combinations of the parameters the Fisher information leaves undetermined; one whose profile
+    # is not quadratic stays out (a linear combination of it would be as dishonest as its std)
+    und = np.flatnonzero(~ok & (null_load <= NULL_TOL) & ~(np.zeros(p, bool) if undetermined is None
+                                                          else np.asarray(undetermined, bool))[idx])
     if und.size:
         c_uu = cov_rel[np.ix_(und, und)]
         w, vec = np.linalg.eigh(c_uu)
@@ -96,4 +108,43 @@ def determination(f: Fit, jw: np.ndarray) -> Determination:
     return Determination(std, det, est, combos)
 
 
-__all__ = ["MAX_RELATIVE_STD", "Determination", "sizes", "determination"]
+def not_quadratic(f: Fit, obs, linv: np.ndarray, det: Determination, indices) -> tuple[np.ndarray, dict]:
+    """((P,) bool, {index: [rise at +2 sd, rise at -2 sd]}): the parameters among ``indices``
+    (determined ones) whose chi2 profile is not the quadratic the Fisher std assumes. For each, the parameter is held at estimate +- 2 std
+    (PROFILE_SIGMAS) and the rest refitted from the estimate (identify/discover/fit.py): a
+    quadratic profile rises by 4 there; a rise outside [PROFILE_LOW, PROFILE_HIGH] (a factor 2
+    either way), a point past the parameter's bound or a refit that fails marks it. This is the
+    x-z bending of a braced upper arm: the Fisher std says the truth is 5 sigma away, the
+    profile 2.4 (benchmarks and tests/test_discover.py)."""
+    from .fit import fit as fit_model
+    lo, hi, hold = f.extra["bounds"]
+    out = np.zeros(f.values.size, bool)
+    rises: dict = {}
+    for i in indices:
+        if not det.determined[i]:
+            continue
+        rises[i] = []
+        for sign in (1.0, -1.0):
+            v = f.values.copy()
+            v[i] += sign * PROFILE_SIGMAS * det.std[i]
+            if not lo[i] <= v[i] <= hi[i]:
+                out[i] = True
+                rises[i].append(None)
+                continue
+            held = hold.copy()
+            held[i] = True
+            try:
+                g = fit_model(f.model, obs.dp, linv, v, lo, hi, held, cost_tol=0.01, max_iter=12)
+            except (ValueError, RuntimeError, np.linalg.LinAlgError):
+                out[i] = True
+                rises[i].append(None)
+                continue
+            rise = float(g.chi2 - f.chi2)
+            rises[i].append(rise)
+            if not PROFILE_LOW * PROFILE_SIGMAS ** 2 <= rise <= PROFILE_HIGH * PROFILE_SIGMAS ** 2:
+                out[i] = True
+    f.model.evaluate(f.values, jacobian=False)          # the model back at the estimate
+    return out, rises
+
+
+__all__ = ["MAX_RELATIVE_STD", "Determination", "sizes", "determination", "not_quadratic"]

@@ -55,7 +55,7 @@ from .fit import Fit, build, effect_priors, fit, label, library, whitened
 from .search import fit_candidate, polish
 from .stats import ALPHA_FIT, chi2_p, diagnose, expected_rms, rms
 from .story import clean, plot_residuals, story, view_report
-from .uncertainty import MAX_RELATIVE_STD, determination
+from .uncertainty import MAX_RELATIVE_STD, determination, not_quadratic
 
 MAX_ROUNDS = 3
 UNEXPLAINED = "unexplained"
@@ -121,8 +121,10 @@ def _params(f: Fit, det=None, lo: int = 0, hi: int | None = None) -> list[dict]:
     """Parameter records of f[lo:hi] with the honest std of ``det`` (uncertainty.py)."""
     det = determination(f, f.extra["jw"]) if det is None else det
     hi = f.values.size if hi is None else hi
+    profile = getattr(det, "profile", {})
     return [{"name": f.names[i], "unit": f.units[i], "estimate": float(f.values[i]),
-             "std": float(det.std[i]) if det.determined[i] else None, "determined": bool(det.determined[i])}
+             "std": float(det.std[i]) if det.determined[i] else None, "determined": bool(det.determined[i]),
+             **({"chi2_rise_at_2_fisher_std": profile[i]} if i in profile else {})}
             for i in range(lo, hi)]
 
 
@@ -218,6 +220,12 @@ def discover_observations(obs: Observations, src, *, max_rounds: int = MAX_ROUND
         current = best.fit
     final = current
     det = determination(final, final.extra["jw"])
+    rises: dict = {}
+    if final.effects:                                  # the named effects' stds, checked
+        bad, rises = not_quadratic(final, obs, linv, det, range(final.model.n_base, final.values.size))
+        if bad.any():
+            det = determination(final, final.extra["jw"], bad)
+    det.profile = rises
     for s, (e, _) in zip([s for s in steps if s["effect"] not in (UNEXPLAINED, AMBIGUOUS)], final.effect_params()):
         s["parameters"] = _effect_params(final, det, e)          # the final joint refit: as in the MJCF
     fresh_cols = [(c.fit.effects[-1], c.fit.extra["warm_jw"][:, -len(c.fit.effects[-1].param_names):])
