@@ -53,10 +53,13 @@ def main() -> int:
         se = np.sqrt(p * (1 - p) / seeds)
         unit = UNITS.get(e["expected"].split("[")[0], "")
         flange = e.get("flange_extra_mm_median")
-        extra = f", {flange * 1e3:.0f} µm at the flange" if flange else ""
+        extra = f", {flange * 1e3:.0f} µm at the flange" if flange and flange > 1e-3 else ""
         ax.errorbar(x, p, yerr=se, marker="o", ms=4, capsize=2,
                     label=f"{name}: 1 = {e['tested_magnitude']:.3g} {unit}{extra}")
     ax.set_xscale("log")
+    ticks = sorted({round(r["magnitude"] / e["tested_magnitude"], 2) for e in res["effects"].values() for r in e["rows"]})
+    ax.set_xticks(ticks, [f"{t:g}" for t in ticks])
+    ax.minorticks_off()
     ax.set_xlabel("magnitude of the hidden effect / its tested size")
     ax.set_ylabel("share of campaigns naming the right effect first")
     ax.set_ylim(-0.03, 1.03)
