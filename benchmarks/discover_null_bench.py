@@ -21,7 +21,7 @@ The campaign is solved once; each seed redraws the tracker noise (identify/monte
 campaign_observations) and runs the whole discovery on the observations in memory
 (identify/discover/workflow.py's discover_observations). Prints JSON.
 
-    python benchmarks/discover_null_bench.py [--seeds 300] [--spec-seeds 100] [--processes 2]
+    python benchmarks/discover_null_bench.py [--seeds 300] [--spec-seeds 100] [--processes 2] [--quick]
 """
 from __future__ import annotations
 
@@ -107,10 +107,13 @@ def summarise(rows: list[dict]) -> dict:
 
 def main() -> int:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--seeds", type=int, default=300, help="isotropic-noise null seeds")
-    ap.add_argument("--spec-seeds", type=int, default=100, help="spec-noise null seeds")
-    ap.add_argument("--processes", type=int, default=1)
+    ap.add_argument("--seeds", type=int, default=300, help="isotropic-noise null seeds (default: %(default)s)")
+    ap.add_argument("--spec-seeds", type=int, default=100, help="spec-noise null seeds (default: %(default)s)")
+    ap.add_argument("--processes", type=int, default=1, help="worker processes (default: %(default)s)")
+    ap.add_argument("--quick", action="store_true", help="10 isotropic and 5 spec seeds (to see that it works)")
     args = ap.parse_args()
+    if args.quick:
+        args.seeds, args.spec_seeds = 10, 5
     t0 = time.perf_counter()
     res = {"plan": "scenarios/paper_table5.toml", "tracker_sigma_um": 20, "alpha_familywise": 1e-3, "models": {}}
     for model, n in (("isotropic", args.seeds), ("spec", args.spec_seeds)):

@@ -11,7 +11,7 @@ checkout's interpreter (e.g. /work/main/.venv/bin/python: the discovery before t
 reports both side by side with their ratios; the two alternate case by case so that both see the
 same load. Prints JSON.
 
-    python benchmarks/discover_speed_bench.py [--repeats 3] [--baseline /work/main/.venv/bin/python]
+    python benchmarks/discover_speed_bench.py [--repeats 3] [--baseline /work/main/.venv/bin/python] [--quick]
 """
 from __future__ import annotations
 
@@ -52,10 +52,14 @@ def time_case(log: Path, repeats: int) -> dict:
 
 def main() -> int:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--baseline", default=None, help="another checkout's python, timed side by side")
+    ap.add_argument("--repeats", type=int, default=3, help="discoveries per case (default: %(default)s)")
+    ap.add_argument("--baseline", default=None,
+                    help="another checkout's python, timed side by side (default: none, this checkout only)")
+    ap.add_argument("--quick", action="store_true", help="one repeat per case (to see that it works)")
     ap.add_argument("--worker", type=Path, default=None, help=argparse.SUPPRESS)   # LOG: time one case
     args = ap.parse_args()
+    if args.quick:
+        args.repeats = 1
     if args.worker:
         print(json.dumps(time_case(args.worker, args.repeats)))
         return 0

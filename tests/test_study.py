@@ -91,11 +91,12 @@ values = [1e-5, 3e-5]
 def test_the_shipped_studies_are_valid():
     from importlib.resources import files
     power = load_study(files("calbench.studies") / "discovery_power.toml")
-    assert len(power.cells) == 28 and len({c.inputs for c in power.cells}) == 25      # "none" x 4 is one
+    assert len(power.cells) == 48 and len({c.inputs for c in power.cells}) == 43      # "none" x 6 is one
     expected = {c.values["effect"]: c.expected for c in power.cells}
     assert expected == {"none": "nothing", "forearm": "link_compliance[forearm]",
                         "upper_arm": "link_compliance[upper_arm]", "base": "base_compliance",
-                        "j3": "joint_nonlinearity[j3]", "compensator": "compensator", "tool": "unexplained"}
+                        "j3": "joint_nonlinearity[j3]", "compensator": "compensator", "drift": "tracker_drift",
+                        "tool": "unexplained"}
     plans = load_study(files("calbench.studies") / "tracker_poses_plan.toml")
     assert len(plans.cells) == 12 and {c.plan.split(":")[0] for c in plans.cells} == {
         str(PAPER.resolve()), "design"}

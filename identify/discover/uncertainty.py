@@ -108,7 +108,7 @@ def determination(f: Fit, jw: np.ndarray, undetermined: np.ndarray | None = None
     return Determination(std, det, est, combos)
 
 
-def not_quadratic(f: Fit, obs, linv: np.ndarray, det: Determination, indices) -> tuple[np.ndarray, dict]:
+def not_quadratic(f: Fit, obs, white: Whitener, det: Determination, indices) -> tuple[np.ndarray, dict]:
     """((P,) bool, {index: [rise at +2 sd, rise at -2 sd]}): the parameters among ``indices``
     (determined ones) whose chi2 profile is not the quadratic the Fisher std assumes. For each, the parameter is held at estimate +- 2 std
     (PROFILE_SIGMAS) and the rest refitted from the estimate (identify/discover/fit.py): a
@@ -134,7 +134,7 @@ def not_quadratic(f: Fit, obs, linv: np.ndarray, det: Determination, indices) ->
             held = hold.copy()
             held[i] = True
             try:
-                g = fit_model(f.model, obs.dp, linv, v, lo, hi, held, cost_tol=0.01, max_iter=12)
+                g = fit_model(f.model, obs.dp, white, v, lo, hi, held, cost_tol=0.01, max_iter=12)
             except (ValueError, RuntimeError, np.linalg.LinAlgError):
                 out[i] = True
                 rises[i].append(None)

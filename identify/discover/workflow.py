@@ -222,7 +222,7 @@ def discover_observations(obs: Observations, src, *, max_rounds: int = MAX_ROUND
     det = determination(final, final.extra["jw"])
     rises: dict = {}
     if final.effects:                                  # the named effects' stds, checked
-        bad, rises = not_quadratic(final, obs, linv, det, range(final.model.n_base, final.values.size))
+        bad, rises = not_quadratic(final, obs, white, det, range(final.model.n_base, final.values.size))
         if bad.any():
             det = determination(final, final.extra["jw"], bad)
     det.profile = rises
