@@ -26,6 +26,13 @@ security configuration (``distributed.comm.tls.ca-file``, ``.client.cert``, ``.c
 docs/studies.md has a self-signed recipe). Never expose a plain ``tcp://`` scheduler beyond a
 trusted network.
 
+One BLAS thread per piece, everywhere (:func:`single_threaded`): each worker is a single-threaded
+process with a core of its own, and the pieces' dense algebra is small; OpenBLAS's default of
+one thread per CPU in EVERY worker oversubscribed the cores (2 workers x 2 BLAS threads on 2
+cores: each piece ran 1.7x slower, efficiency 0.59 on 2 workers; pinned: 0.89,
+benchmarks/scaling_bench.py side by side). In-process pieces run pinned too, so the numbers
+stay bit-identical whichever executor ran them.
+
 Ctrl-C (KeyboardInterrupt) while results are awaited cancels every task not yet finished
 (``Client.cancel``) before it propagates; what finished has already been handed to the caller,
 who keeps it (:class:`Interrupted` carries a partial result up to the command line).
@@ -173,6 +180,13 @@ class Executor:
         self.close()
 
 
+def single_threaded(fn: Callable, *args: Any) -> Any:
+    """Run one piece with at most one BLAS thread (see the module docstring)."""
+    from threadpoolctl import threadpool_limits
+    with threadpool_limits(limits=1, user_api="blas"):
+        return fn(*args)
+
+
 class InProcess(Executor):
     """The pieces in this process, in order."""
 
@@ -181,11 +195,11 @@ class InProcess(Executor):
 
     def run(self, fn, arglist, shared=()):
         for i, a in enumerate(arglist):
-            yield i, fn(*shared, *a)
+            yield i, single_threaded(fn, *shared, *a)
 
     def ordered(self, fn, args, window=None):
         for a in args:
-            yield fn(*a)
+            yield single_threaded(fn, *a)
 
 
 def _calbench_version() -> str | None:
@@ -234,7 +248,8 @@ class DaskExecutor(Executor):
                                  "(pip install calbench there)", f"{addr}: {theirs or 'not installed'}")
 
     def _submit(self, fn, args, tag: str, i: int):
-        return self.client.submit(fn, *args, key=f"calbench-{fn.__name__}-{tag}-{i}", retries=0)
+        return self.client.submit(single_threaded, fn, *args, key=f"calbench-{fn.__name__}-{tag}-{i}",
+                                  retries=0)
 
     def _cancel(self, futures) -> None:
         pending = [f for f in futures if not f.done()]
