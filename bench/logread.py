@@ -362,14 +362,19 @@ def _truth_parameters(path: Path, m: dict | None) -> TruthParameters | None:
 
 
 def has_truth(path: str | os.PathLike) -> bool:
-    """True when the log has any ``/truth/`` channel or a ``ground_truth`` metadata record (read
-    up to the first damage or the cut)."""
+    """True when the log carries ground truth: a message on a ``/truth/`` topic or a
+    ``ground_truth`` metadata record (read up to the first damage or the cut). A registered
+    ``/truth/`` channel alone does not count: an imported log has the channels (one writer for
+    every log) but no message on them."""
+    truth_channels: set[int] = set()
     for rec in scan(Path(path)):
         if isinstance(rec, (Damage, Cut)):
             return False
         if isinstance(rec, Channel) and rec.topic.startswith(TRUTH_PREFIX):
+            truth_channels.add(rec.id)
+        elif isinstance(rec, Message) and rec.channel_id in truth_channels:
             return True
-        if isinstance(rec, Metadata) and rec.name == GROUND_TRUTH_METADATA:
+        elif isinstance(rec, Metadata) and rec.name == GROUND_TRUTH_METADATA:
             return True
     return False
 

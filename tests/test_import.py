@@ -281,3 +281,22 @@ def test_times_in_seconds_count_from_the_plans_start(work):
     got = sorted({(m.time - start_ns(DEFAULT_START)) / 1e9 for m in log.measurements})
     want = sorted({float(r["time"]) for r in rows})
     assert np.allclose(got, want, rtol=0, atol=1e-6)
+
+
+def test_an_imported_log_carries_no_truth_and_the_report_says_measured(tmp_path):
+    """The importer writes through the one writer, which registers the /truth/ channels; with no
+    message on them the log has no truth (has_truth), so the report does not call it simulated."""
+    from calbench.bench.logformat import has_truth
+    from calbench.identify.cli import main as cli
+    from conftest import PAPER
+    sim, csv, imp = tmp_path / "sim.mcap", tmp_path / "r.csv", tmp_path / "imp.mcap"
+    assert cli(["simulate", str(PAPER), "--out", str(sim)]) == 0
+    assert cli(["export", str(sim), "--csv", str(csv)]) == 0
+    plan = tmp_path / "plan.toml"
+    text = PAPER.read_text().replace('robot = "../mjcf/', f'robot = "{PAPER.parent.parent}/mjcf/')
+    plan.write_text(text)
+    assert cli(["import", str(csv), "--plan", str(plan), "--out", str(imp)]) == 0
+    assert has_truth(sim) and not has_truth(imp)
+    html = tmp_path / "r.html"
+    assert cli(["report", str(imp), "--out", str(html)]) == 0
+    assert "the log carries ground truth" not in html.read_text()
