@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from calbench.bench.batch_statics import BatchStatics
-from calbench.bench.campaign import PosePlan, plan_campaign, truth_robot, scenario_params
+from calbench.bench.campaign import PosePlan, drifted, plan_campaign, reading_drift, truth_robot, scenario_params
 from calbench.bench.progress import ProgressSink, sink
 from calbench.bench.robot import Robot
 from calbench.bench.scenario import Scenario
@@ -79,7 +79,8 @@ def campaign_observations(scn: Scenario, robot: Robot, plans: list[PosePlan],
                           rng: np.random.Generator | None) -> Observations:
     """Observations of a solved campaign: noisy readings (rng; bench.measuring.measure_campaign,
     the generator consumed as by bench.campaign.run_campaign) or exact ones (rng None, with the
-    tracker's covariances still attached as weights), on the campaign's timeline."""
+    tracker's covariances still attached as weights), on the campaign's timeline. The truth's
+    measurement-side effects (a tracker drift) shift the loaded readings as in the log."""
     spec = scn.tracker
     names = list(robot.reflector_names)
     repeats = [p.repeats for p in scn.poses]
@@ -92,6 +93,7 @@ def campaign_observations(scn: Scenario, robot: Robot, plans: list[PosePlan],
         readings = []
         for s, state in enumerate(("unloaded", "loaded")):
             reps = []
+            shift = reading_drift(scn, plan.index, names) if s == 1 else None
             for r in range(pose.repeats):
                 if rng is None:
                     p = to_tracker_frame(spec, plan.reflectors_world[s])
@@ -100,9 +102,9 @@ def campaign_observations(scn: Scenario, robot: Robot, plans: list[PosePlan],
                     cov = np.full((len(p), 3, 3), np.nan)
                     if vis.any():
                         cov[vis] = noise_covariance(spec, p[vis])
-                    reps.append(Measurement(pos, cov, vis))
+                    reps.append(drifted(Measurement(pos, cov, vis), shift))
                 else:
-                    reps.append(measured[(plan.index, state, r)])
+                    reps.append(drifted(measured[(plan.index, state, r)], shift))
             readings.append(reps)
         site = robot.model.site(plan.load.site).name
         when = tuple([times[(plan.index, state, r)] for r in range(pose.repeats)]

@@ -84,3 +84,37 @@ def test_montecarlo_cli_writes_json(tmp_path):
     assert s["runs"] == 3 and set(s["methods"]) == {"one-step", "two-step", "two-step-weighted", "two-step-iterated"}
     assert "two-step-iterated" in s["noise_free_error_over_crb_std"]
     assert main(["montecarlo", str(PAPER), "--runs", "1"]) == 2
+
+
+@pytest.mark.parametrize("extra", ["", "[truth.effects.tracker_drift]\noffset = [30e-6, -20e-6, 25e-6]"],
+                         ids=["nothing hidden", "tracker drift"])
+def test_campaign_observations_are_the_logs_readings(tmp_path, extra):
+    """The in-memory campaign (Monte Carlo, the discovery benchmarks and tests) is the campaign
+    `simulate` logs, drawn with the same seed: the same deflections to the last bit, the
+    measurement-side effects of the truth (a tracker drift added to the loaded readings)
+    included. Exact data (no generator) differ from them by the noise alone: here by exactly
+    the drift's offset where it is hidden, since the noise-free readings carry it too."""
+    from calbench.bench.campaign import plan_campaign, run_campaign, truth_robot
+    from calbench.bench.logformat import read_log
+    from calbench.bench.scenario import scenario_variant
+    from calbench.identify.montecarlo import campaign_observations
+    from calbench.identify.observations import from_log
+    scn = load_scenario(scenario_variant(PAPER, tmp_path / "s.toml", extra=extra))
+    tr = truth_robot(scn)
+    plans = run_campaign(scn, tmp_path / "s.mcap")
+    logged = from_log(read_log(tmp_path / "s.mcap"))
+    noisy = campaign_observations(scn, tr, plans, np.random.default_rng(scn.seed))
+    assert [p.index for p in noisy.poses] == [p.index for p in logged.poses]
+    for a, b in zip(noisy.poses, logged.poses):
+        assert a.reflectors == b.reflectors
+        np.testing.assert_array_equal(a.dp, b.dp)
+    # the noise-free campaign against the truth's own reflector motion, rotated into the tracker
+    # frame (bench/tracker.py: world -> tracker is R^T x) and shifted by the drift, if any
+    from calbench.bench.tracker import tracker_rotation
+    exact = campaign_observations(scn, tr, plan_campaign(scn, tr), None)
+    offset = np.array([30e-6, -20e-6, 25e-6]) if extra else np.zeros(3)
+    rot = tracker_rotation(scn.tracker)
+    for ob, plan in zip(exact.poses, plans):
+        rows = [list(tr.reflector_names).index(r) for r in ob.reflectors]
+        motion = (plan.reflectors_world[1][rows] - plan.reflectors_world[0][rows]) @ rot
+        np.testing.assert_allclose(ob.dp, motion + offset, rtol=0, atol=1e-14)   # ~5 m coordinates: a few roundings of 1e-15
