@@ -22,7 +22,9 @@ not named, and for ``load_scale``, at the final model:
 ``load_scale`` is a relative error s of every hung weight (poses whose load is a vertical force
 with no moment: the payload's mass known only to +-x %); its column is d dp / d s by central
 differences of the exact model with the weights scaled by 1 +- LOAD_STEP. It is reported with
-the bias per per-cent of mass: deflections alone can never tell a mass error from compliances.
+the bias per per-cent of mass: deflections alone can never tell a mass error from compliances,
+so it is never named; its ``detectable_magnitude`` is the error from which the sliver of its
+signature the parameters cannot absorb leaves a significant misfit.
 """
 from __future__ import annotations
 

@@ -115,8 +115,12 @@ def alias_lines(aliasing: list[dict]) -> list[str]:
         if effect == "load_scale":
             per = ", ".join(f"{b['parameter']} {b['per_percent_mass_relative_percent']:+.2g} %"
                             for b in rows[0]["biases"][:6] if b.get("per_percent_mass_relative_percent") is not None)
-            out.append(f"  load_scale (payload mass known to +-x %): never visible in deflections; "
-                       f"a mass 1 % high biases {per}")
+            a = rows[0]
+            seen = (f"the rest leaves a misfit (not a name) from a mass {100 * a['detectable_magnitude']:.2g} % off"
+                    if a["visible"] else "no size of it leaves a misfit")
+            out.append(f"  load_scale (payload mass known to +-x %): never named (deflections alone cannot tell "
+                       f"it from the compliances); {100 * (1 - a['visible_share']):.3g} % of its signature is "
+                       f"absorbed, {seen}; a mass 1 % high biases {per}")
             continue
         if not any(r.get("excited", True) for r in rows):
             out.append(f"  {name}: not excited by this plan (no load moves it)")
