@@ -230,6 +230,7 @@ def test_text_and_file_agree_with_two_effects(logs, capsys):
     for s in rep["steps"]:
         prefix = "forearm" if s["effect"] == "link_compliance" else "base"
         line = [ln for ln in text.splitlines() if ln.startswith(f"Named: {s['effect']}")][0]
+        assert "()" not in line                          # an effect without a detail has no brackets
         for p in s["parameters"]:
             assert f"{p['name']} = {p['estimate']:.4g}" in line
             if p["determined"]:

@@ -163,7 +163,8 @@ def story(rep: dict) -> str:
                 "more or better-placed measurements would tell them apart.")
             continue
         ps = ", ".join(_value(p) for p in s["parameters"])
-        lines.append(f"Named: {s['effect']} ({s['detail']}): {ps}; RMS {s['rms_before'] * UM:.1f} -> "
+        what = f"{s['effect']} ({s['detail']})" if s["detail"] else s["effect"]
+        lines.append(f"Named: {what}: {ps}; RMS {s['rms_before'] * UM:.1f} -> "
                      f"{s['rms_after'] * UM:.1f} um (noise alone {s['noise_rms_after'] * UM:.1f} um), "
                      f"LR {s['lr']:.1f} for {s['k']} parameter(s), p = {s['p_lr']:.1g}.")
     if rep.get("combinations"):
