@@ -44,7 +44,7 @@ from .campaignlog import CampaignLog
 from .logformat import LogHeader, LogWriter
 from .measuring import schedule
 from .timeline import NS
-from .readings import ReadingsTable, Row, group
+from .readings import ReadingsTable, Row, group, iso8601
 from .robot import Robot
 from .scenario import Plan, TrackerSpec
 from .tracker import noise_covariance
@@ -95,6 +95,11 @@ def reading_covariance(tracker: TrackerSpec, position: np.ndarray, sigma: np.nda
     return cov
 
 
+def _time_as_written(table: ReadingsTable, t: float) -> str:
+    """A reading's time in the file's own kind (ISO 8601 or seconds), for messages."""
+    return iso8601(t) if table.absolute_time else f"{t:g} s"
+
+
 def measured_order(table: ReadingsTable) -> list[int]:
     """Poses in the order they were measured (see the module docstring); InputError naming the
     row whose time breaks a campaign's order."""
@@ -112,7 +117,8 @@ def measured_order(table: ReadingsTable) -> list[int]:
             if first_l.time < last_u.time:
                 raise InputError(table.path, f"line {first_l.line}, column time",
                                  f"the loaded readings of pose {p} after its unloaded ones (line "
-                                 f"{last_u.line} is unloaded and later)", first_l.time)
+                                 f"{last_u.line} is unloaded and later)",
+                                 _time_as_written(table, first_l.time))
         span[p] = (min(r.time for r in rows), max(r.time for r in rows))
     order = sorted(poses, key=lambda p: span[p])
     for a, b in zip(order, order[1:]):
@@ -120,7 +126,7 @@ def measured_order(table: ReadingsTable) -> list[int]:
             first_b = min((r for r in table.readings if r.pose == b), key=lambda r: r.time)
             raise InputError(table.path, f"line {first_b.line}, column time",
                              f"pose {b}'s readings after every reading of pose {a} (a campaign "
-                             "measures one pose at a time)", first_b.time)
+                             "measures one pose at a time)", _time_as_written(table, first_b.time))
     return order
 
 

@@ -46,6 +46,7 @@ from calbench.bench.view import measured_deflections
 
 from . import htmlplots
 from .discover.stats import ALPHA_FIT as MISFIT_P   # chi2 p below which the model is rejected
+from .discover.story import alias_lines
 from .report import DISPLAY
 
 Z95 = 1.959963984540054         # two-sided 95 % quantile of the standard normal
@@ -263,7 +264,7 @@ def residuals_section(ident: IdentificationReport, reflectors: list[str]) -> dic
 
 def _generic_rows(x) -> list[dict]:
     """Any JSON (a list of objects, an object of objects or of values) as rows of name/value
-    text pairs, for report fields whose layout this page does not fix (aliasing, ambiguous)."""
+    text pairs, for report fields whose layout this page does not fix (hints)."""
     def text(v):
         if isinstance(v, float):
             return f"{v:.4g}"
@@ -284,7 +285,24 @@ def _generic_rows(x) -> list[dict]:
     return [{"name": "", "value": text(x)}]
 
 
-def discovery_section(disc: dict) -> dict:
+def aliasing_rows(aliasing: list[dict]) -> list[dict]:
+    """The aliasing warnings in the words `calbench discover` prints (one row per effect: the
+    size this plan names it from, or what it would bias unseen), not the JSON's raw numbers."""
+    rows = []
+    for line in alias_lines(aliasing):
+        name, _, words = line.strip().partition(": ")
+        rows.append({"name": name, "value": words})
+    return rows
+
+
+def ambiguous_rows(ambiguous: list[dict]) -> list[dict]:
+    """Each round's near-tie (docs/contract.md's ``ambiguous``) as one row of words."""
+    return [{"name": f"round {a['round']}", "value": " and ".join(
+        f"{t['candidate']} (LR {t['lr']:.1f}, k = {t['k']}, BIC gain {t['bic_gain']:.1f})"
+        for t in a["candidates"])} for a in ambiguous]
+
+
+def discovery_section(disc: dict, path: str | os.PathLike = "--discover") -> dict:
     named = [n for n in disc["named_effects"]]
     steps = disc.get("steps") or []
     if not named:
@@ -327,6 +345,18 @@ def discovery_section(disc: dict) -> dict:
                       "k": c.get("k", "–"), "p": "–" if p_lr is None else f"{p_lr:.2g}",
                       "accepted": bool(c.get("accepted")), "error": c.get("error")})
 
+    try:
+        ambiguous = ambiguous_rows(disc.get("ambiguous") or [])
+    except (KeyError, TypeError, ValueError) as e:
+        raise InputError(path, "ambiguous", "rounds of {round, candidates: [{candidate, lr, k, "
+                         "bic_gain}]} as `calbench discover --json` writes them",
+                         f"{type(e).__name__}: {e}") from None
+    try:
+        aliasing = aliasing_rows(disc.get("aliasing") or [])
+    except (KeyError, TypeError, ValueError, IndexError) as e:
+        raise InputError(path, "aliasing", "entries as `calbench discover --json` writes them "
+                         "(docs/contract.md)", f"{type(e).__name__}: {e}") from None
+
     def stat(k):
         v = _finite(disc.get(k))
         return "–" if v is None else (f"{v:.3g}" if k.startswith("p_") else f"{v:.1f}")
@@ -339,8 +369,7 @@ def discovery_section(disc: dict) -> dict:
             "where_before": (disc.get("where_before") or {}).get("words") or [],
             "where_after": (disc.get("where_after") or {}).get("words") or [],
             "candidates": cands,
-            "ambiguous": _generic_rows(disc["ambiguous"]) if disc.get("ambiguous") else [],
-            "aliasing": _generic_rows(disc["aliasing"]) if disc.get("aliasing") else [],
+            "ambiguous": ambiguous, "aliasing": aliasing,
             "hints": _generic_rows(disc["hints"]) if disc.get("hints") else [],
             "augmented_model": disc.get("augmented_model")}
 
@@ -356,11 +385,19 @@ def design_section(design: dict) -> dict:
     c = None
     if isinstance(cert, dict) and _finite(cert.get("efficiency")) is not None:
         eff = float(cert["efficiency"])
-        c = {"criterion": cert.get("criterion", design["criterion"]),
-             "plan": _fixed(cert.get("plan_logdet"), ".4f") or "–",
-             "bound": _fixed(cert.get("bound_logdet"), ".4f") or "–",
+        crit = cert.get("criterion", design["criterion"])
+        if "plan_logdet" in cert:       # D: log det of the information, bounded from above
+            labels = ("log det of the plan's information",
+                      "certified upper bound (no plan from these candidates has more)")
+            plan_v, bound_v = _fixed(cert.get("plan_logdet"), ".4f"), _fixed(cert.get("bound_logdet"), ".4f")
+        else:                           # A, AD, pose: the criterion, smaller is better
+            labels = (f"{crit} of the plan (smaller is better)",
+                      "certified lower bound (no plan from these candidates does better)")
+            plan_v, bound_v = _fixed(cert.get("plan_value"), ".4g"), _fixed(cert.get("bound_value"), ".4g")
+        c = {"criterion": crit, "plan_label": labels[0], "bound_label": labels[1],
+             "plan": plan_v or "–", "bound": bound_v or "–",
              "efficiency": f"{eff * 100:.2f}", "gap": f"{(1 - eff) * 100:.2f}",
-             "refined": _fixed(cert.get("refined_plan"), ".4f")}
+             "refined": _fixed(cert.get("refined_plan"), ".4f" if "plan_logdet" in cert else ".4g")}
     rel = m.get("relative_std") or {}
     rows = [{"pose": i, "q": ", ".join(f"{x:.1f}" for x in p.get("q_deg", [])),
              "load": p.get("load", ""), "repeats": p.get("repeats", 1)}
@@ -456,7 +493,7 @@ def build_report(log_path, identified=None, discover=None, design=None,
         "parameters": parameters_section(ident) if ident else None,
         "correlation": correlation_section(ident) if ident else None,
         "residuals": residuals_section(ident, camp["reflectors"]) if ident else None,
-        "discovery": discovery_section(disc) if disc else None,
+        "discovery": discovery_section(disc, inputs["discover"][0]) if disc else None,
         "design": design_section(plan) if plan else None,
         "reproduce": reproduce_section(log_path, log, simulated, inputs, Path(out)),
         "log_path": str(log_path),
@@ -474,4 +511,4 @@ def write_report(log_path, out, identified=None, discover=None, design=None) -> 
 
 __all__ = ["write_report", "build_report", "read_json_report", "read_identified", "campaign_section",
            "parameters_section", "correlation_section", "residuals_section",
-           "discovery_section", "design_section"]
+           "discovery_section", "design_section", "aliasing_rows", "ambiguous_rows"]

@@ -49,8 +49,26 @@ DISCOVER = {
     "per_pose": [{"pose": p, "rms_before": 6e-05 + 1e-06 * p, "rms_after": 2.5e-05}
                  for p in range(16)],
     "where_before": {"words": ["The model does not fit: chi2 = 765.2 for 124 degrees of freedom."]},
-    "ambiguous": [{"effect": "joint_nonlinearity", "detail": "j5", "delta_bic": 1.2}],
-    "aliasing": [{"effect": "load_scale", "visible": False, "biases": {"k2": -0.9, "k3": -0.9}}],
+    "ambiguous": [{"round": 1, "candidates": [
+        {"candidate": "joint_nonlinearity[j2]", "lr": 42.4, "k": 1, "bic_gain": 37.5,
+         "lr_difference": 0.0, "bic_difference": 0.0, "lr_difference_spread": 0.0},
+        {"candidate": "base_compliance", "lr": 44.6, "k": 2, "bic_gain": 34.8,
+         "lr_difference": -2.2, "bic_difference": 2.7, "lr_difference_spread": 9.5}]}],
+    "aliasing": [
+        {"effect": "joint_nonlinearity", "detail": "j1", "parameter": "cubic", "unit": "N*m/rad^3",
+         "visible": False, "visible_share": 1e-13, "excited": True, "detectable_magnitude": None,
+         "reference_magnitude": 3.8e10,
+         "biases": [{"parameter": "k1", "per_unit": -6.3e-20, "at_reference_sigma": -3.9,
+                     "at_reference_percent": -0.96}]},
+        {"effect": "base_compliance", "detail": "", "parameter": "cx", "unit": "rad/(N*m)",
+         "visible": True, "visible_share": 0.79, "excited": True, "detectable_magnitude": 1.05e-9,
+         "reference_magnitude": 8.3e-10, "biases": []},
+        {"effect": "load_scale", "detail": "hung weights", "parameter": "scale", "unit": "1",
+         "visible": True, "visible_share": 0.019, "excited": True, "detectable_magnitude": 0.35,
+         "reference_magnitude": 0.0068,
+         "biases": [{"parameter": "k2", "per_unit": 1.16e-7, "per_percent_mass": 1.16e-9,
+                     "per_percent_mass_relative_percent": 0.98, "at_reference_sigma": 0.71,
+                     "at_reference_percent": 0.67}]}],
     "augmented_model": "robot.augmented.xml",
 }
 CERTIFICATE = {"criterion": "D", "plan_logdet": 70.31883, "bound_logdet": 70.41250,
@@ -152,6 +170,16 @@ def test_the_numbers_on_the_page_are_those_of_the_inputs(inputs, report):
     assert "Named: link_compliance (forearm)." in html
     assert _row(html, "the user's model")[:2] == ["68.0", "27.4"]
     assert "load_scale" in html and "Aliasing" in html and "Ambiguous" in html
+    # ... in words, with the contract's numbers, never the JSON's field names
+    text = htmllib.unescape(html)
+    assert ("round 1: joint_nonlinearity[j2] (LR 42.4, k = 1, BIC gain 37.5) and base_compliance "
+            "(LR 44.6, k = 2, BIC gain 34.8)") in text
+    assert ("<td>joint_nonlinearity j1</td><td>absorbed exactly, never seen: cubic (at 3.8e+10 "
+            "N*m/rad^3: k1 -3.9 sigma (-0.96 %))</td>") in text
+    assert "<td>base_compliance</td><td>named cx from 1.1e-09 rad/(N*m)</td>" in text
+    assert "never visible in deflections; a mass 1 % high biases k2 +0.98 %" in text
+    for field in ("at_reference_sigma", "per_unit", "visible_share", "lr_difference", "{"):
+        assert field not in text[text.index('<section id="discovery">'):text.index('<section id="design">')]
     assert "cy = 0.000 (not determined)" in html
     # the certificate
     assert "within 1.16 % of the best possible 2-configuration plan" in html
@@ -185,11 +213,13 @@ def test_sections_say_which_command_fills_them_and_the_page_is_reproducible(inpu
 
 
 @pytest.mark.parametrize("case", ["missing log", "missing json", "discover as identify",
-                                  "not json", "design without criterion", "out is the log"])
+                                  "not json", "design without criterion", "aliasing not the contract's",
+                                  "out is the log"])
 def test_bad_input_exits_2_naming_the_file(inputs, tmp_path, capsys, case):
     out = tmp_path / "never.html"
     bad = tmp_path / "bad.json"
-    args = {"log": str(inputs["log"]), "--identified": None, "--design": None, "--out": str(out)}
+    args = {"log": str(inputs["log"]), "--identified": None, "--discover": None, "--design": None,
+            "--out": str(out)}
     named = bad
     if case == "missing log":
         args["log"] = named = str(tmp_path / "absent.mcap")
@@ -203,6 +233,10 @@ def test_bad_input_exits_2_naming_the_file(inputs, tmp_path, capsys, case):
     elif case == "design without criterion":
         bad.write_text(json.dumps({k: v for k, v in DESIGN.items() if k != "criterion"}))
         args["--design"] = str(bad)
+    elif case == "aliasing not the contract's":
+        bad.write_text(json.dumps({**DISCOVER, "aliasing": [{"effect": "load_scale", "visible": False,
+                                                             "biases": {"k2": -0.9}}]}))
+        args["--discover"] = str(bad)
     else:
         args["--out"] = named = str(inputs["log"])
     argv = ["report", args.pop("log")] + [x for k, v in args.items() if v for x in (k, v)]
@@ -212,3 +246,19 @@ def test_bad_input_exits_2_naming_the_file(inputs, tmp_path, capsys, case):
     assert not out.exists()
     if case == "discover as identify":
         assert "calbench identify --json" in err
+    if case == "aliasing not the contract's":
+        assert ": aliasing: expected" in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_certificate_of_a_criterion_to_minimise_is_labelled_a_lower_bound():
+    """A, AD and pose certificates carry plan_value/bound_value (docs/contract.md): the page
+    names them as the criterion and its certified lower bound, not as log dets."""
+    from calbench.identify.htmlreport import design_section
+    cert = {"criterion": "A", "plan_value": 0.0103684, "bound_value": 0.0096494,
+            "efficiency": 0.9307, "configs": 2, "distinct": False}
+    c = design_section({**DESIGN, "criterion": "A", "certificate": cert})["certificate"]
+    assert (c["plan"], c["bound"]) == ("0.01037", "0.009649")
+    assert c["plan_label"].startswith("A of the plan") and "lower bound" in c["bound_label"]
+    assert (c["gap"], c["efficiency"]) == ("6.93", "93.07")
+    d = design_section(DESIGN)["certificate"]
+    assert (d["plan"], d["bound"]) == ("70.3188", "70.4125") and "upper bound" in d["bound_label"]

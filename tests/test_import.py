@@ -208,9 +208,12 @@ BAD = {
                          "the same kind of time in every row"),
     "loaded_before_unloaded": ([HEAD + ",time", GOOD + ",100", "0,loaded,refl_a,-2224.9,3033.0,-61.8,50"],
                                [], "line 3, column time", "the loaded readings of pose 0 after its unloaded"),
+    "loaded_before_unloaded_iso": ([HEAD + ",time", GOOD + ",2026-01-05T08:05:00Z",
+                                    "0,loaded,refl_a,-2224.9,3033.0,-61.8,2026-01-05T08:01:00+00:00"],
+                                   [], "line 3, column time", "got '2026-01-05T08:01:00.000000Z'"),
     "interleaved_poses": ([HEAD + ",time", GOOD + ",0", "1,unloaded,refl_a,-2224.9,3033.0,-61.8,10",
                            "0,loaded,refl_a,-2224.9,3033.0,-61.8,20"], [], "line 3, column time",
-                          "after every reading of pose 0"),
+                          "after every reading of pose 0 (a campaign measures one pose at a time), got '10 s'"),
     "sigma_in_um": ([HEAD + ",sigma", GOOD + ",20"], [], "line 2, column sigma", "a 1-sigma from 0.0001 to 1 mm"),
 }
 
