@@ -25,7 +25,14 @@ differences, STEP rad; the step halved while |R| does not decrease), from d = 0 
 method's pose), to |R| < TOL rad. An estimate the statics cannot use (a non-positive
 compliance, a parameter step 2 did not give) takes identify/onestep.py's generic value for that
 equilibrium only. Nothing but the observations and the MJCF's geometry is read, as in the plain
-method; the reported covariance is the last linear solve's (the pose held fixed).
+method.
+
+Uncertainty. The sag d* moves with the readings, so the linear solve's covariance (the pose
+held fixed) is too small (k1's std by ~2x in a Monte Carlo). The reported covariance carries
+d*'s share by the implicit function theorem: with L = dtheta/dy at fixed d (the linear solve's
+delta method, C = L Sigma L^T), G = dtheta/dd, S = dD/dtheta and R(d) = D(theta(d)) - d,
+dtheta*/dy = A L with A = I - G (S G - I)^-1 S, so cov = A C A^T (:func:`sensitivity`, G and S
+by central differences).
 """
 from __future__ import annotations
 
@@ -41,6 +48,7 @@ from .twostep import TwoStepResult, group_q2, linear_plan, two_step, two_step_ap
 
 TOL = 1e-9           # rad: the fixed point's residual (1e-7 of the 1-2 deg sag)
 STEP = 1e-6          # rad: forward-difference step of the Newton Jacobian
+REL_STEP = 1e-5      # relative central-difference step of dD/dtheta (a compliance or a spring)
 MAX_NEWTON = 20
 
 
@@ -103,13 +111,37 @@ class SagMap:
         return self.sag(est.theta) - d, est
 
 
+def sensitivity(sm: SagMap, d: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """A = dtheta*/dtheta at fixed d (module docstring, Uncertainty): (P,P), identity on the
+    parameters the linear solve did not give. G by central differences of the linear solve in d
+    (STEP), S of the predicted sag in each identified parameter (REL_STEP of its size)."""
+    npar = len(theta)
+    ok = np.isfinite(theta)
+    g = np.zeros((npar, sm.n))
+    for k in range(sm.n):
+        e = np.zeros(sm.n)
+        e[k] = STEP
+        tp, tm = sm.estimate(d + e).theta, sm.estimate(d - e).theta
+        g[:, k] = np.where(ok, (tp - tm) / (2 * STEP), 0.0)
+    s = np.zeros((sm.n, npar))
+    for j in np.flatnonzero(ok):
+        h = REL_STEP * max(abs(theta[j]), 1e-300)
+        tp, tm = theta.copy(), theta.copy()
+        tp[j] += h
+        tm[j] -= h
+        s[:, j] = (sm.sag(tp) - sm.sag(tm)) / (2 * h)
+    jd = s @ g - np.eye(sm.n)                     # dR/dd at the fixed point
+    return np.eye(npar) - g @ np.linalg.solve(jd, s)
+
+
 def two_step_iterated(robot: Robot, obs: Observations, weighted: bool = False, *, tol: float = TOL,
                       max_newton: int = MAX_NEWTON, start: np.ndarray | None = None,
-                      jacobian: np.ndarray | None = None) -> TwoStepResult:
+                      jacobian: np.ndarray | None = None, uncertainty: bool = True) -> TwoStepResult:
     """The two-step estimate at the self-consistent sagged pose (module docstring). ``start``:
     initial sags per q2 group (default 0: the commanded pose); ``jacobian``: dR/dd to reuse
     (chord steps, e.g. the Monte Carlo's noise-free one; re-taken when a chord step does not
-    lower |R|). ``step2`` records the sags, the Newton iterations, map evaluations, the last
+    lower |R|); ``uncertainty``: carry the sag's share into the covariance (module docstring;
+    False keeps the pose-held-fixed covariance). ``step2`` records the sags, the Newton iterations, map evaluations, the last
     Jacobian and whether |R| < tol."""
     sm = SagMap(robot, obs, weighted)
     d = np.zeros(sm.n) if start is None else np.array(start, dtype=float)
@@ -146,10 +178,20 @@ def two_step_iterated(robot: Robot, obs: Observations, weighted: bool = False, *
         d, r, est = d + alpha * step, r_new, est_new
         history.append({"sag_deg": np.degrees(d).tolist(), "residual_deg": np.degrees(r).tolist()})
         converged = bool(np.abs(r).max() < tol)
+    if converged and uncertainty:
+        a = sensitivity(sm, d, est.theta)
+        ok = np.isfinite(est.theta)
+        c = np.where(np.isfinite(est.cov), est.cov, 0.0)
+        cov = a @ c @ a.T
+        cov[~ok, :] = np.nan
+        cov[:, ~ok] = np.nan
+        est.cov = cov
     est.step2 = dict(est.step2, linearised_at="the self-consistent sagged pose", sag_rad=d.tolist(),
+                     covariance="with the sag's share" if converged and uncertainty else
+                     "the pose held fixed (too small: module docstring)",
                      newton_iterations=it, map_evaluations=sm.evaluations, converged=converged,
                      history=history, jacobian=None if jac is None else jac.tolist())
     return est
 
 
-__all__ = ["two_step_iterated", "SagMap", "TOL", "STEP", "MAX_NEWTON"]
+__all__ = ["two_step_iterated", "sensitivity", "SagMap", "TOL", "STEP", "REL_STEP", "MAX_NEWTON"]

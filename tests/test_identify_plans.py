@@ -138,6 +138,39 @@ def test_two_step_on_the_exact_statics_and_iterated_at_its_sagged_pose(paper):
     assert np.all(np.abs(e) < 2.1)
 
 
+def test_iterated_covariance_carries_the_sags_share(paper):
+    """The iterated two-step's covariance is A C A^T (identify/twostep_iterated.py,
+    Uncertainty), A = dtheta*/dtheta at the fixed sag. Checked against re-solving the whole fixed
+    point on perturbed readings: the iterated estimate moves by A times the move of the linear
+    solve at the old sag, up to a second-order remainder -- which halves when the perturbation
+    halves (a wrong A would leave a first-order error that does not). The sag's share is not
+    small: k1's std grows by a third and s0's shrinks (the sag and s0 are anti-correlated)."""
+    from calbench.identify.twostep_iterated import SagMap, sensitivity, two_step_iterated
+    scn, robot, obs = paper
+    it = two_step_iterated(robot, obs)
+    fixed_pose = two_step_iterated(robot, obs, uncertainty=False)
+    assert "sag's share" in it.step2["covariance"]
+    np.testing.assert_array_equal(it.theta, fixed_pose.theta)
+    sd = np.sqrt(np.diag(it.cov))
+    ratio = sd / np.sqrt(np.diag(fixed_pose.cov))
+    assert ratio[0] > 1.2 and ratio[7] < 0.9, ratio
+    d = np.array(it.step2["sag_rad"])
+    a = sensitivity(SagMap(robot, obs, False), d, it.theta)
+    u = [np.random.default_rng(3).normal(size=p.dp.shape) for p in obs.poses]
+    errors = []
+    for delta in (0.02, 0.01):                # of the deflection noise sigma
+        pert = dataclasses.replace(obs, poses=[dataclasses.replace(p, dp=p.dp + delta * np.sqrt(2)
+                                                                   * obs.noise_sigma * v)
+                                               for p, v in zip(obs.poses, u)])
+        moved = two_step_iterated(robot, pert, start=d, uncertainty=False)
+        assert moved.step2["converged"]
+        linear = SagMap(robot, pert, False).estimate(d).theta
+        move, pred = (moved.theta - it.theta) / sd, a @ (linear - it.theta) / sd
+        errors.append(np.linalg.norm(move - pred) / np.linalg.norm(move))
+    assert errors[0] < 0.1, errors
+    assert errors[0] / errors[1] == pytest.approx(2.0, abs=0.3), errors
+
+
 def test_vertical_loads_only_name_k1(paper):
     scn, robot, obs = observations(range(12))            # Table 5 without the lateral pulls
     for res in (one_step(robot, obs), two_step(robot, obs)):
