@@ -149,7 +149,7 @@ def build_report(res: Identified, truth: np.ndarray | None, log_path, model_name
             ObservationFit(int(pose), refl, predicted=tuple(float(x) for x in dp - r),
                            measured=tuple(float(x) for x in dp), residual=tuple(float(x) for x in r))
             for (pose, refl), dp, r in zip(obs.labels, obs.dp, res.residual.reshape(-1, 3))),
-        details=res.extra,
+        details={**res.extra, "tracker_noise_model": obs.tracker.model},
     )
 
 
@@ -179,10 +179,12 @@ def format_table(rep: IdentificationReport) -> str:
             row += f"{p.truth * f:>12.{dec}f}{p.error * f:>+11.{dec}f}{p.z:>+7.2f}"
         lines.append(row)
     if rep.residual_rms is not None:
+        noise = rep.details.get("tracker_noise_model", "isotropic")
+        source = (f"σ = {rep.noise_sigma * 1e6:.3g} µm per reading" if noise == "isotropic" else
+                  f"its {noise} error model, σ growing with range")
         lines.append(f"  residual RMS {rep.residual_rms * 1e6:.2f} µm per axis (expected "
-                     f"{rep.expected_residual_rms * 1e6:.2f} µm from the tracker: σ = "
-                     f"{rep.noise_sigma * 1e6:.3g} µm per reading, a deflection is the difference of two); "
-                     f"χ²/dof = {rep.chi2_per_dof:.3f} ({rep.dof} dof)")
+                     f"{rep.expected_residual_rms * 1e6:.2f} µm from the tracker: {source}, a "
+                     f"deflection is the difference of two); χ²/dof = {rep.chi2_per_dof:.3f} ({rep.dof} dof)")
     for name, why in rep.unidentifiable.items():
         lines.append(f"  not identifiable: {name}: {why}")
     for o in rep.outliers:

@@ -208,3 +208,21 @@ def test_outlier_is_reported_and_can_be_dropped(paper_log, paper_report, tmp_pat
     rep2 = run_identify(bad, drop_outliers=True)
     assert rep2.dropped_outliers[0].pose == 5 and rep2.dropped_outliers[0].reflector == refl
     assert rep2.outliers == () and rep2.n_observations == paper_report["n_observations"] - 1
+
+
+def test_the_residual_line_names_the_trackers_error_model(paper_log, tmp_path, capsys):
+    """The expected residual comes from the readings' own covariances: with an isotropic tracker
+    the line gives its sigma; with a range-dependent one it names the model instead of the
+    (unused) isotropic sigma."""
+    assert main(["identify", str(paper_log), "--method", "one-step"]) == 0
+    assert "σ = 20 µm per reading" in capsys.readouterr().out
+    scn = tmp_path / "spec.toml"
+    scn.write_text(PAPER.read_text().replace("[tracker]\n", '[tracker]\nmodel = "spec"\n', 1)
+                   .replace('"../mjcf/', f'"{PAPER.parent.parent.as_posix()}/mjcf/'))
+    log, js = tmp_path / "spec.mcap", tmp_path / "spec.json"
+    assert main(["simulate", str(scn), "--out", str(log)]) == 0
+    capsys.readouterr()
+    assert main(["identify", str(log), "--method", "one-step", "--json", str(js)]) == 0
+    out = capsys.readouterr().out
+    assert "its spec error model" in out and "µm per reading" not in out
+    assert json.loads(js.read_text())["tracker_noise_model"] == "spec"
