@@ -47,7 +47,7 @@ from calbench.bench.view import measured_deflections
 from . import htmlplots
 from .discover.stats import ALPHA_FIT as MISFIT_P   # chi2 p below which the model is rejected
 from .discover.story import alias_lines
-from .report import DISPLAY
+from .report import DISPLAY, noise_source
 
 Z95 = 1.959963984540054         # two-sided 95 % quantile of the standard normal
 KINDS = {
@@ -208,7 +208,7 @@ def parameters_section(ident: IdentificationReport) -> dict:
             "chi2_per_dof": (f"{ident.chi2_per_dof:.3f}" if ident.chi2_per_dof is not None
                              else "–"), "dof": dof,
             "residual_rms": um(ident.residual_rms), "expected_rms": um(ident.expected_residual_rms),
-            "sigma": um(ident.noise_sigma), "model": ident.model or "",
+            "noise_source": noise_source(ident), "model": ident.model or "",
             "n_observations": ident.n_observations,
             "chart": htmlplots.relative_std_bars(rel_names, rel) if any(rel) else None}
 
@@ -322,8 +322,8 @@ def discovery_section(disc: dict, path: str | os.PathLike = "--discover") -> dic
             e, sd = _finite(p.get("estimate")), _finite(p.get("std"))
             d = decimals(sd * f if sd else None)
             params.append(f"{p['name']} = {num(None if e is None else e * f, d)}"
-                          + (f" ± {num(sd * f, d)}" if sd is not None else " (not determined)")
-                          + f" {label}")
+                          + (f" ± {num(sd * f, d)} {label}" if sd is not None
+                             else f" {label} (not determined)"))
         step_rows.append({"effect": s.get("effect"), "detail": s.get("detail") or "",
                           "before": um(s.get("rms_before")), "after": um(s.get("rms_after")),
                           "parameters": params})

@@ -153,6 +153,15 @@ def build_report(res: Identified, truth: np.ndarray | None, log_path, model_name
     )
 
 
+def noise_source(rep: IdentificationReport) -> str:
+    """Where the expected residual comes from, in words: an isotropic tracker's sigma, or the
+    name of a range-dependent error model (whose ``noise_sigma`` is not used)."""
+    noise = rep.details.get("tracker_noise_model", "isotropic")
+    if noise == "isotropic" and rep.noise_sigma is not None:
+        return f"σ = {rep.noise_sigma * 1e6:.3g} µm per reading"
+    return f"its {noise} error model, σ growing with range"
+
+
 def format_table(rep: IdentificationReport) -> str:
     has_truth = rep.has_truth()
     lines = [f"calbench identify: {rep.log} ({rep.method}; model {rep.model})",
@@ -179,11 +188,8 @@ def format_table(rep: IdentificationReport) -> str:
             row += f"{p.truth * f:>12.{dec}f}{p.error * f:>+11.{dec}f}{p.z:>+7.2f}"
         lines.append(row)
     if rep.residual_rms is not None:
-        noise = rep.details.get("tracker_noise_model", "isotropic")
-        source = (f"σ = {rep.noise_sigma * 1e6:.3g} µm per reading" if noise == "isotropic" else
-                  f"its {noise} error model, σ growing with range")
         lines.append(f"  residual RMS {rep.residual_rms * 1e6:.2f} µm per axis (expected "
-                     f"{rep.expected_residual_rms * 1e6:.2f} µm from the tracker: {source}, a "
+                     f"{rep.expected_residual_rms * 1e6:.2f} µm from the tracker: {noise_source(rep)}, a "
                      f"deflection is the difference of two); χ²/dof = {rep.chi2_per_dof:.3f} ({rep.dof} dof)")
     for name, why in rep.unidentifiable.items():
         lines.append(f"  not identifiable: {name}: {why}")

@@ -182,7 +182,8 @@ def test_the_numbers_on_the_page_are_those_of_the_inputs(inputs, report):
             "1 % high biases k2 +0.98 %") in text
     for field in ("at_reference_sigma", "per_unit", "visible_share", "lr_difference", "{"):
         assert field not in text[text.index('<section id="discovery">'):text.index('<section id="design">')]
-    assert "cy = 0.000 (not determined)" in html
+    assert "the tracker's noise (σ = 20 µm per reading) leaves" in html   # an isotropic tracker
+    assert "cy = 0.000 µrad/(N·m) (not determined)" in html            # the unit before the verdict
     # the certificate
     assert "within 1.16 % of the best possible 2-configuration plan" in html
     assert "efficiency 98.84 %" in html and "70.4125" in html

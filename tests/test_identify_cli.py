@@ -226,3 +226,6 @@ def test_the_residual_line_names_the_trackers_error_model(paper_log, tmp_path, c
     out = capsys.readouterr().out
     assert "its spec error model" in out and "µm per reading" not in out
     assert json.loads(js.read_text())["tracker_noise_model"] == "spec"
+    html = tmp_path / "spec.html"
+    assert main(["report", str(log), "--identified", str(js), "--out", str(html)]) == 0
+    assert "the tracker's noise (its spec error model, σ growing with range) leaves" in html.read_text()
