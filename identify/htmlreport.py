@@ -291,8 +291,16 @@ def aliasing_rows(aliasing: list[dict]) -> list[dict]:
     rows = []
     for line in alias_lines(aliasing):
         name, _, words = line.strip().partition(": ")
-        rows.append({"name": name, "value": words})
+        rows.append({"name": name, "value": typeset(words)})
     return rows
+
+
+def typeset(words: str) -> str:
+    """The terminal's ASCII units and symbols (the discover story's) as the page writes them."""
+    for ascii_, uni in ((" sigma", " σ"), ("+-", "±"), ("N*m", "N·m"), ("^3", "³"), (" um", " µm"),
+                        ("chi2", "χ²")):
+        words = words.replace(ascii_, uni)
+    return words
 
 
 def ambiguous_rows(ambiguous: list[dict]) -> list[dict]:

@@ -175,8 +175,8 @@ def test_the_numbers_on_the_page_are_those_of_the_inputs(inputs, report):
     assert ("round 1: joint_nonlinearity[j2] (LR 42.4, k = 1, BIC gain 37.5) and base_compliance "
             "(LR 44.6, k = 2, BIC gain 34.8)") in text
     assert ("<td>joint_nonlinearity j1</td><td>absorbed exactly, never seen: cubic (at 3.8e+10 "
-            "N*m/rad^3: k1 -3.9 sigma (-0.96 %))</td>") in text
-    assert "<td>base_compliance</td><td>named cx from 1.1e-09 rad/(N*m)</td>" in text
+            "N·m/rad³: k1 -3.9 σ (-0.96 %))</td>") in text              # the page's symbols
+    assert "<td>base_compliance</td><td>named cx from 1.1e-09 rad/(N·m)</td>" in text
     assert ("never named (deflections alone cannot tell it from the compliances); 98.1 % of its "
             "signature is absorbed, the rest leaves a misfit (not a name) from a mass 35 % off; a mass "
             "1 % high biases k2 +0.98 %") in text
