@@ -105,12 +105,15 @@ CHART = {"estimate": MODEL, "truth": TRUTH, "text": (150, 150, 160, 255),
          "grid": (128, 128, 128, 70), "axis": (140, 140, 150, 255)}
 
 
+MARKERS = ("circle", "square", "diamond", "up", "cross", "down", "asterisk", "plus")
+
+
 def _shades(rgb, n: int) -> list[tuple[int, int, int, int]]:
     """n shades of one colour, light to dark: plot lines of one kind, one per reflector."""
     if n <= 1:
         return [tuple(rgb)]  # type: ignore[list-item]
     out = []
-    for t in np.linspace(-0.45, 0.35, n):
+    for t in np.linspace(-0.6, 0.45, n):
         c = np.array(rgb[:3], float)
         c = c + (255 - c) * -t if t < 0 else c * (1 - t)
         out.append((*[int(round(x)) for x in c], 255))
@@ -559,9 +562,11 @@ def log_view(rec, plan: ViewPlan) -> Summary:
               if plan.has_ghost(src)}
     for arch in _tracker_archetypes(rr, spec.position):
         rec.log("tracker", arch, static=True)
-    for nm, c in zip(names, _shades(MEASURED, len(names))):
+    for i, (nm, c) in enumerate(zip(names, _shades(MEASURED, len(names)))):
+        # shades of one colour tell the kind, a marker per reflector tells them apart
         rec.log(f"plots/deflection_mm/{_part(nm)}", rr.SeriesLines(colors=[c], names=[nm]),
-                static=True)
+                rr.SeriesPoints(colors=[c], names=[nm], markers=[MARKERS[i % len(MARKERS)]],
+                                marker_sizes=[4.0]), static=True)
     series = {"model": ("residual, identified model", RESIDUAL),
               "before": ("residual, user's model", RESIDUAL),
               "after": ("residual, with the named effects", RESIDUAL_AFTER)}
