@@ -525,6 +525,30 @@ def _discovery_header(plan: ViewPlan) -> str:
         f" Largest disagreements of the user's model: {worst}." if worst else ""))
 
 
+def _import_note(plan: ViewPlan) -> str:
+    """One line for a log imported from a tracker's readings (``/campaign/info.imported``):
+    where they came from and how the tracker was placed; "" for a simulated log."""
+    imp = plan.log.header.get("imported")
+    if not isinstance(imp, dict):
+        return ""
+    src = f"**Imported** from `{imp.get('source', '?')}`"
+    if imp.get("rows") is not None:
+        src += f" ({imp['rows']} readings in {imp.get('units', '?')})"
+    reg = imp.get("registration")
+    if imp.get("tracker_pose") == "registered" and isinstance(reg, dict):
+        fit = ""
+        if isinstance(reg.get("rms"), (int, float)) and isinstance(reg.get("expected_rms"), (int, float)):
+            fit = (f": residual {reg['rms'] * 1e6:.1f} µm RMS per axis against "
+                   f"{reg['expected_rms'] * 1e6:.1f} µm expected")
+        where = f"; the tracker pose registered to the readings{fit}"
+        warn = [w for w in reg.get("warnings") or [] if isinstance(w, str)]
+        if warn:
+            where += " (warning: " + "; ".join(warn) + ")"
+    else:
+        where = "; the tracker pose as the plan states it"
+    return src + where + "."
+
+
 def _worst(plan: ViewPlan, k: int = 4) -> str:
     """The k (pose, reflector) residuals of the user's model furthest from noise."""
     cov = {s.index: s.deflection()[1] for s in plan.scenes}
@@ -576,7 +600,7 @@ def log_view(rec, plan: ViewPlan) -> Summary:
     if plan.residuals:
         rec.log("plots/residual_um/noise", rr.SeriesLines(
             colors=[NOISE[:3]], names=["noise alone (RMS per axis)"]), static=True)
-    header = _discovery_header(plan)
+    header = "\n\n".join(h for h in (_import_note(plan), _discovery_header(plan)) if h)
 
     arrows = n_pred = 0
     for s in plan.scenes:

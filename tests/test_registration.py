@@ -213,3 +213,20 @@ def test_unloaded_positions_are_the_same_stacked_or_scalar():
     (xa, ja), (xb, jb) = out
     assert np.max(np.abs(xa - xb)) < 1e-10
     assert np.max(np.abs(ja - jb) / np.abs(jb).max(axis=(0, 1))) < 1e-8
+
+
+def test_the_view_says_the_log_was_imported_and_registered(work):
+    """An imported log's pose page names the readings file and the registration's fit, in the
+    numbers /campaign/info.imported records; a simulated log's page says neither."""
+    from test_view import page_at
+    info = read_log(work / "turned.mcap").header["imported"]
+    reg = info["registration"]
+    pages = {}
+    for name in ("turned", "paper"):
+        rrd = work / f"{name}.rrd"
+        assert main(["view", str(work / f"{name}.mcap"), "--rrd", str(rrd)]) == 0
+        pages[name] = page_at(rrd, 0)
+    assert f"**Imported** from `{info['source']}` ({info['rows']} readings in {info['units']})" in pages["turned"]
+    assert (f"tracker pose registered to the readings: residual {reg['rms'] * 1e6:.1f} µm RMS per "
+            f"axis against {reg['expected_rms'] * 1e6:.1f} µm expected") in pages["turned"]
+    assert "Imported" not in pages["paper"]
