@@ -520,6 +520,8 @@ def add_demo(sub) -> None:
 
 
 def cmd_demo(args) -> int:
+    check_outputs({f"--logs ({what})": path for what, path in demo.demo_files(args.logs).items()},
+                  {"demo scenario": demo.PAPER})
     for line in demo.run_demo(args.logs):
         print(line, flush=True)
     return 0

@@ -17,6 +17,7 @@ from calbench.bench.scenario import load_scenario, scenario_variant
 from calbench.bench.view import write_recording
 
 PAPER = scenario_path(PAPER_SCENARIO)   # package data: works outside a checkout
+HIDDEN = "paper_table5_hidden"          # the discovery step's campaign
 HIDDEN_COMPLIANCE = "[1.8e-7, 0.0, 1.8e-7]"   # rad/(N*m): lateral bending + torsion at the link root
 
 
@@ -35,16 +36,28 @@ def hidden_demo(link: str) -> str:
             f'link = "{link}"\ncompliance = {HIDDEN_COMPLIANCE}')
 
 
+def demo_files(logs: Path) -> dict[str, Path]:
+    """Every file the demo writes under ``logs``, by what it is. The command line checks them all
+    before the demo starts (bench/outputs.py: one behaviour for every verb), and the steps below
+    write exactly these, so the check cannot miss one."""
+    logs = Path(logs)
+    log = logs / f"{load_scenario(PAPER).name}.mcap"
+    h = f"{HIDDEN}."
+    return {"campaign log": log, "recording": log.with_suffix(".rrd"),
+            "hidden scenario": logs / f"{h}toml", "hidden log": logs / f"{h}mcap",
+            "augmented model": logs / f"{h}augmented.xml", "discovery report": logs / f"{h}discover.json",
+            "discovery plot": logs / f"{h}discover.png", "discovery view": logs / f"{h}discover.view.json",
+            "discovery recording": logs / f"{h}discover.rrd"}
+
+
 def run_demo(logs: Path) -> Iterator[str]:
     """Simulate the paper campaign, record its Rerun view, identify it against the truth, then
     run the discovery story; yields what to tell the user after each step."""
     from .report import format_table, run_identify
-    logs = Path(logs)
-    scn = load_scenario(PAPER)
-    log = logs / f"{scn.name}.mcap"
-    plans = run_campaign(scn, log)
+    files = demo_files(logs)
+    log, rrd = files["campaign log"], files["recording"]
+    plans = run_campaign(load_scenario(PAPER), log)
     yield f"1. simulated {len(plans)} poses of {PAPER.name} -> {log}"
-    rrd = log.with_suffix(".rrd")
     write_recording(log, rrd)
     yield f"2. Rerun recording of the deflections -> {rrd}   (open it with: rerun {rrd})"
     rep = run_identify(log)
@@ -58,17 +71,16 @@ def discover_step(logs: Path) -> Iterator[str]:
     model lacks; `calbench discover` finds where they disagree, names it, adds it, shows the gap
     shrink."""
     from .discover.workflow import clean, discover, story
-    logs.mkdir(parents=True, exist_ok=True)
+    files = demo_files(logs)
+    files["hidden log"].parent.mkdir(parents=True, exist_ok=True)
     link = hidden_link()
-    scn_path = scenario_variant(PAPER, logs / "paper_table5_hidden.toml", name="paper_table5_hidden",
-                                extra=hidden_demo(link))
-    log = logs / "paper_table5_hidden.mcap"
+    scn_path = scenario_variant(PAPER, files["hidden scenario"], name=HIDDEN, extra=hidden_demo(link))
+    log = files["hidden log"]
     run_campaign(load_scenario(scn_path), log)
     yield f"4. discover: a campaign on a robot with a hidden effect the model lacks -> {log}"
-    js = logs / "paper_table5_hidden.discover.json"
-    rep = discover(log, out_model=logs / "paper_table5_hidden.augmented.xml",
-                   plot=js.with_suffix(".png"), view_json=logs / "paper_table5_hidden.discover.view.json",
-                   view_rrd=js.with_suffix(".rrd"))
+    js = files["discovery report"]
+    rep = discover(log, out_model=files["augmented model"], plot=files["discovery plot"],
+                   view_json=files["discovery view"], view_rrd=files["discovery recording"])
     write_text(js, json.dumps(clean(rep), indent=2, allow_nan=False))
     yield "\n".join("   " + line for line in story(rep).splitlines())
     yield (f"   (the hidden truth, read only now: link_compliance {link}, compliance [1.8e-7, 0, 1.8e-7] "
@@ -76,4 +88,4 @@ def discover_step(logs: Path) -> Iterator[str]:
     yield f"   report -> {js}"
 
 
-__all__ = ["run_demo", "discover_step", "PAPER", "hidden_demo", "hidden_link", "HIDDEN_COMPLIANCE"]
+__all__ = ["run_demo", "demo_files", "discover_step", "PAPER", "HIDDEN", "hidden_demo", "hidden_link", "HIDDEN_COMPLIANCE"]

@@ -69,6 +69,19 @@ def test_unwritable_outputs_are_refused_up_front(work, tmp_path, where, capsys):
     assert not (tmp_path / "afile" / "log.mcap").exists()
 
 
+@pytest.mark.parametrize("where", ["file", "proc", "output_is_directory"])
+def test_demo_checks_all_its_outputs_before_it_starts(tmp_path, where, capsys):
+    """`demo --logs` onto a file gave a traceback (FileExistsError) after the campaign began."""
+    (tmp_path / "afile").write_text("x")
+    (tmp_path / "d" / "paper_table5_hidden.discover.rrd").mkdir(parents=True)   # the last output
+    logs = {"file": tmp_path / "afile", "proc": Path("/proc/calbench-logs"), "output_is_directory": tmp_path / "d"}[where]
+    assert main(["demo", "--logs", str(logs)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("calbench demo: error:") and "--logs" in err and err.count("\n") == 1
+    assert (tmp_path / "afile").read_text() == "x"
+    assert [p.name for p in (tmp_path / "d").iterdir()] == ["paper_table5_hidden.discover.rrd"]   # nothing begun
+
+
 def test_missing_output_folders_are_created_for_every_verb(work, tmp_path):
     out = tmp_path / "new" / "deeper" / "id.json"
     assert main(["identify", str(work / "l.mcap"), "--json", str(out)]) == 0

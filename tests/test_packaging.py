@@ -51,3 +51,6 @@ def test_demo_runs_from_a_plain_install_outside_the_checkout(wheel, tmp_path):
     assert r.stderr.splitlines()[0].startswith(str(site))      # the installed copy ran, not the checkout
     for f in ("paper_table5.mcap", "paper_table5.rrd", "paper_table5_hidden.discover.json"):
         assert (work / "logs" / f).is_file(), f
+    # the list the command line checks up front is exactly what the demo wrote
+    from calbench.identify.demo import demo_files
+    assert {p.name for p in (work / "logs").iterdir()} == {p.name for p in demo_files(work / "logs").values()}
