@@ -197,9 +197,12 @@ def cmd_export(args: argparse.Namespace) -> int:
     from .logcsv import export_rows
     from .readings import readings_csv
     check_outputs({"--csv": args.csv}, {"LOG": args.log})
-    rows = export_rows(read_log(args.log))
+    log = read_log(args.log)
+    rows = export_rows(log)
     write_text(args.csv, readings_csv(rows))
     print(f"wrote {args.csv}: {len(rows)} readings (mm, tracker frame)")
+    if log.completeness():
+        print(f"  campaign: {log.completeness()}")
     return 0
 
 

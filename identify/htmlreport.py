@@ -137,7 +137,7 @@ def campaign_section(log: CampaignLog, simulated: bool) -> dict:
     h = log.header
     tr = h.get("tracker") or {}
     names = list(h.get("reflectors") or [])
-    lost = sorted(set(range(log.n_poses_planned)) - set(log.complete_poses))
+    lost = log.lost_poses
     defl = measured_deflections(log)
     seen: dict[tuple[int, str], set] = {}
     repeats: dict[int, int] = {}

@@ -28,6 +28,7 @@ VERBS = {  # every verb that reads a log, with the output it would write
     "discover": lambda log, tmp: ["discover", str(log), "--json", str(tmp / "d.json")],
     "view": lambda log, tmp: ["view", str(log), "--rrd", str(tmp / "v.rrd")],
     "report": lambda log, tmp: ["report", str(log), "--out", str(tmp / "r.html")],
+    "export": lambda log, tmp: ["export", str(log), "--csv", str(tmp / "e.csv")],
 }
 
 
@@ -187,7 +188,7 @@ def test_a_cut_log_every_verb_says_what_was_lost(paper_log, tmp_path, capsys):
     line = log.completeness()
     assert f"{n} of 16 planned poses complete, {16 - n} lost [{n}-15]" in line
     assert "cut short" in line
-    for verb in ("discover", "view"):
+    for verb in ("discover", "view", "export"):
         out = tmp_path / verb
         out.mkdir()
         assert main(VERBS[verb](cut, out)) == 0
