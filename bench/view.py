@@ -503,8 +503,9 @@ def _pose_page(plan: ViewPlan, s: PoseScene, header: str) -> str:
     for key, per_pose in plan.residuals.items():
         cols[titles[key]] = column(per_pose)
     table = viewtext.pose_table(plan.names, np.where(ok[:, None], d, np.nan), cov, cols)
-    return viewtext.pose_page(s.index, len(plan.log.complete_poses), s.command, s.wrench, s.sag,
-                              table, header, "**In the 3D view**\n\n" + plan.legend())
+    return viewtext.pose_page(s.index, len(plan.log.complete_poses), s.command, s.wrench, s.sag, table,
+                              float(np.linalg.norm(plan.robot.model.opt.gravity)), header,
+                              "**In the 3D view**\n\n" + plan.legend())
 
 
 def _discovery_header(plan: ViewPlan) -> str:

@@ -11,8 +11,6 @@ import numpy as np
 
 from .campaignlog import WrenchRecord
 
-GRAVITY = 9.81
-
 
 @dataclass(frozen=True)
 class Legend:
@@ -61,11 +59,13 @@ def legend(g: Legend) -> str:
     return "\n".join(f"- {line}" for line in lines)
 
 
-def load_text(w: WrenchRecord | None) -> str:
+def load_text(w: WrenchRecord | None, gravity: float) -> str:
+    """The load in words; a payload's weight under ``gravity`` (m/s², the robot model's
+    ``|opt.gravity|``, not a constant: the MJCF may set another)."""
     if w is None:
         return "no load recorded"
     if w.mass is not None:
-        return f"{w.mass:g} kg payload at the tool ({w.mass * GRAVITY / 1e3:.2f} kN)"
+        return f"{w.mass:g} kg payload at the tool ({w.mass * gravity / 1e3:.2f} kN)"
     f = ", ".join(f"{x / 1e3:.2f}" for x in w.force)
     m = np.linalg.norm(w.moment)
     return f"force ({f}) kN at `{w.site}`" + (f" and a moment of {m / 1e3:.2f} kN·m" if m else "")
@@ -106,13 +106,13 @@ def pose_table(names: list[str], measured: np.ndarray, cov: np.ndarray,
 
 
 def pose_page(index: int, n_poses: int, command: np.ndarray, wrench: WrenchRecord | None,
-              sag: np.ndarray, table: list[str], header: str = "", footer: str = "") -> str:
-    """The markdown page of one pose."""
+              sag: np.ndarray, table: list[str], gravity: float, header: str = "", footer: str = "") -> str:
+    """The markdown page of one pose (``gravity``: see :func:`load_text`)."""
     q = ", ".join(f"{np.degrees(x):.0f}" for x in command)
     s = sag[np.isfinite(sag)]
     lines = ([header, ""] if header else []) + [
         f"### Pose {index} ({n_poses} poses) · q = ({q})°",
-        f"Load: {load_text(wrench)}."]
+        f"Load: {load_text(wrench, gravity)}."]
     if s.size:
         lo, hi = f"{1e3 * s.min():.0f}", f"{1e3 * s.max():.0f}"
         lines.append(f"Unloaded, the reflectors sit {lo if lo == hi else f'{lo}–{hi}'} mm from "

@@ -25,9 +25,8 @@ from calbench.bench.logformat import TRUTH_PREFIX, read_log, strip_truth
 from calbench.bench.robot import Robot
 from calbench.bench.scenario import load_scenario
 from calbench.bench.tracker import to_world_frame
-from conftest import PAPER
+from conftest import PAPER, ROOT
 
-ROOT = Path(__file__).resolve().parent.parent
 ROUNDING = 1e-7      # m: bench/foxglove.py rounds coordinates to 0.1 um
 
 

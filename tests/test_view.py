@@ -35,7 +35,7 @@ from calbench.bench.viewscene import HALF_FOV_TAN, framing
 from calbench.identify.cli import main as calbench_main
 
 from rerun_cli import rerun_env, rerun_exe
-from conftest import K_TRUE, PAPER
+from conftest import K_TRUE, MJCF, PAPER
 
 F32 = 2e-6          # m: float32 resolution of world coordinates of a few metres, with margin
 TRUE = [*K_TRUE, 2.6e6, 0.83]      # the paper scenario's truth, SI
@@ -662,3 +662,22 @@ def test_spawn_failure_falls_back_to_a_file(paper_log, tmp_path, capsys, monkeyp
     assert calbench_main(["view", str(log)]) == 0
     assert "could not spawn" in capsys.readouterr().err
     assert (tmp_path / "c.rrd").exists()
+
+
+def test_the_payload_weight_on_the_page_is_under_the_models_gravity(tmp_path):
+    """The pose page states a payload's weight m |g| with g from the MJCF's <option gravity>
+    (issue 9: no GRAVITY = 9.81 constant). On the Moon, 700 kg weigh 700 x 1.62 = 1.134 kN."""
+    xml = MJCF.read_text()
+    assert 'gravity="0 0 -9.81"' in xml
+    (tmp_path / "moon.xml").write_text(xml.replace('gravity="0 0 -9.81"', 'gravity="0 0 -1.62"'))
+    scn = PAPER.read_text()
+    assert 'robot = "../mjcf/m900ib700.xml"' in scn
+    (tmp_path / "moon.toml").write_text(scn.replace('robot = "../mjcf/m900ib700.xml"', 'robot = "moon.xml"'))
+    log, rrd = tmp_path / "moon.mcap", tmp_path / "moon.rrd"
+    run_campaign(load_scenario(tmp_path / "moon.toml"), log)
+    write_recording(log, rrd)
+    assert "700 kg payload at the tool (1.13 kN)" in page_at(rrd, 0)
+
+
+def test_the_payload_weight_on_earth(paper_rrd):
+    assert "700 kg payload at the tool (6.87 kN)" in page_at(paper_rrd, 0)
