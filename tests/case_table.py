@@ -4,7 +4,8 @@
 
 Prints a markdown table (case, exit status, first line of the message). Run against main
 before the changes and against the branch after; the tests assert the same cases one by one
-(tests/test_robustness.py). Not collected by pytest (no test_ prefix).
+(tests/test_outputs.py, test_logread.py, test_interrupt.py, test_checks.py, test_timeline.py,
+test_cli_help.py, test_fuzz.py). Not collected by pytest (no test_ prefix).
 """
 from __future__ import annotations
 
