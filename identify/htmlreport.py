@@ -135,7 +135,7 @@ def um(x) -> str:
 
 def campaign_section(log: CampaignLog, simulated: bool) -> dict:
     h = log.header
-    tr = h.get("tracker") or {}
+    tr = log.tracker_spec()           # the one parse of the header's tracker (TrackerSpec)
     names = list(h.get("reflectors") or [])
     lost = log.lost_poses
     defl = measured_deflections(log)
@@ -162,14 +162,14 @@ def campaign_section(log: CampaignLog, simulated: bool) -> dict:
                              f"{len(seen.get((p, 'loaded'), ()))} of {len(names)}",
                      "deflection": [("–" if n not in defl.get(p, {}) else
                                      f"{np.linalg.norm(defl[p][n]) * 1e3:.3f}") for n in names]})
-    noise = (f"isotropic, σ = {tr['sigma'] * 1e6:.3g} µm per axis" if tr.get("model") == "isotropic"
-             else f"{tr.get('model')}: distance {tr.get('distance')}, transverse "
-                  f"{tr.get('transverse')} (a m + b m/m)")
+    noise = (f"isotropic, σ = {tr.sigma * 1e6:.3g} µm per axis" if tr.model == "isotropic"
+             else f"{tr.model}: distance {list(tr.distance)}, transverse "
+                  f"{list(tr.transverse)} (a m + b m/m)")
     return {
         "scenario": h.get("scenario_name", "?"), "robot": h.get("robot", "?"),
         "reflectors": names, "payload_site": h.get("payload_site", "?"),
-        "tracker_position": ", ".join(f"{x:.3f}" for x in tr.get("position", [])),
-        "tracker_yaw": f"{math.degrees(float(tr.get('yaw', 0.0))):.1f}",
+        "tracker_position": ", ".join(f"{x:.3f}" for x in tr.position),
+        "tracker_yaw": f"{math.degrees(tr.yaw):.1f}",
         "tracker_noise": noise, "seed": h.get("seed"), "simulated": simulated,
         "planned": log.n_poses_planned, "complete": len(log.complete_poses), "lost": lost,
         "truncated": log.truncated, "n_readings": len(log.measurements), "rows": rows,
