@@ -13,9 +13,10 @@ A log is input, and nothing it says is trusted blindly. The policy (docs/contrac
   bench/mcapscan.py), a message that is not JSON or breaks its topic's schema (a wrong type, a
   5-element ``q``, a missing ``visible``, NaN or Infinity anywhere: bench/logschema.py), a pose
   index outside the plan (``n_poses`` of ``/campaign/info``), a reading whose lists disagree
-  in length or whose visibility and nulls disagree, a covariance that is not symmetric positive
-  definite, a message given twice, a complete pose without its command in both states or its
-  load. Nothing is computed with such a log; ``calbench recover``
+  in length or whose visibility and nulls disagree, a reading naming a reflector the header does
+  not list or another list than the pose's other readings, a covariance that is not symmetric
+  positive definite, a message given twice, a complete pose without its command in both states
+  (the same command) or its load. Nothing is computed with such a log; ``calbench recover``
   (bench/logrecover.py) writes a new file with the valid poses only, naming the others, which
   this reader then reads as a campaign with lost poses.
 
@@ -53,6 +54,9 @@ RECOVER_HINT = "`calbench recover LOG --out FIXED.mcap` keeps its valid poses"
 DECODED = frozenset(SCHEMAS)
 # relative asymmetry tolerated in a covariance (round-off of R D R^T in the writer is ~1e-16)
 SYMMETRY_TOL = 1e-9
+# rad: a pose is one command, written in both states (JSON carries a float exactly; this is the
+# same 1e-12 as identify/observations.py's check, far below any encoder's resolution)
+COMMAND_TOL = 1e-12
 
 
 class CorruptLogError(InputError):
@@ -207,6 +211,23 @@ def _per_state(d: dict[int, dict[str, Any]], keep: set[int]) -> dict[int, PerSta
             if p in keep}
 
 
+def _check_reflector_lists(path: Path, header: list[str], meas: list[MeasurementRecord]) -> None:
+    """Every reading names reflectors of ``/campaign/info`` only, and the readings of one pose
+    all name the same list (its rows are matched by position between states and repeats)."""
+    known, first = set(header), {}
+    for m in meas:
+        key = _key("/tracker/measurement", {"pose": m.pose, "state": m.state, "repeat": m.repeat},
+                   "reflectors")
+        unknown = [r for r in m.reflectors if r not in known]
+        if unknown:
+            raise CorruptLogError(path, key, "reflectors that /campaign/info lists "
+                                  f"({', '.join(header) or 'none'})", unknown)
+        names = first.setdefault(m.pose, m.reflectors)
+        if m.reflectors != names:
+            raise CorruptLogError(path, key, f"the list of the pose's first reading {names}",
+                                  m.reflectors)
+
+
 def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLog:
     """Read and check a campaign log (see the module docstring for the policy): its complete
     poses, what was lost and how the log ended. Raises InputError when the file is missing or
@@ -293,6 +314,10 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
         if p not in c.wrenches:
             raise CorruptLogError(path, f"/campaign/wrench pose {p}", "the load of a complete pose",
                                   "none")
+        if not np.allclose(states["unloaded"], states["loaded"], rtol=0, atol=COMMAND_TOL):
+            raise CorruptLogError(path, f"/campaign/pose pose {p} loaded: q", "the command of the "
+                                  "unloaded state (a pose is one command)", states["loaded"].tolist())
+    _check_reflector_lists(path, c.info["reflectors"], c.meas)
     truth = None
     if include_truth and saw_truth:
         t_meta = metadata.get(GROUND_TRUTH_METADATA) or {}

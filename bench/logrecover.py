@@ -29,13 +29,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from mcap.records import Channel, Message, MessageIndex, Metadata
 
 from .campaignlog import pose_list
 from .logformat import copy_log
 from .errors import InputError
-from .logread import (DECODED, END_METADATA, RECOVERED_METADATA, CorruptLogError, decode,
-                      message_problems, read_log)
+from .logread import (COMMAND_TOL, DECODED, END_METADATA, RECOVERED_METADATA, CorruptLogError,
+                      decode, message_problems, read_log)
 from .logschema import REQUIRED_TOPICS
 from .mcapscan import Cut, Damage, scan
 
@@ -82,6 +83,7 @@ class _Salvage:
         self.topics = {r.id: r.topic for r in events if isinstance(r, Channel)}
         self.n_poses: int | None = None
         self.n_joints: int | None = None
+        self.reflectors: set[str] = set()       # the header's
         self.valid: set[int] = set()            # decoded messages that pass every check
         self.pose_of: dict[int, int] = {}       # event index -> pose of a valid message
         self.span_of: dict[int, int] = {}       # event index -> the marker closing its span
@@ -127,6 +129,7 @@ class _Salvage:
                                       "to recover from", why or "two")
             self.n_poses = m["n_poses"]
             self.n_joints = m.get("n_joints")
+            self.reflectors = set(m["reflectors"])
         if why is not None:                       # it taints the pose it sits among, and its
             self._taint = self._taint or why      # own pose (when that is one of the plan)
             if pose is not None and (self.n_poses is None or 0 <= pose < self.n_poses):
@@ -156,19 +159,33 @@ class _Salvage:
         self._span, self._poses, self._taint = [], set(), None
 
     def complete(self, events: list) -> list[int]:
-        """Poses with their marker, untainted, and all there (both commands and the load: what
-        bench/logread.py asks of a complete pose)."""
+        """Poses with their marker, untainted, and all there and consistent (both commands, the
+        same, and the load; readings that name the header's reflectors, one list per pose: what
+        bench/logread.py asks of a pose)."""
         have: dict[int, set] = {}
+        q: dict[int, dict[str, list]] = {}
+        lists: dict[int, set[tuple]] = {}
         for i, p in self.pose_of.items():
             m = events[i]
             topic = self.topics[m.channel_id]
-            state = json.loads(m.data).get("state") if topic == "/campaign/pose" else None
+            msg = json.loads(m.data) if topic in ("/campaign/pose", "/tracker/measurement") else {}
+            state = msg.get("state") if topic == "/campaign/pose" else None
             have.setdefault(p, set()).add((topic, state))
+            if topic == "/campaign/pose":
+                q.setdefault(p, {})[state] = msg["q"]
+            elif topic == "/tracker/measurement":
+                lists.setdefault(p, set()).add(tuple(msg["reflectors"]))
         need = {("/campaign/pose", "unloaded"), ("/campaign/pose", "loaded"),
                 ("/campaign/wrench", None)}
         for p in self.done:
-            if p not in self.bad and not need <= have.get(p, set()):
+            if p in self.bad:
+                continue
+            if not need <= have.get(p, set()):
                 self.bad[p] = "its command or its load is missing"
+            elif not np.allclose(q[p]["unloaded"], q[p]["loaded"], rtol=0, atol=COMMAND_TOL):
+                self.bad[p] = "its command differs between the states"
+            elif len(lists.get(p, ())) > 1 or any(set(n) - self.reflectors for n in lists.get(p, ())):
+                self.bad[p] = "its readings name other reflectors than the header or each other"
         return sorted(p for p in self.done if p not in self.bad)
 
 

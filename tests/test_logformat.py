@@ -76,8 +76,9 @@ def pose_data(p: int) -> dict:
     """Deterministic synthetic data of one pose (both states, 2 repeats)."""
     rng = np.random.default_rng(100 + p)
     d: dict = {"q": {}, "meas": {}, "truth_refl": {}, "truth_joints": {}}
+    q = rng.uniform(-1, 1, 6)        # a pose is one command, the same in both states (bench/logread.py)
     for s in lf.STATES:
-        d["q"][s] = rng.uniform(-1, 1, 6)
+        d["q"][s] = q
         d["truth_refl"][s] = rng.normal(size=(3, 3))
         d["truth_joints"][s] = (rng.normal(size=9), rng.normal(size=6) * 1e-4)
         for r in range(2):

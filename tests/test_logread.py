@@ -143,6 +143,54 @@ def test_a_message_given_twice(paper_log, tmp_path, capsys):
     refused_by_every_verb(bad, tmp_path, capsys, "/campaign/wrench pose 4", "each message once")
 
 
+def test_a_reading_of_a_reflector_the_header_does_not_list(paper_log, tmp_path, capsys):
+    """view, report and export accepted it (identify and discover refused it in their own words);
+    with an empty header list view and discover gave a traceback."""
+    bad = mutate(paper_log, tmp_path, "/tracker/measurement", lambda m: m["reflectors"].__setitem__(0, "refl_zz"))
+    refused_by_every_verb(bad, tmp_path, capsys, "/tracker/measurement pose 3 unloaded repeat 0",
+                          "reflectors", "refl_a, refl_b, refl_c", "refl_zz")
+    empty = bc.rewrite_json(paper_log, tmp_path / "empty.mcap",
+                            lambda t, m: {**m, "reflectors": []} if t == "/campaign/info" else m)
+    refused_by_every_verb(empty, tmp_path, capsys, "/tracker/measurement pose 0", "lists (none)")
+
+
+def test_readings_of_one_pose_with_different_reflector_lists(paper_log, tmp_path, capsys):
+    """The rows of a pose's readings are matched by position: a reordered list in one reading
+    would pair different reflectors."""
+    bad = mutate(paper_log, tmp_path, "/tracker/measurement", lambda m: {
+        **m, **{k: m[k][::-1] for k in ("reflectors", "position", "covariance", "visible")}})
+    refused_by_every_verb(bad, tmp_path, capsys, "/tracker/measurement pose 3", "reflectors",
+                          "the pose's first reading")
+
+
+def test_a_pose_commanded_differently_in_its_two_states(paper_log, tmp_path, capsys):
+    """A pose is one command; view, report and export drew and exported such a pose."""
+    def edit(t, m):
+        if t == "/campaign/pose" and m["pose"] == 3 and m["state"] == "loaded":
+            m["q"][1] += 0.1
+        return m
+    bad = bc.rewrite_json(paper_log, tmp_path / "qdiff.mcap", edit)
+    refused_by_every_verb(bad, tmp_path, capsys, "/campaign/pose pose 3 loaded: q",
+                          "the command of the unloaded state")
+
+
+def test_recover_drops_the_poses_the_reader_refuses(paper_log, tmp_path, capsys):
+    """What the reader refuses, recover leaves out, naming why; the rest reads."""
+    def edit(t, m):
+        if t == "/campaign/pose" and m["pose"] == 3 and m["state"] == "loaded":
+            m["q"][1] += 0.1
+        if t == "/tracker/measurement" and m["pose"] == 7 and m["state"] == "loaded":
+            m["reflectors"][2] = "refl_zz"
+        return m
+    bad = bc.rewrite_json(paper_log, tmp_path / "two.mcap", edit)
+    fixed = tmp_path / "fixed.mcap"
+    assert main(["recover", str(bad), "--out", str(fixed)]) == 0
+    out = capsys.readouterr().out
+    assert "dropped pose 3 (its command differs" in out and "pose 7 (its readings name other" in out
+    rec = read_log(fixed)
+    assert rec.lost_poses == [3, 7] and rec.complete_poses == [p for p in range(16) if p not in (3, 7)]
+
+
 def test_not_json(paper_log, tmp_path, capsys):
     bad = mutate(paper_log, tmp_path, "/campaign/wrench", lambda m: b'{"pose": 3, "force": [1,')
     refused_by_every_verb(bad, tmp_path, capsys, "/campaign/wrench", "not JSON")
