@@ -47,7 +47,7 @@ from calbench.bench.tracker import Measurement, noise_covariance, to_tracker_fra
 
 from .executor import Executor, InProcess, Interrupted
 from .observations import Observations, pose_observation
-from .onestep import OneStep, generic_start, sanitize_start, to_phi
+from .onestep import OneStep, fit_from, generic_start, sanitize_start, to_phi
 from .portable import PortableScenario
 from .twostep import TwoStepError, linear_plan, two_step, two_step_applies
 from .twostep_iterated import two_step_iterated
@@ -253,7 +253,7 @@ def _setup(job: MonteCarloJob) -> _Setup:
             sag0 = (it0.step2["sag_rad"], it0.step2["jacobian"])
         start, _ = sanitize_start(two0.theta, generic, lay)
         method0 = "two-step"
-    nf = est.fit(obs0.dp, white0, start, start_method=method0)
+    nf = fit_from(est, obs0.dp, white0, start, generic, method0)
     noise_free["one-step"] = nf.theta
     theta0 = np.where(np.isfinite(nf.theta), nf.theta, start)
     scale = np.abs(to_phi(theta0, lay))
