@@ -15,6 +15,7 @@ from calbench.bench.errors import InputError
 from calbench.identify.cli import main
 from calbench.identify.study import load_study, prepare, run_study
 from calbench.identify.study.campaign import TIMING_COLUMNS
+from calbench.identify.study.run import design_key
 from calbench.identify.study.spec import scaled
 from conftest import PAPER
 
@@ -86,6 +87,24 @@ values = [1e-5, 3e-5]
     seeds = [study.campaign_seed(r) for r in range(3)]
     assert len(set(seeds)) == 3 and seeds == [study.campaign_seed(r) for r in range(3)]
     assert scaled({"joint": 3, "cubic": 6e12, "s": "x"}, 0.5) == {"joint": 3, "cubic": 3e12, "s": "x"}
+
+
+def test_cells_that_differ_by_a_hidden_effect_share_their_designed_plan(tmp_path):
+    """The design model never has the truth's hidden effects (nominal_robot), so one plan per
+    design:<c>:<M> and visible scenario serves every effect; a visible change designs anew."""
+    study = load_study(write(tmp_path, BASE + """seeds = 1
+[[axis]]
+name = "effect"
+cases = [{label = "none"},
+         {label = "base", set = {"truth.effects.base_compliance" = {compliance = [4.0e-9, 2.0e-9]}}},
+         {label = "soft", set = {"truth.compliance[2]" = 1.4e-7}}]
+[[axis]]
+key = "plan"
+values = ["design:A:8"]
+"""))
+    keys = {cl.values["effect"]: design_key(cl) for cl in study.cells}
+    assert keys["none"] == keys["base"]
+    assert keys["soft"] != keys["none"]
 
 
 def test_the_shipped_studies_are_valid():
