@@ -107,6 +107,14 @@ values = ["design:A:8"]
     assert keys["soft"] != keys["none"]
 
 
+def test_plot_ticks_name_a_plan_file_by_its_name():
+    from calbench.identify.study.plots import _x
+    x, labels = _x(["../scenarios/paper_table5.toml", "design:A:8", "/abs/plans/kr270_paper.toml"])
+    assert list(x) == [0.0, 1.0, 2.0]
+    assert labels == ["paper_table5.toml", "design:A:8", "kr270_paper.toml"]
+    assert _x([1e-5, 2e-5])[1] is None                  # numeric axes keep their values
+
+
 def test_the_shipped_studies_are_valid():
     from importlib.resources import files
     power = load_study(files("calbench.studies") / "discovery_power.toml")
