@@ -136,6 +136,23 @@ values = [1e-5, 4e-5]
 """
 
 
+def test_an_identify_only_task_does_not_import_discovery(tmp_path):
+    """Discovery's import (scipy.stats, ~0.9 s) was paid in every worker's first task of an
+    identify-only study, most of its per-task overhead (benchmarks/scaling_bench.py): a fresh
+    process runs such a study and must not have imported it."""
+    import subprocess
+    import sys
+    study = write(tmp_path, SMALL.format(seeds=1))
+    code = ("import sys\n"
+            "from calbench.identify.study import load_study, prepare, run_study\n"
+            f"out = run_study(prepare(load_study({str(study)!r}), {str(tmp_path / 'r.parquet')!r}))\n"
+            "assert out.ran == 2 and out.failed == 0, out\n"
+            "print('calbench.identify.discover.workflow' in sys.modules)\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "False"
+
+
 def _table(path):
     t = pq.read_table(path)
     return {n: t.column(n).to_pylist() for n in t.column_names if n not in TIMING_COLUMNS}
