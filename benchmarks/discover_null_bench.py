@@ -21,7 +21,12 @@ The campaign is solved once; each seed redraws the tracker noise (identify/monte
 campaign_observations) and runs the whole discovery on the observations in memory
 (identify/discover/workflow.py's discover_observations). Prints JSON.
 
-    python benchmarks/discover_null_bench.py [--seeds 300] [--spec-seeds 100] [--processes 2] [--quick]
+    python benchmarks/discover_null_bench.py [--seeds 300] [--spec-seeds 100] [--processes 2]
+                                             [--scheduler ADDR] [--quick]
+
+The seeds run as pieces on calbench's executors (identify/executor.py, issue 15: no pool of our
+own): in this process, on a local Dask cluster of ``--processes`` workers, or on the cluster at
+``--scheduler`` (its workers need this checkout: the pieces read scenarios/paper_table5.toml).
 """
 from __future__ import annotations
 
@@ -30,15 +35,17 @@ import json
 import statistics
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 from scipy import stats
 
+from calbench.identify.executor import choose, open_executor
+
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
 LEVELS = (0.01, 0.05, 0.10, 0.20)
+SEEDS_PER_TASK = 5          # ~5-10 s of discovery per piece
 
 _STATE: dict = {}
 
@@ -75,6 +82,12 @@ def one_seed(args: tuple[str, int]) -> dict:
             "p_before": rep["p_before"], "evaluations": rep["evaluations"]}
 
 
+def seed_block(model: str, seeds: list[int]) -> list[dict]:
+    """One piece: a block of seeds, so that a worker solves the campaign once per block (a
+    script's function travels by value to Dask workers, its _STATE with it)."""
+    return [one_seed((model, s)) for s in seeds]
+
+
 def clopper_pearson_upper(k: int, n: int, conf: float = 0.95) -> float:
     return 1.0 if k >= n else float(stats.beta.ppf(conf, k + 1, n - k))
 
@@ -109,7 +122,9 @@ def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", type=int, default=300, help="isotropic-noise null seeds (default: %(default)s)")
     ap.add_argument("--spec-seeds", type=int, default=100, help="spec-noise null seeds (default: %(default)s)")
-    ap.add_argument("--processes", type=int, default=1, help="worker processes (default: %(default)s)")
+    ap.add_argument("--processes", type=int, default=1,
+                    help="worker processes of a local Dask cluster (default: %(default)s: this process)")
+    ap.add_argument("--scheduler", default=None, help="a Dask scheduler's address (tcp:// or tls://)")
     ap.add_argument("--quick", action="store_true", help="10 isotropic and 5 spec seeds (to see that it works)")
     args = ap.parse_args()
     if args.quick:
@@ -119,12 +134,11 @@ def main() -> int:
     for model, n in (("isotropic", args.seeds), ("spec", args.spec_seeds)):
         if n <= 0:
             continue
-        jobs = [(model, s) for s in range(n)]
-        if args.processes > 1:
-            with ProcessPoolExecutor(args.processes) as ex:
-                rows = list(ex.map(one_seed, jobs, chunksize=4))
-        else:
-            rows = [one_seed(j) for j in jobs]
+        blocks = [(model, list(range(a, min(a + SEEDS_PER_TASK, n)))) for a in range(0, n, SEEDS_PER_TASK)]
+        where = args.scheduler or ("local" if args.processes > 1 else "in-process")
+        with open_executor(choose(where, 0.0, len(blocks), workers=args.processes)) as ex:
+            done = dict(ex.run(seed_block, blocks))
+        rows = [r for i in range(len(blocks)) for r in done[i]]
         res["models"][model] = summarise(rows)
         print(json.dumps({model: {k: v for k, v in res["models"][model].items() if k != "alarms"}}), file=sys.stderr)
     all_rows = sum((m["seeds"] for m in res["models"].values()), 0)

@@ -2,7 +2,8 @@
 
 * **in-process**: the pieces run one after the other in this process (no start-up cost);
 * **local cluster**: a Dask ``distributed.LocalCluster`` of one single-threaded worker process
-  per CPU, bound to 127.0.0.1 only (nothing listens on another interface; no dashboard);
+  per CPU, bound to 127.0.0.1 only (nothing listens on another interface; no dashboard, the
+  scheduler's HTTP routes on a free port);
 * **cluster**: the user's Dask scheduler (``--scheduler tcp://HOST:PORT`` or ``tls://…``,
   else the standard ``DASK_SCHEDULER_ADDRESS`` / dask config ``scheduler-address``).
 
@@ -218,8 +219,13 @@ class DaskExecutor(Executor):
         from distributed import Client, LocalCluster, Security
         self.cluster = None
         if choice.kind == LOCAL:
+            # dashboard_address=None turns the dashboard off, yet the scheduler still serves its
+            # HTTP routes (health, metrics) on Dask's default port 8787: pinned to a free port on
+            # 127.0.0.1 here, so a second cluster (another calbench run) does not warn that 8787
+            # is taken
             self.cluster = LocalCluster(n_workers=choice.workers, threads_per_worker=1, processes=True,
                                         host="127.0.0.1", scheduler_port=0, dashboard_address=None,
+                                        scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
                                         silence_logs=logging.ERROR)
             self.client = Client(self.cluster)
         else:

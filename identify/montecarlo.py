@@ -31,7 +31,7 @@ import contextlib
 import copy
 import functools
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -47,7 +47,7 @@ from calbench.bench.tracker import Measurement, noise_covariance, to_tracker_fra
 
 from .executor import Executor, InProcess, Interrupted
 from .observations import Observations, pose_observation
-from .onestep import OneStep, generic_start, sanitize_start, to_phi
+from .onestep import OneStep, fit_from, generic_start, sanitize_start, to_phi
 from .portable import PortableScenario
 from .twostep import TwoStepError, linear_plan, two_step, two_step_applies
 from .twostep_iterated import two_step_iterated
@@ -131,6 +131,7 @@ class MonteCarlo:
     units: tuple[str, ...] = ()
     executor: str = "in this process"     # where the runs ran (identify/executor.py)
     wall_seconds: float = float("nan")
+    failed: dict[str, int] = field(default_factory=dict)   # method -> runs it failed on (an error)
 
     def summary(self) -> dict:
         n = self.runs
@@ -180,7 +181,7 @@ class MonteCarlo:
                     "noise_free_error_over_crb_std": float((self.noise_free[meth][i] - self.truth[i]) / crb_sd[i])
                     if np.isfinite(self.noise_free[meth][i]) else None,
                 })
-            out["methods"][meth] = {"seconds": self.times[meth],
+            out["methods"][meth] = {"seconds": self.times[meth], "failed_runs": self.failed.get(meth, 0),
                                     "seconds_per_run": self.times[meth] / n, "parameters": rows}
         return out
 
@@ -253,7 +254,7 @@ def _setup(job: MonteCarloJob) -> _Setup:
             sag0 = (it0.step2["sag_rad"], it0.step2["jacobian"])
         start, _ = sanitize_start(two0.theta, generic, lay)
         method0 = "two-step"
-    nf = est.fit(obs0.dp, white0, start, start_method=method0)
+    nf = fit_from(est, obs0.dp, white0, start, generic, method0)
     noise_free["one-step"] = nf.theta
     theta0 = np.where(np.isfinite(nf.theta), nf.theta, start)
     scale = np.abs(to_phi(theta0, lay))
@@ -287,6 +288,7 @@ def run_block(job: MonteCarloJob, first: int, stop: int) -> dict:
     est_out = {m: np.full((n, p), np.nan) for m in job.methods}
     std_out = {m: np.full((n, p), np.nan) for m in job.methods}
     times = {m: 0.0 for m in job.methods}
+    failed = {m: 0 for m in job.methods}
     iters = []
     for k, r in enumerate(range(first, stop)):
         rng = np.random.default_rng([job.seed, r])
@@ -296,20 +298,28 @@ def run_block(job: MonteCarloJob, first: int, stop: int) -> dict:
         white = Whitener.from_observations(obs)
         for meth in job.methods:
             t = time.perf_counter()
-            if meth == "one-step":
-                est = _fresh(s.est)
-                n_eval = est.model.stats["evaluations"]
-                res = est.fit(obs.dp, white, s.theta0, scale=s.scale, start_eval=(s.f0, s.j0),
-                              final_eval=False, step_tol=MC_STEP_TOL, start_method="noise-free estimate")
-                iters.append((res.iterations, est.model.stats["evaluations"] - n_eval))
-            elif meth == "two-step-iterated":
-                res = two_step_iterated(s.robot, obs, start=s.sag0[0], jacobian=s.sag0[1])
-            else:
-                res = two_step(s.robot, obs, meth == "two-step-weighted", lp=s.lp, white=white)
+            try:
+                if meth == "one-step":
+                    est = _fresh(s.est)
+                    n_eval = est.model.stats["evaluations"]
+                    res = est.fit(obs.dp, white, s.theta0, scale=s.scale, start_eval=(s.f0, s.j0),
+                                  final_eval=False, step_tol=MC_STEP_TOL, start_method="noise-free estimate")
+                    iters.append((res.iterations, est.model.stats["evaluations"] - n_eval))
+                elif meth == "two-step-iterated":
+                    res = two_step_iterated(s.robot, obs, start=s.sag0[0], jacobian=s.sag0[1])
+                else:
+                    res = two_step(s.robot, obs, meth == "two-step-weighted", lp=s.lp, white=white)
+            except (np.linalg.LinAlgError, TwoStepError):
+                # this run's estimate left the robot's statics (e.g. the iterated two-step's sag at a
+                # spring that makes the stiffness singular): the method failed on this run, the
+                # other runs and methods stand (NaN: counted as not identified, and as failed)
+                failed[meth] += 1
+                times[meth] += time.perf_counter() - t
+                continue
             times[meth] += time.perf_counter() - t
             est_out[meth][k] = res.theta
             std_out[meth][k] = np.sqrt(np.diag(res.cov))
-    return {"estimates": est_out, "stds": std_out, "times": times, "iterations": iters}
+    return {"estimates": est_out, "stds": std_out, "times": times, "iterations": iters, "failed": failed}
 
 
 def estimated_seconds(runs: int, methods=METHODS) -> float:
@@ -335,6 +345,7 @@ def run_montecarlo(scn: Scenario, runs: int, methods=METHODS, progress: Progress
     estimates = {m: np.full((runs, lay.n), np.nan) for m in methods}
     stds = {m: np.full((runs, lay.n), np.nan) for m in methods}
     times = {m: 0.0 for m in methods}
+    failed = {m: 0 for m in methods}
     iters: dict[int, list] = {}
     done = np.zeros(runs, bool)
     bar = sink(progress)
@@ -344,7 +355,7 @@ def run_montecarlo(scn: Scenario, runs: int, methods=METHODS, progress: Progress
         mc = MonteCarlo(str(scn.path), int(keep.sum()), s.theta_true, s.crb,
                         {m: v[keep] for m, v in estimates.items()}, {m: v[keep] for m, v in stds.items()},
                         times, s.noise_free, s.seconds, lay.names, lay.units, executor.choice.describe(),
-                        time.perf_counter() - t_wall)
+                        time.perf_counter() - t_wall, dict(failed))
         mc.iterations = np.array([it for i in sorted(iters) for it in iters[i]])
         return mc
 
@@ -356,6 +367,7 @@ def run_montecarlo(scn: Scenario, runs: int, methods=METHODS, progress: Progress
                     estimates[m][a:b] = out["estimates"][m]
                     stds[m][a:b] = out["stds"][m]
                     times[m] += out["times"][m]
+                    failed[m] += out["failed"][m]
                 iters[i] = out["iterations"]
                 done[a:b] = True
                 bar.update(f"runs {int(done.sum())}/{runs}", step=b - a)
@@ -369,7 +381,8 @@ def format_summary(s: dict) -> str:
              f"(sampling error: bias/sigma +-{s['sampling_error']['bias_over_sigma']:.3f}, "
              f"variance ratio +-{s['sampling_error']['variance_ratio']:.3f})"]
     for meth, d in s["methods"].items():
-        lines.append(f"\n{meth}  ({d['seconds']:.2f} s, {1e3 * d['seconds_per_run']:.1f} ms/run)")
+        fails = f"; failed on {d['failed_runs']} runs (left out)" if d.get("failed_runs") else ""
+        lines.append(f"\n{meth}  ({d['seconds']:.2f} s, {1e3 * d['seconds_per_run']:.1f} ms/run{fails})")
         lines.append(f"  {'parameter':<22}{'bias/sd':>9}{'sd/rep.sd':>11}{'var/CRB':>9}{'MSE/CRB':>9}"
                      f"{'noise-free err/CRBsd':>22}")
         for p in d["parameters"]:

@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import operator
+import socket
+import warnings
 
 import dask
 import numpy as np
@@ -42,7 +44,17 @@ def test_an_unreachable_scheduler_or_tls_without_certificates_is_bad_input(capsy
 
 
 def test_the_local_cluster_listens_on_127_0_0_1_only_and_runs_the_same_functions():
-    with X.open_executor(X.choose("local", 0.0, workers=2)) as ex:
+    # Dask's default HTTP port taken (as by another calbench run's cluster): no warning, another port
+    taken = socket.socket()
+    try:
+        taken.bind(("127.0.0.1", 8787))
+    except OSError:
+        pass                                    # already taken by someone else: the same case
+    with warnings.catch_warnings():
+        warnings.filterwarnings("error", message=".*already in use")
+        ex = X.open_executor(X.choose("local", 0.0, workers=2))
+    taken.close()
+    with ex:
         assert ex.cluster.scheduler_address.startswith("tcp://127.0.0.1:")
         info = ex.client.scheduler_info()["workers"]
         assert len(info) == 2 and all(a.startswith("tcp://127.0.0.1:") for a in info)

@@ -15,6 +15,7 @@ from calbench.bench.errors import InputError
 from calbench.identify.cli import main
 from calbench.identify.study import load_study, prepare, run_study
 from calbench.identify.study.campaign import TIMING_COLUMNS
+from calbench.identify.study.run import design_key
 from calbench.identify.study.spec import scaled
 from conftest import PAPER
 
@@ -88,6 +89,32 @@ values = [1e-5, 3e-5]
     assert scaled({"joint": 3, "cubic": 6e12, "s": "x"}, 0.5) == {"joint": 3, "cubic": 3e12, "s": "x"}
 
 
+def test_cells_that_differ_by_a_hidden_effect_share_their_designed_plan(tmp_path):
+    """The design model never has the truth's hidden effects (nominal_robot), so one plan per
+    design:<c>:<M> and visible scenario serves every effect; a visible change designs anew."""
+    study = load_study(write(tmp_path, BASE + """seeds = 1
+[[axis]]
+name = "effect"
+cases = [{label = "none"},
+         {label = "base", set = {"truth.effects.base_compliance" = {compliance = [4.0e-9, 2.0e-9]}}},
+         {label = "soft", set = {"truth.compliance[2]" = 1.4e-7}}]
+[[axis]]
+key = "plan"
+values = ["design:A:8"]
+"""))
+    keys = {cl.values["effect"]: design_key(cl) for cl in study.cells}
+    assert keys["none"] == keys["base"]
+    assert keys["soft"] != keys["none"]
+
+
+def test_plot_ticks_name_a_plan_file_by_its_name():
+    from calbench.identify.study.plots import _x
+    x, labels = _x(["../scenarios/paper_table5.toml", "design:A:8", "/abs/plans/kr270_paper.toml"])
+    assert list(x) == [0.0, 1.0, 2.0]
+    assert labels == ["paper_table5.toml", "design:A:8", "kr270_paper.toml"]
+    assert _x([1e-5, 2e-5])[1] is None                  # numeric axes keep their values
+
+
 def test_the_shipped_studies_are_valid():
     from importlib.resources import files
     power = load_study(files("calbench.studies") / "discovery_power.toml")
@@ -107,6 +134,23 @@ SMALL = BASE + """seeds = {seeds}
 key = "tracker.sigma"
 values = [1e-5, 4e-5]
 """
+
+
+def test_an_identify_only_task_does_not_import_discovery(tmp_path):
+    """Discovery's import (scipy.stats, ~0.9 s) was paid in every worker's first task of an
+    identify-only study, most of its per-task overhead (benchmarks/scaling_bench.py): a fresh
+    process runs such a study and must not have imported it."""
+    import subprocess
+    import sys
+    study = write(tmp_path, SMALL.format(seeds=1))
+    code = ("import sys\n"
+            "from calbench.identify.study import load_study, prepare, run_study\n"
+            f"out = run_study(prepare(load_study({str(study)!r}), {str(tmp_path / 'r.parquet')!r}))\n"
+            "assert out.ran == 2 and out.failed == 0, out\n"
+            "print('calbench.identify.discover.workflow' in sys.modules)\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "False"
 
 
 def _table(path):

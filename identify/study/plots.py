@@ -23,10 +23,16 @@ def _numeric(values) -> bool:
 
 
 def _x(values):
-    """Positions and tick labels: the values themselves when numeric, else 0, 1, 2, ..."""
+    """Positions and tick labels: the values themselves when numeric, else 0, 1, 2, ... labelled
+    by the value, a plan file by its name (a path across the axis hid its neighbours' labels)."""
     if _numeric(values):
         return np.array(values, float), None
-    return np.arange(len(values), dtype=float), [str(v) for v in values]
+    return np.arange(len(values), dtype=float), [_label(v) for v in values]
+
+
+def _label(v) -> str:
+    s = str(v)
+    return Path(s).name if s.endswith(".toml") else s
 
 
 def _slug(name: str) -> str:

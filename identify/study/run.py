@@ -114,8 +114,12 @@ def per_task(cell: Cell) -> int:
 
 
 def design_key(cell: Cell) -> str:
-    """What a designed plan depends on: the cell's scenario without its poses, and the spec."""
+    """What a designed plan depends on: the cell's scenario without its poses and without its
+    hidden effects (the design model never has them: design.candidates.nominal_robot), and the
+    spec. Cells that differ only by a hidden effect share one design."""
     doc = {k: v for k, v in cell.doc.items() if k != "pose"}
+    if "truth" in doc:
+        doc["truth"] = {k: v for k, v in doc["truth"].items() if k != "effects"}
     return digest(doc, cell.plan)
 
 
