@@ -178,17 +178,22 @@ def two_step_iterated(robot: Robot, obs: Observations, weighted: bool = False, *
         d, r, est = d + alpha * step, r_new, est_new
         history.append({"sag_deg": np.degrees(d).tolist(), "residual_deg": np.degrees(r).tolist()})
         converged = bool(np.abs(r).max() < tol)
+    covariance = "the pose held fixed (too small: module docstring)"
     if converged and uncertainty:
-        a = sensitivity(sm, d, est.theta)
-        ok = np.isfinite(est.theta)
-        c = np.where(np.isfinite(est.cov), est.cov, 0.0)
-        cov = a @ c @ a.T
-        cov[~ok, :] = np.nan
-        cov[:, ~ok] = np.nan
-        est.cov = cov
+        try:
+            a = sensitivity(sm, d, est.theta)
+        except (StaticsError, np.linalg.LinAlgError) as exc:    # a step off a usable robot
+            covariance += f"; the sag's share not computed: {exc}"
+        else:
+            ok = np.isfinite(est.theta)
+            c = np.where(np.isfinite(est.cov), est.cov, 0.0)
+            cov = a @ c @ a.T
+            cov[~ok, :] = np.nan
+            cov[:, ~ok] = np.nan
+            est.cov = cov
+            covariance = "with the sag's share"
     est.step2 = dict(est.step2, linearised_at="the self-consistent sagged pose", sag_rad=d.tolist(),
-                     covariance="with the sag's share" if converged and uncertainty else
-                     "the pose held fixed (too small: module docstring)",
+                     covariance=covariance,
                      newton_iterations=it, map_evaluations=sm.evaluations, converged=converged,
                      history=history, jacobian=None if jac is None else jac.tolist())
     return est
