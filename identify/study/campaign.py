@@ -8,6 +8,16 @@ afterwards, for the error and z columns, as in identify/report.py), and, where t
 parameter the estimate, reported std, truth, error and z; the fit's chi2; what discover named;
 the timings; and the error, if the campaign failed (then the numbers are NaN).
 
+No log is written where nothing needs one (:func:`needs_log`): the campaign is solved and
+measured in memory (bench.campaign.plan_campaign, then identify/montecarlo.py's
+``campaign_observations`` with the campaign's own generator), which gives identify and discover
+the same Observations, to the last bit, that ``from_log`` reads from the log without its truth
+(the robot from the same MJCF text, the truth afterwards for the error columns): the same rows,
+without writing the log and reading it back twice. The iso10360 tracker still goes through the
+log: its covariance depends on the readings' times as the log stamps them (whole nanoseconds,
+kept strictly increasing over every message written, Foxglove's too), which only the log writer
+knows. tests/test_study_memory.py runs studies both ways and compares their rows.
+
 The function depends on nothing but its arguments (texts, seeds): it runs the same in-process
 and on any Dask worker that has calbench installed.
 """
@@ -21,12 +31,18 @@ import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+import numpy as np
 import pyarrow as pa
 
-from calbench.bench.campaign import run_campaign
+from calbench.bench.campaign import plan_campaign, run_campaign, scenario_params, truth_robot
 from calbench.bench.effects import without_compensator
+from calbench.bench.errors import InputError
 from calbench.bench.outputs import write_text
+from calbench.bench.robot import Robot
+from calbench.bench.scenario import Scenario
+from calbench.bench.timeline import check_size, estimate, repeats_key
 
+from ..observations import Observations
 from ..portable import PortableScenario
 
 # effects discover's starting model can lack (campaign.discover_without): MJCF text -> MJCF text
@@ -82,20 +98,94 @@ def _named_first(rep: dict) -> str:
     return f"{s['effect']}[{s['detail']}]"
 
 
+def needs_log(scn: Scenario) -> bool:
+    """Whether the campaign must go through its log to give identify exactly what a log gives
+    (module docstring): only with the iso10360 tracker, whose covariances use the log's stamps."""
+    return scn.tracker.model == "iso10360"
+
+
+@dataclass(frozen=True)
+class Simulated:
+    """A campaign simulated in memory: what a reader of its log without truth gets (the
+    observations, the MJCF text of its header) and, apart, the truth's parameter vector in the
+    robot's layout (None when the layouts differ), read only after the estimate, as
+    identify/report.py reads the log's truth."""
+
+    obs: Observations
+    mjcf: str
+    truth: np.ndarray | None
+
+
+def simulate_in_memory(scn: Scenario) -> Simulated:
+    """bench.campaign.run_campaign without the log: the same size check, plan and readings (the
+    generator seeded by the scenario's seed, consumed as run_campaign does), then the
+    observations as ``from_log`` makes them (InputError when no pose can be used, as it does)."""
+    from ..montecarlo import campaign_observations
+    truth_rb = truth_robot(scn)
+    repeats = [p.repeats for p in scn.poses]
+    check_size(estimate(repeats, len(truth_rb.reflector_names)), scn.path, repeats_key(repeats))
+    plans = plan_campaign(scn, truth_rb)
+    obs = campaign_observations(scn, truth_rb, plans, np.random.default_rng(scn.seed))
+    if not obs.poses:
+        raise InputError(scn.path, "/tracker/measurement",
+                         "at least one complete pose with a reflector seen unloaded and loaded", "none")
+    mjcf = Path(scn.robot).read_text()             # what run_campaign attaches to the log
+    rb = Robot.from_xml(mjcf)
+    try:
+        truth = rb.layout.theta(scenario_params(scn, truth_rb))
+    except ValueError:                              # as report.truth_vector
+        truth = None
+    return Simulated(obs, mjcf, truth)
+
+
+def identify_in_memory(sim: Simulated, method: str):
+    """report.run_identify on the in-memory campaign: the log's robot (its MJCF text), the sites
+    checked, the estimate, then the truth for the report's error columns."""
+    from ..model import check_sites
+    from ..report import build_report, identify
+    t0 = time.perf_counter()
+    robot = Robot.from_xml(sim.mjcf)
+    check_sites(robot, sim.obs, sim.obs.source)
+    res = identify(robot, sim.obs, method)
+    return build_report(res, sim.truth, sim.obs.source, "MJCF (in memory)", time.perf_counter() - t0)
+
+
+def discover_in_memory(sim: Simulated, discover_model: str | None) -> dict:
+    """discover.workflow.discover on the in-memory campaign: the user's model (the log's MJCF or
+    the one without ``discover_without``'s effects), the search, and the augmented MJCF built
+    and loaded (discover's check that it loads), not written."""
+    from ..discover.workflow import augmented_mjcf, discover_observations
+    from ..model import check_sites
+    src = sim.mjcf if discover_model is None else discover_model
+    check_sites(Robot.from_xml(src), sim.obs, sim.obs.source)
+    rep, final = discover_observations(sim.obs, src)
+    if final.effects:
+        Robot.from_xml(augmented_mjcf(src, final))    # must load
+    return rep
+
+
 def one_campaign(job: CampaignJob, replicate: int, seed: int, folder: Path,
                  discover_model: str | None = None) -> dict:
     """Simulate, identify (and discover) one campaign; its record (without the cell's columns).
-    Discovery is imported only where a campaign runs it: its import (scipy.stats, ~0.9 s once
-    per worker) was most of the per-task overhead of identify-only studies."""
+    In memory unless :func:`needs_log` (module docstring). Discovery is imported only where a
+    campaign runs it: its import (scipy.stats, ~0.9 s once per worker) was most of the per-task
+    overhead of identify-only studies."""
     from ..report import run_identify
     rec: dict = {"replicate": replicate, "seed": seed, "expected": job.expected,
                  "worker": f"{socket.gethostname()}:{os.getpid()}", "error": ""}
     t0 = time.perf_counter()
     log = folder / f"campaign{replicate}.mcap"
     try:
-        run_campaign(job.scenario.scenario(seed), log)
-        t1 = time.perf_counter()
-        rep = run_identify(log, None, job.method)
+        scn = job.scenario.scenario(seed)
+        sim = None
+        if needs_log(scn):
+            run_campaign(scn, log)
+            t1 = time.perf_counter()
+            rep = run_identify(log, None, job.method)
+        else:
+            sim = simulate_in_memory(scn)
+            t1 = time.perf_counter()
+            rep = identify_in_memory(sim, job.method)
         t2 = time.perf_counter()
         rec.update(simulate_s=t1 - t0, identify_s=t2 - t1)
         for p in rep.parameters:
@@ -106,13 +196,16 @@ def one_campaign(job: CampaignJob, replicate: int, seed: int, folder: Path,
                    n_poses_planned=rep.n_poses_planned, n_poses_used=rep.n_poses_used,
                    converged=rep.details.get("converged"))
         if job.discover:
-            from ..discover.workflow import discover
-            model = None
-            if discover_model is not None:
-                model = folder / "model.xml"
-                if not model.is_file():
-                    write_text(model, discover_model)
-            d = discover(log, model, out_model=folder / "augmented.xml")
+            if sim is not None:
+                d = discover_in_memory(sim, discover_model)
+            else:
+                from ..discover.workflow import discover
+                model = None
+                if discover_model is not None:
+                    model = folder / "model.xml"
+                    if not model.is_file():
+                        write_text(model, discover_model)
+                d = discover(log, model, out_model=folder / "augmented.xml")
             first = _named_first(d)
             rec.update(named_first=first, named_effects=",".join(d["named_effects"]),
                        detected=None if job.expected is None else first == job.expected,
@@ -149,5 +242,6 @@ def empty_record(columns: dict[str, pa.DataType]) -> dict:
     return {k: (math.nan if t == _F else None) for k, t in columns.items()}
 
 
-__all__ = ["CampaignJob", "run_campaigns", "one_campaign", "discover_model_text", "result_columns",
+__all__ = ["CampaignJob", "run_campaigns", "one_campaign", "needs_log", "simulate_in_memory", "Simulated",
+           "identify_in_memory", "discover_in_memory", "discover_model_text", "result_columns",
            "TIMING_COLUMNS", "REMOVABLE", "empty_record"]
