@@ -15,13 +15,18 @@ Prints JSON.
   compute / (W T). On a machine shared with other work the campaigns themselves slow down when
   two workers compete for the cores, which lowers T(1)/(2 T(2)) but not the utilisation: both are
   reported, with the load average. The results must be identical in all three (checked).
+* ``in_memory_vs_log``: the same identify-only study in this process with its campaigns in
+  memory (identify/study/campaign.py, the default) and through a log written and read back (the
+  path forced for every campaign), alternated, best of ``--repeats``; and the discover campaigns
+  both ways. Ratios log / memory of the wall time and of the campaigns' own time; the rows must be
+  identical (checked).
 * ``campaign_100k``: the measured in-process cost of a campaign (identify only; and with
   discover, measured on a few campaigns with a hidden effect) times 10^5, on N workers of a core
   each at the 2-worker utilisation measured here; the Parquet bytes per row measured too.
 
 The machine's load average is recorded: other work on the machine lowers the efficiency.
 
-    .venv/bin/python benchmarks/scaling_bench.py [--seeds 20] [--quick]
+    .venv/bin/python benchmarks/scaling_bench.py [--seeds 20] [--quick] [--memory-only]
 """
 from __future__ import annotations
 
@@ -44,6 +49,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 from calbench.identify import executor as X
 from calbench.identify.study import load_study, prepare, run_study
+from calbench.identify.study import campaign as campaign_mod
 from calbench.identify.study.campaign import TIMING_COLUMNS
 from steps import say
 
@@ -133,22 +139,78 @@ def same(a: Path, b: Path) -> bool:
                for c in cols)
 
 
+class through_logs:
+    """Every campaign through its log (the path the in-memory one replaces), while in this block."""
+
+    def __enter__(self):
+        self.saved = campaign_mod.needs_log
+        campaign_mod.needs_log = lambda scn: True
+
+    def __exit__(self, *exc):
+        campaign_mod.needs_log = self.saved
+
+
+def memory_vs_log(study_path: Path, tmp: Path, repeats: int) -> dict:
+    """The study in this process in memory and through logs, alternated; best wall time of each."""
+    choice = X.ExecutorChoice(X.IN_PROCESS, None, 1, "bench")
+    mem, log = [], []
+    for _ in range(repeats):
+        mem.append(run(study_path, tmp / "mem.parquet", choice))
+        with through_logs():
+            log.append(run(study_path, tmp / "log.parquet", choice))
+    m, g = min(mem, key=lambda r: r["wall_s"]), min(log, key=lambda r: r["wall_s"])
+    n = m["campaigns"]
+    return {"campaigns": n, "memory_wall_s_all": [r["wall_s"] for r in mem],
+            "log_wall_s_all": [r["wall_s"] for r in log],
+            "memory_seconds_per_campaign": m["wall_s"] / n, "log_seconds_per_campaign": g["wall_s"] / n,
+            "log_over_memory_wall": g["wall_s"] / m["wall_s"],
+            "log_over_memory_campaign_time": g["compute_s"] / m["compute_s"],
+            "identical_results": same(tmp / "mem.parquet", tmp / "log.parquet"),
+            "load_average": os.getloadavg()}
+
+
+def discover_study(tmp: Path, seeds: int) -> Path:
+    """A few campaigns with a hidden effect (the power study's forearm case), with discover."""
+    dstudy = tmp / "discover.toml"
+    dstudy.write_text(STUDY.format(paper=(ROOT / "scenarios" / "paper_table5.toml").as_posix(),
+                                   seeds=seeds, discover="true", sigmas="[2e-5]")
+                      + '[set]\n"truth.effects.link_compliance" = {link = "forearm", '
+                        'compliance = [1.8e-7, 0.0, 1.8e-7]}\n')
+    return dstudy
+
+
+def identify_study(tmp: Path, seeds: int) -> Path:
+    study = tmp / "scaling.toml"
+    study.write_text(STUDY.format(paper=(ROOT / "scenarios" / "paper_table5.toml").as_posix(), seeds=seeds,
+                                  discover="false", sigmas="[1e-5, 2e-5, 4e-5, 8e-5]"))
+    return study
+
+
 def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--repeats", type=int, default=2, help="runs of each executor, best kept")
     ap.add_argument("--quick", action="store_true", help="5 seeds, 1 repeat, 1 discover campaign")
+    ap.add_argument("--memory-only", action="store_true",
+                    help="only in_memory_vs_log (no cluster, no 10^5 extrapolation)")
     args = ap.parse_args()
     seeds = 5 if args.quick else args.seeds
     reps = 1 if args.quick else args.repeats
     out: dict = {"machine_cpus": os.cpu_count(), "load_average_before": os.getloadavg()}
+    with tempfile.TemporaryDirectory() as tmp_:
+        tmp = Path(tmp_)
+        say("scaling_bench", "identify-only campaigns in memory and through logs")
+        out["in_memory_vs_log"] = {"identify": memory_vs_log(identify_study(tmp, seeds), tmp, reps),
+                                   "discover": memory_vs_log(discover_study(tmp, 1 if args.quick else 3), tmp, 1)}
+    if args.memory_only:
+        out["load_average_after"] = os.getloadavg()
+        print(json.dumps(out, indent=1))
+        return 0
     say("scaling_bench", "local cluster start, stop and trivial tasks")
     out["local_cluster"] = local_cluster()
     with tempfile.TemporaryDirectory() as tmp_:
         tmp = Path(tmp_)
-        study = tmp / "scaling.toml"
-        study.write_text(STUDY.format(paper=(ROOT / "scenarios" / "paper_table5.toml").as_posix(), seeds=seeds,
-                                      discover="false", sigmas="[1e-5, 2e-5, 4e-5, 8e-5]"))
+        study = identify_study(tmp, seeds)
         runs = {"in_process": best(study, tmp / "p.parquet", X.ExecutorChoice(X.IN_PROCESS, None, 1, "bench"), reps),
                 "local_1": best(study, tmp / "l1.parquet", X.ExecutorChoice(X.LOCAL, None, 1, "bench"), reps),
                 "local_2": best(study, tmp / "l2.parquet", X.ExecutorChoice(X.LOCAL, None, 2, "bench"), reps)}
@@ -161,12 +223,7 @@ def main() -> int:
                         "identical_results": same(tmp / "p.parquet", tmp / "l1.parquet")
                         and same(tmp / "p.parquet", tmp / "l2.parquet"),
                         "parquet_bytes_per_row": (tmp / "l2.parquet").stat().st_size / runs["local_2"]["campaigns"]}
-        # discover: a few campaigns with a hidden effect (the power study's forearm case), in-process
-        dstudy = tmp / "discover.toml"
-        dstudy.write_text(STUDY.format(paper=(ROOT / "scenarios" / "paper_table5.toml").as_posix(),
-                                       seeds=1 if args.quick else 3, discover="true", sigmas="[2e-5]")
-                          + '[set]\n"truth.effects.link_compliance" = {link = "forearm", '
-                            'compliance = [1.8e-7, 0.0, 1.8e-7]}\n')
+        dstudy = discover_study(tmp, 1 if args.quick else 3)       # in-process
         say("scaling_bench", "campaigns with discover")
         d = run(dstudy, tmp / "d.parquet", X.ExecutorChoice(X.IN_PROCESS, None, 1, "benchmark"))
     c_id = runs["in_process"]["compute_s"] / runs["in_process"]["campaigns"]

@@ -1,9 +1,8 @@
 """The task of a study: whole campaigns of one cell, exactly as a user would run them.
 
-For each replicate: ``simulate`` the cell's scenario with the campaign's seed into a log in a
-private temporary folder, ``identify`` it (the log without its truth; the truth is read only
-afterwards, for the error and z columns, as in identify/report.py), and, where the study asks,
-``discover`` on the log with the user's model (the log's MJCF, or it without the effects of
+For each replicate: ``simulate`` the cell's scenario with the campaign's seed, ``identify`` it
+(what the log without its truth holds; the truth is read only afterwards, for the error and z
+columns, as in identify/report.py), and, where the study asks, ``discover`` with the user's model (the log's MJCF, or it without the effects of
 ``discover_without``). The record of a campaign is one flat dict of :func:`result_columns`: per
 parameter the estimate, reported std, truth, error and z; the fit's chi2; what discover named;
 the timings; and the error, if the campaign failed (then the numbers are NaN).
