@@ -97,10 +97,13 @@ def _named_first(rep: dict) -> str:
     return f"{s['effect']}[{s['detail']}]"
 
 
+LOG_TRACKER_MODELS = ("iso10360",)   # tracker models whose covariances use the log's stamps
+
+
 def needs_log(scn: Scenario) -> bool:
     """Whether the campaign must go through its log to give identify exactly what a log gives
     (module docstring): only with the iso10360 tracker, whose covariances use the log's stamps."""
-    return scn.tracker.model == "iso10360"
+    return scn.tracker.model in LOG_TRACKER_MODELS
 
 
 @dataclass(frozen=True)
@@ -241,6 +244,6 @@ def empty_record(columns: dict[str, pa.DataType]) -> dict:
     return {k: (math.nan if t == _F else None) for k, t in columns.items()}
 
 
-__all__ = ["CampaignJob", "run_campaigns", "one_campaign", "needs_log", "simulate_in_memory", "Simulated",
+__all__ = ["CampaignJob", "run_campaigns", "one_campaign", "needs_log", "LOG_TRACKER_MODELS", "simulate_in_memory", "Simulated",
            "identify_in_memory", "discover_in_memory", "discover_model_text", "result_columns",
            "TIMING_COLUMNS", "REMOVABLE", "empty_record"]

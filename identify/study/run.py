@@ -23,21 +23,27 @@ from pathlib import Path
 import pyarrow as pa
 
 from ..executor import Executor, InProcess, Interrupted
-from .campaign import CampaignJob, discover_model_text, empty_record, result_columns, run_campaigns
+from .campaign import (LOG_TRACKER_MODELS, CampaignJob, discover_model_text, empty_record, result_columns,
+                       run_campaigns)
 from .spec import Cell, Study, digest
 from .store import ResultStore
 
 CONSOLIDATE_S = 30.0     # journal -> RESULTS.parquet at most this often (and at the end), and
                          # never more than 10 % of the time: a merge rewrites the whole file
 TARGET_TASK_S = 2.0      # campaigns per task: about this long (scheduling ~5 ms per task)
-# in-process seconds per campaign on the paper plan (measured: simulate 0.09, identify 0.07,
-# discover 1.1 with nothing to find to ~3 with an effect), for the executor choice and task sizes
-SECONDS_PER_CAMPAIGN = {"identify": 0.2, "discover": 2.0}
+# in-process seconds per campaign on the paper plan, for the executor choice and task sizes
+# (measured, benchmarks/scaling_bench.py --memory-only: simulate + identify 0.083 s in memory,
+# 0.20 s through the log, which iso10360 trackers need; discover 1.1 with nothing to find to
+# ~3 with an effect)
+SECONDS_PER_CAMPAIGN = {"identify": 0.09, "identify_log": 0.2, "discover": 2.0}
 SECONDS_PER_DESIGN = 10.0   # 2000 candidates (batched), exchange and refinement
 
 
 def campaign_seconds(cell: Cell) -> float:
-    return SECONDS_PER_CAMPAIGN["identify"] + (SECONDS_PER_CAMPAIGN["discover"] if cell.campaign.discover else 0)
+    tracker = cell.doc.get("tracker") or {}
+    ident = SECONDS_PER_CAMPAIGN["identify_log" if tracker.get("model") in LOG_TRACKER_MODELS
+                                 else "identify"]
+    return ident + (SECONDS_PER_CAMPAIGN["discover"] if cell.campaign.discover else 0)
 
 
 def _axis_type(values) -> pa.DataType:
