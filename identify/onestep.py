@@ -18,9 +18,10 @@ paper solves eq. (20) once, we iterate because the model is nonlinear in theta.
   (bench/params.py): compliance 1e-7 rad/(N*m), K_C 1e6 N/m, s0 each spring's mean length over
   the plan's angles of the joint it spans, from the geometry. Never values from the MJCF.
   A two-step start can be valid and still far off (a plan whose step 2 is ill-posed: on a
-  designed KR 270 plan with exact data it gave K_C 20x and s0 0.2x the truth, and the fit from
-  there did not converge in 40 iterations); when the fit from it does not converge, it is
-  repeated from the generic start and the fit with the lower chi2 is kept (:func:`fit_from`).
+  designed KR 270 plan with exact data it gave K_C 20x and s0 0.2x the truth; the fit from there
+  did not converge in 40 iterations while the forward model's Jacobian went stale on the way,
+  and converges since identify/forward.py's KKT_QTOL); when the fit from it does not converge,
+  it is repeated from the generic start and the fit with the lower chi2 is kept (:func:`fit_from`).
 * Stopping rule on the Gauss-Newton step in standard deviations, s_k = max_i |du_i| / sd_i:
   stop when s_k < ``step_tol`` or, with the observed contraction rho = s_k / s_(k-1) < 0.5,
   when the remaining error after applying the step, rho s_k / (1 - rho), is below ``step_tol``;

@@ -49,13 +49,15 @@ def test_stacked_evaluations_equal_the_scalar_loop(paper):
              np.full(p, 2.5), np.ones(p)]
     for k, mv in enumerate(moves):
         theta = th * np.abs(mv)
-        refreshes = slow.stats["refreshes"]
+        retaken = slow.stats["refreshes"], slow.stats["retakes"]
         dp_f, jac_f = fast.evaluate(theta, jacobian=k != 1)
         dp_s, jac_s = slow.evaluate(theta, jacobian=k != 1)
         assert np.abs(dp_f - dp_s).max() <= 1e-10, k
         if jac_s is not None:
             scale = np.abs(jac_s).max(axis=(0, 1))
-            rel = 1e-8 if slow.stats["refreshes"] == refreshes else 1e-5
+            # A_base re-taken (a refresh, or at a solution > KKT_QTOL away): by differences at
+            # solutions equal to 1e-10, not bit-equal
+            rel = 1e-8 if (slow.stats["refreshes"], slow.stats["retakes"]) == retaken else 1e-5
             assert (np.abs(jac_f - jac_s).max(axis=(0, 1)) <= rel * scale).all(), k
     # the same work: a 2.5x move from the last solution is beyond the warm chord, and the same
     # fallbacks ran in both
