@@ -26,6 +26,7 @@ from .model import check_sites, load_model
 from .identifiability import MAX_RELATIVE_STD, OUTLIER_SIGMA, outliers
 from .observations import Observations, from_log
 from .onestep import one_step
+from .profile import Profile
 from .twostep import TwoStepError, two_step, two_step_applies
 from .twostep_iterated import two_step_iterated
 
@@ -61,10 +62,18 @@ def _estimate(robot: Robot, obs: Observations, method: str):
                                    for x in np.diag(r.step1_cov)]},
                  "step2": r.step2}
         return r, extra
-    r = one_step(robot, obs)
+    r = one_step(robot, obs, check_profile=True)
     extra = {"start": r.start_method, "iterations": r.iterations, "evaluations": r.evaluations,
-             "converged": bool(r.converged)}
+             "converged": bool(r.converged), "profile": profile_report(r.extra["profile"], r.names)}
     return r, extra
+
+
+def profile_report(pr: Profile, names) -> dict:
+    """The profile check per checked parameter (identify/profile.py): chi2's rise at +-2 Fisher
+    std (None: past a bound, or no fit there) and whether it is the quadratic's (4, within a
+    factor 2); a parameter that fails keeps its Fisher std (identify/onestep.py says why)."""
+    return {names[i]: {"rise_plus": _num(r[0]), "rise_minus": _num(r[1]), "quadratic": not bool(pr.bad[i])}
+            for i, r in sorted(pr.rises.items())}
 
 
 def identify(robot: Robot, obs: Observations, method: str = "one-step",
@@ -193,6 +202,12 @@ def format_table(rep: IdentificationReport) -> str:
                      f"deflection is the difference of two); χ²/dof = {rep.chi2_per_dof:.3f} ({rep.dof} dof)")
     for name, why in rep.unidentifiable.items():
         lines.append(f"  not identifiable: {name}: {why}")
+    for name, p in rep.details.get("profile", {}).items():
+        if not p["quadratic"]:
+            rise = ", ".join("none (past its bound or no fit)" if r is None else f"{r:.2f}"
+                             for r in (p["rise_plus"], p["rise_minus"]))
+            lines.append(f"  chi2 not quadratic: {name}: rises {rise} at +2/-2 std (4 if quadratic); "
+                         "its std is the Fisher std, its error is not Gaussian")
     for o in rep.outliers:
         lines.append(f"  outlier (> {rep.outlier_threshold_sigma:g}σ): pose {o.pose} reflector "
                      f"{o.reflector}: {o.sigma:.1f}σ" + ("" if rep.dropped_outliers else

@@ -11,8 +11,9 @@ larger than the parameters themselves, the linearisation fails over it, and a pe
 can put the truth several sigma away.
 
 Where the linearisation fails is checked, not assumed, for the named effects' parameters
-(:func:`not_quadratic`): the chi2 profile of each at +-2 Fisher stds must rise within a factor
-2 of the quadratic's 4; a parameter that fails is "not determined" too.
+(:func:`not_quadratic`, identify/profile.py's check, shared with identification): the chi2
+profile of each at +-2 Fisher stds must rise within a factor 2 of the quadratic's 4; a parameter
+that fails is "not determined" too.
 
 So, in relative coordinates u_i = theta_i / size_i (size: |theta_i|, not below the parameter's
 prior size, bench/effects.py), a parameter is DETERMINED when its marginal standard deviation is
@@ -32,13 +33,12 @@ import numpy as np
 from calbench.bench.effects import priors
 
 from ..leastsq import Fit
+from ..profile import profile_check
 from ..whitening import Whitener
 
 MAX_RELATIVE_STD = 1.0   # a parameter whose std exceeds its own size is not determined
 NULL_TOL = 1e-3          # component in the null space that makes a parameter unidentifiable
 RANK_TOL = 1e-8          # singular values of the relative Fisher factor below this x the largest are null
-PROFILE_SIGMAS = 2.0     # the profile is checked this many Fisher stds from the estimate
-PROFILE_LOW, PROFILE_HIGH = 0.5, 2.0   # its rise there, over the quadratic's, must lie within these
 
 
 @dataclass
@@ -110,41 +110,23 @@ def determination(f: Fit, jw: np.ndarray, undetermined: np.ndarray | None = None
 
 def not_quadratic(f: Fit, obs, white: Whitener, det: Determination, indices) -> tuple[np.ndarray, dict]:
     """((P,) bool, {index: [rise at +2 sd, rise at -2 sd]}): the parameters among ``indices``
-    (determined ones) whose chi2 profile is not the quadratic the Fisher std assumes. For each, the parameter is held at estimate +- 2 std
-    (PROFILE_SIGMAS) and the rest refitted from the estimate (identify/discover/fit.py): a
-    quadratic profile rises by 4 there; a rise outside [PROFILE_LOW, PROFILE_HIGH] (a factor 2
-    either way), a point past the parameter's bound or a refit that fails marks it. This is the
-    x-z bending of a braced upper arm: the Fisher std says the truth is 5 sigma away, the
-    profile 2.4 (benchmarks and tests/test_discover.py)."""
+    (determined ones) whose chi2 profile is not the quadratic the Fisher std assumes: the
+    profile check of identify/profile.py (the parameter held at estimate +- 2 std, the rest
+    refitted from there by identify/discover/fit.py). This is the x-z bending of a braced upper
+    arm: the Fisher std says the truth is 5 sigma away, the profile 2.4 (benchmarks and
+    tests/test_discover.py)."""
     from .fit import fit as fit_model
     lo, hi, hold = f.extra["bounds"]
-    out = np.zeros(f.values.size, bool)
-    rises: dict = {}
-    for i in indices:
-        if not det.determined[i]:
-            continue
-        rises[i] = []
-        for sign in (1.0, -1.0):
-            v = f.values.copy()
-            v[i] += sign * PROFILE_SIGMAS * det.std[i]
-            if not lo[i] <= v[i] <= hi[i]:
-                out[i] = True
-                rises[i].append(None)
-                continue
-            held = hold.copy()
-            held[i] = True
-            try:
-                g = fit_model(f.model, obs.dp, white, v, lo, hi, held, cost_tol=0.01, max_iter=12)
-            except (ValueError, RuntimeError, np.linalg.LinAlgError):
-                out[i] = True
-                rises[i].append(None)
-                continue
-            rise = float(g.chi2 - f.chi2)
-            rises[i].append(rise)
-            if not PROFILE_LOW * PROFILE_SIGMAS ** 2 <= rise <= PROFILE_HIGH * PROFILE_SIGMAS ** 2:
-                out[i] = True
+
+    def refit(v: np.ndarray, i: int) -> float:
+        held = hold.copy()
+        held[i] = True
+        return fit_model(f.model, obs.dp, white, v, lo, hi, held, cost_tol=0.01, max_iter=12).chi2
+
+    std = np.where(det.determined, det.std, np.nan)
+    out = profile_check(refit, f.values, f.chi2, std, lo, hi, indices)
     f.model.evaluate(f.values, jacobian=False)          # the model back at the estimate
-    return out, rises
+    return out.bad, out.rises
 
 
 __all__ = ["MAX_RELATIVE_STD", "Determination", "sizes", "determination", "not_quadratic"]

@@ -1,0 +1,66 @@
+"""The profile check (identify/profile.py) and identification's use of it (identify/onestep.py).
+
+Tolerances. A quadratic chi2 rises by exactly PROFILE_SIGMAS^2 = 4 at +-2 std (to the refit's
+chi2 tolerance, here exact). The identification cases: the weak 7-pose KR 270 plan
+(tests/kr270_weak7.toml) with its 20 um tracker, where the Monte Carlo finds the Fisher std
+honest (tests/test_montecarlo.py), and with a 100 um tracker, where it does not: empirical over
+reported std of balancer_stiffness 0.79 over 400 runs (sampling error 1/sqrt(2N) = 0.035) and
+the preload's variance 1.26x the CRB. Over 100 campaigns the preload's profile failed on 68 %
+of the 100 um ones and on none of the 20 um ones: over 12 campaigns, the chance that none of
+the 100 um ones fails is 0.32^12 ~ 1e-6.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.robot import Robot
+from calbench.bench.scenario import load_scenario
+from calbench.identify.montecarlo import campaign_observations, run_montecarlo
+from calbench.identify.onestep import one_step
+from calbench.identify.profile import PROFILE_SIGMAS, profile_check
+
+WEAK = Path(__file__).resolve().parent / "kr270_weak7.toml"
+CAMPAIGNS = 12
+
+
+def test_a_quadratic_profile_passes_and_a_flat_or_bounded_one_does_not():
+    """chi2 = sum ((x - x0) / sd)^2 refitted over nothing: rises exactly 4; a quartic rises
+    PROFILE_SIGMAS^4 = 16 (> 8) and fails; a point past a bound fails with None."""
+    x0, sd = np.array([1.0, 2.0, 3.0]), np.array([0.1, 0.2, 0.3])
+    quad = profile_check(lambda v, i: ((v[i] - x0[i]) / sd[i]) ** 2, x0, 0.0, sd, x0 - 1, x0 + 1, range(3))
+    assert not quad.bad.any()
+    assert np.allclose([quad.rises[i] for i in range(3)], PROFILE_SIGMAS ** 2)
+    quart = profile_check(lambda v, i: ((v[i] - x0[i]) / sd[i]) ** 4, x0, 0.0, sd, x0 - 1, x0 + 1, [0])
+    assert quart.bad[0] and np.allclose(quart.rises[0], PROFILE_SIGMAS ** 4)
+    bounded = profile_check(lambda v, i: ((v[i] - x0[i]) / sd[i]) ** 2, x0, 0.0, sd, x0 - 0.1, x0 + 1, [1])
+    assert bounded.bad[1] and np.isclose(bounded.rises[1][0], 4.0) and bounded.rises[1][1] is None
+
+
+def _campaigns(scn, n):
+    tr = truth_robot(scn)
+    plans = plan_campaign(scn, tr)
+    robot = Robot.from_file(scn.robot)
+    for r in range(n):
+        obs = campaign_observations(scn, tr, plans, np.random.default_rng([scn.seed, r]))
+        yield one_step(robot, obs, check_profile=True)
+
+
+def test_identification_flags_the_profile_where_the_fisher_std_is_wrong(tmp_path):
+    scn = load_scenario(WEAK)
+    preload = Robot.from_file(scn.robot).layout.names.index("balancer_preload")
+    honest = [f.extra["profile"] for f in _campaigns(scn, CAMPAIGNS)]
+    assert all(preload in p.rises for p in honest)                 # every determined one is checked
+    assert not any(p.bad.any() for p in honest)
+    mjcf = (WEAK.parent / ".." / "mjcf" / "kr270.xml").resolve()
+    loud_file = tmp_path / "kr270_weak7_100um.toml"
+    loud_file.write_text(WEAK.read_text().replace("sigma = 2e-05", "sigma = 0.0001")
+                         .replace('robot = "../mjcf/kr270.xml"', f'robot = "{mjcf}"'))
+    loud = load_scenario(loud_file)
+    assert loud.tracker.sigma == 100e-6
+    mc = run_montecarlo(loud, 400, methods=("one-step",), progress=False).summary()
+    kc = next(p for p in mc["methods"]["one-step"]["parameters"] if p["name"] == "balancer_stiffness")
+    assert abs(kc["empirical_over_reported_std"] - 1) > 4 * np.sqrt(1 / (2 * 399))   # the Fisher std is wrong
+    assert any(f.extra["profile"].bad[preload] for f in _campaigns(loud, CAMPAIGNS))
