@@ -53,7 +53,7 @@ class Identified:
     units: tuple[str, ...] = ()
 
 
-def _estimate(robot: Robot, obs: Observations, method: str):
+def _estimate(robot: Robot, obs: Observations, method: str, check_profile: bool = False):
     if method in ("two-step", "two-step-iterated"):
         r = two_step(robot, obs) if method == "two-step" else two_step_iterated(robot, obs)
         extra = {"step1": {"names": r.step1_names,
@@ -62,9 +62,11 @@ def _estimate(robot: Robot, obs: Observations, method: str):
                                    for x in np.diag(r.step1_cov)]},
                  "step2": r.step2}
         return r, extra
-    r = one_step(robot, obs, check_profile=True)
+    r = one_step(robot, obs, check_profile=check_profile)
     extra = {"start": r.start_method, "iterations": r.iterations, "evaluations": r.evaluations,
-             "converged": bool(r.converged), "profile": profile_report(r.extra["profile"], r.names)}
+             "converged": bool(r.converged)}
+    if check_profile:
+        extra["profile"] = profile_report(r.extra["profile"], r.names)
     return r, extra
 
 
@@ -77,8 +79,10 @@ def profile_report(pr: Profile, names) -> dict:
 
 
 def identify(robot: Robot, obs: Observations, method: str = "one-step",
-             drop_outliers: bool = False) -> Identified:
-    """Estimate, flag outliers (> 5 sigma), optionally refit without them."""
+             drop_outliers: bool = False, check_profile: bool = False) -> Identified:
+    """Estimate, flag outliers (> 5 sigma), optionally refit without them; ``check_profile``:
+    the one-step's profile check too (identify/onestep.py; ~0.1-0.25 s, which the studies'
+    ~0.1 s campaigns do not pay)."""
     if method not in METHODS:
         raise InputError("--method", "method", " or ".join(METHODS), method)
     if method != "one-step":
@@ -88,7 +92,7 @@ def identify(robot: Robot, obs: Observations, method: str = "one-step",
             raise InputError(robot.source or "robot model", f"--method {method}",
                              "a robot with at most one compensator, across one actuated hinge (paper §4)",
                              str(exc)) from None
-    r, extra = _estimate(robot, obs, method)
+    r, extra = _estimate(robot, obs, method, check_profile)
     found = outliers(r.residual_w, obs.labels, OUTLIER_SIGMA)
     dropped: list = []
     if drop_outliers and found:
@@ -96,7 +100,7 @@ def identify(robot: Robot, obs: Observations, method: str = "one-step",
         keep = [lab for lab in obs.labels if lab not in bad]
         obs = obs.subset(keep)
         dropped = found
-        r, extra = _estimate(robot, obs, method)
+        r, extra = _estimate(robot, obs, method, check_profile)
         found = outliers(r.residual_w, obs.labels, OUTLIER_SIGMA)
     return Identified(method, obs, r.theta, r.cov, r.identifiable, dict(r.reasons), r.residual,
                       r.residual_w, float(r.chi2), int(r.dof), found, dropped, extra,
@@ -221,14 +225,14 @@ def format_table(rep: IdentificationReport) -> str:
 
 
 def run_identify(log_path, model=None, method: str = "one-step",
-                 drop_outliers: bool = False) -> IdentificationReport:
+                 drop_outliers: bool = False, check_profile: bool = True) -> IdentificationReport:
     """Everything `calbench identify` does except printing; returns the report."""
     t0 = time.perf_counter()
     log = read_log(log_path)                 # no truth: nothing below can see it
     obs = from_log(log)
     robot = load_model(log, model)
     check_sites(robot, obs, model or log.path)
-    res = identify(robot, obs, method, drop_outliers)
+    res = identify(robot, obs, method, drop_outliers, check_profile)
     seconds = time.perf_counter() - t0
     truth = truth_vector(read_log(log_path, include_truth=True).truth, robot)   # for the report only
     model_name = str(model) if model is not None else f"{log.header.get('robot', 'MJCF')} (from the log)"

@@ -183,7 +183,7 @@ def one_campaign(job: CampaignJob, replicate: int, seed: int, folder: Path,
         if needs_log(scn):
             run_campaign(scn, log)
             t1 = time.perf_counter()
-            rep = run_identify(log, None, job.method)
+            rep = run_identify(log, None, job.method, check_profile=False)   # as in memory
         else:
             sim = simulate_in_memory(scn)
             t1 = time.perf_counter()
