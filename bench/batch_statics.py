@@ -38,8 +38,8 @@ import mujoco.batch
 import numpy as np
 
 from .loop import constraint_basis_stack
-from .statics import (CONTRACTION, LOOP_TOL, Equilibrium, Load, StaticsSolver, equilibrium_acceptable,
-                      ift_tangent, kkt_matrix, statics_options)
+from .statics import (CONTRACTION, LOOP_TOL, MJ_MAXVAL, Equilibrium, Load, StaticsSolver,
+                      equilibrium_acceptable, ift_tangent, kkt_matrix, statics_options)
 
 _POS = int(mujoco.mjtStage.mjSTAGE_POS)
 # (rows, qpos, lam, r, stalled, iteration) -> (A (k, nv, nv), give-up mask (k,)): BatchStatics.newton's
@@ -389,6 +389,14 @@ class BatchStatics:
             qpos[act] += step[:, :nv]
             lam[act] += step[:, nv:]
             its[act] += 1
+            # a step to NaN or past MuJoCo's bound: no equilibrium here (MuJoCo would warn, write
+            # MUJOCO_LOG.TXT into the user's folder and reset the world to qpos0)
+            sane = np.all(np.abs(qpos[act]) < MJ_MAXVAL, axis=1)   # False for NaN too
+            if not sane.all():
+                out_norm[act[~sane]] = np.inf
+                act = act[sane]
+                if not len(act):
+                    break
             res = self.residual(ids[act], qpos[act], take_load(load, act), lam[act], basis[act])
         return Equilibria(qpos=qpos, command=q, lam=lam, basis=basis, residual=out_norm, gravity_scale=out_grav,
                           loop_violation=out_gap, iterations=its, converged=converged, r=out_r, jc_r=out_jc,

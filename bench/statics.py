@@ -61,6 +61,10 @@ DISABLE_FLAGS = (
     | int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
     | int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
 )
+# MuJoCo's bound on a position (mjMAXVAL): past it, or at NaN, mj_forward warns "simulation is
+# unstable", writes MUJOCO_LOG.TXT into the working folder and resets the data to qpos0; Newton
+# stops before handing it such a point
+MJ_MAXVAL = 1e10
 CONTRACTION = 0.2     # a step gaining less than this factor re-assembles the chord matrix
 
 
@@ -310,6 +314,8 @@ class StaticsSolver:
             qpos = qpos + step[:nv]
             lam = lam + step[nv:]
             it += 1
+            if not np.all(np.abs(qpos) < MJ_MAXVAL):      # NaN too: MuJoCo would warn and reset
+                raise StaticsError(f"statics diverged at command {self._command_deg()} deg")
             res = self.residual(qpos, load, lam, basis)
         return NewtonResult(qpos, lam, res.jc_r, res_norm, it, False, factor, stalls)
 
@@ -385,6 +391,6 @@ class StaticsSolver:
         return ift_tangent(kkt_matrix(a, res.jc_r), dforce)[: robot.model.nv]
 
 
-__all__ = ["DISABLE_FLAGS", "LOOP_TOL", "CONTRACTION", "StaticsError", "statics_options", "Equilibrium", "equilibrium_acceptable",
+__all__ = ["DISABLE_FLAGS", "LOOP_TOL", "CONTRACTION", "MJ_MAXVAL", "StaticsError", "statics_options", "Equilibrium", "equilibrium_acceptable",
            "Load", "Residual", "NewtonPoint", "NewtonResult", "StiffnessProvider", "kkt_matrix",
            "ift_tangent", "StaticsSolver"]

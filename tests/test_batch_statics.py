@@ -242,3 +242,35 @@ def test_a_robot_without_loops_solves_as_the_scalar_statics():
         kinv = _kkt_inverse(solver, one, take_load(load, i))
         bound = 2 * np.abs(kinv).sum(axis=1).max() * (e.residual[i] + one.residual)
         assert np.abs(e.qpos[i] - one.qpos).max() <= bound
+
+
+def test_a_diverging_newton_stops_before_mujoco_sees_it(robot, tmp_path, monkeypatch):
+    """A Newton step to NaN or past MuJoCo's bound on a position ends that configuration
+    unconverged (batched) or raises StaticsError (scalar) before mj_forward sees it: MuJoCo
+    would warn "simulation is unstable", reset the data to qpos0 and write MUJOCO_LOG.TXT into
+    the user's folder (found through identify's profile check on a noisy weak plan). A stiffness
+    matrix of 1e-300 makes the first step fly off."""
+    monkeypatch.chdir(tmp_path)
+    said: list[str] = []
+    before = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(said.append)
+    try:
+        solver = StaticsSolver(robot)
+        bs = BatchStatics(solver, nsim=2, nthread=1)
+        q = TABLE5[:2]
+        e0 = bs.solve(q)
+        nv = robot.model.nv
+        flat = 1e-300 * np.eye(nv)
+
+        def tiny(rows, qp, lm, r, stalled, iteration):
+            return np.broadcast_to(flat, (len(rows), nv, nv)).copy(), np.zeros(len(rows), bool)
+        e = bs.newton(q, e0.qpos + 1e-3, e0.basis, None, lam=e0.lam, stiffness=tiny)
+        assert not e.converged.any() and np.isinf(e.residual).all()
+        s0 = solver.solve(q[0])
+        robot.set_command(q[0])
+        with statics_options(robot), pytest.raises(StaticsError, match="diverged"):
+            solver.newton(s0.qpos + 1e-3, s0.lam, s0.basis, None, lambda point: flat)
+        assert bs.solve(q).converged.all()                   # the batch is usable afterwards
+    finally:
+        mujoco.set_mju_user_warning(before)
+    assert said == [] and not (tmp_path / "MUJOCO_LOG.TXT").exists()
