@@ -19,6 +19,8 @@ import time
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
+import mujoco
+
 from calbench.bench.cli import (add_check_robot, add_export, add_from_urdf, add_recover,
                                 add_simulate, add_view)
 from calbench.bench.errors import CalbenchError, InputError
@@ -552,12 +554,19 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _mujoco_warning(message: str) -> None:
+    logging.getLogger("calbench.mujoco").warning("MuJoCo: %s", message)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.verbose:
         logging.basicConfig(level=logging.DEBUG if args.verbose > 1 else logging.INFO,
                             format="%(name)s: %(message)s", stream=sys.stderr)
+    if mujoco.get_mju_user_warning() is None:
+        # MuJoCo's own handler writes MUJOCO_LOG.TXT into the user's folder: say it on stderr
+        mujoco.set_mju_user_warning(_mujoco_warning)
     try:
         return int(args.func(args) or 0)
     except CalbenchError as exc:

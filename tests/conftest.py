@@ -36,3 +36,31 @@ def fanuc_truth(scn):
     from calbench.bench.campaign import scenario_params
     from calbench.bench.robot import Robot
     return scenario_params(scn, Robot.from_file(MJCF))
+
+
+# -- MuJoCo's warnings ------------------------------------------------------------------------
+# MuJoCo warns (and, left to itself, writes MUJOCO_LOG.TXT into the working folder) when it is
+# handed an unstable state. calbench never should hand it one: the whole suite runs with a
+# recording handler, and a test during which MuJoCo warned fails (bench/statics.py: MJ_MAXVAL).
+MUJOCO_WARNINGS: list[str] = []
+
+
+def pytest_sessionstart(session):
+    import mujoco
+    mujoco.set_mju_user_warning(MUJOCO_WARNINGS.append)
+
+
+import pytest  # noqa: E402
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item):
+    MUJOCO_WARNINGS.clear()
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_runtest_teardown(item):
+    if MUJOCO_WARNINGS:
+        said = sorted(set(MUJOCO_WARNINGS))
+        MUJOCO_WARNINGS.clear()
+        raise AssertionError(f"MuJoCo warned during {item.nodeid}: {said}")

@@ -116,3 +116,21 @@ def test_atomic_outputs_get_the_permissions_of_an_ordinary_file(tmp_path):
     finally:
         os.umask(umask)
     assert (tmp_path / "a.json").stat().st_mode & 0o777 == (tmp_path / "b.json").stat().st_mode & 0o777 == 0o644
+
+
+def test_the_command_line_routes_mujocos_warnings_to_stderr_not_a_file(tmp_path):
+    """Left to itself MuJoCo writes its warnings into MUJOCO_LOG.TXT in the working folder, a file
+    the user did not ask for: `calbench` installs a handler that says them on stderr instead
+    (a fresh process: the suite's own handler is installed in this one)."""
+    import subprocess
+    import sys
+    code = ("import mujoco, numpy as np\n"
+            "from calbench.identify.cli import main\n"
+            f"assert main(['check-robot', {str(PAPER.parent.parent / 'mjcf' / 'kr270.xml')!r}]) == 0\n"
+            "m = mujoco.MjModel.from_xml_string(\"<mujoco><worldbody><body><joint/><geom size='.1'/>"
+            "</body></worldbody></mujoco>\")\n"
+            "d = mujoco.MjData(m); d.qpos[:] = np.nan; mujoco.mj_step(m, d)\n")
+    r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert "MuJoCo: Nan, Inf or huge value in QPOS" in r.stderr
+    assert list(tmp_path.iterdir()) == []
