@@ -224,6 +224,10 @@ def pose_scenes(log: CampaignLog, robot: Robot, names: list[str], magnify: float
     return scenes
 
 
+TRACKER_APART = 0.25   # the tracker's screen offset from the tool, across, in half-view widths
+AZIMUTH_STEP, AZIMUTH_MAX = 5.0, 60.0   # degrees: how far the camera may turn off the profile
+
+
 def framing(scenes: list[PoseScene], tracker: np.ndarray, magnify: float,
             half_fov_tan: float = HALF_FOV_TAN) -> tuple[np.ndarray, np.ndarray]:
     """(eye, target) of a camera that frames the robot and its deflection arrows in every pose
@@ -233,7 +237,10 @@ def framing(scenes: list[PoseScene], tracker: np.ndarray, magnify: float,
     bends it), from the side away from the tracker (which then stands beyond the robot, never
     in front), 20 degrees above the horizon, at the middle of all those points; it stands back
     just far enough that every one of them is inside a view whose half-width and half-height
-    subtend ``half_fov_tan`` (a tangent) at the eye."""
+    subtend ``half_fov_tan`` (a tangent) at the eye. When the tracker would then stand right
+    behind the tool (its tripod across the arrows: less than TRACKER_APART half-widths apart
+    across the screen), the camera turns off the profile by the least multiple of AZIMUTH_STEP
+    (at most AZIMUTH_MAX) that sets them apart, the tracker still beyond the tool."""
     tracker = np.asarray(tracker, float)
     pts = [tracker[None]]
     for sc in scenes:
@@ -243,20 +250,38 @@ def framing(scenes: list[PoseScene], tracker: np.ndarray, magnify: float,
     target = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
     scene = scenes[0]
     base = scene.robot.xpos[1][:2]
-    tool = np.nanmean(scene.reflector_sites, axis=0)[:2] - base
+    tool3 = np.nanmean(scene.reflector_sites, axis=0)
+    tool = tool3[:2] - base
     side = np.array([-tool[1], tool[0]])            # normal of the arm's vertical plane
     side = side / np.linalg.norm(side) if np.linalg.norm(side) > 1e-9 else np.array([0.0, 1.0])
     if side @ (tracker[:2] - base) > 0:
         side = -side
     elev = np.radians(20.0)
-    back = np.array([side[0] * np.cos(elev), side[1] * np.cos(elev), np.sin(elev)])  # eye - target
-    right = np.cross(-back, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    up = np.cross(right, -back)
     rel = pts - target
-    # a point at depth (dist - rel.back) must have |rel.right|, |rel.up| <= tan * depth
-    need = np.maximum(np.abs(rel @ right), np.abs(rel @ up)) / half_fov_tan + rel @ back
-    return target + back * float(need.max()), target
+
+    def view(azimuth: float):
+        c, s_ = np.cos(azimuth), np.sin(azimuth)
+        h = np.array([c * side[0] - s_ * side[1], s_ * side[0] + c * side[1]])
+        back = np.array([h[0] * np.cos(elev), h[1] * np.cos(elev), np.sin(elev)])  # eye - target
+        right = np.cross(-back, [0.0, 0.0, 1.0])
+        right /= np.linalg.norm(right)
+        up = np.cross(right, -back)
+        # a point at depth (dist - rel.back) must have |rel.right|, |rel.up| <= tan * depth
+        need = np.maximum(np.abs(rel @ right), np.abs(rel @ up)) / half_fov_tan + rel @ back
+        eye = target + back * float(need.max())
+
+        def across(p):                                # screen x in half-widths, and depth
+            r = p - eye
+            depth = -(r @ back)
+            return (r @ right) / depth / half_fov_tan, depth
+        (xt, dt), (xk, dk) = across(tool3), across(tracker)
+        return eye, abs(xk - xt), dk >= dt
+    steps = np.arange(0.0, AZIMUTH_MAX + 1e-9, AZIMUTH_STEP)
+    for deg in [0.0] + [x for a in steps[1:] for x in (a, -a)]:
+        eye, apart, beyond = view(np.radians(deg))
+        if apart >= TRACKER_APART and beyond:
+            return eye, target
+    return view(0.0)[0], target
 
 
 __all__ = ["RobotPose", "Poser", "PoseScene", "deformed_command", "mean_measurements",

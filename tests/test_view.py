@@ -475,6 +475,37 @@ def test_blueprint_opens_at_pose_0_framing_robot_tool_and_tracker(paper_log, tmp
         == pytest.approx(HALF_FOV_TAN, rel=1e-6)
 
 
+def _screen_x(eye, target, p):
+    """Screen x of p in half-widths of the view, and its depth, for a camera at eye on target."""
+    fwd = (target - eye) / np.linalg.norm(target - eye)
+    right = np.cross(fwd, [0, 0, 1.0])
+    right /= np.linalg.norm(right)
+    depth = (p - eye) @ fwd
+    return (p - eye) @ right / depth / HALF_FOV_TAN, depth
+
+
+@pytest.mark.parametrize("scenario", ["paper_table5.toml", "kr270_paper.toml"])
+def test_the_tracker_stands_beyond_the_tool_and_apart_from_it(scenario, tmp_path):
+    """On first open the tracker's tripod does not stand across the tool's arrows: at least
+    TRACKER_APART half-widths to the side of the tool on screen, and farther from the eye. The
+    FANUC's profile view already does that (the camera looks across the arm's plane: unchanged);
+    on the KR 270 the profile put the tracker 0.05 half-widths behind the tool, and the camera
+    turns by the least 5-degree step that sets them apart."""
+    from calbench.bench.viewscene import TRACKER_APART
+    log_path = tmp_path / "c.mcap"
+    run_campaign(load_scenario(PAPER.parent / scenario), log_path)
+    log = read_log(log_path, include_truth=True)
+    plan = plan_view(log)
+    tracker = log.tracker_spec().position
+    eye, target = framing(plan.scenes, tracker, 200.0)
+    tool = np.nanmean(plan.scenes[0].reflector_sites, axis=0)
+    (xt, dt), (xk, dk) = _screen_x(eye, target, tool), _screen_x(eye, target, tracker)
+    assert abs(xk - xt) >= TRACKER_APART and dk > dt
+    if scenario == "paper_table5.toml":                 # in profile: across the arm's plane
+        arm = tool[:2] - plan.scenes[0].robot.xpos[1][:2]
+        assert abs((eye - target)[:2] @ arm) < 1e-9 * np.linalg.norm(arm) * np.linalg.norm(eye - target)
+
+
 def test_reflector_posts_and_payload_are_drawn(paper_log, paper_rrd):
     model = mujoco.MjModel.from_xml_string(read_log(paper_log).mjcf_text)
     shapes = geom_shapes(model)
