@@ -26,7 +26,7 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from calbench.bench.errors import InputError
-from calbench.bench.logformat import STATES, CampaignLog, PerState
+from calbench.bench.logformat import CampaignLog
 from calbench.bench.scenario import TrackerSpec
 from calbench.bench.iso10360 import deflection_covariance
 from calbench.bench.tracker import mean_reading, tracker_rotation
@@ -126,8 +126,9 @@ def pose_observation(index: int, q, force, moment, site: str, names: Sequence[st
 def from_log(log: CampaignLog) -> Observations:
     """Observations of every complete pose of a campaign log (read without truth).
 
-    Raises InputError when the log cannot support identification: no wrench channel, a pose
-    without both states, or no pose with a reflector seen in both states.
+    The reader (bench/logread.py, the only maker of a CampaignLog) already guarantees that a
+    complete pose has one command in both states, its load and one reflector list in all its
+    readings. Raises InputError when no pose has a reflector seen in both states.
     """
     path = log.path
     spec = log.tracker_spec()
@@ -135,26 +136,12 @@ def from_log(log: CampaignLog) -> Observations:
     timed = bool(log.measurements) and all(m.time is not None for m in log.measurements)
     t0 = min(m.time for m in log.measurements) if timed else 0
     for p in log.complete_poses:
-        cmd = log.poses.get(p, PerState())
-        if not cmd.both():
-            raise InputError(path, "/campaign/pose", f"pose {p} commanded in both states",
-                             [s for s in STATES if cmd.get(s) is not None])
-        if p not in log.wrenches:
-            raise InputError(path, "/campaign/wrench",
-                             f"the applied wrench of complete pose {p} (a /campaign/wrench message)",
-                             "none")
-        q = cmd.unloaded
-        if not np.allclose(q, cmd.loaded, rtol=0, atol=1e-12):
-            raise InputError(path, "/campaign/pose", f"pose {p}: the same command in both states",
-                             [q.tolist(), cmd.loaded.tolist()])
+        q = log.poses[p].unloaded
         u = log.readings(p, "unloaded")
         ld = log.readings(p, "loaded")
         if not u or not ld:
             continue  # nothing measured: contributes nothing
         names = u[0].reflectors
-        if any(r.reflectors != names for r in u + ld):
-            raise InputError(path, "/tracker/measurement",
-                             f"pose {p}: the same reflector list in every reading", "different lists")
         w = log.wrenches[p]
         times = ([(r.time - t0) / 1e9 for r in u], [(r.time - t0) / 1e9 for r in ld]) if timed else None
         ob = pose_observation(p, q, w.force, w.moment, w.site, names, u, ld, spec, times)
