@@ -13,17 +13,17 @@ import signal
 import sys
 from pathlib import Path
 
-from .campaign import run_campaign
-from .checkrobot import DEFAULT_MASS, check_robot
-from .idreport import IdentificationReport
-from .progress import Progress
-from .scenario import load_scenario
-from .view import (DEFAULT_MAGNIFY, Summary, build_blueprint, default_rrd_path, has_display,
+from calbench.bench.campaign.run import run_campaign
+from calbench.bench.robots.check import DEFAULT_MASS, check_robot
+from calbench.bench.log.idreport import IdentificationReport
+from calbench.bench.core.progress import Progress
+from calbench.bench.scenario.parse import load_scenario
+from calbench.bench.view.recording import (DEFAULT_MAGNIFY, Summary, build_blueprint, default_rrd_path, has_display,
                    log_view, plan_view, recording_stream, write_recording)
-from .logread import read_log
-from .logrecover import recover_log
-from .outputs import atomic_path, check_outputs, write_text
-from .timeline import MAX_LOG_BYTES, MAX_SECONDS, duration, size
+from calbench.bench.log.read import read_log
+from calbench.bench.log.recover import recover_log
+from calbench.bench.core.outputs import atomic_path, check_outputs, write_text
+from calbench.bench.scenario.timeline import MAX_LOG_BYTES, MAX_SECONDS, duration, size
 
 
 # --------------------------------------------------------------------------- simulate
@@ -95,7 +95,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 # --------------------------------------------------------------------------- view
 
 def add_view(sub: argparse._SubParsersAction) -> None:
-    from . import view
+    from .view import recording as view
     p = sub.add_parser("view", help="Rerun recording of a campaign (and its identification)",
                        description=view.__doc__.split("\n\n")[0])
     p.add_argument("log", type=Path, help="campaign MCAP log")
@@ -119,7 +119,7 @@ def _view_summary(s: Summary, magnify: float) -> str:
 
 
 def cmd_view(args: argparse.Namespace) -> int:
-    from .view import _check_magnify
+    from calbench.bench.view.recording import _check_magnify
     magnify = _check_magnify(args.magnify)
     inputs = {"LOG": args.log, "--identified": args.identified}
     if args.rrd is not None:
@@ -174,7 +174,7 @@ def add_check_robot(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_check_robot(args: argparse.Namespace) -> int:
-    from .errors import InputError
+    from calbench.bench.core.errors import InputError
     if args.grid < 1:
         raise InputError("--grid", "grid", "an integer >= 1", args.grid)
     if not args.mass > 0:
@@ -194,8 +194,8 @@ def add_export(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from .logcsv import export_rows
-    from .readings import readings_csv
+    from calbench.bench.shopfloor.logcsv import export_rows
+    from calbench.bench.shopfloor.readings import readings_csv
     check_outputs({"--csv": args.csv}, {"LOG": args.log})
     log = read_log(args.log)
     rows = export_rows(log)
@@ -221,8 +221,8 @@ def add_from_urdf(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_from_urdf(args: argparse.Namespace) -> int:
-    from .urdf import PLACEHOLDER_STIFFNESS, convert
-    from .urdfoverlay import load_overlay
+    from calbench.bench.robots.urdf import PLACEHOLDER_STIFFNESS, convert
+    from calbench.bench.robots.overlay import load_overlay
     check_outputs({"--out": args.out}, {"URDF": args.urdf, "--overlay": args.overlay})
     conv = convert(args.urdf, load_overlay(args.overlay))
     write_text(args.out, conv.xml)

@@ -6,7 +6,7 @@
   pose q = [30, 60, 0, 0, -60, 0] deg under a 2 kN process force [-1600, 800, 900] N), for each criterion A, D, AD, pose and M = 12 and 16: our plan, the
   paper's Table 5 plan (its 12 poses + the scenario's 4 lateral pulls, reflectors as seen) and the
   median of 100 random feasible plans of the same size, on every measure;
-* Monte Carlo (identify/montecarlo.py, one-step estimator) of the paper plan and of our
+* Monte Carlo (identify/study/montecarlo.py, one-step estimator) of the paper plan and of our
   A-optimal plans: empirical trace of the normalised covariance against the predicted O1;
 * the exchange alone on random 9 x 8 blocks, N = 10^4 (BENCHMARKS.md's FIGAROH row used 3 x 8).
 
@@ -24,13 +24,13 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 
-from calbench.bench.scenario import load_scenario
+from calbench.bench.scenario.parse import load_scenario
 from calbench.identify.design.plan import (design_plan, plan_measures, plan_scenario_text,
                              scenario_plan_information, work_jacobian)
 from calbench.identify.design.candidates import InfoEngine, generate_candidates, load_design_scenario
 from calbench.identify.design.criteria import information, measures
 from calbench.identify.design.exchange import Exchanger
-from calbench.identify.montecarlo import run_montecarlo
+from calbench.identify.study.montecarlo import run_montecarlo
 from steps import say
 
 def work_scenario() -> Path:

@@ -29,9 +29,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 
-from calbench.bench.campaign import plan_campaign, truth_robot
-from calbench.bench.scenario import scenario_to_toml
-from calbench.identify.executor import choose, open_executor
+from calbench.bench.campaign.run import plan_campaign, truth_robot
+from calbench.bench.scenario.parse import scenario_to_toml
+from calbench.identify.runtime.executor import choose, open_executor
 from calbench.identify.study import load_study, prepare, read_results, run_study
 from steps import LineProgress, say
 

@@ -17,14 +17,14 @@ something in at most 0.1 % of the seeds. N seeds (default 300) of the isotropic 
   1 %, 5 %, 10 %;
 * the discovery time per seed (median, max; wall and CPU).
 
-The campaign is solved once; each seed redraws the tracker noise (identify/montecarlo.py's
+The campaign is solved once; each seed redraws the tracker noise (identify/study/montecarlo.py's
 campaign_observations) and runs the whole discovery on the observations in memory
 (identify/discover/workflow.py's discover_observations). Prints JSON.
 
     python benchmarks/discover_null_bench.py [--seeds 300] [--spec-seeds 100] [--processes 2]
                                              [--scheduler ADDR] [--quick]
 
-The seeds run as pieces on calbench's executors (identify/executor.py, issue 15: no pool of our
+The seeds run as pieces on calbench's executors (identify/runtime/executor.py, issue 15: no pool of our
 own): in this process, on a local Dask cluster of ``--processes`` workers, or on the cluster at
 ``--scheduler`` (its workers need this checkout: the pieces read scenarios/paper_table5.toml).
 """
@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from calbench.identify.executor import choose, open_executor
+from calbench.identify.runtime.executor import choose, open_executor
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
@@ -52,8 +52,8 @@ _STATE: dict = {}
 
 def _setup(model: str) -> None:
     """Per process: the solved campaign of the paper scenario with the tracker model."""
-    from calbench.bench.campaign import plan_campaign, truth_robot
-    from calbench.bench.scenario import load_scenario, scenario_variant
+    from calbench.bench.campaign.run import plan_campaign, truth_robot
+    from calbench.bench.scenario.parse import load_scenario, scenario_variant
     import tempfile
     tmp = Path(tempfile.mkdtemp())
     path = scenario_variant(PAPER, tmp / "null.toml")
@@ -69,7 +69,7 @@ def one_seed(args: tuple[str, int]) -> dict:
     if _STATE.get("model") != model:
         _setup(model)
     from calbench.identify.discover.workflow import discover_observations
-    from calbench.identify.montecarlo import campaign_observations
+    from calbench.identify.study.montecarlo import campaign_observations
     scn, robot, plans = _STATE["scn"], _STATE["robot"], _STATE["plans"]
     obs = campaign_observations(scn, robot, plans, np.random.default_rng([20261, seed]))
     t, c = time.perf_counter(), time.process_time()

@@ -63,8 +63,8 @@ def main() -> int:
     if args.worker:
         print(json.dumps(time_case(args.worker, args.repeats)))
         return 0
-    from calbench.bench.campaign import run_campaign
-    from calbench.bench.scenario import load_scenario, scenario_variant
+    from calbench.bench.campaign.run import run_campaign
+    from calbench.bench.scenario.parse import load_scenario, scenario_variant
     out: dict = {"plan": "scenarios/paper_table5.toml", "repeats": args.repeats, "targets_s": {
         "one effect (forearm)": 5.0, "two effects (forearm + base)": 15.0}, "cases": {}}
     with tempfile.TemporaryDirectory() as tmp_:

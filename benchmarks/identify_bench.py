@@ -17,10 +17,10 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 
-from calbench.bench.campaign import run_campaign
-from calbench.bench.scenario import load_scenario
-from calbench.identify.montecarlo import run_montecarlo
-from calbench.identify.report import run_identify
+from calbench.bench.campaign.run import run_campaign
+from calbench.bench.scenario.parse import load_scenario
+from calbench.identify.study.montecarlo import run_montecarlo
+from calbench.identify.report.identification import run_identify
 from steps import LineProgress, say
 
 PAPER = ROOT / "scenarios" / "paper_table5.toml"

@@ -1,8 +1,8 @@
-"""Why calbench keeps its own Levenberg–Marquardt loop (identify/leastsq.py): measured.
+"""Why calbench keeps its own Levenberg–Marquardt loop (identify/core/leastsq.py): measured.
 
 Side by side in one process, on the paper campaign's one-step identification (eight
 parameters, exact statics), from the same start and with the same forward model:
-* calbench's core (identify/leastsq.py), as `calbench identify` runs it;
+* calbench's core (identify/core/leastsq.py), as `calbench identify` runs it;
 * scipy.optimize.least_squares (trust-region reflective, x_scale from the start, the model's
   own Jacobian; tolerances tight enough to reach the same optimum);
 * mujoco.minimize.least_squares (MuJoCo 4's bounded LM, the model's own Jacobian);
@@ -23,13 +23,13 @@ from pathlib import Path
 import numpy as np
 import scipy.optimize
 
-from calbench.bench.campaign import plan_campaign, truth_robot
-from calbench.bench.robot import Robot
-from calbench.bench.scenario import load_scenario
-from calbench.identify.whitening import Whitener
-from calbench.identify.montecarlo import campaign_observations
-from calbench.identify.onestep import OneStep, generic_start, sanitize_start, to_phi, to_theta
-from calbench.identify.twostep import two_step
+from calbench.bench.campaign.run import plan_campaign, truth_robot
+from calbench.bench.model.robot import Robot
+from calbench.bench.scenario.parse import load_scenario
+from calbench.identify.core.whitening import Whitener
+from calbench.identify.study.montecarlo import campaign_observations
+from calbench.identify.methods.onestep import OneStep, generic_start, sanitize_start, to_phi, to_theta
+from calbench.identify.methods.twostep import two_step
 from steps import say
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -77,7 +77,7 @@ def library_runs(est: OneStep, obs, white, start, ours) -> dict:
         _, jw = fj(z)
         n_eval["n"] += model.stats["evaluations"] - n0
         # d theta / d phi for the compensator pair, then the scaling
-        from calbench.identify.onestep import dtheta_dphi
+        from calbench.identify.methods.onestep import dtheta_dphi
         return jw @ dtheta_dphi(z * scale, lay) * scale if th is not None else None
 
     out = {}

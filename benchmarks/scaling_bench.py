@@ -5,7 +5,7 @@ Prints JSON.
   LocalCluster of 2 workers on 127.0.0.1 with its Client, a first task in each worker importing
   calbench, and closing it all (median of 3); then the scheduling cost per task: 1000 trivial
   tasks (operator.mul) on the 2 workers, W x wall / tasks. These are the constants
-  identify/executor.py chooses its executor with.
+  identify/runtime/executor.py chooses its executor with.
 * ``study``: the same study (identify-only campaigns of the paper plan: 8 cells x 20 seeds,
   16 tasks of ~2 s) in this process, on a local cluster of 1 worker and of 2 workers, side by
   side in this process, best of ``--repeats``. Times are of the run only (the cluster is started
@@ -47,7 +47,7 @@ import pyarrow.parquet as pq
 
 ROOT = Path(__file__).resolve().parent.parent
 
-from calbench.identify import executor as X
+from calbench.identify.runtime import executor as X
 from calbench.identify.study import load_study, prepare, run_study
 from calbench.identify.study import campaign as campaign_mod
 from calbench.identify.study.campaign import TIMING_COLUMNS
@@ -71,7 +71,7 @@ values = [500.0, 700.0]
 FRESH = """
 import json, time
 t0 = time.perf_counter()
-from calbench.identify import executor as X
+from calbench.identify.runtime import executor as X
 t1 = time.perf_counter()
 ex = X.open_executor(X.ExecutorChoice(X.LOCAL, None, {workers}, "benchmark"))
 t2 = time.perf_counter()

@@ -6,7 +6,7 @@ needs to reach the same tolerance on the same poses, their ratio, and the loop-c
 violation of both (ours is hard, MuJoCo's soft).
 
 Batched (issue 16): the same equilibria for many configurations at once
-(bench/batch_statics.py: the scenario's 16 poses repeated to --batch configurations, unloaded
+(bench/statics/batched.py: the scenario's 16 poses repeated to --batch configurations, unloaded
 cold and loaded warm from them), per equilibrium, on 1 and 2 threads; and relaxation batched the
 same way (mujoco.batch steps 10 at a time, the load as xfrc_applied refreshed between them, each
 configuration dropped once converged), so that the lead is shown both against today's
@@ -32,11 +32,11 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 
-from calbench.bench.campaign import run_campaign, truth_robot
-from calbench.bench.loop import loop_gap
-from calbench.bench.scenario import load_scenario
-from calbench.bench.batch_statics import BatchStatics
-from calbench.bench.statics import Load, StaticsSolver
+from calbench.bench.campaign.run import run_campaign, truth_robot
+from calbench.bench.model.loop import loop_gap
+from calbench.bench.scenario.parse import load_scenario
+from calbench.bench.statics.batched import BatchStatics
+from calbench.bench.statics.equilibrium import Load, StaticsSolver
 from steps import say
 
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
@@ -61,7 +61,7 @@ def newton_times(scn, robot, repeats=5):
 
 
 def truth_load(robot, scn, pose):
-    from calbench.bench.campaign import pose_load
+    from calbench.bench.campaign.run import pose_load
 
     return pose_load(robot, scn, pose)[0]
 
@@ -170,11 +170,11 @@ def batched_relax(robot, scn, sols, n: int, nthread: int, tol=1e-6, max_steps=20
 
 
 def monte_carlo(scn, runs: int, repeats: int = 2) -> dict:
-    """The estimator's forward model (identify/forward.py: 16 poses, 32 warm equilibria and their
+    """The estimator's forward model (identify/core/forward.py: 16 poses, 32 warm equilibria and their
     tangents per evaluation) stacked against its scalar loop, side by side: a Monte Carlo of the
     one-step estimator (one or two evaluations per run), alternating, best of ``repeats``."""
-    from calbench.identify.forward import ForwardModel
-    from calbench.identify.montecarlo import run_montecarlo
+    from calbench.identify.core.forward import ForwardModel
+    from calbench.identify.study.montecarlo import run_montecarlo
     best: dict = {}
     for _ in range(repeats):
         for stacked in (False, True):

@@ -15,7 +15,7 @@ def say(bench: str, text: str) -> None:
 
 
 class LineProgress:
-    """A progress sink (bench/progress.py's protocol) printing a step line every ``every``
+    """A progress sink (bench/core/progress.py's protocol) printing a step line every ``every``
     finished pieces, and the last one."""
 
     def __init__(self, bench: str, label: str, every_fraction: float = 0.1):

@@ -2,12 +2,12 @@
 
 For the paper's 16-pose plan and a 12-pose A-optimal plan (``calbench design``, designed under the
 default isotropic tracker), the Cramer-Rao standard deviation of every parameter
-(identify/accuracy.py) with the tracker of the scenario replaced by
+(identify/study/accuracy.py) with the tracker of the scenario replaced by
 * isotropic: 20 um per axis (the bench's default),
 * spec: 1-sigma (10 um + 0.3 um/m) along the beam, (15 um + 6 um/m) across it, independent
   readings (the MPE figures read as 1 sigma),
 * iso10360: the same single-point error, mostly a smooth systematic field, plus independent noise
-  and drift (bench/iso10360.py, its defaults),
+  and drift (bench/tracker/iso10360.py, its defaults),
 and the deflection's own sigma per axis at one reflector of the first pose. Prints JSON.
 
 Usage: python benchmarks/tracker_models_bench.py [--plan PLAN.toml] [--candidates N] [--quick]
@@ -26,12 +26,12 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 
-from calbench.bench.campaign import plan_campaign, truth_robot
-from calbench.bench.scenario import load_scenario, scenario_to_toml
-from calbench.identify.accuracy import predicted_std
+from calbench.bench.campaign.run import plan_campaign, truth_robot
+from calbench.bench.scenario.parse import load_scenario, scenario_to_toml
+from calbench.identify.study.accuracy import predicted_std
 from calbench.identify.cli import main as calbench
 from calbench.identify.design.threads import blas_threads
-from calbench.identify.montecarlo import campaign_observations
+from calbench.identify.study.montecarlo import campaign_observations
 
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
 MODELS = {"isotropic": {"sigma": 20e-6}, "spec": {"model": "spec"}, "iso10360": {"model": "iso10360"}}

@@ -6,7 +6,7 @@ Prints JSON: median seconds (of REPEATS) of
   * ``arrows_only``: side by side in this process, a bare recording of the same log with only
     the measured deflection arrows (read, average, one Arrows3D per pose, write): the least a
     Rerun view of the campaign can cost;
-  * ``view`` and ``view_identified``: :func:`calbench.bench.view.write_recording`, split into
+  * ``view`` and ``view_identified``: :func:`calbench.bench.view.recording.write_recording`, split into
     ``plan`` (statics of the model ghost, framing, chart) and ``log`` (rerun logging + write);
   * ``cli``: the whole command in a fresh process (``calbench view LOG --identified ID --rrd``),
     Python start-up and imports included: what a user waits for (importing rerun and mujoco
@@ -30,13 +30,13 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 
-from calbench.bench.campaign import run_campaign
-from calbench.bench.idreport import IdentificationReport
-from calbench.bench.logformat import read_log
-from calbench.bench.scenario import load_scenario
-from calbench.bench.view import (log_view, measured_deflections, plan_view, recording_stream,
+from calbench.bench.campaign.run import run_campaign
+from calbench.bench.log.idreport import IdentificationReport
+from calbench.bench.log.writer import read_log
+from calbench.bench.scenario.parse import load_scenario
+from calbench.bench.view.recording import (log_view, measured_deflections, plan_view, recording_stream,
                                  write_recording)
-from calbench.identify.report import run_identify
+from calbench.identify.report.identification import run_identify
 from steps import say
 
 PAPER = ROOT / "scenarios" / "paper_table5.toml"

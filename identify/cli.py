@@ -23,12 +23,12 @@ import mujoco
 
 from calbench.bench.cli import (add_check_robot, add_export, add_from_urdf, add_recover,
                                 add_simulate, add_view)
-from calbench.bench.errors import CalbenchError, InputError
-from calbench.bench.outputs import atomic_path, check_outputs, write_text
-from calbench.bench.progress import terminal_progress
+from calbench.bench.core.errors import CalbenchError, InputError
+from calbench.bench.core.outputs import atomic_path, check_outputs, write_text
+from calbench.bench.core.progress import terminal_progress
 
 from . import demo
-from .identifiability import OUTLIER_SIGMA
+from calbench.identify.core.identifiability import OUTLIER_SIGMA
 
 
 def _version() -> str:
@@ -41,7 +41,7 @@ def _version() -> str:
 # --------------------------------------------------------------------------- identify
 
 def add_identify(sub) -> None:
-    from .report import METHODS, Z_CHECK
+    from calbench.identify.report.identification import METHODS, Z_CHECK
     p = sub.add_parser("identify", help="estimate the elastostatic parameters from a campaign log")
     p.add_argument("log", type=Path, help="campaign MCAP log")
     p.add_argument("--model", type=Path, default=None, help="robot MJCF (default: the one in the log)")
@@ -62,7 +62,7 @@ def add_identify(sub) -> None:
 
 
 def cmd_identify(args) -> int:
-    from .report import Z_CHECK, check_failed, format_table, run_identify
+    from calbench.identify.report.identification import Z_CHECK, check_failed, format_table, run_identify
     check_outputs({"--json": args.json}, {"LOG": args.log, "--model": args.model})
     rep = run_identify(args.log, args.model, args.method, args.drop_outliers)
     print(format_table(rep))
@@ -96,8 +96,8 @@ def add_scheduler(p) -> None:
 
 
 def open_pieces(args, work_seconds: float, tasks: int):
-    """The executor for this command (identify/executor.py), announced on stderr."""
-    from .executor import choose, open_executor
+    """The executor for this command (identify/runtime/executor.py), announced on stderr."""
+    from calbench.identify.runtime.executor import choose, open_executor
     ex = open_executor(choose(args.scheduler, work_seconds, tasks, args.workers))
     print(f"calbench {args.command}: {ex.choice.describe()}", file=sys.stderr)
     return ex
@@ -124,18 +124,18 @@ def add_montecarlo(sub) -> None:
 
 
 def cmd_montecarlo(args) -> int:
-    from calbench.bench.robot import Robot
-    from calbench.bench.scenario import load_scenario
-    from .executor import Interrupted
-    from .montecarlo import METHODS, RUNS_PER_TASK, estimated_seconds, format_summary, run_montecarlo
-    from .twostep import TwoStepError, two_step_applies
+    from calbench.bench.model.robot import Robot
+    from calbench.bench.scenario.parse import load_scenario
+    from calbench.identify.runtime.executor import Interrupted
+    from calbench.identify.study.montecarlo import METHODS, RUNS_PER_TASK, estimated_seconds, format_summary, run_montecarlo
+    from calbench.identify.methods.twostep import TwoStepError, two_step_applies
     if args.runs < 2:
         raise InputError("--runs", "runs", "an integer >= 2", args.runs)
     scn = load_scenario(args.scenario, seed=args.seed)
     check_outputs({"--json": args.json}, {"SCENARIO": args.scenario, "robot": scn.robot})
     if not args.force:
-        from calbench.bench.campaign import truth_robot
-        from calbench.bench.timeline import check_size, estimate, montecarlo_estimate, repeats_key
+        from calbench.bench.campaign.run import truth_robot
+        from calbench.bench.scenario.timeline import check_size, estimate, montecarlo_estimate, repeats_key
         repeats, n_refl = [p.repeats for p in scn.poses], len(truth_robot(scn).reflector_names)
         check_size(estimate(repeats, n_refl), scn.path, repeats_key(repeats))   # one campaign
         check_size(montecarlo_estimate(repeats, n_refl, args.runs), "--runs", "runs")
@@ -174,7 +174,7 @@ def cmd_montecarlo(args) -> int:
 # --------------------------------------------------------------------------- design
 
 def add_design(sub) -> None:
-    from .design.criteria import CRITERIA
+    from calbench.identify.design.criteria import CRITERIA
     p = sub.add_parser("design", help="optimal measurement configurations (design of experiments)")
     p.add_argument("scenario", type=Path, nargs="?", default=None,
                    help="scenario TOML (robot, truth = prior guess, tracker, load, optional [work] and [design]); "
@@ -212,9 +212,9 @@ def add_design(sub) -> None:
 
 
 def cmd_design(args) -> int:
-    from .design.candidates import (SECONDS_PER_CANDIDATE, InfoEngine, generate_candidates,
+    from calbench.identify.design.candidates import (SECONDS_PER_CANDIDATE, InfoEngine, generate_candidates,
                                     load_design_scenario)
-    from .design.plan import (design_plan, input_plan_measures, plan_comment, plan_scenario_text,
+    from calbench.identify.design.plan import (design_plan, input_plan_measures, plan_comment, plan_scenario_text,
                               result_json, summary_text)
     if args.normalise and args.export_candidates is None:
         raise InputError("(command line)", "--normalise", "--export-candidates CANDS.npz with it", None)
@@ -223,7 +223,7 @@ def cmd_design(args) -> int:
     if args.scenario is None:
         raise InputError("(command line)", "SCENARIO", "a scenario TOML (or --from-candidates CANDS.npz)", None)
     if args.study:
-        from .design.study import run_study
+        from calbench.identify.design.study import run_study
         res = run_study(args.scenario, args.out_dir)
         print(json.dumps({k: res[k] for k in ("table1", "table2", "table3_parameters")}, indent=1))
         return 0
@@ -287,11 +287,11 @@ def cmd_design(args) -> int:
 def _design_from_candidates(args) -> int:
     """`design --from-candidates CANDS.npz`: the exchange and its certificate on given blocks."""
     import numpy as np
-    from .design.candidate_file import read_candidates
-    from .design.candidates import LOAD_KINDS, InfoEngine, load_design_scenario
-    from .design.certificate import SingularCandidates
-    from .design.plan import merge_repeats, plan_scenario_text, poses_of_rows
-    from .design.selection import select_rows, selection_text
+    from calbench.identify.design.candidate_file import read_candidates
+    from calbench.identify.design.candidates import LOAD_KINDS, InfoEngine, load_design_scenario
+    from calbench.identify.design.certificate import SingularCandidates
+    from calbench.identify.design.plan import merge_repeats, plan_scenario_text, poses_of_rows
+    from calbench.identify.design.selection import select_rows, selection_text
     for flag, given in (("--study", args.study), ("--export-candidates", args.export_candidates)):
         if given:
             raise InputError("(command line)", flag, "no " + flag + " with --from-candidates", None)
@@ -368,7 +368,7 @@ def add_discover(sub) -> None:
 
 
 def cmd_discover(args) -> int:
-    from .discover.workflow import clean, discover, story
+    from calbench.identify.discover.workflow import clean, discover, story
     if not args.log.is_file():
         raise InputError(args.log, "LOG.mcap", "an existing campaign log", "no such file")
     plot = args.plot or (args.json.with_suffix(".png") if args.json else args.log.with_name(args.log.stem + ".discover.png"))
@@ -403,7 +403,7 @@ def add_report(sub) -> None:
 
 
 def cmd_report(args) -> int:
-    from .htmlreport import write_report
+    from calbench.identify.report.html import write_report
     out = write_report(args.log, args.out, args.identified, args.discover, args.design)
     given = [k for k in ("identified", "discover", "design") if getattr(args, k) is not None]
     print(f"wrote {out} ({out.stat().st_size / 1024:.0f} KiB; from the log"
@@ -429,7 +429,7 @@ def add_import(sub) -> None:
 
 def cmd_import(args) -> int:
     import numpy as np
-    from .importer import import_readings
+    from calbench.identify.shopfloor.importer import import_readings
     check_outputs({"--out": args.out}, {"READINGS": args.readings, "--plan": args.plan, "--model": args.model})
     res = import_readings(args.readings, args.plan, args.out, args.units, args.model)
     s = res.summary
@@ -467,10 +467,10 @@ def add_study(sub) -> None:
 
 
 def cmd_study(args) -> int:
-    from .executor import Interrupted
+    from calbench.identify.runtime.executor import Interrupted
     from .study import cell_summaries, format_cells, load_study, prepare, read_results, run_study
-    from .study.plots import accuracy_plots, power_plots
-    from .study.summary import pooled_by_axis
+    from calbench.identify.study.plots import accuracy_plots, power_plots
+    from calbench.identify.study.summary import pooled_by_axis
     study = load_study(args.study)                     # every cell validated: nothing sent yet
     plots = args.plots or args.out.with_name(args.out.stem + "_plots")
     check_outputs({"--out": args.out, "--json": args.json},

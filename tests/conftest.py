@@ -27,21 +27,21 @@ TABLE5 = np.radians([
 
 def fanuc_params(compliance, stiffness: float, preload: float):
     """Params of the FANUC model (its one compensator tendon, named "compensator")."""
-    from calbench.bench.params import Params, Spring
+    from calbench.bench.model.params import Params, Spring
     return Params(np.asarray(compliance, dtype=float), {"compensator": Spring(float(stiffness), float(preload))})
 
 
 def fanuc_truth(scn):
     """The scenario's truth as Params of the FANUC model (bench.campaign.scenario_params)."""
-    from calbench.bench.campaign import scenario_params
-    from calbench.bench.robot import Robot
+    from calbench.bench.campaign.run import scenario_params
+    from calbench.bench.model.robot import Robot
     return scenario_params(scn, Robot.from_file(MJCF))
 
 
 # -- MuJoCo's warnings ------------------------------------------------------------------------
 # MuJoCo warns (and, left to itself, writes MUJOCO_LOG.TXT into the working folder) when it is
 # handed an unstable state. calbench never should hand it one: the whole suite runs with a
-# recording handler, and a test during which MuJoCo warned fails (bench/statics.py: MJ_MAXVAL).
+# recording handler, and a test during which MuJoCo warned fails (bench/statics/equilibrium.py: MJ_MAXVAL).
 MUJOCO_WARNINGS: list[str] = []
 
 

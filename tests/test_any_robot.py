@@ -19,11 +19,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from calbench.bench.campaign import run_campaign
-from calbench.bench.logformat import read_log
-from calbench.bench.robot import Robot
-from calbench.bench.scenario import load_scenario
-from calbench.identify.report import run_identify
+from calbench.bench.campaign.run import run_campaign
+from calbench.bench.log.writer import read_log
+from calbench.bench.model.robot import Robot
+from calbench.bench.scenario.parse import load_scenario
+from calbench.identify.report.identification import run_identify
 from conftest import MJCF, PAPER, ROOT
 
 NAMED = ("body", "joint", "geom", "site", "spatial", "connect")

@@ -1,4 +1,4 @@
-"""The batched statics (bench/batch_statics.py) against the one definition, bench/statics.py.
+"""The batched statics (bench/statics/batched.py) against the one definition, bench/statics/equilibrium.py.
 
 Configuration by configuration: the same residual and Jacobians to rounding, the same equilibria
 to the solver's tolerance, the same tangents to the finite-difference matrix's accuracy, the
@@ -20,11 +20,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from calbench.bench.batch_statics import BatchStatics, take_load
-from calbench.bench.loop import constraint_basis, constraint_basis_stack, loop_gap
-from calbench.bench.params import Params
-from calbench.bench.robot import Robot
-from calbench.bench.statics import (Load, StaticsError, StaticsSolver, ift_tangent, kkt_matrix, statics_options)
+from calbench.bench.statics.batched import BatchStatics, take_load
+from calbench.bench.model.loop import constraint_basis, constraint_basis_stack, loop_gap
+from calbench.bench.model.params import Params
+from calbench.bench.model.robot import Robot
+from calbench.bench.statics.equilibrium import (Load, StaticsError, StaticsSolver, ift_tangent, kkt_matrix, statics_options)
 from conftest import K_TRUE, MJCF, TABLE5, fanuc_params
 from robots import serial_mjcf
 

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calbench.bench.logformat import read_log
-from calbench.bench.scenario import load_scenario
+from calbench.bench.log.writer import read_log
+from calbench.bench.scenario.parse import load_scenario
 from calbench.identify.cli import main
 from conftest import MJCF, PAPER
 from rerun_cli import rerun_env, rerun_exe
@@ -54,7 +54,7 @@ def test_same_seed_same_bytes_other_seed_other_noise(tmp_path, paper_log):
 
 def test_noise_matches_truth_statistics(paper_log):
     """Measured minus true reflector positions: zero mean, sigma 20 um, within sampling error."""
-    from calbench.bench.tracker import to_world_frame
+    from calbench.bench.tracker.instrument import to_world_frame
 
     full = read_log(paper_log, include_truth=True)
     scn = load_scenario(PAPER)
@@ -78,7 +78,7 @@ def test_rerun_reads_the_log(paper_log, tmp_path):
 
 KILLER = r"""
 import os, signal, sys
-import calbench.bench.campaign as c
+import calbench.bench.campaign.run as c
 orig = c.LogWriter.pose_done
 count = {"n": 0}
 def pose_done(self, pose):

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calbench.bench.checkrobot import check_robot, default_tracker, grid
-from calbench.bench.robot import Robot
+from calbench.bench.robots.check import check_robot, default_tracker, grid
+from calbench.bench.model.robot import Robot
 from calbench.identify.cli import main
 from conftest import MJCF
 from robots import fourbar_mjcf, serial_mjcf

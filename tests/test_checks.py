@@ -6,7 +6,7 @@ The 2-pose plan below (q2 in {0, 120} deg, vertical loads) is the issue's: befor
 "WARNING: the estimator did not converge", gave K_C as a number with a standard deviation many
 times its size, marked identifiable, and passed the check. Two distinct q2 leave K_C and s0
 numerically present (the exact model sees the compensator's static torque) but buried in the
-noise: identify/identifiability.py's resolution test names them unidentifiable.
+noise: identify/core/identifiability.py's resolution test names them unidentifiable.
 """
 from __future__ import annotations
 
@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 
 import badcases as bc
-from calbench.bench.idreport import IdentificationReport, ParameterEstimate
-from calbench.bench.params import ParamLayout
+from calbench.bench.log.idreport import IdentificationReport, ParameterEstimate
+from calbench.bench.model.params import ParamLayout
 from calbench.identify.cli import main
-from calbench.identify.identifiability import (MAX_RELATIVE_STD, Identifiability, analyze,
+from calbench.identify.core.identifiability import (MAX_RELATIVE_STD, Identifiability, analyze,
                                                explain, resolve)
-from calbench.identify.report import check_failed
+from calbench.identify.report.identification import check_failed
 from conftest import PAPER
 
 TWO_POSES = [[0, 0, -30, 0, 0, 0], [0, 120, 30, 0, 0, 0]]

@@ -3,7 +3,7 @@
 One module-scoped cluster: a `dask scheduler` and two `dask worker` processes on 127.0.0.1,
 started and stopped by the fixture (tests/dask_cluster.py). "Same numbers" means bit for bit:
 every task derives its random stream from (seed, its key) and starts from the same state
-(identify/executor.py), so neither the executor, the worker count, the cut into tasks nor the
+(identify/runtime/executor.py), so neither the executor, the worker count, the cut into tasks nor the
 order of completion may change a single bit. Run counts are small: these tests are about where
 the work runs, not about statistics (tests/test_montecarlo.py, tests/test_design.py).
 """
@@ -22,12 +22,12 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from calbench.bench.scenario import load_scenario
-from calbench.identify import montecarlo
+from calbench.bench.scenario.parse import load_scenario
+from calbench.identify.study import montecarlo
 from calbench.identify.cli import main
 from calbench.identify.design import candidates
 from calbench.identify.design.candidates import generate_candidates, load_design_scenario
-from calbench.identify.executor import choose, open_executor
+from calbench.identify.runtime.executor import choose, open_executor
 from calbench.identify.study.campaign import TIMING_COLUMNS
 from conftest import PAPER
 from dask_cluster import LocalDaskCluster, self_signed, tls_env

@@ -1,5 +1,5 @@
-"""The robot description read from the MJCF (bench/description.py), the parameter layout it
-gives (bench/params.py), and a robot built from scratch with no loop and no compensator.
+"""The robot description read from the MJCF (bench/model/description.py), the parameter layout it
+gives (bench/model/params.py), and a robot built from scratch with no loop and no compensator.
 
 The serial arm's statics are held to paper eq. (1) with gravity off: dq = K^-1 J^T W at the
 rigid pose. The load (20 N, ~2 m lever) deflects the springs (1e6 N*m/rad) by ~4e-5 rad, so
@@ -11,12 +11,12 @@ import mujoco
 import numpy as np
 import pytest
 
-from calbench.bench.description import DescriptionError, read_description
-from calbench.bench.errors import InputError
-from calbench.bench.params import LEGACY_COMPENSATOR, ParamLayout, Params, Spring, springs_from_message
-from calbench.bench.robot import Robot
-from calbench.bench.scenario import load_scenario, scenario_params
-from calbench.bench.statics import Load, StaticsSolver
+from calbench.bench.model.description import DescriptionError, read_description
+from calbench.bench.core.errors import InputError
+from calbench.bench.model.params import LEGACY_COMPENSATOR, ParamLayout, Params, Spring, springs_from_message
+from calbench.bench.model.robot import Robot
+from calbench.bench.scenario.parse import load_scenario, scenario_params
+from calbench.bench.statics.equilibrium import Load, StaticsSolver
 from conftest import MJCF, PAPER
 from robots import fourbar_mjcf, serial_mjcf
 

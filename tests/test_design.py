@@ -15,18 +15,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calbench.bench.campaign import plan_campaign, truth_robot
-from calbench.bench.robot import Robot
-from calbench.bench.scenario import load_scenario
+from calbench.bench.campaign.run import plan_campaign, truth_robot
+from calbench.bench.model.robot import Robot
+from calbench.bench.scenario.parse import load_scenario
 from calbench.identify.cli import main
 from calbench.identify.design.plan import PlanPose, plan_scenario_text
 from calbench.identify.design.candidates import (InfoEngine, generate_candidates,
                                         load_design_scenario, read_design_settings)
 from calbench.identify.design.criteria import criterion_value, information, measures
 from calbench.identify.design.exchange import Exchanger
-from calbench.identify.forward import ForwardModel, design_from_observations
-from calbench.identify.identifiability import whiten_factors
-from calbench.identify.montecarlo import campaign_observations, run_montecarlo
+from calbench.identify.core.forward import ForwardModel, design_from_observations
+from calbench.identify.core.identifiability import whiten_factors
+from calbench.identify.study.montecarlo import campaign_observations, run_montecarlo
 from conftest import MJCF, PAPER, ROOT
 
 WEIGHT = np.r_[Robot.from_file(MJCF).weight(700.0), 0, 0, 0.0]   # the model's own gravity
@@ -85,7 +85,7 @@ def test_min_height_is_a_scenario_setting(tmp_path, paper):
     assert "min_height" not in InfoEngine(*paper).pose(q, WEIGHT).violations
     bad = tmp_path / "bad.toml"
     bad.write_text(path.read_text() + "min_heigth = 2\n")
-    from calbench.bench.errors import InputError
+    from calbench.bench.core.errors import InputError
     with pytest.raises(InputError, match="design.min_heigth"):
         read_design_settings(bad)
 
@@ -103,7 +103,7 @@ def test_candidates_are_all_feasible(engine, cands):
 # ------------------------------------------------------------------------------ information
 
 def test_exported_blocks_reproduce_the_fisher_information_of_a_plan(tmp_path, paper):
-    """NPZ from the CLI; information of 6 of its candidates against identify/forward.py's IFT
+    """NPZ from the CLI; information of 6 of its candidates against identify/core/forward.py's IFT
     Jacobian on the campaign of those 6 poses (an independent code path)."""
     scn, _ = paper
     npz = tmp_path / "c.npz"

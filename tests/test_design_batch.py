@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calbench.bench.statics import Load
+from calbench.bench.statics.equilibrium import Load
 from calbench.identify.design.batch_info import BatchInfo
 from calbench.identify.design.candidates import (EQUILIBRIUM_RULES, InfoEngine, generate_candidates,
                                                  horizontal_clearance, lateral_wrench, load_design_scenario)

@@ -27,11 +27,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from calbench.bench.campaign import run_campaign
-from calbench.bench.effects import REGISTRY, apply_effects, without_compensator
-from calbench.bench.logformat import read_log, strip_truth
-from calbench.bench.robot import Robot
-from calbench.bench.scenario import load_scenario, scenario_variant
+from calbench.bench.campaign.run import run_campaign
+from calbench.bench.model.effects import REGISTRY, apply_effects, without_compensator
+from calbench.bench.log.writer import read_log, strip_truth
+from calbench.bench.model.robot import Robot
+from calbench.bench.scenario.parse import load_scenario, scenario_variant
 from calbench.identify.cli import main as cli_main
 from calbench.identify.discover.workflow import UNEXPLAINED, discover, story
 from calbench.identify.discover.fit import DISCOVERY_EFFECTS, library
@@ -303,7 +303,7 @@ def test_cli_json_plot_view(logs, tmp_path, capsys):
     assert rep["noise_sigma"] == pytest.approx(20e-6)
     assert rep["augmented_model"] == str(aug) and Robot.from_file(aug).model.nv > 0
     assert Path(rep["plot"]).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    from calbench.bench.idreport import IdentificationReport
+    from calbench.bench.log.idreport import IdentificationReport
     ident = IdentificationReport.read(rep["view_json"])
     assert len(ident.predictions()) == rep["n_poses"] and not ident.read_warnings
     # bad input: exit status 2
@@ -314,9 +314,9 @@ def test_cli_json_plot_view(logs, tmp_path, capsys):
 def test_augmented_jacobian_matches_finite_differences(logs):
     """d dp / d theta of the augmented forward model (implicit function theorem with the effect
     columns from the passive force) against central differences of the solved equilibria."""
-    from calbench.bench.effects import link_compliance
+    from calbench.bench.model.effects import link_compliance
     from calbench.identify.discover.fit import build
-    from calbench.identify.observations import from_log
+    from calbench.identify.core.observations import from_log
     obs = from_log(read_log(logs["none"]))
     obs = obs.subset(obs.labels[:9])
     eff = link_compliance("forearm")
@@ -338,7 +338,7 @@ SPRING_FIELDS = ("jnt_stiffness", "jnt_stiffnesspoly", "tendon_stiffness", "tend
 
 @pytest.mark.parametrize("effect", library(Robot.from_file(MJCF)), ids=lambda e: e.name + e.detail)
 def test_effects_write_only_spring_values(effect):
-    """bench/effects.py's rule that discovery's analytic stiffness matrix relies on: set_params
+    """bench/model/effects.py's rule that discovery's analytic stiffness matrix relies on: set_params
     changes nothing in the compiled model but joint and tendon spring values."""
     from calbench.identify.discover.fit import effect_priors
     start, _, _, size = effect_priors(effect)
@@ -359,9 +359,9 @@ def test_effect_force_columns_match_finite_differences(logs, effect):
     equals central differences of MuJoCo's passive force (relative 1e-7: the differences' O(h^2)
     error is ~1e-12, their round-off ~1e-10), at a loaded equilibrium of the paper plan."""
     import mujoco
-    from calbench.bench.statics import statics_options
+    from calbench.bench.statics.equilibrium import statics_options
     from calbench.identify.discover.fit import build, effect_priors
-    from calbench.identify.observations import from_log
+    from calbench.identify.core.observations import from_log
     obs = from_log(read_log(logs["none"]))
     obs = obs.subset([lab for lab in obs.labels if lab[0] == 12])    # a lateral pull: every joint loaded
     start, _, _, size = effect_priors(effect)
@@ -386,9 +386,9 @@ def test_a_split_the_data_do_not_fix_gets_no_dishonest_std(tmp_path):
     the chi2 profile only 2.4). Each named parameter's profile is checked at +-2 Fisher std
     (identify/discover/uncertainty.py): cx is reported not determined, with the profile's rise,
     and every parameter still reported with a std is within 4 of them of the truth."""
-    from calbench.bench.campaign import plan_campaign, truth_robot
+    from calbench.bench.campaign.run import plan_campaign, truth_robot
     from calbench.identify.discover.workflow import discover_observations
-    from calbench.identify.montecarlo import campaign_observations, true_theta
+    from calbench.identify.study.montecarlo import campaign_observations, true_theta
     extra = '[truth.effects.link_compliance]\nlink = "upper_arm"\ncompliance = [1.5e-8, 0.0, 1.5e-8]'
     scn = load_scenario(scenario(tmp_path, "xz", extra))
     tr = truth_robot(scn)

@@ -22,15 +22,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calbench.bench.campaign import plan_campaign, truth_robot
-from calbench.bench.scenario import load_scenario, scenario_variant
-from calbench.bench.errors import InputError
-from calbench.bench.robot import Robot
+from calbench.bench.campaign.run import plan_campaign, truth_robot
+from calbench.bench.scenario.parse import load_scenario, scenario_variant
+from calbench.bench.core.errors import InputError
+from calbench.bench.model.robot import Robot
 from calbench.identify.discover.fit import build, effect_priors, fit, label, library, whitened
 from calbench.identify.discover.search import polish, unabsorbed_norms, fit_candidate
 from calbench.identify.discover.workflow import base_fit
-from calbench.identify.whitening import Whitener
-from calbench.identify.montecarlo import campaign_observations, true_theta
+from calbench.identify.core.whitening import Whitener
+from calbench.identify.study.montecarlo import campaign_observations, true_theta
 from conftest import MJCF, PAPER
 
 SIGNATURE = 15.0     # sigma: the truth's unabsorbed signature
@@ -120,9 +120,9 @@ def test_candidate_fit_reaches_the_global_minimum(plan, effect, sign, seed):
 @pytest.mark.parametrize("seed", [None, 3], ids=["exact", "noisy"])
 @pytest.mark.parametrize("k_c", [2.6e6, 6e6])
 def test_compensator_candidate_fit_reaches_the_global_minimum(tmp_path, k_c, seed):
-    """The compensator candidate on a user model without one (bench/effects.py's
+    """The compensator candidate on a user model without one (bench/model/effects.py's
     without_compensator), the truth's spring at the shipped and at a stiffer rate."""
-    from calbench.bench.effects import compensator, without_compensator
+    from calbench.bench.model.effects import compensator, without_compensator
     bare = tmp_path / "bare.xml"
     bare.write_text(without_compensator(MJCF))
     scn = load_scenario(scenario_variant(PAPER, tmp_path / "c.toml", compensator=(k_c, 0.83)))

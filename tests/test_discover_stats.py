@@ -9,17 +9,17 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from calbench.bench.campaign import plan_campaign, truth_robot
-from calbench.bench.robot import Robot
-from calbench.bench.scenario import parse_scenario
+from calbench.bench.campaign.run import plan_campaign, truth_robot
+from calbench.bench.model.robot import Robot
+from calbench.bench.scenario.parse import parse_scenario
 from calbench.identify.discover.aliasing import aliasing_report
 from calbench.identify.discover.decide import ALPHA_EFFECT, compare, lr_spread, lr_threshold, near_ties
 from calbench.identify.discover.fit import library
 from calbench.identify.discover.uncertainty import MAX_RELATIVE_STD, determination
 from calbench.identify.discover.workflow import alias_columns, base_fit
-from calbench.identify.whitening import Whitener
-from calbench.identify.leastsq import Fit
-from calbench.identify.montecarlo import campaign_observations
+from calbench.identify.core.whitening import Whitener
+from calbench.identify.core.leastsq import Fit
+from calbench.identify.study.montecarlo import campaign_observations
 from conftest import MJCF, PAPER
 
 
@@ -144,7 +144,7 @@ def test_cubic_on_j1_under_equal_pulls_is_invisible_and_biases_k1(exact_fits):
 
 def test_forearm_inplane_bending_is_a_k3(exact_fits):
     """The forearm's y spring at its root turns the forearm about the elbow like motor 3 does
-    through the parallelogram (bench/effects.py): invisible, absorbed by k3 alone."""
+    through the parallelogram (bench/model/effects.py): invisible, absorbed by k3 alone."""
     _, al = exact_fits[16]
     a = al[("link_compliance", "forearm", "cy")]
     assert not a["visible"]

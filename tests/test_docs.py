@@ -1,6 +1,7 @@
 """The documents a newcomer reads match the repository: every link in README.md and docs/*.md
 resolves to a file inside the repository (issue 10: a clone has no ../shared/), and the README's
-layout table names exactly the modules each package folder holds (issue 9)."""
+architecture page (docs/architecture.md) names exactly the rooms and the modules each holds,
+both ways (issue 20)."""
 from __future__ import annotations
 
 import re
@@ -11,7 +12,6 @@ import pytest
 from conftest import ROOT
 
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
-PACKAGES = ["bench", "identify", "identify/design", "identify/discover", "identify/study"]
 
 
 def links(md: Path) -> list[str]:
@@ -32,18 +32,26 @@ def test_every_link_resolves_inside_the_repository(md):
         assert path.exists(), f"{md.name}: {target} does not exist"
 
 
-def layout_rows() -> dict[str, str]:
-    """The README's layout table: folder -> the text of its row."""
-    readme = (ROOT / "README.md").read_text(encoding="utf-8")
-    section = readme.split("### Layout", 1)[1].split("\n## ", 1)[0]
-    return {m.group(1): m.group(2) for m in re.finditer(r"^\| `([\w/]+)/` \| (.*) \|$", section, re.M)}
+def architecture_sections() -> dict[str, str]:
+    """docs/architecture.md's rooms: folder -> the text of its section (a heading "### `folder/`")."""
+    text = (ROOT / "docs" / "architecture.md").read_text(encoding="utf-8")
+    parts = re.split(r"^### `([\w/]+)/`[^\n]*$", text, flags=re.M)
+    return {parts[i]: parts[i + 1] for i in range(1, len(parts), 2)}
 
 
-@pytest.mark.parametrize("folder", PACKAGES)
-def test_the_readme_layout_names_every_module_of_a_package(folder):
-    rows = layout_rows()
-    assert folder in rows, f"no layout row for {folder}/"
-    named = set(re.findall(r"`(\w+\.py)`", rows[folder]))
+def package_folders() -> list[str]:
+    """Every folder of bench/ and identify/ that is a package (has an __init__.py)."""
+    return sorted(p.parent.relative_to(ROOT).as_posix()
+                  for top in ("bench", "identify") for p in (ROOT / top).rglob("__init__.py"))
+
+
+def test_the_architecture_page_has_a_section_for_every_package_and_no_other():
+    assert set(architecture_sections()) == set(package_folders())
+
+
+@pytest.mark.parametrize("folder", package_folders())
+def test_the_architecture_page_names_every_module_of_a_package(folder):
+    named = set(re.findall(r"^- `(\w+\.py)`", architecture_sections().get(folder, ""), re.M))
     present = {p.name for p in (ROOT / folder).glob("*.py") if p.name != "__init__.py"}
-    assert present - named == set(), f"{folder}/: modules the README does not name"
-    assert named - present == set(), f"{folder}/: the README names modules that do not exist"
+    assert present - named == set(), f"{folder}/: modules docs/architecture.md does not name"
+    assert named - present == set(), f"{folder}/: docs/architecture.md names modules that do not exist"

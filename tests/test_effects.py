@@ -1,4 +1,4 @@
-"""Hidden physical effects (bench/effects.py), each held to an independent computation.
+"""Hidden physical effects (bench/model/effects.py), each held to an independent computation.
 
 The reference for the compliances is the linear VJM with the loop closed (paper eq. 1 extended
 to the new hinges and eq. 16's loop handling): at the rigid pose with gravity off,
@@ -15,14 +15,14 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from calbench.bench.campaign import run_campaign, truth_robot
-from calbench.bench.effects import (REGISTRY, Effect, EffectRobot, apply_effects, base_compliance, compensator,
+from calbench.bench.campaign.run import run_campaign, truth_robot
+from calbench.bench.model.effects import (REGISTRY, Effect, EffectRobot, apply_effects, base_compliance, compensator,
                            effect_from_truth, joint_nonlinearity, link_compliance)
-from calbench.bench.logformat import read_log
-from calbench.bench.loop import loop_jacobian
-from calbench.bench.robot import Params, Robot
-from calbench.bench.scenario import load_scenario
-from calbench.bench.statics import Load, StaticsSolver
+from calbench.bench.log.writer import read_log
+from calbench.bench.model.loop import loop_jacobian
+from calbench.bench.model.robot import Params, Robot
+from calbench.bench.scenario.parse import load_scenario
+from calbench.bench.statics.equilibrium import Load, StaticsSolver
 from conftest import MJCF, PAPER, fanuc_params, fanuc_truth
 
 K = np.array([0.25e-6, 0.12e-6, 0.07e-6, 0.35e-6, 0.40e-6, 0.60e-6])
@@ -377,7 +377,7 @@ def test_campaign_with_hidden_effect(tmp_path):
 def test_register_carries_discovery_options_and_priors():
     """Adding an effect is one decorated function: @register alone puts it (with its options
     and priors) into discovery's library; nothing in identify/ names it."""
-    from calbench.bench import effects as fx
+    from calbench.bench.model import effects as fx
     from calbench.identify.discover.fit import effect_priors, library
 
     @fx.register("toy_spring", discover=[{"axis": "x"}, {"axis": "y"}],
@@ -402,8 +402,8 @@ def test_tracker_drift_offsets_only_the_loaded_readings(tmp_path):
     """The measurement-side effect: same scenario and seed with and without the drift give the
     same unloaded readings and loaded readings shifted by exactly the offset (tracker frame,
     here yawed), the same truth; discovery's deflection term is R b on every row."""
-    from calbench.bench.effects import Readings, tracker_drift
-    from calbench.bench.tracker import tracker_rotation
+    from calbench.bench.model.effects import Readings, tracker_drift
+    from calbench.bench.tracker.instrument import tracker_rotation
     text = PAPER.read_text().replace("position = [3.5, -3.5, 3.2]", "position = [3.5, -3.5, 3.2]\nyaw = 30.0")
     plain = tmp_path / "yawed.toml"
     plain.write_text(text.replace('robot = "../mjcf/m900ib700.xml"', f'robot = "{MJCF}"'))

@@ -10,8 +10,8 @@ import numpy as np
 import psutil
 import pytest
 
-from calbench.bench.errors import InputError
-from calbench.identify import executor as X
+from calbench.bench.core.errors import InputError
+from calbench.identify.runtime import executor as X
 from calbench.identify.cli import main
 from conftest import PAPER
 
@@ -88,8 +88,8 @@ class _InterruptedAfter(X.InProcess):
 
 
 def test_ctrl_c_during_montecarlo_keeps_the_runs_that_finished(monkeypatch):
-    from calbench.bench.scenario import load_scenario
-    from calbench.identify import montecarlo
+    from calbench.bench.scenario.parse import load_scenario
+    from calbench.identify.study import montecarlo
     monkeypatch.setattr(montecarlo, "RUNS_PER_TASK", 2)
     scn = load_scenario(PAPER)
     full = montecarlo.run_montecarlo(scn, 6, methods=("one-step",), progress=False)

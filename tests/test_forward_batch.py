@@ -1,4 +1,4 @@
-"""The estimator's forward model evaluated stacked (identify/forward.py, bench/batch_statics.py)
+"""The estimator's forward model evaluated stacked (identify/core/forward.py, bench/statics/batched.py)
 against its scalar loop, along a sequence of parameters such as a fit visits.
 
 Both solve the same equilibria to the same criterion (forward.py's docstring: ~3e-11 m at a
@@ -17,12 +17,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calbench.bench.campaign import plan_campaign, truth_robot
-from calbench.bench.robot import Robot
-from calbench.bench.scenario import load_scenario
+from calbench.bench.campaign.run import plan_campaign, truth_robot
+from calbench.bench.model.robot import Robot
+from calbench.bench.scenario.parse import load_scenario
 from calbench.identify.discover.fit import AugmentedForward
-from calbench.identify.forward import ForwardModel, design_from_observations
-from calbench.identify.montecarlo import campaign_observations, true_theta
+from calbench.identify.core.forward import ForwardModel, design_from_observations
+from calbench.identify.study.montecarlo import campaign_observations, true_theta
 from conftest import PAPER
 
 

@@ -1,8 +1,8 @@
-"""The log's Foxglove topics (bench/foxglove.py): valid against Foxglove's official JSON Schemas,
+"""The log's Foxglove topics (bench/log/foxglove.py): valid against Foxglove's official JSON Schemas,
 geometrically right when composed the way Foxglove composes frames, written pose by pose, and
 free of any true value outside /truth/.
 
-The shipped schemas are the npm package's files (bench/foxglove_schemas/LICENSE says how they
+The shipped schemas are the npm package's files (bench/log/foxglove_schemas/LICENSE says how they
 were taken); the validator is the reference ``jsonschema`` implementation, draft 2020-12.
 """
 from __future__ import annotations
@@ -19,15 +19,15 @@ from mcap.reader import make_reader
 from mcap.records import Channel, Message
 from mcap.stream_reader import StreamReader
 
-from calbench.bench import foxglove as fx
-from calbench.bench.campaign import run_campaign
-from calbench.bench.logformat import TRUTH_PREFIX, read_log, strip_truth
-from calbench.bench.robot import Robot
-from calbench.bench.scenario import load_scenario
-from calbench.bench.tracker import to_world_frame
+from calbench.bench.log import foxglove as fx
+from calbench.bench.campaign.run import run_campaign
+from calbench.bench.log.writer import TRUTH_PREFIX, read_log, strip_truth
+from calbench.bench.model.robot import Robot
+from calbench.bench.scenario.parse import load_scenario
+from calbench.bench.tracker.instrument import to_world_frame
 from conftest import PAPER, ROOT
 
-ROUNDING = 1e-7      # m: bench/foxglove.py rounds coordinates to 0.1 um
+ROUNDING = 1e-7      # m: bench/log/foxglove.py rounds coordinates to 0.1 um
 
 
 @pytest.fixture(scope="module")
@@ -48,7 +48,7 @@ def messages(path: Path) -> list[tuple[str, str, int, dict]]:
 
 
 def official(name: str) -> dict:
-    return json.loads(files("calbench.bench").joinpath("foxglove_schemas", f"{name}.json")
+    return json.loads(files("calbench.bench.log").joinpath("foxglove_schemas", f"{name}.json")
                       .read_text())
 
 
@@ -304,7 +304,7 @@ def test_layout_opens_the_3d_panel_on_these_topics(paper_log):
 def test_the_writer_hook_keeps_channels_and_times_honest(tmp_path):
     """LogWriter.add_channel/next_time/write: no re-registered topic, no message on an unknown
     channel, no time that goes back, no message its channel's schema rejects."""
-    from calbench.bench.logformat import LogHeader, LogWriter
+    from calbench.bench.log.writer import LogHeader, LogWriter
     header = LogHeader("s", "seed = 1\n", "s.toml", "r.xml", "<mujoco/>", ["R1"], "payload",
                        {"position": [1.0, 0, 0], "yaw": 0.0, "model": "isotropic",
                         "sigma": 2e-5, "distance": [0.0, 0.0], "transverse": [0.0, 0.0]}, 1)

@@ -33,10 +33,10 @@ from pathlib import Path
 import pytest
 
 import badcases as bc
-from calbench.bench.errors import InputError
-from calbench.bench.logread import read_log
-from calbench.bench.logrecover import recover_log
-from calbench.bench.logschema import SCHEMAS
+from calbench.bench.core.errors import InputError
+from calbench.bench.log.read import read_log
+from calbench.bench.log.recover import recover_log
+from calbench.bench.log.schema import SCHEMAS
 from calbench.identify.cli import main
 
 SEED = 20251201

@@ -1,4 +1,4 @@
-"""`calbench report` (identify/htmlreport.py): one offline HTML file, rendered by a real browser.
+"""`calbench report` (identify/report/html.py): one offline HTML file, rendered by a real browser.
 
 Headless Chromium loads the report through the DevTools protocol (tests/chromium.py): no console
 message, no exception, no request other than the file itself and its data: images, every
@@ -18,11 +18,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calbench.bench.campaign import run_campaign
-from calbench.bench.scenario import load_scenario
+from calbench.bench.campaign.run import run_campaign
+from calbench.bench.scenario.parse import load_scenario
 from calbench.identify.cli import main
-from calbench.identify.htmlreport import Z95, build_report, write_report
-from calbench.identify.report import run_identify
+from calbench.identify.report.html import Z95, build_report, write_report
+from calbench.identify.report.identification import run_identify
 from chromium import chromium_exe, render
 from conftest import PAPER
 
@@ -256,7 +256,7 @@ def test_bad_input_exits_2_naming_the_file(inputs, tmp_path, capsys, case):
 def test_a_certificate_of_a_criterion_to_minimise_is_labelled_a_lower_bound():
     """A, AD and pose certificates carry plan_value/bound_value (docs/contract.md): the page
     names them as the criterion and its certified lower bound, not as log dets."""
-    from calbench.identify.htmlreport import design_section
+    from calbench.identify.report.html import design_section
     cert = {"criterion": "A", "plan_value": 0.0103684, "bound_value": 0.0096494,
             "efficiency": 0.9307, "configs": 2, "distinct": False}
     c = design_section({**DESIGN, "criterion": "A", "certificate": cert})["certificate"]

@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calbench.bench.logformat import read_log, strip_truth
+from calbench.bench.log.writer import read_log, strip_truth
 from calbench.identify.cli import main
-from calbench.bench.idreport import IdentificationReport
-from calbench.identify.report import run_identify
+from calbench.bench.log.idreport import IdentificationReport
+from calbench.identify.report.identification import run_identify
 import badcases as bc
 from conftest import K_TRUE, PAPER
 

@@ -16,12 +16,12 @@ import mujoco
 import numpy as np
 import pytest
 
-from calbench.bench.campaign import plan_campaign, truth_robot
-from calbench.bench.robot import Robot
-from calbench.bench.scenario import load_scenario
-from calbench.identify.forward import ForwardModel, design_from_observations
-from calbench.identify.montecarlo import campaign_observations, true_theta
-from calbench.identify.twostep import step2_rows
+from calbench.bench.campaign.run import plan_campaign, truth_robot
+from calbench.bench.model.robot import Robot
+from calbench.bench.scenario.parse import load_scenario
+from calbench.identify.core.forward import ForwardModel, design_from_observations
+from calbench.identify.study.montecarlo import campaign_observations, true_theta
+from calbench.identify.methods.twostep import step2_rows
 from conftest import MJCF, PAPER, fanuc_params
 
 
@@ -101,7 +101,7 @@ def test_effect_columns_and_overridden_base_columns(paper):
     analytic ones. Both models solve the same statics to the same tolerance, so dp agrees to
     the solver's ~3e-11 m; the difference columns' round-off (eps x |qfrc_passive| / h, ~1e-10 of
     d g / d theta) grows through the KKT solve to ~1e-7 of a dp column: allowed 1e-6."""
-    from calbench.bench.effects import compensator
+    from calbench.bench.model.effects import compensator
     from calbench.identify.discover.fit import build
 
     scn, _, obs = paper
@@ -122,7 +122,7 @@ KR270_PAPER = Path(__file__).resolve().parents[1] / "scenarios" / "kr270_paper.t
 
 def test_jacobian_exact_after_a_far_excursion():
     """A fit that wanders far (a far-off start) leaves the cached A_base taken there; the
-    Jacobian back near the optimum must still be the exact one (identify/forward.py, KKT_QTOL).
+    Jacobian back near the optimum must still be the exact one (identify/core/forward.py, KKT_QTOL).
     Before A_base was re-taken at the solution, the KR 270's balancer columns were wrong by
     20-40 % after this excursion, and Monte Carlo runs converged ~1 sigma off the estimate.
     Tolerance: A_base re-taken within KKT_QTOL = 1e-3 rad of the solution leaves a relative
@@ -135,7 +135,7 @@ def test_jacobian_exact_after_a_far_excursion():
     th = true_theta(scn, Robot.from_file(scn.robot))
     fm = ForwardModel(robot, design_from_observations(robot, obs), tol=1e-12)
     fm.evaluate(th)
-    # the far two-step start of identify/onestep.py's docstring: K_C 20x, s0 0.2x; its equilibria
+    # the far two-step start of identify/methods/onestep.py's docstring: K_C 20x, s0 0.2x; its equilibria
     # are cold solves (fallbacks), their A_base taken there
     fm.evaluate(th * np.array([1.0] * 6 + [20.0, 0.2]))
     assert fm.stats["fallbacks"] > 0

@@ -11,14 +11,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calbench.bench.campaign import plan_campaign, truth_robot
-from calbench.bench.robot import Robot
-from calbench.bench.scenario import parse_scenario
-from calbench.identify.forward import ForwardModel, design_from_observations
-from calbench.identify.identifiability import whiten_factors
-from calbench.identify.montecarlo import campaign_observations, true_theta
-from calbench.identify.onestep import one_step
-from calbench.identify.twostep import linear_plan, two_step
+from calbench.bench.campaign.run import plan_campaign, truth_robot
+from calbench.bench.model.robot import Robot
+from calbench.bench.scenario.parse import parse_scenario
+from calbench.identify.core.forward import ForwardModel, design_from_observations
+from calbench.identify.core.identifiability import whiten_factors
+from calbench.identify.study.montecarlo import campaign_observations, true_theta
+from calbench.identify.methods.onestep import one_step
+from calbench.identify.methods.twostep import linear_plan, two_step
 from conftest import MJCF, PAPER
 
 TEXT = PAPER.read_text()
@@ -49,7 +49,7 @@ def crb_std(robot, obs, theta):
 
 def test_one_step_recovers_the_truth_from_noise_free_data(paper):
     """Exact model, exact data: the error is set by the solver (~1e-6 sigma per residual, see
-    identify/forward.py) and the stopping rule (1e-6 sigma): allow 1e-4 of the CRB's sigma.
+    identify/core/forward.py) and the stopping rule (1e-6 sigma): allow 1e-4 of the CRB's sigma.
 
     This tests the OPTIMISER, not the physics: the data come from the same statics as the
     model. The physics is held to independent computations elsewhere: the equilibrium against
@@ -119,10 +119,10 @@ def test_two_step_on_the_exact_statics_and_iterated_at_its_sagged_pose(paper):
     NEGATIVE spring, K_C = -3.16e6 N/m against +2.6e6 (the stiff compensator sags J2 by
     1.0-1.8 deg; its Jacobians are taken at the commanded pose), k2 +6.8 sigma, k1 and k4 about
     -0.2 sigma (CRB sigma). Re-taking its Jacobians at the pose its own estimate sags to
-    (identify/twostep_iterated.py, the fixed point by Newton) brings K_C to +2.1 sigma, k2 to
+    (identify/methods/twostep_iterated.py, the fixed point by Newton) brings K_C to +2.1 sigma, k2 to
     -0.7 sigma, s0 to -0.8 sigma; at the TRUE sag the linear model would give K_C +0.8 sigma:
     the rest is the linear model's own error (H00 of eq. 18) feeding the estimated sag."""
-    from calbench.identify.twostep_iterated import two_step_iterated
+    from calbench.identify.methods.twostep_iterated import two_step_iterated
     scn, robot, obs = paper
     truth = true_theta(scn, Robot.from_file(scn.robot))
     sd = crb_std(robot, obs, truth)
@@ -139,13 +139,13 @@ def test_two_step_on_the_exact_statics_and_iterated_at_its_sagged_pose(paper):
 
 
 def test_iterated_covariance_carries_the_sags_share(paper):
-    """The iterated two-step's covariance is A C A^T (identify/twostep_iterated.py,
+    """The iterated two-step's covariance is A C A^T (identify/methods/twostep_iterated.py,
     Uncertainty), A = dtheta*/dtheta at the fixed sag. Checked against re-solving the whole fixed
     point on perturbed readings: the iterated estimate moves by A times the move of the linear
     solve at the old sag, up to a second-order remainder -- which halves when the perturbation
     halves (a wrong A would leave a first-order error that does not). The sag's share is not
     small: k1's std grows by a third and s0's shrinks (the sag and s0 are anti-correlated)."""
-    from calbench.identify.twostep_iterated import SagMap, sensitivity, two_step_iterated
+    from calbench.identify.methods.twostep_iterated import SagMap, sensitivity, two_step_iterated
     scn, robot, obs = paper
     it = two_step_iterated(robot, obs)
     fixed_pose = two_step_iterated(robot, obs, uncertainty=False)

@@ -5,8 +5,8 @@ import json
 
 import pytest
 
-from calbench.bench.errors import InputError
-from calbench.bench.idreport import (IdentificationReport, ObservationFit, Outlier,
+from calbench.bench.core.errors import InputError
+from calbench.bench.log.idreport import (IdentificationReport, ObservationFit, Outlier,
                                      ParameterEstimate)
 
 # An `identify --json` report as calbench wrote it before the report had a type (trimmed to

@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calbench.bench.errors import InputError
-from calbench.bench.logformat import read_log
-from calbench.bench.readings import read_readings
-from calbench.bench.scenario import load_plan, load_scenario
+from calbench.bench.core.errors import InputError
+from calbench.bench.log.writer import read_log
+from calbench.bench.shopfloor.readings import read_readings
+from calbench.bench.scenario.parse import load_plan, load_scenario
 from calbench.identify.cli import main
 from conftest import MJCF, PAPER
 
@@ -235,7 +235,7 @@ def test_read_readings_groups_repeats(tmp_path):
     p.write_text("\n".join([HEAD, GOOD, "0,unloaded,refl_a,-2224.3,3033.2,-59.7",
                             "0,unloaded,refl_b,-2121.8,3076.0,-689.9"]) + "\n")
     t = read_readings(p, 16, NAMES)
-    from calbench.bench.readings import group
+    from calbench.bench.shopfloor.readings import group
     g = group(t.of(0, "unloaded"), NAMES)
     assert len(g) == 2 and g[0].visible.tolist() == [True, True, False]
     assert g[1].visible.tolist() == [True, False, False]
@@ -254,10 +254,10 @@ def test_a_wrong_tracker_pose_in_the_plan_is_refused(work, capsys):
 
 
 def test_times_travel_through_export_and_import(work):
-    """The log's reading times (the campaign clock: bench/timeline.py) go out as ISO 8601 and
+    """The log's reading times (the campaign clock: bench/scenario/timeline.py) go out as ISO 8601 and
     come back as the imported log's times (to the microsecond the CSV keeps), and they are the
     simulator's schedule (bench.measuring.reading_times), which the iso10360 tracker drifts on."""
-    from calbench.bench.measuring import reading_times
+    from calbench.bench.tracker.measuring import reading_times
     out = work / "imported_times.mcap"
     assert main(["import", str(work / "paper.csv"), "--plan", str(work / "plan.toml"), "--out", str(out)]) == 0
     orig = read_log(work / "paper.mcap")
@@ -272,7 +272,7 @@ def test_times_travel_through_export_and_import(work):
 
 def test_times_in_seconds_count_from_the_plans_start(work):
     from datetime import datetime
-    from calbench.bench.timeline import DEFAULT_START, start_ns
+    from calbench.bench.scenario.timeline import DEFAULT_START, start_ns
     rows = rows_of(work / "paper.csv")
     t = [datetime.fromisoformat(r["time"].replace("Z", "+00:00")) for r in rows]
     for r, w in zip(rows, t):
@@ -289,7 +289,7 @@ def test_times_in_seconds_count_from_the_plans_start(work):
 def test_an_imported_log_carries_no_truth_and_the_report_says_measured(tmp_path):
     """The importer writes through the one writer, which registers the /truth/ channels; with no
     message on them the log has no truth (has_truth), so the report does not call it simulated."""
-    from calbench.bench.logformat import has_truth
+    from calbench.bench.log.writer import has_truth
     from calbench.identify.cli import main as cli
     from conftest import PAPER
     sim, csv, imp = tmp_path / "sim.mcap", tmp_path / "r.csv", tmp_path / "imp.mcap"

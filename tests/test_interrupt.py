@@ -19,8 +19,8 @@ import pytest
 from mcap.reader import make_reader
 
 import badcases as bc
-import calbench.bench.timeline as timeline
-from calbench.bench.logread import read_log
+import calbench.bench.scenario.timeline as timeline
+from calbench.bench.log.read import read_log
 from calbench.identify.cli import main
 from conftest import PAPER
 from rerun_cli import rerun_env, rerun_exe
@@ -82,7 +82,7 @@ def test_interrupt_finishes_the_mcap(long_scenario, tmp_path, sig, words):
 
 KILLER = """
 import os, signal, sys
-import calbench.bench.campaign as c
+import calbench.bench.campaign.run as c
 orig = c.LogWriter.pose_done
 count = {"n": 0}
 def pose_done(self, pose, at=None):
@@ -178,7 +178,7 @@ def test_an_absurd_campaign_is_refused_up_front(tmp_path, capsys):
 
 
 def test_force_runs_what_the_limit_refuses(tmp_path, capsys, monkeypatch):
-    """The limit is an estimate against bench/timeline.py's bounds; --force overrides it."""
+    """The limit is an estimate against bench/scenario/timeline.py's bounds; --force overrides it."""
     scn = tmp_path / "s.toml"
     scn.write_text(bc.scenario_text(n_poses=2, repeats=3))
     monkeypatch.setattr(timeline, "MAX_SECONDS", 1e-6)
@@ -191,7 +191,7 @@ def test_force_runs_what_the_limit_refuses(tmp_path, capsys, monkeypatch):
 
 def test_the_size_estimate_is_an_upper_bound(tmp_path):
     """Log bytes are deterministic: a campaign's log is no larger than the estimate that guards
-    against absurd campaigns (bench/timeline.py; its simulation time is measured in
+    against absurd campaigns (bench/scenario/timeline.py; its simulation time is measured in
     benchmarks/statics_bench.py, not here)."""
     for n, repeats in ((1, 1), (6, 1), (4, 100)):
         scn = tmp_path / "s.toml"
@@ -205,11 +205,11 @@ def test_the_size_estimate_is_an_upper_bound(tmp_path):
 
 
 def test_a_signal_inside_the_writer_waits_for_it():
-    """SignalGuard (bench/logformat.py): Ctrl-C inside a critical block is delivered when the
+    """SignalGuard (bench/log/writer.py): Ctrl-C inside a critical block is delivered when the
     block ends, never in the middle of mcap's writer (an interrupt there once left a chunk's
     message indexes behind: a damaged log in ~1 of 40 interrupted campaigns)."""
     import os
-    from calbench.bench.logformat import SignalGuard
+    from calbench.bench.log.writer import SignalGuard
     before = signal.getsignal(signal.SIGINT)
     g = SignalGuard()
     g.install()

@@ -13,13 +13,13 @@ import math
 import numpy as np
 import pytest
 
-from calbench.bench.errors import InputError
-from calbench.bench.iso10360 import (correlated_covariance, deflection_covariance, draw_correlated,
+from calbench.bench.core.errors import InputError
+from calbench.bench.tracker.iso10360 import (correlated_covariance, deflection_covariance, draw_correlated,
                                      field_kernel, marginal_covariance)
-from calbench.bench.measuring import measure_campaign, reading_times
-from calbench.bench.scenario import TrackerSpec, parse_scenario
-from calbench.bench.tracker import Measurement, noise_covariance, spec_covariance, to_tracker_frame
-from calbench.identify.whitening import Whitener
+from calbench.bench.tracker.measuring import measure_campaign, reading_times
+from calbench.bench.scenario.parse import TrackerSpec, parse_scenario
+from calbench.bench.tracker.instrument import Measurement, noise_covariance, spec_covariance, to_tracker_frame
+from calbench.identify.core.whitening import Whitener
 from conftest import PAPER
 
 SPEC = TrackerSpec(np.array([3.5, -3.5, 3.2]), model="iso10360", random=0.3,
@@ -144,7 +144,7 @@ def test_a_deflection_is_far_more_accurate_than_two_independent_readings():
 
 
 def _variant(tmp_path, tracker: str):
-    from calbench.bench.scenario import load_scenario
+    from calbench.bench.scenario.parse import load_scenario
     text = PAPER.read_text().replace(
         'robot = "../mjcf/m900ib700.xml"',
         f'robot = "{(PAPER.parent.parent / "mjcf" / "m900ib700.xml").as_posix()}"').replace(
@@ -166,7 +166,7 @@ def test_monte_carlo_is_honest_under_the_correlated_model(tmp_path):
     the spec model's sigma (the single-point covariance of each reading), which the last
     assertion shows is far off."""
     from calbench.identify.design.threads import blas_threads
-    from calbench.identify.montecarlo import run_montecarlo
+    from calbench.identify.study.montecarlo import run_montecarlo
     runs = 300
     with blas_threads(1):
         s = run_montecarlo(_variant(tmp_path, STRESS), runs, ("one-step",)).summary()

@@ -1,4 +1,4 @@
-"""The least-squares core (identify/leastsq.py) against independent computations: the exact
+"""The least-squares core (identify/core/leastsq.py) against independent computations: the exact
 linear least-squares solution, scipy's optimum on a nonlinear problem, bounds, held and unseen
 directions, and the stopping rule that applies its last step without evaluating."""
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import scipy.optimize
 
-from calbench.identify.leastsq import covariance, levenberg_marquardt, svd_step
+from calbench.identify.core.leastsq import covariance, levenberg_marquardt, svd_step
 
 
 def linear_problem(seed=0, n=40, p=4):

@@ -1,4 +1,4 @@
-"""Tests of bench/logformat.py with synthetic campaigns (no robot model needed).
+"""Tests of bench/log/writer.py with synthetic campaigns (no robot model needed).
 
 The synthetic campaign writer below is also run in a subprocess that kills itself mid-pose,
 to check that a crashed campaign's log keeps exactly its complete poses.
@@ -19,15 +19,15 @@ from mcap.records import Attachment, Channel, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import Writer
 
-import calbench.bench.logformat as lf
-from calbench.bench.errors import InputError
+import calbench.bench.log.writer as lf
+from calbench.bench.core.errors import InputError
 from rerun_cli import rerun_env, rerun_exe
-from calbench.bench.logformat import (TRUTH_PREFIX, LogHeader, LogWriter, has_truth, read_log,
+from calbench.bench.log.writer import (TRUTH_PREFIX, LogHeader, LogWriter, has_truth, read_log,
                              redact_truth, strip_truth)
-from calbench.bench.params import Spring
-from calbench.bench.scenario import TrackerSpec
-from calbench.bench.mcapscan import Cut, Damage, scan
-from calbench.bench.timeline import DEFAULT_START, start_ns
+from calbench.bench.model.params import Spring
+from calbench.bench.scenario.parse import TrackerSpec
+from calbench.bench.log.scan import Cut, Damage, scan
+from calbench.bench.scenario.timeline import DEFAULT_START, start_ns
 
 REFLECTORS = ["R1", "R2", "R3"]
 K_TRUE = [1.1e-9, 1.2345e-09, 2.2e-9, 3.3e-8, 4.4e-8, 5.5e-8]   # distinctive values
@@ -76,7 +76,7 @@ def pose_data(p: int) -> dict:
     """Deterministic synthetic data of one pose (both states, 2 repeats)."""
     rng = np.random.default_rng(100 + p)
     d: dict = {"q": {}, "meas": {}, "truth_refl": {}, "truth_joints": {}}
-    q = rng.uniform(-1, 1, 6)        # a pose is one command, the same in both states (bench/logread.py)
+    q = rng.uniform(-1, 1, 6)        # a pose is one command, the same in both states (bench/log/read.py)
     for s in lf.STATES:
         d["q"][s] = q
         d["truth_refl"][s] = rng.normal(size=(3, 3))

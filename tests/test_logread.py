@@ -1,4 +1,4 @@
-"""Logs are input (issue 10): the one reader (bench/logread.py) refuses a damaged or impossible
+"""Logs are input (issue 10): the one reader (bench/log/read.py) refuses a damaged or impossible
 log whole, naming topic, pose and field, and every verb gives the same answer; a cut-short log
 keeps its complete poses and every verb says what was lost.
 
@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 
 import badcases as bc
-from calbench.bench.errors import InputError
-from calbench.bench.logformat import LogHeader, LogWriter
-from calbench.bench.logread import CorruptLogError, read_log
-from calbench.bench.mcapscan import Damage, scan
+from calbench.bench.core.errors import InputError
+from calbench.bench.log.writer import LogHeader, LogWriter
+from calbench.bench.log.read import CorruptLogError, read_log
+from calbench.bench.log.scan import Damage, scan
 from calbench.identify.cli import main
 from conftest import PAPER
 

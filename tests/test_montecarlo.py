@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calbench.bench.scenario import load_scenario
+from calbench.bench.scenario.parse import load_scenario
 from calbench.identify.cli import main
-from calbench.identify.montecarlo import run_montecarlo
+from calbench.identify.study.montecarlo import run_montecarlo
 from conftest import PAPER
 
 N = 200
@@ -50,11 +50,11 @@ def test_two_step_is_unbiased_where_its_linear_model_holds(tmp_path):
     4 standard errors of the mean + that noise-free offset, over N noisy campaigns, for k1..k6
     and K_C (whose truth is 0); and its reported std must be its spread (4 standard errors of
     an sd). A two-step that mis-builds a regressor or a step-2 row fails this."""
-    from calbench.bench.campaign import plan_campaign, truth_robot
-    from calbench.bench.robot import Robot
-    from calbench.bench.scenario import parse_scenario
-    from calbench.identify.montecarlo import campaign_observations, true_theta
-    from calbench.identify.twostep import linear_plan, two_step
+    from calbench.bench.campaign.run import plan_campaign, truth_robot
+    from calbench.bench.model.robot import Robot
+    from calbench.bench.scenario.parse import parse_scenario
+    from calbench.identify.study.montecarlo import campaign_observations, true_theta
+    from calbench.identify.methods.twostep import linear_plan, two_step
     from linear_case import linear_world
     path = linear_world(tmp_path)
     scn = parse_scenario(path.read_text(), path)
@@ -95,11 +95,11 @@ def test_campaign_observations_are_the_logs_readings(tmp_path, extra):
     measurement-side effects of the truth (a tracker drift added to the loaded readings)
     included. Exact data (no generator) differ from them by the noise alone: here by exactly
     the drift's offset where it is hidden, since the noise-free readings carry it too."""
-    from calbench.bench.campaign import plan_campaign, run_campaign, truth_robot
-    from calbench.bench.logformat import read_log
-    from calbench.bench.scenario import scenario_variant
-    from calbench.identify.montecarlo import campaign_observations
-    from calbench.identify.observations import from_log
+    from calbench.bench.campaign.run import plan_campaign, run_campaign, truth_robot
+    from calbench.bench.log.writer import read_log
+    from calbench.bench.scenario.parse import scenario_variant
+    from calbench.identify.study.montecarlo import campaign_observations
+    from calbench.identify.core.observations import from_log
     scn = load_scenario(scenario_variant(PAPER, tmp_path / "s.toml", extra=extra))
     tr = truth_robot(scn)
     plans = run_campaign(scn, tmp_path / "s.mcap")
@@ -110,8 +110,8 @@ def test_campaign_observations_are_the_logs_readings(tmp_path, extra):
         assert a.reflectors == b.reflectors
         np.testing.assert_array_equal(a.dp, b.dp)
     # the noise-free campaign against the truth's own reflector motion, rotated into the tracker
-    # frame (bench/tracker.py: world -> tracker is R^T x) and shifted by the drift, if any
-    from calbench.bench.tracker import tracker_rotation
+    # frame (bench/tracker/instrument.py: world -> tracker is R^T x) and shifted by the drift, if any
+    from calbench.bench.tracker.instrument import tracker_rotation
     exact = campaign_observations(scn, tr, plan_campaign(scn, tr), None)
     offset = np.array([30e-6, -20e-6, 25e-6]) if extra else np.zeros(3)
     rot = tracker_rotation(scn.tracker)
@@ -128,7 +128,7 @@ N_WEAK = 400
 def test_one_step_reports_its_std_on_a_weak_designed_plan():
     """The audit's case: a 7-pose A-optimal KR 270 plan where the balancer is seen weakly and the
     Monte Carlo set-up's noise-free fit wanders far (K_C 20x, s0 0.2x from the two-step start).
-    With the stale Jacobian that left (identify/forward.py, KKT_QTOL) balancer_preload's variance
+    With the stale Jacobian that left (identify/core/forward.py, KKT_QTOL) balancer_preload's variance
     was 3.4x the CRB and its empirical std 1.75x the reported one. Bounds as above, N = 400:
     4 standard errors, |var/CRB - 1| < 0.28, |sd/rep - 1| < 0.14, |bias/sd| < 0.20."""
     s = run_montecarlo(load_scenario(WEAK), N_WEAK, methods=("one-step",), progress=False).summary()

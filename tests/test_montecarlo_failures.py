@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from calbench.bench.errors import StaticsError
-from calbench.bench.scenario import load_scenario
-from calbench.identify import montecarlo as M
+from calbench.bench.core.errors import StaticsError
+from calbench.bench.scenario.parse import load_scenario
+from calbench.identify.study import montecarlo as M
 from conftest import PAPER
 
 RUNS = 4

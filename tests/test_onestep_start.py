@@ -6,9 +6,9 @@ two-step's step 2 (eqs. 21-22) is ill-posed. On EXACT data the two-step there gi
 of 20x the true stiffness and 0.2x its free length -- positive, so it passed as a start -- and
 the one-step fit from it ran into max_iter without converging: every Monte Carlo run started
 there, and the Monte Carlo reported a 13-47 sigma "bias" that was the start's, not the
-estimator's. identify/onestep.py then learned to repeat a fit that did not converge from the
+estimator's. identify/methods/onestep.py then learned to repeat a fit that did not converge from the
 generic start. The non-convergence itself was a stale Jacobian (the cached KKT pieces taken at
-the far start's equilibria, identify/forward.py's KKT_QTOL): with it fixed the fit from the far
+the far start's equilibria, identify/core/forward.py's KKT_QTOL): with it fixed the fit from the far
 start converges to the truth too, and the generic repeat stays as the safety net.
 """
 from __future__ import annotations
@@ -18,13 +18,13 @@ import re
 import numpy as np
 import pytest
 
-from calbench.bench.campaign import plan_campaign, truth_robot
-from calbench.bench.robot import Robot
-from calbench.bench.scenario import load_scenario
-from calbench.identify.montecarlo import campaign_observations, true_theta
-from calbench.identify.onestep import OneStep, generic_start, one_step, sanitize_start
-from calbench.identify.twostep import two_step
-from calbench.identify.whitening import Whitener
+from calbench.bench.campaign.run import plan_campaign, truth_robot
+from calbench.bench.model.robot import Robot
+from calbench.bench.scenario.parse import load_scenario
+from calbench.identify.study.montecarlo import campaign_observations, true_theta
+from calbench.identify.methods.onestep import OneStep, generic_start, one_step, sanitize_start
+from calbench.identify.methods.twostep import two_step
+from calbench.identify.core.whitening import Whitener
 from conftest import ROOT
 
 KR270_PAPER = ROOT / "scenarios" / "kr270_paper.toml"

@@ -1,5 +1,5 @@
 """Outputs never destroy inputs, every output is checked before work starts, and files are
-written whole or not at all (bench/outputs.py), for every verb alike."""
+written whole or not at all (bench/core/outputs.py), for every verb alike."""
 from __future__ import annotations
 
 import hashlib
@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from calbench.bench.errors import InputError
-from calbench.bench.outputs import atomic_path, check_outputs, write_text
+from calbench.bench.core.errors import InputError
+from calbench.bench.core.outputs import atomic_path, check_outputs, write_text
 from calbench.identify.cli import main
 from conftest import PAPER
 

@@ -32,8 +32,8 @@ def test_wheel_installs_one_namespace_with_the_models_and_scenarios(wheel):
     assert "calbench/studies/discovery_power.toml" in names and "calbench/identify/study/run.py" in names
     assert "calbench/identify/design/plan.py" in names and "calbench/identify/discover/fit.py" in names
     # data folders inside the packages: the Foxglove schemas and the report template
-    assert "calbench/bench/foxglove_schemas/foxglove.SceneUpdate.json" in names
-    assert "calbench/identify/templates/report.html.j2" in names
+    assert "calbench/bench/log/foxglove_schemas/foxglove.SceneUpdate.json" in names
+    assert "calbench/identify/report/templates/report.html.j2" in names
 
 
 def test_demo_runs_from_a_plain_install_outside_the_checkout(wheel, tmp_path):

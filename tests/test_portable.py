@@ -1,10 +1,10 @@
-"""A scenario travels as texts (identify/portable.py) and comes back the same on any machine."""
+"""A scenario travels as texts (identify/runtime/portable.py) and comes back the same on any machine."""
 from __future__ import annotations
 
 import numpy as np
 
-from calbench.bench.scenario import load_scenario
-from calbench.identify.portable import PortableScenario, with_robot
+from calbench.bench.scenario.parse import load_scenario
+from calbench.identify.runtime.portable import PortableScenario, with_robot
 from conftest import MJCF, PAPER
 
 

@@ -1,4 +1,4 @@
-"""The profile check (identify/profile.py) and identification's use of it (identify/onestep.py).
+"""The profile check (identify/core/profile.py) and identification's use of it (identify/methods/onestep.py).
 
 Tolerances. A quadratic chi2 rises by exactly PROFILE_SIGMAS^2 = 4 at +-2 std (to the refit's
 chi2 tolerance, here exact). The identification cases: the weak 7-pose KR 270 plan
@@ -15,12 +15,12 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.campaign import plan_campaign, truth_robot
-from calbench.bench.robot import Robot
-from calbench.bench.scenario import load_scenario
-from calbench.identify.montecarlo import campaign_observations, run_montecarlo
-from calbench.identify.onestep import one_step
-from calbench.identify.profile import PROFILE_SIGMAS, profile_check
+from calbench.bench.campaign.run import plan_campaign, truth_robot
+from calbench.bench.model.robot import Robot
+from calbench.bench.scenario.parse import load_scenario
+from calbench.identify.study.montecarlo import campaign_observations, run_montecarlo
+from calbench.identify.methods.onestep import one_step
+from calbench.identify.core.profile import PROFILE_SIGMAS, profile_check
 
 WEAK = Path(__file__).resolve().parent / "kr270_weak7.toml"
 CAMPAIGNS = 12

@@ -1,7 +1,7 @@
 """The README's physical numbers, recomputed from the model (and the README checked to say them).
 
 Each figure is computed independently of the code that uses it: gravity torques from MuJoCo's
-bias forces mapped to the motors by virtual work (bench/loop.py's motor_forces), the
+bias forces mapped to the motors by virtual work (bench/model/loop.py's motor_forces), the
 compensator's torque from eq. (9) (itself held to MuJoCo's tendon in tests/test_statics.py),
 the best balancer by least squares over the bench's q2 range. The tolerances are the README's
 own rounding.
@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from calbench.bench.loop import motor_forces, motor_jacobian
-from calbench.bench.robot import Robot
+from calbench.bench.model.loop import motor_forces, motor_jacobian
+from calbench.bench.model.robot import Robot
 from conftest import K_TRUE, MJCF, ROOT, TABLE5, fanuc_params
 
 README = " ".join((ROOT / "README.md").read_text().split())          # line breaks as spaces

@@ -4,7 +4,7 @@ the rigid fit's honesty, the warnings, absurd readings; the imported log in ever
 Tolerances.
 * The round trip must give the original estimates within 0.05 sigma (the issue's bound). What
   separates them is the registration's rotation error (~1 urad, reported) acting on the
-  deflections (1e-4 rad moves the estimates by <= 0.02 sigma: identify/registration.py) and the
+  deflections (1e-4 rad moves the estimates by <= 0.02 sigma: identify/shopfloor/tracker_pose.py) and the
   1 nm rounding of the CSV: ~1e-4 sigma expected.
 * The registered pose against the truth: within 5 reported standard deviations per component.
 * The rigid fit's Monte Carlo: 400 draws, so an empirical/reported std ratio has sampling error
@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calbench.bench.logformat import read_log
-from calbench.bench.registration import fit_rigid, rotation_exp
+from calbench.bench.log.writer import read_log
+from calbench.identify.core.rigid import fit_rigid, rotation_exp
 from calbench.identify.cli import main
 from conftest import MJCF, PAPER
 from test_import import identify_json, plan_text, rows_of, simulate_and_export, write_rows
@@ -101,7 +101,7 @@ def test_without_deflections_the_registration_is_rigid_and_says_so(work, capsys)
     header = read_log(out).header
     assert header["imported"]["registration"]["sag_parameters"] is None
     # and it turns the registration by milliradians: far beyond the 1e-4 rad that already moves
-    # the estimates by 0.02 sigma (identify/registration.py)
+    # the estimates by 0.02 sigma (identify/shopfloor/tracker_pose.py)
     d = np.array(header["tracker"]["rotation"]) @ R_EXTRA.T
     assert 1e-3 < np.arccos((np.trace(d) - 1) / 2) < 1e-2
 
@@ -153,8 +153,8 @@ def test_the_imported_log_works_in_every_verb(work, capsys):
 
 
 def test_a_logged_rotation_must_be_a_rotation():
-    from calbench.bench.errors import InputError
-    from calbench.bench.scenario import TrackerSpec
+    from calbench.bench.core.errors import InputError
+    from calbench.bench.scenario.parse import TrackerSpec
     good = TrackerSpec(np.zeros(3)).placed(TRACKER, R_EXTRA).to_dict()
     assert np.allclose(TrackerSpec.from_dict(good).rotation, R_EXTRA)
     for bad in (np.diag([1.0, 1.0, -1.0]), 1.01 * np.eye(3), [[1, 0], [0, 1]]):
@@ -194,11 +194,11 @@ def test_unloaded_positions_are_the_same_stacked_or_scalar():
     """The forward model leaves the unloaded positions and their Jacobian for the registration
     on both of its paths; they agree like its deflections (tests/test_forward_batch.py: 1e-10 m,
     Jacobians to 1e-8 of a column's largest entry while the warm path converges)."""
-    from calbench.bench.campaign import plan_campaign, truth_robot
-    from calbench.bench.robot import Robot
-    from calbench.bench.scenario import load_scenario
-    from calbench.identify.forward import ForwardModel, design_from_observations
-    from calbench.identify.montecarlo import campaign_observations, true_theta
+    from calbench.bench.campaign.run import plan_campaign, truth_robot
+    from calbench.bench.model.robot import Robot
+    from calbench.bench.scenario.parse import load_scenario
+    from calbench.identify.core.forward import ForwardModel, design_from_observations
+    from calbench.identify.study.montecarlo import campaign_observations, true_theta
     scn = load_scenario(PAPER)
     tr = truth_robot(scn)
     obs = campaign_observations(scn, tr, plan_campaign(scn, tr), None)

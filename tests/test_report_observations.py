@@ -5,10 +5,10 @@ import json
 
 import numpy as np
 
-from calbench.bench.logformat import read_log
-from calbench.bench.view import measured_deflections
+from calbench.bench.log.writer import read_log
+from calbench.bench.view.recording import measured_deflections
 from calbench.identify.cli import main
-from calbench.identify.observations import from_log
+from calbench.identify.core.observations import from_log
 from conftest import PAPER
 
 

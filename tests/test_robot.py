@@ -14,9 +14,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from calbench.bench.campaign import pose_load
-from calbench.bench.robot import LOOP_MARGIN, LOOP_MARGIN_ANGLE, Params, Robot, Spring
-from calbench.bench.scenario import load_scenario
+from calbench.bench.campaign.run import pose_load
+from calbench.bench.model.robot import LOOP_MARGIN, LOOP_MARGIN_ANGLE, Params, Robot, Spring
+from calbench.bench.scenario.parse import load_scenario
 from conftest import K_TRUE, MJCF, PAPER
 
 

@@ -9,13 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calbench.bench.errors import InputError
-from calbench.bench.scenario import (
+from calbench.bench.core.errors import InputError
+from calbench.bench.scenario.parse import (
     DEFAULT_DISTANCE, DEFAULT_SIGMA, DEFAULT_TRANSVERSE, TRACKER_MODELS, Scenario, TrackerSpec,
     check_joint_limits, load_scenario, parse_scenario, scenario_as_dict, scenario_to_toml,
 )
-from calbench.bench.params import Spring
-from calbench.bench.tracker import noise_covariance
+from calbench.bench.model.params import Spring
+from calbench.bench.tracker.instrument import noise_covariance
 from conftest import PAPER
 
 BASE = """\
@@ -362,15 +362,15 @@ def test_writer_orders_tables_escapes_strings_and_skips_none(tmp_path):
 
 
 def test_design_table_keys_match_the_design_module():
-    """bench/scenario.py accepts exactly the [design] keys identify/design_candidates.py reads."""
-    from calbench.bench.scenario import DESIGN_KEYS as accepted
+    """bench/scenario/parse.py accepts exactly the [design] keys identify/design_candidates.py reads."""
+    from calbench.bench.scenario.parse import DESIGN_KEYS as accepted
     from calbench.identify.design.candidates import DESIGN_KEYS as read
 
     assert set(accepted) == set(read)
 
 
 def test_scenario_variant_overrides_and_validates(tmp_path):
-    from calbench.bench.scenario import load_scenario, scenario_variant
+    from calbench.bench.scenario.parse import load_scenario, scenario_variant
 
     paper = PAPER
     out = scenario_variant(paper, tmp_path / "v.toml", name="v", seed=7, compensator=(6e6, 0.7),

@@ -11,9 +11,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from calbench.bench.loop import loop_gap, motor_jacobian, motor_map
-from calbench.bench.robot import Robot
-from calbench.bench.statics import LOOP_TOL, Load, NewtonPoint, StaticsError, StaticsSolver, statics_options
+from calbench.bench.model.loop import loop_gap, motor_jacobian, motor_map
+from calbench.bench.model.robot import Robot
+from calbench.bench.statics.equilibrium import LOOP_TOL, Load, NewtonPoint, StaticsError, StaticsSolver, statics_options
 from conftest import K_TRUE, MJCF, TABLE5, fanuc_params
 
 
@@ -247,7 +247,7 @@ def test_apparent_j2_stiffness_varies_over_plan_q2_range():
     K2 + K_C l_c l_2 eta(psi) at the equilibrium's q2, to 1e-4 (the moment's own geometric
     stiffness); over q2 in [0, 120] deg it varies by 16.3 % (README "Default truth values")."""
     from conftest import fanuc_truth
-    from calbench.bench.scenario import load_scenario
+    from calbench.bench.scenario.parse import load_scenario
     from conftest import PAPER
     robot = Robot.from_file(MJCF)
     truth = fanuc_truth(load_scenario(PAPER))
@@ -317,7 +317,7 @@ def test_degenerate_parallelogram_is_a_clear_error():
 
 
 # --------------------------------------------------------------------------- building blocks
-# bench/statics.py's public pieces, each against an independent computation (mink-style:
+# bench/statics/equilibrium.py's public pieces, each against an independent computation (mink-style:
 # every Jacobian against finite differences).
 
 def solved(q=TABLE5[9], tol=1e-10, wrench=None):

@@ -11,7 +11,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from calbench.bench.errors import InputError
+from calbench.bench.core.errors import InputError
 from calbench.identify.cli import main
 from calbench.identify.study import load_study, prepare, run_study
 from calbench.identify.study.campaign import TIMING_COLUMNS

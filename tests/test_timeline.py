@@ -1,6 +1,6 @@
 """Timestamps (issue 10): a log's times start at the scenario's start_time, every message in
 causal order (pose, unloaded readings, wrench, loaded readings, pose done), each step lasting
-bench/timeline.py's durations; the default start is fixed, so logs stay byte-identical.
+bench/scenario/timeline.py's durations; the default start is fixed, so logs stay byte-identical.
 """
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ import pytest
 from mcap.records import Channel, Message
 
 import badcases as bc
-from calbench.bench import timeline as tl
-from calbench.bench.mcapscan import scan
-from calbench.bench.scenario import parse_scenario
+from calbench.bench.scenario import timeline as tl
+from calbench.bench.log.scan import scan
+from calbench.bench.scenario.parse import parse_scenario
 from calbench.identify.cli import main
 
 NS = 10**9

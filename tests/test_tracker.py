@@ -7,8 +7,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from calbench.bench.scenario import TrackerSpec
-from calbench.bench.tracker import (
+from calbench.bench.scenario.parse import TrackerSpec
+from calbench.bench.tracker.instrument import (
     Measurement, mean_reading, measure, noise_covariance, to_tracker_frame, to_world_frame,
     tracker_rotation, visible_sites,
 )

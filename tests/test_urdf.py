@@ -21,8 +21,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from calbench.bench.robot import Robot
-from calbench.bench.urdf import CONTINUOUS_RANGE, PLACEHOLDER_STIFFNESS
+from calbench.bench.model.robot import Robot
+from calbench.bench.robots.urdf import CONTINUOUS_RANGE, PLACEHOLDER_STIFFNESS
 from calbench.identify.cli import main
 from urdf_robots import ACTUATED, MOUNTS, TRUTH_K, arm_overlay, arm_urdf, joints, link_masses, scenario
 

@@ -1,4 +1,4 @@
-"""Tests of bench/view.py (`calbench view`) and the discover view: the .rrd verifies, holds the
+"""Tests of bench/view/recording.py (`calbench view`) and the discover view: the .rrd verifies, holds the
 expected entities, its arrows are the magnified deflections of the log, its ghosts the magnified
 joint deflections, the truth appears only under truth/, and the blueprint opens where a
 first-time user needs it.
@@ -20,18 +20,18 @@ import pytest
 import rerun as rr
 from rerun.chunk import RrdReader
 
-from calbench.bench.campaign import run_campaign
-from calbench.bench.errors import InputError
-from calbench.bench.geoms import geom_shapes, reflector_posts
-from calbench.bench.idreport import IdentificationReport
-from calbench.bench.logformat import read_log, strip_truth
-from calbench.bench.robot import Robot
-from calbench.bench.scenario import TrackerSpec, load_scenario
-from calbench.bench.tracker import to_world_frame
-from calbench.bench.view import (Discovery, _geom_archetype, build_blueprint, measured_deflections,
+from calbench.bench.campaign.run import run_campaign
+from calbench.bench.core.errors import InputError
+from calbench.bench.model.geoms import geom_shapes, reflector_posts
+from calbench.bench.log.idreport import IdentificationReport
+from calbench.bench.log.writer import read_log, strip_truth
+from calbench.bench.model.robot import Robot
+from calbench.bench.scenario.parse import TrackerSpec, load_scenario
+from calbench.bench.tracker.instrument import to_world_frame
+from calbench.bench.view.recording import (Discovery, _geom_archetype, build_blueprint, measured_deflections,
                                  plan_view, write_discovery_recording, write_recording)
-from calbench.bench.viewparams import WIDTH
-from calbench.bench.viewscene import HALF_FOV_TAN, framing
+from calbench.bench.view.params import WIDTH
+from calbench.bench.view.scene import HALF_FOV_TAN, framing
 from calbench.identify.cli import main as calbench_main
 
 from rerun_cli import rerun_env, rerun_exe
@@ -491,7 +491,7 @@ def test_the_tracker_stands_beyond_the_tool_and_apart_from_it(scenario, tmp_path
     FANUC's profile view already does that (the camera looks across the arm's plane: unchanged);
     on the KR 270 the profile put the tracker 0.05 half-widths behind the tool, and the camera
     turns by the least 5-degree step that sets them apart."""
-    from calbench.bench.viewscene import TRACKER_APART
+    from calbench.bench.view.scene import TRACKER_APART
     log_path = tmp_path / "c.mcap"
     run_campaign(load_scenario(PAPER.parent / scenario), log_path)
     log = read_log(log_path, include_truth=True)

@@ -7,7 +7,7 @@ many commands per call instead of one, because one at a time costs ~2 ms per can
 Python and numpy overhead around a few microseconds of MuJoCo:
 
 * the rigid poses' kinematics and collisions on mujoco.batch (one call for the chunk);
-* the equilibria, exact stiffness matrices and IFT tangents by bench/batch_statics.py, each
+* the equilibria, exact stiffness matrices and IFT tangents by bench/statics/batched.py, each
   loaded state warm-started from its own unloaded equilibrium with the exact matrix there
   (the one its tangent needs anyway), so each state is solved and differentiated once;
 * the equilibrium rules on the batched poses: collision, the §3.3 clearance, visibility by
@@ -28,10 +28,10 @@ import mujoco
 import mujoco.batch
 import numpy as np
 
-from calbench.bench.batch_statics import BatchStatics, Equilibria
-from calbench.bench.robot import LOOP_MARGIN
-from calbench.bench.statics import Load
-from calbench.bench.tracker import BLOCKING_GROUPS, sight_lines, unoccluded
+from calbench.bench.statics.batched import BatchStatics, Equilibria
+from calbench.bench.model.robot import LOOP_MARGIN
+from calbench.bench.statics.equilibrium import Load
+from calbench.bench.tracker.instrument import BLOCKING_GROUPS, sight_lines, unoccluded
 
 from .candidates import COMMAND_RULES, RULES, InfoEngine, horizontal_clearance, lateral_wrench
 

@@ -7,7 +7,7 @@ tool's candidates can be optimised by calbench, and calbench's by any other tool
 * ``blocks`` (N, m, p): candidate i's regressor R_i, so that sum_i R_i^T R_i over a plan is its
   Fisher information. Rows: the x, y, z deflection of each reflector (m = 9 for 3; rows of
   reflectors a candidate cannot see are zero). Columns: the p parameters theta_k / theta0_k
-  of the robot's layout (bench/params.py; the FANUC's 8: k1..k6, K_C, s0). Each row is
+  of the robot's layout (bench/model/params.py; the FANUC's 8: k1..k6, K_C, s0). Each row is
   WHITENED by the tracker noise (R = L^-1 J with L L^T the covariance of a deflection, i.e.
   of two readings: sqrt(2) x 20 um per axis on the paper scenario), and each column is SCALED BY theta0 (J = d deflection / d(theta / theta0)). So an
   entry is "how many noise sigmas this reflector coordinate moves when parameter k changes by
@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.errors import InputError
+from calbench.bench.core.errors import InputError
 
 from .candidates import LOAD_KINDS
 from .certificate import normalise_blocks

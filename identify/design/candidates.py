@@ -7,14 +7,14 @@ of ``lateral_force`` newtons perpendicular to the arm's vertical plane, directio
 (-sin q1, cos q1, 0) times a random sign. Like a ``[[pose]] wrench``, the pull REPLACES the
 payload in the loaded state.
 
-Parameters and prior guess. theta = the robot's layout (bench/params.py; the FANUC's
+Parameters and prior guess. theta = the robot's layout (bench/model/params.py; the FANUC's
 [k1..k6, K_C, s0]) normalised by a nominal value:
 u_i = theta_i / theta0_i. A design needs a prior guess of theta (the information of the nonlinear
 model depends on it); a design study uses the scenario's ``[truth]``, which is the natural
 nominal (in a real cell: the manufacturer's values or a previous identification).
 
 Information. For one candidate with reflectors r, the deflection dp_r = x_r(loaded) -
-x_r(unloaded) is the exact-statics one of identify/forward.py; its Jacobian with respect to u
+x_r(unloaded) is the exact-statics one of identify/core/forward.py; its Jacobian with respect to u
 comes from the implicit function theorem at both equilibria (``StaticsSolver.tangent``, exact
 KKT matrix, d g / d theta from ``Robot.dforce_dtheta``), J_r = (J_site dq/dtheta)|loaded -
 (...)|unloaded, times theta0 column-wise. The deflections' covariance Sigma is
@@ -76,19 +76,19 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from calbench.bench.campaign import scenario_params
-from calbench.bench.errors import InputError
-from calbench.bench.progress import ProgressSink, sink
-from calbench.bench.robot import Robot, ancestors
-from calbench.bench.scenario import Scenario, parse_scenario
-from calbench.bench.statics import Equilibrium, Load, StaticsSolver
-from calbench.bench.iso10360 import deflection_covariance
-from calbench.bench.measuring import reading_times
-from calbench.bench.tracker import (Measurement, noise_covariance, to_tracker_frame, tracker_rotation,
+from calbench.bench.campaign.run import scenario_params
+from calbench.bench.core.errors import InputError
+from calbench.bench.core.progress import ProgressSink, sink
+from calbench.bench.model.robot import Robot, ancestors
+from calbench.bench.scenario.parse import Scenario, parse_scenario
+from calbench.bench.statics.equilibrium import Equilibrium, Load, StaticsSolver
+from calbench.bench.tracker.iso10360 import deflection_covariance
+from calbench.bench.tracker.measuring import reading_times
+from calbench.bench.tracker.instrument import (Measurement, noise_covariance, to_tracker_frame, tracker_rotation,
                                     visible_sites)
 
-from ..executor import IN_PROCESS, Executor, InProcess
-from ..portable import PortableScenario
+from calbench.identify.runtime.executor import IN_PROCESS, Executor, InProcess
+from calbench.identify.runtime.portable import PortableScenario
 
 RULES = ("joint_limits", "degenerate_loop", "min_height", "min_radius", "self_collision",
          "compensator_discontinuity", "statics", "visibility")
@@ -160,7 +160,7 @@ _DESIGN_TABLE = re.compile(r"^\[design\][^\n]*\n(?:(?!\s*\[)[^\n]*\n?)*", re.MUL
 def load_design_scenario(path: str | Path) -> tuple[Scenario, DesignSettings]:
     """The scenario (bench.scenario.parse_scenario) and its ``[design]`` settings.
 
-    bench/scenario.py does not (yet) accept a ``[design]`` table, so it is cut out of the text
+    bench/scenario/parse.py does not (yet) accept a ``[design]`` table, so it is cut out of the text
     before parsing; the Scenario's ``text`` is the file without it.
     """
     path = Path(path)
@@ -552,7 +552,7 @@ SECONDS_PER_CANDIDATE = 2e-4   # in-process, batched (10^4 in ~1.7 s of CPU), fo
 
 @dataclass(frozen=True)
 class CandidateJob:
-    """What a chunk of raw commands needs on any machine (identify/executor.py): the scenario's
+    """What a chunk of raw commands needs on any machine (identify/runtime/executor.py): the scenario's
     texts, the settings, the load probabilities, and how to compute (batched, threads)."""
 
     scenario: PortableScenario
@@ -632,7 +632,7 @@ def generate_candidates(scn: Scenario, settings: DesignSettings, n: int | None =
     the equilibria, the remaining rules and the exact information, by
     identify/design/batch_info.BatchInfo.block (``batched=False``: :func:`scalar_block`, one
     candidate at a time, the reference). The chunks are tasks of ``executor``
-    (identify/executor.py; default: this process, on ``processes`` threads, default the CPUs it
+    (identify/runtime/executor.py; default: this process, on ``processes`` threads, default the CPUs it
     may use; a Dask worker uses ``processes`` threads, default one: one worker per core). Each
     surviving command yields a vertical candidate and, with probability lateral_fraction /
     (1 - lateral_fraction) capped at 1, a lateral one. The first n feasible candidates in the

@@ -24,9 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.errors import InputError
-from calbench.bench.progress import ProgressSink
-from calbench.bench.scenario import Scenario, scenario_as_dict, scenario_to_toml
+from calbench.bench.core.errors import InputError
+from calbench.bench.core.progress import ProgressSink
+from calbench.bench.scenario.parse import Scenario, scenario_as_dict, scenario_to_toml
 
 from .candidates import (LOAD_KINDS, CandidateSet, DesignSettings, InfoEngine,
                                 lateral_wrench)

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.errors import InputError
+from calbench.bench.core.errors import InputError
 
 from .candidates import InfoEngine, load_design_scenario
 from .criteria import measures

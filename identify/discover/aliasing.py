@@ -6,7 +6,7 @@ J1 with the same torque (a k1 change), a payload mass error (on the paper plan e
 scale of k2..k6), an in-plane upper-arm bending (~95 % a k2). For every library effect that is
 not named, and for ``load_scale``, at the final model:
 
-* J_e, the effect parameter's whitened Jacobian column at its prior start (bench/effects.py),
+* J_e, the effect parameter's whitened Jacobian column at its prior start (bench/model/effects.py),
   is regressed on the estimated parameters' columns J_b (base and named effects):
   J_e = J_b B + J_perp. B is the BIAS PER UNIT of the effect parameter: how far the fit moves
   each estimated parameter to absorb it.
@@ -33,10 +33,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from calbench.bench.statics import Load
+from calbench.bench.statics.equilibrium import Load
 
-from ..forward import design_from_observations
-from ..whitening import Whitener
+from calbench.identify.core.forward import design_from_observations
+from calbench.identify.core.whitening import Whitener
 from .decide import lr_threshold
 from .fit import AugmentedForward, effect_priors
 

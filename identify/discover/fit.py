@@ -1,24 +1,24 @@
 """Discovery, part 1: the candidate library and fitting a model with effects in the loop.
 
-The LIBRARY is every effect that bench/effects.py's ``@register`` puts in discovery, with the
+The LIBRARY is every effect that bench/model/effects.py's ``@register`` puts in discovery, with the
 structural options it declares there for the robot: `link_compliance` on the robot's
 calbench:links (the FANUC's upper arm and forearm), `joint_nonlinearity` on every actuated
 joint, `base_compliance`, `compensator` where calbench:compensator_sites names its mounts,
 `tracker_drift` (measurement side), with their priors. These are the same effects the bench puts
 in the simulated truth. Nothing here chooses between them: identify/discover/workflow.py does
 (search.py, decide.py) and knows nothing about any single effect. Adding a candidate =
-registering an effect in bench/effects.py.
+registering an effect in bench/model/effects.py.
 
 FITTING. A candidate model is the user's MJCF with the effects applied (`apply_effects`); its
-parameters are the robot's theta (bench/params.py; the FANUC's [k1..k6, K_C, s0]) followed by
+parameters are the robot's theta (bench/model/params.py; the FANUC's [k1..k6, K_C, s0]) followed by
 every effect's own parameters, in order. :class:`AugmentedForward` is the exact forward model of
-identify/forward.py (same KKT-Newton statics, warm starts, implicit-function Jacobian) with
+identify/core/forward.py (same KKT-Newton statics, warm starts, implicit-function Jacobian) with
 these generalisations:
 
 * parameters are written by ``Robot.set_params`` and then each effect's ``Effect.set_params``
   (no recompilation); an effect that owns a base quantity (the compensator added to a model
   without one) overrides it, and the overridden base columns come out exactly zero;
-* an effect writes only spring values (bench/effects.py's rule, tests/test_discover.py), so the
+* an effect writes only spring values (bench/model/effects.py's rule, tests/test_discover.py), so the
   springs' part of the KKT stiffness matrix is analytic for every spring of the model and the
   rest (A_base: gravity's and the load's geometric stiffness, the loop's curvature) never
   depends on a parameter: it is not re-taken when an effect's parameters change;
@@ -29,12 +29,12 @@ these generalisations:
   in q), equal to central differences of MuJoCo's passive force to ~1e-10 (the fallback);
 * measurement-side effects add their term to the deflections after the statics.
 
-:func:`fit` is identify/leastsq.py's Levenberg-Marquardt on the whitened residual (the
+:func:`fit` is identify/core/leastsq.py's Levenberg-Marquardt on the whitened residual (the
 maximum-likelihood estimate for the tracker's Gaussian noise), with bounds by an active set
 and minimum-norm steps: an effect parameter that the plan cannot separate from the base
 parameters (e.g. in-plane forearm bending, exactly a k3 through the parallelogram) is left
 where it is, so that it never costs the base model anything, and any base parameter still
-unidentifiable is held as in identify/onestep.py.
+unidentifiable is held as in identify/methods/onestep.py.
 """
 from __future__ import annotations
 
@@ -44,30 +44,30 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from calbench.bench.effects import DISCOVERY_OPTIONS, Effect, Readings, apply_effects, discovery_library, priors
-from calbench.bench.robot import Robot
-from calbench.bench.tracker import tracker_rotation
+from calbench.bench.model.effects import DISCOVERY_OPTIONS, Effect, Readings, apply_effects, discovery_library, priors
+from calbench.bench.model.robot import Robot
+from calbench.bench.tracker.instrument import tracker_rotation
 
-from calbench.bench.params import ParamLayout
+from calbench.bench.model.params import ParamLayout
 
-from ..forward import ForwardModel, PoseDesign, design_from_observations
-from ..identifiability import analyze
-from ..leastsq import Fit, at_bounds, covariance, levenberg_marquardt
-from ..whitening import Whitener
+from calbench.identify.core.forward import ForwardModel, PoseDesign, design_from_observations
+from calbench.identify.core.identifiability import analyze
+from calbench.identify.core.leastsq import Fit, at_bounds, covariance, levenberg_marquardt
+from calbench.identify.core.whitening import Whitener
 
 # --------------------------------------------------------------------------- the library
 
 DISCOVER_RANK_TOL = 1e-5     # singular value (column-normalised) below which a direction is unseen
 COST_TOL = 1e-3              # chi2 units: a step gaining (or promising) less ends the fit
 STALL_LIMIT = 8              # Newton iterations a stalling step may re-assemble A_base + S (analytic S)
-# the base parameters' bounds: ParamLayout.lower / .upper (bench/params.py)
+# the base parameters' bounds: ParamLayout.lower / .upper (bench/model/params.py)
 
 
 DISCOVERY_EFFECTS = tuple(DISCOVERY_OPTIONS)   # the effects @register puts in discovery's library
 
 
 def library(robot: Robot) -> list[Effect]:
-    """Every candidate effect with its structural options on this robot (bench/effects.py's
+    """Every candidate effect with its structural options on this robot (bench/model/effects.py's
     registry)."""
     return discovery_library(robot)
 
@@ -77,7 +77,7 @@ def label(effect: Effect) -> str:
 
 
 def effect_priors(effect: Effect) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(start, lower bound, upper bound, size) of an effect's parameters (bench/effects.py)."""
+    """(start, lower bound, upper bound, size) of an effect's parameters (bench/model/effects.py)."""
     pri = priors(effect)
     return tuple(np.array([getattr(p, k) for p in pri], float) for k in ("start", "lower", "upper", "size"))
 
@@ -93,14 +93,14 @@ def param_units(layout: ParamLayout, effects: list[Effect]) -> list[str]:
 # --------------------------------------------------------------------------- forward model
 
 class AugmentedForward(ForwardModel):
-    """identify/forward.py's exact forward model with effect parameters appended to theta.
+    """identify/core/forward.py's exact forward model with effect parameters appended to theta.
 
     Two generalisations of the base model's speed-ups, both exact:
 
     * the springs' part S of the KKT stiffness matrix is taken from the model as written (every
       joint spring's polynomial a + 2 b x + 3 c x^2 on its dof; every tendon's
       (K + 2 b x + 3 c x^2) t t^T + F H_L, the compensators and a tendon an effect added): the
-      effects may write only spring values (bench/effects.py's rule), so A_base = A_fd - S never
+      effects may write only spring values (bench/model/effects.py's rule), so A_base = A_fd - S never
       depends on any parameter and is not re-taken when an effect's parameters change (the base
       model re-takes it);
     * measurement-side effects add their deflection term and its Jacobian (central
@@ -195,7 +195,7 @@ class AugmentedForward(ForwardModel):
 
     def _spring_jacobian(self, theta) -> np.ndarray:
         """d(spring values)/d(effect parameters) (n_springs, n_effect_params), at theta: the
-        effects write only spring values (bench/effects.py), and how they do does not depend on
+        effects write only spring values (bench/model/effects.py), and how they do does not depend on
         the configuration, so it is taken once per theta (central differences of set_params)."""
         key = theta.tobytes()
         if self._dsprings is not None and self._dsprings[0] == key:
@@ -373,7 +373,7 @@ def fit(model: AugmentedForward, dp: np.ndarray, white: Whitener, start: np.ndar
         lower: np.ndarray, upper: np.ndarray, hold: np.ndarray | None = None, *, step_tol: float = 1e-3,
         max_iter: int = 30, start_eval: tuple[np.ndarray, np.ndarray] | None = None,
         cost_tol: float = COST_TOL) -> Fit:
-    """Maximum-likelihood fit of the base + effect parameters (identify/leastsq.py's core, with
+    """Maximum-likelihood fit of the base + effect parameters (identify/core/leastsq.py's core, with
     minimum-norm steps: directions the plan cannot see are left where they are; bounds by an
     active set and projection). Stops when a step promises or gains less than cost_tol-scale
     chi2 (``max(step_tol^2, 10 cost_tol)`` promised, cost_tol gained; COST_TOL by default).

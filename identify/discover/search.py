@@ -7,7 +7,7 @@ finds (on the paper plan, J2's cubic: LR 19 from the warm start, 39 from the spr
 each candidate is fitted from several starts and the lowest chi2 wins:
 
 * WARM: the current model's values (base and already named effects) with the new effect at its
-  prior start (bench/effects.py: its "absent" value or a small size);
+  prior start (bench/model/effects.py: its "absent" value or a small size);
 * SPREAD over the effect's range and sign: the effect's parameters at the magnitude whose
   signature the base parameters cannot absorb would explain the current model's whole excess
   chi2 (sqrt(chi2 - dof) standard deviations of the tracker, at least MIN_SIGNATURE = 5; the
@@ -23,7 +23,7 @@ each candidate is fitted from several starts and the lowest chi2 wins:
   magnitude of them is seen: the aliasing report names them); ``linear`` ones (the measurement
   side: chi2 is quadratic in them) need no spread;
 * FRESH: the base parameters from their own fresh start (the base fit's data-derived start,
-  identify/onestep.py: the two-step estimate or generic values), not the bent values.
+  identify/methods/onestep.py: the two-step estimate or generic values), not the bent values.
 
 Cost. A spread or fresh start is SCREENED by one evaluation: it is fitted only when the chi2 its
 Gauss-Newton step promises (the linearised model's minimum there) beats the best fit so far by
@@ -41,10 +41,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calbench.bench.effects import Effect, priors
+from calbench.bench.model.effects import Effect, priors
 
-from ..leastsq import Fit
-from ..whitening import Whitener
+from calbench.identify.core.leastsq import Fit
+from calbench.identify.core.whitening import Whitener
 from .fit import build, effect_priors, fit, whitened
 
 MIN_SIGNATURE = 5.0          # sigma: the smallest unabsorbed signature of a spread start

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.idreport import IdentificationReport, ObservationFit, ParameterEstimate
-from calbench.bench.outputs import atomic_path
+from calbench.bench.log.idreport import IdentificationReport, ObservationFit, ParameterEstimate
+from calbench.bench.core.outputs import atomic_path
 
 from .stats import rms
 

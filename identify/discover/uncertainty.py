@@ -11,12 +11,12 @@ larger than the parameters themselves, the linearisation fails over it, and a pe
 can put the truth several sigma away.
 
 Where the linearisation fails is checked, not assumed, for the named effects' parameters
-(:func:`not_quadratic`, identify/profile.py's check, shared with identification): the chi2
+(:func:`not_quadratic`, identify/core/profile.py's check, shared with identification): the chi2
 profile of each at +-2 Fisher stds must rise within a factor 2 of the quadratic's 4; a parameter
 that fails is "not determined" too.
 
 So, in relative coordinates u_i = theta_i / size_i (size: |theta_i|, not below the parameter's
-prior size, bench/effects.py), a parameter is DETERMINED when its marginal standard deviation is
+prior size, bench/model/effects.py), a parameter is DETERMINED when its marginal standard deviation is
 at most MAX_RELATIVE_STD (1: the data fix its order of magnitude) and it has no component in the
 Fisher information's numerical null space; otherwise it is reported "not determined" (no std),
 and what IS determined among the undetermined ones is reported instead: the eigenvectors of
@@ -30,11 +30,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calbench.bench.effects import priors
+from calbench.bench.model.effects import priors
 
-from ..leastsq import Fit
-from ..profile import profile_check
-from ..whitening import Whitener
+from calbench.identify.core.leastsq import Fit
+from calbench.identify.core.profile import profile_check
+from calbench.identify.core.whitening import Whitener
 
 MAX_RELATIVE_STD = 1.0   # a parameter whose std exceeds its own size is not determined
 NULL_TOL = 1e-3          # component in the null space that makes a parameter unidentifiable
@@ -111,7 +111,7 @@ def determination(f: Fit, jw: np.ndarray, undetermined: np.ndarray | None = None
 def not_quadratic(f: Fit, obs, white: Whitener, det: Determination, indices) -> tuple[np.ndarray, dict]:
     """((P,) bool, {index: [rise at +2 sd, rise at -2 sd]}): the parameters among ``indices``
     (determined ones) whose chi2 profile is not the quadratic the Fisher std assumes: the
-    profile check of identify/profile.py (the parameter held at estimate +- 2 std, the rest
+    profile check of identify/core/profile.py (the parameter held at estimate +- 2 std, the rest
     refitted from there by identify/discover/fit.py). This is the x-z bending of a braced upper
     arm: the Fisher std says the truth is 5 sigma away, the profile 2.4 (benchmarks and
     tests/test_discover.py)."""

@@ -3,13 +3,13 @@
     calbench discover LOG.mcap --model ROBOT.xml [--json OUT.json] [--out-model AUGMENTED.xml]
                                [--plot RESIDUALS.png]
 
-1. FIT the user's model as it is (the one-step estimator, identify/onestep.py) and take the
+1. FIT the user's model as it is (the one-step estimator, identify/methods/onestep.py) and take the
    residuals (measured minus predicted deflections).
 2. WHERE they disagree: chi2 against the tracker's own noise, per pose, per reflector, per world
    direction, and the correlation of each pose's misfit with what varies over the plan
    (identify/discover/stats.py), in words and numbers.
 3. NAME the missing effect: every candidate of the library (identify/discover/fit.py: the
-   effects bench/effects.py registers for discovery, with their structural options) is added to
+   effects bench/model/effects.py registers for discovery, with their structural options) is added to
    the model and fitted jointly with the base parameters on the exact statics, from several
    starts (identify/discover/search.py), and tested by its likelihood ratio at the family-wise
    level on every run (identify/discover/decide.py: no global chi2 gate). The best accepted
@@ -38,17 +38,17 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.description import set_spec_names, spec_names
-from calbench.bench.effects import augmented_xml, load_spec
-from calbench.bench.logread import read_log
-from calbench.bench.outputs import write_text
-from calbench.bench.robot import Robot
-from calbench.bench.view import Discovery, write_discovery_recording
+from calbench.bench.model.description import set_spec_names, spec_names
+from calbench.bench.model.effects import augmented_xml, load_spec
+from calbench.bench.log.read import read_log
+from calbench.bench.core.outputs import write_text
+from calbench.bench.model.robot import Robot
+from calbench.bench.view.recording import Discovery, write_discovery_recording
 
-from ..whitening import Whitener
-from ..model import check_sites, load_model
-from ..observations import Observations, from_log
-from ..onestep import one_step
+from calbench.identify.core.whitening import Whitener
+from calbench.identify.core.model import check_sites, load_model
+from calbench.identify.core.observations import Observations, from_log
+from calbench.identify.methods.onestep import one_step
 from .aliasing import aliasing_report
 from .decide import ALPHA_EFFECT, AMBIGUOUS_BIC, AMBIGUOUS_SPREAD, MIN_EXPLAINED, compare, lr_threshold, near_ties
 from .fit import Fit, build, effect_priors, fit, label, library, whitened
@@ -79,7 +79,7 @@ class Candidate:
 
 
 def base_fit(src, obs: Observations, white: np.ndarray) -> Fit:
-    """The user's model as it is (identify/onestep.py's estimate, refined by :func:`fit` on the
+    """The user's model as it is (identify/methods/onestep.py's estimate, refined by :func:`fit` on the
     discovery bounds); ``extra["fresh_start"]``: the one-step's data-derived start."""
     robot, fm = build(src, [], obs)
     r = one_step(robot, obs, step_tol=1e-3, max_iter=BASE_START_ITER)
@@ -312,7 +312,7 @@ def augmented_mjcf(src, fitted: Fit) -> str:
 
 
 def write_view(log_path, rrd, base: Fit, final: Fit, obs, rep: dict) -> Path:
-    """The Rerun recording of the discovery (bench/view.py, ``write_discovery_recording``): on
+    """The Rerun recording of the discovery (bench/view/recording.py, ``write_discovery_recording``): on
     the robot, every reflector's residual with the user's model and with the named effects,
     against the noise, per pose; the verdict; the final model's parameters."""
     named = tuple(s["effect"] + (f" ({s['detail']})" if s["effect"] not in (UNEXPLAINED, AMBIGUOUS) and s["detail"]

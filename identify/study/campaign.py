@@ -2,13 +2,13 @@
 
 For each replicate: ``simulate`` the cell's scenario with the campaign's seed, ``identify`` it
 (what the log without its truth holds; the truth is read only afterwards, for the error and z
-columns, as in identify/report.py), and, where the study asks, ``discover`` with the user's model (the log's MJCF, or it without the effects of
+columns, as in identify/report/identification.py), and, where the study asks, ``discover`` with the user's model (the log's MJCF, or it without the effects of
 ``discover_without``). The record of a campaign is one flat dict of :func:`result_columns`: per
 parameter the estimate, reported std, truth, error and z; the fit's chi2; what discover named;
 the timings; and the error, if the campaign failed (then the numbers are NaN).
 
 No log is written where nothing needs one (:func:`needs_log`): the campaign is solved and
-measured in memory (bench.campaign.plan_campaign, then identify/montecarlo.py's
+measured in memory (bench.campaign.plan_campaign, then identify/study/montecarlo.py's
 ``campaign_observations`` with the campaign's own generator), which gives identify and discover
 the same Observations, to the last bit, that ``from_log`` reads from the log without its truth
 (the robot from the same MJCF text, the truth afterwards for the error columns): the same rows,
@@ -33,16 +33,16 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from calbench.bench.campaign import plan_campaign, run_campaign, scenario_params, truth_robot
-from calbench.bench.effects import without_compensator
-from calbench.bench.errors import InputError
-from calbench.bench.outputs import write_text
-from calbench.bench.robot import Robot
-from calbench.bench.scenario import Scenario
-from calbench.bench.timeline import check_size, estimate, repeats_key
+from calbench.bench.campaign.run import plan_campaign, run_campaign, scenario_params, truth_robot
+from calbench.bench.model.effects import without_compensator
+from calbench.bench.core.errors import InputError
+from calbench.bench.core.outputs import write_text
+from calbench.bench.model.robot import Robot
+from calbench.bench.scenario.parse import Scenario
+from calbench.bench.scenario.timeline import check_size, estimate, repeats_key
 
-from ..observations import Observations
-from ..portable import PortableScenario
+from calbench.identify.core.observations import Observations
+from calbench.identify.runtime.portable import PortableScenario
 
 # effects discover's starting model can lack (campaign.discover_without): MJCF text -> MJCF text
 REMOVABLE = {"compensator": without_compensator}
@@ -111,7 +111,7 @@ class Simulated:
     """A campaign simulated in memory: what a reader of its log without truth gets (the
     observations, the MJCF text of its header) and, apart, the truth's parameter vector in the
     robot's layout (None when the layouts differ), read only after the estimate, as
-    identify/report.py reads the log's truth."""
+    identify/report/identification.py reads the log's truth."""
 
     obs: Observations
     mjcf: str
@@ -122,7 +122,7 @@ def simulate_in_memory(scn: Scenario) -> Simulated:
     """bench.campaign.run_campaign without the log: the same size check, plan and readings (the
     generator seeded by the scenario's seed, consumed as run_campaign does), then the
     observations as ``from_log`` makes them (InputError when no pose can be used, as it does)."""
-    from ..montecarlo import campaign_observations
+    from .montecarlo import campaign_observations
     truth_rb = truth_robot(scn)
     repeats = [p.repeats for p in scn.poses]
     check_size(estimate(repeats, len(truth_rb.reflector_names)), scn.path, repeats_key(repeats))
@@ -143,8 +143,8 @@ def simulate_in_memory(scn: Scenario) -> Simulated:
 def identify_in_memory(sim: Simulated, method: str):
     """report.run_identify on the in-memory campaign: the log's robot (its MJCF text), the sites
     checked, the estimate, then the truth for the report's error columns."""
-    from ..model import check_sites
-    from ..report import build_report, identify
+    from calbench.identify.core.model import check_sites
+    from calbench.identify.report.identification import build_report, identify
     t0 = time.perf_counter()
     robot = Robot.from_xml(sim.mjcf)
     check_sites(robot, sim.obs, sim.obs.source)
@@ -156,8 +156,8 @@ def discover_in_memory(sim: Simulated, discover_model: str | None) -> dict:
     """discover.workflow.discover on the in-memory campaign: the user's model (the log's MJCF or
     the one without ``discover_without``'s effects), the search, and the augmented MJCF built
     and loaded (discover's check that it loads), not written."""
-    from ..discover.workflow import augmented_mjcf, discover_observations
-    from ..model import check_sites
+    from calbench.identify.discover.workflow import augmented_mjcf, discover_observations
+    from calbench.identify.core.model import check_sites
     src = sim.mjcf if discover_model is None else discover_model
     check_sites(Robot.from_xml(src), sim.obs, sim.obs.source)
     rep, final = discover_observations(sim.obs, src)
@@ -172,7 +172,7 @@ def one_campaign(job: CampaignJob, replicate: int, seed: int, folder: Path,
     In memory unless :func:`needs_log` (module docstring). Discovery is imported only where a
     campaign runs it: its import (scipy.stats, ~0.9 s once per worker) was most of the per-task
     overhead of identify-only studies."""
-    from ..report import run_identify
+    from calbench.identify.report.identification import run_identify
     rec: dict = {"replicate": replicate, "seed": seed, "expected": job.expected,
                  "worker": f"{socket.gethostname()}:{os.getpid()}", "error": ""}
     t0 = time.perf_counter()
@@ -201,7 +201,7 @@ def one_campaign(job: CampaignJob, replicate: int, seed: int, folder: Path,
             if sim is not None:
                 d = discover_in_memory(sim, discover_model)
             else:
-                from ..discover.workflow import discover
+                from calbench.identify.discover.workflow import discover
                 model = None
                 if discover_model is not None:
                     model = folder / "model.xml"

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pyarrow as pa
 
-from ..executor import Executor, InProcess, Interrupted
+from calbench.identify.runtime.executor import Executor, InProcess, Interrupted
 from .campaign import (LOG_TRACKER_MODELS, CampaignJob, discover_model_text, empty_record, result_columns,
                        run_campaigns)
 from .spec import Cell, Study, digest
@@ -131,7 +131,7 @@ def design_key(cell: Cell) -> str:
 
 def prepare(study: Study, out: str | Path) -> Pending:
     """Read what RESULTS.parquet (and its journal) hold; refuse results of another study."""
-    from calbench.bench.errors import InputError
+    from calbench.bench.core.errors import InputError
     store = ResultStore(out, schema(study), study.text)
     have = store.load()
     known = {c.cell_id for c in study.cells}
@@ -155,8 +155,8 @@ def prepare(study: Study, out: str | Path) -> Pending:
 
 def _design(study: Study, cell: Cell, executor: Executor, progress) -> list:
     """The [[pose]] entries of the plan design:<criterion>:<M> for the cell's scenario."""
-    from ..design.candidates import generate_candidates, read_design_settings
-    from ..design.plan import design_plan, plan_scenario_text
+    from calbench.identify.design.candidates import generate_candidates, read_design_settings
+    from calbench.identify.design.plan import design_plan, plan_scenario_text
     _, criterion, m = cell.plan.split(":")
     scn = study.portable(cell).scenario(seed=study.seed)
     settings = read_design_settings(scn.path, scn.text)
@@ -168,7 +168,7 @@ def _design(study: Study, cell: Cell, executor: Executor, progress) -> list:
 
 def run_study(pending: Pending, executor: Executor | None = None, progress=None) -> StudyOutcome:
     """Run the missing campaigns (see the module docstring); returns the outcome."""
-    from calbench.bench.progress import sink
+    from calbench.bench.core.progress import sink
     t0 = time.perf_counter()
     study, store = pending.study, pending.store
     executor = executor or InProcess()

@@ -31,7 +31,7 @@
 A ``plan`` value is a scenario file (relative to the study; its ``[[pose]]`` list replaces the
 base's) or ``design:<criterion>:<M>``: the M-configuration plan `calbench design` finds for the
 cell's scenario (criterion A, D, AD or pose). Keys are checked by the scenario parser itself
-(bench/scenario.py), so whatever a scenario may hold an axis may vary: a tracker's sigma or
+(bench/scenario/parse.py), so whatever a scenario may hold an axis may vary: a tracker's sigma or
 model, the payload, a truth value, a hidden effect. Every cell's scenario is built and validated
 here, before any task is sent: a bad study (unknown key, empty axis, a value the scenario
 refuses) is an InputError naming the study file and the axis and key.
@@ -54,12 +54,12 @@ from typing import Any
 
 import numpy as np
 
-from calbench.bench.errors import InputError
-from calbench.bench.scenario import Scenario, load_scenario
+from calbench.bench.core.errors import InputError
+from calbench.bench.scenario.parse import Scenario, load_scenario
 
-from ..design.criteria import CRITERIA
-from ..portable import PortableScenario
-from ..report import METHODS
+from calbench.identify.design.criteria import CRITERIA
+from calbench.identify.runtime.portable import PortableScenario
+from calbench.identify.report.identification import METHODS
 
 TOP_KEYS = ("name", "description", "scenario", "seeds", "seed", "campaign", "set", "axis")
 AXIS_KEYS = ("name", "key", "values", "cases", "scales")
@@ -292,7 +292,7 @@ def expected_effect(scn: Scenario, campaign: CampaignSettings) -> str | None:
     """What discover should name first: the one effect the user's model lacks (hidden in the
     truth, or removed from discover's model) as ``name[detail]``; "unexplained" when it is not a
     discovery candidate; "nothing" when nothing is missing; None when several are."""
-    from calbench.bench.effects import DISCOVERY_OPTIONS, effect_from_truth
+    from calbench.bench.model.effects import DISCOVERY_OPTIONS, effect_from_truth
     missing = [(n, t) for n, t in scn.effects.items()] + [(n, None) for n in campaign.discover_without]
     if not missing:
         return "nothing"
@@ -352,7 +352,7 @@ def load_study(path: str | Path) -> Study:
         raise InputError(path, "axis", "[[axis]] tables", axes_raw)
     axes = tuple(_axis(path, i, a) for i, a in enumerate(axes_raw))
     names = [a.name for a in axes]
-    from calbench.bench.robot import Robot
+    from calbench.bench.model.robot import Robot
     from .campaign import result_columns
     try:
         param_names = tuple(Robot.from_file(base.robot).layout.names)

@@ -2,7 +2,7 @@
 
 A Parquet file is only readable once its footer is written, so finished campaigns go first to a
 journal beside it, ``RESULTS.parquet.parts/``: one small Parquet file per finished task, each
-written atomically (temporary name, then rename; bench/outputs.py). Every 30 s (run.py's
+written atomically (temporary name, then rename; bench/core/outputs.py). Every 30 s (run.py's
 CONSOLIDATE_S), on Ctrl-C and at the end, the journal is merged into RESULTS.parquet (again atomically: the file
 is always either the previous complete version or the new one) and the merged parts are removed.
 A crash at any moment therefore loses at most the campaigns still running; re-running the same
@@ -22,8 +22,8 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from calbench.bench.errors import InputError
-from calbench.bench.outputs import atomic_path, write_text
+from calbench.bench.core.errors import InputError
+from calbench.bench.core.outputs import atomic_path, write_text
 
 PARTS = ".parts"
 

@@ -1,0 +1,1 @@
+"""calbench.bench.campaign: a calibration campaign: posed unloaded and loaded, measured, logged."""

@@ -1,0 +1,408 @@
+"""Reading a campaign log: the one reader every verb uses, with one policy.
+
+A log is input, and nothing it says is trusted blindly. The policy (docs/contract.md, "MCAP log"):
+
+* **Cut short** (a campaign killed or crashed; the file ends without its footer): the poses
+  that carry a ``/campaign/pose_done`` marker are read, the others are lost, and the log says
+  so (:attr:`CampaignLog.lost_poses`, :attr:`CampaignLog.end`, :meth:`CampaignLog.completeness`).
+  A campaign interrupted with Ctrl-C leaves a finished file with a ``campaign_end`` record saying
+  so; it reads the same way.
+* **Anything else wrong is a corrupt log, refused whole** (:class:`CorruptLogError`, an
+  InputError: exit status 2, one line naming the topic, the pose and the field): a damaged
+  record (a chunk or attachment whose CRC fails, a record that cannot be decoded:
+  bench/log/scan.py), a message that is not JSON or breaks its topic's schema (a wrong type, a
+  5-element ``q``, a missing ``visible``, NaN or Infinity anywhere: bench/log/schema.py), a pose
+  index outside the plan (``n_poses`` of ``/campaign/info``), a reading whose lists disagree
+  in length or whose visibility and nulls disagree, a reading naming a reflector the header does
+  not list or another list than the pose's other readings, a covariance that is not symmetric
+  positive definite, a message given twice, a complete pose without its command in both states
+  (the same command) or its load. Nothing is computed with such a log; ``calbench recover``
+  (bench/log/recover.py) writes a new file with the valid poses only, naming the others, which
+  this reader then reads as a campaign with lost poses.
+
+Refusing rather than silently dropping keeps every verb honest alike: identify, discover, view,
+report and study all call :func:`read_log`, so they accept and refuse the same logs and report
+lost poses in the same words.
+
+``/truth/`` messages are skipped before decoding unless ``include_truth`` (the truth firewall);
+when read, they are checked like the rest. Topics the reader does not use (the Foxglove view)
+are not decoded. Log times are not interpreted, so logs of earlier versions (times from 1970)
+read as before.
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from mcap.records import Attachment, Channel, Footer, Message, Metadata
+
+from .records import (STATES, CampaignLog, CampaignTruth, MeasurementRecord, PerState,
+                          TruthJoints, TruthParameters, TruthReflectors, WrenchRecord)
+from calbench.bench.core.errors import InputError
+from .schema import (GROUND_TRUTH_METADATA, REQUIRED_TOPICS, SCENARIO_METADATA, SCHEMAS,
+                        TRUTH_PREFIX, Problem, problems)
+from .scan import Cut, Damage, scan
+
+END_METADATA = "campaign_end"         # how the campaign ended (bench/log/writer.py writes it)
+RECOVERED_METADATA = "recovered"      # written by `calbench recover`
+RECOVER_HINT = "`calbench recover LOG --out FIXED.mcap` keeps its valid poses"
+# the topics this reader decodes; the others (Foxglove's view) are passed by
+DECODED = frozenset(SCHEMAS)
+# relative asymmetry tolerated in a covariance (round-off of R D R^T in the writer is ~1e-16)
+SYMMETRY_TOL = 1e-9
+# rad: a pose is one command, written in both states (JSON carries a float exactly; this is the
+# same 1e-12 as identify/core/observations.py's check, far below any encoder's resolution)
+COMMAND_TOL = 1e-12
+
+
+class CorruptLogError(InputError):
+    """A campaign log that is damaged or says something impossible; names where, and how to
+    salvage it."""
+
+    def __init__(self, file: object, key: str, expected: str, got: object = None):
+        super().__init__(file, key, expected, got)
+        self.args = (f"{self.args[0]} ({RECOVER_HINT})",)
+
+
+# --------------------------------------------------------------------------- message checks
+
+def _pose_of(m: Any) -> Any:
+    return m.get("pose") if isinstance(m, dict) else None
+
+
+JOINT_VECTORS = {"/campaign/pose": "q", "/truth/joints": "deflection",
+                 "/truth/parameters": "compliance"}
+
+
+def message_problems(topic: str, m: Any, n_poses: int | None,
+                     n_joints: int | None = None) -> list[Problem]:
+    """Every reason to refuse message ``m`` of ``topic``: its schema, then what a schema cannot
+    say (the pose within the plan of ``n_poses``, one value per joint of ``n_joints`` in every
+    command, deflection and compliance, a reading's lists agreeing, covariances symmetric
+    positive definite, each reading's reflectors named once)."""
+    found = problems(m, SCHEMAS[topic])
+    if found:
+        return found
+    pose = _pose_of(m)
+    if n_poses is not None and pose is not None and pose >= n_poses:
+        return [Problem("pose", f"a pose index of the plan (0..{n_poses - 1}; /campaign/info "
+                                f"n_poses = {n_poses})", pose)]
+    key = JOINT_VECTORS.get(topic)
+    if key and n_joints is not None and len(m[key]) != n_joints:
+        return [Problem(key, f"{n_joints} items, one per actuated joint as in every command",
+                        f"{len(m[key])} items")]
+    if topic == "/tracker/measurement":
+        return _measurement_problems(m)
+    if topic == "/truth/reflectors" and len(m["position_world"]) != len(m["reflectors"]):
+        return [Problem("position_world", f"{len(m['reflectors'])} rows, one per reflector",
+                        len(m["position_world"]))]
+    return []
+
+
+def _measurement_problems(m: dict) -> list[Problem]:
+    n = len(m["reflectors"])
+    if len(set(m["reflectors"])) != n:
+        return [Problem("reflectors", "each reflector named once", m["reflectors"])]
+    for key in ("position", "covariance", "visible"):
+        if len(m[key]) != n:
+            return [Problem(key, f"{n} entries, one per reflector", f"{len(m[key])} entries")]
+    for i, vis in enumerate(m["visible"]):
+        for key in ("position", "covariance"):
+            if (m[key][i] is not None) != vis:
+                return [Problem(f"{key}[{i}]", "null exactly where visible is false",
+                                m[key][i] if m[key][i] is None else f"a value with visible {vis}")]
+        if vis:
+            c = np.asarray(m["covariance"][i], dtype=float)
+            scale = np.abs(c).max()
+            if not scale > 0 or np.abs(c - c.T).max() > SYMMETRY_TOL * scale:
+                return [Problem(f"covariance[{i}]", "a symmetric positive definite 3x3 matrix",
+                                "an asymmetric or zero matrix")]
+            if np.linalg.eigvalsh(0.5 * (c + c.T)).min() <= 0:
+                return [Problem(f"covariance[{i}]", "a symmetric positive definite 3x3 matrix",
+                                "a matrix with an eigenvalue <= 0")]
+    return []
+
+
+def _key(topic: str, m: Any, field_: str) -> str:
+    pose = _pose_of(m)
+    where = f" pose {pose}" if isinstance(pose, int) and not isinstance(pose, bool) else ""
+    if isinstance(m, dict) and isinstance(m.get("state"), str) and topic != "/campaign/wrench":
+        where += f" {m['state']}" + (f" repeat {m['repeat']}" if isinstance(m.get("repeat"), int) else "")
+    return f"{topic}{where}" + (f": {field_}" if field_ else "")
+
+
+def decode(topic: str, data: bytes, index: int) -> tuple[Any, str | None]:
+    """(the JSON of one message, None), or (None, why it is not JSON)."""
+    try:
+        return json.loads(data), None
+    except (ValueError, RecursionError) as e:   # JSONDecodeError and UnicodeDecodeError
+        return None, f"message #{index} is not JSON ({type(e).__name__}: {str(e)[:80]})"
+
+
+# --------------------------------------------------------------------------- the reader
+
+@dataclass
+class _Collected:
+    """What the messages of a log say, while it is read."""
+
+    info: dict | None = None
+    poses: dict[int, dict[str, np.ndarray]] = field(default_factory=dict)
+    wrenches: dict[int, WrenchRecord] = field(default_factory=dict)
+    meas: list[MeasurementRecord] = field(default_factory=list)
+    done: set[int] = field(default_factory=set)
+    t_params: dict | None = None
+    t_refl: dict[int, dict[str, TruthReflectors]] = field(default_factory=dict)
+    t_joints: dict[int, dict[str, TruthJoints]] = field(default_factory=dict)
+    seen: set[tuple] = field(default_factory=set)
+
+    def once(self, key: tuple) -> bool:
+        """True the first time ``key`` (topic and identity of a message) is met."""
+        if key in self.seen:
+            return False
+        self.seen.add(key)
+        return True
+
+
+def _nan_rows(rows: list, shape: tuple[int, ...]) -> np.ndarray:
+    out = np.full((len(rows), *shape), np.nan)
+    for i, r in enumerate(rows):
+        if r is not None:
+            out[i] = np.asarray(r, dtype=float)
+    return out
+
+
+def _identity(topic: str, m: dict) -> tuple:
+    return (topic, m.get("pose"), m.get("state"), m.get("repeat"))
+
+
+def _take(c: _Collected, topic: str, m: dict, log_time: int) -> None:
+    """File one valid message (checked by :func:`message_problems` and for duplicates)."""
+    if topic == "/campaign/info":
+        c.info = m
+    elif topic == "/campaign/pose":
+        c.poses.setdefault(m["pose"], {})[m["state"]] = np.asarray(m["q"], dtype=float)
+    elif topic == "/campaign/wrench":
+        c.wrenches[m["pose"]] = WrenchRecord(
+            pose=m["pose"], force=np.asarray(m["force"], dtype=float),
+            moment=np.asarray(m["moment"], dtype=float), site=m["site"], mass=m["mass"])
+    elif topic == "/tracker/measurement":
+        c.meas.append(MeasurementRecord(
+            pose=m["pose"], state=m["state"], repeat=m["repeat"], reflectors=list(m["reflectors"]),
+            position=_nan_rows(m["position"], (3,)), covariance=_nan_rows(m["covariance"], (3, 3)),
+            visible=np.asarray(m["visible"], dtype=bool), time=int(log_time)))
+    elif topic == "/campaign/pose_done":
+        c.done.add(m["pose"])
+    elif topic == "/truth/parameters":
+        c.t_params = m
+    elif topic == "/truth/reflectors":
+        c.t_refl.setdefault(m["pose"], {})[m["state"]] = TruthReflectors(
+            tuple(m["reflectors"]), np.asarray(m["position_world"], dtype=float))
+    elif topic == "/truth/joints":
+        c.t_joints.setdefault(m["pose"], {})[m["state"]] = TruthJoints(
+            np.asarray(m["qpos"], dtype=float), np.asarray(m["deflection"], dtype=float))
+
+
+def _per_state(d: dict[int, dict[str, Any]], keep: set[int]) -> dict[int, PerState]:
+    return {p: PerState(v.get("unloaded"), v.get("loaded")) for p, v in sorted(d.items())
+            if p in keep}
+
+
+def _check_reflector_lists(path: Path, header: list[str], meas: list[MeasurementRecord]) -> None:
+    """Every reading names reflectors of ``/campaign/info`` only, and the readings of one pose
+    all name the same list (its rows are matched by position between states and repeats)."""
+    known, first = set(header), {}
+    for m in meas:
+        key = _key("/tracker/measurement", {"pose": m.pose, "state": m.state, "repeat": m.repeat},
+                   "reflectors")
+        unknown = [r for r in m.reflectors if r not in known]
+        if unknown:
+            raise CorruptLogError(path, key, "reflectors that /campaign/info lists "
+                                  f"({', '.join(header) or 'none'})", unknown)
+        names = first.setdefault(m.pose, m.reflectors)
+        if m.reflectors != names:
+            raise CorruptLogError(path, key, f"the list of the pose's first reading {names}",
+                                  m.reflectors)
+
+
+def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLog:
+    """Read and check a campaign log (see the module docstring for the policy): its complete
+    poses, what was lost and how the log ended. Raises InputError when the file is missing or
+    not MCAP, CorruptLogError (an InputError) when it is damaged or says something impossible.
+    """
+    path = Path(path)
+    topics: dict[int, str] = {}
+    c = _Collected()
+    metadata: dict[str, dict] = {}
+    scenario_att = mjcf_text = None
+    saw_truth = cut = False
+    n_poses: int | None = None
+    n_joints: int | None = None
+    pending: list[tuple[str, dict]] = []      # pose messages met before /campaign/info
+    for rec in scan(path):
+        if isinstance(rec, Damage):
+            raise CorruptLogError(path, f"byte {rec.offset}", f"an undamaged {rec.record} record",
+                                  rec.why)
+        if isinstance(rec, Cut):
+            cut = True
+            break
+        if isinstance(rec, Channel):
+            topics[rec.id] = rec.topic
+        elif isinstance(rec, Message):
+            topic = topics.get(rec.channel_id)
+            if topic is None or topic not in DECODED:
+                continue
+            if topic.startswith(TRUTH_PREFIX):
+                saw_truth = True
+                if not include_truth:
+                    continue                               # never decoded
+            m, why = decode(topic, rec.data, rec.sequence)
+            if why:
+                raise CorruptLogError(path, topic, "JSON messages", why)
+            found = message_problems(topic, m, n_poses, n_joints)
+            if found:
+                p = found[0]
+                raise CorruptLogError(path, _key(topic, m, p.field), p.expected, p.got)
+            if topic == "/campaign/pose" and n_joints is None:
+                n_joints = len(m["q"])               # the first command fixes it (old logs)
+            if not c.once(_identity(topic, m)):
+                raise CorruptLogError(path, _key(topic, m, ""), "each message once", "a duplicate")
+            if topic == "/campaign/info":
+                n_poses = m["n_poses"]
+                n_joints = m.get("n_joints", n_joints)
+                for t, pm in pending:                    # now the plan is known
+                    found = message_problems(t, pm, n_poses, n_joints)
+                    if found:
+                        raise CorruptLogError(path, _key(t, pm, found[0].field), found[0].expected,
+                                              found[0].got)
+            elif n_poses is None and "pose" in m:
+                pending.append((topic, m))
+            _take(c, topic, m, rec.log_time)
+        elif isinstance(rec, Metadata):
+            if rec.name == GROUND_TRUTH_METADATA:
+                saw_truth = True
+                if include_truth:
+                    metadata[rec.name] = dict(rec.metadata)
+            else:
+                metadata.setdefault(rec.name, dict(rec.metadata))
+        elif isinstance(rec, Attachment):
+            if rec.media_type == "application/toml" and scenario_att is None:
+                scenario_att = rec.data.decode("utf-8", "replace")
+            elif rec.media_type == "application/xml" and mjcf_text is None:
+                mjcf_text = rec.data.decode("utf-8", "replace")
+        elif isinstance(rec, Footer):
+            break
+
+    present = set(topics.values())
+    for topic in REQUIRED_TOPICS:
+        if topic not in present:
+            raise InputError(path, topic, "a channel with this topic in the campaign log",
+                             "no such channel")
+    if c.info is None:
+        raise InputError(path, "/campaign/info", "one campaign info message", "none")
+
+    complete = sorted(c.done)
+    keep = set(complete)
+    for p in complete:                       # a complete pose is all there
+        states = c.poses.get(p, {})
+        if len(states) != 2:
+            raise CorruptLogError(path, f"/campaign/pose pose {p}", "the command of a complete "
+                                  "pose in both states", sorted(states) or "none")
+        if p not in c.wrenches:
+            raise CorruptLogError(path, f"/campaign/wrench pose {p}", "the load of a complete pose",
+                                  "none")
+        if not np.allclose(states["unloaded"], states["loaded"], rtol=0, atol=COMMAND_TOL):
+            raise CorruptLogError(path, f"/campaign/pose pose {p} loaded: q", "the command of the "
+                                  "unloaded state (a pose is one command)", states["loaded"].tolist())
+    _check_reflector_lists(path, c.info["reflectors"], c.meas)
+    truth = None
+    if include_truth and saw_truth:
+        t_meta = metadata.get(GROUND_TRUTH_METADATA) or {}
+        t_params = c.t_params
+        if t_params is None and "parameters" in t_meta:
+            t_params, why = decode(GROUND_TRUTH_METADATA, t_meta["parameters"].encode(), 0)
+            if why or problems(t_params, SCHEMAS["/truth/parameters"]):
+                raise CorruptLogError(path, "ground_truth.parameters",
+                                      "the /truth/parameters message as JSON", why or "other fields")
+        truth = CampaignTruth(
+            parameters=_truth_parameters(path, t_params),
+            reflectors=_per_state(c.t_refl, keep), joints=_per_state(c.t_joints, keep),
+            scenario_text=t_meta.get("scenario_text"))
+    end, truncated = log_end(cut, metadata)
+    scenario_text = (metadata.get(SCENARIO_METADATA) or {}).get("text")
+    return CampaignLog(
+        path=path, header=c.info,
+        scenario_text=scenario_text if scenario_text is not None else scenario_att,
+        mjcf_text=mjcf_text,
+        poses=_per_state(c.poses, keep),
+        wrenches={p: v for p, v in sorted(c.wrenches.items()) if p in keep},
+        measurements=[m for m in c.meas if m.pose in keep],
+        complete_poses=complete,
+        n_poses_planned=int(c.info["n_poses"]),
+        truncated=truncated,
+        truth=truth,
+        end=end,
+        dropped_poses=_dropped(metadata),
+    )
+
+
+def log_end(cut: bool, metadata: dict[str, dict]) -> tuple[str, bool]:
+    """How the log ended, as a phrase ("finished", "the log was cut short: ..."), and whether
+    the campaign stopped before its end."""
+    rec = metadata.get(RECOVERED_METADATA)
+    if rec is not None:
+        return (f"the log was recovered by `calbench recover` from one that "
+                f"{rec.get('source_end', 'was damaged')}", rec.get("campaign_finished") != "true")
+    if cut:
+        return ("the log was cut short: the file ends without its footer (the campaign was "
+                "killed or crashed)"), True
+    end = metadata.get(END_METADATA) or {}
+    status = end.get("status", "finished")
+    if status == "finished":
+        return "finished", False
+    return f"the campaign {status}" + (f" ({end['reason']})" if end.get("reason") else ""), True
+
+
+def _dropped(metadata: dict[str, dict]) -> list[int]:
+    text = (metadata.get(RECOVERED_METADATA) or {}).get("dropped_poses", "[]")
+    try:
+        v = json.loads(text)
+    except ValueError:
+        return []
+    return [int(p) for p in v if isinstance(p, int)] if isinstance(v, list) else []
+
+
+def _truth_parameters(path: Path, m: dict | None) -> TruthParameters | None:
+    if m is None:
+        return None
+    try:
+        return TruthParameters.from_message(m)
+    except (KeyError, TypeError, ValueError) as e:
+        raise CorruptLogError(path, "/truth/parameters",
+                              "compliance [one number per actuated joint] and compensator(s) "
+                              "{stiffness, preload}", str(e)) from None
+
+
+def has_truth(path: str | os.PathLike) -> bool:
+    """True when the log carries ground truth: a message on a ``/truth/`` topic or a
+    ``ground_truth`` metadata record (read up to the first damage or the cut). A registered
+    ``/truth/`` channel alone does not count: an imported log has the channels (one writer for
+    every log) but no message on them."""
+    truth_channels: set[int] = set()
+    for rec in scan(Path(path)):
+        if isinstance(rec, (Damage, Cut)):
+            return False
+        if isinstance(rec, Channel) and rec.topic.startswith(TRUTH_PREFIX):
+            truth_channels.add(rec.id)
+        elif isinstance(rec, Message) and rec.channel_id in truth_channels:
+            return True
+        elif isinstance(rec, Metadata) and rec.name == GROUND_TRUTH_METADATA:
+            return True
+    return False
+
+
+__all__ = ["read_log", "has_truth", "message_problems", "decode", "log_end", "CorruptLogError",
+           "END_METADATA", "RECOVERED_METADATA", "DECODED"]

@@ -1,0 +1,1 @@
+"""calbench.bench.model: the robot model: its description, parameters, MjModel wrapper, loop kinematics, shapes, effects."""

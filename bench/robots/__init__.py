@@ -1,0 +1,1 @@
+"""calbench.bench.robots: robots from elsewhere: URDF import, its overlay, the robot check."""

@@ -1,0 +1,773 @@
+"""Load and validate a calibration campaign scenario (TOML, see docs/contract.md).
+
+The file speaks degrees for joint angles and the tracker yaw; everything returned here is SI
+(radians, metres). Every bad input raises :class:`bench.errors.InputError` naming the file, the
+key path (0-based for ``[[pose]]`` entries and vector elements, e.g. ``pose[3].q[1]``) and what
+was expected, so the CLI can report it and exit with status 2.
+"""
+from __future__ import annotations
+
+import math
+import os
+import re
+import tomllib
+from dataclasses import dataclass, replace
+from datetime import date, datetime
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from calbench.bench.core.errors import InputError
+from calbench.bench.model.params import LEGACY_COMPENSATOR, Params, Spring
+from .timeline import DEFAULT_START, parse_start_time
+
+TRACKER_MODELS = ("isotropic", "spec", "iso10360")
+DEFAULT_SIGMA = 20e-6
+DEFAULT_DISTANCE = (10e-6, 0.3e-6)      # Leica AT500 ADM: 10 um + 0.3 um/m
+DEFAULT_TRANSVERSE = (15e-6, 6e-6)      # Leica AT500 angular: 15 um + 6 um/m
+# model = "iso10360" (bench/tracker/iso10360.py, where each default is argued): the share of a reading's
+# 1-sigma that is independent noise, the systematic field's correlation lengths, the drift.
+DEFAULT_RANDOM = 0.25
+DEFAULT_CORRELATION_ANGLE = math.radians(10.0)
+DEFAULT_CORRELATION_RANGE = 1.0         # m
+DEFAULT_DRIFT = (5e-6, 1e-6)            # m and m/m per sqrt(hour)
+ISO10360_KEYS = ("random", "correlation_angle", "correlation_range", "drift")
+JOINT_LIMIT_TOL = 1e-9                  # rad, absorbs degree->radian round-off at a limit
+
+
+# --------------------------------------------------------------------------- data
+
+def _frozen(a: Any) -> np.ndarray:
+    """A float copy that cannot be modified, so frozen dataclasses stay frozen."""
+    arr = np.array(a, dtype=float)
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True)
+class TrackerSpec:
+    """Laser tracker placement (world frame) and noise model.
+
+    ``model == "isotropic"`` uses ``sigma`` per axis; ``"spec"`` uses the 1-sigma distance and
+    transverse errors ``a + b * range`` of an ISO 10360-10 style specification; ``"iso10360"``
+    splits that single-point error into a smooth systematic field, independent noise (the share
+    ``random`` of the 1-sigma) and a drift in time (bench/tracker/iso10360.py; ``correlation_angle``
+    rad, ``correlation_range`` m, ``drift`` [a m, b m/m] per sqrt(hour)).
+
+    The tracker frame is rotated by ``yaw`` about world z, or, when ``rotation`` is given (a
+    registered tracker, identify/shopfloor/tracker_pose.py: any orientation), by that world-from-tracker
+    matrix; ``yaw`` is then the rotation's heading, for readers that know only yaw.
+    """
+    position: np.ndarray
+    yaw: float = 0.0
+    model: str = "isotropic"
+    sigma: float = DEFAULT_SIGMA
+    distance: tuple[float, float] = DEFAULT_DISTANCE
+    transverse: tuple[float, float] = DEFAULT_TRANSVERSE
+    rotation: np.ndarray | None = None
+    random: float = DEFAULT_RANDOM
+    correlation_angle: float = DEFAULT_CORRELATION_ANGLE
+    correlation_range: float = DEFAULT_CORRELATION_RANGE
+    drift: tuple[float, float] = DEFAULT_DRIFT
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON form of the log header's ``tracker`` (CONTRACT.md, ``/campaign/info``):
+        SI throughout (position m, yaw rad, sigma m, ``[a m, b m/m]`` error laws; ``rotation``,
+        3 rows of 3, only when set)."""
+        d = {"position": [float(x) for x in self.position], "yaw": float(self.yaw),
+             "model": self.model, "sigma": float(self.sigma),
+             "distance": [float(x) for x in self.distance],
+             "transverse": [float(x) for x in self.transverse]}
+        if self.rotation is not None:
+            d["rotation"] = np.asarray(self.rotation, dtype=float).tolist()
+        if self.model == "iso10360":
+            d.update(random=float(self.random), correlation_angle=float(self.correlation_angle),
+                     correlation_range=float(self.correlation_range),
+                     drift=[float(x) for x in self.drift])
+        return d
+
+    def placed(self, position: np.ndarray, rotation: np.ndarray) -> "TrackerSpec":
+        """This tracker (same noise model) at ``position`` (m) with world-from-tracker
+        ``rotation``."""
+        rot = _rotation_matrix(rotation, "<rotation>", "rotation")
+        return replace(self, position=_frozen(position), rotation=rot,
+                       yaw=float(math.atan2(rot[1, 0], rot[0, 0])))
+
+    @classmethod
+    def from_dict(cls, d: Any, file: object = "<tracker>", key: str = "tracker") -> "TrackerSpec":
+        """The inverse of :meth:`to_dict`, validated like the scenario's ``[tracker]`` table but
+        in SI (yaw in rad). Missing optional keys take the scenario defaults; unknown keys are
+        ignored (a log header may carry more). Bad values raise InputError naming ``file`` and
+        ``key.<field>``."""
+        return _tracker_spec(_Checker(file, d, key), yaw_to_rad=float)
+
+
+@dataclass(frozen=True)
+class Pose:
+    """One measurement configuration: joint angles (rad), optional world wrench, repeat count."""
+    q: np.ndarray
+    wrench: np.ndarray | None
+    repeats: int = 1
+
+
+@dataclass(frozen=True)
+class Work:
+    """Where the calibrated robot will work: joint angles (rad) and the process wrench."""
+    q: np.ndarray
+    wrench: np.ndarray
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A validated campaign, in SI units, with the exact text it was read from."""
+    path: Path
+    text: str
+    robot: Path
+    seed: int
+    compliance: np.ndarray                # (N,) rad/(N*m), N = the robot's calbench:actuated
+    compensators: dict[str, Spring]       # by tendon ([truth.compensator] is the tendon "compensator")
+    effects: dict[str, dict]
+    tracker: TrackerSpec
+    load_mass: float
+    work: Work | None
+    poses: tuple[Pose, ...]
+    name: str = ""               # the file's `name`, else its stem
+    start_time: datetime = DEFAULT_START   # UTC; when the campaign's log clock starts
+
+
+# --------------------------------------------------------------------------- field checks
+
+class _Checker:
+    """Typed access to one TOML table, raising InputError with the full key path."""
+
+    def __init__(self, file: Path, table: Any, prefix: str):
+        self.file = file
+        self.prefix = prefix
+        if not isinstance(table, dict):
+            raise InputError(file, prefix or "(top level)", "a table", _describe(table))
+        self.table = table
+
+    def key(self, name: str) -> str:
+        return f"{self.prefix}.{name}" if self.prefix else name
+
+    def fail(self, name: str, expected: str, got: Any = None) -> InputError:
+        return InputError(self.file, self.key(name), expected, got)
+
+    def only(self, allowed: tuple[str, ...]) -> None:
+        """Reject keys outside ``allowed`` (catches typos that would silently do nothing)."""
+        for name in self.table:
+            if name not in allowed:
+                raise self.fail(name, "no such key; allowed keys here: " + ", ".join(allowed))
+
+    def has(self, name: str) -> bool:
+        return name in self.table
+
+    def raw(self, name: str) -> Any:
+        if name not in self.table:
+            raise InputError(self.file, self.key(name), "this required key to be present")
+        return self.table[name]
+
+    def sub(self, name: str) -> "_Checker":
+        value = self.raw(name)
+        if not isinstance(value, dict):
+            raise self.fail(name, "a table", _describe(value))
+        return _Checker(self.file, value, self.key(name))
+
+    def number(self, name: str, *, positive: bool = False, nonneg: bool = False) -> float:
+        return _number(self.file, self.key(name), self.raw(name), positive, nonneg)
+
+    def integer(self, name: str, lo: int | None = None, hi: int | None = None) -> int:
+        value = self.raw(name)
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self.fail(name, _int_range(lo, hi), _describe(value))
+        if (lo is not None and value < lo) or (hi is not None and value > hi):
+            raise self.fail(name, _int_range(lo, hi), value)
+        return value
+
+    def string(self, name: str, choices: tuple[str, ...] | None = None) -> str:
+        value = self.raw(name)
+        if not isinstance(value, str):
+            raise self.fail(name, "a string", _describe(value))
+        if choices is not None and value not in choices:
+            raise self.fail(name, "one of " + ", ".join(f'"{c}"' for c in choices), value)
+        return value
+
+    def vector(self, name: str, n: int | None, *, positive: bool = False,
+               nonneg: bool = False) -> np.ndarray:
+        """An array of n numbers (n None: any number >= 1)."""
+        value = self.raw(name)
+        what = f"an array of {n} numbers" if n is not None else "a non-empty array of numbers"
+        if not isinstance(value, list):
+            raise self.fail(name, what, _describe(value))
+        if (n is not None and len(value) != n) or not value:
+            raise self.fail(name, what, f"{len(value)} elements")
+        key = self.key(name)
+        return np.array([_number(self.file, f"{key}[{i}]", v, positive, nonneg)
+                         for i, v in enumerate(value)])
+
+
+def _describe(value: Any) -> str:
+    """Short name of a TOML value's type for error messages."""
+    if isinstance(value, bool):
+        return f"boolean {str(value).lower()}"
+    if isinstance(value, dict):
+        return "a table"
+    if isinstance(value, list):
+        return "an array"
+    return f"{type(value).__name__} {value!r}"
+
+
+def _int_range(lo: int | None, hi: int | None) -> str:
+    if lo is not None and hi is not None:
+        return f"an integer in {lo}..{hi}"
+    if lo is not None:
+        return f"an integer >= {lo}"
+    return "an integer"
+
+
+def _number(file: Path, key: str, value: Any, positive: bool, nonneg: bool) -> float:
+    """A finite real number (bool rejected), optionally > 0 or >= 0."""
+    what = "a finite number" + (" > 0" if positive else " >= 0" if nonneg else "")
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InputError(file, key, what, _describe(value))
+    x = float(value)
+    if not math.isfinite(x) or (positive and x <= 0) or (nonneg and x < 0):
+        raise InputError(file, key, what, value)
+    return x
+
+
+# --------------------------------------------------------------------------- sections
+
+TOP_KEYS = ("name", "description", "start_time", "robot", "seed", "truth", "tracker", "load", "work",
+            "pose", "design")
+# [design]: settings of `calbench design` (identify/design_candidates.py validates the values)
+DESIGN_KEYS = ("min_height", "min_radius", "candidates", "seed", "clearance", "compensator_margin",
+               "lateral_force", "lateral_fraction")
+EFFECT_KEYS = ("link_compliance", "base_compliance", "joint_nonlinearity", "tool_compliance", "tracker_drift")
+
+
+def _effects(c: _Checker) -> dict[str, dict]:
+    """Validate the optional hidden effects present only in the simulated truth."""
+    c.only(EFFECT_KEYS)
+    out: dict[str, dict] = {}
+    if c.has("link_compliance"):
+        e = c.sub("link_compliance")
+        e.only(("link", "compliance"))
+        out["link_compliance"] = {"link": e.string("link"),     # a body of the robot (its MJCF decides)
+                                  "compliance": _frozen(e.vector("compliance", 3, nonneg=True))}
+    if c.has("base_compliance"):
+        e = c.sub("base_compliance")
+        e.only(("compliance",))
+        out["base_compliance"] = {"compliance": _frozen(e.vector("compliance", 2, nonneg=True))}
+    if c.has("tool_compliance"):      # truth-only: not a discovery candidate (bench/model/effects.py)
+        e = c.sub("tool_compliance")
+        e.only(("compliance",))
+        out["tool_compliance"] = {"compliance": _frozen(e.vector("compliance", 2, nonneg=True))}
+    if c.has("joint_nonlinearity"):
+        e = c.sub("joint_nonlinearity")
+        e.only(("joint", "cubic"))
+        out["joint_nonlinearity"] = {"joint": e.integer("joint", 1),          # 1..N: the robot decides
+                                     "cubic": e.number("cubic")}
+    if c.has("tracker_drift"):        # measurement side: an offset of the loaded readings
+        e = c.sub("tracker_drift")
+        e.only(("offset",))
+        out["tracker_drift"] = {"offset": _frozen(e.vector("offset", 3))}
+    return out
+
+
+def _pair(c: _Checker, name: str, default: tuple[float, float]) -> tuple[float, float]:
+    """An ``[a, b]`` error law a + b*range: a > 0 keeps the covariance positive definite."""
+    if not c.has(name):
+        return default
+    a, b = c.vector(name, 2, nonneg=True)
+    if a <= 0:
+        raise c.fail(name, "[a, b] with a > 0 (m) and b >= 0 (m/m)", [a, b])
+    return (float(a), float(b))
+
+
+def _tracker(c: _Checker) -> TrackerSpec:
+    """The scenario's ``[tracker]`` table (yaw and correlation_angle in degrees)."""
+    c.only(("sigma", "position", "yaw", "model", "distance", "transverse") + ISO10360_KEYS)
+    return _tracker_spec(c, yaw_to_rad=math.radians)
+
+
+ROTATION_TOL = 1e-9      # |R^T R - I| and |det R - 1| of a rotation read back from JSON
+
+
+def _rotation_matrix(value: Any, file: object, key: str) -> np.ndarray:
+    """A proper rotation matrix (3 rows of 3 finite numbers, orthonormal, det +1), frozen."""
+    try:
+        rot = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        rot = np.zeros(0)
+    ok = rot.shape == (3, 3) and bool(np.all(np.isfinite(rot)))
+    if ok:
+        ok = (np.abs(rot.T @ rot - np.eye(3)).max() < ROTATION_TOL
+              and abs(np.linalg.det(rot) - 1) < ROTATION_TOL)
+    if not ok:
+        raise InputError(file, key, "a rotation matrix (3 rows of 3 numbers, orthonormal, det +1)",
+                         _describe(value) if not isinstance(value, list) else value)
+    return _frozen(rot)
+
+
+def _tracker_spec(c: _Checker, yaw_to_rad: Callable[[float], float]) -> TrackerSpec:
+    """A TrackerSpec from a checked table; ``yaw_to_rad`` converts the table's yaw unit."""
+    rotation = _rotation_matrix(c.raw("rotation"), c.file, c.key("rotation")) if c.has("rotation") else None
+    model = c.string("model", TRACKER_MODELS) if c.has("model") else "isotropic"
+    iso = {}
+    if model != "iso10360":
+        for name in ISO10360_KEYS:
+            if c.has(name):
+                raise c.fail(name, 'model = "iso10360" for this key (a correlated error model)')
+    else:
+        if c.has("random"):
+            iso["random"] = c.number("random", positive=True)
+            if iso["random"] > 1:
+                raise c.fail("random", "the share of the 1-sigma that is independent noise, in (0, 1]",
+                             iso["random"])
+        if c.has("correlation_angle"):
+            iso["correlation_angle"] = yaw_to_rad(c.number("correlation_angle", positive=True))
+        if c.has("correlation_range"):
+            iso["correlation_range"] = c.number("correlation_range", positive=True)
+        if c.has("drift"):
+            iso["drift"] = tuple(float(x) for x in c.vector("drift", 2, nonneg=True))
+    return TrackerSpec(**iso,
+        position=_frozen(c.vector("position", 3)),
+        yaw=yaw_to_rad(c.number("yaw")) if c.has("yaw") else 0.0,
+        model=model,
+        sigma=c.number("sigma", positive=True) if c.has("sigma") else DEFAULT_SIGMA,
+        distance=_pair(c, "distance", DEFAULT_DISTANCE),
+        transverse=_pair(c, "transverse", DEFAULT_TRANSVERSE),
+        rotation=rotation,
+    )
+
+
+def _joint_vector(c: _Checker, name: str, n: int | None) -> np.ndarray:
+    """Joint angles in degrees -> rad: one per actuated joint, as many as truth.compliance."""
+    value = c.raw(name)
+    if n is not None and isinstance(value, list) and len(value) != n:
+        raise c.fail(name, f"an array of {n} numbers (one per actuated joint, as in truth.compliance)",
+                     f"{len(value)} elements")
+    return _frozen(np.radians(c.vector(name, n)))
+
+
+def _joint_count(top: dict, truth: dict) -> int | None:
+    """The number of actuated joints the file speaks of: the most common length among
+    truth.compliance and every pose's q (ties: truth.compliance's), so that the odd one out is
+    the key reported. None when there is nothing to count."""
+    lengths = [len(truth["compliance"])] if isinstance(truth.get("compliance"), list) else []
+    poses = top.get("pose")
+    for p in poses if isinstance(poses, list) else []:
+        if isinstance(p, dict) and isinstance(p.get("q"), list):
+            lengths.append(len(p["q"]))
+    lengths = [n for n in lengths if n > 0]
+    if not lengths:
+        return None
+    return max(dict.fromkeys(lengths), key=lengths.count)   # first (compliance) wins ties
+
+
+def _spring(c: _Checker) -> Spring:
+    c.only(("stiffness", "preload"))
+    return Spring(stiffness=c.number("stiffness", nonneg=True), preload=c.number("preload", nonneg=True))
+
+
+def _compensators(truth: _Checker) -> dict[str, Spring]:
+    """``[truth.compensator]`` (the tendon named "compensator") and ``[truth.compensators.T]``."""
+    out: dict[str, Spring] = {}
+    if truth.has("compensator"):
+        out[LEGACY_COMPENSATOR] = _spring(truth.sub("compensator"))
+    if truth.has("compensators"):
+        tables = truth.sub("compensators")
+        for name in tables.table:
+            if name in out:
+                raise tables.fail(name, f"one table per tendon: [truth.{LEGACY_COMPENSATOR}] already gives it")
+            out[name] = _spring(tables.sub(name))
+    return out
+
+
+def _poses(file: Path, value: Any, n_joints: int | None) -> tuple[Pose, ...]:
+    if not isinstance(value, list) or not value:
+        raise InputError(file, "pose", "at least one [[pose]] table", _describe(value))
+    poses = []
+    for i, entry in enumerate(value):
+        p = _Checker(file, entry, f"pose[{i}]")
+        p.only(("q", "wrench", "repeats"))
+        poses.append(Pose(
+            q=_joint_vector(p, "q", n_joints),
+            wrench=_frozen(p.vector("wrench", 6)) if p.has("wrench") else None,
+            repeats=p.integer("repeats", lo=1) if p.has("repeats") else 1,
+        ))
+    return tuple(poses)
+
+
+# --------------------------------------------------------------------------- entry points
+
+_LINE = re.compile(r"line (\d+)")
+
+
+def _toml(text: str, path: Path) -> "_Checker":
+    """A TOML document as a checked top-level table (syntax errors name the line)."""
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        m = _LINE.search(str(exc))
+        raise InputError(path, f"line {m.group(1)}" if m else "(syntax)",
+                         "valid TOML", str(exc)) from None
+    return _Checker(path, doc, "")
+
+
+def _document(text: str, path: Path) -> "_Checker":
+    """The scenario's top-level table: TOML, known keys, name and description strings."""
+    top = _toml(text, path)
+    top.only(TOP_KEYS)
+    for name in ("name", "description"):
+        if top.has(name):
+            top.string(name)
+    return top
+
+
+def _robot(top: "_Checker", path: Path) -> Path:
+    robot_rel = top.string("robot")
+    robot = (path.parent / robot_rel).resolve()
+    if not robot.is_file():
+        raise InputError(path, "robot", f"an existing MJCF file (resolved to {robot})", robot_rel)
+    return robot
+
+
+def _truth(top: "_Checker") -> tuple[np.ndarray, dict[str, Spring], dict[str, dict]]:
+    """The [truth] table: N compliances, the compensator springs by tendon, the effects."""
+    truth = top.sub("truth")
+    truth.only(("compliance", "compensator", "compensators", "effects"))
+    compliance = _frozen(truth.vector("compliance", _joint_count(top.table, truth.table), positive=True))
+    compensators = _compensators(truth)
+    effects = _effects(truth.sub("effects")) if truth.has("effects") else {}
+    return compliance, compensators, effects
+
+
+def _campaign(top: "_Checker", path: Path, n_joints: int | None) -> dict[str, Any]:
+    """What a scenario and a plan share: the load, the work pose, the poses, the name. Every q
+    has ``n_joints`` angles (None: as many as the file's poses mostly have)."""
+    if n_joints is None:
+        n_joints = _joint_count(top.table, {})
+    load = top.sub("load")
+    load.only(("mass",))
+    if top.has("design"):
+        top.sub("design").only(DESIGN_KEYS)
+    work = None
+    if top.has("work"):
+        w = top.sub("work")
+        w.only(("q", "wrench"))
+        work = Work(q=_joint_vector(w, "q", n_joints), wrench=_frozen(w.vector("wrench", 6)))
+    return {"load_mass": load.number("mass", positive=True), "work": work,
+            "poses": _poses(path, top.raw("pose"), n_joints),
+            "name": top.string("name") if top.has("name") else path.stem,
+            "start_time": (parse_start_time(top.raw("start_time"), path) if top.has("start_time")
+                           else DEFAULT_START)}
+
+
+def parse_scenario(text: str, path: str | Path, seed: int | None = None) -> Scenario:
+    """Validate scenario ``text`` read from ``path`` (used for messages and the robot path).
+
+    ``seed`` (when given) overrides the file's seed, which then need not be present.
+    """
+    path = Path(path)
+    top = _document(text, path)
+    robot = _robot(top, path)
+
+    if seed is None:
+        seed = top.integer("seed", lo=0)
+    else:
+        if top.has("seed"):
+            top.integer("seed", lo=0)           # still reject a malformed value in the file
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise InputError("--seed", "seed", "an integer >= 0", seed)
+        seed = int(seed)
+
+    compliance, compensators, effects = _truth(top)
+    return Scenario(
+        path=path,
+        text=text,
+        robot=robot,
+        seed=seed,
+        compliance=compliance,
+        compensators=compensators,
+        effects=effects,
+        tracker=_tracker(top.sub("tracker")),
+        **_campaign(top, path, len(compliance)),
+    )
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A measurement plan: a scenario without ``[truth]`` (docs/contract.md), what a real
+    campaign knows before it starts: the robot, the commanded poses, the loads and the
+    tracker's noise model.
+
+    The tracker's ``position`` (and ``yaw``) are optional: ``tracker_placed`` says whether the
+    file gave them. When it did not, ``tracker`` carries the noise model only, its pose a
+    placeholder (origin, no rotation) that ``calbench import`` replaces by the registered one.
+    A ``[truth]`` table, if present (a plan written by ``calbench design`` carries its prior),
+    is validated like a scenario's and otherwise ignored.
+    """
+    path: Path
+    text: str
+    robot: Path
+    seed: int
+    tracker: TrackerSpec
+    tracker_placed: bool
+    load_mass: float
+    work: Work | None
+    poses: tuple[Pose, ...]
+    name: str = ""
+    start_time: datetime = DEFAULT_START   # UTC; a readings file's seconds count from here
+
+
+def parse_plan(text: str, path: str | Path) -> Plan:
+    """Validate a plan (see :class:`Plan`): a scenario whose ``[truth]``, ``seed`` and tracker
+    position are optional; everything present is checked as in :func:`parse_scenario`."""
+    path = Path(path)
+    top = _document(text, path)
+    robot = _robot(top, path)
+    seed = top.integer("seed", lo=0) if top.has("seed") else 0
+    n_joints = None
+    if top.has("truth"):
+        n_joints = len(_truth(top)[0])
+    tr = top.sub("tracker")
+    placed = tr.has("position")
+    if not placed and tr.has("yaw"):
+        raise tr.fail("yaw", "a tracker position with the yaw (without a position, `calbench "
+                      "import` registers the whole tracker pose)")
+    if not placed:
+        tr = _Checker(path, {**tr.table, "position": [0.0, 0.0, 0.0]}, tr.prefix)
+    return Plan(path=path, text=text, robot=robot, seed=seed, tracker=_tracker(tr),
+                tracker_placed=placed, **_campaign(top, path, n_joints))
+
+
+def load_plan(path: str | Path) -> Plan:
+    """Read and validate the plan file at ``path`` (see :func:`parse_plan`)."""
+    path = Path(path)
+    return parse_plan(_read(path, "plan"), path)
+
+
+def load_scenario(path: str | Path, seed: int | None = None) -> Scenario:
+    """Read and validate the scenario file at ``path``; ``seed`` overrides the file's seed."""
+    path = Path(path)
+    return parse_scenario(_read(path, "scenario"), path, seed)
+
+
+def _read(path: Path, what: str) -> str:
+    try:
+        return path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(path, "(file)", f"a readable UTF-8 {what} file", str(exc)) from None
+
+
+def scenario_variant(src: str | Path, out: str | Path, *, name: str | None = None, seed: int | None = None,
+                     compensator: tuple[float, float] | None = None, extra: str = "") -> Path:
+    """Write a copy of scenario ``src`` at ``out`` with a few truths changed, keeping its comments.
+
+    The robot path is made absolute (the copy may live elsewhere); ``name``, ``seed`` and the
+    compensator's (stiffness, preload) replace the file's; ``extra`` is TOML inserted before
+    ``[tracker]``, e.g. a hidden ``[truth.effects.*]`` table. The result is validated.
+    """
+    src, out = Path(src), Path(out)
+    text = src.read_text(encoding="utf-8")
+    robot = (src.parent / tomllib.loads(text)["robot"]).resolve()
+
+    def sub(pattern: str, value: str, flags: int = re.MULTILINE) -> None:
+        nonlocal text
+        text, n = re.subn(pattern, lambda m: m.group(1) + value, text, count=1, flags=flags)
+        if n != 1:
+            raise ValueError(f"{src}: cannot set {pattern!r}")
+
+    sub(r'^(robot\s*=\s*)"[^"]*"', f'"{robot.as_posix()}"')
+    if name is not None:
+        sub(r'^(name\s*=\s*)"[^"]*"', f'"{name}"')
+    if seed is not None:
+        sub(r"^(seed\s*=\s*)\d+", str(int(seed)))
+    if compensator is not None:
+        # within [truth.compensator]: up to the next line that opens a table
+        for key, value in zip(("stiffness", "preload"), compensator):
+            sub(rf"(^\[truth\.compensator\](?:(?!^\[).)*?^{key}\s*=\s*)\S+", repr(float(value)),
+                re.MULTILINE | re.DOTALL)
+    if extra:
+        sub(r"^()(?=\[tracker\])", extra.strip() + "\n\n")
+    parse_scenario(text, out)  # raises InputError on a bad variant, before writing it
+    out.write_text(text, encoding="utf-8")
+    return out
+
+
+def scenario_params(scn: Scenario, n_joints: int, compensators: tuple[str, ...]) -> Params:
+    """The truth as Params for a robot with ``n_joints`` actuated joints and the named
+    compensator tendons (its calbench:actuated and calbench:compensators); InputError naming
+    the key that does not fit the robot."""
+    if len(scn.compliance) != n_joints:
+        raise InputError(scn.path, "truth.compliance", f"an array of {n_joints} numbers (one per actuated "
+                         f"joint of {scn.robot.name})", f"{len(scn.compliance)} elements")
+    def key(t: str) -> str:
+        return f"truth.{LEGACY_COMPENSATOR}" if t == LEGACY_COMPENSATOR else f"truth.compensators.{t}"
+    for t in compensators:
+        if t not in scn.compensators:
+            raise InputError(scn.path, key(t), f"this table (stiffness, preload): {scn.robot.name} has the "
+                             f"compensator tendon {t!r}")
+    for t in scn.compensators:
+        if t not in compensators:
+            raise InputError(scn.path, key(t), "a compensator tendon of the robot (calbench:compensators: "
+                             + (", ".join(compensators) or "none") + ")", t)
+    return Params(np.asarray(scn.compliance, dtype=float), {t: scn.compensators[t] for t in compensators})
+
+
+def check_joint_limits(scn: Scenario, limits: np.ndarray) -> None:
+    """Reject poses (and the work pose) outside the robot's joint ``limits`` ((N, 2) rad)."""
+    limits = np.asarray(limits, dtype=float)
+    n = len(limits)
+    if limits.shape != (n, 2):
+        raise ValueError(f"limits must have shape (N, 2), got {limits.shape}")
+    named = [(f"pose[{i}].q", p.q) for i, p in enumerate(scn.poses)]
+    if scn.work is not None:
+        named.append(("work.q", scn.work.q))
+    for key, q in named:
+        if len(q) != n:
+            raise InputError(scn.path, key, f"an array of {n} numbers (one per actuated joint of "
+                             f"{scn.robot.name})", f"{len(q)} elements")
+        for j in range(n):
+            lo, hi = limits[j]
+            if not lo - JOINT_LIMIT_TOL <= q[j] <= hi + JOINT_LIMIT_TOL:
+                raise InputError(
+                    scn.path, f"{key}[{j}]",
+                    f"joint {j + 1} within [{math.degrees(lo):.3f}, {math.degrees(hi):.3f}] "
+                    "degrees", round(math.degrees(q[j]), 6))
+
+
+# --------------------------------------------------------------------------- writing
+
+def scenario_as_dict(scn: Scenario, relative_to: str | Path) -> dict:
+    """The scenario in file units (degrees), with ``robot`` relative to directory ``relative_to``.
+
+    Feed it, possibly edited (e.g. new poses), to :func:`scenario_to_toml` to write a plan.
+    Angles are rounded to 1e-10 degree (< 2e-12 rad) so the file reads 30.0, not 29.999...
+    """
+    def deg(q: np.ndarray) -> list[float]:
+        return np.round(np.degrees(q), 10).tolist()
+
+    tr = scn.tracker
+    header = {k: v for k, v in tomllib.loads(scn.text).items()
+              if k in ("name", "description", "start_time")}
+    doc: dict[str, Any] = {
+        **header,
+        "robot": Path(os.path.relpath(scn.robot, Path(relative_to).resolve())).as_posix(),
+        "seed": scn.seed,
+        "truth": Params(scn.compliance, scn.compensators).as_dict(),
+        "tracker": {"sigma": tr.sigma, "position": tr.position.tolist(),
+                    "yaw": round(math.degrees(tr.yaw), 10), "model": tr.model,
+                    "distance": list(tr.distance), "transverse": list(tr.transverse),
+                    **({"random": tr.random, "correlation_angle": round(math.degrees(tr.correlation_angle), 10),
+                        "correlation_range": tr.correlation_range, "drift": list(tr.drift)}
+                       if tr.model == "iso10360" else {})},
+        "load": {"mass": scn.load_mass},
+    }
+    if scn.effects:
+        doc["truth"]["effects"] = {
+            name: {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in e.items()}
+            for name, e in scn.effects.items()}
+    if scn.work is not None:
+        doc["work"] = {"q": deg(scn.work.q), "wrench": scn.work.wrench.tolist()}
+    poses = []
+    for p in scn.poses:
+        entry: dict[str, Any] = {"q": deg(p.q)}
+        if p.wrench is not None:
+            entry["wrench"] = p.wrench.tolist()
+        entry["repeats"] = p.repeats
+        poses.append(entry)
+    doc["pose"] = poses
+    return doc
+
+
+_BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
+
+
+def _toml_key(key: str) -> str:
+    return key if _BARE_KEY.match(key) else _toml_string(key)
+
+
+def _toml_string(s: str) -> str:
+    """A TOML basic string; control characters and DEL are escaped as TOML requires."""
+    out = ['"']
+    for ch in s:
+        if ch == '"':
+            out.append('\\"')
+        elif ch == "\\":
+            out.append("\\\\")
+        elif ch == "\n":
+            out.append("\\n")
+        elif ch == "\t":
+            out.append("\\t")
+        elif ord(ch) < 0x20 or ord(ch) == 0x7F:
+            out.append(f"\\u{ord(ch):04X}")
+        else:
+            out.append(ch)
+    out.append('"')
+    return "".join(out)
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, np.ndarray):
+        v = v.tolist()
+    if isinstance(v, np.generic):
+        v = v.item()
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if not math.isfinite(v):
+            raise ValueError(f"cannot write non-finite number {v} to a scenario")
+        return repr(v)                          # shortest text that reads back bit-exact
+    if isinstance(v, str):
+        return _toml_string(v)
+    if isinstance(v, (datetime, date)):
+        return v.isoformat()                    # a TOML date-time literal
+    if isinstance(v, Path):
+        return _toml_string(v.as_posix())
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def _is_table_array(v: Any) -> bool:
+    return isinstance(v, (list, tuple)) and len(v) > 0 and all(isinstance(x, dict) for x in v)
+
+
+def _emit(table: dict, path: list[str], lines: list[str]) -> None:
+    """Write scalars first, then sub-tables, then arrays of tables (TOML ordering rules)."""
+    scalars = [(k, v) for k, v in table.items()
+               if v is not None and not isinstance(v, dict) and not _is_table_array(v)]
+    for k, v in scalars:
+        lines.append(f"{_toml_key(k)} = {_toml_value(v)}")
+    for k, v in table.items():
+        if isinstance(v, dict):
+            sub = path + [_toml_key(k)]
+            has_scalars = any(not isinstance(x, dict) and not _is_table_array(x)
+                              for x in v.values())
+            if has_scalars or not v:
+                lines.extend(["", f"[{'.'.join(sub)}]"])
+            _emit(v, sub, lines)
+    for k, v in table.items():
+        if _is_table_array(v):
+            sub = path + [_toml_key(k)]
+            for entry in v:
+                lines.extend(["", f"[[{'.'.join(sub)}]]"])
+                _emit(entry, sub, lines)
+
+
+def scenario_to_toml(scn_like: dict) -> str:
+    """Write a scenario TOML from a plain dict keyed as in docs/contract.md (file units, degrees).
+
+    ``None`` values are omitted. The result is meant to be read back by :func:`parse_scenario`.
+    """
+    if not isinstance(scn_like, dict):
+        raise TypeError("scenario_to_toml expects a dict")
+    lines: list[str] = []
+    _emit(scn_like, [], lines)
+    return "\n".join(lines).lstrip("\n") + "\n"

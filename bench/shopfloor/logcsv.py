@@ -1,0 +1,233 @@
+"""Campaign logs from and to the readings CSV: `calbench import` (once the tracker's pose is
+known) and `calbench export`.
+
+The log is an ordinary calbench log without truth, written by the same
+:class:`bench.logformat.LogWriter` as a simulated campaign: the plan's text and the MJCF travel
+in it, each measured pose gets its two commands, its load (the plan's wrench, or its payload
+mass at the payload site) and one ``/tracker/measurement`` per reading, grouped from the CSV rows
+(bench/shopfloor/readings.py: the k-th row of each reflector is reading k). ``/campaign/info`` carries the
+tracker's pose (from the plan, or registered: identify/shopfloor/importer.py) and an ``imported`` record:
+the file, its units and rows, and the registration.
+
+A reading's covariance is its ``sigma`` column (sigma^2 I) when given, else the plan's tracker
+noise model at the reading's position (:func:`bench.tracker.noise_covariance`).
+
+Poses are written in the order they were measured: plan order, or, when the CSV has times, the
+order of their first readings. With times, a pose's readings must form one stretch of time, its
+unloaded readings before its loaded ones (how a campaign runs; it also keeps the deflections of
+different poses independent for a drifting tracker): an InputError names the first row that
+breaks this.
+
+Times. A reading is stamped with its own time when the CSV has a time column (ISO 8601 as it
+is, seconds counted from the plan's ``start_time``), and each pose's command, load and end a
+few milliseconds around its readings; without times the log's campaign clock stamps them
+(bench/scenario/timeline.py), the same schedule the readings are given here (bench.measuring.schedule),
+so that a drifting tracker's covariance (bench/tracker/iso10360.py) sees the same timeline in the
+registration and in identification.
+
+Export (:func:`export_rows`) writes every visible reflector of every reading of a log's complete
+poses, in log order, in the tracker frame; ``time`` is the reading's log time; ``sigma`` is
+written when every reading's covariance is isotropic (sigma^2 I), which is then exactly what the
+import reads back; otherwise the plan's tracker model gives the covariances again on import.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+from calbench.bench.campaign.run import pose_load
+from calbench.bench.core.errors import InputError
+from calbench.bench.log.records import CampaignLog
+from calbench.bench.log.writer import LogHeader, LogWriter
+from calbench.bench.tracker.measuring import schedule
+from calbench.bench.scenario.timeline import NS
+from .readings import ReadingsTable, Row, group, iso8601
+from calbench.bench.model.robot import Robot
+from calbench.bench.scenario.parse import Plan, TrackerSpec
+from calbench.bench.tracker.instrument import noise_covariance
+
+STATES = ("unloaded", "loaded")
+TICK = 1_000_000          # ns: a pose's command, load and end stamped 1-3 ms around its readings
+
+
+@dataclass(frozen=True)
+class ImportedReading:
+    """One ``/tracker/measurement`` to write: the k-th reading of every reflector of a pose and
+    state (bench.readings.GroupedReading) with its covariances; it reads like a
+    :class:`bench.tracker.Measurement` (tracker frame, NaN rows where not seen)."""
+
+    repeat: int
+    position: np.ndarray        # (n, 3) m
+    covariance: np.ndarray      # (n, 3, 3) m^2
+    visible: np.ndarray         # (n,) bool
+    time: float                 # s: the table's (its kind), or the campaign clock's
+
+
+Readings = dict[tuple[int, str], list[ImportedReading]]
+
+
+@dataclass(frozen=True)
+class ImportSummary:
+    """What an import wrote."""
+
+    poses: list[int]                # poses written, in the order written
+    lost: list[int]                 # plan poses without a single reading
+    one_state: list[int]            # poses measured in one state only (no deflection)
+    rows: int
+    readings: int                   # /tracker/measurement messages
+
+
+def reading_covariance(tracker: TrackerSpec, position: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) covariance of one reading's rows (tracker frame): sigma^2 I where the row gave
+    a sigma, the tracker model's elsewhere; NaN for rows not seen."""
+    n = len(position)
+    cov = np.full((n, 3, 3), np.nan)
+    seen = np.all(np.isfinite(position), axis=1)
+    given = seen & np.isfinite(sigma)
+    model = seen & ~given
+    if given.any():
+        cov[given] = sigma[given, None, None] ** 2 * np.eye(3)
+    if model.any():
+        cov[model] = noise_covariance(tracker, position[model])
+    return cov
+
+
+def _time_as_written(table: ReadingsTable, t: float) -> str:
+    """A reading's time in the file's own kind (ISO 8601 or seconds), for messages."""
+    return iso8601(t) if table.absolute_time else f"{t:g} s"
+
+
+def measured_order(table: ReadingsTable) -> list[int]:
+    """Poses in the order they were measured (see the module docstring); InputError naming the
+    row whose time breaks a campaign's order."""
+    poses = table.poses()
+    if not table.has_time:
+        return poses
+    span: dict[int, tuple[float, float]] = {}
+    for p in poses:
+        rows = [r for r in table.readings if r.pose == p]
+        u = [r for r in rows if r.state == "unloaded"]
+        ld = [r for r in rows if r.state == "loaded"]
+        if u and ld:
+            last_u = max(u, key=lambda r: r.time)
+            first_l = min(ld, key=lambda r: r.time)
+            if first_l.time < last_u.time:
+                raise InputError(table.path, f"line {first_l.line}, column time",
+                                 f"the loaded readings of pose {p} after its unloaded ones (line "
+                                 f"{last_u.line} is unloaded and later)",
+                                 _time_as_written(table, first_l.time))
+        span[p] = (min(r.time for r in rows), max(r.time for r in rows))
+    order = sorted(poses, key=lambda p: span[p])
+    for a, b in zip(order, order[1:]):
+        if span[b][0] < span[a][1]:
+            first_b = min((r for r in table.readings if r.pose == b), key=lambda r: r.time)
+            raise InputError(table.path, f"line {first_b.line}, column time",
+                             f"pose {b}'s readings after every reading of pose {a} (a campaign "
+                             "measures one pose at a time)", _time_as_written(table, first_b.time))
+    return order
+
+
+def campaign_readings(table: ReadingsTable, names: list[str], tracker: TrackerSpec) -> Readings:
+    """The table's rows as log readings per (pose, state), reflectors in ``names`` order, with
+    their covariances (:func:`reading_covariance`); poses in measured order. Every reading has a
+    time: the table's, or, without a time column, the campaign clock's for these poses and
+    readings (bench.measuring.schedule, s since the first reading)."""
+    order = measured_order(table)
+    grouped = {(p, s): group(table.of(p, s), names) for p in order for s in STATES}
+    clock = None if table.has_time else schedule(
+        [(p, len(grouped[(p, "unloaded")]), len(grouped[(p, "loaded")])) for p in order], len(names))
+    return {(p, s): [ImportedReading(g.repeat, g.position,
+                                     reading_covariance(tracker, g.position, g.sigma), g.visible,
+                                     g.time if clock is None else clock[(p, s, g.repeat)])
+                     for g in gs]
+            for (p, s), gs in grouped.items()}
+
+
+def write_imported_log(plan: Plan, readings: Readings, tracker: TrackerSpec, model: Path,
+                       out: Path, imported: dict, rows: int, time_origin: int | None = None) -> ImportSummary:
+    """Write the log of ``readings`` (:func:`campaign_readings`, ``rows`` CSV rows) taken along
+    ``plan`` with the tracker at ``tracker``'s pose, the robot described by the MJCF ``model``;
+    ``imported`` goes into ``/campaign/info``. Everything is checked before the file exists.
+
+    Times (module docstring): with ``time_origin`` (ns since 1970 of the readings' time zero:
+    0 for ISO 8601 times, the plan's ``start_time`` for seconds) every reading is stamped at its
+    own time and each pose's command, load and end a millisecond around its readings (TICK);
+    without, the log's campaign clock stamps them (bench/scenario/timeline.py), which is the schedule the
+    readings were given (bench.measuring.schedule)."""
+    robot = Robot.from_file(model)
+    names = list(robot.reflector_names)
+    for i, pose in enumerate(plan.poses):
+        if len(pose.q) != robot.n_act:
+            raise InputError(plan.path, f"pose[{i}].q", f"an array of {robot.n_act} numbers (one per "
+                             f"actuated joint of {model.name})", f"{len(pose.q)} elements")
+    order = list(dict.fromkeys(p for p, _ in readings))
+    loads = {p: pose_load(robot, plan, plan.poses[p]) for p in order}
+
+    def at(t: float | None, shift: int = 0) -> int | None:
+        return None if time_origin is None or t is None else time_origin + int(round(t * NS)) + shift
+
+    first = [r.time for p in order for s in STATES for r in readings[(p, s)]]
+    start = plan.start_time
+    if time_origin is not None and first:
+        start = min(start, datetime.fromtimestamp((at(min(first)) - NS) / NS, tz=timezone.utc))
+    header = LogHeader(
+        scenario_name=plan.name, scenario_text=plan.text, scenario_filename=plan.path.name,
+        robot_filename=model.name, mjcf_text=model.read_text(encoding="utf-8"),
+        reflectors=names, payload_site=robot.model.site(robot.payload_site).name,
+        tracker=tracker.to_dict(), seed=int(plan.seed), n_poses=len(plan.poses),
+        imported=imported, n_joints=robot.n_act, start_time=start)
+    n_read = 0
+    with LogWriter(out, header) as log:
+        for p in order:
+            q = plan.poses[p].q
+            load, mass = loads[p]
+            site = robot.model.site(load.site).name
+            u, ld = readings[(p, "unloaded")], readings[(p, "loaded")]
+            log.pose(p, "unloaded", q, at=at((u or ld)[0].time, -3 * TICK))
+            for state, reads in (("unloaded", u), ("loaded", ld)):
+                if state == "loaded":
+                    t_load = ld[0].time if ld else None
+                    log.wrench(p, load.force, load.moment, site, mass,
+                               at=at(t_load, -2 * TICK) if ld else at(u[-1].time, TICK))
+                    log.pose(p, "loaded", q, at=at(t_load, -TICK) if ld else at(u[-1].time, 2 * TICK))
+                for g in reads:
+                    log.measurement(p, state, g.repeat, names, g.position, g.covariance, g.visible,
+                                    at=at(g.time))
+                    n_read += 1
+            log.pose_done(p, at=at((ld or u)[-1].time, 3 * TICK))
+    one = [p for p in order if not (readings[(p, "unloaded")] and readings[(p, "loaded")])]
+    lost = sorted(set(range(len(plan.poses))) - set(order))
+    return ImportSummary(order, lost, one, rows, n_read)
+
+
+def isotropic_sigma(cov: np.ndarray) -> float | None:
+    """sigma when ``cov`` (3, 3) is sigma^2 I to round-off, else None."""
+    s2 = float(np.trace(cov)) / 3
+    ok = s2 > 0 and np.allclose(cov, s2 * np.eye(3), rtol=0, atol=1e-9 * s2)
+    return float(np.sqrt(s2)) if ok else None
+
+
+def export_rows(log: CampaignLog) -> list[Row]:
+    """Every visible reflector of every reading of ``log``'s complete poses (see the module
+    docstring), in log order."""
+    rows: list[Row] = []
+    keep = set(log.complete_poses)
+    for m in log.measurements:
+        if m.pose not in keep:
+            continue
+        t = None if m.time is None else m.time / 1e9
+        for i, name in enumerate(m.reflectors):
+            if m.visible[i] and np.all(np.isfinite(m.position[i])):
+                rows.append(Row(m.pose, m.state, name, m.position[i].copy(), t,
+                                isotropic_sigma(m.covariance[i])))
+    if rows and any(r.sigma is None for r in rows):
+        rows = [Row(r.pose, r.state, r.point, r.position, r.time, None) for r in rows]
+    return rows
+
+
+__all__ = ["ImportedReading", "Readings", "ImportSummary", "reading_covariance", "measured_order",
+           "campaign_readings", "write_imported_log",
+           "export_rows", "isotropic_sigma"]

@@ -1,0 +1,1 @@
+"""calbench.bench.tracker: the laser tracker: frames, noise models, visibility, a campaign's readings."""

@@ -1,0 +1,159 @@
+"""What identification may know: the measured deflections and the known inputs of each pose.
+
+Paper eq. (2): only positions are measured, so the observation of pose j and reflector r is
+the deflection
+
+    dp_jr = mean(loaded readings of r) - mean(unloaded readings of r)     (world frame, m)
+
+The means are :func:`bench.tracker.mean_reading`'s, the viewer's too. Their covariance is
+bench.iso10360.deflection_covariance's, one block per pose over all its reflectors: for an
+isotropic or spec tracker Cov(mean loaded) + Cov(mean unloaded) per reflector (readings are
+independent, each used in exactly one dp); for the iso10360 tracker also the field and drift
+that the pose's readings share, which correlates its loaded and unloaded readings and its
+reflectors (the readings' times, from the log, give the drift). Poses are independent
+(identify/core/whitening.py). A reflector counts only when it is visible in both states of the pose.
+The known inputs are the commanded angles q, the applied wrench (force, moment, site) and the
+tracker pose from the log header.
+
+Nothing here reads a ``/truth/`` topic or the ``ground_truth`` record: :func:`from_log` takes a
+:class:`bench.logformat.CampaignLog`, and the caller reads it with ``include_truth=False``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from calbench.bench.core.errors import InputError
+from calbench.bench.log.writer import CampaignLog
+from calbench.bench.scenario.parse import TrackerSpec
+from calbench.bench.tracker.iso10360 import deflection_covariance
+from calbench.bench.tracker.instrument import mean_reading, tracker_rotation
+
+
+@dataclass(frozen=True)
+class PoseObservation:
+    """One complete pose: known inputs and the measured deflections of its reflectors."""
+
+    index: int                 # pose index in the plan
+    q: np.ndarray              # (N,) rad, commanded, one per actuated joint
+    force: np.ndarray          # (3,) N, world frame, applied in the loaded state
+    moment: np.ndarray         # (3,) N*m, world frame
+    site: str                  # MJCF site the wrench acts at
+    reflectors: tuple[str, ...]  # reflectors seen in both states (rows of dp)
+    dp: np.ndarray             # (n, 3) m, world frame
+    cov: np.ndarray            # (n, 3, 3) m^2, each reflector's own (the diagonal blocks)
+    cov_block: np.ndarray | None = None   # (n, 3, n, 3) m^2, all of the pose; None: no correlation
+
+    def block(self) -> np.ndarray:
+        """The pose's covariance as a (3n, 3n) matrix (rows: reflectors, then x y z)."""
+        n = len(self.reflectors)
+        if self.cov_block is not None:
+            return self.cov_block.reshape(3 * n, 3 * n)
+        out = np.zeros((n, 3, n, 3))
+        for i in range(n):
+            out[i, :, i, :] = self.cov[i]
+        return out.reshape(3 * n, 3 * n)
+
+    def subset(self, rows: Sequence[int]) -> "PoseObservation":
+        rows = list(rows)
+        block = None if self.cov_block is None else self.cov_block[np.ix_(rows, range(3), rows, range(3))]
+        return replace(self, reflectors=tuple(self.reflectors[i] for i in rows), dp=self.dp[rows],
+                       cov=self.cov[rows], cov_block=block)
+
+
+@dataclass
+class Observations:
+    """All usable observations of a campaign plus what was lost."""
+
+    poses: list[PoseObservation]
+    tracker: TrackerSpec
+    noise_sigma: float                     # the tracker's nominal per-axis sigma (m), for reports
+    n_planned: int
+    lost_poses: list[int] = field(default_factory=list)
+    truncated: bool = False
+    source: str = ""
+
+    # -- stacked views (row order: poses in order, reflectors in order) ---------------------
+    @property
+    def labels(self) -> list[tuple[int, str]]:
+        return [(p.index, r) for p in self.poses for r in p.reflectors]
+
+    @property
+    def dp(self) -> np.ndarray:
+        return np.concatenate([p.dp for p in self.poses]) if self.poses else np.zeros((0, 3))
+
+    @property
+    def cov(self) -> np.ndarray:
+        return np.concatenate([p.cov for p in self.poses]) if self.poses else np.zeros((0, 3, 3))
+
+    def n_obs(self) -> int:
+        return sum(len(p.reflectors) for p in self.poses)
+
+    def subset(self, keep: Iterable[tuple[int, str]]) -> "Observations":
+        """A copy holding only the (pose, reflector) rows in ``keep`` (e.g. outliers dropped)."""
+        keep = set(keep)
+        poses = []
+        for p in self.poses:
+            rows = [i for i, r in enumerate(p.reflectors) if (p.index, r) in keep]
+            if rows:
+                poses.append(p.subset(rows))
+        return Observations(poses, self.tracker, self.noise_sigma, self.n_planned,
+                            list(self.lost_poses), self.truncated, self.source)
+
+
+def pose_observation(index: int, q, force, moment, site: str, names: Sequence[str],
+                     unloaded: Sequence, loaded: Sequence, spec: TrackerSpec,
+                     times: tuple[Sequence[float], Sequence[float]] | None = None) -> PoseObservation:
+    """dp and its covariance for one pose from its readings in both states (eq. 2); the
+    readings' rows are in ``names`` order; ``times`` (s since the campaign's first reading, per
+    reading) are needed by the iso10360 tracker only."""
+    m0 = mean_reading(spec, unloaded)
+    m1 = mean_reading(spec, loaded)
+    rows = np.flatnonzero(m0.seen & m1.seen)
+    rot = tracker_rotation(spec)
+    block = np.einsum("ia,ranb,jb->rinj", rot, deflection_covariance(spec, unloaded, loaded, rows, times), rot)
+    n = len(rows)
+    return PoseObservation(
+        index=int(index), q=np.asarray(q, dtype=float), force=np.asarray(force, dtype=float),
+        moment=np.asarray(moment, dtype=float), site=str(site),
+        reflectors=tuple(names[i] for i in rows), dp=m1.position[rows] - m0.position[rows],
+        cov=block[np.arange(n), :, np.arange(n), :],
+        cov_block=block if spec.model == "iso10360" else None)
+
+
+def from_log(log: CampaignLog) -> Observations:
+    """Observations of every complete pose of a campaign log (read without truth).
+
+    The reader (bench/log/read.py, the only maker of a CampaignLog) already guarantees that a
+    complete pose has one command in both states, its load and one reflector list in all its
+    readings. Raises InputError when no pose has a reflector seen in both states.
+    """
+    path = log.path
+    spec = log.tracker_spec()
+    poses: list[PoseObservation] = []
+    timed = bool(log.measurements) and all(m.time is not None for m in log.measurements)
+    t0 = min(m.time for m in log.measurements) if timed else 0
+    for p in log.complete_poses:
+        q = log.poses[p].unloaded
+        u = log.readings(p, "unloaded")
+        ld = log.readings(p, "loaded")
+        if not u or not ld:
+            continue  # nothing measured: contributes nothing
+        names = u[0].reflectors
+        w = log.wrenches[p]
+        times = ([(r.time - t0) / 1e9 for r in u], [(r.time - t0) / 1e9 for r in ld]) if timed else None
+        ob = pose_observation(p, q, w.force, w.moment, w.site, names, u, ld, spec, times)
+        if len(ob.reflectors):
+            poses.append(ob)
+    if not poses:
+        raise InputError(path, "/tracker/measurement",
+                         "at least one complete pose with a reflector seen unloaded and loaded", "none")
+    n_planned = max(int(log.n_poses_planned), len(log.complete_poses))
+    lost = sorted(set(range(n_planned)) - set(log.complete_poses))
+    return Observations(poses, spec, float(spec.sigma), n_planned, lost, bool(log.truncated),
+                        str(path))
+
+
+__all__ = ["PoseObservation", "Observations", "from_log", "pose_observation"]

@@ -1,0 +1,1 @@
+"""calbench.identify.methods: the estimators: one-step, two-step, two-step iterated."""

@@ -1,0 +1,314 @@
+"""Where the independent pieces of `montecarlo`, `design` and `study` run: one interface, three places.
+
+* **in-process**: the pieces run one after the other in this process (no start-up cost);
+* **local cluster**: a Dask ``distributed.LocalCluster`` of one single-threaded worker process
+  per CPU, bound to 127.0.0.1 only (nothing listens on another interface; no dashboard, the
+  scheduler's HTTP routes on a free port);
+* **cluster**: the user's Dask scheduler (``--scheduler tcp://HOST:PORT`` or ``tls://…``,
+  else the standard ``DASK_SCHEDULER_ADDRESS`` / dask config ``scheduler-address``).
+
+The SAME task functions run in all three (module-level functions of the installed package;
+their arguments carry texts, never paths into a checkout: identify/runtime/portable.py), and every
+task is a pure function of its arguments, so the results do not depend on where they ran,
+on the worker count or on the order of completion (tests/test_cluster.py checks this bit for
+bit). No pool or scheduler of our own: Dask's ``Client.submit`` and ``as_completed``.
+
+Choice without an address: a local cluster pays a start-up and shut-down cost once (about
+4 s + 1 s here, ``LOCAL_STARTUP_S``/``LOCAL_SHUTDOWN_S``, measured in a fresh process by
+benchmarks/scaling_bench.py) and ~5 ms of scheduling per task (``TASK_OVERHEAD_S``); with W
+workers it wins when the in-process work T satisfies T > (startup + shutdown) * W / (W - 1) +
+tasks * overhead, the break-even of :func:`break_even_seconds` (~10 s for 2 workers). Callers pass an
+estimate of T (their own measured per-piece cost times the number of pieces); the choice and
+its reason are returned so the command line can say which executor it used.
+
+Security: Dask's wire protocol carries pickled code, so whoever reaches a scheduler runs code
+on its workers. The local cluster binds to 127.0.0.1; ``tls://`` addresses use Dask's own
+security configuration (``distributed.comm.tls.ca-file``, ``.client.cert``, ``.client.key``;
+docs/studies.md has a self-signed recipe). Never expose a plain ``tcp://`` scheduler beyond a
+trusted network.
+
+One BLAS thread per piece, everywhere (:func:`single_threaded`): each worker is a single-threaded
+process with a core of its own, and the pieces' dense algebra is small; OpenBLAS's default of
+one thread per CPU in EVERY worker oversubscribed the cores (2 workers x 2 BLAS threads on 2
+cores: each piece ran 1.7x slower, efficiency 0.59 on 2 workers; pinned: 0.89,
+benchmarks/scaling_bench.py side by side). In-process pieces run pinned too, so the numbers
+stay bit-identical whichever executor ran them.
+
+Ctrl-C (KeyboardInterrupt) while results are awaited cancels every task not yet finished
+(``Client.cancel``) before it propagates; what finished has already been handed to the caller,
+who keeps it (:class:`Interrupted` carries a partial result up to the command line).
+"""
+from __future__ import annotations
+
+import itertools
+import logging
+import os
+import uuid
+from collections import deque
+from dataclasses import dataclass
+from typing import Any, Callable, Iterable, Iterator, Sequence
+
+from calbench.bench.core.errors import InputError
+
+IN_PROCESS = "in-process"
+LOCAL = "local cluster"
+REMOTE = "cluster"
+SCHEMES = ("tcp://", "tls://")
+KEYWORDS = ("local", "in-process")
+
+# measured on the 2-core machine (benchmarks/scaling_bench.py: "local_cluster", fresh process)
+LOCAL_STARTUP_S = 4.0      # import distributed, LocalCluster + Client, first task importing calbench
+LOCAL_SHUTDOWN_S = 1.0     # Client.close + LocalCluster.close (nannies stop their workers)
+TASK_OVERHEAD_S = 5e-3     # scheduling per task and worker (1000 trivial tasks on 2 workers)
+CONNECT_TIMEOUT_S = 10.0   # how long to keep trying a --scheduler address
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C after some pieces finished: ``partial`` is the caller's result of those pieces."""
+
+    def __init__(self, partial: Any, done: int, total: int):
+        super().__init__(f"interrupted after {done} of {total}")
+        self.partial, self.done, self.total = partial, done, total
+
+
+@dataclass(frozen=True)
+class ExecutorChoice:
+    """Which executor, where, how many workers, and why (for the user)."""
+
+    kind: str                  # IN_PROCESS, LOCAL or REMOTE
+    address: str | None        # the scheduler's address (REMOTE)
+    workers: int               # worker processes (LOCAL; 1 in-process; REMOTE: known once open)
+    reason: str
+
+    def describe(self) -> str:
+        procs = f"{self.workers} worker process" + ("es" if self.workers != 1 else "")
+        where = {IN_PROCESS: "in this process", LOCAL: f"on a local Dask cluster of {procs} (127.0.0.1)",
+                 REMOTE: f"on the Dask cluster at {self.address}"}[self.kind]
+        return f"running {where}: {self.reason}"
+
+
+def machine_workers() -> int:
+    """The CPUs this process may use: the size of a local cluster."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
+def break_even_seconds(workers: int, tasks: int = 0) -> float:
+    """In-process work (s) above which a local cluster of ``workers`` processes finishes first."""
+    if workers < 2:
+        return float("inf")
+    return (LOCAL_STARTUP_S + LOCAL_SHUTDOWN_S) * workers / (workers - 1) + tasks * TASK_OVERHEAD_S
+
+
+def configured_address() -> str | None:
+    """``DASK_SCHEDULER_ADDRESS`` or the dask config's ``scheduler-address`` (None when unset)."""
+    import dask
+    addr = dask.config.get("scheduler-address", None)
+    return str(addr) if addr else None
+
+
+def choose(scheduler: str | None, work_seconds: float, tasks: int = 0,
+           workers: int | None = None) -> ExecutorChoice:
+    """The executor for a job of about ``work_seconds`` of in-process work in ``tasks`` pieces.
+
+    ``scheduler``: an address (tcp://, tls://), "local" (force a local cluster), "in-process",
+    or None (the configured address, else the measured break-even decides). ``workers``: size
+    of a local cluster (default: the machine's CPUs; 1 means in-process).
+    """
+    if scheduler is None:
+        addr = configured_address()
+        if addr:
+            scheduler = addr
+            origin = "DASK_SCHEDULER_ADDRESS / dask config scheduler-address"
+        else:
+            origin = None
+    else:
+        origin = "--scheduler"
+    n = machine_workers() if workers is None else int(workers)
+    if n < 1:
+        raise InputError("--workers", "workers", "an integer >= 1", workers)
+    if scheduler == "in-process":
+        return ExecutorChoice(IN_PROCESS, None, 1, "--scheduler in-process")
+    if scheduler == "local":
+        return ExecutorChoice(LOCAL, None, n, "--scheduler local")
+    if scheduler is not None:
+        if not scheduler.startswith(SCHEMES) or len(scheduler) <= 6:
+            raise InputError(origin, "scheduler", "tcp://HOST:PORT, tls://HOST:PORT, local or in-process",
+                             scheduler)
+        return ExecutorChoice(REMOTE, scheduler, 0, f"scheduler from {origin}")
+    tasks = max(int(tasks), 1)
+    if n < 2 or tasks < 2:
+        why = "one worker asked for" if n < 2 else "a single piece of work"
+        return ExecutorChoice(IN_PROCESS, None, 1, why)
+    be = break_even_seconds(n, tasks)
+    if work_seconds <= be:
+        return ExecutorChoice(IN_PROCESS, None, 1, f"about {work_seconds:.1f} s of work, below the "
+                              f"{be:.0f} s a local cluster of {n} needs to pay off")
+    return ExecutorChoice(LOCAL, None, n, f"about {work_seconds:.0f} s of work in {tasks} pieces, above the "
+                          f"{be:.0f} s break-even")
+
+
+# --------------------------------------------------------------------------- executors
+
+class Executor:
+    """Runs ``fn(*args)`` for many argument tuples; subclasses say where."""
+
+    choice: ExecutorChoice
+
+    @property
+    def workers(self) -> int:
+        return self.choice.workers
+
+    def run(self, fn: Callable, arglist: Sequence[tuple], shared: tuple = ()) -> Iterator[tuple[int, Any]]:
+        """(index, result) of ``fn(*shared, *args)`` for every args of ``arglist``, as each finishes
+        (any order). ``shared``: large arguments common to every call, sent to a cluster once."""
+        raise NotImplementedError
+
+    def ordered(self, fn: Callable, args: Iterable[tuple], window: int | None = None) -> Iterator[Any]:
+        """Results in the order of ``args``, at most ``window`` calls in flight; ``args`` is drawn
+        lazily, so a consumer that stops early (closing the iterator) costs no more pieces."""
+        raise NotImplementedError
+
+    def close(self) -> None:
+        pass
+
+    def __enter__(self) -> "Executor":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def single_threaded(fn: Callable, *args: Any) -> Any:
+    """Run one piece with at most one BLAS thread (see the module docstring)."""
+    from threadpoolctl import threadpool_limits
+    with threadpool_limits(limits=1, user_api="blas"):
+        return fn(*args)
+
+
+class InProcess(Executor):
+    """The pieces in this process, in order."""
+
+    def __init__(self, choice: ExecutorChoice | None = None):
+        self.choice = choice or ExecutorChoice(IN_PROCESS, None, 1, "in-process")
+
+    def run(self, fn, arglist, shared=()):
+        for i, a in enumerate(arglist):
+            yield i, single_threaded(fn, *shared, *a)
+
+    def ordered(self, fn, args, window=None):
+        for a in args:
+            yield single_threaded(fn, *a)
+
+
+def _calbench_version() -> str | None:
+    """Runs on each worker: the calbench version installed there."""
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        return version("calbench")
+    except PackageNotFoundError:
+        return None
+
+
+class DaskExecutor(Executor):
+    """The pieces as Dask tasks (a local cluster we own, or the user's scheduler)."""
+
+    def __init__(self, choice: ExecutorChoice, connect_timeout: float | None = None):
+        from distributed import Client, LocalCluster, Security
+        self.cluster = None
+        if choice.kind == LOCAL:
+            # dashboard_address=None turns the dashboard off, yet the scheduler still serves its
+            # HTTP routes (health, metrics) on Dask's default port 8787: pinned to a free port on
+            # 127.0.0.1 here, so a second cluster (another calbench run) does not warn that 8787
+            # is taken
+            self.cluster = LocalCluster(n_workers=choice.workers, threads_per_worker=1, processes=True,
+                                        host="127.0.0.1", scheduler_port=0, dashboard_address=None,
+                                        scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+                                        silence_logs=logging.ERROR)
+            self.client = Client(self.cluster)
+        else:
+            sec = Security()
+            if choice.address.startswith("tls://") and not (sec.tls_ca_file and sec.tls_client_cert):
+                raise InputError("--scheduler", "scheduler", "Dask's security configuration for a tls:// "
+                                 "address (distributed.comm.tls.ca-file, .client.cert, .client.key; e.g. "
+                                 "DASK_DISTRIBUTED__COMM__TLS__CA_FILE; see docs/studies.md)", choice.address)
+            try:
+                self.client = Client(choice.address, timeout=connect_timeout or CONNECT_TIMEOUT_S, security=sec)
+            except (OSError, TimeoutError, ValueError) as exc:
+                raise InputError("--scheduler", "scheduler", "a reachable Dask scheduler",
+                                 f"{choice.address}: {exc}") from None
+            self._check_workers()
+            n = len(self.client.scheduler_info().get("workers", {}))
+            choice = ExecutorChoice(REMOTE, choice.address, n, choice.reason)
+        self.choice = choice
+
+    def _check_workers(self) -> None:
+        """Every worker must have this calbench version installed (tasks are its functions)."""
+        mine = _calbench_version()
+        for addr, theirs in self.client.run(_calbench_version).items():
+            if theirs != mine:
+                self.close()
+                raise InputError("--scheduler", "workers", f"calbench {mine} installed on every worker "
+                                 "(pip install calbench there)", f"{addr}: {theirs or 'not installed'}")
+
+    def _submit(self, fn, args, tag: str, i: int):
+        return self.client.submit(single_threaded, fn, *args, key=f"calbench-{fn.__name__}-{tag}-{i}",
+                                  retries=0)
+
+    def _cancel(self, futures) -> None:
+        pending = [f for f in futures if not f.done()]
+        if pending:
+            self.client.cancel(pending)
+
+    def run(self, fn, arglist, shared=()):
+        from distributed import as_completed
+        tag = uuid.uuid4().hex[:12]
+        held = [self.client.scatter([x], hash=False)[0] for x in shared]   # each as one object
+        futures = [self._submit(fn, (*held, *a), tag, i) for i, a in enumerate(arglist)]
+        index = {f.key: i for i, f in enumerate(futures)}
+        try:
+            for fut in as_completed(futures):
+                res = fut.result()
+                fut.release()
+                yield index[fut.key], res
+        finally:                      # done, failed, interrupted or abandoned: nothing left running
+            self._cancel(futures)
+            self._cancel(held)
+
+    def ordered(self, fn, args, window=None):
+        window = window or 2 * max(self.workers, 1)
+        tag = uuid.uuid4().hex[:12]
+        it = iter(args)
+        counter = itertools.count()
+        inflight: deque = deque()
+        try:
+            for a in itertools.islice(it, window):
+                inflight.append(self._submit(fn, a, tag, next(counter)))
+            while inflight:
+                fut = inflight.popleft()
+                res = fut.result()
+                fut.release()
+                for a in itertools.islice(it, 1):
+                    inflight.append(self._submit(fn, a, tag, next(counter)))
+                yield res
+        finally:
+            self._cancel(list(inflight))
+
+    def close(self) -> None:
+        client, cluster = getattr(self, "client", None), getattr(self, "cluster", None)
+        self.client = self.cluster = None
+        if client is not None:
+            client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def open_executor(choice: ExecutorChoice) -> Executor:
+    """The executor the choice names (a Dask client connected, or a local cluster started)."""
+    return InProcess(choice) if choice.kind == IN_PROCESS else DaskExecutor(choice)
+
+
+__all__ = ["ExecutorChoice", "Executor", "InProcess", "DaskExecutor", "Interrupted", "choose", "open_executor",
+           "break_even_seconds", "machine_workers", "configured_address", "IN_PROCESS", "LOCAL", "REMOTE"]

@@ -1,0 +1,1 @@
+"""calbench.identify.shopfloor: real readings in: the import and the tracker's pose."""

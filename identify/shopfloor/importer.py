@@ -1,0 +1,97 @@
+"""`calbench import`: real tracker readings (CSV) along a plan become a calbench campaign log.
+
+Steps, each validated before any output exists:
+1. the plan (bench.scenario.load_plan: a scenario without ``[truth]``), the robot's MJCF (the
+   plan's, or ``--model``) and the readings (bench/shopfloor/readings.py: bad rows name line and column);
+2. the tracker's pose: the plan's ``[tracker] position``/``yaw`` when given, else registered
+   from the readings (identify/shopfloor/tracker_pose.py);
+3. the log (bench/shopfloor/logcsv.py), written atomically: an ordinary log without truth that
+   ``identify``, ``discover``, ``view`` and ``report`` read like a simulated one. Its
+   ``/campaign/info`` says it was imported, from which file (name and SHA-256), in which units,
+   and with which tracker pose (the plan's, or the registration with its residual and
+   uncertainty).
+"""
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from calbench.bench.core.errors import InputError
+from calbench.bench.shopfloor.logcsv import ImportSummary, campaign_readings, write_imported_log
+from calbench.bench.core.outputs import atomic_path
+from calbench.bench.shopfloor.readings import ReadingsTable, read_readings
+from calbench.bench.model.robot import Robot
+from calbench.bench.scenario.parse import Plan, TrackerSpec, check_joint_limits, load_plan
+from calbench.bench.scenario.timeline import start_ns
+
+from .tracker_pose import Registration, check_placed, register
+
+
+@dataclass
+class ImportResult:
+    """What ``calbench import`` did: the log's summary, where the tracker stood, warnings."""
+
+    out: Path
+    plan: Plan
+    table: ReadingsTable
+    tracker: TrackerSpec
+    summary: ImportSummary
+    imported: dict
+    registration: Registration | None = None
+    warnings: list[str] = field(default_factory=list)
+
+
+def load_robot(plan: Plan, model: Path | None) -> tuple[Robot, Path]:
+    """The robot the readings were taken on: ``model`` or the plan's MJCF (InputError when it
+    does not load), its poses checked against the joint limits."""
+    path = Path(model) if model is not None else plan.robot
+    key = "--model" if model is not None else "robot"
+    src = "--model" if model is not None else plan.path
+    if not path.is_file():
+        raise InputError(src, key, "an existing MJCF file", str(path))
+    try:
+        robot = Robot.from_file(path)
+    except ValueError as exc:
+        raise InputError(src, key, "a loadable MJCF robot", f"{path}: {exc}") from None
+    check_joint_limits(plan, robot.limits())
+    return robot, path
+
+
+def import_readings(csv_path: str | Path, plan_path: str | Path, out: str | Path, units: str = "mm",
+                    model: str | Path | None = None) -> ImportResult:
+    """Import ``csv_path`` taken along ``plan_path`` into the log ``out`` (module docstring)."""
+    csv_path, out = Path(csv_path), Path(out)
+    plan = load_plan(plan_path)
+    robot, model_path = load_robot(plan, None if model is None else Path(model))
+    try:
+        raw = csv_path.read_bytes()
+    except OSError as exc:
+        raise InputError(csv_path, "(file)", "a readable CSV file", exc.strerror) from None
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise InputError(csv_path, "(file)", "a UTF-8 CSV file", str(exc)) from None
+    names = list(robot.reflector_names)
+    table = read_readings(csv_path, len(plan.poses), names, units, text=text)
+    readings = campaign_readings(table, names, plan.tracker)
+    registration = None
+    if plan.tracker_placed:
+        tracker = plan.tracker
+        check_placed(plan, model_path, readings, table, tracker)
+    else:
+        registration = register(plan, model_path, readings, table, plan.tracker)
+        tracker = plan.tracker.placed(registration.fit.position, registration.fit.rotation)
+    imported = {"source": csv_path.name, "sha256": hashlib.sha256(raw).hexdigest(),
+                "units": units, "rows": len(table.readings),
+                "tracker_pose": "plan" if registration is None else "registered",
+                "registration": None if registration is None else registration.as_dict()}
+    origin = None if not table.has_time else 0 if table.absolute_time else start_ns(plan.start_time)
+    with atomic_path(out) as tmp:
+        summary = write_imported_log(plan, readings, tracker, model_path, tmp, imported,
+                                     len(table.readings), origin)
+    return ImportResult(out, plan, table, tracker, summary, imported, registration,
+                        [] if registration is None else list(registration.warnings))
+
+
+__all__ = ["ImportResult", "import_readings", "load_robot"]

@@ -1,0 +1,42 @@
+"""Predicted accuracy of a campaign: the Cramer-Rao bound of its parameters under its tracker.
+
+The bound is the inverse Fisher information (J^T Sigma^-1 J)^-1 at the scenario's true
+parameters on the exact model (identify/core/forward.py), Sigma the deflections' covariance under the
+scenario's tracker model, one block per pose (identify/core/whitening.py; for the iso10360 tracker
+the field and the drift on the campaign's timeline, bench/tracker/iso10360.py). It is what the one-step
+estimator's spread reaches (identify/study/montecarlo.py measures it), so it predicts a campaign's
+accuracy before anyone measures: the same plan under isotropic, spec and iso10360 noise
+(README, "Real measurements") differs only here.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from calbench.bench.campaign.run import plan_campaign, truth_robot
+from calbench.bench.model.robot import Robot
+from calbench.bench.scenario.parse import Scenario
+
+from calbench.identify.core.forward import ForwardModel, design_from_observations
+from .montecarlo import campaign_observations, true_theta
+from calbench.identify.core.whitening import Whitener
+
+
+def cramer_rao(scn: Scenario) -> tuple[np.ndarray, tuple[str, ...]]:
+    """(p, p) Cramer-Rao bound of theta (SI, the robot's parameter layout: k1..kN, then K_C and s0
+    per compensator) for the scenario's campaign, and the parameters' names."""
+    truth = truth_robot(scn)
+    obs = campaign_observations(scn, truth, plan_campaign(scn, truth), None)
+    robot = Robot.from_file(scn.robot)
+    theta = true_theta(scn, robot)
+    _, jac = ForwardModel(robot, design_from_observations(robot, obs)).evaluate(theta)
+    jw = Whitener.from_observations(obs).mat(jac) * theta           # scaled columns
+    return np.linalg.pinv(jw.T @ jw) * np.outer(theta, theta), tuple(robot.layout.names)
+
+
+def predicted_std(scn: Scenario) -> dict[str, float]:
+    """Per parameter name, the Cramer-Rao standard deviation (SI)."""
+    crb, names = cramer_rao(scn)
+    return {n: float(v) for n, v in zip(names, np.sqrt(np.diag(crb)))}
+
+
+__all__ = ["cramer_rao", "predicted_std"]
