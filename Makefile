@@ -26,6 +26,8 @@ demo: $(STAMP)
 	$(BIN)/calbench demo
 
 test: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
 	$(BIN)/python -m pytest
 
 bench: $(STAMP)

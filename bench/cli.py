@@ -5,6 +5,7 @@ The console script itself lives in identify/cli.py, which sits on top of both pa
 registers these; bench never imports identify. This module and identify/cli.py are the only
 ones that parse arguments or print: every library function they call returns its result.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -14,31 +15,45 @@ import sys
 from pathlib import Path
 
 from calbench.bench.campaign.run import run_campaign
-from calbench.bench.robots.check import DEFAULT_MASS, check_robot
-from calbench.bench.log.idreport import IdentificationReport
+from calbench.bench.core.outputs import atomic_path, check_outputs, write_text
 from calbench.bench.core.progress import Progress
-from calbench.bench.scenario.parse import load_scenario
-from calbench.bench.view.recording import (DEFAULT_MAGNIFY, Summary, build_blueprint, default_rrd_path, has_display,
-                   log_view, plan_view, recording_stream, write_recording)
+from calbench.bench.log.idreport import IdentificationReport
 from calbench.bench.log.read import read_log
 from calbench.bench.log.recover import recover_log
-from calbench.bench.core.outputs import atomic_path, check_outputs, write_text
+from calbench.bench.robots.check import DEFAULT_MASS, check_robot
+from calbench.bench.scenario.parse import load_scenario
 from calbench.bench.scenario.timeline import MAX_LOG_BYTES, MAX_SECONDS, duration, size
-
+from calbench.bench.view.recording import (
+    DEFAULT_MAGNIFY,
+    Summary,
+    build_blueprint,
+    default_rrd_path,
+    has_display,
+    log_view,
+    plan_view,
+    recording_stream,
+    write_recording,
+)
 
 # --------------------------------------------------------------------------- simulate
 
+
 def add_simulate(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("simulate", help="run a calibration campaign and write one MCAP log",
-                       description="Run a calibration campaign and write one MCAP log. Ctrl-C "
-                       "(or SIGTERM) finishes the log with the poses done so far.")
+    p = sub.add_parser(
+        "simulate",
+        help="run a calibration campaign and write one MCAP log",
+        description="Run a calibration campaign and write one MCAP log. Ctrl-C "
+        "(or SIGTERM) finishes the log with the poses done so far.",
+    )
     p.add_argument("scenario", type=Path, help="scenario TOML file")
     p.add_argument("--out", type=Path, required=True, help="output MCAP log (required)")
-    p.add_argument("--seed", type=int, default=None,
-                   help="noise seed (default: the scenario's `seed`)")
-    p.add_argument("--force", action="store_true",
-                   help=f"run a campaign estimated to take more than {duration(MAX_SECONDS)} or "
-                        f"{size(MAX_LOG_BYTES)} of log (default: refuse it)")
+    p.add_argument("--seed", type=int, default=None, help="noise seed (default: the scenario's `seed`)")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help=f"run a campaign estimated to take more than {duration(MAX_SECONDS)} or "
+        f"{size(MAX_LOG_BYTES)} of log (default: refuse it)",
+    )
     p.set_defaults(func=cmd_simulate)
 
 
@@ -46,11 +61,13 @@ def add_simulate(sub: argparse._SubParsersAction) -> None:
 def _sigterm_as_interrupt():
     """SIGTERM (``kill PID``) ends the campaign like Ctrl-C: the log is finished properly.
     (SIGKILL cannot be caught: `calbench recover` mends what it leaves.)"""
+
     def handler(signum, frame):
         raise KeyboardInterrupt
+
     try:
         old = signal.signal(signal.SIGTERM, handler)
-    except ValueError:           # not the main thread (a notebook worker): leave it alone
+    except ValueError:  # not the main thread (a notebook worker): leave it alone
         yield
         return
     try:
@@ -78,48 +95,75 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         bar.close()
         if _stamp(args.out) == before:
-            print(f"calbench simulate: interrupted before the log was started; {args.out} "
-                  "untouched", file=sys.stderr)
+            print(
+                f"calbench simulate: interrupted before the log was started; {args.out} untouched",
+                file=sys.stderr,
+            )
             return 130
         log = read_log(args.out)
-        print(f"calbench simulate: interrupted: {args.out} is a finished MCAP log with "
-              f"{len(log.complete_poses)} of {log.n_poses_planned} poses", file=sys.stderr)
+        print(
+            f"calbench simulate: interrupted: {args.out} is a finished MCAP log with "
+            f"{len(log.complete_poses)} of {log.n_poses_planned} poses",
+            file=sys.stderr,
+        )
         return 130
     bar.close()
     n_meas = sum(p.visible.sum() for p in plans)
-    print(f"wrote {args.out}: {len(plans)} poses, unloaded and loaded, {n_meas} reflector sightings "
-          f"(tracker sigma {scn.tracker.sigma * 1e6:.0f} um, seed {scn.seed})")
+    print(
+        f"wrote {args.out}: {len(plans)} poses, unloaded and loaded, {n_meas} reflector sightings "
+        f"(tracker sigma {scn.tracker.sigma * 1e6:.0f} um, seed {scn.seed})"
+    )
     return 0
 
 
 # --------------------------------------------------------------------------- view
 
+
 def add_view(sub: argparse._SubParsersAction) -> None:
     from .view import recording as view
-    p = sub.add_parser("view", help="Rerun recording of a campaign (and its identification)",
-                       description=view.__doc__.split("\n\n")[0])
+
+    p = sub.add_parser(
+        "view",
+        help="Rerun recording of a campaign (and its identification)",
+        description=view.__doc__.split("\n\n")[0],
+    )
     p.add_argument("log", type=Path, help="campaign MCAP log")
-    p.add_argument("--rrd", type=Path, default=None,
-                   help="write the recording to this .rrd file instead of spawning the viewer "
-                        "(default without a display: LOG.rrd beside the log)")
-    p.add_argument("--identified", type=Path, default=None,
-                   help="JSON report of `calbench identify --json` (the parameters by name, the "
-                        "model's deformation; predicted deflections and residuals when it "
-                        "carries them; default: none)")
-    p.add_argument("--magnify", type=float, default=DEFAULT_MAGNIFY,
-                   help="magnification of the deformation and the deflection arrows (default: "
-                        "%(default)g; residuals 10 times more; stated in the 3D view's title)")
+    p.add_argument(
+        "--rrd",
+        type=Path,
+        default=None,
+        help="write the recording to this .rrd file instead of spawning the viewer "
+        "(default without a display: LOG.rrd beside the log)",
+    )
+    p.add_argument(
+        "--identified",
+        type=Path,
+        default=None,
+        help="JSON report of `calbench identify --json` (the parameters by name, the "
+        "model's deformation; predicted deflections and residuals when it "
+        "carries them; default: none)",
+    )
+    p.add_argument(
+        "--magnify",
+        type=float,
+        default=DEFAULT_MAGNIFY,
+        help="magnification of the deformation and the deflection arrows (default: "
+        "%(default)g; residuals 10 times more; stated in the 3D view's title)",
+    )
     p.set_defaults(func=cmd_view)
 
 
 def _view_summary(s: Summary, magnify: float) -> str:
-    return (f"{s.poses} poses, {s.arrows} deflection arrows (x{magnify:g})"
-            + (f", {s.predicted} predicted" if s.predicted else "")
-            + f"; deformation ghost from {s.ghost}")
+    return (
+        f"{s.poses} poses, {s.arrows} deflection arrows (x{magnify:g})"
+        + (f", {s.predicted} predicted" if s.predicted else "")
+        + f"; deformation ghost from {s.ghost}"
+    )
 
 
 def cmd_view(args: argparse.Namespace) -> int:
     from calbench.bench.view.recording import _check_magnify
+
     magnify = _check_magnify(args.magnify)
     inputs = {"LOG": args.log, "--identified": args.identified}
     if args.rrd is not None:
@@ -133,8 +177,7 @@ def cmd_view(args: argparse.Namespace) -> int:
         try:
             rec.spawn(default_blueprint=build_blueprint(plan))
         except Exception as e:  # noqa: BLE001  no viewer binary, cannot start: fall back to a file
-            print(f"calbench view: could not spawn the viewer ({e}); writing a file instead",
-                  file=sys.stderr)
+            print(f"calbench view: could not spawn the viewer ({e}); writing a file instead", file=sys.stderr)
             why = " (the viewer could not be spawned)"
         else:
             s = log_view(rec, plan)
@@ -157,24 +200,40 @@ def cmd_view(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------- check-robot
 
+
 def add_check_robot(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("check-robot", help="validate a robot's MJCF and its calbench description",
-                       description="Checks that ROBOT.xml names the elements calbench needs "
-                                   "(docs/contract.md, Robot description), that its loops close, its "
-                                   "reflectors are seen and its statics converge over a grid of poses.")
+    p = sub.add_parser(
+        "check-robot",
+        help="validate a robot's MJCF and its calbench description",
+        description="Checks that ROBOT.xml names the elements calbench needs "
+        "(docs/contract.md, Robot description), that its loops close, its "
+        "reflectors are seen and its statics converge over a grid of poses.",
+    )
     p.add_argument("robot", type=Path, help="robot MJCF")
-    p.add_argument("--tracker", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
-                   help="tracker position (m, world) for the line-of-sight check (default: 5 m from "
-                        "axis 1, 3 m up, 45 deg beside the payload)")
-    p.add_argument("--mass", type=float, default=DEFAULT_MASS,
-                   help="payload (kg) of the loaded grid (default: %(default)g)")
-    p.add_argument("--grid", type=int, default=3,
-                   help="values per joint of the grid of poses (default: %(default)s)")
+    p.add_argument(
+        "--tracker",
+        type=float,
+        nargs=3,
+        default=None,
+        metavar=("X", "Y", "Z"),
+        help="tracker position (m, world) for the line-of-sight check (default: 5 m from "
+        "axis 1, 3 m up, 45 deg beside the payload)",
+    )
+    p.add_argument(
+        "--mass",
+        type=float,
+        default=DEFAULT_MASS,
+        help="payload (kg) of the loaded grid (default: %(default)g)",
+    )
+    p.add_argument(
+        "--grid", type=int, default=3, help="values per joint of the grid of poses (default: %(default)s)"
+    )
     p.set_defaults(func=cmd_check_robot)
 
 
 def cmd_check_robot(args: argparse.Namespace) -> int:
     from calbench.bench.core.errors import InputError
+
     if args.grid < 1:
         raise InputError("--grid", "grid", "an integer >= 1", args.grid)
     if not args.mass > 0:
@@ -186,16 +245,25 @@ def cmd_check_robot(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------- export
 
+
 def add_export(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("export", help="the tracker readings of a log as CSV (the form `calbench import` reads)")
+    p = sub.add_parser(
+        "export", help="the tracker readings of a log as CSV (the form `calbench import` reads)"
+    )
     p.add_argument("log", type=Path, help="campaign MCAP log (simulated or imported)")
-    p.add_argument("--csv", type=Path, required=True, help="output CSV: pose,state,point,x,y,z,time[,sigma] (mm; required)")
+    p.add_argument(
+        "--csv",
+        type=Path,
+        required=True,
+        help="output CSV: pose,state,point,x,y,z,time[,sigma] (mm; required)",
+    )
     p.set_defaults(func=cmd_export)
 
 
 def cmd_export(args: argparse.Namespace) -> int:
     from calbench.bench.shopfloor.logcsv import export_rows
     from calbench.bench.shopfloor.readings import readings_csv
+
     check_outputs({"--csv": args.csv}, {"LOG": args.log})
     log = read_log(args.log)
     rows = export_rows(log)
@@ -208,12 +276,16 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------- from-urdf
 
+
 def add_from_urdf(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("from-urdf", help="a calbench MJCF from a URDF and an overlay (TOML)",
-                       description="Build the calbench MJCF of a robot from its URDF (links, joints, "
-                                   "inertials, geometry) and an overlay naming what a URDF cannot say: "
-                                   "the actuated joints, reflectors, payload, compensators and loops "
-                                   "(docs/contract.md, 'From a URDF').")
+    p = sub.add_parser(
+        "from-urdf",
+        help="a calbench MJCF from a URDF and an overlay (TOML)",
+        description="Build the calbench MJCF of a robot from its URDF (links, joints, "
+        "inertials, geometry) and an overlay naming what a URDF cannot say: "
+        "the actuated joints, reflectors, payload, compensators and loops "
+        "(docs/contract.md, 'From a URDF').",
+    )
     p.add_argument("urdf", type=Path, help="the robot's URDF (run xacro first if it is a .xacro)")
     p.add_argument("--overlay", type=Path, required=True, help="overlay TOML (required)")
     p.add_argument("--out", type=Path, required=True, help="output MJCF (required)")
@@ -221,31 +293,38 @@ def add_from_urdf(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_from_urdf(args: argparse.Namespace) -> int:
-    from calbench.bench.robots.urdf import PLACEHOLDER_STIFFNESS, convert
     from calbench.bench.robots.overlay import load_overlay
+    from calbench.bench.robots.urdf import PLACEHOLDER_STIFFNESS, convert
+
     check_outputs({"--out": args.out}, {"URDF": args.urdf, "--overlay": args.overlay})
     conv = convert(args.urdf, load_overlay(args.overlay))
     write_text(args.out, conv.xml)
     for w in conv.warnings:
         print(f"calbench from-urdf: warning: {w}", file=sys.stderr)
-    print(f"wrote {args.out}: {len(conv.actuated)} actuated joints ({' '.join(conv.actuated)})"
-          + (f", passive {' '.join(conv.passive)}" if conv.passive else "")
-          + f"; moving mass {conv.moving_mass:.1f} kg from the URDF's inertials; {conv.geoms} geoms"
-          + (f" ({conv.meshes} meshes inline)" if conv.meshes else "")
-          + f"; joint stiffness placeholders {PLACEHOLDER_STIFFNESS:g} N*m/rad (a scenario's [truth] "
-          "replaces them)")
+    print(
+        f"wrote {args.out}: {len(conv.actuated)} actuated joints ({' '.join(conv.actuated)})"
+        + (f", passive {' '.join(conv.passive)}" if conv.passive else "")
+        + f"; moving mass {conv.moving_mass:.1f} kg from the URDF's inertials; {conv.geoms} geoms"
+        + (f" ({conv.meshes} meshes inline)" if conv.meshes else "")
+        + f"; joint stiffness placeholders {PLACEHOLDER_STIFFNESS:g} N*m/rad (a scenario's [truth] "
+        "replaces them)"
+    )
     print(f"check it with: calbench check-robot {args.out}")
     return 0
 
 
 # --------------------------------------------------------------------------- recover
 
+
 def add_recover(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("recover", help="rewrite a cut-short or damaged log as a valid MCAP file",
-                       description="Rewrite a campaign log that was cut short (a campaign killed "
-                       "with SIGKILL, a crash) or damaged as a valid MCAP file with its summary "
-                       "and footer, which every MCAP reader opens. Complete, intact poses are "
-                       "kept; the others are named, and the new log reports them as lost.")
+    p = sub.add_parser(
+        "recover",
+        help="rewrite a cut-short or damaged log as a valid MCAP file",
+        description="Rewrite a campaign log that was cut short (a campaign killed "
+        "with SIGKILL, a crash) or damaged as a valid MCAP file with its summary "
+        "and footer, which every MCAP reader opens. Complete, intact poses are "
+        "kept; the others are named, and the new log reports them as lost.",
+    )
     p.add_argument("log", type=Path, help="the broken campaign MCAP log (read only)")
     p.add_argument("--out", type=Path, required=True, help="the recovered MCAP log (required)")
     p.set_defaults(func=cmd_recover)
@@ -261,6 +340,17 @@ def cmd_recover(args: argparse.Namespace) -> int:
     return 0
 
 
-__all__ = ["add_simulate", "cmd_simulate", "add_view", "cmd_view", "add_export", "cmd_export",
-           "add_check_robot", "cmd_check_robot", "add_from_urdf", "cmd_from_urdf",
-           "add_recover", "cmd_recover"]
+__all__ = [
+    "add_simulate",
+    "cmd_simulate",
+    "add_view",
+    "cmd_view",
+    "add_export",
+    "cmd_export",
+    "add_check_robot",
+    "cmd_check_robot",
+    "add_from_urdf",
+    "cmd_from_urdf",
+    "add_recover",
+    "cmd_recover",
+]

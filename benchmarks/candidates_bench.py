@@ -21,6 +21,7 @@ CPU seconds much less). Usage:
 
 (--quick: 1000 candidates, 100 one at a time, one repeat, no command run.)
 """
+
 from __future__ import annotations
 
 import argparse
@@ -35,8 +36,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from calbench.identify.design.candidates import generate_candidates, load_design_scenario
 from steps import say
+
+from calbench.identify.design.candidates import generate_candidates, load_design_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
@@ -63,31 +65,47 @@ def timed(fn) -> tuple[object, dict]:
 
 def scalar_profile(scn, st, n: int) -> dict:
     prof = cProfile.Profile()
-    cands, t = timed(lambda: prof.runcall(generate_candidates, scn, st, n=n, processes=1, progress=False,
-                                          batched=False))
+    cands, t = timed(
+        lambda: prof.runcall(generate_candidates, scn, st, n=n, processes=1, progress=False, batched=False)
+    )
     stats = pstats.Stats(prof).stats
     parts = {}
     for label, fn in SCALAR_PARTS.items():
-        parts[label] = sum(v[3] for k, v in stats.items()
-                           if k[2] == fn and ("/identify/" in k[0] or "/bench/" in k[0]))
+        parts[label] = sum(
+            v[3] for k, v in stats.items() if k[2] == fn and ("/identify/" in k[0] or "/bench/" in k[0])
+        )
     # check_command runs in screening and again inside pose(); _site_jac includes the tangents
-    return {"candidates": len(cands), **t, "per_candidate_ms": t["wall_s"] / len(cands) * 1e3,
-            "under_cprofile": True, "cumulative_s": parts,
-            "note": "cProfile inflates Python-heavy parts; shares, not absolute times"}
+    return {
+        "candidates": len(cands),
+        **t,
+        "per_candidate_ms": t["wall_s"] / len(cands) * 1e3,
+        "under_cprofile": True,
+        "cumulative_s": parts,
+        "note": "cProfile inflates Python-heavy parts; shares, not absolute times",
+    }
 
 
 def batched(scn, st, n: int, threads: int) -> dict:
     cands, t = timed(lambda: generate_candidates(scn, st, n=n, processes=threads, progress=False))
-    return {"candidates": len(cands), "threads": threads, **t,
-            "per_candidate_ms": t["wall_s"] / len(cands) * 1e3,
-            "per_candidate_cpu_ms": t["cpu_s"] / len(cands) * 1e3,
-            "raw_commands": cands.stats["raw_commands"], "phase_seconds": cands.stats["phase_seconds"]}
+    return {
+        "candidates": len(cands),
+        "threads": threads,
+        **t,
+        "per_candidate_ms": t["wall_s"] / len(cands) * 1e3,
+        "per_candidate_cpu_ms": t["cpu_s"] / len(cands) * 1e3,
+        "raw_commands": cands.stats["raw_commands"],
+        "phase_seconds": cands.stats["phase_seconds"],
+    }
 
 
 def scalar_plain(scn, st, n: int) -> dict:
     cands, t = timed(lambda: generate_candidates(scn, st, n=n, processes=1, progress=False, batched=False))
-    return {"candidates": len(cands), **t, "per_candidate_ms": t["wall_s"] / len(cands) * 1e3,
-            "per_candidate_cpu_ms": t["cpu_s"] / len(cands) * 1e3}
+    return {
+        "candidates": len(cands),
+        **t,
+        "per_candidate_ms": t["wall_s"] / len(cands) * 1e3,
+        "per_candidate_cpu_ms": t["cpu_s"] / len(cands) * 1e3,
+    }
 
 
 def cli_run(exe: str, n: int) -> dict:
@@ -95,18 +113,39 @@ def cli_run(exe: str, n: int) -> dict:
         js = Path(tmp) / "d.json"
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
         la, w = load(), time.perf_counter()
-        proc = subprocess.run([exe, "design", str(PAPER), "--configs", "12", "--criterion", "D",
-                               "--candidates", str(n), "--json", str(js)], capture_output=True, text=True)
+        proc = subprocess.run(
+            [
+                exe,
+                "design",
+                str(PAPER),
+                "--configs",
+                "12",
+                "--criterion",
+                "D",
+                "--candidates",
+                str(n),
+                "--json",
+                str(js),
+            ],
+            capture_output=True,
+            text=True,
+        )
         wall = time.perf_counter() - w
         after = resource.getrusage(resource.RUSAGE_CHILDREN)
         if proc.returncode != 0:
             return {"exe": exe, "error": proc.stderr[-2000:]}
         d = json.loads(js.read_text())
     cert = d.get("certificate", {})
-    return {"exe": exe, "load_average": la, "wall_s": wall,
-            "cpu_s": (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime),
-            "timings": d.get("timings"), "plan_logdet": cert.get("plan_logdet"),
-            "bound_logdet": cert.get("bound_logdet"), "efficiency": cert.get("efficiency")}
+    return {
+        "exe": exe,
+        "load_average": la,
+        "wall_s": wall,
+        "cpu_s": (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime),
+        "timings": d.get("timings"),
+        "plan_logdet": cert.get("plan_logdet"),
+        "bound_logdet": cert.get("bound_logdet"),
+        "efficiency": cert.get("efficiency"),
+    }
 
 
 def main() -> int:
@@ -116,16 +155,20 @@ def main() -> int:
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--baseline-cli", default=None, help="another calbench executable, run back to back")
     ap.add_argument("--no-cli", action="store_true", help="skip the end-to-end command (default: run it)")
-    ap.add_argument("--quick", action="store_true",
-                    help="1000 candidates, 100 one at a time, one repeat, no command run")
+    ap.add_argument(
+        "--quick", action="store_true", help="1000 candidates, 100 one at a time, one repeat, no command run"
+    )
     args = ap.parse_args()
     if args.quick:
         args.n, args.scalar, args.repeats, args.no_cli = 1000, 100, 1, True
     say("candidates_bench", f"profile of {args.scalar} candidates one at a time")
     scn, st = load_design_scenario(PAPER)
-    generate_candidates(scn, st, n=100, processes=1, progress=False)      # imports, first-call costs
-    out = {"machine_cpus": len(os.sched_getaffinity(0)), "scenario": str(PAPER.relative_to(ROOT)),
-           "scalar_profile": scalar_profile(scn, st, args.scalar)}
+    generate_candidates(scn, st, n=100, processes=1, progress=False)  # imports, first-call costs
+    out = {
+        "machine_cpus": len(os.sched_getaffinity(0)),
+        "scenario": str(PAPER.relative_to(ROOT)),
+        "scalar_profile": scalar_profile(scn, st, args.scalar),
+    }
     # side by side: scalar, batched 1 thread, batched 2 threads, alternating
     runs = {"scalar": [], "batched_1": [], "batched_2": []}
     for i in range(args.repeats):
@@ -136,12 +179,21 @@ def main() -> int:
     best = {k: min(v, key=lambda r: r["wall_s"]) for k, v in runs.items()}
     out["runs"] = runs
     out["per_candidate_ratio_scalar_over_batched"] = {
-        f"{k}_wall": best["scalar"]["per_candidate_ms"] / best[k]["per_candidate_ms"] for k in ("batched_1", "batched_2")}
-    out["per_candidate_ratio_scalar_over_batched"].update({
-        f"{k}_cpu": best["scalar"]["per_candidate_cpu_ms"] / best[k]["per_candidate_cpu_ms"]
-        for k in ("batched_1", "batched_2")})
-    out["target"] = {"candidates": 10000, "seconds": 5.0, "cores": 2,
-                     "best_wall_s_2_threads": best["batched_2"]["wall_s"] * 10000 / best["batched_2"]["candidates"]}
+        f"{k}_wall": best["scalar"]["per_candidate_ms"] / best[k]["per_candidate_ms"]
+        for k in ("batched_1", "batched_2")
+    }
+    out["per_candidate_ratio_scalar_over_batched"].update(
+        {
+            f"{k}_cpu": best["scalar"]["per_candidate_cpu_ms"] / best[k]["per_candidate_cpu_ms"]
+            for k in ("batched_1", "batched_2")
+        }
+    )
+    out["target"] = {
+        "candidates": 10000,
+        "seconds": 5.0,
+        "cores": 2,
+        "best_wall_s_2_threads": best["batched_2"]["wall_s"] * 10000 / best["batched_2"]["candidates"],
+    }
     if not args.no_cli:
         exe = str(Path(sys.executable).parent / "calbench")
         cli = {"this": [], "baseline": []}

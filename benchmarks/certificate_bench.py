@@ -16,6 +16,7 @@ On the paper scenario's candidates (scenarios/paper_table5.toml, blocks 9 x 8), 
 
 Without NPZ files the candidates are generated (2000 and 10^4; ~2 s of CPU for 10^4).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -27,13 +28,13 @@ import time
 from pathlib import Path
 
 import numpy as np
+from steps import say
 
 from calbench.identify.design.candidate_file import read_candidates
 from calbench.identify.design.candidates import generate_candidates, load_design_scenario
 from calbench.identify.design.certificate import ALGORITHMS, approximate_design
 from calbench.identify.design.exchange import Exchanger
 from calbench.identify.design.selection import select_rows
-from steps import say
 
 ROOT = Path(__file__).resolve().parent.parent
 M = 12
@@ -56,9 +57,14 @@ def blocks_sets(files: list[str], sizes=(2000, 10000)) -> list[tuple[str, np.nda
 def certified(blocks: np.ndarray, criterion: str, distinct: bool = False) -> dict:
     sel = select_rows(blocks, M, criterion, distinct=distinct)
     c = sel.certificate
-    out = {"plan": c.plan, "bound": c.bound, "efficiency": c.efficiency, **sel.seconds,
-           "approximate_design_iterations": [d.iterations for d in c.designs],
-           "support_points": [int(len(d.support())) for d in c.designs]}
+    out = {
+        "plan": c.plan,
+        "bound": c.bound,
+        "efficiency": c.efficiency,
+        **sel.seconds,
+        "approximate_design_iterations": [d.iterations for d in c.designs],
+        "support_points": [int(len(d.support())) for d in c.designs],
+    }
     if distinct:
         out["cost_vs_best_plan_with_repeats"] = sel.distinct_cost()["cost"]
     return out
@@ -70,14 +76,19 @@ def convergence(blocks: np.ndarray, criterion: str, start_rows) -> dict:
     out = {}
     for alg in ALGORITHMS:
         start = np.bincount(start_rows, minlength=len(blocks)) if alg == "fw-away" else None
-        d = approximate_design(blocks, criterion, algorithm=alg, start=start, tol=min(GAPS),
-                               max_iter=100000, max_seconds=60)
+        d = approximate_design(
+            blocks, criterion, algorithm=alg, start=start, tol=min(GAPS), max_iter=100000, max_seconds=60
+        )
         reach = {}
         for gap in GAPS:
             hit = [h for h in d.history if h[2] <= gap]
-            reach[f"{gap:g}"] = ({"iterations": hit[0][0], "seconds": hit[0][1]} if hit else None)
-        out[alg] = {"reached": reach, "final_gap": d.g_bound - 1, "iterations": d.iterations,
-                    "seconds": d.seconds}
+            reach[f"{gap:g}"] = {"iterations": hit[0][0], "seconds": hit[0][1]} if hit else None
+        out[alg] = {
+            "reached": reach,
+            "final_gap": d.g_bound - 1,
+            "iterations": d.iterations,
+            "seconds": d.seconds,
+        }
     return out
 
 
@@ -102,9 +113,12 @@ def threads(blocks: np.ndarray, repeats: int) -> dict:
                 p.kill()
                 p.wait()
         med = {k: float(np.median(v)) for k, v in runs.items()}
-        out[f"busy_loops_{n_busy}"] = {"median_s": med, "runs_s": runs,
-                                       "default_over_pinned": med["default"] / med["pinned_1"],
-                                       "loadavg_1min": os.getloadavg()[0]}
+        out[f"busy_loops_{n_busy}"] = {
+            "median_s": med,
+            "runs_s": runs,
+            "default_over_pinned": med["default"] / med["pinned_1"],
+            "loadavg_1min": os.getloadavg()[0],
+        }
     return out
 
 
@@ -118,9 +132,16 @@ def main() -> int:
     if args.quick:
         args.no_threads = True
     from threadpoolctl import threadpool_info
-    res = {"machine_cpus": os.cpu_count(), "loadavg_at_start": os.getloadavg(), "M": M,
-           "blas": [{k: i.get(k) for k in ("internal_api", "num_threads", "version")} for i in threadpool_info()],
-           "sets": {}}
+
+    res = {
+        "machine_cpus": os.cpu_count(),
+        "loadavg_at_start": os.getloadavg(),
+        "M": M,
+        "blas": [
+            {k: i.get(k) for k in ("internal_api", "num_threads", "version")} for i in threadpool_info()
+        ],
+        "sets": {},
+    }
     for name, blocks, t_gen in blocks_sets(args.npz, (2000,) if args.quick else (2000, 10000)):
         say("certificate_bench", f"{name}: certificates and convergence")
         r = {"N": len(blocks), "block_shape": list(blocks.shape[1:]), "candidates_s": t_gen}

@@ -12,6 +12,7 @@ Prints JSON.
     python benchmarks/discover_bench.py [--seeds 20] [--effects forearm,base,...] [--quick]
                                         [--scheduler ADDR] [--out RESULTS.parquet]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -29,11 +30,12 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 
+from steps import LineProgress, say
+
 from calbench.bench.campaign.run import plan_campaign, truth_robot
 from calbench.bench.scenario.parse import scenario_to_toml
 from calbench.identify.runtime.executor import choose, open_executor
 from calbench.identify.study import load_study, prepare, read_results, run_study
-from steps import LineProgress, say
 
 STUDY = ROOT / "studies" / "discovery_power.toml"
 
@@ -84,22 +86,41 @@ def flange_extra(study, with_cell, without_cell, site: str = "flange") -> float:
 
 def rows_of(table, cells) -> dict:
     want = {c.index for c in cells}
-    cols = {n: table.column(n).to_pylist() for n in ("cell", "named_first", "detected", "rms_before",
-                                                     "noise_rms_before", "rms_after", "noise_rms_after",
-                                                     "discover_s", "error")}
+    cols = {
+        n: table.column(n).to_pylist()
+        for n in (
+            "cell",
+            "named_first",
+            "detected",
+            "rms_before",
+            "noise_rms_before",
+            "rms_after",
+            "noise_rms_after",
+            "discover_s",
+            "error",
+        )
+    }
     idx = [i for i, c in enumerate(cols["cell"]) if c in want]
     return {k: [v[i] for i in idx] for k, v in cols.items()}
 
 
 def case_row(r: dict, magnitude: float) -> dict:
     n = len(r["cell"])
-    return {"magnitude": magnitude, "right": sum(bool(d) for d in r["detected"]) / n,
-            "named": dict(Counter(r["named_first"])),
-            "rms_before_over_noise_median": statistics.median(a / b for a, b in zip(r["rms_before"], r["noise_rms_before"])),
-            "rms_after_over_noise_median": statistics.median(a / b for a, b in zip(r["rms_after"], r["noise_rms_after"])),
-            "rms_after_over_noise_max": max(a / b for a, b in zip(r["rms_after"], r["noise_rms_after"])),
-            "seconds_median": statistics.median(r["discover_s"]), "seconds_max": max(r["discover_s"]),
-            "failed": sum(1 for e in r["error"] if e)}
+    return {
+        "magnitude": magnitude,
+        "right": sum(bool(d) for d in r["detected"]) / n,
+        "named": dict(Counter(r["named_first"])),
+        "rms_before_over_noise_median": statistics.median(
+            a / b for a, b in zip(r["rms_before"], r["noise_rms_before"])
+        ),
+        "rms_after_over_noise_median": statistics.median(
+            a / b for a, b in zip(r["rms_after"], r["noise_rms_after"])
+        ),
+        "rms_after_over_noise_max": max(a / b for a, b in zip(r["rms_after"], r["noise_rms_after"])),
+        "seconds_median": statistics.median(r["discover_s"]),
+        "seconds_max": max(r["discover_s"]),
+        "failed": sum(1 for e in r["error"] if e),
+    }
 
 
 def main() -> int:
@@ -108,13 +129,17 @@ def main() -> int:
     ap.add_argument("--effects", default=None, help="comma-separated case labels (default: all)")
     ap.add_argument("--quick", action="store_true", help="tested magnitude only, 4 seeds")
     ap.add_argument("--scheduler", default=None, help="as calbench study --scheduler")
-    ap.add_argument("--out", type=Path, default=None, help="keep the study's Parquet here (default: temporary)")
+    ap.add_argument(
+        "--out", type=Path, default=None, help="keep the study's Parquet here (default: temporary)"
+    )
     args = ap.parse_args()
     if args.seeds is None:
         args.seeds = 4 if args.quick else 20
     with tempfile.TemporaryDirectory() as tmp_:
         tmp = Path(tmp_)
-        study = load_study(study_file(tmp, args.seeds, args.effects.split(",") if args.effects else None, args.quick))
+        study = load_study(
+            study_file(tmp, args.seeds, args.effects.split(",") if args.effects else None, args.quick)
+        )
         out = args.out or tmp / "discovery_power.parquet"
         pending = prepare(study, out)
         t0 = time.perf_counter()
@@ -124,10 +149,19 @@ def main() -> int:
             outcome = run_study(pending, ex, progress=LineProgress("discover_bench", "campaigns"))
         total = time.perf_counter() - t0
         table, _ = read_results(out)
-        res: dict = {"plan": "scenarios/paper_table5.toml", "tracker_sigma_um": 20, "seeds": args.seeds,
-                     "study": "studies/discovery_power.toml", "executor": where, "total_seconds": total,
-                     "campaigns": outcome.total, "campaigns_run": outcome.ran, "failed": outcome.failed,
-                     "criterion": "right effect (and option) named first", "effects": {}}
+        res: dict = {
+            "plan": "scenarios/paper_table5.toml",
+            "tracker_sigma_um": 20,
+            "seeds": args.seeds,
+            "study": "studies/discovery_power.toml",
+            "executor": where,
+            "total_seconds": total,
+            "campaigns": outcome.total,
+            "campaigns_run": outcome.ran,
+            "failed": outcome.failed,
+            "criterion": "right effect (and option) named first",
+            "effects": {},
+        }
         effect_axis = next(a for a in study.axes if a.scales is None)
         scale_axis = next(a for a in study.axes if a.scales is not None)
         by = {(c.values[effect_axis.name], c.values[scale_axis.name]): c for c in study.cells}
@@ -135,21 +169,30 @@ def main() -> int:
         none = by[("none", top)]
         r = rows_of(table, [none])
         res["no_effect"] = case_row(r, 0.0)
-        res["no_effect"]["false_alarm_rate"] = 1.0 - res["no_effect"]["named"].get("nothing", 0) / len(r["cell"])
+        res["no_effect"]["false_alarm_rate"] = 1.0 - res["no_effect"]["named"].get("nothing", 0) / len(
+            r["cell"]
+        )
         for label, settings in zip(effect_axis.column, effect_axis.settings):
             if label == "none":
                 continue
             v0 = largest_float(list(settings.values()))
-            rows = [case_row(rows_of(table, [by[(label, f)]]), v0 * f)
-                    for f in sorted(scale_axis.column, reverse=True)]
+            rows = [
+                case_row(rows_of(table, [by[(label, f)]]), v0 * f)
+                for f in sorted(scale_axis.column, reverse=True)
+            ]
             good = [row["magnitude"] for row in rows if row["right"] >= 0.9]
             cell = by[(label, top)]
             hidden = "compensator" not in (cell.expected or "")
             res["effects"][label] = {
-                "expected": cell.expected, "tested_magnitude": v0,
+                "expected": cell.expected,
+                "tested_magnitude": v0,
                 "flange_extra_mm_median": flange_extra(study, cell, none) if hidden else None,
-                "payload_point_extra_mm_median": flange_extra(study, cell, none, "payload") if hidden else None,
-                "smallest_magnitude_named_in_90pct": min(good) if good else None, "rows": rows}
+                "payload_point_extra_mm_median": flange_extra(study, cell, none, "payload")
+                if hidden
+                else None,
+                "smallest_magnitude_named_in_90pct": min(good) if good else None,
+                "rows": rows,
+            }
             print(json.dumps({label: res["effects"][label]}), file=sys.stderr)
     print(json.dumps(res, indent=2))
     return 0

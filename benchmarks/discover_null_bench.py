@@ -28,6 +28,7 @@ The seeds run as pieces on calbench's executors (identify/runtime/executor.py, i
 own): in this process, on a local Dask cluster of ``--processes`` workers, or on the cluster at
 ``--scheduler`` (its workers need this checkout: the pieces read scenarios/paper_table5.toml).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -45,16 +46,18 @@ from calbench.identify.runtime.executor import choose, open_executor
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
 LEVELS = (0.01, 0.05, 0.10, 0.20)
-SEEDS_PER_TASK = 5          # ~5-10 s of discovery per piece
+SEEDS_PER_TASK = 5  # ~5-10 s of discovery per piece
 
 _STATE: dict = {}
 
 
 def _setup(model: str) -> None:
     """Per process: the solved campaign of the paper scenario with the tracker model."""
+    import tempfile
+
     from calbench.bench.campaign.run import plan_campaign, truth_robot
     from calbench.bench.scenario.parse import load_scenario, scenario_variant
-    import tempfile
+
     tmp = Path(tempfile.mkdtemp())
     path = scenario_variant(PAPER, tmp / "null.toml")
     if model == "spec":
@@ -70,6 +73,7 @@ def one_seed(args: tuple[str, int]) -> dict:
         _setup(model)
     from calbench.identify.discover.workflow import discover_observations
     from calbench.identify.study.montecarlo import campaign_observations
+
     scn, robot, plans = _STATE["scn"], _STATE["robot"], _STATE["plans"]
     obs = campaign_observations(scn, robot, plans, np.random.default_rng([20261, seed]))
     t, c = time.perf_counter(), time.process_time()
@@ -77,9 +81,17 @@ def one_seed(args: tuple[str, int]) -> dict:
     cands = [x for x in rep["rounds"][0]["candidates"] if x.get("k")]
     n = len(rep["rounds"][0]["candidates"])
     p = [x["p_lr"] for x in cands]
-    return {"seed": seed, "named": rep["named_effects"], "min_adjusted_p": min(1.0, n * min(p, default=1.0)),
-            "p_lr": p, "n_candidates": n, "wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c,
-            "p_before": rep["p_before"], "evaluations": rep["evaluations"]}
+    return {
+        "seed": seed,
+        "named": rep["named_effects"],
+        "min_adjusted_p": min(1.0, n * min(p, default=1.0)),
+        "p_lr": p,
+        "n_candidates": n,
+        "wall_s": time.perf_counter() - t,
+        "cpu_s": time.process_time() - c,
+        "p_before": rep["p_before"],
+        "evaluations": rep["evaluations"],
+    }
 
 
 def seed_block(model: str, seeds: list[int]) -> list[dict]:
@@ -96,20 +108,31 @@ def summarise(rows: list[dict]) -> dict:
     n = len(rows)
     alarms = [r for r in rows if r["named"]]
     rate = len(alarms) / n
-    out = {"seeds": n, "false_alarms": len(alarms), "false_alarm_rate": rate,
-           "false_alarm_rate_standard_error": float(np.sqrt(max(rate, 1.0 / n) * (1 - rate) / n)),
-           "false_alarm_rate_upper_95": clopper_pearson_upper(len(alarms), n),
-           "alarms": [{"seed": r["seed"], "named": r["named"]} for r in alarms],
-           "familywise_calibration": {}, "per_test_calibration": {}}
+    out = {
+        "seeds": n,
+        "false_alarms": len(alarms),
+        "false_alarm_rate": rate,
+        "false_alarm_rate_standard_error": float(np.sqrt(max(rate, 1.0 / n) * (1 - rate) / n)),
+        "false_alarm_rate_upper_95": clopper_pearson_upper(len(alarms), n),
+        "alarms": [{"seed": r["seed"], "named": r["named"]} for r in alarms],
+        "familywise_calibration": {},
+        "per_test_calibration": {},
+    }
     adj = np.array([r["min_adjusted_p"] for r in rows])
     for a in LEVELS:
         share = float(np.mean(adj <= a))
-        out["familywise_calibration"][f"{a:g}"] = {"share": share, "standard_error": float(np.sqrt(a * (1 - a) / n)),
-                                                   "valid_if_at_most": a}
+        out["familywise_calibration"][f"{a:g}"] = {
+            "share": share,
+            "standard_error": float(np.sqrt(a * (1 - a) / n)),
+            "valid_if_at_most": a,
+        }
     p = np.concatenate([r["p_lr"] for r in rows]) if rows else np.zeros(0)
     for a in (0.01, 0.05, 0.10):
-        out["per_test_calibration"][f"{a:g}"] = {"share": float(np.mean(p <= a)), "tests": int(p.size),
-                                                 "standard_error": float(np.sqrt(a * (1 - a) / max(p.size, 1)))}
+        out["per_test_calibration"][f"{a:g}"] = {
+            "share": float(np.mean(p <= a)),
+            "tests": int(p.size),
+            "standard_error": float(np.sqrt(a * (1 - a) / max(p.size, 1))),
+        }
     for key in ("wall_s", "cpu_s"):
         v = [r[key] for r in rows]
         out[f"{key}_median"] = statistics.median(v)
@@ -120,17 +143,32 @@ def summarise(rows: list[dict]) -> dict:
 
 def main() -> int:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--seeds", type=int, default=300, help="isotropic-noise null seeds (default: %(default)s)")
-    ap.add_argument("--spec-seeds", type=int, default=100, help="spec-noise null seeds (default: %(default)s)")
-    ap.add_argument("--processes", type=int, default=1,
-                    help="worker processes of a local Dask cluster (default: %(default)s: this process)")
+    ap.add_argument(
+        "--seeds", type=int, default=300, help="isotropic-noise null seeds (default: %(default)s)"
+    )
+    ap.add_argument(
+        "--spec-seeds", type=int, default=100, help="spec-noise null seeds (default: %(default)s)"
+    )
+    ap.add_argument(
+        "--processes",
+        type=int,
+        default=1,
+        help="worker processes of a local Dask cluster (default: %(default)s: this process)",
+    )
     ap.add_argument("--scheduler", default=None, help="a Dask scheduler's address (tcp:// or tls://)")
-    ap.add_argument("--quick", action="store_true", help="10 isotropic and 5 spec seeds (to see that it works)")
+    ap.add_argument(
+        "--quick", action="store_true", help="10 isotropic and 5 spec seeds (to see that it works)"
+    )
     args = ap.parse_args()
     if args.quick:
         args.seeds, args.spec_seeds = 10, 5
     t0 = time.perf_counter()
-    res = {"plan": "scenarios/paper_table5.toml", "tracker_sigma_um": 20, "alpha_familywise": 1e-3, "models": {}}
+    res = {
+        "plan": "scenarios/paper_table5.toml",
+        "tracker_sigma_um": 20,
+        "alpha_familywise": 1e-3,
+        "models": {},
+    }
     for model, n in (("isotropic", args.seeds), ("spec", args.spec_seeds)):
         if n <= 0:
             continue
@@ -140,11 +178,18 @@ def main() -> int:
             done = dict(ex.run(seed_block, blocks))
         rows = [r for i in range(len(blocks)) for r in done[i]]
         res["models"][model] = summarise(rows)
-        print(json.dumps({model: {k: v for k, v in res["models"][model].items() if k != "alarms"}}), file=sys.stderr)
+        print(
+            json.dumps({model: {k: v for k, v in res["models"][model].items() if k != "alarms"}}),
+            file=sys.stderr,
+        )
     all_rows = sum((m["seeds"] for m in res["models"].values()), 0)
     alarms = sum((m["false_alarms"] for m in res["models"].values()), 0)
-    res["all"] = {"seeds": all_rows, "false_alarms": alarms, "false_alarm_rate": alarms / max(all_rows, 1),
-                  "false_alarm_rate_upper_95": clopper_pearson_upper(alarms, all_rows)}
+    res["all"] = {
+        "seeds": all_rows,
+        "false_alarms": alarms,
+        "false_alarm_rate": alarms / max(all_rows, 1),
+        "false_alarm_rate_upper_95": clopper_pearson_upper(alarms, all_rows),
+    }
     res["total_seconds"] = time.perf_counter() - t0
     print(json.dumps(res, indent=2))
     return 0

@@ -11,6 +11,7 @@ binomial standard error sqrt(p (1 - p) / n) of each point; a band marks the fals
 ``--null`` takes benchmarks/discover_null_bench.py's JSON for the false-alarm band (400 seeds)
 instead of discover_bench's own no-effect seeds.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -20,8 +21,14 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-UNITS = {"link_compliance": "rad/(N·m)", "base_compliance": "rad/(N·m)", "joint_nonlinearity": "N·m/rad³",
-         "compensator": "N/m", "tracker_drift": "m", "unexplained": "rad/(N·m)"}
+UNITS = {
+    "link_compliance": "rad/(N·m)",
+    "base_compliance": "rad/(N·m)",
+    "joint_nonlinearity": "N·m/rad³",
+    "compensator": "N/m",
+    "tracker_drift": "m",
+    "unexplained": "rad/(N·m)",
+}
 
 
 def main() -> int:
@@ -31,6 +38,7 @@ def main() -> int:
     ap.add_argument("--null", type=Path, default=None, help="benchmarks/discover_null_bench.py's JSON")
     args = ap.parse_args()
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -44,8 +52,12 @@ def main() -> int:
         k0 = round(res["no_effect"]["false_alarm_rate"] * seeds)
     upper = 1.0 if k0 >= n0 else float(stats.beta.ppf(0.95, k0 + 1, n0 - k0))
     fig, ax = plt.subplots(figsize=(8.5, 5.0), dpi=120)
-    ax.axhspan(0.0, upper, color="0.85", label=f"false alarms: {k0}/{n0} campaigns with nothing hidden "
-                                                f"(95 % bound {100 * upper:.2g} %)")
+    ax.axhspan(
+        0.0,
+        upper,
+        color="0.85",
+        label=f"false alarms: {k0}/{n0} campaigns with nothing hidden (95 % bound {100 * upper:.2g} %)",
+    )
     for name, e in res["effects"].items():
         rows = sorted(e["rows"], key=lambda r: r["magnitude"])
         x = np.array([r["magnitude"] for r in rows]) / e["tested_magnitude"]
@@ -54,16 +66,27 @@ def main() -> int:
         unit = UNITS.get(e["expected"].split("[")[0], "")
         flange = e.get("flange_extra_mm_median")
         extra = f", {flange * 1e3:.0f} µm at the flange" if flange and flange > 1e-3 else ""
-        ax.errorbar(x, p, yerr=se, marker="o", ms=4, capsize=2,
-                    label=f"{name}: 1 = {e['tested_magnitude']:.3g} {unit}{extra}")
+        ax.errorbar(
+            x,
+            p,
+            yerr=se,
+            marker="o",
+            ms=4,
+            capsize=2,
+            label=f"{name}: 1 = {e['tested_magnitude']:.3g} {unit}{extra}",
+        )
     ax.set_xscale("log")
-    ticks = sorted({round(r["magnitude"] / e["tested_magnitude"], 2) for e in res["effects"].values() for r in e["rows"]})
+    ticks = sorted(
+        {round(r["magnitude"] / e["tested_magnitude"], 2) for e in res["effects"].values() for r in e["rows"]}
+    )
     ax.set_xticks(ticks, [f"{t:g}" for t in ticks])
     ax.minorticks_off()
     ax.set_xlabel("magnitude of the hidden effect / its tested size")
     ax.set_ylabel("share of campaigns naming the right effect first")
     ax.set_ylim(-0.03, 1.03)
-    ax.set_title(f"calbench discover: detection power on the paper plan (20 µm tracker, {seeds} seeds per point)")
+    ax.set_title(
+        f"calbench discover: detection power on the paper plan (20 µm tracker, {seeds} seeds per point)"
+    )
     ax.legend(fontsize=7, loc="lower right")
     ax.grid(alpha=0.3, which="both")
     fig.tight_layout()

@@ -16,6 +16,7 @@ deviation, with the registration's residual and rotation error. Prints JSON.
 
 Usage: python benchmarks/geometry_bench.py [--geometries N] [--mm SD] [--quick]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -31,22 +32,30 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 
 from calbench.bench.campaign.run import run_campaign
-from calbench.bench.shopfloor.logcsv import export_rows
 from calbench.bench.log.writer import read_log
+from calbench.bench.scenario.parse import load_scenario
+from calbench.bench.shopfloor.logcsv import export_rows
 from calbench.bench.shopfloor.readings import readings_csv
 from calbench.identify.core.rigid import rotation_exp
-from calbench.bench.scenario.parse import load_scenario
 from calbench.identify.design.threads import blas_threads
-from calbench.identify.shopfloor.importer import import_readings
 from calbench.identify.report.identification import run_identify
+from calbench.identify.shopfloor.importer import import_readings
 
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
 MJCF = ROOT / "mjcf" / "m900ib700.xml"
 # every body offset outside the parallelogram, the loop's two shoulder bodies moved together
 # (the robot description requires the loop to close at the rigid command), and the sites
-GROUPS = (("body", ("turret",)), ("body", ("upper_arm", "crank")), ("body", ("link4",)),
-          ("body", ("link5",)), ("body", ("link6",)), ("site", ("refl_a",)), ("site", ("refl_b",)),
-          ("site", ("refl_c",)), ("site", ("payload",)))
+GROUPS = (
+    ("body", ("turret",)),
+    ("body", ("upper_arm", "crank")),
+    ("body", ("link4",)),
+    ("body", ("link5",)),
+    ("body", ("link6",)),
+    ("site", ("refl_a",)),
+    ("site", ("refl_b",)),
+    ("site", ("refl_c",)),
+    ("site", ("payload",)),
+)
 TURN = rotation_exp(np.radians(40.0) * np.array([0.3, -0.5, 0.81]) / np.linalg.norm([0.3, -0.5, 0.81]))
 
 
@@ -59,14 +68,22 @@ def perturbed(sd: float, rng: np.random.Generator) -> str:
             pat = re.compile(rf'(<{kind} name="{name}" pos=")([^"]+)(")')
             m = pat.search(text)
             pos = np.array([float(v) for v in m.group(2).split()]) + shift
-            text = text[: m.start()] + m.group(1) + " ".join(f"{v:.6f}" for v in pos) + m.group(3) + text[m.end():]
+            text = (
+                text[: m.start()]
+                + m.group(1)
+                + " ".join(f"{v:.6f}" for v in pos)
+                + m.group(3)
+                + text[m.end() :]
+            )
     return text
 
 
 def estimates(log: Path, model: Path) -> tuple[np.ndarray, np.ndarray]:
     rep = run_identify(log, model)
-    return (np.array([p.estimate for p in rep.parameters], float),
-            np.array([p.std for p in rep.parameters], float))
+    return (
+        np.array([p.estimate for p in rep.parameters], float),
+        np.array([p.std for p in rep.parameters], float),
+    )
 
 
 def main() -> None:
@@ -91,7 +108,9 @@ def main() -> None:
             model = tmp / f"robot{g}.xml"
             model.write_text(perturbed(args.mm * 1e-3, rng))
             scn_path = tmp / f"scn{g}.toml"
-            scn_path.write_text(text.replace('robot = "../mjcf/m900ib700.xml"', f'robot = "{model.as_posix()}"'))
+            scn_path.write_text(
+                text.replace('robot = "../mjcf/m900ib700.xml"', f'robot = "{model.as_posix()}"')
+            )
             log = tmp / f"log{g}.mcap"
             run_campaign(load_scenario(scn_path), log)
             ref, sd = estimates(log, model)
@@ -103,24 +122,40 @@ def main() -> None:
             fit = imp.registration.fit
             d = fit.rotation @ TURN.T
             angle = float(np.degrees(np.arccos(np.clip((np.trace(d) - 1) / 2, -1, 1))))
-            rows.append({"deflection_model": ((known - ref) / sd).tolist(),
-                         "with_registration": ((registered - ref) / sd).tolist(),
-                         "registration_rms_mm": fit.rms * 1e3,
-                         "registration_rotation_error_deg": angle,
-                         "registration_warned": bool(imp.warnings)})
+            rows.append(
+                {
+                    "deflection_model": ((known - ref) / sd).tolist(),
+                    "with_registration": ((registered - ref) / sd).tolist(),
+                    "registration_rms_mm": fit.rms * 1e3,
+                    "registration_rotation_error_deg": angle,
+                    "registration_warned": bool(imp.warnings),
+                }
+            )
         names = [p.name for p in run_identify(log, model).parameters]
     a = np.array([r["deflection_model"] for r in rows])
     b = np.array([r["with_registration"] for r in rows])
-    print(json.dumps({
-        "geometric_error_sd_mm": args.mm, "geometries": n, "parameters": names,
-        "max_abs_shift_over_sigma": {"deflection_model": dict(zip(names, np.abs(a).max(0).tolist())),
-                                     "with_registration": dict(zip(names, np.abs(b).max(0).tolist()))},
-        "rms_shift_over_sigma": {"deflection_model": dict(zip(names, np.sqrt((a ** 2).mean(0)).tolist())),
-                                 "with_registration": dict(zip(names, np.sqrt((b ** 2).mean(0)).tolist()))},
-        "registration_rms_mm": [r["registration_rms_mm"] for r in rows],
-        "registration_rotation_error_deg": [r["registration_rotation_error_deg"] for r in rows],
-        "warned": [r["registration_warned"] for r in rows],
-        "seconds": time.perf_counter() - t0}, indent=1))
+    print(
+        json.dumps(
+            {
+                "geometric_error_sd_mm": args.mm,
+                "geometries": n,
+                "parameters": names,
+                "max_abs_shift_over_sigma": {
+                    "deflection_model": dict(zip(names, np.abs(a).max(0).tolist())),
+                    "with_registration": dict(zip(names, np.abs(b).max(0).tolist())),
+                },
+                "rms_shift_over_sigma": {
+                    "deflection_model": dict(zip(names, np.sqrt((a**2).mean(0)).tolist())),
+                    "with_registration": dict(zip(names, np.sqrt((b**2).mean(0)).tolist())),
+                },
+                "registration_rms_mm": [r["registration_rms_mm"] for r in rows],
+                "registration_rotation_error_deg": [r["registration_rotation_error_deg"] for r in rows],
+                "warned": [r["registration_warned"] for r in rows],
+                "seconds": time.perf_counter() - t0,
+            },
+            indent=1,
+        )
+    )
 
 
 if __name__ == "__main__":

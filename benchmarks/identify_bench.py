@@ -6,6 +6,7 @@ one-step estimator <= 30 s; one-step variance / CRB within 0.9-1.1, reported std
 the empirical one, |bias| < 0.1 sigma. Usage: python benchmarks/identify_bench.py [--runs N]
 [--quick] (100 runs, 2 timed identifications).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -17,11 +18,12 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 
+from steps import LineProgress, say
+
 from calbench.bench.campaign.run import run_campaign
 from calbench.bench.scenario.parse import load_scenario
-from calbench.identify.study.montecarlo import run_montecarlo
 from calbench.identify.report.identification import run_identify
-from steps import LineProgress, say
+from calbench.identify.study.montecarlo import run_montecarlo
 
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
 
@@ -35,8 +37,11 @@ def main() -> None:
     if args.quick:
         args.runs = min(args.runs, 100)
     scn = load_scenario(args.scenario)
-    out: dict = {"scenario": str(args.scenario.relative_to(ROOT) if args.scenario.is_relative_to(ROOT)
-                                 else args.scenario)}
+    out: dict = {
+        "scenario": str(
+            args.scenario.relative_to(ROOT) if args.scenario.is_relative_to(ROOT) else args.scenario
+        )
+    }
     with tempfile.TemporaryDirectory() as tmp:
         log = Path(tmp) / "paper.mcap"
         run_campaign(scn, log)
@@ -50,23 +55,41 @@ def main() -> None:
                 internal.append(rep.seconds)
             out[f"identify_{method}_seconds"] = {
                 "median_wall_incl_log_reading": statistics.median(times),
-                "median_estimation": statistics.median(internal), "target": 2.0 if method == "one-step" else None}
+                "median_estimation": statistics.median(internal),
+                "target": 2.0 if method == "one-step" else None,
+            }
     t = time.perf_counter()
     say("identify_bench", f"Monte Carlo, {args.runs} runs")
     mc = run_montecarlo(scn, args.runs, progress=LineProgress("identify_bench", "Monte Carlo runs"))
     total = time.perf_counter() - t
     s = mc.summary()
     out["montecarlo"] = {
-        "runs": args.runs, "total_seconds": total, "setup_seconds": s["setup_seconds"],
-        "one_step_seconds": s["methods"]["one-step"]["seconds"], "one_step_target_seconds": 30.0,
+        "runs": args.runs,
+        "total_seconds": total,
+        "setup_seconds": s["setup_seconds"],
+        "one_step_seconds": s["methods"]["one-step"]["seconds"],
+        "one_step_target_seconds": 30.0,
         "two_step_seconds": s["methods"]["two-step"]["seconds"]
         + s["methods"]["two-step-weighted"]["seconds"],
         "sampling_error": s["sampling_error"],
         "noise_free_error_over_crb_std": s["noise_free_error_over_crb_std"],
-        "methods": {m: {p["name"]: {k: p.get(k) for k in (
-            "bias_over_sigma", "empirical_over_reported_std", "variance_over_crb", "mse_over_crb",
-            "robust_std_over_crb_std", "fraction_abs_z_over_4")} for p in d["parameters"]}
-            for m, d in s["methods"].items()},
+        "methods": {
+            m: {
+                p["name"]: {
+                    k: p.get(k)
+                    for k in (
+                        "bias_over_sigma",
+                        "empirical_over_reported_std",
+                        "variance_over_crb",
+                        "mse_over_crb",
+                        "robust_std_over_crb_std",
+                        "fraction_abs_z_over_4",
+                    )
+                }
+                for p in d["parameters"]
+            }
+            for m, d in s["methods"].items()
+        },
     }
     print(json.dumps(out, indent=2))
 

@@ -12,6 +12,7 @@ Jacobian already known (what `calbench montecarlo` does 1000 times).
 Prints JSON: model evaluations, seconds and the largest difference of the estimates from
 calbench's, in standard deviations. Usage: python benchmarks/lm_bench.py [--repeats 3]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -22,15 +23,15 @@ from pathlib import Path
 
 import numpy as np
 import scipy.optimize
+from steps import say
 
 from calbench.bench.campaign.run import plan_campaign, truth_robot
 from calbench.bench.model.robot import Robot
 from calbench.bench.scenario.parse import load_scenario
 from calbench.identify.core.whitening import Whitener
-from calbench.identify.study.montecarlo import campaign_observations
 from calbench.identify.methods.onestep import OneStep, generic_start, sanitize_start, to_phi, to_theta
 from calbench.identify.methods.twostep import two_step
-from steps import say
+from calbench.identify.study.montecarlo import campaign_observations
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
@@ -78,13 +79,20 @@ def library_runs(est: OneStep, obs, white, start, ours) -> dict:
         n_eval["n"] += model.stats["evaluations"] - n0
         # d theta / d phi for the compensator pair, then the scaling
         from calbench.identify.methods.onestep import dtheta_dphi
+
         return jw @ dtheta_dphi(z * scale, lay) * scale if th is not None else None
 
     out = {}
     sd = np.sqrt(np.diag(ours.cov))
     for name, run in (
-        ("scipy_trf", lambda: scipy.optimize.least_squares(resid, phi0 / scale, jac=jac, method="trf",
-                                                            xtol=1e-12, ftol=1e-12, gtol=1e-12).x),
+        (
+            "scipy_trf",
+            lambda: (
+                scipy.optimize.least_squares(
+                    resid, phi0 / scale, jac=jac, method="trf", xtol=1e-12, ftol=1e-12, gtol=1e-12
+                ).x
+            ),
+        ),
         ("mujoco_minimize", lambda: _mujoco(resid, jac, phi0 / scale)),
     ):
         n_eval["n"] = 0
@@ -92,8 +100,11 @@ def library_runs(est: OneStep, obs, white, start, ours) -> dict:
         z = run()
         dt = time.perf_counter() - t
         th = to_theta(z * scale, lay)
-        out[name] = {"evaluations": n_eval["n"], "seconds": dt,
-                     "max_abs_difference_in_sigma": float(np.nanmax(np.abs(th - ours.theta) / sd))}
+        out[name] = {
+            "evaluations": n_eval["n"],
+            "seconds": dt,
+            "max_abs_difference_in_sigma": float(np.nanmax(np.abs(th - ours.theta) / sd)),
+        }
     return out
 
 
@@ -105,8 +116,15 @@ def _mujoco(resid, jac, z0):
         z = np.asarray(z).reshape(len(z0), -1)
         return np.column_stack([resid(z[:, i]) for i in range(z.shape[1])])
 
-    x, _ = minimize.least_squares(z0, r2, jacobian=lambda z, r: jac(np.asarray(z).ravel()), verbose=0,
-                                  output=io.StringIO(), xtol=1e-12, gtol=1e-12)
+    x, _ = minimize.least_squares(
+        z0,
+        r2,
+        jacobian=lambda z, r: jac(np.asarray(z).ravel()),
+        verbose=0,
+        output=io.StringIO(),
+        xtol=1e-12,
+        gtol=1e-12,
+    )
     return np.asarray(x).ravel()
 
 
@@ -125,24 +143,48 @@ def main() -> None:
         t = time.perf_counter()
         n0 = est.model.stats["evaluations"]
         ours = est.fit(obs.dp, white, start, start_method="two-step")
-        row = {"seed": seed, "calbench": {"evaluations": est.model.stats["evaluations"] - n0,
-                                          "seconds": time.perf_counter() - t}}
+        row = {
+            "seed": seed,
+            "calbench": {
+                "evaluations": est.model.stats["evaluations"] - n0,
+                "seconds": time.perf_counter() - t,
+            },
+        }
         row.update(library_runs(OneStep(robot, obs, est.model), obs, white, start, ours))
         out["identify"].append(row)
         # the Monte Carlo case: start at a known estimate with its evaluation in hand
         theta0 = ours.theta
         f0, j0 = est.model.evaluate(theta0)
         _, _, white2, _ = problem(seed + 100)
-        obs2 = campaign_observations(load_scenario(PAPER), truth_robot(load_scenario(PAPER)),
-                                     plan_campaign(load_scenario(PAPER)), np.random.default_rng(seed + 100))
+        obs2 = campaign_observations(
+            load_scenario(PAPER),
+            truth_robot(load_scenario(PAPER)),
+            plan_campaign(load_scenario(PAPER)),
+            np.random.default_rng(seed + 100),
+        )
         n0 = est.model.stats["evaluations"]
         t = time.perf_counter()
-        r2 = est.fit(obs2.dp, white2, theta0, scale=np.abs(to_phi(theta0, robot.layout)), start_eval=(f0, j0),
-                     final_eval=False, step_tol=1e-2)
-        mc = {"seed": seed + 100, "calbench": {"evaluations": est.model.stats["evaluations"] - n0,
-                                               "seconds": time.perf_counter() - t}}
-        mc.update(library_runs(OneStep(robot, obs2, est.model), obs2, white2, theta0,
-                               est.fit(obs2.dp, white2, theta0)))
+        r2 = est.fit(
+            obs2.dp,
+            white2,
+            theta0,
+            scale=np.abs(to_phi(theta0, robot.layout)),
+            start_eval=(f0, j0),
+            final_eval=False,
+            step_tol=1e-2,
+        )
+        mc = {
+            "seed": seed + 100,
+            "calbench": {
+                "evaluations": est.model.stats["evaluations"] - n0,
+                "seconds": time.perf_counter() - t,
+            },
+        }
+        mc.update(
+            library_runs(
+                OneStep(robot, obs2, est.model), obs2, white2, theta0, est.fit(obs2.dp, white2, theta0)
+            )
+        )
         out["montecarlo_run"].append(mc)
         del r2
     print(json.dumps(out, indent=2))

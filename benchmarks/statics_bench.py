@@ -17,6 +17,7 @@ stacked the same way, in a Monte Carlo of the one-step estimator against its sca
 Usage: python benchmarks/statics_bench.py [--batch 1024] [--mc-runs 200] [--quick]
 (--quick: 2 relaxations, one campaign, a batch of 64, 20 Monte Carlo runs).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -32,12 +33,13 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 
+from steps import say
+
 from calbench.bench.campaign.run import run_campaign, truth_robot
 from calbench.bench.model.loop import loop_gap
 from calbench.bench.scenario.parse import load_scenario
 from calbench.bench.statics.batched import BatchStatics
 from calbench.bench.statics.equilibrium import Load, StaticsSolver
-from steps import say
 
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
 
@@ -87,7 +89,9 @@ def relax(robot, q, load, target, tol=1e-6, max_steps=20000):
     steps = 0
     for steps in range(1, max_steps + 1):
         d.qfrc_applied[:] = 0.0
-        mujoco.mj_applyFT(m, d, load.force, load.moment, d.site_xpos[load.site], m.site_bodyid[load.site], d.qfrc_applied)
+        mujoco.mj_applyFT(
+            m, d, load.force, load.moment, d.site_xpos[load.site], m.site_bodyid[load.site], d.qfrc_applied
+        )
         mujoco.mj_step(m, d)
         if steps % 10 == 0:
             err = np.linalg.norm(d.site_xpos[robot.flange_site] - target)
@@ -107,7 +111,9 @@ def batched_newton(robot, scn, n: int, nthread: int) -> dict:
     poses = [scn.poses[i % len(scn.poses)] for i in range(n)]
     q = np.array([p.q for p in poses])
     loads = [truth_load(robot, scn, p) for p in poses]
-    load = Load(np.array([ld.force for ld in loads]), np.array([ld.moment for ld in loads]), robot.payload_site)
+    load = Load(
+        np.array([ld.force for ld in loads]), np.array([ld.moment for ld in loads]), robot.payload_site
+    )
     bs = BatchStatics(StaticsSolver(robot), nsim=n, nthread=nthread)
     best = None
     for _ in range(3):
@@ -117,11 +123,16 @@ def batched_newton(robot, scn, n: int, nthread: int) -> dict:
         w, c = time.perf_counter() - w, time.process_time() - c
         if best is None or w < best[0]:
             best = (w, c)
-    return {"configurations": n, "threads": nthread, "equilibria": 2 * n,
-            "per_equilibrium_ms": best[0] / (2 * n) * 1e3, "per_equilibrium_cpu_ms": best[1] / (2 * n) * 1e3,
-            "all_acceptable": bool(e0.acceptable.all() and e1.acceptable.all()),
-            "loop_violation_max_m": float(max(e0.loop_violation.max(), e1.loop_violation.max())),
-            "iterations_median": [float(np.median(e0.iterations)), float(np.median(e1.iterations))]}
+    return {
+        "configurations": n,
+        "threads": nthread,
+        "equilibria": 2 * n,
+        "per_equilibrium_ms": best[0] / (2 * n) * 1e3,
+        "per_equilibrium_cpu_ms": best[1] / (2 * n) * 1e3,
+        "all_acceptable": bool(e0.acceptable.all() and e1.acceptable.all()),
+        "loop_violation_max_m": float(max(e0.loop_violation.max(), e1.loop_violation.max())),
+        "iterations_median": [float(np.median(e0.iterations)), float(np.median(e1.iterations))],
+    }
 
 
 def batched_relax(robot, scn, sols, n: int, nthread: int, tol=1e-6, max_steps=20000) -> dict:
@@ -130,6 +141,7 @@ def batched_relax(robot, scn, sols, n: int, nthread: int, tol=1e-6, max_steps=20
     of mass) refreshed between calls; a configuration stops once its flange is within tol of
     the Newton solution and at rest (the scalar loop's criterion)."""
     import mujoco.batch
+
     m = robot.model
     saved = m.dof_damping.copy(), m.opt.disableflags
     m.dof_damping[:] = 4.0e5
@@ -164,9 +176,15 @@ def batched_relax(robot, scn, sols, n: int, nthread: int, tol=1e-6, max_steps=20
         ids = ids[~((err < tol) & (np.abs(qvel[ids]).max(axis=1) < 1e-6))]
     w, c = time.perf_counter() - w, time.process_time() - c
     err = np.linalg.norm(site_x[:, robot.flange_site] - targets, axis=1)
-    return {"configurations": n, "threads": nthread, "per_equilibrium_ms": w / n * 1e3,
-            "per_equilibrium_cpu_ms": c / n * 1e3, "median_steps": float(np.median(steps)),
-            "converged": bool(len(ids) == 0), "flange_error_max_m": float(err.max())}
+    return {
+        "configurations": n,
+        "threads": nthread,
+        "per_equilibrium_ms": w / n * 1e3,
+        "per_equilibrium_cpu_ms": c / n * 1e3,
+        "median_steps": float(np.median(steps)),
+        "converged": bool(len(ids) == 0),
+        "flange_error_max_m": float(err.max()),
+    }
 
 
 def monte_carlo(scn, runs: int, repeats: int = 2) -> dict:
@@ -175,28 +193,40 @@ def monte_carlo(scn, runs: int, repeats: int = 2) -> dict:
     one-step estimator (one or two evaluations per run), alternating, best of ``repeats``."""
     from calbench.identify.core.forward import ForwardModel
     from calbench.identify.study.montecarlo import run_montecarlo
+
     best: dict = {}
     for _ in range(repeats):
         for stacked in (False, True):
             ForwardModel.BATCHED = stacked
             la, w, c = os.getloadavg()[0], time.perf_counter(), time.process_time()
             mc = run_montecarlo(scn, runs, methods=("one-step",), progress=False)
-            r = {"wall_s": time.perf_counter() - w, "cpu_s": time.process_time() - c, "load_average": la,
-                 "one_step_s": mc.times["one-step"]}
+            r = {
+                "wall_s": time.perf_counter() - w,
+                "cpu_s": time.process_time() - c,
+                "load_average": la,
+                "one_step_s": mc.times["one-step"],
+            }
             key = "stacked" if stacked else "scalar"
             if key not in best or r["wall_s"] < best[key]["wall_s"]:
                 best[key] = r
     ForwardModel.BATCHED = True
-    return {"runs": runs, **best, "ratio_cpu": best["scalar"]["cpu_s"] / best["stacked"]["cpu_s"],
-            "ratio_one_step_s": best["scalar"]["one_step_s"] / best["stacked"]["one_step_s"]}
+    return {
+        "runs": runs,
+        **best,
+        "ratio_cpu": best["scalar"]["cpu_s"] / best["stacked"]["cpu_s"],
+        "ratio_one_step_s": best["scalar"]["one_step_s"] / best["stacked"]["one_step_s"],
+    }
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--batch", type=int, default=1024, help="configurations of the batched runs")
-    ap.add_argument("--mc-runs", type=int, default=200, help="Monte Carlo runs, stacked vs scalar forward model")
-    ap.add_argument("--quick", action="store_true",
-                    help="2 relaxations, one campaign, a batch of 64, 20 Monte Carlo runs")
+    ap.add_argument(
+        "--mc-runs", type=int, default=200, help="Monte Carlo runs, stacked vs scalar forward model"
+    )
+    ap.add_argument(
+        "--quick", action="store_true", help="2 relaxations, one campaign, a batch of 64, 20 Monte Carlo runs"
+    )
     args = ap.parse_args()
     if args.quick:
         args.batch, args.mc_runs = min(args.batch, 64), min(args.mc_runs, 20)
@@ -250,11 +280,16 @@ def main() -> None:
     }
     say("statics_bench", f"batched equilibria, {args.batch} configurations")
     batched = {f"newton_{t}_threads": batched_newton(robot, scn, args.batch, t) for t in (1, 2)}
-    batched.update({f"relaxation_{t}_threads": batched_relax(robot, scn, sols, args.batch, t) for t in (1, 2)})
+    batched.update(
+        {f"relaxation_{t}_threads": batched_relax(robot, scn, sols, args.batch, t) for t in (1, 2)}
+    )
     # the lead, per equilibrium, in wall and in CPU seconds (the CPU ratio is the one that does
     # not move with the machine's load, the runs being seconds apart)
     relax_ms = {"wall": med_relax * 1e3, "cpu": statistics.median(relax_cpu) * 1e3}
-    scalar_ms = {"wall": statistics.median(newton_same) / 2 * 1e3, "cpu": statistics.median(newton_cpu) / 2 * 1e3}
+    scalar_ms = {
+        "wall": statistics.median(newton_same) / 2 * 1e3,
+        "cpu": statistics.median(newton_cpu) / 2 * 1e3,
+    }
     lead = {}
     for clock, key in (("wall", "per_equilibrium_ms"), ("cpu", "per_equilibrium_cpu_ms")):
         lead[clock] = {"relaxation_loop_over_scalar_newton": relax_ms[clock] / scalar_ms[clock]}
@@ -262,7 +297,8 @@ def main() -> None:
             nt = batched[f"newton_{t}_threads"][key]
             lead[clock][f"relaxation_loop_over_batched_newton_{t}_threads"] = relax_ms[clock] / nt
             lead[clock][f"batched_relaxation_over_batched_newton_{t}_threads"] = (
-                batched[f"relaxation_{t}_threads"][key] / nt)
+                batched[f"relaxation_{t}_threads"][key] / nt
+            )
     out["batched"] = batched
     out["lead_over_relaxation"] = lead
     say("statics_bench", f"Monte Carlo forward model, {args.mc_runs} runs")

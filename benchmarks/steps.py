@@ -2,6 +2,7 @@
 `make bench` is never silent for minutes; stdout stays the JSON result. Every benchmark takes
 ``--quick`` (`make bench QUICK=1`): the same measurements on fewer runs, seeds or candidates, to
 see that they work, not to quote their figures."""
+
 from __future__ import annotations
 
 import sys

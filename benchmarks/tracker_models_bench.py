@@ -13,6 +13,7 @@ and the deflection's own sigma per axis at one reflector of the first pose. Prin
 Usage: python benchmarks/tracker_models_bench.py [--plan PLAN.toml] [--candidates N] [--quick]
 (``--plan``: a designed plan instead of designing one; ``--quick``: 1000 candidates.)
 """
+
 from __future__ import annotations
 
 import argparse
@@ -28,9 +29,9 @@ ROOT = Path(__file__).resolve().parent.parent
 
 from calbench.bench.campaign.run import plan_campaign, truth_robot
 from calbench.bench.scenario.parse import load_scenario, scenario_to_toml
-from calbench.identify.study.accuracy import predicted_std
 from calbench.identify.cli import main as calbench
 from calbench.identify.design.threads import blas_threads
+from calbench.identify.study.accuracy import predicted_std
 from calbench.identify.study.montecarlo import campaign_observations
 
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
@@ -67,9 +68,17 @@ def main() -> None:
         if plan is None:
             plan = tmp / "designed.toml"
             n = args.candidates or (1000 if args.quick else None)
-            assert calbench(["design", str(PAPER), "--configs", "12", "--criterion", "A", "--out", str(plan)]
-                            + (["--candidates", str(n)] if n else [])) == 0
-        for name, src in (("paper (Table 5 + 4 pulls, 16 poses)", PAPER), ("designed (A-optimal, 12 poses)", plan)):
+            assert (
+                calbench(
+                    ["design", str(PAPER), "--configs", "12", "--criterion", "A", "--out", str(plan)]
+                    + (["--candidates", str(n)] if n else [])
+                )
+                == 0
+            )
+        for name, src in (
+            ("paper (Table 5 + 4 pulls, 16 poses)", PAPER),
+            ("designed (A-optimal, 12 poses)", plan),
+        ):
             row = {}
             for model in MODELS:
                 scn = variant(src, model, tmp / f"{model}.toml")

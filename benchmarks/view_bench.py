@@ -15,6 +15,7 @@ and the ratios view / arrows_only. ``under_goal`` is the build's verdict (the is
 ``cli_under_goal`` the whole command's. Usage: python benchmarks/view_bench.py [--quick]
 (--quick: 2 repeats, one command run).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -30,14 +31,20 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 
+from steps import say
+
 from calbench.bench.campaign.run import run_campaign
 from calbench.bench.log.idreport import IdentificationReport
 from calbench.bench.log.writer import read_log
 from calbench.bench.scenario.parse import load_scenario
-from calbench.bench.view.recording import (log_view, measured_deflections, plan_view, recording_stream,
-                                 write_recording)
+from calbench.bench.view.recording import (
+    log_view,
+    measured_deflections,
+    plan_view,
+    recording_stream,
+    write_recording,
+)
 from calbench.identify.report.identification import run_identify
-from steps import say
 
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
 REPEATS = 5
@@ -56,6 +63,7 @@ def median_time(fn, repeats: int | None = None) -> float:
 def arrows_only(log_path: Path, rrd: Path) -> None:
     """The baseline: the measured arrows and nothing else."""
     import rerun as rr
+
     log = read_log(log_path, include_truth=True)
     d = measured_deflections(log)
     rec = rr.RecordingStream("calbench-bench")
@@ -99,7 +107,9 @@ def main(quick: bool = False) -> dict:
             def run():
                 rrd.unlink(missing_ok=True)
                 fn()
+
             return run
+
         say("view_bench", f"read_log, arrows only, view, view --identified: {REPEATS} each")
         t_read = median_time(lambda: read_log(log, include_truth=True))
         t_base = median_time(fresh(lambda: arrows_only(log, rrd)))
@@ -112,10 +122,12 @@ def main(quick: bool = False) -> dict:
         for _ in range(1 if quick else 3):
             rrd.unlink(missing_ok=True)
             t = time.perf_counter()
-            subprocess.run([str(exe), "view", str(log), "--identified", str(ident_path), "--rrd",
-                            str(rrd)], check=True, capture_output=True,
-                           env={"CI": "1", "RERUN_ANALYTICS": "0", "PATH": "/usr/bin:/bin",
-                                "HOME": str(tmp)})
+            subprocess.run(
+                [str(exe), "view", str(log), "--identified", str(ident_path), "--rrd", str(rrd)],
+                check=True,
+                capture_output=True,
+                env={"CI": "1", "RERUN_ANALYTICS": "0", "PATH": "/usr/bin:/bin", "HOME": str(tmp)},
+            )
             cli.append(time.perf_counter() - t)
     out = {
         "campaign_poses": n,
@@ -130,8 +142,8 @@ def main(quick: bool = False) -> dict:
         "ratio_view_to_arrows_only": round(t_view / t_base, 2),
         "ratio_identified_to_arrows_only": round(t_ident / t_base, 2),
         "goal_s": GOAL_S,
-        "under_goal": bool(t_ident < GOAL_S),            # the build, rerun already imported
-        "cli_under_goal": bool(statistics.median(cli) < GOAL_S),   # imports included
+        "under_goal": bool(t_ident < GOAL_S),  # the build, rerun already imported
+        "cli_under_goal": bool(statistics.median(cli) < GOAL_S),  # imports included
     }
     return out
 

@@ -8,6 +8,7 @@ call is a library function that returns its result, so it can be called from a n
 Exit status: 0 success, 1 a check failed, 2 bad input (any CalbenchError: one line naming the
 file, the key and what was expected).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -21,14 +22,13 @@ from pathlib import Path
 
 import mujoco
 
-from calbench.bench.cli import (add_check_robot, add_export, add_from_urdf, add_recover,
-                                add_simulate, add_view)
+from calbench.bench.cli import add_check_robot, add_export, add_from_urdf, add_recover, add_simulate, add_view
 from calbench.bench.core.errors import CalbenchError, InputError
 from calbench.bench.core.outputs import atomic_path, check_outputs, write_text
 from calbench.bench.core.progress import terminal_progress
+from calbench.identify.core.identifiability import OUTLIER_SIGMA
 
 from . import demo
-from calbench.identify.core.identifiability import OUTLIER_SIGMA
 
 
 def _version() -> str:
@@ -40,29 +40,44 @@ def _version() -> str:
 
 # --------------------------------------------------------------------------- identify
 
+
 def add_identify(sub) -> None:
     from calbench.identify.report.identification import METHODS, Z_CHECK
+
     p = sub.add_parser("identify", help="estimate the elastostatic parameters from a campaign log")
     p.add_argument("log", type=Path, help="campaign MCAP log")
     p.add_argument("--model", type=Path, default=None, help="robot MJCF (default: the one in the log)")
-    p.add_argument("--method", choices=METHODS, default="one-step",
-                   help="one-step: all parameters at once on the exact statics; two-step: the paper's "
-                        "§4, for robots with at most one compensator across one actuated hinge; "
-                        "two-step-iterated: the same with its Jacobians re-taken at the pose sagged by "
-                        "its own estimate (default: %(default)s)")
-    p.add_argument("--json", type=Path, default=None, help="write the report as JSON (default: none, the table only)")
-    p.add_argument("--check", action="store_true",
-                   help=f"exit 1 when the fit did not converge, when a parameter is reported as "
-                        f"a number the plan does not determine, or when the log has ground truth "
-                        f"and any |z| > {Z_CHECK:g} (default: no check)")
-    p.add_argument("--drop-outliers", action="store_true",
-                   help=f"refit without tracker readings off by more than {OUTLIER_SIGMA:g} sigma "
-                        "(default: list them, keep them)")
+    p.add_argument(
+        "--method",
+        choices=METHODS,
+        default="one-step",
+        help="one-step: all parameters at once on the exact statics; two-step: the paper's "
+        "§4, for robots with at most one compensator across one actuated hinge; "
+        "two-step-iterated: the same with its Jacobians re-taken at the pose sagged by "
+        "its own estimate (default: %(default)s)",
+    )
+    p.add_argument(
+        "--json", type=Path, default=None, help="write the report as JSON (default: none, the table only)"
+    )
+    p.add_argument(
+        "--check",
+        action="store_true",
+        help=f"exit 1 when the fit did not converge, when a parameter is reported as "
+        f"a number the plan does not determine, or when the log has ground truth "
+        f"and any |z| > {Z_CHECK:g} (default: no check)",
+    )
+    p.add_argument(
+        "--drop-outliers",
+        action="store_true",
+        help=f"refit without tracker readings off by more than {OUTLIER_SIGMA:g} sigma "
+        "(default: list them, keep them)",
+    )
     p.set_defaults(func=cmd_identify)
 
 
 def cmd_identify(args) -> int:
     from calbench.identify.report.identification import Z_CHECK, check_failed, format_table, run_identify
+
     check_outputs({"--json": args.json}, {"LOG": args.log, "--model": args.model})
     rep = run_identify(args.log, args.model, args.method, args.drop_outliers)
     print(format_table(rep))
@@ -74,30 +89,44 @@ def cmd_identify(args) -> int:
             print("check FAILED: " + "; ".join(bad))
             return 1
         if not rep.has_truth():
-            print("check passed: the fit converged and every reported parameter is determined; "
-                  "the log carries no ground truth to compare with")
+            print(
+                "check passed: the fit converged and every reported parameter is determined; "
+                "the log carries no ground truth to compare with"
+            )
             return 0
-        print(f"check passed: the fit converged, and every identified parameter is within "
-              f"{Z_CHECK:g} standard deviations of the truth")
+        print(
+            f"check passed: the fit converged, and every identified parameter is within "
+            f"{Z_CHECK:g} standard deviations of the truth"
+        )
     return 0
 
 
 # --------------------------------------------------------------------------- executors
 
+
 def add_scheduler(p) -> None:
     """--scheduler and --workers: where montecarlo, design and study run their pieces."""
-    p.add_argument("--scheduler", default=None, metavar="ADDR",
-                   help="run the pieces on the Dask cluster at tcp://HOST:PORT or tls://HOST:PORT (tls: "
-                        "Dask's security configuration); default: DASK_SCHEDULER_ADDRESS, else a local cluster "
-                        "on 127.0.0.1 when the job is large enough, else this process; 'local' and "
-                        "'in-process' force those")
-    p.add_argument("--workers", type=int, default=None,
-                   help="worker processes of a local cluster (default: the CPU count; 1: this process)")
+    p.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDR",
+        help="run the pieces on the Dask cluster at tcp://HOST:PORT or tls://HOST:PORT (tls: "
+        "Dask's security configuration); default: DASK_SCHEDULER_ADDRESS, else a local cluster "
+        "on 127.0.0.1 when the job is large enough, else this process; 'local' and "
+        "'in-process' force those",
+    )
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="worker processes of a local cluster (default: the CPU count; 1: this process)",
+    )
 
 
 def open_pieces(args, work_seconds: float, tasks: int):
     """The executor for this command (identify/runtime/executor.py), announced on stderr."""
     from calbench.identify.runtime.executor import choose, open_executor
+
     ex = open_executor(choose(args.scheduler, work_seconds, tasks, args.workers))
     print(f"calbench {args.command}: {ex.choice.describe()}", file=sys.stderr)
     return ex
@@ -105,20 +134,30 @@ def open_pieces(args, work_seconds: float, tasks: int):
 
 # --------------------------------------------------------------------------- montecarlo
 
+
 def add_montecarlo(sub) -> None:
     p = sub.add_parser("montecarlo", help="re-measure a campaign with N noise seeds: bias, spread, CRB")
     p.add_argument("scenario", type=Path, help="scenario TOML file")
     p.add_argument("--runs", type=int, required=True, help="number of noise seeds (required)")
-    p.add_argument("--method", choices=("both", "one-step", "two-step", "two-step-iterated"), default="both",
-                   help="estimators to run; two-step runs both step-2 variants, two-step-iterated the paper's "
-                        "method at its self-consistent sagged pose, both for robots with at most one "
-                        "compensator across one actuated hinge; both: all of them (one-step alone on other "
-                        "robots) (default: %(default)s)")
+    p.add_argument(
+        "--method",
+        choices=("both", "one-step", "two-step", "two-step-iterated"),
+        default="both",
+        help="estimators to run; two-step runs both step-2 variants, two-step-iterated the paper's "
+        "method at its self-consistent sagged pose, both for robots with at most one "
+        "compensator across one actuated hinge; both: all of them (one-step alone on other "
+        "robots) (default: %(default)s)",
+    )
     p.add_argument("--seed", type=int, default=None, help="base noise seed (default: the scenario's)")
-    p.add_argument("--json", type=Path, default=None, help="write the summary as JSON (default: none, the table only)")
-    p.add_argument("--force", action="store_true",
-                   help="run even when the campaign's readings times the runs are estimated to take "
-                        "too long (default: refuse, saying the estimate)")
+    p.add_argument(
+        "--json", type=Path, default=None, help="write the summary as JSON (default: none, the table only)"
+    )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="run even when the campaign's readings times the runs are estimated to take "
+        "too long (default: refuse, saying the estimate)",
+    )
     add_scheduler(p)
     p.set_defaults(func=cmd_montecarlo)
 
@@ -126,9 +165,16 @@ def add_montecarlo(sub) -> None:
 def cmd_montecarlo(args) -> int:
     from calbench.bench.model.robot import Robot
     from calbench.bench.scenario.parse import load_scenario
-    from calbench.identify.runtime.executor import Interrupted
-    from calbench.identify.study.montecarlo import METHODS, RUNS_PER_TASK, estimated_seconds, format_summary, run_montecarlo
     from calbench.identify.methods.twostep import TwoStepError, two_step_applies
+    from calbench.identify.runtime.executor import Interrupted
+    from calbench.identify.study.montecarlo import (
+        METHODS,
+        RUNS_PER_TASK,
+        estimated_seconds,
+        format_summary,
+        run_montecarlo,
+    )
+
     if args.runs < 2:
         raise InputError("--runs", "runs", "an integer >= 2", args.runs)
     scn = load_scenario(args.scenario, seed=args.seed)
@@ -136,19 +182,28 @@ def cmd_montecarlo(args) -> int:
     if not args.force:
         from calbench.bench.campaign.run import truth_robot
         from calbench.bench.scenario.timeline import check_size, estimate, montecarlo_estimate, repeats_key
+
         repeats, n_refl = [p.repeats for p in scn.poses], len(truth_robot(scn).reflector_names)
-        check_size(estimate(repeats, n_refl), scn.path, repeats_key(repeats))   # one campaign
+        check_size(estimate(repeats, n_refl), scn.path, repeats_key(repeats))  # one campaign
         check_size(montecarlo_estimate(repeats, n_refl, args.runs), "--runs", "runs")
-    methods = {"both": METHODS, "one-step": ("one-step",), "two-step": ("two-step", "two-step-weighted"),
-               "two-step-iterated": ("two-step-iterated",)}[args.method]
+    methods = {
+        "both": METHODS,
+        "one-step": ("one-step",),
+        "two-step": ("two-step", "two-step-weighted"),
+        "two-step-iterated": ("two-step-iterated",),
+    }[args.method]
     try:
         two_step_applies(Robot.from_file(scn.robot))
     except TwoStepError as exc:
         if args.method.startswith("two-step"):
-            raise InputError(scn.robot, f"--method {args.method}", "a robot with at most one compensator, across "
-                             "one actuated hinge (paper §4)", str(exc)) from None
+            raise InputError(
+                scn.robot,
+                f"--method {args.method}",
+                "a robot with at most one compensator, across one actuated hinge (paper §4)",
+                str(exc),
+            ) from None
         methods = ("one-step",)
-    except ValueError as exc:   # the MJCF itself: reported where the campaign loads it
+    except ValueError as exc:  # the MJCF itself: reported where the campaign loads it
         raise InputError(scn.path, "robot", "a loadable MJCF robot", f"{scn.robot}: {exc}") from None
     interrupted = None
     with open_pieces(args, estimated_seconds(args.runs, methods), -(-args.runs // RUNS_PER_TASK)) as ex:
@@ -159,8 +214,10 @@ def cmd_montecarlo(args) -> int:
             mc, interrupted = exc.partial, exc
         bar.close()
     if interrupted is not None:
-        print(f"calbench montecarlo: interrupted; {interrupted.done} of {interrupted.total} runs finished",
-              file=sys.stderr)
+        print(
+            f"calbench montecarlo: interrupted; {interrupted.done} of {interrupted.total} runs finished",
+            file=sys.stderr,
+        )
         if interrupted.done < 2:
             return 130
     s = mc.summary()
@@ -173,63 +230,130 @@ def cmd_montecarlo(args) -> int:
 
 # --------------------------------------------------------------------------- design
 
+
 def add_design(sub) -> None:
     from calbench.identify.design.criteria import CRITERIA
+
     p = sub.add_parser("design", help="optimal measurement configurations (design of experiments)")
-    p.add_argument("scenario", type=Path, nargs="?", default=None,
-                   help="scenario TOML (robot, truth = prior guess, tracker, load, optional [work] and [design]); "
-                        "optional with --from-candidates, where it serves --out and --criterion pose")
-    p.add_argument("--configs", type=int, default=12,
-                   help="number of measurement configurations M (default: %(default)s)")
-    p.add_argument("--criterion", choices=CRITERIA, default="A",
-                   help="A: trace of the covariance; D: its determinant; AD: their mean (the paper's O3); "
-                        "pose: the deflection variance at the scenario's [work] pose (default: %(default)s)")
-    p.add_argument("--out", type=Path, default=None, help="write the plan as a runnable scenario (default: none)")
-    p.add_argument("--json", type=Path, default=None, help="write the criteria, stds and poses as JSON (default: none)")
-    p.add_argument("--export-candidates", type=Path, default=None, help="write the candidate set (NPZ; default: none)")
-    p.add_argument("--normalise", action="store_true",
-                   help="with --export-candidates: divide each block column by its RMS (unit mean information "
-                        "diagonal, for tools that divide by it; the D-optimal plan is unchanged; default: off)")
-    p.add_argument("--from-candidates", type=Path, default=None, metavar="CANDS.npz",
-                   help="optimise these candidates (the --export-candidates form: q N x 6 degrees, blocks N x m x p) "
-                        "instead of generating them; prints and records the chosen rows (default: generate)")
-    p.add_argument("--distinct", action="store_true",
-                   help="no candidate twice (no repeats); reports the cost against the plan with repeats "
-                        "(default: repeats allowed)")
-    p.add_argument("--candidates", type=int, default=None,
-                   help="number of candidates (default: the scenario's [design] candidates, else 10000)")
-    p.add_argument("--starts", type=int, default=8,
-                   help="random starts besides the greedy one (default: %(default)s)")
-    p.add_argument("--no-refine", action="store_true", help="skip the continuous refinement (default: refine)")
-    p.add_argument("--processes", type=int, default=None,
-                   help="CPU threads for the candidates in each process (default: all the CPUs of this "
-                        "process; one on a Dask worker)")
+    p.add_argument(
+        "scenario",
+        type=Path,
+        nargs="?",
+        default=None,
+        help="scenario TOML (robot, truth = prior guess, tracker, load, optional [work] and [design]); "
+        "optional with --from-candidates, where it serves --out and --criterion pose",
+    )
+    p.add_argument(
+        "--configs",
+        type=int,
+        default=12,
+        help="number of measurement configurations M (default: %(default)s)",
+    )
+    p.add_argument(
+        "--criterion",
+        choices=CRITERIA,
+        default="A",
+        help="A: trace of the covariance; D: its determinant; AD: their mean (the paper's O3); "
+        "pose: the deflection variance at the scenario's [work] pose (default: %(default)s)",
+    )
+    p.add_argument(
+        "--out", type=Path, default=None, help="write the plan as a runnable scenario (default: none)"
+    )
+    p.add_argument(
+        "--json", type=Path, default=None, help="write the criteria, stds and poses as JSON (default: none)"
+    )
+    p.add_argument(
+        "--export-candidates", type=Path, default=None, help="write the candidate set (NPZ; default: none)"
+    )
+    p.add_argument(
+        "--normalise",
+        action="store_true",
+        help="with --export-candidates: divide each block column by its RMS (unit mean information "
+        "diagonal, for tools that divide by it; the D-optimal plan is unchanged; default: off)",
+    )
+    p.add_argument(
+        "--from-candidates",
+        type=Path,
+        default=None,
+        metavar="CANDS.npz",
+        help="optimise these candidates (the --export-candidates form: q N x 6 degrees, blocks N x m x p) "
+        "instead of generating them; prints and records the chosen rows (default: generate)",
+    )
+    p.add_argument(
+        "--distinct",
+        action="store_true",
+        help="no candidate twice (no repeats); reports the cost against the plan with repeats "
+        "(default: repeats allowed)",
+    )
+    p.add_argument(
+        "--candidates",
+        type=int,
+        default=None,
+        help="number of candidates (default: the scenario's [design] candidates, else 10000)",
+    )
+    p.add_argument(
+        "--starts", type=int, default=8, help="random starts besides the greedy one (default: %(default)s)"
+    )
+    p.add_argument(
+        "--no-refine", action="store_true", help="skip the continuous refinement (default: refine)"
+    )
+    p.add_argument(
+        "--processes",
+        type=int,
+        default=None,
+        help="CPU threads for the candidates in each process (default: all the CPUs of this "
+        "process; one on a Dask worker)",
+    )
     add_scheduler(p)
-    p.add_argument("--study", action="store_true", help="reproduce the paper's §5 study (plots; default: off)")
-    p.add_argument("--out-dir", type=Path, default=Path("logs/design_study"),
-                   help="--study output folder (default: %(default)s)")
+    p.add_argument(
+        "--study", action="store_true", help="reproduce the paper's §5 study (plots; default: off)"
+    )
+    p.add_argument(
+        "--out-dir",
+        type=Path,
+        default=Path("logs/design_study"),
+        help="--study output folder (default: %(default)s)",
+    )
     p.set_defaults(func=cmd_design)
 
 
 def cmd_design(args) -> int:
-    from calbench.identify.design.candidates import (SECONDS_PER_CANDIDATE, InfoEngine, generate_candidates,
-                                    load_design_scenario)
-    from calbench.identify.design.plan import (design_plan, input_plan_measures, plan_comment, plan_scenario_text,
-                              result_json, summary_text)
+    from calbench.identify.design.candidates import (
+        SECONDS_PER_CANDIDATE,
+        InfoEngine,
+        generate_candidates,
+        load_design_scenario,
+    )
+    from calbench.identify.design.plan import (
+        design_plan,
+        input_plan_measures,
+        plan_comment,
+        plan_scenario_text,
+        result_json,
+        summary_text,
+    )
+
     if args.normalise and args.export_candidates is None:
         raise InputError("(command line)", "--normalise", "--export-candidates CANDS.npz with it", None)
     if args.from_candidates is not None:
         return _design_from_candidates(args)
     if args.scenario is None:
-        raise InputError("(command line)", "SCENARIO", "a scenario TOML (or --from-candidates CANDS.npz)", None)
+        raise InputError(
+            "(command line)", "SCENARIO", "a scenario TOML (or --from-candidates CANDS.npz)", None
+        )
     if args.study:
         from calbench.identify.design.study import run_study
+
         res = run_study(args.scenario, args.out_dir)
         print(json.dumps({k: res[k] for k in ("table1", "table2", "table3_parameters")}, indent=1))
         return 0
     if args.out is None and args.json is None and args.export_candidates is None:
-        raise InputError("(command line)", "--out", "--out PLAN.toml, --json OUT.json or --export-candidates "
-                         "CANDS.npz", None)
+        raise InputError(
+            "(command line)",
+            "--out",
+            "--out PLAN.toml, --json OUT.json or --export-candidates CANDS.npz",
+            None,
+        )
     if args.configs < 1:
         raise InputError("--configs", "configs", "an integer >= 1", args.configs)
     if args.candidates is not None and args.candidates < 1:
@@ -239,15 +363,22 @@ def cmd_design(args) -> int:
     if args.processes is not None and args.processes < 1:
         raise InputError("--processes", "processes", "an integer >= 1", args.processes)
     scn, settings = load_design_scenario(args.scenario)
-    check_outputs({"--out": args.out, "--json": args.json, "--export-candidates": args.export_candidates},
-                  {"SCENARIO": args.scenario, "robot": scn.robot})
+    check_outputs(
+        {"--out": args.out, "--json": args.json, "--export-candidates": args.export_candidates},
+        {"SCENARIO": args.scenario, "robot": scn.robot},
+    )
     if args.criterion == "pose" and scn.work is None and (args.out or args.json):
-        raise InputError(scn.path, "work", "a [work] table (q in degrees, wrench in N and N*m) for "
-                         "--criterion pose", None)
+        raise InputError(
+            scn.path, "work", "a [work] table (q in degrees, wrench in N and N*m) for --criterion pose", None
+        )
     n_cands = args.candidates if args.candidates is not None else settings.candidates
-    if (args.out or args.json) and args.configs > n_cands:      # before minutes of candidates
-        raise InputError("--configs", "configs", f"at most the {n_cands} candidates (more "
-                         "--candidates give more)", args.configs)
+    if (args.out or args.json) and args.configs > n_cands:  # before minutes of candidates
+        raise InputError(
+            "--configs",
+            "configs",
+            f"at most the {n_cands} candidates (more --candidates give more)",
+            args.configs,
+        )
     t0 = time.perf_counter()
     n = settings.candidates if args.candidates is None else args.candidates
     with open_pieces(args, n * SECONDS_PER_CANDIDATE, -(-n // 300)) as ex:
@@ -255,22 +386,40 @@ def cmd_design(args) -> int:
         cands = generate_candidates(scn, settings, n=n, processes=args.processes, progress=bar, executor=ex)
         bar.close()
     t_c = time.perf_counter() - t0
-    print(f"{len(cands)} feasible candidates ({int(cands.kind.sum())} lateral pulls) in {t_c:.1f} s "
-          f"from {cands.stats['raw_commands']} sampled commands", file=sys.stderr)
+    print(
+        f"{len(cands)} feasible candidates ({int(cands.kind.sum())} lateral pulls) in {t_c:.1f} s "
+        f"from {cands.stats['raw_commands']} sampled commands",
+        file=sys.stderr,
+    )
     if args.export_candidates:
-        with atomic_path(args.export_candidates, suffix=".npz") as tmp:   # savez adds .npz otherwise
+        with atomic_path(args.export_candidates, suffix=".npz") as tmp:  # savez adds .npz otherwise
             cands.save_npz(tmp, normalise=args.normalise)
         print(f"wrote {args.export_candidates}", file=sys.stderr)
     if args.out is None and args.json is None:
         return 0
     if args.configs > len(cands):
-        raise InputError("--configs", "configs", f"at most the {len(cands)} feasible candidates "
-                         "(more --candidates, or looser [design] settings, give more)", args.configs)
+        raise InputError(
+            "--configs",
+            "configs",
+            f"at most the {len(cands)} feasible candidates "
+            "(more --candidates, or looser [design] settings, give more)",
+            args.configs,
+        )
     bar = terminal_progress()
     bar.start(1 + 3 * args.configs, "exchange")
     engine = InfoEngine(scn, settings)
-    res = design_plan(scn, settings, cands, args.configs, args.criterion, n_random=args.starts,
-                      do_refine=not args.no_refine, engine=engine, progress=bar, distinct=args.distinct)
+    res = design_plan(
+        scn,
+        settings,
+        cands,
+        args.configs,
+        args.criterion,
+        n_random=args.starts,
+        do_refine=not args.no_refine,
+        engine=engine,
+        progress=bar,
+        distinct=args.distinct,
+    )
     bar.close()
     res.timings["candidates_s"] = t_c
     input_plan = input_plan_measures(engine, scn, cands.theta0)
@@ -287,96 +436,169 @@ def cmd_design(args) -> int:
 def _design_from_candidates(args) -> int:
     """`design --from-candidates CANDS.npz`: the exchange and its certificate on given blocks."""
     import numpy as np
+
     from calbench.identify.design.candidate_file import read_candidates
     from calbench.identify.design.candidates import LOAD_KINDS, InfoEngine, load_design_scenario
     from calbench.identify.design.certificate import SingularCandidates
     from calbench.identify.design.plan import merge_repeats, plan_scenario_text, poses_of_rows
     from calbench.identify.design.selection import select_rows, selection_text
+
     for flag, given in (("--study", args.study), ("--export-candidates", args.export_candidates)):
         if given:
             raise InputError("(command line)", flag, "no " + flag + " with --from-candidates", None)
     if args.configs < 1:
         raise InputError("--configs", "configs", "an integer >= 1", args.configs)
-    check_outputs({"--out": args.out, "--json": args.json},
-                  {"--from-candidates": args.from_candidates, "SCENARIO": args.scenario})
+    check_outputs(
+        {"--out": args.out, "--json": args.json},
+        {"--from-candidates": args.from_candidates, "SCENARIO": args.scenario},
+    )
     cf = read_candidates(args.from_candidates)
     if args.distinct and args.configs > len(cf):
-        raise InputError(cf.path, "q", f"at least --configs {args.configs} candidates with --distinct", len(cf))
+        raise InputError(
+            cf.path, "q", f"at least --configs {args.configs} candidates with --distinct", len(cf)
+        )
     scn = G = None
     if args.scenario is not None:
         scn, settings = load_design_scenario(args.scenario)
         if cf.q.shape[1] != len(scn.compliance):
-            raise InputError(cf.path, "q", f"N x {len(scn.compliance)} joint angles (one per actuated joint of "
-                             f"{scn.robot.name})", f"N x {cf.q.shape[1]}")
+            raise InputError(
+                cf.path,
+                "q",
+                f"N x {len(scn.compliance)} joint angles (one per actuated joint of {scn.robot.name})",
+                f"N x {cf.q.shape[1]}",
+            )
     if args.out is not None and (scn is None or cf.wrench is None or cf.kind is None):
-        raise InputError(cf.path if scn is not None else "(command line)", "wrench" if scn is not None else "SCENARIO",
-                         "the scenario and the arrays wrench and load_kind in the candidate file for --out", None)
+        raise InputError(
+            cf.path if scn is not None else "(command line)",
+            "wrench" if scn is not None else "SCENARIO",
+            "the scenario and the arrays wrench and load_kind in the candidate file for --out",
+            None,
+        )
     if args.criterion == "pose":
         if scn is None or scn.work is None:
-            raise InputError(args.scenario or "(command line)", "work", "a scenario with a [work] table "
-                             "for --criterion pose (the work-pose Jacobian)", None)
+            raise InputError(
+                args.scenario or "(command line)",
+                "work",
+                "a scenario with a [work] table for --criterion pose (the work-pose Jacobian)",
+                None,
+            )
         engine = InfoEngine(scn, settings)
-        if cf.blocks.shape[2] != len(engine.theta0) or (cf.theta0 is not None and not
-                                                       np.allclose(cf.theta0, engine.theta0, rtol=1e-9)):
-            raise InputError(cf.path, "theta0", f"the prior of {scn.path} ({len(engine.theta0)} parameters)",
-                             None if cf.theta0 is None else cf.theta0.tolist())
+        if cf.blocks.shape[2] != len(engine.theta0) or (
+            cf.theta0 is not None and not np.allclose(cf.theta0, engine.theta0, rtol=1e-9)
+        ):
+            raise InputError(
+                cf.path,
+                "theta0",
+                f"the prior of {scn.path} ({len(engine.theta0)} parameters)",
+                None if cf.theta0 is None else cf.theta0.tolist(),
+            )
         G = engine.work_jacobian(scn.work.q, scn.work.wrench)
     try:
-        sel = select_rows(cf.blocks, args.configs, args.criterion, G, distinct=args.distinct,
-                          n_random=args.starts)
+        sel = select_rows(
+            cf.blocks, args.configs, args.criterion, G, distinct=args.distinct, n_random=args.starts
+        )
     except SingularCandidates as exc:
-        raise InputError(cf.path, "blocks", "candidates that together identify every parameter", str(exc)) from None
+        raise InputError(
+            cf.path, "blocks", "candidates that together identify every parameter", str(exc)
+        ) from None
     load = None if cf.kind is None else [LOAD_KINDS[k] for k in cf.kind]
-    print(f"design: {args.criterion}-optimal plan of {args.configs} rows from {len(cf)} candidates "
-          f"({cf.path})\n" + selection_text(sel, len(cf), cf.q, load))
+    print(
+        f"design: {args.criterion}-optimal plan of {args.configs} rows from {len(cf)} candidates "
+        f"({cf.path})\n" + selection_text(sel, len(cf), cf.q, load)
+    )
     if args.out:
         poses = merge_repeats(poses_of_rows(cf.q, cf.wrench, cf.kind, cf.blocks, sel.rows))
-        text = plan_scenario_text(scn, poses, args.out, f"Measurement plan by `calbench design --from-candidates "
-                                  f"{cf.path.name} --configs {args.configs} --criterion {args.criterion}`")
+        text = plan_scenario_text(
+            scn,
+            poses,
+            args.out,
+            f"Measurement plan by `calbench design --from-candidates "
+            f"{cf.path.name} --configs {args.configs} --criterion {args.criterion}`",
+        )
         write_text(args.out, text)
         print(f"wrote {args.out}", file=sys.stderr)
     if args.json:
         r = sel.exchange
-        out = {"candidates_file": str(cf.path), "candidates": len(cf), "criterion": args.criterion,
-               "configs": args.configs, **sel.as_json(cf.q, load),
-               "exchange": {"value": r.value, "start_values": r.start_values, "start_results": r.start_results,
-                            "passes": r.passes, "swaps": r.swaps, **sel.exchanger_stats},
-               "timings": sel.seconds}
+        out = {
+            "candidates_file": str(cf.path),
+            "candidates": len(cf),
+            "criterion": args.criterion,
+            "configs": args.configs,
+            **sel.as_json(cf.q, load),
+            "exchange": {
+                "value": r.value,
+                "start_values": r.start_values,
+                "start_results": r.start_results,
+                "passes": r.passes,
+                "swaps": r.swaps,
+                **sel.exchanger_stats,
+            },
+            "timings": sel.seconds,
+        }
         write_text(args.json, json.dumps(out, indent=2))
     return 0
 
 
 # --------------------------------------------------------------------------- discover
 
+
 def add_discover(sub) -> None:
-    p = sub.add_parser("discover", help="find where the model and the measurements disagree and name the missing effect")
+    p = sub.add_parser(
+        "discover", help="find where the model and the measurements disagree and name the missing effect"
+    )
     p.add_argument("log", type=Path, help="campaign MCAP log")
-    p.add_argument("--model", type=Path, default=None, help="the user's robot MJCF (default: the one in the log)")
-    p.add_argument("--json", type=Path, default=None,
-                   help="write the report as JSON (default: none, the story only)")
-    p.add_argument("--out-model", type=Path, default=None,
-                   help="augmented MJCF (default: LOG.augmented.xml next to the log, when an effect is named)")
-    p.add_argument("--plot", type=Path, default=None,
-                   help="per-pose residuals before/after, PNG (default: next to --json, or LOG.discover.png)")
-    p.add_argument("--view-json", type=Path, default=None,
-                   help="identify-style JSON with predicted deflections for `calbench view --identified` "
-                        "(default: next to --json)")
-    p.add_argument("--rrd", type=Path, default=None,
-                   help="Rerun recording of where the model disagreed, residuals before and after on the robot "
-                        "(default: next to --json, or LOG.discover.rrd)")
+    p.add_argument(
+        "--model", type=Path, default=None, help="the user's robot MJCF (default: the one in the log)"
+    )
+    p.add_argument(
+        "--json", type=Path, default=None, help="write the report as JSON (default: none, the story only)"
+    )
+    p.add_argument(
+        "--out-model",
+        type=Path,
+        default=None,
+        help="augmented MJCF (default: LOG.augmented.xml next to the log, when an effect is named)",
+    )
+    p.add_argument(
+        "--plot",
+        type=Path,
+        default=None,
+        help="per-pose residuals before/after, PNG (default: next to --json, or LOG.discover.png)",
+    )
+    p.add_argument(
+        "--view-json",
+        type=Path,
+        default=None,
+        help="identify-style JSON with predicted deflections for `calbench view --identified` "
+        "(default: next to --json)",
+    )
+    p.add_argument(
+        "--rrd",
+        type=Path,
+        default=None,
+        help="Rerun recording of where the model disagreed, residuals before and after on the robot "
+        "(default: next to --json, or LOG.discover.rrd)",
+    )
     p.set_defaults(func=cmd_discover)
 
 
 def cmd_discover(args) -> int:
     from calbench.identify.discover.workflow import clean, discover, story
+
     if not args.log.is_file():
         raise InputError(args.log, "LOG.mcap", "an existing campaign log", "no such file")
-    plot = args.plot or (args.json.with_suffix(".png") if args.json else args.log.with_name(args.log.stem + ".discover.png"))
+    plot = args.plot or (
+        args.json.with_suffix(".png") if args.json else args.log.with_name(args.log.stem + ".discover.png")
+    )
     view = args.view_json or (args.json.with_name(args.json.stem + ".view.json") if args.json else None)
-    rrd = args.rrd or (args.json.with_suffix(".rrd") if args.json else args.log.with_name(args.log.stem + ".discover.rrd"))
+    rrd = args.rrd or (
+        args.json.with_suffix(".rrd") if args.json else args.log.with_name(args.log.stem + ".discover.rrd")
+    )
     out_model = args.out_model or args.log.with_name(args.log.stem + ".augmented.xml")
-    check_outputs({"--json": args.json, "--out-model": out_model, "--plot": plot, "--view-json": view,
-                   "--rrd": rrd}, {"LOG": args.log, "--model": args.model})
+    check_outputs(
+        {"--json": args.json, "--out-model": out_model, "--plot": plot, "--view-json": view, "--rrd": rrd},
+        {"LOG": args.log, "--model": args.model},
+    )
     rep = discover(args.log, args.model, out_model=args.out_model, plot=plot, view_json=view, view_rrd=rrd)
     print(story(rep))
     if args.json:
@@ -386,95 +608,145 @@ def cmd_discover(args) -> int:
 
 # --------------------------------------------------------------------------- report
 
+
 def add_report(sub) -> None:
     p = sub.add_parser("report", help="the calibration report: one self-contained HTML file")
     p.add_argument("log", type=Path, help="campaign MCAP log")
-    p.add_argument("--identified", type=Path, default=None,
-                   help="JSON of `calbench identify --json` (parameters, correlation, residuals; "
-                        "default: none)")
-    p.add_argument("--discover", type=Path, default=None,
-                   help="JSON of `calbench discover --json` (verdict, before/after, aliasing; "
-                        "default: none)")
-    p.add_argument("--design", type=Path, default=None,
-                   help="JSON of `calbench design --json` (the plan and its certificate; "
-                        "default: none)")
+    p.add_argument(
+        "--identified",
+        type=Path,
+        default=None,
+        help="JSON of `calbench identify --json` (parameters, correlation, residuals; default: none)",
+    )
+    p.add_argument(
+        "--discover",
+        type=Path,
+        default=None,
+        help="JSON of `calbench discover --json` (verdict, before/after, aliasing; default: none)",
+    )
+    p.add_argument(
+        "--design",
+        type=Path,
+        default=None,
+        help="JSON of `calbench design --json` (the plan and its certificate; default: none)",
+    )
     p.add_argument("--out", type=Path, required=True, help="the report, HTML (required)")
     p.set_defaults(func=cmd_report)
 
 
 def cmd_report(args) -> int:
     from calbench.identify.report.html import write_report
+
     out = write_report(args.log, args.out, args.identified, args.discover, args.design)
     given = [k for k in ("identified", "discover", "design") if getattr(args, k) is not None]
-    print(f"wrote {out} ({out.stat().st_size / 1024:.0f} KiB; from the log"
-          + "".join(f", --{k}" for k in given) + ")")
+    print(
+        f"wrote {out} ({out.stat().st_size / 1024:.0f} KiB; from the log"
+        + "".join(f", --{k}" for k in given)
+        + ")"
+    )
     return 0
 
 
 # --------------------------------------------------------------------------- import
 
+
 def add_import(sub) -> None:
-    p = sub.add_parser("import", help="a campaign log from real tracker readings (CSV) taken along a plan",
-                       description="READINGS.csv: pose,state,point,x,y,z[,time][,sigma] (docs/contract.md); "
-                                   "PLAN.toml: a scenario without [truth]. Without a tracker position in the "
-                                   "plan the tracker is registered from the unloaded readings.")
+    p = sub.add_parser(
+        "import",
+        help="a campaign log from real tracker readings (CSV) taken along a plan",
+        description="READINGS.csv: pose,state,point,x,y,z[,time][,sigma] (docs/contract.md); "
+        "PLAN.toml: a scenario without [truth]. Without a tracker position in the "
+        "plan the tracker is registered from the unloaded readings.",
+    )
     p.add_argument("readings", type=Path, help="READINGS.csv")
-    p.add_argument("--plan", type=Path, required=True, help="the plan the readings were taken along (TOML; required)")
+    p.add_argument(
+        "--plan", type=Path, required=True, help="the plan the readings were taken along (TOML; required)"
+    )
     p.add_argument("--out", type=Path, required=True, help="output MCAP log (required)")
-    p.add_argument("--units", choices=("mm", "m"), default="mm",
-                   help="unit of x, y, z and sigma in the CSV (default: %(default)s)")
+    p.add_argument(
+        "--units",
+        choices=("mm", "m"),
+        default="mm",
+        help="unit of x, y, z and sigma in the CSV (default: %(default)s)",
+    )
     p.add_argument("--model", type=Path, default=None, help="robot MJCF (default: the plan's `robot`)")
     p.set_defaults(func=cmd_import)
 
 
 def cmd_import(args) -> int:
     import numpy as np
+
     from calbench.identify.shopfloor.importer import import_readings
-    check_outputs({"--out": args.out}, {"READINGS": args.readings, "--plan": args.plan, "--model": args.model})
+
+    check_outputs(
+        {"--out": args.out}, {"READINGS": args.readings, "--plan": args.plan, "--model": args.model}
+    )
     res = import_readings(args.readings, args.plan, args.out, args.units, args.model)
     s = res.summary
     for w in res.warnings:
         print(f"calbench import: warning: {w}", file=sys.stderr)
-    print(f"wrote {res.out}: {len(s.poses)} of {len(res.plan.poses)} planned poses, {s.rows} readings "
-          f"in {s.readings} tracker messages ({args.units})"
-          + (f"; no readings for poses {s.lost}" if s.lost else "")
-          + (f"; one state only (no deflection) for poses {s.one_state}" if s.one_state else ""))
+    print(
+        f"wrote {res.out}: {len(s.poses)} of {len(res.plan.poses)} planned poses, {s.rows} readings "
+        f"in {s.readings} tracker messages ({args.units})"
+        + (f"; no readings for poses {s.lost}" if s.lost else "")
+        + (f"; one state only (no deflection) for poses {s.one_state}" if s.one_state else "")
+    )
     if res.registration is None:
         print("tracker pose: the plan's")
     else:
         f = res.registration.fit
-        print(f"tracker registered at ({', '.join(f'{v:.4f}' for v in f.position)}) m "
-              f"± {max(f.position_std) * 1e6:.1f} um, turned {np.degrees(np.arccos(np.clip((np.trace(f.rotation) - 1) / 2, -1, 1))):.3f} deg "
-              f"± {max(f.rotation_std) * 1e6:.1f} urad; residual {f.rms * 1e6:.1f} um RMS per axis "
-              f"(the tracker alone: {f.expected_rms * 1e6:.1f} um)")
+        print(
+            f"tracker registered at ({', '.join(f'{v:.4f}' for v in f.position)}) m "
+            f"± {max(f.position_std) * 1e6:.1f} um, turned {np.degrees(np.arccos(np.clip((np.trace(f.rotation) - 1) / 2, -1, 1))):.3f} deg "
+            f"± {max(f.rotation_std) * 1e6:.1f} urad; residual {f.rms * 1e6:.1f} um RMS per axis "
+            f"(the tracker alone: {f.expected_rms * 1e6:.1f} um)"
+        )
     return 0
 
 
 # --------------------------------------------------------------------------- study
 
+
 def add_study(sub) -> None:
-    p = sub.add_parser("study", help="a grid of whole campaigns (scenario keys x seeds) into Parquet; resumable")
+    p = sub.add_parser(
+        "study", help="a grid of whole campaigns (scenario keys x seeds) into Parquet; resumable"
+    )
     p.add_argument("study", type=Path, help="study TOML (base scenario, axes, seeds; see docs/studies.md)")
-    p.add_argument("--out", type=Path, required=True,
-                   help="required: the results, one row per campaign (Parquet); re-running the same command "
-                        "resumes")
-    p.add_argument("--plots", type=Path, default=None,
-                   help="folder for the accuracy and power plots (default: OUT's name + _plots beside it)")
-    p.add_argument("--json", type=Path, default=None,
-                   help="write the per-cell summary as JSON (default: none, the table only)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        help="required: the results, one row per campaign (Parquet); re-running the same command resumes",
+    )
+    p.add_argument(
+        "--plots",
+        type=Path,
+        default=None,
+        help="folder for the accuracy and power plots (default: OUT's name + _plots beside it)",
+    )
+    p.add_argument(
+        "--json",
+        type=Path,
+        default=None,
+        help="write the per-cell summary as JSON (default: none, the table only)",
+    )
     add_scheduler(p)
     p.set_defaults(func=cmd_study)
 
 
 def cmd_study(args) -> int:
     from calbench.identify.runtime.executor import Interrupted
-    from .study import cell_summaries, format_cells, load_study, prepare, read_results, run_study
     from calbench.identify.study.plots import accuracy_plots, power_plots
     from calbench.identify.study.summary import pooled_by_axis
-    study = load_study(args.study)                     # every cell validated: nothing sent yet
+
+    from .study import cell_summaries, format_cells, load_study, prepare, read_results, run_study
+
+    study = load_study(args.study)  # every cell validated: nothing sent yet
     plots = args.plots or args.out.with_name(args.out.stem + "_plots")
-    check_outputs({"--out": args.out, "--json": args.json},
-                  {"STUDY": args.study, "scenario": study.base.path, "robot": study.base.robot})
+    check_outputs(
+        {"--out": args.out, "--json": args.json},
+        {"STUDY": args.study, "scenario": study.base.path, "robot": study.base.robot},
+    )
     if plots.exists() and not plots.is_dir():
         raise InputError(plots, "--plots", "a folder", "a file")
     pending = prepare(study, args.out)
@@ -482,8 +754,10 @@ def cmd_study(args) -> int:
     if pending.campaigns == 0:
         print(f"calbench study: all {pending.before} campaigns already in {args.out}", file=sys.stderr)
     else:
-        print(f"calbench study: {pending.campaigns} campaigns to run ({pending.before} already in {args.out})",
-              file=sys.stderr)
+        print(
+            f"calbench study: {pending.campaigns} campaigns to run ({pending.before} already in {args.out})",
+            file=sys.stderr,
+        )
         with open_pieces(args, pending.estimated_seconds(), pending.tasks()) as ex:
             bar = terminal_progress()
             try:
@@ -491,10 +765,13 @@ def cmd_study(args) -> int:
             except Interrupted as exc:
                 outcome, interrupted = exc.partial, exc
             bar.close()
-        print(f"calbench study: {outcome.ran} campaigns run in {outcome.seconds:.1f} s"
-              + (f", {outcome.designs} plans designed" if outcome.designs else "")
-              + f"; {outcome.rows} in {args.out}" + (f" ({outcome.failed} failed)" if outcome.failed else ""),
-              file=sys.stderr)
+        print(
+            f"calbench study: {outcome.ran} campaigns run in {outcome.seconds:.1f} s"
+            + (f", {outcome.designs} plans designed" if outcome.designs else "")
+            + f"; {outcome.rows} in {args.out}"
+            + (f" ({outcome.failed} failed)" if outcome.failed else ""),
+            file=sys.stderr,
+        )
     table, _ = read_results(args.out)
     cells = cell_summaries(study, table)
     print(format_cells(study, cells))
@@ -503,27 +780,48 @@ def cmd_study(args) -> int:
         made = accuracy_plots(study, pooled_by_axis(study, table), plots) + power_plots(study, cells, plots)
         print(f"plots: {', '.join(str(p) for p in made)}", file=sys.stderr)
     if args.json:
-        write_text(args.json, json.dumps({"study": study.name, "file": str(args.study), "results": str(args.out),
-                                          "seeds": study.seeds, "cells": cells}, indent=2))
+        write_text(
+            args.json,
+            json.dumps(
+                {
+                    "study": study.name,
+                    "file": str(args.study),
+                    "results": str(args.out),
+                    "seeds": study.seeds,
+                    "cells": cells,
+                },
+                indent=2,
+            ),
+        )
     if interrupted is not None:
-        print(f"calbench study: interrupted; {interrupted.done} of {interrupted.total} campaigns kept in "
-              f"{args.out}; run the same command again to resume", file=sys.stderr)
+        print(
+            f"calbench study: interrupted; {interrupted.done} of {interrupted.total} campaigns kept in "
+            f"{args.out}; run the same command again to resume",
+            file=sys.stderr,
+        )
         return 130
     return 0
 
 
 # --------------------------------------------------------------------------- demo
 
+
 def add_demo(sub) -> None:
     p = sub.add_parser("demo", help="the paper campaign end to end: simulate, view, identify, discover")
-    p.add_argument("--logs", type=Path, default=Path("logs"),
-                   help="output folder, relative to where you run it (default: %(default)s)")
+    p.add_argument(
+        "--logs",
+        type=Path,
+        default=Path("logs"),
+        help="output folder, relative to where you run it (default: %(default)s)",
+    )
     p.set_defaults(func=cmd_demo)
 
 
 def cmd_demo(args) -> int:
-    check_outputs({f"--logs ({what})": path for what, path in demo.demo_files(args.logs).items()},
-                  {"demo scenario": demo.PAPER})
+    check_outputs(
+        {f"--logs ({what})": path for what, path in demo.demo_files(args.logs).items()},
+        {"demo scenario": demo.PAPER},
+    )
     for line in demo.run_demo(args.logs):
         print(line, flush=True)
     return 0
@@ -531,11 +829,17 @@ def cmd_demo(args) -> int:
 
 # --------------------------------------------------------------------------- the script
 
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="calbench", description=__doc__.split("\n\n")[0])
     parser.add_argument("--version", action="version", version=f"calbench {_version()}")
-    parser.add_argument("-v", "--verbose", action="count", default=0,
-                        help="log the solvers' iterations to stderr (-v: info, -vv: debug; default: quiet)")
+    parser.add_argument(
+        "-v",
+        "--verbose",
+        action="count",
+        default=0,
+        help="log the solvers' iterations to stderr (-v: info, -vv: debug; default: quiet)",
+    )
     sub = parser.add_subparsers(dest="command", required=True)
     add_simulate(sub)
     add_demo(sub)
@@ -562,8 +866,11 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.verbose:
-        logging.basicConfig(level=logging.DEBUG if args.verbose > 1 else logging.INFO,
-                            format="%(name)s: %(message)s", stream=sys.stderr)
+        logging.basicConfig(
+            level=logging.DEBUG if args.verbose > 1 else logging.INFO,
+            format="%(name)s: %(message)s",
+            stream=sys.stderr,
+        )
     if mujoco.get_mju_user_warning() is None:
         # MuJoCo's own handler writes MUJOCO_LOG.TXT into the user's folder: say it on stderr
         mujoco.set_mju_user_warning(_mujoco_warning)
@@ -575,7 +882,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("calbench: interrupted", file=sys.stderr)
         return 130
-    except BrokenPipeError:          # `calbench ... | head`: the reader left, nothing to say
+    except BrokenPipeError:  # `calbench ... | head`: the reader left, nothing to say
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
 

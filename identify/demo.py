@@ -3,11 +3,12 @@
 :func:`run_demo` yields the lines of the story as each step finishes (the command line prints
 them), so the demo shows progress and stays callable from a notebook.
 """
+
 from __future__ import annotations
 
 import json
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
 from calbench.bench.campaign.run import run_campaign
 from calbench.bench.core.outputs import write_text
@@ -16,9 +17,9 @@ from calbench.bench.model.robot import Robot
 from calbench.bench.scenario.parse import load_scenario, scenario_variant
 from calbench.bench.view.recording import write_recording
 
-PAPER = scenario_path(PAPER_SCENARIO)   # package data: works outside a checkout
-HIDDEN = "paper_table5_hidden"          # the discovery step's campaign
-HIDDEN_COMPLIANCE = "[1.8e-7, 0.0, 1.8e-7]"   # rad/(N*m): lateral bending + torsion at the link root
+PAPER = scenario_path(PAPER_SCENARIO)  # package data: works outside a checkout
+HIDDEN = "paper_table5_hidden"  # the discovery step's campaign
+HIDDEN_COMPLIANCE = "[1.8e-7, 0.0, 1.8e-7]"  # rad/(N*m): lateral bending + torsion at the link root
 
 
 def hidden_link(scenario: Path = PAPER) -> str:
@@ -32,8 +33,10 @@ def hidden_link(scenario: Path = PAPER) -> str:
 
 def hidden_demo(link: str) -> str:
     """The hidden effect's [truth.effects] table."""
-    return (f"[truth.effects.link_compliance]      # hidden: lateral bending + torsion at the {link} root\n"
-            f'link = "{link}"\ncompliance = {HIDDEN_COMPLIANCE}')
+    return (
+        f"[truth.effects.link_compliance]      # hidden: lateral bending + torsion at the {link} root\n"
+        f'link = "{link}"\ncompliance = {HIDDEN_COMPLIANCE}'
+    )
 
 
 def demo_files(logs: Path) -> dict[str, Path]:
@@ -43,17 +46,24 @@ def demo_files(logs: Path) -> dict[str, Path]:
     logs = Path(logs)
     log = logs / f"{load_scenario(PAPER).name}.mcap"
     h = f"{HIDDEN}."
-    return {"campaign log": log, "recording": log.with_suffix(".rrd"),
-            "hidden scenario": logs / f"{h}toml", "hidden log": logs / f"{h}mcap",
-            "augmented model": logs / f"{h}augmented.xml", "discovery report": logs / f"{h}discover.json",
-            "discovery plot": logs / f"{h}discover.png", "discovery view": logs / f"{h}discover.view.json",
-            "discovery recording": logs / f"{h}discover.rrd"}
+    return {
+        "campaign log": log,
+        "recording": log.with_suffix(".rrd"),
+        "hidden scenario": logs / f"{h}toml",
+        "hidden log": logs / f"{h}mcap",
+        "augmented model": logs / f"{h}augmented.xml",
+        "discovery report": logs / f"{h}discover.json",
+        "discovery plot": logs / f"{h}discover.png",
+        "discovery view": logs / f"{h}discover.view.json",
+        "discovery recording": logs / f"{h}discover.rrd",
+    }
 
 
 def run_demo(logs: Path) -> Iterator[str]:
     """Simulate the paper campaign, record its Rerun view, identify it against the truth, then
     run the discovery story; yields what to tell the user after each step."""
     from calbench.identify.report.identification import format_table, run_identify
+
     files = demo_files(logs)
     log, rrd = files["campaign log"], files["recording"]
     plans = run_campaign(load_scenario(PAPER), log)
@@ -71,6 +81,7 @@ def discover_step(logs: Path) -> Iterator[str]:
     model lacks; `calbench discover` finds where they disagree, names it, adds it, shows the gap
     shrink."""
     from calbench.identify.discover.workflow import clean, discover, story
+
     files = demo_files(logs)
     files["hidden log"].parent.mkdir(parents=True, exist_ok=True)
     link = hidden_link()
@@ -79,13 +90,29 @@ def discover_step(logs: Path) -> Iterator[str]:
     run_campaign(load_scenario(scn_path), log)
     yield f"4. discover: a campaign on a robot with a hidden effect the model lacks -> {log}"
     js = files["discovery report"]
-    rep = discover(log, out_model=files["augmented model"], plot=files["discovery plot"],
-                   view_json=files["discovery view"], view_rrd=files["discovery recording"])
+    rep = discover(
+        log,
+        out_model=files["augmented model"],
+        plot=files["discovery plot"],
+        view_json=files["discovery view"],
+        view_rrd=files["discovery recording"],
+    )
     write_text(js, json.dumps(clean(rep), indent=2, allow_nan=False))
     yield "\n".join("   " + line for line in story(rep).splitlines())
-    yield (f"   (the hidden truth, read only now: link_compliance {link}, compliance [1.8e-7, 0, 1.8e-7] "
-           "rad/(N*m))")
+    yield (
+        f"   (the hidden truth, read only now: link_compliance {link}, compliance [1.8e-7, 0, 1.8e-7] "
+        "rad/(N*m))"
+    )
     yield f"   report -> {js}"
 
 
-__all__ = ["run_demo", "demo_files", "discover_step", "PAPER", "HIDDEN", "hidden_demo", "hidden_link", "HIDDEN_COMPLIANCE"]
+__all__ = [
+    "run_demo",
+    "demo_files",
+    "discover_step",
+    "PAPER",
+    "HIDDEN",
+    "hidden_demo",
+    "hidden_link",
+    "HIDDEN_COMPLIANCE",
+]

@@ -13,13 +13,15 @@ Mutations of a log:
 * :func:`truncate` cuts the file;
 * :func:`drop_topic` removes a channel and its messages.
 """
+
 from __future__ import annotations
 
 import json
 import random
 import struct
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import zstandard
 from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
@@ -44,9 +46,14 @@ def _records_tolerant(path: Path) -> list:
                 return out
 
 
-def rewrite_json(src: Path, dst: Path, edit: Callable[[str, dict], Any] | None = None,
-                 drop: str | None = None, finish: bool = True,
-                 metadata: Callable[[str, dict], dict] | None = None) -> Path:
+def rewrite_json(
+    src: Path,
+    dst: Path,
+    edit: Callable[[str, dict], Any] | None = None,
+    drop: str | None = None,
+    finish: bool = True,
+    metadata: Callable[[str, dict], dict] | None = None,
+) -> Path:
     """Copy a log record by record; ``edit(topic, message)`` returns the new message (a dict,
     or raw bytes written as they are) or None to drop it; ``metadata(name, record)`` the new
     metadata record. A chunk ends after each pose_done, as in calbench's writer. ``drop``
@@ -69,8 +76,9 @@ def rewrite_json(src: Path, dst: Path, edit: Callable[[str, dict], Any] | None =
                 if rec.schema_id not in sid_map:
                     s = schemas[rec.schema_id]
                     sid_map[rec.schema_id] = w.register_schema(s.name, s.encoding, s.data)
-                cid_map[rec.id] = w.register_channel(rec.topic, rec.message_encoding,
-                                                     sid_map[rec.schema_id], dict(rec.metadata))
+                cid_map[rec.id] = w.register_channel(
+                    rec.topic, rec.message_encoding, sid_map[rec.schema_id], dict(rec.metadata)
+                )
             elif isinstance(rec, Message):
                 if rec.channel_id not in cid_map:
                     continue
@@ -81,8 +89,7 @@ def rewrite_json(src: Path, dst: Path, edit: Callable[[str, dict], Any] | None =
                     if new is None:
                         continue
                     data = new if isinstance(new, bytes) else json.dumps(new).encode()
-                w.add_message(cid_map[rec.channel_id], rec.log_time, data, rec.publish_time,
-                              rec.sequence)
+                w.add_message(cid_map[rec.channel_id], rec.log_time, data, rec.publish_time, rec.sequence)
                 if topic == "/campaign/pose_done":
                     w.flush()
             elif isinstance(rec, Metadata):
@@ -112,6 +119,7 @@ def edit_pose(topic: str, pose: int, fn: Callable[[dict], Any]) -> Callable[[str
             out = fn(m)
             return out if isinstance(out, (dict, bytes)) else m
         return m
+
     return edit
 
 
@@ -144,12 +152,12 @@ def flip_bit_in_chunk(src: Path, dst: Path, seed: int = 0, chunk: int | None = N
     order = [chunk] if chunk is not None else rng.sample(range(1, len(spans)), len(spans) - 1)
     for ci in order:
         _, start, n, usize = spans[ci]
-        original = zstandard.decompress(bytes(data[start:start + n]), usize)
+        original = zstandard.decompress(bytes(data[start : start + n]), usize)
         bits = rng.sample(range(8 * n), min(8 * n, 4000))
         for b in bits:
             data[start + b // 8] ^= 1 << (b % 8)
             try:
-                out = zstandard.decompress(bytes(data[start:start + n]), usize)
+                out = zstandard.decompress(bytes(data[start : start + n]), usize)
             except zstandard.ZstdError:
                 out = None
             if out is not None and len(out) == usize and out != original:
@@ -174,23 +182,45 @@ def truncate(src: Path, dst: Path, n: int) -> Path:
     return Path(dst)
 
 
-def scenario_text(n_poses: int = 2, repeats: int | None = None, extra: str = "",
-                  poses: list[list[float]] | None = None, robot: str | None = None) -> str:
+def scenario_text(
+    n_poses: int = 2,
+    repeats: int | None = None,
+    extra: str = "",
+    poses: list[list[float]] | None = None,
+    robot: str | None = None,
+) -> str:
     """A small valid scenario (the shipped robot, the paper's truth) with ``n_poses`` poses of
     Table 5, or the given ``poses`` (degrees)."""
     from conftest import MJCF
-    table = [[0, 0, -30, -45, 30, 135], [0, 120, -30, -135, 30, -135], [90, 0, 30, -45, -30, -45],
-             [180, 35, -30, 135, -30, -45], [0, 120, 30, 0, 0, 0], [-90, 35, 30, 135, 30, 135]]
+
+    table = [
+        [0, 0, -30, -45, 30, 135],
+        [0, 120, -30, -135, 30, -135],
+        [90, 0, 30, -45, -30, -45],
+        [180, 35, -30, 135, -30, -45],
+        [0, 120, 30, 0, 0, 0],
+        [-90, 35, 30, 135, 30, 135],
+    ]
     poses = poses if poses is not None else [table[i % len(table)] for i in range(n_poses)]
-    text = (f'name = "small"\nrobot = "{robot or MJCF}"\nseed = 3\n{extra}\n'
-            "[truth]\ncompliance = [0.25e-6, 0.12e-6, 0.07e-6, 0.35e-6, 0.40e-6, 0.60e-6]\n"
-            "[truth.compensator]\nstiffness = 2.6e6\npreload = 0.83\n"
-            "[tracker]\nsigma = 20e-6\nposition = [3.5, -3.5, 3.2]\n"
-            "[load]\nmass = 700.0\n")
+    text = (
+        f'name = "small"\nrobot = "{robot or MJCF}"\nseed = 3\n{extra}\n'
+        "[truth]\ncompliance = [0.25e-6, 0.12e-6, 0.07e-6, 0.35e-6, 0.40e-6, 0.60e-6]\n"
+        "[truth.compensator]\nstiffness = 2.6e6\npreload = 0.83\n"
+        "[tracker]\nsigma = 20e-6\nposition = [3.5, -3.5, 3.2]\n"
+        "[load]\nmass = 700.0\n"
+    )
     for q in poses:
         text += f"\n[[pose]]\nq = {list(q)}\n" + (f"repeats = {repeats}\n" if repeats else "")
     return text
 
 
-__all__ = ["rewrite_json", "drop_topic", "edit_pose", "chunk_spans", "flip_bit_in_chunk",
-           "flip_any_bit", "truncate", "scenario_text"]
+__all__ = [
+    "rewrite_json",
+    "drop_topic",
+    "edit_pose",
+    "chunk_spans",
+    "flip_bit_in_chunk",
+    "flip_any_bit",
+    "truncate",
+    "scenario_text",
+]

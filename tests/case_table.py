@@ -7,11 +7,11 @@ before the changes and against the branch after; the tests assert the same cases
 (tests/test_outputs.py, test_logread.py, test_interrupt.py, test_checks.py, test_timeline.py,
 test_cli_help.py, test_fuzz.py). Not collected by pytest (no test_ prefix).
 """
+
 from __future__ import annotations
 
 import argparse
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -22,7 +22,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import badcases as bc  # noqa: E402
-from conftest import PAPER, ROOT  # noqa: E402
+from conftest import PAPER  # noqa: E402
 
 
 def first_line(r: subprocess.CompletedProcess) -> str:
@@ -48,8 +48,9 @@ class Runner:
         self.rows: list[tuple[str, str, str]] = []
 
     def run(self, *args, timeout=600, **kw) -> subprocess.CompletedProcess:
-        return subprocess.run([self.exe, *map(str, args)], capture_output=True, text=True,
-                              timeout=timeout, cwd=self.tmp, **kw)
+        return subprocess.run(
+            [self.exe, *map(str, args)], capture_output=True, text=True, timeout=timeout, cwd=self.tmp, **kw
+        )
 
     def row(self, case: str, status, msg: str) -> None:
         self.rows.append((case, str(status), msg.replace("|", "\\|")))
@@ -69,6 +70,7 @@ def flags_without_default(help_text: str) -> list[str]:
     """Options of an argparse help text that take a value but state no default (and are not
     required)."""
     import re
+
     opts = help_text.split("options:", 1)[-1]
     blocks = re.split(r"\n(?=  -)", opts)
     out = []
@@ -81,6 +83,7 @@ def flags_without_default(help_text: str) -> list[str]:
 
 def make_reader_opens(path: Path) -> str:
     from mcap.reader import make_reader
+
     try:
         with open(path, "rb") as f:
             r = make_reader(f)
@@ -93,15 +96,21 @@ def make_reader_opens(path: Path) -> str:
 
 def rerun_info(path: Path, tmp: Path) -> str:
     from rerun_cli import rerun_env
+
     exe = Path(sys.executable).with_name("rerun")
-    r = subprocess.run([str(exe), "mcap", "info", str(path)], env=rerun_env(tmp),
-                       capture_output=True, text=True, timeout=120)
-    return "rerun mcap info: exit %d" % r.returncode
+    r = subprocess.run(
+        [str(exe), "mcap", "info", str(path)], env=rerun_env(tmp), capture_output=True, text=True, timeout=120
+    )
+    return f"rerun mcap info: exit {r.returncode}"
 
 
 def sigint_mid_campaign(exe: str, scenario: Path, out: Path, min_bytes: int) -> subprocess.CompletedProcess:
-    p = subprocess.Popen([exe, "simulate", str(scenario), "--out", str(out)], text=True,
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    p = subprocess.Popen(
+        [exe, "simulate", str(scenario), "--out", str(out)],
+        text=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
     t0 = time.time()
     while time.time() - t0 < 60 and (not out.exists() or out.stat().st_size < min_bytes):
         time.sleep(0.05)
@@ -129,12 +138,16 @@ def main() -> None:
 
     q5 = mutated("q5.mcap", first("/campaign/pose", lambda m: m.update(q=m["q"][:5])))
     novis = mutated("novis.mcap", first("/tracker/measurement", lambda m: m.pop("visible")))
-    strpos = mutated("strpos.mcap", first("/tracker/measurement",
-                                          lambda m: m["position"].__setitem__(0, "1.0, 2.0, 3.0")))
-    inf = mutated("inf.mcap", first("/tracker/measurement",
-                                    lambda m: m["position"][0].__setitem__(2, float("inf"))))
-    nancov = mutated("nancov.mcap", first("/tracker/measurement",
-                                          lambda m: m["covariance"][0][1].__setitem__(1, float("nan"))))
+    strpos = mutated(
+        "strpos.mcap", first("/tracker/measurement", lambda m: m["position"].__setitem__(0, "1.0, 2.0, 3.0"))
+    )
+    inf = mutated(
+        "inf.mcap", first("/tracker/measurement", lambda m: m["position"][0].__setitem__(2, float("inf")))
+    )
+    nancov = mutated(
+        "nancov.mcap",
+        first("/tracker/measurement", lambda m: m["covariance"][0][1].__setitem__(1, float("nan"))),
+    )
     p999 = mutated("p999.mcap", lambda t, m: {**m, "pose": 999} if m.get("pose") == 15 else m)
     nowrench = bc.drop_topic(log, tmp / "nowrench.mcap", "/campaign/wrench")
     flip = bc.flip_bit_in_chunk(log, tmp / "flip.mcap", seed=1)
@@ -151,26 +164,42 @@ def main() -> None:
     R.cmd("identify: a bit-flipped chunk that still decompresses", "identify", flip)
     R.cmd("discover: the same bit-flipped chunk", "discover", flip, "--json", tmp / "dflip.json")
     R.cmd("view: the same bit-flipped chunk", "view", flip, "--rrd", tmp / "flip.rrd")
-    R.cmd("discover: a truncated log (says lost/truncated?)", "discover", cut, "--json",
-          tmp / "dcut.json", show=mention)
-    R.cmd("view: a truncated log (says lost/truncated?)", "view", cut, "--rrd", tmp / "cut.rrd",
-          show=mention)
+    R.cmd(
+        "discover: a truncated log (says lost/truncated?)",
+        "discover",
+        cut,
+        "--json",
+        tmp / "dcut.json",
+        show=mention,
+    )
+    R.cmd("view: a truncated log (says lost/truncated?)", "view", cut, "--rrd", tmp / "cut.rrd", show=mention)
 
     # interrupted campaigns
     big = tmp / "big.toml"
     big.write_text(bc.scenario_text(n_poses=16, repeats=400))
     ctrlc = tmp / "ctrlc.mcap"
     r = sigint_mid_campaign(args.calbench, big, ctrlc, min_bytes=300_000)
-    R.row("simulate, Ctrl-C mid-campaign", r.returncode,
-          f"{first_line(r)}; {make_reader_opens(ctrlc)}; {rerun_info(ctrlc, tmp)}")
+    R.row(
+        "simulate, Ctrl-C mid-campaign",
+        r.returncode,
+        f"{first_line(r)}; {make_reader_opens(ctrlc)}; {rerun_info(ctrlc, tmp)}",
+    )
     killed = bc.truncate(ctrlc, tmp / "killed.mcap", int(ctrlc.stat().st_size * 0.7))
     R.row("SIGKILL-like cut log opened by make_reader", "-", make_reader_opens(killed))
     r = R.cmd("recover KILLED.mcap --out FIXED.mcap", "recover", killed, "--out", tmp / "fixed.mcap")
     if r is not None and r.returncode == 0:
-        R.row("  ... FIXED.mcap", "-", f"{make_reader_opens(tmp / 'fixed.mcap')}; "
-              f"{rerun_info(tmp / 'fixed.mcap', tmp)}")
-    R.cmd("recover FLIPPED.mcap --out FIXED2.mcap (the bit-flipped log)", "recover", flip,
-          "--out", tmp / "fixed2.mcap")
+        R.row(
+            "  ... FIXED.mcap",
+            "-",
+            f"{make_reader_opens(tmp / 'fixed.mcap')}; {rerun_info(tmp / 'fixed.mcap', tmp)}",
+        )
+    R.cmd(
+        "recover FLIPPED.mcap --out FIXED2.mcap (the bit-flipped log)",
+        "recover",
+        flip,
+        "--out",
+        tmp / "fixed2.mcap",
+    )
     (tmp / "notmcap.mcap").write_text("hello\n")
     R.cmd("recover on a non-MCAP file", "recover", tmp / "notmcap.mcap", "--out", tmp / "x.mcap")
     huge = tmp / "huge.toml"
@@ -179,21 +208,40 @@ def main() -> None:
     # checks that can be trusted
     for seed in (1, 7):
         two = tmp / f"two{seed}.toml"
-        two.write_text(bc.scenario_text(poses=[[0, 0, -30, 0, 0, 0], [0, 120, 30, 0, 0, 0]])
-                       .replace("seed = 3", f"seed = {seed}"))
+        two.write_text(
+            bc.scenario_text(poses=[[0, 0, -30, 0, 0, 0], [0, 120, 30, 0, 0, 0]]).replace(
+                "seed = 3", f"seed = {seed}"
+            )
+        )
         R.run("simulate", two, "--out", tmp / f"two{seed}.mcap")
         r = R.run("identify", tmp / f"two{seed}.mcap", "--check")
-        stiff = [" ".join(x.split()) for x in r.stdout.splitlines()
-                 if x.strip().startswith("compensator_stiffness")]
+        stiff = [
+            " ".join(x.split())
+            for x in r.stdout.splitlines()
+            if x.strip().startswith("compensator_stiffness")
+        ]
         warn = " (did not converge)" if "did not converge" in r.stdout else ""
-        R.row(f"identify --check, 2 poses q2 in {{0, 120}}, seed {seed}", r.returncode,
-              (stiff[0] if stiff else "") + warn + " / " + r.stdout.strip().splitlines()[-1][:90])
-    R.cmd("design --configs 30 --candidates 20", "design", PAPER, "--configs", 30, "--candidates", 20,
-          "--json", tmp / "d.json")
+        R.row(
+            f"identify --check, 2 poses q2 in {{0, 120}}, seed {seed}",
+            r.returncode,
+            (stiff[0] if stiff else "") + warn + " / " + r.stdout.strip().splitlines()[-1][:90],
+        )
+    R.cmd(
+        "design --configs 30 --candidates 20",
+        "design",
+        PAPER,
+        "--configs",
+        30,
+        "--candidates",
+        20,
+        "--json",
+        tmp / "d.json",
+    )
     R.cmd("design --candidates 0", "design", PAPER, "--candidates", 0, "--json", tmp / "d0.json")
     # timestamps
-    from mcap.stream_reader import StreamReader
     from mcap.records import Channel, Message
+    from mcap.stream_reader import StreamReader
+
     topics, seq = {}, []
     with open(log, "rb") as f:
         for rec in StreamReader(f).records:
@@ -209,12 +257,15 @@ def main() -> None:
     for k in kinds:
         if not order or order[-1] != k:
             order.append(k)
-    R.row("log times: start and pose 0's message order", "-",
-          f"first log time {time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime(t0 / 1e9))}; "
-          f"file order increasing: {ordered}; pose 0: {' > '.join(order)}")
+    R.row(
+        "log times: start and pose 0's message order",
+        "-",
+        f"first log time {time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime(t0 / 1e9))}; "
+        f"file order increasing: {ordered}; pose 0: {' > '.join(order)}",
+    )
     bad_start = tmp / "badstart.toml"
     bad_start.write_text(bc.scenario_text(n_poses=2, extra='start_time = "yesterday"'))
-    R.cmd("simulate: start_time = \"yesterday\"", "simulate", bad_start, "--out", tmp / "bs.mcap")
+    R.cmd('simulate: start_time = "yesterday"', "simulate", bad_start, "--out", tmp / "bs.mcap")
     # help text
     missing = []
     for verb in ("simulate", "identify", "montecarlo", "design", "view", "discover", "demo", "recover"):
@@ -225,8 +276,7 @@ def main() -> None:
         missing += [f"{verb} {flag}" for flag in flags_without_default(r.stdout)]
     R.row("--help: value flags without a default shown", "-", ", ".join(missing) or "none")
     # inputs unchanged
-    R.row("inputs unchanged after all cases", "-",
-          str(all(p.read_bytes() == b for p, b in before.items())))
+    R.row("inputs unchanged after all cases", "-", str(all(p.read_bytes() == b for p, b in before.items())))
 
     lines = ["| case | exit | first line of the message |", "| --- | --- | --- |"]
     lines += [f"| {c} | {s} | {m} |" for c, s, m in R.rows]

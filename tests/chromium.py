@@ -8,6 +8,7 @@ every image decoded, and optionally a full-page PNG screenshot.
 
 The Debian package ``chromium`` provides the browser (.ci/run installs it when missing).
 """
+
 from __future__ import annotations
 
 import base64
@@ -21,9 +22,18 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-         "--disable-background-networking", "--disable-component-update", "--disable-sync",
-         "--hide-scrollbars", "--remote-debugging-pipe"]
+FLAGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--hide-scrollbars",
+    "--remote-debugging-pipe",
+]
 
 
 def chromium_exe() -> str | None:
@@ -36,13 +46,13 @@ def chromium_exe() -> str | None:
 
 @dataclass
 class Rendered:
-    console: list[dict] = field(default_factory=list)       # {"type", "text"}
+    console: list[dict] = field(default_factory=list)  # {"type", "text"}
     exceptions: list[str] = field(default_factory=list)
-    log_errors: list[str] = field(default_factory=list)     # Log.entryAdded at level error
-    requests: list[str] = field(default_factory=list)       # URLs the page asked for
-    failed: list[str] = field(default_factory=list)         # Network.loadingFailed
-    sections: list[str] = field(default_factory=list)       # ids of <section> elements
-    images: list[dict] = field(default_factory=list)        # {"alt", "ok"} per <img>
+    log_errors: list[str] = field(default_factory=list)  # Log.entryAdded at level error
+    requests: list[str] = field(default_factory=list)  # URLs the page asked for
+    failed: list[str] = field(default_factory=list)  # Network.loadingFailed
+    sections: list[str] = field(default_factory=list)  # ids of <section> elements
+    images: list[dict] = field(default_factory=list)  # {"alt", "ok"} per <img>
     title: str = ""
     height: int = 0
 
@@ -54,8 +64,9 @@ class _Pipe:
         self.next_id = 0
         self.events: list[dict] = []
 
-    def send(self, method: str, params: dict | None = None, session: str | None = None,
-             timeout: float = 30.0) -> dict:
+    def send(
+        self, method: str, params: dict | None = None, session: str | None = None, timeout: float = 30.0
+    ) -> dict:
         self.next_id += 1
         msg = {"id": self.next_id, "method": method, "params": params or {}}
         if session:
@@ -93,8 +104,7 @@ class _Pipe:
         return json.loads(raw)
 
 
-def render(page: Path, screenshot: Path | None = None, width: int = 1280,
-           timeout: float = 60.0) -> Rendered:
+def render(page: Path, screenshot: Path | None = None, width: int = 1280, timeout: float = 60.0) -> Rendered:
     """Load ``page`` in headless Chromium and report what happened (see the module doc)."""
     exe = chromium_exe()
     if exe is None:
@@ -102,15 +112,20 @@ def render(page: Path, screenshot: Path | None = None, width: int = 1280,
     to_chrome_r, to_chrome_w = os.pipe()
     from_chrome_r, from_chrome_w = os.pipe()
 
-    def child_fds():             # chromium reads commands on fd 3 and writes on fd 4
-        a, b = os.dup(to_chrome_r), os.dup(from_chrome_w)   # away from 3, 4 first: a pipe
-        os.dup2(a, 3)                                        # may already sit there, and
-        os.dup2(b, 4)                                        # dup2 onto itself keeps CLOEXEC
+    def child_fds():  # chromium reads commands on fd 3 and writes on fd 4
+        a, b = os.dup(to_chrome_r), os.dup(from_chrome_w)  # away from 3, 4 first: a pipe
+        os.dup2(a, 3)  # may already sit there, and
+        os.dup2(b, 4)  # dup2 onto itself keeps CLOEXEC
 
     with tempfile.TemporaryDirectory(prefix="calbench-chromium-") as profile:
-        proc = subprocess.Popen([exe, *FLAGS, f"--user-data-dir={profile}", "about:blank"],
-                                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                stderr=subprocess.DEVNULL, preexec_fn=child_fds, close_fds=False)
+        proc = subprocess.Popen(
+            [exe, *FLAGS, f"--user-data-dir={profile}", "about:blank"],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            preexec_fn=child_fds,
+            close_fds=False,
+        )
         os.close(to_chrome_r)
         os.close(from_chrome_w)
         pipe = _Pipe(proc, to_chrome_w, from_chrome_r)
@@ -130,15 +145,16 @@ def render(page: Path, screenshot: Path | None = None, width: int = 1280,
             os.close(from_chrome_r)
 
 
-def _drive(pipe: _Pipe, page: Path, screenshot: Path | None, width: int,
-           timeout: float) -> Rendered:
+def _drive(pipe: _Pipe, page: Path, screenshot: Path | None, width: int, timeout: float) -> Rendered:
     target = pipe.send("Target.createTarget", {"url": "about:blank"})["targetId"]
     sid = pipe.send("Target.attachToTarget", {"targetId": target, "flatten": True})["sessionId"]
     for domain in ("Page", "Runtime", "Log", "Network"):
         pipe.send(f"{domain}.enable", session=sid)
-    pipe.send("Emulation.setDeviceMetricsOverride",
-              {"width": width, "height": 900, "deviceScaleFactor": 1, "mobile": False},
-              session=sid)
+    pipe.send(
+        "Emulation.setDeviceMetricsOverride",
+        {"width": width, "height": 900, "deviceScaleFactor": 1, "mobile": False},
+        session=sid,
+    )
     pipe.events.clear()
     pipe.send("Page.navigate", {"url": page.resolve().as_uri()}, session=sid)
     pipe.wait_event("Page.loadEventFired", timeout)
@@ -148,21 +164,36 @@ def _drive(pipe: _Pipe, page: Path, screenshot: Path | None, width: int,
         images: Array.from(document.images).map(i => ({alt: i.alt,
                  ok: i.complete && i.naturalWidth > 0})),
         title: document.title, height: document.documentElement.scrollHeight})"""
-    got = json.loads(pipe.send("Runtime.evaluate", {"expression": probe, "returnByValue": True},
-                               session=sid)["result"]["value"])
+    got = json.loads(
+        pipe.send("Runtime.evaluate", {"expression": probe, "returnByValue": True}, session=sid)["result"][
+            "value"
+        ]
+    )
     out.sections, out.images = got["sections"], got["images"]
     out.title, out.height = got["title"], int(got["height"])
     if screenshot is not None:
-        shot = pipe.send("Page.captureScreenshot", {
-            "format": "png", "captureBeyondViewport": True,
-            "clip": {"x": 0, "y": 0, "width": width, "height": out.height, "scale": 1}},
-            session=sid, timeout=timeout)
+        shot = pipe.send(
+            "Page.captureScreenshot",
+            {
+                "format": "png",
+                "captureBeyondViewport": True,
+                "clip": {"x": 0, "y": 0, "width": width, "height": out.height, "scale": 1},
+            },
+            session=sid,
+            timeout=timeout,
+        )
         screenshot.write_bytes(base64.b64decode(shot["data"]))
     for e in pipe.events:
         m, p = e.get("method"), e.get("params", {})
         if m == "Runtime.consoleAPICalled":
-            out.console.append({"type": p.get("type"), "text": " ".join(
-                str(a.get("value", a.get("description", ""))) for a in p.get("args", []))})
+            out.console.append(
+                {
+                    "type": p.get("type"),
+                    "text": " ".join(
+                        str(a.get("value", a.get("description", ""))) for a in p.get("args", [])
+                    ),
+                }
+            )
         elif m == "Runtime.exceptionThrown":
             out.exceptions.append(p.get("exceptionDetails", {}).get("text", "?"))
         elif m == "Log.entryAdded" and p.get("entry", {}).get("level") == "error":

@@ -4,6 +4,7 @@ The tests folder is put on sys.path so that tests can import these constants
 (``from conftest import PAPER, MJCF, K_TRUE``) and the small helpers beside them
 (tests/rerun_cli.py).
 """
+
 import sys
 from pathlib import Path
 
@@ -12,29 +13,43 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 ROOT = Path(__file__).resolve().parent.parent
-PAPER = ROOT / "scenarios" / "paper_table5.toml"          # Table 5 + four lateral pulls, 700 kg
+PAPER = ROOT / "scenarios" / "paper_table5.toml"  # Table 5 + four lateral pulls, 700 kg
 MJCF = ROOT / "mjcf" / "m900ib700.xml"
 # the default truth of the shipped scenarios (README "Default truth values"), rad/(N*m)
 K_TRUE = np.array([0.25, 0.12, 0.07, 0.35, 0.40, 0.60]) * 1e-6
 # the paper's Table 5 (q1..q6, degrees, the controller's convention: q3 = crank), in rad
-TABLE5 = np.radians([
-    [0, 0, -30, -45, 30, 135], [0, 0, -30, 45, -30, 35], [90, 0, 30, -45, -30, -45],
-    [90, 0, 30, 45, -30, 45], [180, 35, -30, 135, -30, -45], [-180, 35, -30, -45, 30, 135],
-    [-90, 35, 30, 135, 30, 135], [-90, 35, 30, -45, -30, -45], [0, 120, -30, -135, 30, -135],
-    [0, 120, -30, 135, -30, -45], [180, 120, 30, -135, 30, -135], [-180, 120, 30, 135, 30, 135],
-])
+TABLE5 = np.radians(
+    [
+        [0, 0, -30, -45, 30, 135],
+        [0, 0, -30, 45, -30, 35],
+        [90, 0, 30, -45, -30, -45],
+        [90, 0, 30, 45, -30, 45],
+        [180, 35, -30, 135, -30, -45],
+        [-180, 35, -30, -45, 30, 135],
+        [-90, 35, 30, 135, 30, 135],
+        [-90, 35, 30, -45, -30, -45],
+        [0, 120, -30, -135, 30, -135],
+        [0, 120, -30, 135, -30, -45],
+        [180, 120, 30, -135, 30, -135],
+        [-180, 120, 30, 135, 30, 135],
+    ]
+)
 
 
 def fanuc_params(compliance, stiffness: float, preload: float):
     """Params of the FANUC model (its one compensator tendon, named "compensator")."""
     from calbench.bench.model.params import Params, Spring
-    return Params(np.asarray(compliance, dtype=float), {"compensator": Spring(float(stiffness), float(preload))})
+
+    return Params(
+        np.asarray(compliance, dtype=float), {"compensator": Spring(float(stiffness), float(preload))}
+    )
 
 
 def fanuc_truth(scn):
     """The scenario's truth as Params of the FANUC model (bench.campaign.scenario_params)."""
     from calbench.bench.campaign.run import scenario_params
     from calbench.bench.model.robot import Robot
+
     return scenario_params(scn, Robot.from_file(MJCF))
 
 
@@ -47,6 +62,7 @@ MUJOCO_WARNINGS: list[str] = []
 
 def pytest_sessionstart(session):
     import mujoco
+
     mujoco.set_mju_user_warning(MUJOCO_WARNINGS.append)
 
 

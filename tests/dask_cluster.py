@@ -2,6 +2,7 @@
 the `dask` command line (as docs/studies.md tells users to), and the self-signed certificates of
 the docs' TLS recipe. Each worker runs in its own process (--no-nanny), one thread, bound to
 127.0.0.1, with its working folder outside the checkout."""
+
 from __future__ import annotations
 
 import json
@@ -21,12 +22,53 @@ def self_signed(folder: Path) -> dict[str, Path]:
     ext = folder / "san.cnf"
     ext.write_text("subjectAltName=DNS:localhost,IP:127.0.0.1\n")
     steps = [
-        ["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "2", "-subj", "/CN=calbench-ca",
-         "-keyout", "ca.key", "-out", "ca.pem"],
-        ["openssl", "req", "-newkey", "rsa:2048", "-nodes", "-subj", "/CN=calbench-node",
-         "-keyout", "node.key", "-out", "node.csr"],
-        ["openssl", "x509", "-req", "-in", "node.csr", "-CA", "ca.pem", "-CAkey", "ca.key", "-CAcreateserial",
-         "-days", "2", "-out", "node.pem", "-extfile", "san.cnf"],
+        [
+            "openssl",
+            "req",
+            "-x509",
+            "-newkey",
+            "rsa:2048",
+            "-nodes",
+            "-days",
+            "2",
+            "-subj",
+            "/CN=calbench-ca",
+            "-keyout",
+            "ca.key",
+            "-out",
+            "ca.pem",
+        ],
+        [
+            "openssl",
+            "req",
+            "-newkey",
+            "rsa:2048",
+            "-nodes",
+            "-subj",
+            "/CN=calbench-node",
+            "-keyout",
+            "node.key",
+            "-out",
+            "node.csr",
+        ],
+        [
+            "openssl",
+            "x509",
+            "-req",
+            "-in",
+            "node.csr",
+            "-CA",
+            "ca.pem",
+            "-CAkey",
+            "ca.key",
+            "-CAcreateserial",
+            "-days",
+            "2",
+            "-out",
+            "node.pem",
+            "-extfile",
+            "san.cnf",
+        ],
     ]
     for cmd in steps:
         subprocess.run(cmd, cwd=folder, check=True, capture_output=True)
@@ -35,42 +77,90 @@ def self_signed(folder: Path) -> dict[str, Path]:
 
 def tls_env(certs: dict[str, Path]) -> dict[str, str]:
     """Dask's own security configuration of a client, as environment variables."""
-    return {"DASK_DISTRIBUTED__COMM__TLS__CA_FILE": str(certs["ca"]),
-            "DASK_DISTRIBUTED__COMM__TLS__CLIENT__CERT": str(certs["cert"]),
-            "DASK_DISTRIBUTED__COMM__TLS__CLIENT__KEY": str(certs["key"])}
+    return {
+        "DASK_DISTRIBUTED__COMM__TLS__CA_FILE": str(certs["ca"]),
+        "DASK_DISTRIBUTED__COMM__TLS__CLIENT__CERT": str(certs["cert"]),
+        "DASK_DISTRIBUTED__COMM__TLS__CLIENT__KEY": str(certs["key"]),
+    }
 
 
 class LocalDaskCluster:
     """`dask scheduler` + n `dask worker` processes; ``address``; ``stop()`` ends them all."""
 
-    def __init__(self, folder: Path, workers: int = 2, certs: dict[str, Path] | None = None,
-                 timeout: float = 60.0):
+    def __init__(
+        self, folder: Path, workers: int = 2, certs: dict[str, Path] | None = None, timeout: float = 60.0
+    ):
         folder.mkdir(parents=True, exist_ok=True)
         self.folder = folder
         self.procs: list[subprocess.Popen] = []
         sched_file = folder / "scheduler.json"
-        tls = [] if certs is None else ["--tls-ca-file", str(certs["ca"]), "--tls-cert", str(certs["cert"]),
-                                        "--tls-key", str(certs["key"])]
+        tls = (
+            []
+            if certs is None
+            else [
+                "--tls-ca-file",
+                str(certs["ca"]),
+                "--tls-cert",
+                str(certs["cert"]),
+                "--tls-key",
+                str(certs["key"]),
+            ]
+        )
         proto = ["--protocol", "tls"] if certs else []
         env = {k: v for k, v in os.environ.items() if not k.startswith("DASK_")}
-        self._start([DASK, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
-                     "--scheduler-file", str(sched_file), *proto, *tls], env, "scheduler")
+        self._start(
+            [
+                DASK,
+                "scheduler",
+                "--host",
+                "127.0.0.1",
+                "--port",
+                "0",
+                "--no-dashboard",
+                "--scheduler-file",
+                str(sched_file),
+                *proto,
+                *tls,
+            ],
+            env,
+            "scheduler",
+        )
         t0 = time.monotonic()
         while not sched_file.exists() or not sched_file.read_text().strip():
             if time.monotonic() - t0 > timeout or self.procs[0].poll() is not None:
                 self.stop()
-                raise RuntimeError(f"the Dask scheduler did not start: {(folder / 'scheduler.log').read_text()}")
+                raise RuntimeError(
+                    f"the Dask scheduler did not start: {(folder / 'scheduler.log').read_text()}"
+                )
             time.sleep(0.1)
         time.sleep(0.2)
         self.address = json.loads(sched_file.read_text())["address"]
         for i in range(workers):
-            self._start([DASK, "worker", self.address, "--nthreads", "1", "--no-nanny", "--no-dashboard",
-                         "--host", "127.0.0.1", "--name", f"w{i}", *tls], env, f"worker{i}")
+            self._start(
+                [
+                    DASK,
+                    "worker",
+                    self.address,
+                    "--nthreads",
+                    "1",
+                    "--no-nanny",
+                    "--no-dashboard",
+                    "--host",
+                    "127.0.0.1",
+                    "--name",
+                    f"w{i}",
+                    *tls,
+                ],
+                env,
+                f"worker{i}",
+            )
         self.worker_pids = [p.pid for p in self.procs[1:]]
 
     def _start(self, cmd, env, name) -> None:
         log = open(self.folder / f"{name}.log", "w")
-        self.procs.append(subprocess.Popen(cmd, cwd=self.folder, env=env, stdout=log, stderr=subprocess.STDOUT))
+        self.procs.append(
+            subprocess.Popen(cmd, cwd=self.folder, env=env, stdout=log, stderr=subprocess.STDOUT)
+        )
 
     def wait_for_workers(self, client, n: int, timeout: float = 60.0) -> None:
         client.wait_for_workers(n, timeout=timeout)

@@ -1,5 +1,6 @@
 """Running the `rerun` CLI from tests: a scratch HOME so it writes no settings of the user's,
 and analytics off (CI=1 stops its first-run prompt and telemetry)."""
+
 from __future__ import annotations
 
 import os
@@ -13,9 +14,15 @@ import pytest
 def rerun_env(tmp_path: Path) -> dict:
     home = tmp_path / "home"
     home.mkdir(exist_ok=True)
-    return {**os.environ, "HOME": str(home), "XDG_CONFIG_HOME": str(home / ".config"),
-            "XDG_DATA_HOME": str(home / ".local/share"), "XDG_CACHE_HOME": str(home / ".cache"),
-            "CI": "1", "RERUN_ANALYTICS": "0"}
+    return {
+        **os.environ,
+        "HOME": str(home),
+        "XDG_CONFIG_HOME": str(home / ".config"),
+        "XDG_DATA_HOME": str(home / ".local/share"),
+        "XDG_CACHE_HOME": str(home / ".cache"),
+        "CI": "1",
+        "RERUN_ANALYTICS": "0",
+    }
 
 
 def rerun_exe() -> str:

@@ -5,6 +5,7 @@ loop, no compensator unless ``balancer`` asks for a spring tendon across the sho
 and lengths are of a small heavy-duty arm; every element has its own name, so that nothing
 can work by accident through a FANUC default.
 """
+
 from __future__ import annotations
 
 SERIAL_TEXTS = {
@@ -23,13 +24,17 @@ def serial_mjcf(texts: dict | None = None, balancer: bool = False, extra: str = 
         t["compensators"] = "balancer"
     t.update(texts or {})
     custom = "\n".join(f'    <text name="calbench:{k}" data="{v}"/>' for k, v in t.items() if v is not None)
-    tendon = """
+    tendon = (
+        """
   <tendon>
     <spatial name="balancer" stiffness="1e6" springlength="0.5">
       <site site="bal_low"/>
       <site site="bal_high"/>
     </spatial>
-  </tendon>""" if balancer else ""
+  </tendon>"""
+        if balancer
+        else ""
+    )
     return f"""<mujoco model="serial4">
   <compiler angle="degree" autolimits="true" inertiafromgeom="false"/>
   <option gravity="0 0 -9.81"/>

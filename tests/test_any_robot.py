@@ -8,6 +8,7 @@ renamed, is read from ``[truth.compensators.<name>]`` and named ``<name>_stiffne
 FANUC element, and the contract's words that are also FANUC names ("payload", "flange",
 "compensator") never name an element in a lookup.
 """
+
 from __future__ import annotations
 
 import ast
@@ -18,13 +19,13 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
+from conftest import MJCF, PAPER, ROOT
 
 from calbench.bench.campaign.run import run_campaign
 from calbench.bench.log.writer import read_log
 from calbench.bench.model.robot import Robot
 from calbench.bench.scenario.parse import load_scenario
 from calbench.identify.report.identification import run_identify
-from conftest import MJCF, PAPER, ROOT
 
 NAMED = ("body", "joint", "geom", "site", "spatial", "connect")
 REFERENCES = ("site", "site1", "site2")
@@ -40,7 +41,7 @@ def renamed_copy(dst: Path) -> dict[str, str]:
     for el in tree.iter():
         if el.tag in NAMED and "name" in el.attrib:
             el.attrib["name"] = mapping[el.attrib["name"]]
-        for ref in REFERENCES:           # a tendon path's <site site=...>, a connect's site1/2
+        for ref in REFERENCES:  # a tendon path's <site site=...>, a connect's site1/2
             if ref in el.attrib:
                 el.attrib[ref] = mapping[el.attrib[ref]]
         if el.tag == "text" and el.attrib.get("name", "").startswith("calbench:"):
@@ -64,21 +65,38 @@ def twins(tmp_path_factory):
     for key, scn_path in (("fanuc", PAPER), ("renamed", tmp / "renamed.toml")):
         log = tmp / f"{key}.mcap"
         run_campaign(load_scenario(scn_path), log)
-        out[key] = {"scenario": scn_path, "log": log,
-                    "one": run_identify(log), "two": run_identify(log, method="two-step")}
+        out[key] = {
+            "scenario": scn_path,
+            "log": log,
+            "one": run_identify(log),
+            "two": run_identify(log, method="two-step"),
+        }
     out["mapping"] = mapping
     return out
 
 
 def test_the_renamed_copy_shares_no_name_with_the_fanuc(twins):
     fanuc, renamed = Robot.from_file(MJCF), Robot.from_file(twins["renamed"]["scenario"].with_suffix(".xml"))
-    names = lambda m: {mujoco.mj_id2name(m, k, i) for k, n in (  # noqa: E731
-        (mujoco.mjtObj.mjOBJ_BODY, m.nbody), (mujoco.mjtObj.mjOBJ_JOINT, m.njnt),
-        (mujoco.mjtObj.mjOBJ_SITE, m.nsite), (mujoco.mjtObj.mjOBJ_TENDON, m.ntendon),
-        (mujoco.mjtObj.mjOBJ_EQUALITY, m.neq), (mujoco.mjtObj.mjOBJ_GEOM, m.ngeom)) for i in range(n)} - {None, "world"}
+
+    def names(m):
+        return {
+            mujoco.mj_id2name(m, k, i)
+            for k, n in (
+                (mujoco.mjtObj.mjOBJ_BODY, m.nbody),
+                (mujoco.mjtObj.mjOBJ_JOINT, m.njnt),
+                (mujoco.mjtObj.mjOBJ_SITE, m.nsite),
+                (mujoco.mjtObj.mjOBJ_TENDON, m.ntendon),
+                (mujoco.mjtObj.mjOBJ_EQUALITY, m.neq),
+                (mujoco.mjtObj.mjOBJ_GEOM, m.ngeom),
+            )
+            for i in range(n)
+        } - {None, "world"}
+
     assert names(fanuc.model) & names(renamed.model) == set()
-    assert renamed.layout.names[6:] == (f"{twins['mapping']['compensator']}_stiffness",
-                                        f"{twins['mapping']['compensator']}_preload")
+    assert renamed.layout.names[6:] == (
+        f"{twins['mapping']['compensator']}_stiffness",
+        f"{twins['mapping']['compensator']}_preload",
+    )
 
 
 def test_the_renamed_copy_simulates_the_same_campaign(twins):
@@ -86,7 +104,7 @@ def test_the_renamed_copy_simulates_the_same_campaign(twins):
     assert a.complete_poses == b.complete_poses and len(a.measurements) == len(b.measurements)
     for ma, mb in zip(a.measurements, b.measurements):
         assert [twins["mapping"][r] for r in ma.reflectors] == list(mb.reflectors)
-        np.testing.assert_array_equal(ma.position, mb.position)          # bit for bit, NaN = NaN
+        np.testing.assert_array_equal(ma.position, mb.position)  # bit for bit, NaN = NaN
         np.testing.assert_array_equal(ma.covariance, mb.covariance)
     for p in a.complete_poses:
         for s in ("unloaded", "loaded"):
@@ -109,6 +127,7 @@ def test_the_renamed_copy_identifies_the_same_numbers(twins, method):
 
 def test_the_renamed_copy_designs_the_same_candidates(twins):
     from calbench.identify.design.candidates import excluded_pairs, generate_candidates, load_design_scenario
+
     cands = {}
     for key in ("fanuc", "renamed"):
         scn, settings = load_design_scenario(twins[key]["scenario"])
@@ -118,7 +137,10 @@ def test_the_renamed_copy_designs_the_same_candidates(twins):
     assert cands["fanuc"].stats["rejected_first_rule"] == cands["renamed"].stats["rejected_first_rule"]
     # the self-collision exclusions, derived from the model, are the FANUC's old table
     loop = ("upper_arm", "crank", "m1", "rod", "forearm", "m2")
-    table = {tuple(sorted((a, b))) for a in loop for b in loop if a != b} | {("rod", "turret"), ("forearm", "link5")}
+    table = {tuple(sorted((a, b))) for a in loop for b in loop if a != b} | {
+        ("rod", "turret"),
+        ("forearm", "link5"),
+    }
     assert set(excluded_pairs(Robot.from_file(MJCF), MJCF)) == table
     xml = twins["renamed"]["scenario"].with_suffix(".xml")
     m = twins["mapping"]
@@ -127,27 +149,42 @@ def test_the_renamed_copy_designs_the_same_candidates(twins):
 
 def test_the_renamed_copy_discovers_the_same(twins, tmp_path):
     from calbench.identify.discover.workflow import discover
-    reps = {k: discover(twins[k]["log"], plot=tmp_path / f"{k}.png", view_rrd=tmp_path / f"{k}.rrd")
-            for k in ("fanuc", "renamed")}
+
+    reps = {
+        k: discover(twins[k]["log"], plot=tmp_path / f"{k}.png", view_rrd=tmp_path / f"{k}.rrd")
+        for k in ("fanuc", "renamed")
+    }
     a, b = reps["fanuc"], reps["renamed"]
     assert a["named_effects"] == b["named_effects"]
     assert (a["rms_before"], a["rms_after"]) == (b["rms_before"], b["rms_after"])
     m = twins["mapping"]
     # the link candidates are the renamed robot's calbench:links; a joint's is its index (j1..j6)
     detail = lambda c: m[c["detail"]] if c["effect"] == "link_compliance" else c["detail"]  # noqa: E731
-    assert [(c["effect"], detail(c), c["score"]) for c in a["candidates"]] == \
-        [(c["effect"], c["detail"], c["score"]) for c in b["candidates"]]
-    assert {c["effect"] for c in a["candidates"]} == {"compensator", "joint_nonlinearity",
-                                                     "link_compliance", "base_compliance", "tracker_drift"}
+    assert [(c["effect"], detail(c), c["score"]) for c in a["candidates"]] == [
+        (c["effect"], c["detail"], c["score"]) for c in b["candidates"]
+    ]
+    assert {c["effect"] for c in a["candidates"]} == {
+        "compensator",
+        "joint_nonlinearity",
+        "link_compliance",
+        "base_compliance",
+        "tracker_drift",
+    }
 
 
 # --------------------------------------------------------------------------- the code itself
 
+
 def fanuc_names() -> set[str]:
     m = mujoco.MjModel.from_xml_path(str(MJCF))
-    kinds = ((mujoco.mjtObj.mjOBJ_BODY, m.nbody), (mujoco.mjtObj.mjOBJ_JOINT, m.njnt),
-             (mujoco.mjtObj.mjOBJ_SITE, m.nsite), (mujoco.mjtObj.mjOBJ_GEOM, m.ngeom),
-             (mujoco.mjtObj.mjOBJ_TENDON, m.ntendon), (mujoco.mjtObj.mjOBJ_EQUALITY, m.neq))
+    kinds = (
+        (mujoco.mjtObj.mjOBJ_BODY, m.nbody),
+        (mujoco.mjtObj.mjOBJ_JOINT, m.njnt),
+        (mujoco.mjtObj.mjOBJ_SITE, m.nsite),
+        (mujoco.mjtObj.mjOBJ_GEOM, m.ngeom),
+        (mujoco.mjtObj.mjOBJ_TENDON, m.ntendon),
+        (mujoco.mjtObj.mjOBJ_EQUALITY, m.neq),
+    )
     return {mujoco.mj_id2name(m, k, i) for k, n in kinds for i in range(n)} - {None, "world"}
 
 
@@ -160,9 +197,14 @@ LOOKUPS = {"mj_name2id", "site", "body", "joint", "tendon", "geom", "equality", 
 def string_constants(path: Path):
     """(line, value, inside a lookup call) of every str constant that is not a docstring."""
     tree = ast.parse(path.read_text(encoding="utf-8"))
-    docs = {id(n.body[0].value) for n in ast.walk(tree)
-            if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
-            and n.body and isinstance(n.body[0], ast.Expr) and isinstance(n.body[0].value, ast.Constant)}
+    docs = {
+        id(n.body[0].value)
+        for n in ast.walk(tree)
+        if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+        and n.body
+        and isinstance(n.body[0], ast.Expr)
+        and isinstance(n.body[0].value, ast.Constant)
+    }
     lookup_args = set()
     for n in ast.walk(tree):
         if isinstance(n, ast.Call):
@@ -181,8 +223,7 @@ def test_no_fanuc_name_in_the_code():
     bad = []
     for path in sorted((ROOT / "bench").rglob("*.py")) + sorted((ROOT / "identify").rglob("*.py")):
         for line, value, lookup in string_constants(path):
-            if (value in names - CONTRACT_WORDS or value.startswith("refl_")
-                    or (lookup and value in names)):
+            if value in names - CONTRACT_WORDS or value.startswith("refl_") or (lookup and value in names):
                 bad.append(f"{path.relative_to(ROOT)}:{line}: {value!r}")
     assert bad == []
 

@@ -14,19 +14,27 @@ for the linearisation). Tangents: both are the IFT with a forward-difference mat
 taken at equilibria that differ by that bound; 1e-6 relative is the accuracy the design's
 information needs (issue 16).
 """
+
 from __future__ import annotations
 
 import mujoco
 import numpy as np
 import pytest
+from conftest import K_TRUE, MJCF, TABLE5, fanuc_params
+from robots import serial_mjcf
 
-from calbench.bench.statics.batched import BatchStatics, take_load
 from calbench.bench.model.loop import constraint_basis, constraint_basis_stack, loop_gap
 from calbench.bench.model.params import Params
 from calbench.bench.model.robot import Robot
-from calbench.bench.statics.equilibrium import (Load, StaticsError, StaticsSolver, ift_tangent, kkt_matrix, statics_options)
-from conftest import K_TRUE, MJCF, TABLE5, fanuc_params
-from robots import serial_mjcf
+from calbench.bench.statics.batched import BatchStatics, take_load
+from calbench.bench.statics.equilibrium import (
+    Load,
+    StaticsError,
+    StaticsSolver,
+    ift_tangent,
+    kkt_matrix,
+    statics_options,
+)
 
 PARAMS = fanuc_params(K_TRUE, 2.6e6, 0.83)
 N = 40
@@ -62,7 +70,7 @@ def loads(robot, commands):
 def solved(robot, commands, loads):
     """Both solvers on every configuration: unloaded cold, loaded warm."""
     solver = StaticsSolver(robot)
-    bs = BatchStatics(solver, nsim=8, nthread=1)           # grows on demand
+    bs = BatchStatics(solver, nsim=8, nthread=1)  # grows on demand
     e0 = bs.solve(commands)
     a0 = bs.stiffness(e0, None)
     e1 = bs.solve(commands, loads, warm=e0, warm_stiffness=a0)
@@ -106,7 +114,9 @@ def test_residual_and_basis_are_the_scalar_ones(robot, commands, loads):
     bs = BatchStatics(solver, nsim=len(commands), nthread=1)
     ids = np.arange(len(commands))
     rng = np.random.default_rng(3)
-    qpos = np.array([robot.rigid_qpos(q) for q in commands]) + 1e-3 * rng.standard_normal((len(ids), robot.model.nv))
+    qpos = np.array([robot.rigid_qpos(q) for q in commands]) + 1e-3 * rng.standard_normal(
+        (len(ids), robot.model.nv)
+    )
     bs.set_commands(ids, commands)
     basis = bs.basis(ids, qpos)
     lam = 1e4 * rng.standard_normal((len(ids), basis.shape[2]))
@@ -148,8 +158,10 @@ def test_equilibria_are_the_scalar_ones_to_the_solver_tolerance(robot, loads, so
     for i, (s0, s1) in enumerate(scalar):
         for batch, one, load in ((e0, s0, None), (e1, s1, take_load(loads, i))):
             kinv = _kkt_inverse(solver, one, load)
-            bound = 2 * (np.abs(kinv[:nv, :nv]).sum(axis=1).max() * (batch.residual[i] + one.residual)
-                         + np.abs(kinv[:nv, nv:]).sum(axis=1).max() * (batch.loop_violation[i] + one.loop_violation))
+            bound = 2 * (
+                np.abs(kinv[:nv, :nv]).sum(axis=1).max() * (batch.residual[i] + one.residual)
+                + np.abs(kinv[:nv, nv:]).sum(axis=1).max() * (batch.loop_violation[i] + one.loop_violation)
+            )
             assert np.abs(batch.qpos[i] - one.qpos).max() <= bound, (i, bound)
             assert batch.acceptable[i] == one.acceptable
             assert batch.equilibrium(i, robot.act_qpos).acceptable == one.acceptable
@@ -163,7 +175,10 @@ def test_equilibria_are_the_scalar_ones_to_the_solver_tolerance(robot, loads, so
 def test_tangents_and_dforce_are_the_scalar_ones(robot, loads, solved):
     bs, e0, a0, e1, scalar = solved
     a1 = bs.stiffness(e1, loads)
-    for eq, a, states, load in ((e0, a0, [s[0] for s in scalar], None), (e1, a1, [s[1] for s in scalar], loads)):
+    for eq, a, states, load in (
+        (e0, a0, [s[0] for s in scalar], None),
+        (e1, a1, [s[1] for s in scalar], loads),
+    ):
         df = bs.dforce(eq, PARAMS)
         tan = bs.tangent(eq, df, a)
         for i, one in enumerate(states):
@@ -264,13 +279,14 @@ def test_a_diverging_newton_stops_before_mujoco_sees_it(robot, tmp_path, monkeyp
 
         def tiny(rows, qp, lm, r, stalled, iteration):
             return np.broadcast_to(flat, (len(rows), nv, nv)).copy(), np.zeros(len(rows), bool)
+
         e = bs.newton(q, e0.qpos + 1e-3, e0.basis, None, lam=e0.lam, stiffness=tiny)
         assert not e.converged.any() and np.isinf(e.residual).all()
         s0 = solver.solve(q[0])
         robot.set_command(q[0])
         with statics_options(robot), pytest.raises(StaticsError, match="diverged"):
             solver.newton(s0.qpos + 1e-3, s0.lam, s0.basis, None, lambda point: flat)
-        assert bs.solve(q).converged.all()                   # the batch is usable afterwards
+        assert bs.solve(q).converged.all()  # the batch is usable afterwards
     finally:
         mujoco.set_mju_user_warning(before)
     assert said == [] and not (tmp_path / "MUJOCO_LOG.TXT").exists()

@@ -1,4 +1,5 @@
 """`calbench simulate` end to end: determinism, crash safety, bad input, independent readers."""
+
 from __future__ import annotations
 
 import subprocess
@@ -7,13 +8,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import MJCF, PAPER
+from rerun_cli import rerun_env, rerun_exe
 
 from calbench.bench.log.writer import read_log
 from calbench.bench.scenario.parse import load_scenario
 from calbench.identify.cli import main
-from conftest import MJCF, PAPER
-from rerun_cli import rerun_env, rerun_exe
-
 
 
 def simulate(tmp_path: Path, scenario: Path = PAPER, name: str = "log.mcap", *extra: str) -> tuple[int, Path]:
@@ -70,8 +70,13 @@ def test_noise_matches_truth_statistics(paper_log):
 
 
 def test_rerun_reads_the_log(paper_log, tmp_path):
-    res = subprocess.run([rerun_exe(), "mcap", "info", str(paper_log)], capture_output=True, text=True,
-                         env=rerun_env(tmp_path), timeout=120)
+    res = subprocess.run(
+        [rerun_exe(), "mcap", "info", str(paper_log)],
+        capture_output=True,
+        text=True,
+        env=rerun_env(tmp_path),
+        timeout=120,
+    )
     assert res.returncode == 0, res.stderr
     assert "Channels" in res.stdout or "channels" in res.stdout.lower()
 
@@ -96,7 +101,9 @@ main(["simulate", sys.argv[1], "--out", sys.argv[2]])
 
 def test_killed_campaign_keeps_finished_poses(tmp_path):
     out = tmp_path / "killed.mcap"
-    res = subprocess.run([sys.executable, "-c", KILLER, str(PAPER), str(out), "5"], capture_output=True, timeout=120)
+    res = subprocess.run(
+        [sys.executable, "-c", KILLER, str(PAPER), str(out), "5"], capture_output=True, timeout=120
+    )
     assert res.returncode == -9
     log = read_log(out)
     assert log.truncated
@@ -114,11 +121,23 @@ def bad_scenario(tmp_path: Path, edit) -> Path:
 
 CASES = {
     "unknown key": (lambda t: t.replace("seed = 1", "seed = 1\ncolour = 3"), "colour"),
-    "wrong length": (lambda t: t.replace("q = [0, 0, -30, -45, 30, 135]", "q = [0, 0, -30, -45, 30]", 1), "pose[0].q"),
-    "beyond limit": (lambda t: t.replace("q = [0, 0, -30, -45, 30, 135]", "q = [0, 0, 45, -45, 30, 135]", 1), "pose[0].q"),
+    "wrong length": (
+        lambda t: t.replace("q = [0, 0, -30, -45, 30, 135]", "q = [0, 0, -30, -45, 30]", 1),
+        "pose[0].q",
+    ),
+    "beyond limit": (
+        lambda t: t.replace("q = [0, 0, -30, -45, 30, 135]", "q = [0, 0, 45, -45, 30, 135]", 1),
+        "pose[0].q",
+    ),
     "non-positive mass": (lambda t: t.replace("mass = 700.0", "mass = 0.0"), "load.mass"),
-    "degenerate parallelogram": (lambda t: t.replace("q = [0, 0, -30, -45, 30, 135]", "q = [0, 90, -30, -45, 30, 135]", 1), "pose[0].q"),
-    "unseeable": (lambda t: t.replace("position = [3.5, -3.5, 3.2]", "position = [0.0, 0.0, 0.45]"), "pose[0].q"),
+    "degenerate parallelogram": (
+        lambda t: t.replace("q = [0, 0, -30, -45, 30, 135]", "q = [0, 90, -30, -45, 30, 135]", 1),
+        "pose[0].q",
+    ),
+    "unseeable": (
+        lambda t: t.replace("position = [3.5, -3.5, 3.2]", "position = [0.0, 0.0, 0.45]"),
+        "pose[0].q",
+    ),
 }
 
 
@@ -136,7 +155,11 @@ def test_bad_input_exit_2_no_output(tmp_path, capsys, case):
 
 def test_cli_exit_status_from_a_real_process(tmp_path):
     exe = Path(sys.executable).parent / "calbench"
-    res = subprocess.run([str(exe), "simulate", str(tmp_path / "missing.toml"), "--out", str(tmp_path / "x.mcap")],
-                         capture_output=True, text=True, timeout=120)
+    res = subprocess.run(
+        [str(exe), "simulate", str(tmp_path / "missing.toml"), "--out", str(tmp_path / "x.mcap")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert res.returncode == 2
     assert "missing.toml" in res.stderr

@@ -1,17 +1,18 @@
 """`calbench check-robot`: the shipped FANUC and a robot built from scratch pass; every broken
 description is exit 2 with one line naming the element."""
+
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
 import pytest
-
-from calbench.bench.robots.check import check_robot, default_tracker, grid
-from calbench.bench.model.robot import Robot
-from calbench.identify.cli import main
 from conftest import MJCF
 from robots import fourbar_mjcf, serial_mjcf
+
+from calbench.bench.model.robot import Robot
+from calbench.bench.robots.check import check_robot, default_tracker, grid
+from calbench.identify.cli import main
 
 
 def test_the_fanuc_passes_with_its_derived_margin(capsys):
@@ -19,16 +20,19 @@ def test_the_fanuc_passes_with_its_derived_margin(capsys):
     out = capsys.readouterr().out
     assert "6 actuated joints: j1 j2 j3 j4 j5 j6" in out
     assert "loop parallelogram: passive joints elbow rod" in out
-    assert "commands need >= 0.0875" in out                 # tan 5 deg
+    assert "commands need >= 0.0875" in out  # tan 5 deg
     assert "compensator compensator: across j2" in out
-    assert "statics converge at 729 grid poses" in out       # 3^6
+    assert "statics converge at 729 grid poses" in out  # 3^6
     # the default tracker stands beside the FANUC's scenarios' (3.5, -3.5, 3.2)
     np.testing.assert_allclose(default_tracker(Robot.from_file(MJCF)), [3.5355, -3.5355, 3.0], atol=1e-3)
 
 
 def test_robots_built_from_scratch_pass(tmp_path):
-    for name, xml, n in (("arm", serial_mjcf(), 81), ("bal", serial_mjcf(balancer=True), 81),
-                         ("fourbar", fourbar_mjcf(), 27)):
+    for name, xml, n in (
+        ("arm", serial_mjcf(), 81),
+        ("bal", serial_mjcf(balancer=True), 81),
+        ("fourbar", fourbar_mjcf(), 27),
+    ):
         path = tmp_path / f"{name}.xml"
         path.write_text(xml)
         res = check_robot(path)
@@ -48,17 +52,28 @@ BROKEN = {
     "not an MJCF": ("<mujoco><worldbody><body><joint name='a'/></body></mujoco>", "MJCF: expected a model"),
     "no actuated text": (serial_mjcf({"actuated": None}), "custom text calbench:actuated"),
     "a reflector missing": (serial_mjcf({"reflectors": "t1 t2 ghost"}), "no site named 'ghost'"),
-    "a loop that cannot close": (fourbar_mjcf().replace('fromto="0 0 0 0.95 0 0"', 'fromto="0 0 0 3 0 0"')
-                                 .replace('name="link_end" pos="0.95 0 0"', 'name="link_end" pos="3 0 0"'),
-                                 "calbench:loops"),
-    "collinear reflectors": (serial_mjcf().replace('name="t3" pos="0.15 0 -0.3"', 'name="t3" pos="0.15 0.5 0.2"'),
-                             "calbench:reflectors: expected reflectors not on one line"),
-    "a reflector inside the hand": (serial_mjcf().replace('name="t3" pos="0.15 0 -0.3"', 'name="t3" pos="0.1 0 0"'),
-                                    "hidden: t3"),
-    "an actuated joint without spring": (serial_mjcf().replace('range="-150 150" stiffness="1e6"', 'range="-150 150"'),
-                                         "calbench:actuated: joint 'elbow_pitch': expected a stiffness > 0"),
-    "a free joint": (serial_mjcf().replace('<site name="hook"', '<joint name="wobble" axis="0 0 1"/><site name="hook"'),
-                     "joint 'wobble': expected an actuated joint"),
+    "a loop that cannot close": (
+        fourbar_mjcf()
+        .replace('fromto="0 0 0 0.95 0 0"', 'fromto="0 0 0 3 0 0"')
+        .replace('name="link_end" pos="0.95 0 0"', 'name="link_end" pos="3 0 0"'),
+        "calbench:loops",
+    ),
+    "collinear reflectors": (
+        serial_mjcf().replace('name="t3" pos="0.15 0 -0.3"', 'name="t3" pos="0.15 0.5 0.2"'),
+        "calbench:reflectors: expected reflectors not on one line",
+    ),
+    "a reflector inside the hand": (
+        serial_mjcf().replace('name="t3" pos="0.15 0 -0.3"', 'name="t3" pos="0.1 0 0"'),
+        "hidden: t3",
+    ),
+    "an actuated joint without spring": (
+        serial_mjcf().replace('range="-150 150" stiffness="1e6"', 'range="-150 150"'),
+        "calbench:actuated: joint 'elbow_pitch': expected a stiffness > 0",
+    ),
+    "a free joint": (
+        serial_mjcf().replace('<site name="hook"', '<joint name="wobble" axis="0 0 1"/><site name="hook"'),
+        "joint 'wobble': expected an actuated joint",
+    ),
 }
 
 
@@ -83,8 +98,8 @@ def test_bad_options_are_exit_2(capsys):
 def test_the_readme_robot_passes(tmp_path):
     """The minimal MJCF of the README's "Bring your own robot" is a robot check-robot accepts."""
     readme = (Path(__file__).resolve().parent.parent / "README.md").read_text(encoding="utf-8")
-    section = readme[readme.index("## Bring your own robot"):]
-    xml = section[section.index("```xml\n") + 7: section.index("```\n", section.index("```xml\n"))]
+    section = readme[readme.index("## Bring your own robot") :]
+    xml = section[section.index("```xml\n") + 7 : section.index("```\n", section.index("```xml\n"))]
     (tmp_path / "my_arm.xml").write_text(xml)
     res = check_robot(tmp_path / "my_arm.xml")
     assert res.parameters == ("k1", "k2", "k3") and res.poses == 27

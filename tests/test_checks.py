@@ -8,21 +8,27 @@ times its size, marked identifiable, and passed the check. Two distinct q2 leave
 numerically present (the exact model sees the compensator's static torque) but buried in the
 noise: identify/core/identifiability.py's resolution test names them unidentifiable.
 """
+
 from __future__ import annotations
 
 import json
 
+import badcases as bc
 import numpy as np
 import pytest
+from conftest import PAPER
 
-import badcases as bc
 from calbench.bench.log.idreport import IdentificationReport, ParameterEstimate
 from calbench.bench.model.params import ParamLayout
 from calbench.identify.cli import main
-from calbench.identify.core.identifiability import (MAX_RELATIVE_STD, Identifiability, analyze,
-                                               explain, resolve)
+from calbench.identify.core.identifiability import (
+    MAX_RELATIVE_STD,
+    Identifiability,
+    analyze,
+    explain,
+    resolve,
+)
 from calbench.identify.report.identification import check_failed
-from conftest import PAPER
 
 TWO_POSES = [[0, 0, -30, 0, 0, 0], [0, 120, 30, 0, 0, 0]]
 
@@ -79,8 +85,9 @@ def test_the_paper_plan_passes_the_check(tmp_path, capsys):
 
 
 def report_with(estimate, std, converged=True, z=None) -> IdentificationReport:
-    p = ParameterEstimate("k1", "rad/(N*m)", estimate, std, None if z is None else 0.0,
-                          None, z, identifiable=True)
+    p = ParameterEstimate(
+        "k1", "rad/(N*m)", estimate, std, None if z is None else 0.0, None, z, identifiable=True
+    )
     return IdentificationReport(method="one-step", parameters=(p,), details={"converged": converged})
 
 
@@ -99,18 +106,25 @@ def test_resolution_after_rank_on_a_synthetic_matrix():
     rng = np.random.default_rng(0)
     q, _ = np.linalg.qr(rng.normal(size=(20, 2)))
     for s2, resolved in ((10.0, True), (0.1, False)):
-        jw = q * np.array([1e3, s2])                 # columns: d f_w / d (theta / |theta|)
+        jw = q * np.array([1e3, s2])  # columns: d f_w / d (theta / |theta|)
         ident = analyze(jw, ("k1", "k2"))
-        assert ident.rank == 2 and ident.identifiable.all()      # the rank says yes
+        assert ident.rank == 2 and ident.identifiable.all()  # the rank says yes
         cov = np.linalg.inv(jw.T @ jw)
         theta = np.ones(2)
         unresolved = resolve(ident, theta, cov)
         assert ident.relative_std[1] == pytest.approx(1 / s2)
         assert list(unresolved) == [False, not resolved]
         assert list(ident.identifiable) == [True, resolved]
-        reasons = explain(ident, ParamLayout(2), {"motor_torque_seen": np.ones(2, bool),
-                                                  "loads_vertical": False, "n_distinct_q2": 3,
-                                                  "compensator_joint": None})
+        reasons = explain(
+            ident,
+            ParamLayout(2),
+            {
+                "motor_torque_seen": np.ones(2, bool),
+                "loads_vertical": False,
+                "n_distinct_q2": 3,
+                "compensator_joint": None,
+            },
+        )
         assert ("k2" in reasons) is (not resolved)
         if not resolved:
             assert "+-1,000 % of its value" in reasons["k2"]
@@ -123,13 +137,16 @@ def test_identifiability_dict_reports_the_resolution():
     assert d["relative_std"] == {"a": 1.5} and d["identifiable"] == {"a": False}
 
 
-@pytest.mark.parametrize("argv, words", [
-    (["--configs", "30", "--candidates", "20"], ["--configs", "at most the 20 candidates"]),
-    (["--candidates", "0"], ["--candidates", "an integer >= 1"]),
-    (["--configs", "0"], ["--configs", "an integer >= 1"]),
-    (["--starts", "-1"], ["--starts", "an integer >= 0"]),
-    (["--processes", "0"], ["--processes", "an integer >= 1"]),
-])
+@pytest.mark.parametrize(
+    "argv, words",
+    [
+        (["--configs", "30", "--candidates", "20"], ["--configs", "at most the 20 candidates"]),
+        (["--candidates", "0"], ["--candidates", "an integer >= 1"]),
+        (["--configs", "0"], ["--configs", "an integer >= 1"]),
+        (["--starts", "-1"], ["--starts", "an integer >= 0"]),
+        (["--processes", "0"], ["--processes", "an integer >= 1"]),
+    ],
+)
 def test_design_impossible_sizes_exit_2_one_line(tmp_path, capsys, argv, words):
     js = tmp_path / "d.json"
     rc = main(["design", str(PAPER), "--json", str(js), *argv])
@@ -143,12 +160,15 @@ def test_design_impossible_sizes_exit_2_one_line(tmp_path, capsys, argv, words):
 def test_a_realistic_balancer_converges_on_its_bound_and_passes_the_check(tmp_path):
     """The shipped realistic balancer: the data prefer a spring without preload (P = K_C s0 on
     its bound); the fit must converge there, name K_C and s0 unidentifiable, and pass --check."""
-    from calbench.identify.cli import main
     from conftest import ROOT
+
+    from calbench.identify.cli import main
+
     log = tmp_path / "br.mcap"
     assert main(["simulate", str(ROOT / "scenarios" / "balancer_realistic.toml"), "--out", str(log)]) == 0
     assert main(["identify", str(log), "--check", "--json", str(tmp_path / "br.json")]) == 0
     import json
+
     rep = json.loads((tmp_path / "br.json").read_text())
     est = {p["name"]: p for p in rep["parameters"]}
     assert est["compensator_stiffness"]["estimate"] is None and est["compensator_preload"]["estimate"] is None

@@ -1,17 +1,17 @@
 """Small things a newcomer meets (issue 10): every flag's help says its default (or that it is
 required), every benchmark takes --quick for `make bench QUICK=1`, and the Makefile says what
 it is doing."""
+
 from __future__ import annotations
 
 import argparse
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
+from conftest import ROOT
 
 from calbench.identify.cli import build_parser, main
-from conftest import ROOT
 
 
 def subcommands() -> dict[str, argparse.ArgumentParser]:
@@ -24,9 +24,9 @@ def test_every_flag_says_its_default():
     missing = []
     for name, sp in [("calbench", build_parser()), *subcommands().items()]:
         for a in sp._actions:
-            if not a.option_strings or isinstance(a, (argparse._HelpAction,
-                                                      argparse._VersionAction,
-                                                      argparse._SubParsersAction)):
+            if not a.option_strings or isinstance(
+                a, (argparse._HelpAction, argparse._VersionAction, argparse._SubParsersAction)
+            ):
                 continue
             text = (a.help or "") % {"default": a.default} if a.help else ""
             if not ("default" in text or (a.required and "required" in text)):
@@ -50,15 +50,21 @@ def test_version(capsys):
 
 @pytest.mark.parametrize("bench", sorted(p.name for p in (ROOT / "benchmarks").glob("*_bench.py")))
 def test_every_benchmark_takes_quick(bench):
-    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / bench), "--help"],
-                       capture_output=True, text=True, timeout=120, cwd=ROOT)
+    r = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / bench), "--help"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=ROOT,
+    )
     assert r.returncode == 0, r.stderr
     assert "--quick" in r.stdout
 
 
 def test_make_bench_passes_quick_and_says_what_it_does():
-    r = subprocess.run(["make", "-n", "bench", "QUICK=1"], capture_output=True, text=True,
-                       cwd=ROOT, timeout=60)
+    r = subprocess.run(
+        ["make", "-n", "bench", "QUICK=1"], capture_output=True, text=True, cwd=ROOT, timeout=60
+    )
     if r.returncode != 0 and "No rule" not in r.stderr:
         pytest.skip(f"make unavailable: {r.stderr.strip()}")
     assert "--quick" in r.stdout and "progress on stderr" in r.stdout

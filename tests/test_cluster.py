@@ -7,6 +7,7 @@ every task derives its random stream from (seed, its key) and starts from the sa
 order of completion may change a single bit. Run counts are small: these tests are about where
 the work runs, not about statistics (tests/test_montecarlo.py, tests/test_design.py).
 """
+
 from __future__ import annotations
 
 import json
@@ -21,25 +22,34 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from conftest import PAPER
+from dask_cluster import LocalDaskCluster, self_signed, tls_env
 
 from calbench.bench.scenario.parse import load_scenario
-from calbench.identify.study import montecarlo
 from calbench.identify.cli import main
 from calbench.identify.design import candidates
 from calbench.identify.design.candidates import generate_candidates, load_design_scenario
 from calbench.identify.runtime.executor import choose, open_executor
+from calbench.identify.study import montecarlo
 from calbench.identify.study.campaign import TIMING_COLUMNS
-from conftest import PAPER
-from dask_cluster import LocalDaskCluster, self_signed, tls_env
 
 CALBENCH = str(Path(sys.executable).with_name("calbench"))
-TIMING_KEYS = {"seconds", "seconds_per_run", "setup_seconds", "wall_seconds", "executor", "timings",
-               "candidates", "refinement"}
+TIMING_KEYS = {
+    "seconds",
+    "seconds_per_run",
+    "setup_seconds",
+    "wall_seconds",
+    "executor",
+    "timings",
+    "candidates",
+    "refinement",
+}
 
 
 @pytest.fixture(scope="module")
 def cluster(tmp_path_factory):
     from distributed import Client
+
     c = LocalDaskCluster(tmp_path_factory.mktemp("dask"), workers=2)
     client = None
     try:
@@ -64,8 +74,8 @@ def _strip(x):
 def test_montecarlo_on_the_cluster_gives_the_local_numbers(cluster, monkeypatch, tmp_path):
     c, _ = cluster
     scn = load_scenario(PAPER)
-    local = montecarlo.run_montecarlo(scn, 8, methods=montecarlo.METHODS, progress=False)   # one task
-    monkeypatch.setattr(montecarlo, "RUNS_PER_TASK", 3)                                     # three
+    local = montecarlo.run_montecarlo(scn, 8, methods=montecarlo.METHODS, progress=False)  # one task
+    monkeypatch.setattr(montecarlo, "RUNS_PER_TASK", 3)  # three
     with open_executor(choose(c.address, 0.0)) as ex:
         assert ex.choice.workers == 2
         remote = montecarlo.run_montecarlo(scn, 8, methods=montecarlo.METHODS, progress=False, executor=ex)
@@ -75,8 +85,13 @@ def test_montecarlo_on_the_cluster_gives_the_local_numbers(cluster, monkeypatch,
     assert _strip(local.summary()) == _strip(remote.summary())
     # and through the command line
     out_l, out_r = tmp_path / "l.json", tmp_path / "r.json"
-    assert main(["montecarlo", str(PAPER), "--runs", "4", "--scheduler", "in-process", "--json", str(out_l)]) == 0
-    assert main(["montecarlo", str(PAPER), "--runs", "4", "--scheduler", c.address, "--json", str(out_r)]) == 0
+    assert (
+        main(["montecarlo", str(PAPER), "--runs", "4", "--scheduler", "in-process", "--json", str(out_l)])
+        == 0
+    )
+    assert (
+        main(["montecarlo", str(PAPER), "--runs", "4", "--scheduler", c.address, "--json", str(out_r)]) == 0
+    )
     rl, rr = json.loads(out_l.read_text()), json.loads(out_r.read_text())
     assert "cluster" in rr["executor"] and rl["executor"] != rr["executor"]
     assert _strip(rl) == _strip(rr)
@@ -86,7 +101,7 @@ def test_design_on_the_cluster_gives_the_local_candidates_and_plan(cluster, monk
     c, _ = cluster
     scn, st = load_design_scenario(PAPER)
     local = generate_candidates(scn, st, n=150)
-    monkeypatch.setattr(candidates, "CANDIDATE_BLOCK", 64)     # more, smaller tasks
+    monkeypatch.setattr(candidates, "CANDIDATE_BLOCK", 64)  # more, smaller tasks
     with open_executor(choose(c.address, 0.0)) as ex:
         remote = generate_candidates(scn, st, n=150, executor=ex)
     for k in ("q", "wrench", "kind", "blocks"):
@@ -154,17 +169,21 @@ def test_a_study_killed_midway_resumes_to_the_same_parquet_file(cluster, study_r
     c, client = cluster
     study, ref = study_reference
     out = tmp_path / "results.parquet"
-    proc = subprocess.Popen([CALBENCH, "study", str(study), "--out", str(out), "--scheduler", c.address],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=tmp_path)
+    proc = subprocess.Popen(
+        [CALBENCH, "study", str(study), "--out", str(out), "--scheduler", c.address],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        cwd=tmp_path,
+    )
     _wait_for_a_part(proc, out)
-    proc.send_signal(signal.SIGKILL)                    # a crash: no chance to tidy up
+    proc.send_signal(signal.SIGKILL)  # a crash: no chance to tidy up
     proc.wait()
     kept = _rows(out)
-    assert 0 < kept < 18                                # what finished survived; the rest did not run
+    assert 0 < kept < 18  # what finished survived; the rest did not run
     assert main(["study", str(study), "--out", str(out), "--scheduler", c.address]) == 0
     _same_table(ref, out)
-    assert not out.with_name(out.name + ".parts").exists()   # the journal is merged and gone
-    assert main(["study", str(study), "--out", str(out), "--scheduler", c.address]) == 0   # nothing to do
+    assert not out.with_name(out.name + ".parts").exists()  # the journal is merged and gone
+    assert main(["study", str(study), "--out", str(out), "--scheduler", c.address]) == 0  # nothing to do
     _same_table(ref, out)
 
 
@@ -172,17 +191,22 @@ def test_ctrl_c_cancels_the_cluster_tasks_and_keeps_what_finished(cluster, study
     c, client = cluster
     study, ref = study_reference
     out = tmp_path / "results.parquet"
-    proc = subprocess.Popen([CALBENCH, "study", str(study), "--out", str(out), "--scheduler", c.address],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    proc = subprocess.Popen(
+        [CALBENCH, "study", str(study), "--out", str(out), "--scheduler", c.address],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=tmp_path,
+    )
     _wait_for_a_part(proc, out)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err
     assert "interrupted" in err and "resume" in err
-    n = pq.read_table(out).num_rows                      # merged into the file on the way out
+    n = pq.read_table(out).num_rows  # merged into the file on the way out
     assert 0 < n < 18
     t0 = time.monotonic()
-    while _scheduler_tasks(client):                      # the cluster forgets the cancelled tasks
+    while _scheduler_tasks(client):  # the cluster forgets the cancelled tasks
         assert time.monotonic() - t0 < 20, _scheduler_tasks(client)
         time.sleep(0.2)
     assert main(["study", str(study), "--out", str(out), "--scheduler", "in-process"]) == 0
@@ -197,13 +221,26 @@ def test_a_tls_cluster_with_dasks_security_configuration(tmp_path):
         assert c.address.startswith("tls://127.0.0.1:")
         base = {k: v for k, v in os.environ.items() if not k.startswith("DASK_")}
         out = tmp_path / "mc.json"
-        cmd = [CALBENCH, "montecarlo", str(PAPER), "--runs", "3", "--scheduler", c.address, "--json", str(out)]
+        cmd = [
+            CALBENCH,
+            "montecarlo",
+            str(PAPER),
+            "--runs",
+            "3",
+            "--scheduler",
+            c.address,
+            "--json",
+            str(out),
+        ]
         r = subprocess.run(cmd, env={**base, **tls_env(certs)}, capture_output=True, text=True, timeout=180)
         assert r.returncode == 0, r.stderr
         ref = tmp_path / "ref.json"
-        assert main(["montecarlo", str(PAPER), "--runs", "3", "--scheduler", "in-process", "--json", str(ref)]) == 0
+        assert (
+            main(["montecarlo", str(PAPER), "--runs", "3", "--scheduler", "in-process", "--json", str(ref)])
+            == 0
+        )
         assert _strip(json.loads(out.read_text())) == _strip(json.loads(ref.read_text()))
-        r = subprocess.run(cmd, env=base, capture_output=True, text=True, timeout=60)    # no certificates
+        r = subprocess.run(cmd, env=base, capture_output=True, text=True, timeout=60)  # no certificates
         assert r.returncode == 2 and "security configuration" in r.stderr, r.stderr
     finally:
         c.stop()

@@ -5,20 +5,21 @@ The serial arm's statics are held to paper eq. (1) with gravity off: dq = K^-1 J
 rigid pose. The load (20 N, ~2 m lever) deflects the springs (1e6 N*m/rad) by ~4e-5 rad, so
 the geometric nonlinearity left out of eq. (1) is ~4e-5 relative: allowed 1e-3 (0.1 %).
 """
+
 from __future__ import annotations
 
 import mujoco
 import numpy as np
 import pytest
+from conftest import MJCF, PAPER
+from robots import fourbar_mjcf, serial_mjcf
 
-from calbench.bench.model.description import DescriptionError, read_description
 from calbench.bench.core.errors import InputError
+from calbench.bench.model.description import DescriptionError, read_description
 from calbench.bench.model.params import LEGACY_COMPENSATOR, ParamLayout, Params, Spring, springs_from_message
 from calbench.bench.model.robot import Robot
 from calbench.bench.scenario.parse import load_scenario, scenario_params
 from calbench.bench.statics.equilibrium import Load, StaticsSolver
-from conftest import MJCF, PAPER
-from robots import fourbar_mjcf, serial_mjcf
 
 
 def test_the_fanuc_model_carries_its_description():
@@ -34,8 +35,16 @@ def test_the_fanuc_passive_joints_and_layout_are_derived():
     m = robot.model
     # the loop's passive hinges follow from the loop: the unsprung joints between its sites
     assert [m.joint(j).name for j in robot.passive_joint] == ["elbow", "rod"]
-    assert robot.layout.names == ("k1", "k2", "k3", "k4", "k5", "k6",
-                                  "compensator_stiffness", "compensator_preload")
+    assert robot.layout.names == (
+        "k1",
+        "k2",
+        "k3",
+        "k4",
+        "k5",
+        "k6",
+        "compensator_stiffness",
+        "compensator_preload",
+    )
     assert robot.layout.units == ("rad/(N*m)",) * 6 + ("N/m", "m")
     # the compensator's joint is derived: the one hinge between its two sites' bodies
     assert robot.compensator_joint(0) == 1
@@ -71,8 +80,12 @@ def test_element_types_are_checked():
     slide = serial_mjcf().replace('name="tool_roll" type="hinge"', 'name="tool_roll" type="slide"')
     with pytest.raises(DescriptionError, match="joint 'tool_roll' must be a hinge"):
         Robot.from_xml(slide)
-    three = serial_mjcf(balancer=True).replace('<site site="bal_high"/>', '<site site="bal_high"/><site site="t1"/>')
-    with pytest.raises(DescriptionError, match="tendon 'balancer' must be a <spatial> tendon between exactly two"):
+    three = serial_mjcf(balancer=True).replace(
+        '<site site="bal_high"/>', '<site site="bal_high"/><site site="t1"/>'
+    )
+    with pytest.raises(
+        DescriptionError, match="tendon 'balancer' must be a <spatial> tendon between exactly two"
+    ):
         Robot.from_xml(three)
     # a connect between two sites on one body closes nothing: no passive joint on its path
     same = '<equality><connect name="nothing" site1="t1" site2="t2"/></equality>'
@@ -105,8 +118,8 @@ def test_serial_statics_hold_to_eq_1_with_gravity_off():
         jp, jr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
         mujoco.mj_jacSite(m, d, jp, jr, robot.payload_site)
         tau = (jp.T @ force + jr.T @ moment)[robot.act_dof]
-        expected = k * tau                                       # eq. (1): dq = K^-1 J^T W
-        assert np.abs(tau).min() > 0.5                           # every spring loaded
+        expected = k * tau  # eq. (1): dq = K^-1 J^T W
+        assert np.abs(tau).min() > 0.5  # every spring loaded
         np.testing.assert_allclose(e.deflection, expected, rtol=1e-3, atol=0)
 
 
@@ -114,7 +127,7 @@ def test_a_compensator_of_another_name_gets_its_own_parameter_names():
     robot = Robot.from_xml(serial_mjcf(balancer=True))
     lay = robot.layout
     assert lay.names == ("k1", "k2", "k3", "k4", "balancer_stiffness", "balancer_preload")
-    assert robot.compensator_joint(0) == 1                       # across the shoulder
+    assert robot.compensator_joint(0) == 1  # across the shoulder
     theta = np.array([1e-6, 2e-6, 3e-6, 4e-6, 2.5e6, 0.6])
     p = lay.params(theta)
     assert p.springs == {"balancer": Spring(2.5e6, 0.6)}
@@ -122,8 +135,10 @@ def test_a_compensator_of_another_name_gets_its_own_parameter_names():
     robot.set_params(p)
     assert robot.params().springs == p.springs
     # the log spells it under "compensators"; the tendon named "compensator" stays "compensator"
-    assert p.as_dict() == {"compliance": theta[:4].tolist(),
-                           "compensators": {"balancer": {"stiffness": 2.5e6, "preload": 0.6}}}
+    assert p.as_dict() == {
+        "compliance": theta[:4].tolist(),
+        "compensators": {"balancer": {"stiffness": 2.5e6, "preload": 0.6}},
+    }
     assert springs_from_message(p.as_dict()) == p.springs
     legacy = Params(np.ones(2), {LEGACY_COMPENSATOR: Spring(1.0, 2.0), "b": Spring(3.0, 4.0)})
     assert list(legacy.as_dict()) == ["compliance", "compensator", "compensators"]
@@ -143,17 +158,21 @@ def test_scenario_truth_is_matched_against_the_robot(tmp_path):
     InputErrors naming them."""
     xml = tmp_path / "arm.xml"
     xml.write_text(serial_mjcf(balancer=True))
-    base = ('robot = "arm.xml"\nseed = 1\n[truth]\ncompliance = [1e-6, 2e-6, 3e-6, 4e-6]\n'
-            "{comp}\n[tracker]\nposition = [3.0, 0.0, 1.0]\n[load]\nmass = 50.0\n"
-            "[[pose]]\nq = [0, 20, -30, 40]\n")
+    base = (
+        'robot = "arm.xml"\nseed = 1\n[truth]\ncompliance = [1e-6, 2e-6, 3e-6, 4e-6]\n'
+        "{comp}\n[tracker]\nposition = [3.0, 0.0, 1.0]\n[load]\nmass = 50.0\n"
+        "[[pose]]\nq = [0, 20, -30, 40]\n"
+    )
     robot = Robot.from_file(xml)
     good = tmp_path / "good.toml"
     good.write_text(base.format(comp="[truth.compensators.balancer]\nstiffness = 2e6\npreload = 0.5"))
     p = scenario_params(load_scenario(good), robot.n_act, robot.description.compensators)
     assert p.springs == {"balancer": Spring(2e6, 0.5)}
     balancer = "[truth.compensators.balancer]\nstiffness = 2e6\npreload = 0.5\n"
-    cases = {"": "truth.compensators.balancer",                              # missing
-             balancer + "[truth.compensator]\nstiffness = 2e6\npreload = 0.5": "truth.compensator"}  # extra
+    cases = {
+        "": "truth.compensators.balancer",  # missing
+        balancer + "[truth.compensator]\nstiffness = 2e6\npreload = 0.5": "truth.compensator",
+    }  # extra
     for comp, key in cases.items():
         bad = tmp_path / "bad.toml"
         bad.write_text(base.format(comp=comp))
@@ -184,7 +203,7 @@ def test_a_non_parallel_loop_closes_by_newton_and_its_rule_is_its_angle():
     solver = StaticsSolver(robot)
     rng = np.random.default_rng(3)
     anchor = lambda name: d.xanchor[m.joint(name).id]  # noqa: E731
-    site = lambda name: d.site_xpos[m.site(name).id]   # noqa: E731
+    site = lambda name: d.site_xpos[m.site(name).id]  # noqa: E731
     for q in np.radians(rng.uniform([-90, -20, -30], [90, 40, 30], (6, 3))):
         qpos = robot.rigid_qpos(q)
         np.testing.assert_array_equal(qpos[robot.act_qpos], q)

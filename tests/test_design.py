@@ -6,6 +6,7 @@ the sample covariance of N runs has standard deviation sqrt(2 tr(C^2) / (N - 1))
 them (plus the CRB's asymptotic approximation, which the one-step estimator meets to a few %
 on these plans: tests/test_montecarlo.py).
 """
+
 from __future__ import annotations
 
 import json
@@ -14,22 +15,26 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import MJCF, PAPER, ROOT
 
 from calbench.bench.campaign.run import plan_campaign, truth_robot
 from calbench.bench.model.robot import Robot
 from calbench.bench.scenario.parse import load_scenario
 from calbench.identify.cli import main
-from calbench.identify.design.plan import PlanPose, plan_scenario_text
-from calbench.identify.design.candidates import (InfoEngine, generate_candidates,
-                                        load_design_scenario, read_design_settings)
-from calbench.identify.design.criteria import criterion_value, information, measures
-from calbench.identify.design.exchange import Exchanger
 from calbench.identify.core.forward import ForwardModel, design_from_observations
 from calbench.identify.core.identifiability import whiten_factors
+from calbench.identify.design.candidates import (
+    InfoEngine,
+    generate_candidates,
+    load_design_scenario,
+    read_design_settings,
+)
+from calbench.identify.design.criteria import criterion_value, information, measures
+from calbench.identify.design.exchange import Exchanger
+from calbench.identify.design.plan import PlanPose, plan_scenario_text
 from calbench.identify.study.montecarlo import campaign_observations, run_montecarlo
-from conftest import MJCF, PAPER, ROOT
 
-WEIGHT = np.r_[Robot.from_file(MJCF).weight(700.0), 0, 0, 0.0]   # the model's own gravity
+WEIGHT = np.r_[Robot.from_file(MJCF).weight(700.0), 0, 0, 0.0]  # the model's own gravity
 
 
 @pytest.fixture(scope="module")
@@ -56,13 +61,17 @@ def _scenario_with_poses(scn, poses, tmp: Path, name="plan.toml") -> Path:
 
 # ------------------------------------------------------------------------------ feasibility
 
-@pytest.mark.parametrize("q, rule", [
-    ([0, 125, 0, 0, 0, 0], "joint_limits"),            # j2 range ends at 120 deg
-    ([0, 60, 0, 0, 122, 0], "self_collision"),          # wrist folded down: the tool hits the forearm
-    ([90, 0, 30, 45, -30, 45], "visibility"),           # Table 5 pose 4: refl_c hidden from the tracker
-    ([0, 0, -30, -45, 30, 135], "min_radius"),          # Table 5 pose 1: wrist centre 0.84 m from axis 1
-    ([0, 60, -65, 0, 0, 0], "degenerate_loop"),         # q3 - q2 = -125: 5 deg from the degenerate -120
-])
+
+@pytest.mark.parametrize(
+    "q, rule",
+    [
+        ([0, 125, 0, 0, 0, 0], "joint_limits"),  # j2 range ends at 120 deg
+        ([0, 60, 0, 0, 122, 0], "self_collision"),  # wrist folded down: the tool hits the forearm
+        ([90, 0, 30, 45, -30, 45], "visibility"),  # Table 5 pose 4: refl_c hidden from the tracker
+        ([0, 0, -30, -45, 30, 135], "min_radius"),  # Table 5 pose 1: wrist centre 0.84 m from axis 1
+        ([0, 60, -65, 0, 0, 0], "degenerate_loop"),  # q3 - q2 = -125: 5 deg from the degenerate -120
+    ],
+)
 def test_a_pose_violating_a_rule_is_rejected_with_the_rule_named(engine, q, rule):
     info = engine.pose(np.radians(q), WEIGHT)
     assert rule in info.violations, info.violations
@@ -86,6 +95,7 @@ def test_min_height_is_a_scenario_setting(tmp_path, paper):
     bad = tmp_path / "bad.toml"
     bad.write_text(path.read_text() + "min_heigth = 2\n")
     from calbench.bench.core.errors import InputError
+
     with pytest.raises(InputError, match="design.min_heigth"):
         read_design_settings(bad)
 
@@ -97,26 +107,33 @@ def test_candidates_are_all_feasible(engine, cands):
         # the candidates are computed batched: the same blocks up to the finite-difference noise both
         # carry (tests/test_design_batch.py)
         np.testing.assert_allclose(info.block, cands.blocks[i], rtol=0, atol=1e-6 * np.abs(info.block).max())
-    assert 0 < cands.kind.sum() < len(cands)        # both vertical loads and lateral pulls
+    assert 0 < cands.kind.sum() < len(cands)  # both vertical loads and lateral pulls
 
 
 # ------------------------------------------------------------------------------ information
+
 
 def test_exported_blocks_reproduce_the_fisher_information_of_a_plan(tmp_path, paper):
     """NPZ from the CLI; information of 6 of its candidates against identify/core/forward.py's IFT
     Jacobian on the campaign of those 6 poses (an independent code path)."""
     scn, _ = paper
     npz = tmp_path / "c.npz"
-    assert main(["design", str(PAPER), "--export-candidates", str(npz), "--candidates", "60",
-                 "--processes", "1"]) == 0
+    assert (
+        main(
+            ["design", str(PAPER), "--export-candidates", str(npz), "--candidates", "60", "--processes", "1"]
+        )
+        == 0
+    )
     z = np.load(npz)
     assert z["q"].shape == (60, 6) and z["blocks"].shape[0] == 60 and z["blocks"].shape[2] == 8
     pick = [0, 7, 13, 21, 34, 55]
     if not (z["load_kind"][pick] == "lateral").any():
         pick[-1] = int(np.flatnonzero(z["load_kind"] == "lateral")[0])
     F = information(z["blocks"], pick)
-    poses = [PlanPose(np.radians(z["q"][i]), z["wrench"][i], int(z["load_kind"][i] == "lateral"), None)
-             for i in pick]
+    poses = [
+        PlanPose(np.radians(z["q"][i]), z["wrench"][i], int(z["load_kind"][i] == "lateral"), None)
+        for i in pick
+    ]
     path = _scenario_with_poses(scn, poses, tmp_path)
     s2 = load_scenario(path)
     rb = truth_robot(s2)
@@ -142,6 +159,7 @@ def test_measures_definitions():
 
 
 # ------------------------------------------------------------------------------ exchange
+
 
 @pytest.mark.parametrize("crit", ["A", "D", "AD", "pose"])
 def test_exchange_beats_its_starts_and_updates_equal_recomputation(cands, engine, paper, crit):
@@ -174,17 +192,38 @@ def test_exchange_is_better_than_random_plans(cands):
     ex = Exchanger(cands.blocks, "A")
     r = ex.optimise(12, n_random=2)
     rng = np.random.default_rng(5)
-    rand = [criterion_value("A", information(cands.blocks, rng.choice(len(cands), 12, replace=False)))
-            for _ in range(50)]
+    rand = [
+        criterion_value("A", information(cands.blocks, rng.choice(len(cands), 12, replace=False)))
+        for _ in range(50)
+    ]
     assert r.value < 0.5 * np.median(rand)
 
 
 # ------------------------------------------------------------------------------ CLI and Monte Carlo
 
+
 def test_design_out_writes_a_scenario_that_simulate_accepts(tmp_path):
     plan, js, log = tmp_path / "plan.toml", tmp_path / "plan.json", tmp_path / "plan.mcap"
-    rc = main(["design", str(PAPER), "--configs", "8", "--criterion", "D", "--out", str(plan),
-               "--json", str(js), "--candidates", "150", "--starts", "1", "--processes", "1"])
+    rc = main(
+        [
+            "design",
+            str(PAPER),
+            "--configs",
+            "8",
+            "--criterion",
+            "D",
+            "--out",
+            str(plan),
+            "--json",
+            str(js),
+            "--candidates",
+            "150",
+            "--starts",
+            "1",
+            "--processes",
+            "1",
+        ]
+    )
     assert rc == 0
     doc = tomllib.loads(plan.read_text())
     assert sum(p.get("repeats", 1) for p in doc["pose"]) == 8
@@ -202,8 +241,22 @@ def test_pose_criterion_without_work_is_bad_input(tmp_path, capsys):
     assert "[work]" in text and "[work]" not in no_work
     scn = tmp_path / "no_work.toml"
     scn.write_text(no_work)
-    rc = main(["design", str(scn), "--configs", "4", "--criterion", "pose", "--out", str(tmp_path / "x.toml"),
-               "--candidates", "20", "--processes", "1"])
+    rc = main(
+        [
+            "design",
+            str(scn),
+            "--configs",
+            "4",
+            "--criterion",
+            "pose",
+            "--out",
+            str(tmp_path / "x.toml"),
+            "--candidates",
+            "20",
+            "--processes",
+            "1",
+        ]
+    )
     assert rc == 2
     assert "work" in capsys.readouterr().err
     assert not (tmp_path / "x.toml").exists()
@@ -231,7 +284,21 @@ def test_predicted_trace_matches_monte_carlo(tmp_path, paper, cands, engine):
 def test_a_small_candidate_set_is_not_mistaken_for_an_infeasible_setup(tmp_path):
     """Candidates come in batches of sampled commands; asking for few must not trip the
     'settings leave no feasible configurations' guard once enough have been found."""
-    rc = main(["design", str(PAPER), "--configs", "4", "--criterion", "A", "--out", str(tmp_path / "x.toml"),
-               "--candidates", "20", "--processes", "1"])
+    rc = main(
+        [
+            "design",
+            str(PAPER),
+            "--configs",
+            "4",
+            "--criterion",
+            "A",
+            "--out",
+            str(tmp_path / "x.toml"),
+            "--candidates",
+            "20",
+            "--processes",
+            "1",
+        ]
+    )
     assert rc == 0
     assert (tmp_path / "x.toml").exists()

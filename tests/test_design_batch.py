@@ -9,16 +9,23 @@ to ~4e-7 of their largest entry (measured on 40 candidates), and the batched blo
 the scalar ones by as much (the loaded-minus-unloaded difference cancels most of each state's
 gravity-driven sensitivity, which magnifies the ~1e-10 relative noise of each matrix).
 """
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import PAPER
 
 from calbench.bench.statics.equilibrium import Load
 from calbench.identify.design.batch_info import BatchInfo
-from calbench.identify.design.candidates import (EQUILIBRIUM_RULES, InfoEngine, generate_candidates,
-                                                 horizontal_clearance, lateral_wrench, load_design_scenario)
-from conftest import PAPER
+from calbench.identify.design.candidates import (
+    EQUILIBRIUM_RULES,
+    InfoEngine,
+    generate_candidates,
+    horizontal_clearance,
+    lateral_wrench,
+    load_design_scenario,
+)
 
 
 @pytest.fixture(scope="module")
@@ -29,8 +36,10 @@ def paper():
 @pytest.fixture(scope="module")
 def both(paper):
     scn, st = paper
-    return (generate_candidates(scn, st, n=300, processes=1, progress=False),
-            generate_candidates(scn, st, n=300, progress=False, batched=False))
+    return (
+        generate_candidates(scn, st, n=300, processes=1, progress=False),
+        generate_candidates(scn, st, n=300, progress=False, batched=False),
+    )
 
 
 def test_batched_candidates_are_todays_within_1e6(both):
@@ -39,7 +48,7 @@ def test_batched_candidates_are_todays_within_1e6(both):
     assert np.array_equal(new.kind, old.kind) and 0 < new.kind.sum() < len(new)
     for key in ("raw_commands", "passed_command_rules", "rejected_first_rule"):
         assert new.stats[key] == old.stats[key], key
-    assert new.stats["rejected_first_rule"]["visibility"] > 0          # the equilibrium rules did reject
+    assert new.stats["rejected_first_rule"]["visibility"] > 0  # the equilibrium rules did reject
     scale = np.abs(old.blocks).max(axis=(1, 2))
     err = np.abs(new.blocks - old.blocks).max(axis=(1, 2)) / scale
     assert err.max() <= 1e-6, (err.argmax(), err.max())
@@ -58,11 +67,23 @@ def test_equilibrium_rules_agree_with_the_scalar_checks(paper):
     scn, st = paper
     eng = InfoEngine(scn, st)
     info = BatchInfo(eng, nthread=1)
-    q = np.radians([[90, 0, 30, 45, -30, 45], [90, 120, 30, 0, 0, 0], [-119.3, -24.2, -107.4, -144.4, -18.3, 117.4],
-                    [112.5, -23.7, -109.6, -154.6, -101.0, -120.2], [82.5, 37.9, -59.2, 133.1, -120.5, -108.0],
-                    [53.1, 35.3, -13.0, -112.6, 97.1, 122.3], [180, 120, 30, -135, 30, -135]])
-    w = np.array([np.r_[eng.robot.weight(700.0), 0, 0, 0] if i % 2 == 0 else
-                  lateral_wrench(q[i, 0], 1.0, 1200.0) for i in range(len(q))])
+    q = np.radians(
+        [
+            [90, 0, 30, 45, -30, 45],
+            [90, 120, 30, 0, 0, 0],
+            [-119.3, -24.2, -107.4, -144.4, -18.3, 117.4],
+            [112.5, -23.7, -109.6, -154.6, -101.0, -120.2],
+            [82.5, 37.9, -59.2, 133.1, -120.5, -108.0],
+            [53.1, 35.3, -13.0, -112.6, 97.1, 122.3],
+            [180, 120, 30, -135, 30, -135],
+        ]
+    )
+    w = np.array(
+        [
+            np.r_[eng.robot.weight(700.0), 0, 0, 0] if i % 2 == 0 else lateral_wrench(q[i, 0], 1.0, 1200.0)
+            for i in range(len(q))
+        ]
+    )
     e0 = info.statics.solve(q)
     a0 = info.statics.stiffness(e0, None)
     load = Load(w[:, :3], w[:, 3:], eng.robot.payload_site)
@@ -86,9 +107,9 @@ def test_equilibrium_rules_agree_with_the_scalar_checks(paper):
 
 def test_horizontal_clearance_by_hand():
     """A point 1 m beside a horizontal axis, one right above it, and a vertical axis's foot."""
-    centres = np.array([[[0.0, 1.0, 5.0], [3.0, 0.0, -2.0]]])          # (1, 2, 3)
+    centres = np.array([[[0.0, 1.0, 5.0], [3.0, 0.0, -2.0]]])  # (1, 2, 3)
     x_axis = np.array([[[0.0, 0.0, 0.0]]]), np.array([[[2.0, 0.0, 0.0]]])
     assert horizontal_clearance(centres, *x_axis)[0] == pytest.approx(0.0)
     assert horizontal_clearance(centres[:, :1], *x_axis)[0] == pytest.approx(1.0)
     vertical = np.array([[[1.0, 1.0, 0.0]]]), np.array([[[0.0, 0.0, 1.0]]])
-    assert horizontal_clearance(centres, *vertical)[0] == pytest.approx(1.0)   # (0, 1) from (1, 1)
+    assert horizontal_clearance(centres, *vertical)[0] == pytest.approx(1.0)  # (0, 1) from (1, 1)

@@ -6,6 +6,7 @@ found by exhaustive search over every multiset (or set, for distinct plans) of M
 candidates. Tolerance 1e-9 (absolute in log det, relative in the traces): the rounding of an 8 x 8
 Cholesky factorisation in double precision, far below any gap the bounds leave.
 """
+
 from __future__ import annotations
 
 import itertools
@@ -16,8 +17,16 @@ import tomllib
 import numpy as np
 import pytest
 
-from calbench.identify.design.certificate import (ALGORITHMS, a_bound, approximate_design, certify,
-                                                  column_scale, d_bound, normalise_blocks, plan_logdet)
+from calbench.identify.design.certificate import (
+    ALGORITHMS,
+    a_bound,
+    approximate_design,
+    certify,
+    column_scale,
+    d_bound,
+    normalise_blocks,
+    plan_logdet,
+)
 from calbench.identify.design.criteria import criterion_value, information
 from calbench.identify.design.exchange import Exchanger
 
@@ -69,8 +78,14 @@ def test_a_type_bounds_are_below_the_best_exact_plan(seed, crit, distinct):
     W = G.T @ G if crit == "pose" else None
     if crit != "AD":
         for it in (1, 5):
-            d = approximate_design(b, "A", W, start=np.bincount([0, 1, 2], minlength=12),
-                                   cap=1 / M if distinct else None, max_iter=it)
+            d = approximate_design(
+                b,
+                "A",
+                W,
+                start=np.bincount([0, 1, 2], minlength=12),
+                cap=1 / M if distinct else None,
+                max_iter=it,
+            )
             assert a_bound(d, M) <= best * (1 + ROUND)
 
 
@@ -80,8 +95,10 @@ def test_the_bound_is_attained_when_the_approximate_optimum_is_an_exact_plan():
     p ln M + log det M(xi*) exactly, and its efficiency is 1 (the bound is not loose)."""
     p, c = 4, 3.0
     axes = [np.vstack([c * np.eye(p)[k], np.zeros(p)]) for k in range(p)]
-    diag = [np.vstack([c * (np.eye(p)[a] + np.eye(p)[b]) / 2, np.zeros(p)])
-            for a, b in itertools.combinations(range(p), 2)]
+    diag = [
+        np.vstack([c * (np.eye(p)[a] + np.eye(p)[b]) / 2, np.zeros(p)])
+        for a, b in itertools.combinations(range(p), 2)
+    ]
     blocks = np.array(diag[:3] + axes + diag[3:])
     rows = [3, 4, 5, 6]
     assert plan_logdet(blocks, rows) == pytest.approx(p * math.log(c * c))
@@ -108,7 +125,9 @@ def test_equivalence_theorem_holds_at_the_computed_optimum():
                 np.testing.assert_allclose(d.sensitivity[d.weights > 0], 1.0, atol=1e-6)
             out[alg, crit] = d
     p = b.shape[2]
-    assert abs(out["fw-away", "D"].logdet - out["multiplicative", "D"].logdet) <= p * math.log(1 + 1e-8) + ROUND
+    assert (
+        abs(out["fw-away", "D"].logdet - out["multiplicative", "D"].logdet) <= p * math.log(1 + 1e-8) + ROUND
+    )
     assert out["fw-away", "A"].trace_w == pytest.approx(out["multiplicative", "A"].trace_w, rel=2e-8)
 
 
@@ -130,12 +149,12 @@ def test_distinct_exchange_never_repeats_and_its_scan_skips_the_excluded():
     b = _blocks(8, n=300, m=3, p=8)
     ex = Exchanger(b, "D")
     rep, dis = ex.optimise(30, n_random=2), ex.optimise(30, n_random=2, distinct=True)
-    assert len(np.unique(rep.idx)) < 30          # at 30 of 300 the unconstrained plan repeats
+    assert len(np.unique(rep.idx)) < 30  # at 30 of 300 the unconstrained plan repeats
     assert len(np.unique(dis.idx)) == 30
     assert plan_logdet(b, dis.idx) <= plan_logdet(b, rep.idx) + ROUND
     cert_d = certify(b, dis.idx, "D", distinct=True)
     cert_r = certify(b, rep.idx, "D")
-    assert cert_d.bound <= cert_r.bound + ROUND   # distinct plans are a subset of plans
+    assert cert_d.bound <= cert_r.bound + ROUND  # distinct plans are a subset of plans
     P, ld, tr = ex.state(dis.idx[:10])
     exclude = np.zeros(len(b), bool)
     exclude[dis.idx[:10]] = True
@@ -148,8 +167,9 @@ def test_distinct_exchange_never_repeats_and_its_scan_skips_the_excluded():
 
 # ------------------------------------------------------------------------------ command line
 
-from calbench.identify.cli import main  # noqa: E402
 from conftest import PAPER  # noqa: E402
+
+from calbench.identify.cli import main  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -157,8 +177,26 @@ def exported(tmp_path_factory):
     """150 paper-scenario candidates, raw and normalised, and the design's JSON on them."""
     d = tmp_path_factory.mktemp("cands")
     common = [str(PAPER), "--candidates", "150", "--processes", "1"]
-    assert main(["design", *common, "--export-candidates", str(d / "raw.npz"), "--configs", "8",
-                 "--criterion", "D", "--json", str(d / "design.json"), "--starts", "2", "--no-refine"]) == 0
+    assert (
+        main(
+            [
+                "design",
+                *common,
+                "--export-candidates",
+                str(d / "raw.npz"),
+                "--configs",
+                "8",
+                "--criterion",
+                "D",
+                "--json",
+                str(d / "design.json"),
+                "--starts",
+                "2",
+                "--no-refine",
+            ]
+        )
+        == 0
+    )
     assert main(["design", *common, "--export-candidates", str(d / "norm.npz"), "--normalise"]) == 0
     return d
 
@@ -175,8 +213,24 @@ def test_design_json_records_rows_and_a_certificate_of_them(exported, capsys):
     assert sum(s["poses_of_M"] for s in sup) <= 8 + 1e-9 and all(len(s["q_deg"]) == 6 for s in sup)
     # the same optimiser on the exported file: the same rows and certificate
     js = exported / "from.json"
-    assert main(["design", "--from-candidates", str(exported / "raw.npz"), "--configs", "8", "--criterion", "D",
-                 "--starts", "2", "--json", str(js)]) == 0
+    assert (
+        main(
+            [
+                "design",
+                "--from-candidates",
+                str(exported / "raw.npz"),
+                "--configs",
+                "8",
+                "--criterion",
+                "D",
+                "--starts",
+                "2",
+                "--json",
+                str(js),
+            ]
+        )
+        == 0
+    )
     text = capsys.readouterr().out
     assert "efficiency" in text and "provably within" in text
     again = json.loads(js.read_text())
@@ -193,33 +247,87 @@ def test_normalised_export_rescales_columns_and_keeps_the_d_optimal_plan(exporte
     rows = {}
     for name in ("raw", "norm"):
         js = tmp_path / f"{name}.json"
-        assert main(["design", "--from-candidates", str(exported / f"{name}.npz"), "--configs", "8",
-                     "--criterion", "D", "--starts", "2", "--json", str(js)]) == 0
+        assert (
+            main(
+                [
+                    "design",
+                    "--from-candidates",
+                    str(exported / f"{name}.npz"),
+                    "--configs",
+                    "8",
+                    "--criterion",
+                    "D",
+                    "--starts",
+                    "2",
+                    "--json",
+                    str(js),
+                ]
+            )
+            == 0
+        )
         rows[name] = json.loads(js.read_text())
     assert rows["raw"]["rows"] == rows["norm"]["rows"]
     shift = -2 * np.log(s).sum()
-    assert rows["norm"]["certificate"]["plan_logdet"] == pytest.approx(rows["raw"]["certificate"]["plan_logdet"]
-                                                                       + shift, abs=1e-8)
-    assert rows["norm"]["certificate"]["efficiency"] == pytest.approx(rows["raw"]["certificate"]["efficiency"],
-                                                                      rel=1e-3)
+    assert rows["norm"]["certificate"]["plan_logdet"] == pytest.approx(
+        rows["raw"]["certificate"]["plan_logdet"] + shift, abs=1e-8
+    )
+    assert rows["norm"]["certificate"]["efficiency"] == pytest.approx(
+        rows["raw"]["certificate"]["efficiency"], rel=1e-3
+    )
 
 
 def test_distinct_from_candidates_never_repeats_and_brackets_its_cost(exported, tmp_path):
     js = tmp_path / "d.json"
-    assert main(["design", "--from-candidates", str(exported / "raw.npz"), "--configs", "30", "--criterion", "A",
-                 "--starts", "1", "--distinct", "--json", str(js)]) == 0
+    assert (
+        main(
+            [
+                "design",
+                "--from-candidates",
+                str(exported / "raw.npz"),
+                "--configs",
+                "30",
+                "--criterion",
+                "A",
+                "--starts",
+                "1",
+                "--distinct",
+                "--json",
+                str(js),
+            ]
+        )
+        == 0
+    )
     out = json.loads(js.read_text())
     assert len(set(out["rows"])) == 30 and out["certificate"]["distinct"] is True
-    assert len(set(out["distinct"]["repeats_rows"])) < 30      # 30 of 150: with repeats it repeats
+    assert len(set(out["distinct"]["repeats_rows"])) < 30  # 30 of 150: with repeats it repeats
     cost = out["distinct"]["cost"]
     assert 0 <= cost["at_least"] <= cost["at_most"] < 1
-    assert out["certificate"]["bound_value"] >= out["distinct"]["repeats_bound"]  # A: a smaller set, a higher floor
+    assert (
+        out["certificate"]["bound_value"] >= out["distinct"]["repeats_bound"]
+    )  # A: a smaller set, a higher floor
 
 
 def test_from_candidates_writes_a_runnable_plan_with_the_scenario(exported, tmp_path):
     plan = tmp_path / "plan.toml"
-    assert main(["design", str(PAPER), "--from-candidates", str(exported / "raw.npz"), "--configs", "6",
-                 "--criterion", "pose", "--starts", "1", "--out", str(plan)]) == 0
+    assert (
+        main(
+            [
+                "design",
+                str(PAPER),
+                "--from-candidates",
+                str(exported / "raw.npz"),
+                "--configs",
+                "6",
+                "--criterion",
+                "pose",
+                "--starts",
+                "1",
+                "--out",
+                str(plan),
+            ]
+        )
+        == 0
+    )
     z = np.load(exported / "raw.npz")
     doc = tomllib.loads(plan.read_text())
     assert sum(p["repeats"] for p in doc["pose"]) == 6
@@ -231,20 +339,32 @@ def _npz(path, **arrays):
     return path
 
 
-@pytest.mark.parametrize("arrays, key", [
-    (lambda z: {"q": z["q"]}, "blocks"),                                        # missing array
-    (lambda z: {"q": z["q"][:, 0], "blocks": z["blocks"]}, "q"),                # not N x n
-    (lambda z: {"q": z["q"], "blocks": z["blocks"][:-1]}, "blocks"),            # N mismatch
-    (lambda z: {"q": z["q"], "blocks": np.where(np.arange(150)[:, None, None] == 7, np.nan, z["blocks"])},
-     "blocks"),                                                                 # NaN
-    (lambda z: {"q": z["q"], "blocks": z["blocks"], "load_kind": np.array(["up"] * 150)}, "load_kind"),
-    (lambda z: {"q": z["q"], "blocks": z["blocks"] * 0}, "blocks"),             # no information at all
-])
-def test_a_bad_candidate_file_is_bad_input_naming_the_file_and_the_array(exported, tmp_path, capsys, arrays, key):
+@pytest.mark.parametrize(
+    "arrays, key",
+    [
+        (lambda z: {"q": z["q"]}, "blocks"),  # missing array
+        (lambda z: {"q": z["q"][:, 0], "blocks": z["blocks"]}, "q"),  # not N x n
+        (lambda z: {"q": z["q"], "blocks": z["blocks"][:-1]}, "blocks"),  # N mismatch
+        (
+            lambda z: {
+                "q": z["q"],
+                "blocks": np.where(np.arange(150)[:, None, None] == 7, np.nan, z["blocks"]),
+            },
+            "blocks",
+        ),  # NaN
+        (lambda z: {"q": z["q"], "blocks": z["blocks"], "load_kind": np.array(["up"] * 150)}, "load_kind"),
+        (lambda z: {"q": z["q"], "blocks": z["blocks"] * 0}, "blocks"),  # no information at all
+    ],
+)
+def test_a_bad_candidate_file_is_bad_input_naming_the_file_and_the_array(
+    exported, tmp_path, capsys, arrays, key
+):
     z = np.load(exported / "raw.npz")
     bad = _npz(tmp_path / "bad.npz", **arrays(z))
     js = tmp_path / "out.json"
-    rc = main(["design", "--from-candidates", str(bad), "--configs", "4", "--criterion", "D", "--json", str(js)])
+    rc = main(
+        ["design", "--from-candidates", str(bad), "--configs", "4", "--criterion", "D", "--json", str(js)]
+    )
     err = capsys.readouterr().err
     assert rc == 2 and str(bad) in err and f": {key}:" in err, err
     assert len(err.strip().splitlines()) == 1 and not js.exists()
@@ -263,13 +383,35 @@ def test_a_file_that_is_no_npz_and_misused_flags_are_bad_input(tmp_path, capsys)
 
 def test_a_refined_distinct_design_prints_and_records_its_certificate(tmp_path, capsys):
     plan, js = tmp_path / "plan.toml", tmp_path / "plan.json"
-    assert main(["design", str(PAPER), "--configs", "8", "--criterion", "D", "--distinct", "--out", str(plan),
-                 "--json", str(js), "--candidates", "150", "--starts", "1", "--processes", "1"]) == 0
+    assert (
+        main(
+            [
+                "design",
+                str(PAPER),
+                "--configs",
+                "8",
+                "--criterion",
+                "D",
+                "--distinct",
+                "--out",
+                str(plan),
+                "--json",
+                str(js),
+                "--candidates",
+                "150",
+                "--starts",
+                "1",
+                "--processes",
+                "1",
+            ]
+        )
+        == 0
+    )
     text = capsys.readouterr().out
     out = json.loads(js.read_text())
     cert = out["certificate"]
     assert f"efficiency {100 * cert['efficiency']:.1f} %" in text and "no repeats: costs" in text
     assert cert["distinct"] and len(set(out["rows"])) == 8
-    assert cert["refined_plan"] >= cert["plan_logdet"]          # refinement only accepts improvements
+    assert cert["refined_plan"] >= cert["plan_logdet"]  # refinement only accepts improvements
     assert "Certified efficiency" in plan.read_text()
     assert all(p["repeats"] == 1 for p in tomllib.loads(plan.read_text())["pose"])

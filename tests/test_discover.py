@@ -18,6 +18,7 @@ Magnitudes (flange displacement they add under 700 kg: see benchmarks/discover_b
   tracker_drift [30, -20, 25] um (tracker frame, measurement side): named, before ~1.2x.
   tool_compliance [4e-7, 4e-7] (truth only, outside the library): `unexplained`.
 """
+
 from __future__ import annotations
 
 import json
@@ -26,28 +27,33 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
+from conftest import MJCF, PAPER
 
 from calbench.bench.campaign.run import run_campaign
-from calbench.bench.model.effects import REGISTRY, apply_effects, without_compensator
 from calbench.bench.log.writer import read_log, strip_truth
+from calbench.bench.model.effects import REGISTRY, apply_effects, without_compensator
 from calbench.bench.model.robot import Robot
 from calbench.bench.scenario.parse import load_scenario, scenario_variant
 from calbench.identify.cli import main as cli_main
-from calbench.identify.discover.workflow import UNEXPLAINED, discover, story
 from calbench.identify.discover.fit import DISCOVERY_EFFECTS, library
-from conftest import MJCF, PAPER
-
+from calbench.identify.discover.workflow import UNEXPLAINED, discover, story
 
 HIDDEN = {
-    "forearm": ('[truth.effects.link_compliance]\nlink = "forearm"\ncompliance = [1.8e-7, 0.0, 1.8e-7]',
-                "link_compliance", "forearm"),
-    "upper_arm": ('[truth.effects.link_compliance]\nlink = "upper_arm"\ncompliance = [1.5e-8, 1.5e-8, 1.5e-8]',
-                  "link_compliance", "upper_arm"),
+    "forearm": (
+        '[truth.effects.link_compliance]\nlink = "forearm"\ncompliance = [1.8e-7, 0.0, 1.8e-7]',
+        "link_compliance",
+        "forearm",
+    ),
+    "upper_arm": (
+        '[truth.effects.link_compliance]\nlink = "upper_arm"\ncompliance = [1.5e-8, 1.5e-8, 1.5e-8]',
+        "link_compliance",
+        "upper_arm",
+    ),
     "base": ("[truth.effects.base_compliance]\ncompliance = [4e-9, 4e-9]", "base_compliance", ""),
     "j3": ("[truth.effects.joint_nonlinearity]\njoint = 3\ncubic = 6e12", "joint_nonlinearity", "j3"),
     "drift": ("[truth.effects.tracker_drift]\noffset = [30e-6, -20e-6, 25e-6]", "tracker_drift", ""),
 }
-BEFORE_MIN = {"forearm": 2.0, "upper_arm": 2.0, "base": 2.0, "j3": 1.5, "drift": 1.2}   # see the docstring
+BEFORE_MIN = {"forearm": 2.0, "upper_arm": 2.0, "base": 2.0, "j3": 1.5, "drift": 1.2}  # see the docstring
 AFTER_MAX = 1.3
 
 
@@ -102,10 +108,14 @@ def ratios(rep):
 
 # --------------------------------------------------------------------------- the library
 
+
 def test_library_is_the_contract_effects_with_options():
     lib = library(Robot.from_file(MJCF))
-    assert {e.name for e in lib} == set(DISCOVERY_EFFECTS) == {
-        "compensator", "joint_nonlinearity", "link_compliance", "base_compliance", "tracker_drift"}
+    assert (
+        {e.name for e in lib}
+        == set(DISCOVERY_EFFECTS)
+        == {"compensator", "joint_nonlinearity", "link_compliance", "base_compliance", "tracker_drift"}
+    )
     assert "tool_compliance" in REGISTRY and "tool_compliance" not in {e.name for e in lib}
     # the options come from the robot description: its calbench:links, its actuated joints
     assert sorted(e.detail for e in lib if e.name == "link_compliance") == ["forearm", "upper_arm"]
@@ -113,6 +123,7 @@ def test_library_is_the_contract_effects_with_options():
     assert [e.options["body"] for e in lib if e.name == "base_compliance"] == ["base"]
     # a robot that names no links and no compensator mounts gets neither candidate
     from robots import serial_mjcf
+
     serial = library(Robot.from_xml(serial_mjcf()))
     assert {e.name for e in serial} == {"joint_nonlinearity", "base_compliance", "tracker_drift"}
     assert [e.options["body"] for e in serial if e.name == "base_compliance"] == ["pedestal"]
@@ -135,13 +146,15 @@ def test_tool_compliance_truth_effect(tmp_path):
     for r in (robot, plain):
         r.data.qpos[:] = r.rigid_qpos(q)
         mujoco.mj_kinematics(r.model, r.data)
-    np.testing.assert_allclose(robot.data.site_xpos[robot.reflector_sites],
-                               plain.data.site_xpos[plain.reflector_sites], atol=1e-12)
+    np.testing.assert_allclose(
+        robot.data.site_xpos[robot.reflector_sites], plain.data.site_xpos[plain.reflector_sites], atol=1e-12
+    )
     eff.set_params(robot, [1e-7, 1e-7])
     assert robot.model.jnt_stiffness[robot.model.joint("tool_ry").id] == pytest.approx(1e7)
 
 
 # --------------------------------------------------------------------------- the workflow
+
 
 @pytest.mark.parametrize("case", list(HIDDEN))
 def test_hidden_effect_is_named_and_gap_closes(logs, case):
@@ -164,9 +177,13 @@ def test_hidden_effect_is_named_and_gap_closes(logs, case):
             j = aug.model.joint(f"{detail}_r{ax}").id
             assert aug.model.jnt_stiffness[j] == pytest.approx(1.0 / fitted[f"c{ax}"], rel=1e-9)
     if effect == "base_compliance":
-        assert aug.model.jnt_stiffness[aug.model.joint("base_rx").id] == pytest.approx(1 / fitted["cx"], rel=1e-9)
+        assert aug.model.jnt_stiffness[aug.model.joint("base_rx").id] == pytest.approx(
+            1 / fitted["cx"], rel=1e-9
+        )
     if effect == "joint_nonlinearity":
-        assert aug.model.jnt_stiffnesspoly[aug.model.joint(detail).id][1] == pytest.approx(fitted["cubic"], rel=1e-9)
+        assert aug.model.jnt_stiffnesspoly[aug.model.joint(detail).id][1] == pytest.approx(
+            fitted["cubic"], rel=1e-9
+        )
 
 
 def test_identified_values_are_close_to_the_truth(logs):
@@ -194,6 +211,7 @@ def test_effect_outside_the_library_is_unexplained(logs):
     # no library candidate mimics it: the best removes less than the share the rule asks of a
     # named effect (decide.py's MIN_EXPLAINED) and leaves a fit the noise cannot explain
     from calbench.identify.discover.decide import MIN_EXPLAINED
+
     best = max((c for c in rep["candidates"] if c["score"] is not None), key=lambda c: c["explained"])
     assert best["explained"] < MIN_EXPLAINED and best["p_fit"] < 1e-3
     assert rep["augmented_model"] is None
@@ -226,11 +244,11 @@ def test_text_and_file_agree_with_two_effects(logs, capsys):
     aug = Robot.from_file(logs["tmp"] / "two.augmented.xml")
     text = story(rep)
     first = rep["steps"][0]
-    assert first["parameters"] != first["parameters_at_naming"]   # the joint refit moved them
+    assert first["parameters"] != first["parameters_at_naming"]  # the joint refit moved them
     for s in rep["steps"]:
         prefix = "forearm" if s["effect"] == "link_compliance" else "base"
         line = [ln for ln in text.splitlines() if ln.startswith(f"Named: {s['effect']}")][0]
-        assert "()" not in line                          # an effect without a detail has no brackets
+        assert "()" not in line  # an effect without a detail has no brackets
         for p in s["parameters"]:
             assert f"{p['name']} = {p['estimate']:.4g}" in line
             if p["determined"]:
@@ -245,7 +263,9 @@ def test_only_the_combination_of_k3_and_the_forearm_pitch_is_reported(logs):
     pars = {p["name"]: p for p in rep["parameters"]}
     assert not pars["k3"]["determined"] and not pars["link_compliance[forearm].cy"]["determined"]
     assert pars["k3"]["std"] is None
-    combo = [c for c in rep["combinations"] if set(c["combination"]) == {"k3", "link_compliance[forearm].cy"}][0]
+    combo = [
+        c for c in rep["combinations"] if set(c["combination"]) == {"k3", "link_compliance[forearm].cy"}
+    ][0]
     assert all(v == pytest.approx(1.0, rel=1e-3) for v in combo["combination"].values())
     assert abs(combo["estimate"] - 0.07e-6) < 4 * combo["std"]
 
@@ -266,7 +286,11 @@ def test_compensator_missing_from_the_user_model(logs):
     rep = discover(logs["comp_default"], logs["bare"], out_model=logs["tmp"] / "c2.xml")
     assert rep["p_before"] > 1e-3
     assert rep["named_effects"] == ["compensator"]
-    assert rep["steps"][0]["p_lr"] < rep["steps"][0]["alpha"] == pytest.approx(1e-3 / len(library(Robot.from_file(MJCF))))
+    assert (
+        rep["steps"][0]["p_lr"]
+        < rep["steps"][0]["alpha"]
+        == pytest.approx(1e-3 / len(library(Robot.from_file(MJCF))))
+    )
 
 
 def test_truth_never_read(logs, tmp_path):
@@ -283,18 +307,45 @@ def test_truth_never_read(logs, tmp_path):
 def test_cli_json_plot_view(logs, tmp_path, capsys):
     js = tmp_path / "d.json"
     aug = tmp_path / "aug.xml"
-    assert cli_main(["discover", str(logs["forearm"]), "--model", str(MJCF), "--json", str(js),
-                     "--out-model", str(aug)]) == 0
+    assert (
+        cli_main(
+            [
+                "discover",
+                str(logs["forearm"]),
+                "--model",
+                str(MJCF),
+                "--json",
+                str(js),
+                "--out-model",
+                str(aug),
+            ]
+        )
+        == 0
+    )
     text = capsys.readouterr().out
     assert "Named: link_compliance (forearm)" in text and "does not fit" in text
     rep = json.loads(js.read_text())
-    for key in ("named_effects", "steps", "rms_before", "rms_after", "noise_sigma", "candidates", "augmented_model",
-                "parameters", "noise_rms_before", "noise_rms_after", "ambiguous", "aliasing"):
+    for key in (
+        "named_effects",
+        "steps",
+        "rms_before",
+        "rms_after",
+        "noise_sigma",
+        "candidates",
+        "augmented_model",
+        "parameters",
+        "noise_rms_before",
+        "noise_rms_after",
+        "ambiguous",
+        "aliasing",
+    ):
         assert key in rep
     assert rep["ambiguous"] == []
     named = {(a["effect"], a["detail"]) for a in rep["aliasing"]}
     assert ("link_compliance", "forearm") not in named and ("load_scale", "hung weights") in named
-    assert {(e.name, e.detail) for e in library(Robot.from_file(MJCF))} - {("link_compliance", "forearm")} <= named
+    assert {(e.name, e.detail) for e in library(Robot.from_file(MJCF))} - {
+        ("link_compliance", "forearm")
+    } <= named
     for a in rep["aliasing"]:
         assert {"effect", "detail", "parameter", "visible", "visible_share", "biases"} <= set(a)
     for s in rep["steps"]:
@@ -304,6 +355,7 @@ def test_cli_json_plot_view(logs, tmp_path, capsys):
     assert rep["augmented_model"] == str(aug) and Robot.from_file(aug).model.nv > 0
     assert Path(rep["plot"]).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     from calbench.bench.log.idreport import IdentificationReport
+
     ident = IdentificationReport.read(rep["view_json"])
     assert len(ident.predictions()) == rep["n_poses"] and not ident.read_warnings
     # bad input: exit status 2
@@ -315,8 +367,9 @@ def test_augmented_jacobian_matches_finite_differences(logs):
     """d dp / d theta of the augmented forward model (implicit function theorem with the effect
     columns from the passive force) against central differences of the solved equilibria."""
     from calbench.bench.model.effects import link_compliance
-    from calbench.identify.discover.fit import build
     from calbench.identify.core.observations import from_log
+    from calbench.identify.discover.fit import build
+
     obs = from_log(read_log(logs["none"]))
     obs = obs.subset(obs.labels[:9])
     eff = link_compliance("forearm")
@@ -332,8 +385,13 @@ def test_augmented_jacobian_matches_finite_differences(logs):
         np.testing.assert_allclose(jac[..., i], fd, atol=1e-4 * np.abs(fd).max())
 
 
-SPRING_FIELDS = ("jnt_stiffness", "jnt_stiffnesspoly", "tendon_stiffness", "tendon_stiffnesspoly",
-                 "tendon_lengthspring")
+SPRING_FIELDS = (
+    "jnt_stiffness",
+    "jnt_stiffnesspoly",
+    "tendon_stiffness",
+    "tendon_stiffnesspoly",
+    "tendon_lengthspring",
+)
 
 
 @pytest.mark.parametrize("effect", library(Robot.from_file(MJCF)), ids=lambda e: e.name + e.detail)
@@ -341,6 +399,7 @@ def test_effects_write_only_spring_values(effect):
     """bench/model/effects.py's rule that discovery's analytic stiffness matrix relies on: set_params
     changes nothing in the compiled model but joint and tendon spring values."""
     from calbench.identify.discover.fit import effect_priors
+
     start, _, _, size = effect_priors(effect)
     src = without_compensator(MJCF) if effect.name == "compensator" else MJCF
     robot = apply_effects(src, [(effect, start)])
@@ -358,12 +417,12 @@ def test_effect_force_columns_match_finite_differences(logs, effect):
     """dg/dtheta of every effect through the spring values it writes (chain rule, analytic in q)
     equals central differences of MuJoCo's passive force (relative 1e-7: the differences' O(h^2)
     error is ~1e-12, their round-off ~1e-10), at a loaded equilibrium of the paper plan."""
-    import mujoco
     from calbench.bench.statics.equilibrium import statics_options
-    from calbench.identify.discover.fit import build, effect_priors
     from calbench.identify.core.observations import from_log
+    from calbench.identify.discover.fit import build, effect_priors
+
     obs = from_log(read_log(logs["none"]))
-    obs = obs.subset([lab for lab in obs.labels if lab[0] == 12])    # a lateral pull: every joint loaded
+    obs = obs.subset([lab for lab in obs.labels if lab[0] == 12])  # a lateral pull: every joint loaded
     start, _, _, size = effect_priors(effect)
     p = np.where(start != 0, 3 * start, 0.5 * size)
     src = without_compensator(MJCF) if effect.name == "compensator" else MJCF
@@ -389,6 +448,7 @@ def test_a_split_the_data_do_not_fix_gets_no_dishonest_std(tmp_path):
     from calbench.bench.campaign.run import plan_campaign, truth_robot
     from calbench.identify.discover.workflow import discover_observations
     from calbench.identify.study.montecarlo import campaign_observations, true_theta
+
     extra = '[truth.effects.link_compliance]\nlink = "upper_arm"\ncompliance = [1.5e-8, 0.0, 1.5e-8]'
     scn = load_scenario(scenario(tmp_path, "xz", extra))
     tr = truth_robot(scn)
@@ -403,7 +463,7 @@ def test_a_split_the_data_do_not_fix_gets_no_dishonest_std(tmp_path):
         cx = pars["link_compliance[upper_arm].cx"]
         assert not cx["determined"] and cx["std"] is None
         rise = cx["chi2_rise_at_2_fisher_std"]
-        assert any(r is None or not 2.0 <= r <= 8.0 for r in rise)       # a quadratic rises by 4
+        assert any(r is None or not 2.0 <= r <= 8.0 for r in rise)  # a quadratic rises by 4
         for name, p in pars.items():
             if p["std"] is not None:
                 assert abs(p["estimate"] - truth[name]) < 4 * p["std"], (seed, name)

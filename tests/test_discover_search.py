@@ -15,27 +15,28 @@ job, tests/test_discover_stats.py). A softening (negative) term is taken at a qu
 largest size for which every pose of the plan still has a static equilibrium: past it the
 robot snaps through.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
 import pytest
-
-from calbench.bench.campaign.run import plan_campaign, truth_robot
-from calbench.bench.scenario.parse import load_scenario, scenario_variant
-from calbench.bench.core.errors import InputError
-from calbench.bench.model.robot import Robot
-from calbench.identify.discover.fit import build, effect_priors, fit, label, library, whitened
-from calbench.identify.discover.search import polish, unabsorbed_norms, fit_candidate
-from calbench.identify.discover.workflow import base_fit
-from calbench.identify.core.whitening import Whitener
-from calbench.identify.study.montecarlo import campaign_observations, true_theta
 from conftest import MJCF, PAPER
 
-SIGNATURE = 15.0     # sigma: the truth's unabsorbed signature
-GLOBAL_TOL = 0.5     # chi2
-VISIBLE = 0.05       # the search's VISIBLE_SHARE: parameters below it stay at zero
+from calbench.bench.campaign.run import plan_campaign, truth_robot
+from calbench.bench.core.errors import InputError
+from calbench.bench.model.robot import Robot
+from calbench.bench.scenario.parse import load_scenario, scenario_variant
+from calbench.identify.core.whitening import Whitener
+from calbench.identify.discover.fit import build, effect_priors, fit, label, library, whitened
+from calbench.identify.discover.search import fit_candidate, polish, unabsorbed_norms
+from calbench.identify.discover.workflow import base_fit
+from calbench.identify.study.montecarlo import campaign_observations, true_theta
+
+SIGNATURE = 15.0  # sigma: the truth's unabsorbed signature
+GLOBAL_TOL = 0.5  # chi2
+VISIBLE = 0.05  # the search's VISIBLE_SHARE: parameters below it stay at zero
 LAYOUT = Robot.from_file(MJCF).layout
 NP, BASE_LOWER, BASE_UPPER = LAYOUT.n, LAYOUT.lower, LAYOUT.upper
 
@@ -59,11 +60,18 @@ def observations(tmp: Path, extra: str = "", seed=None):
     scn = load_scenario(scenario_variant(PAPER, tmp / "s.toml", extra=extra))
     robot = truth_robot(scn)
     plans = plan_campaign(scn, robot)
-    return scn, campaign_observations(scn, robot, plans, None if seed is None else np.random.default_rng(seed))
+    return scn, campaign_observations(
+        scn, robot, plans, None if seed is None else np.random.default_rng(seed)
+    )
 
 
-CASES = [(e, s) for e in library(Robot.from_file(MJCF)) if e.name != "compensator" for s in (1, -1)
-         if s > 0 or effect_priors(e)[1].min() < 0]
+CASES = [
+    (e, s)
+    for e in library(Robot.from_file(MJCF))
+    if e.name != "compensator"
+    for s in (1, -1)
+    if s > 0 or effect_priors(e)[1].min() < 0
+]
 
 
 @pytest.fixture(scope="module")
@@ -82,7 +90,7 @@ def truth_params(tmp, theta, obs0, effect, sign) -> np.ndarray | None:
     if not vis.any():
         return np.zeros(start.size)
     p = np.where(vis, sign * SIGNATURE / np.sqrt(vis.sum()) / np.where(vis, perp, 1.0), 0.0)
-    for _ in range(16):                        # softening: halve until every pose has an equilibrium
+    for _ in range(16):  # softening: halve until every pose has an equilibrium
         try:
             observations(tmp, truth_table(effect, p))
             if sign > 0:
@@ -108,10 +116,17 @@ def test_candidate_fit_reaches_the_global_minimum(plan, effect, sign, seed):
     start, lower, upper, _ = effect_priors(effect)
     at_truth = np.where(p != 0, p, start)
     _, fm = build(MJCF, [(effect, at_truth)], obs)
-    ref = fit(fm, obs.dp, white, np.r_[theta, at_truth], np.r_[BASE_LOWER, lower], np.r_[BASE_UPPER, upper],
-              np.r_[hold, np.zeros(start.size, bool)])
+    ref = fit(
+        fm,
+        obs.dp,
+        white,
+        np.r_[theta, at_truth],
+        np.r_[BASE_LOWER, lower],
+        np.r_[BASE_UPPER, upper],
+        np.r_[hold, np.zeros(start.size, bool)],
+    )
     assert cand.chi2 <= ref.chi2 + GLOBAL_TOL, (cand.extra["starts"], cand.values[NP:], p)
-    if seed is None and base.chi2 - cand.chi2 > 25:      # clearly seen: the sign is the truth's
+    if seed is None and base.chi2 - cand.chi2 > 25:  # clearly seen: the sign is the truth's
         est = cand.values[NP:]
         big = np.abs(p) > 0
         assert np.all(np.sign(est[big]) == np.sign(p[big])), (est, p)
@@ -123,21 +138,30 @@ def test_compensator_candidate_fit_reaches_the_global_minimum(tmp_path, k_c, see
     """The compensator candidate on a user model without one (bench/model/effects.py's
     without_compensator), the truth's spring at the shipped and at a stiffer rate."""
     from calbench.bench.model.effects import compensator, without_compensator
+
     bare = tmp_path / "bare.xml"
     bare.write_text(without_compensator(MJCF))
     scn = load_scenario(scenario_variant(PAPER, tmp_path / "c.toml", compensator=(k_c, 0.83)))
     robot = truth_robot(scn)
-    obs = campaign_observations(scn, robot, plan_campaign(scn, robot),
-                                None if seed is None else np.random.default_rng(seed))
+    obs = campaign_observations(
+        scn, robot, plan_campaign(scn, robot), None if seed is None else np.random.default_rng(seed)
+    )
     white = Whitener.from_observations(obs)
     base = base_fit(bare, obs, white)
-    nb = Robot.from_file(bare).layout.n                  # no compensator in the user's model
+    nb = Robot.from_file(bare).layout.n  # no compensator in the user's model
     hold = ~base.free[:nb] & ~base.at_bound[:nb]
     effect = compensator()
     cand = polish(fit_candidate(bare, obs, white, base, hold, effect, base.extra["fresh_start"]), obs, white)
     _, lower, upper, _ = effect_priors(effect)
     truth = np.r_[true_theta(scn, robot)[:nb], k_c, 0.83]
     _, fm = build(bare, [(effect, truth[nb:])], obs)
-    ref = fit(fm, obs.dp, white, truth, np.r_[fm.layout.lower, lower], np.r_[fm.layout.upper, upper],
-              np.r_[hold, False, False])
+    ref = fit(
+        fm,
+        obs.dp,
+        white,
+        truth,
+        np.r_[fm.layout.lower, lower],
+        np.r_[fm.layout.upper, upper],
+        np.r_[hold, False, False],
+    )
     assert cand.chi2 <= ref.chi2 + GLOBAL_TOL, (cand.extra["starts"], cand.values[nb:])

@@ -1,5 +1,6 @@
 """Discovery's statistics held to theory: the decision rule, the near-tie spread, honest standard
 deviations and the aliasing report (identify/discover/decide.py, uncertainty.py, aliasing.py)."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -7,20 +8,20 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from conftest import MJCF, PAPER
 from scipy import stats
 
 from calbench.bench.campaign.run import plan_campaign, truth_robot
 from calbench.bench.model.robot import Robot
 from calbench.bench.scenario.parse import parse_scenario
+from calbench.identify.core.leastsq import Fit
+from calbench.identify.core.whitening import Whitener
 from calbench.identify.discover.aliasing import aliasing_report
 from calbench.identify.discover.decide import ALPHA_EFFECT, compare, lr_spread, lr_threshold, near_ties
 from calbench.identify.discover.fit import library
 from calbench.identify.discover.uncertainty import MAX_RELATIVE_STD, determination
 from calbench.identify.discover.workflow import alias_columns, base_fit
-from calbench.identify.core.whitening import Whitener
-from calbench.identify.core.leastsq import Fit
 from calbench.identify.study.montecarlo import campaign_observations
-from conftest import MJCF, PAPER
 
 
 def fit_stats(chi2, dof, rank, n=132):
@@ -28,6 +29,7 @@ def fit_stats(chi2, dof, rank, n=132):
 
 
 # --------------------------------------------------------------------------- the decision rule
+
 
 def test_every_candidate_is_tested_without_a_global_gate():
     """A model that fits to the noise level (chi2 = dof) still names a candidate whose targeted
@@ -81,10 +83,25 @@ def test_near_ties_name_both_and_far_ones_neither():
 
 # --------------------------------------------------------------------------- honest std
 
+
 def synthetic_fit(jw: np.ndarray, values: np.ndarray, names) -> Fit:
     p = values.size
-    return Fit(values, np.full((p, p), np.nan), np.ones(p, bool), np.zeros((1, 3)), np.zeros((1, 3)), 0.0,
-               jw.shape[0], p, 1, 1, True, names=tuple(names), units=("1",) * p, at_bound=np.zeros(p, bool))
+    return Fit(
+        values,
+        np.full((p, p), np.nan),
+        np.ones(p, bool),
+        np.zeros((1, 3)),
+        np.zeros((1, 3)),
+        0.0,
+        jw.shape[0],
+        p,
+        1,
+        1,
+        True,
+        names=tuple(names),
+        units=("1",) * p,
+        at_bound=np.zeros(p, bool),
+    )
 
 
 def test_only_the_combination_is_determined():
@@ -99,16 +116,17 @@ def test_only_the_combination_is_determined():
     cov = np.linalg.inv(jw.T @ jw)
     assert det.determined.tolist() == [False, False, True]
     assert det.std[2] == pytest.approx(np.sqrt(cov[2, 2]), rel=1e-9)
-    assert np.sqrt(cov[0, 0]) > MAX_RELATIVE_STD * values[0]          # the split really is undetermined
+    assert np.sqrt(cov[0, 0]) > MAX_RELATIVE_STD * values[0]  # the split really is undetermined
     (combo,) = det.combinations
     coef = np.array([combo["combination"]["x"], combo["combination"]["z"]])
-    assert max(coef) == pytest.approx(1.0) and min(coef) == pytest.approx(1.0, rel=1e-2)   # the sum x + z
+    assert max(coef) == pytest.approx(1.0) and min(coef) == pytest.approx(1.0, rel=1e-2)  # the sum x + z
     g = np.r_[coef, 0.0]
     assert combo["estimate"] == pytest.approx(g @ values)
     assert combo["std"] == pytest.approx(np.sqrt(g @ cov @ g), rel=1e-6)
 
 
 # --------------------------------------------------------------------------- aliasing
+
 
 @pytest.fixture(scope="module")
 def exact_fits():
@@ -124,7 +142,15 @@ def exact_fits():
         white = Whitener.from_observations(obs)
         f = base_fit(MJCF, obs, white)
         det = determination(f, f.extra["jw"])
-        rep = aliasing_report(f, f.extra["jw"], det.std, alias_columns(MJCF, obs, white, f, library(Robot.from_file(MJCF))), obs, white, 11)
+        rep = aliasing_report(
+            f,
+            f.extra["jw"],
+            det.std,
+            alias_columns(MJCF, obs, white, f, library(Robot.from_file(MJCF))),
+            obs,
+            white,
+            11,
+        )
         out[n] = (f, {(a["effect"], a["detail"], a["parameter"]): a for a in rep})
     return out
 
@@ -149,8 +175,10 @@ def test_forearm_inplane_bending_is_a_k3(exact_fits):
     a = al[("link_compliance", "forearm", "cy")]
     assert not a["visible"]
     assert a["biases"][0]["parameter"] == "k3" and a["biases"][0]["per_unit"] > 0
-    assert all(abs(b["at_reference_sigma"]) < 1e-3 * abs(a["biases"][0]["at_reference_sigma"])
-               for b in a["biases"][1:])
+    assert all(
+        abs(b["at_reference_sigma"]) < 1e-3 * abs(a["biases"][0]["at_reference_sigma"])
+        for b in a["biases"][1:]
+    )
 
 
 def test_payload_mass_error_is_a_common_scale_of_k2_to_k6(exact_fits):
@@ -173,11 +201,15 @@ def test_the_payload_mass_line_says_what_the_record_says(exact_fits):
     and gives the same share and size; and a mass error of plausible size (a few per cent,
     up to 20 %) stays hidden on both plans. The README quotes these figures."""
     from calbench.identify.discover.story import alias_lines
+
     readme = " ".join((PAPER.parent.parent / "README.md").read_text().split())
     a16, a12 = (exact_fits[n][1][("load_scale", "hung weights", "scale")] for n in (16, 12))
-    assert (f"only {100 * a16['visible_share']:.2g} % of its signature escapes" in readme
-            and f"once the mass is ~{100 * a16['detectable_magnitude']:.2g} % off "
-                f"(Table 5 alone: {100 * a12['detectable_magnitude']:.2g} %)" in readme)
+    assert (
+        f"only {100 * a16['visible_share']:.2g} % of its signature escapes" in readme
+        and f"once the mass is ~{100 * a16['detectable_magnitude']:.2g} % off "
+        f"(Table 5 alone: {100 * a12['detectable_magnitude']:.2g} %)"
+        in readme
+    )
     for n in (12, 16):
         _, al = exact_fits[n]
         a = al[("load_scale", "hung weights", "scale")]

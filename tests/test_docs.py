@@ -2,13 +2,13 @@
 resolves to a file inside the repository (issue 10: a clone has no ../shared/), and the README's
 architecture page (docs/architecture.md) names exactly the rooms and the modules each holds,
 both ways (issue 20)."""
+
 from __future__ import annotations
 
 import re
 from pathlib import Path
 
 import pytest
-
 from conftest import ROOT
 
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
@@ -25,7 +25,7 @@ def links(md: Path) -> list[str]:
 def test_every_link_resolves_inside_the_repository(md):
     targets = links(md)
     if md.name == "README.md":
-        assert "docs/contract.md" in targets            # the contract travels with the project
+        assert "docs/contract.md" in targets  # the contract travels with the project
     for target in targets:
         path = (md.parent / target.split("#")[0]).resolve()
         assert path.is_relative_to(ROOT), f"{md.name}: {target} leaves the repository"
@@ -41,8 +41,11 @@ def architecture_sections() -> dict[str, str]:
 
 def package_folders() -> list[str]:
     """Every folder of bench/ and identify/ that is a package (has an __init__.py)."""
-    return sorted(p.parent.relative_to(ROOT).as_posix()
-                  for top in ("bench", "identify") for p in (ROOT / top).rglob("__init__.py"))
+    return sorted(
+        p.parent.relative_to(ROOT).as_posix()
+        for top in ("bench", "identify")
+        for p in (ROOT / top).rglob("__init__.py")
+    )
 
 
 def test_the_architecture_page_has_a_section_for_every_package_and_no_other():

@@ -6,6 +6,7 @@ dq = Z (Z^T K Z)^-1 Z^T J^T W, Z a basis of the loop Jacobian's null space, K th
 joint stiffnesses. It shares no code with the Newton solver; the small loads keep the
 geometric nonlinearity ~1e-5 relative.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -14,22 +15,31 @@ import mujoco
 import numpy as np
 import pytest
 import scipy.linalg
+from conftest import MJCF, PAPER, fanuc_params, fanuc_truth
 
 from calbench.bench.campaign.run import run_campaign, truth_robot
-from calbench.bench.model.effects import (REGISTRY, Effect, EffectRobot, apply_effects, base_compliance, compensator,
-                           effect_from_truth, joint_nonlinearity, link_compliance)
 from calbench.bench.log.writer import read_log
+from calbench.bench.model.effects import (
+    REGISTRY,
+    Effect,
+    EffectRobot,
+    apply_effects,
+    base_compliance,
+    compensator,
+    effect_from_truth,
+    joint_nonlinearity,
+    link_compliance,
+)
 from calbench.bench.model.loop import loop_jacobian
 from calbench.bench.model.robot import Params, Robot
 from calbench.bench.scenario.parse import load_scenario
 from calbench.bench.statics.equilibrium import Load, StaticsSolver
-from conftest import MJCF, PAPER, fanuc_params, fanuc_truth
 
 K = np.array([0.25e-6, 0.12e-6, 0.07e-6, 0.35e-6, 0.40e-6, 0.60e-6])
-NO_COMP = fanuc_params(K, 0.0, 0.83)                # compensator off
+NO_COMP = fanuc_params(K, 0.0, 0.83)  # compensator off
 Q = np.radians([30.0, 60.0, -10.0, 20.0, 30.0, 40.0])  # a generic pose, far from the loop's singularity
-FORCE = np.array([30.0, -20.0, -50.0])              # N: small load
-MOMENT = np.array([5.0, 8.0, -3.0])                 # N*m
+FORCE = np.array([30.0, -20.0, -50.0])  # N: small load
+MOMENT = np.array([5.0, 8.0, -3.0])  # N*m
 
 
 def flange(robot: Robot, qpos) -> np.ndarray:
@@ -76,6 +86,7 @@ def dofs(robot: Robot, names) -> np.ndarray:
 
 # --------------------------------------------------------------------------- structure
 
+
 def test_registry_and_new_joints_start_at_zero():
     assert set(REGISTRY) >= {"link_compliance", "base_compliance", "joint_nonlinearity", "compensator"}
     eff = link_compliance("forearm")
@@ -101,21 +112,26 @@ def test_registry_and_new_joints_start_at_zero():
         np.testing.assert_allclose(d.xanchor[m.joint(n).id], d.xpos[fa], atol=1e-12)
     # total mass and first moment of the split link unchanged: unloaded gravity loads identical
     plain = Robot.from_file(MJCF)
-    assert m.body_subtreemass[m.body("forearm").id] == pytest.approx(plain.model.body_subtreemass[fa], rel=1e-12)
+    assert m.body_subtreemass[m.body("forearm").id] == pytest.approx(
+        plain.model.body_subtreemass[fa], rel=1e-12
+    )
 
 
 def test_zero_compliance_in_truth_means_no_hinge():
-    eff, p = effect_from_truth("link_compliance", {"link": "forearm", "compliance": np.array([0.0, 4e-8, 0.0])})
+    eff, p = effect_from_truth(
+        "link_compliance", {"link": "forearm", "compliance": np.array([0.0, 4e-8, 0.0])}
+    )
     assert eff.options["axes"] == "y" and eff.param_names == ("cy",) and p.tolist() == [4e-8]
     robot = apply_effects(MJCF, [(eff, p)])
     assert robot.model.nv == Robot.from_file(MJCF).model.nv + 1
-    with pytest.raises(ValueError, match="no body 'wrist'"):      # any body of the MJCF, checked there
+    with pytest.raises(ValueError, match="no body 'wrist'"):  # any body of the MJCF, checked there
         apply_effects(MJCF, [(link_compliance("wrist"), [1e-8, 1e-8, 1e-8])])
     with pytest.raises(ValueError):
         eff.apply(mujoco.MjSpec.from_file(str(MJCF)), [1.0, 2.0])
 
 
 # --------------------------------------------------------------------------- link_compliance
+
 
 def test_forearm_compliance_is_eq1_with_three_more_springs():
     """Outside the loop: extra flange deflection = J_f,e C J_e^T W for the three new hinges."""
@@ -135,8 +151,9 @@ def test_forearm_compliance_is_eq1_with_three_more_springs():
     assert np.linalg.norm(extra) > 5e-6
     np.testing.assert_allclose(extra, predicted, atol=1e-3 * np.linalg.norm(predicted))
     # the loop-aware reference agrees, and the loop stays closed
-    np.testing.assert_allclose(extra, linear_deflection(robot) - linear_deflection(plain),
-                               atol=1e-3 * np.linalg.norm(predicted))
+    np.testing.assert_allclose(
+        extra, linear_deflection(robot) - linear_deflection(plain), atol=1e-3 * np.linalg.norm(predicted)
+    )
     assert eq.loop_violation < 1e-7
 
 
@@ -150,7 +167,7 @@ def test_forearm_compliance_closed_loop_under_gravity_and_700kg():
         e1 = solver.solve(pose.q, Load.mass(robot, 700.0), warm=e0)
         for e in (e0, e1):
             assert e.residual < 1e-8 * e.gravity_scale
-            assert e.loop_violation < 1e-7       # 0.1 um
+            assert e.loop_violation < 1e-7  # 0.1 um
 
 
 @pytest.mark.parametrize("axes,c", [("xyz", [1e-7, 2e-7, 3e-7]), ("y", [2e-7])])
@@ -174,6 +191,7 @@ def test_upper_arm_compliance_inside_the_loop(axes, c):
 
 # --------------------------------------------------------------------------- base_compliance
 
+
 def test_base_tilts_by_compliance_times_moment():
     c = np.array([3e-8, 5e-8])
     force, moment = np.array([400.0, -300.0, 0.0]), np.array([20.0, -10.0, 0.0])
@@ -182,13 +200,14 @@ def test_base_tilts_by_compliance_times_moment():
     _, eq = solved_deflection(robot, Q, force, moment)
     tilt = eq.qpos[[robot.model.jnt_qposadr[robot.model.joint(n).id] for n in ("base_rx", "base_ry")]]
     p = jacobians(robot, Q, robot.payload_site)[2].site_xpos[robot.payload_site]
-    hinge_point = np.zeros(3)                      # base origin: the floor under axis 1
+    hinge_point = np.zeros(3)  # base origin: the floor under axis 1
     m_base = np.cross(p - hinge_point, force) + moment
     assert np.all(np.abs(tilt) > 1e-6)
     np.testing.assert_allclose(tilt, c * m_base[:2], rtol=1e-3)
 
 
 # --------------------------------------------------------------------------- joint_nonlinearity
+
 
 def test_cubic_stiffness_torque_matches_polynomial():
     cubic = 3e11
@@ -204,7 +223,7 @@ def test_cubic_stiffness_torque_matches_polynomial():
         d.qpos[:] = robot.rigid_qpos(q)
         d.qpos[robot.act_qpos[2]] += theta
         d.qvel[:] = 0.0
-        mujoco.mj_forward(m, d)                    # springs are computed in the velocity stage
+        mujoco.mj_forward(m, d)  # springs are computed in the velocity stage
         got = d.qfrc_spring[robot.act_dof[2]]
         assert got == pytest.approx(-(kl * theta + cubic * theta**3), rel=1e-9)
 
@@ -226,10 +245,11 @@ def test_cubic_equilibrium_solves_the_cubic():
     theta = roots[np.abs(roots.imag) < 1e-12].real
     assert theta.size == 1
     assert eq.deflection[0] == pytest.approx(theta[0], rel=1e-9)
-    assert cubic * theta[0] ** 3 > 0.1 * k1 * theta[0]        # the cubic term matters here
+    assert cubic * theta[0] ** 3 > 0.1 * k1 * theta[0]  # the cubic term matters here
 
 
 # --------------------------------------------------------------------------- compensator
+
 
 def without_compensator() -> str:
     """The FANUC without its spring: the tendon and its description entry gone, the mounts
@@ -237,7 +257,7 @@ def without_compensator() -> str:
     spec = mujoco.MjSpec.from_file(str(MJCF))
     spec.delete(spec.tendon("compensator"))
     spec.delete(next(t for t in spec.texts if t.name == "calbench:compensators"))
-    spec.compiler.savecompiled = False   # exact numbers (the compiled values are rounded)
+    spec.compiler.savecompiled = False  # exact numbers (the compiled values are rounded)
     return spec.to_xml()
 
 
@@ -252,9 +272,14 @@ def test_compensator_added_to_a_model_without_one_reproduces_the_tendon():
     spring = params.springs["compensator"]
     added = apply_effects(bare, [(compensator(), [spring.stiffness, spring.preload])])
     assert added.model.ntendon == 1 and added.model.nv == orig.model.nv
-    assert added.layout.n == 6          # not described: the effect's own spring, not a parameter
+    assert added.layout.n == 6  # not described: the effect's own spring, not a parameter
     added.set_params(Params(params.compliance))
-    for qdeg in ([0, 0, -30, 0, 0, 0], [0, 35, 10, 0, 0, 0], [0, 120, 30, 0, 0, 0], [40, 80, -20, 10, 20, 30]):
+    for qdeg in (
+        [0, 0, -30, 0, 0, 0],
+        [0, 35, 10, 0, 0, 0],
+        [0, 120, 30, 0, 0, 0],
+        [40, 80, -20, 10, 20, 30],
+    ):
         q = np.radians(qdeg)
         for r in (orig, added):
             r.set_command(q)
@@ -363,8 +388,10 @@ def test_campaign_with_hidden_effect(tmp_path):
     log = read_log(tmp_path / "hidden.mcap", include_truth=True)
     eff = log.truth.parameters.effects["link_compliance"]
     assert eff == {"link": "forearm", "compliance": [8.0e-8, 1.0e-8, 8.0e-8]}
-    assert "forearm_rx" not in log.mjcf_text           # the log carries the user's model, not the truth
-    diff = np.linalg.norm(flange_moves(plans, robot) - flange_moves(plain_plans, Robot.from_file(MJCF)), axis=1)
+    assert "forearm_rx" not in log.mjcf_text  # the log carries the user's model, not the truth
+    diff = np.linalg.norm(
+        flange_moves(plans, robot) - flange_moves(plain_plans, Robot.from_file(MJCF)), axis=1
+    )
     # 0.1-0.3 mm at the flange under 700 kg (measured 0.18 / 0.23 / 0.31 mm min / median / max)
     assert 1e-4 < np.median(diff) < 3e-4 and diff.max() < 5e-4
     # the measurements moved accordingly: loaded-minus-unloaded differ by the same order
@@ -380,8 +407,11 @@ def test_register_carries_discovery_options_and_priors():
     from calbench.bench.model import effects as fx
     from calbench.identify.discover.fit import effect_priors, library
 
-    @fx.register("toy_spring", discover=[{"axis": "x"}, {"axis": "y"}],
-                 priors={"c": fx.Prior(start=2e-9, lower=0.0, upper=1e-7, size=1e-9)})
+    @fx.register(
+        "toy_spring",
+        discover=[{"axis": "x"}, {"axis": "y"}],
+        priors={"c": fx.Prior(start=2e-9, lower=0.0, upper=1e-7, size=1e-9)},
+    )
     def toy_spring(axis: str = "x") -> Effect:
         return Effect("toy_spring", ("c", "k"), {"axis": axis}, ("rad/(N*m)", "N/m"))
 
@@ -389,7 +419,7 @@ def test_register_carries_discovery_options_and_priors():
         toys = [e for e in library(Robot.from_file(MJCF)) if e.name == "toy_spring"]
         assert [e.options["axis"] for e in toys] == ["x", "y"]
         start, lower, upper, size = effect_priors(toys[0])
-        assert start.tolist() == [2e-9, fx.UNIT_PRIORS["N/m"].start]      # own prior, then the unit's
+        assert start.tolist() == [2e-9, fx.UNIT_PRIORS["N/m"].start]  # own prior, then the unit's
         assert upper.tolist() == [1e-7, fx.UNIT_PRIORS["N/m"].upper]
     finally:
         fx.REGISTRY.pop("toy_spring")
@@ -404,12 +434,15 @@ def test_tracker_drift_offsets_only_the_loaded_readings(tmp_path):
     here yawed), the same truth; discovery's deflection term is R b on every row."""
     from calbench.bench.model.effects import Readings, tracker_drift
     from calbench.bench.tracker.instrument import tracker_rotation
+
     text = PAPER.read_text().replace("position = [3.5, -3.5, 3.2]", "position = [3.5, -3.5, 3.2]\nyaw = 30.0")
     plain = tmp_path / "yawed.toml"
     plain.write_text(text.replace('robot = "../mjcf/m900ib700.xml"', f'robot = "{MJCF}"'))
     offset = np.array([30e-6, -20e-6, 25e-6])
     drift = scenario_with_effect(tmp_path, f"[truth.effects.tracker_drift]\noffset = {offset.tolist()}")
-    drift.write_text(drift.read_text().replace("position = [3.5, -3.5, 3.2]", "position = [3.5, -3.5, 3.2]\nyaw = 30.0"))
+    drift.write_text(
+        drift.read_text().replace("position = [3.5, -3.5, 3.2]", "position = [3.5, -3.5, 3.2]\nyaw = 30.0")
+    )
     scn = load_scenario(drift)
     assert scn.effects["tracker_drift"]["offset"].tolist() == offset.tolist()
     run_campaign(load_scenario(plain), tmp_path / "a.mcap")
@@ -419,8 +452,9 @@ def test_tracker_drift_offsets_only_the_loaded_readings(tmp_path):
     for ma, mb in zip(a.measurements, b.measurements):
         vis = ma.visible
         shift = offset if ma.state == "loaded" else np.zeros(3)
-        np.testing.assert_allclose(mb.position[vis] - ma.position[vis], np.tile(shift, (vis.sum(), 1)),
-                                   rtol=0, atol=1e-15)
+        np.testing.assert_allclose(
+            mb.position[vis] - ma.position[vis], np.tile(shift, (vis.sum(), 1)), rtol=0, atol=1e-15
+        )
     rot = tracker_rotation(scn.tracker)
     term = tracker_drift().deflection_term(offset, Readings(((0, "refl_a"), (1, "refl_b")), rot))
     np.testing.assert_allclose(term, np.tile(rot @ offset, (2, 1)), rtol=1e-15)

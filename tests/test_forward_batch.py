@@ -12,18 +12,19 @@ cannot follow, both re-take A_base by forward differences at their own solutions
 rounding noise (~1e-10 relative per entry) reaches ~1e-6 in the weakest columns, so there the
 bound is the forward model's stated Jacobian accuracy, 1e-5 (forward.py's docstring).
 """
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import PAPER
 
 from calbench.bench.campaign.run import plan_campaign, truth_robot
 from calbench.bench.model.robot import Robot
 from calbench.bench.scenario.parse import load_scenario
-from calbench.identify.discover.fit import AugmentedForward
 from calbench.identify.core.forward import ForwardModel, design_from_observations
+from calbench.identify.discover.fit import AugmentedForward
 from calbench.identify.study.montecarlo import campaign_observations, true_theta
-from conftest import PAPER
 
 
 @pytest.fixture(scope="module")
@@ -45,8 +46,13 @@ def test_stacked_evaluations_equal_the_scalar_loop(paper):
     th = true_theta(scn, fast.robot)
     p = len(th)
     rng = np.random.default_rng(7)
-    moves = [np.ones(p), 1 + 0.02 * rng.standard_normal(p), 1 + 0.3 * rng.standard_normal(p),
-             np.full(p, 2.5), np.ones(p)]
+    moves = [
+        np.ones(p),
+        1 + 0.02 * rng.standard_normal(p),
+        1 + 0.3 * rng.standard_normal(p),
+        np.full(p, 2.5),
+        np.ones(p),
+    ]
     for k, mv in enumerate(moves):
         theta = th * np.abs(mv)
         retaken = slow.stats["refreshes"], slow.stats["retakes"]
@@ -70,5 +76,5 @@ def test_models_with_their_own_parameters_stay_scalar(paper):
     robot = Robot.from_file(scn.robot)
     design = design_from_observations(robot, obs)
     assert _model(scn, obs, True)._stacked(False)
-    assert not _model(scn, obs, True)._stacked(True)          # effects' springs changed: A_base re-taken
-    assert not AugmentedForward(robot, design, [])._stacked(False)     # even with no effect yet
+    assert not _model(scn, obs, True)._stacked(True)  # effects' springs changed: A_base re-taken
+    assert not AugmentedForward(robot, design, [])._stacked(False)  # even with no effect yet

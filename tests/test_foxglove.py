@@ -5,6 +5,7 @@ free of any true value outside /truth/.
 The shipped schemas are the npm package's files (bench/log/foxglove_schemas/LICENSE says how they
 were taken); the validator is the reference ``jsonschema`` implementation, draft 2020-12.
 """
+
 from __future__ import annotations
 
 import json
@@ -15,19 +16,19 @@ import jsonschema
 import mujoco
 import numpy as np
 import pytest
+from conftest import PAPER, ROOT
 from mcap.reader import make_reader
 from mcap.records import Channel, Message
 from mcap.stream_reader import StreamReader
 
-from calbench.bench.log import foxglove as fx
 from calbench.bench.campaign.run import run_campaign
+from calbench.bench.log import foxglove as fx
 from calbench.bench.log.writer import TRUTH_PREFIX, read_log, strip_truth
 from calbench.bench.model.robot import Robot
 from calbench.bench.scenario.parse import load_scenario
 from calbench.bench.tracker.instrument import to_world_frame
-from conftest import PAPER, ROOT
 
-ROUNDING = 1e-7      # m: bench/log/foxglove.py rounds coordinates to 0.1 um
+ROUNDING = 1e-7  # m: bench/log/foxglove.py rounds coordinates to 0.1 um
 
 
 @pytest.fixture(scope="module")
@@ -48,8 +49,7 @@ def messages(path: Path) -> list[tuple[str, str, int, dict]]:
 
 
 def official(name: str) -> dict:
-    return json.loads(files("calbench.bench.log").joinpath("foxglove_schemas", f"{name}.json")
-                      .read_text())
+    return json.loads(files("calbench.bench.log").joinpath("foxglove_schemas", f"{name}.json").read_text())
 
 
 def stamps(x):
@@ -77,25 +77,31 @@ def test_every_foxglove_message_validates_against_the_official_schema(paper_log)
             assert schema.name == fx.TOPICS[channel.topic]
             if schema.name not in validators:
                 js = json.loads(schema.data)
-                assert js == official(schema.name)        # the official text, not a copy of ours
+                assert js == official(schema.name)  # the official text, not a copy of ours
                 jsonschema.Draft202012Validator.check_schema(js)
                 validators[schema.name] = jsonschema.Draft202012Validator(js)
             msg = json.loads(m.data)
             validators[schema.name].validate(msg)
-            for s in stamps(msg):                          # Foxglove time = the log time
+            for s in stamps(msg):  # Foxglove time = the log time
                 assert s["sec"] * 10**9 + s["nsec"] == m.log_time
             counts[channel.topic] = counts.get(channel.topic, 0) + 1
     n = len(load_scenario(PAPER).poses)
-    assert counts == {fx.TF: n + 1, fx.ROBOT: 1, fx.SCENE: n, fx.LOG: n + 1,
-                      fx.TRUTH_TF: n, fx.TRUTH_ROBOT: 1, fx.TRUTH_SCENE: n}
+    assert counts == {
+        fx.TF: n + 1,
+        fx.ROBOT: 1,
+        fx.SCENE: n,
+        fx.LOG: n + 1,
+        fx.TRUTH_TF: n,
+        fx.TRUTH_ROBOT: 1,
+        fx.TRUTH_SCENE: n,
+    }
     # the validators can fail: a missing field and an out-of-range nanosecond are rejected
     v = validators["foxglove.FrameTransforms"]
     bad = {"transforms": [fx.transform(3_999_999_999, "a", "b", [0, 0, 0], fx.IDENTITY)]}
     assert v.is_valid(bad)
     bad["transforms"][0]["timestamp"]["nsec"] = 10**9
     assert not v.is_valid(bad) and not v.is_valid({})
-    assert not validators["foxglove.SceneUpdate"].is_valid(
-        {"deletions": [], "entities": [{"id": "x"}]})
+    assert not validators["foxglove.SceneUpdate"].is_valid({"deletions": [], "entities": [{"id": "x"}]})
 
 
 def _mat(q: dict) -> np.ndarray:
@@ -103,9 +109,13 @@ def _mat(q: dict) -> np.ndarray:
     x, y, z, w = (q[k] for k in "xyzw")
     n = np.sqrt(x * x + y * y + z * z + w * w)
     x, y, z, w = x / n, y / n, z / n, w / n
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def _vec(v: dict) -> np.ndarray:
@@ -116,15 +126,15 @@ def world_primitives(scene: dict, tf: dict, kind: str) -> list[tuple[np.ndarray,
     """(centre, rotation, size) in the world of every ``kind`` primitive of a static scene,
     composed with the frames of one FrameTransforms message as Foxglove does: a point p of the
     child frame is R p + t in the parent (here always the world)."""
-    frames = {t["child_frame_id"]: (_mat(t["rotation"]), _vec(t["translation"]))
-              for t in tf["transforms"]}
+    frames = {t["child_frame_id"]: (_mat(t["rotation"]), _vec(t["translation"])) for t in tf["transforms"]}
     frames["world"] = (np.eye(3), np.zeros(3))
     out = []
     for e in scene["entities"]:
         R, t = frames[e["frame_id"]]
         for p in e[kind]:
-            out.append((R @ _vec(p["pose"]["position"]) + t,
-                        R @ _mat(p["pose"]["orientation"]), _vec(p["size"])))
+            out.append(
+                (R @ _vec(p["pose"]["position"]) + t, R @ _mat(p["pose"]["orientation"]), _vec(p["size"]))
+            )
     return out
 
 
@@ -140,18 +150,25 @@ def assert_geoms_drawn_where_mujoco_puts_them(model, qpos, scene, tf, prefix="")
         typ = int(model.geom_type[g])
         if typ not in (gt.mjGEOM_BOX, gt.mjGEOM_CYLINDER, gt.mjGEOM_CAPSULE):
             continue
-        size = 2 * model.geom_size[g][[0, 1, 2]] if typ == gt.mjGEOM_BOX else \
-            2 * model.geom_size[g][[0, 0, 1]]
+        size = (
+            2 * model.geom_size[g][[0, 1, 2]] if typ == gt.mjGEOM_BOX else 2 * model.geom_size[g][[0, 0, 1]]
+        )
         prims = cubes if typ == gt.mjGEOM_BOX else cyls
         n_box += typ == gt.mjGEOM_BOX
         n_cyl += typ != gt.mjGEOM_BOX
         R = data.geom_xmat[g].reshape(3, 3)
-        hits = [1 for c, Rp, s in prims
-                if np.linalg.norm(c - data.geom_xpos[g]) < 10 * ROUNDING
-                and np.allclose(s, size, atol=ROUNDING)
-                # boxes: the same axes; cylinders: the same z axis (their own x, y are free)
-                and (np.allclose(Rp, R, atol=1e-6) if typ == gt.mjGEOM_BOX
-                     else np.allclose(Rp[:, 2], R[:, 2], atol=1e-6))]
+        hits = [
+            1
+            for c, Rp, s in prims
+            if np.linalg.norm(c - data.geom_xpos[g]) < 10 * ROUNDING
+            and np.allclose(s, size, atol=ROUNDING)
+            # boxes: the same axes; cylinders: the same z axis (their own x, y are free)
+            and (
+                np.allclose(Rp, R, atol=1e-6)
+                if typ == gt.mjGEOM_BOX
+                else np.allclose(Rp[:, 2], R[:, 2], atol=1e-6)
+            )
+        ]
         assert hits, f"{prefix}geom {model.geom(g).name} not drawn at its MuJoCo pose"
     assert (len(cubes), len(cyls)) == (n_box, n_cyl)
 
@@ -161,17 +178,25 @@ def test_a_foxglove_reader_puts_every_geom_where_mujoco_does(paper_log):
     log = read_log(paper_log, include_truth=True)
     robot = Robot.from_xml(log.mjcf_text)
     static = next(m for tp, _, _, m in msgs if tp == fx.ROBOT)
-    tfs = [m for tp, _, _, m in msgs if tp == fx.TF][1:]          # one per pose after the start
+    tfs = [m for tp, _, _, m in msgs if tp == fx.TF][1:]  # one per pose after the start
     true_static = next(m for tp, _, _, m in msgs if tp == fx.TRUTH_ROBOT)
     true_tfs = [m for tp, _, _, m in msgs if tp == fx.TRUTH_TF]
     for p in (0, 7, 15):
         q = log.poses[p].unloaded
-        assert_geoms_drawn_where_mujoco_puts_them(robot.model, robot.rigid_qpos(q), {
-            "entities": [e for e in static["entities"] if e["id"] != "tracker"]}, tfs[p])
+        assert_geoms_drawn_where_mujoco_puts_them(
+            robot.model,
+            robot.rigid_qpos(q),
+            {"entities": [e for e in static["entities"] if e["id"] != "tracker"]},
+            tfs[p],
+        )
         qpos = log.truth.joints[p].loaded.qpos
-        assert_geoms_drawn_where_mujoco_puts_them(robot.model, qpos, {"entities": [
-            e for e in true_static["entities"] if e["frame_id"].startswith("true_loaded/")]},
-            true_tfs[p], "true loaded ")
+        assert_geoms_drawn_where_mujoco_puts_them(
+            robot.model,
+            qpos,
+            {"entities": [e for e in true_static["entities"] if e["frame_id"].startswith("true_loaded/")]},
+            true_tfs[p],
+            "true loaded ",
+        )
     # the tracker frame is the scenario's tracker
     tr = next(t for t in tfs[0]["transforms"] if t["child_frame_id"] == fx.TRACKER)
     np.testing.assert_allclose(_vec(tr["translation"]), load_scenario(PAPER).tracker.position)
@@ -191,7 +216,7 @@ def test_measured_arrows_are_the_magnified_mean_deflections(paper_log):
             reps = [m for m in log.measurements if m.pose == p and m.state == state]
             vis = np.array([r.visible for r in reps])
             pos = np.array([np.where(r.visible[:, None], r.position, 0.0) for r in reps])
-            with np.errstate(invalid="ignore"):    # never seen: 0/0, a NaN row as wanted
+            with np.errstate(invalid="ignore"):  # never seen: 0/0, a NaN row as wanted
                 mean[state] = to_world_frame(spec, pos.sum(axis=0) / vis.sum(axis=0)[:, None])
         d = mean["loaded"] - mean["unloaded"]
         ok = np.all(np.isfinite(d), axis=1)
@@ -206,10 +231,16 @@ def test_measured_arrows_are_the_magnified_mean_deflections(paper_log):
         seen = np.flatnonzero(np.all(np.isfinite(mean["loaded"]), axis=1))
         got = np.array([_vec(s["pose"]["position"]) for s in spheres])
         np.testing.assert_allclose(got, mean["loaded"][seen], atol=ROUNDING)
-        meta = {m["key"]: m["value"] for e in scene["entities"] if e["id"] == "deflection_x200"
-                for m in e["metadata"]}
-        assert meta == {"magnification": "200", **{
-            names[i]: f"{np.linalg.norm(d[i]) * 1e6:.1f} um" for i in np.flatnonzero(ok)}}
+        meta = {
+            m["key"]: m["value"]
+            for e in scene["entities"]
+            if e["id"] == "deflection_x200"
+            for m in e["metadata"]
+        }
+        assert meta == {
+            "magnification": "200",
+            **{names[i]: f"{np.linalg.norm(d[i]) * 1e6:.1f} um" for i in np.flatnonzero(ok)},
+        }
 
 
 def test_each_pose_writes_its_foxglove_messages_before_its_pose_done(paper_log):
@@ -234,8 +265,7 @@ def test_each_pose_writes_its_foxglove_messages_before_its_pose_done(paper_log):
     for p, seen in enumerate(per_pose):
         per = [fx.TF, fx.SCENE, fx.LOG, fx.TRUTH_TF, fx.TRUTH_SCENE]
         assert sorted(set(seen)) == sorted(set(per) | (first if p == 0 else set())), p
-        assert sorted(seen) == sorted(per + ([fx.TF, fx.ROBOT, fx.LOG, fx.TRUTH_ROBOT]
-                                             if p == 0 else []))
+        assert sorted(seen) == sorted(per + ([fx.TF, fx.ROBOT, fx.LOG, fx.TRUTH_ROBOT] if p == 0 else []))
 
 
 def _numbers_3(x, out):
@@ -305,9 +335,25 @@ def test_the_writer_hook_keeps_channels_and_times_honest(tmp_path):
     """LogWriter.add_channel/next_time/write: no re-registered topic, no message on an unknown
     channel, no time that goes back, no message its channel's schema rejects."""
     from calbench.bench.log.writer import LogHeader, LogWriter
-    header = LogHeader("s", "seed = 1\n", "s.toml", "r.xml", "<mujoco/>", ["R1"], "payload",
-                       {"position": [1.0, 0, 0], "yaw": 0.0, "model": "isotropic",
-                        "sigma": 2e-5, "distance": [0.0, 0.0], "transverse": [0.0, 0.0]}, 1)
+
+    header = LogHeader(
+        "s",
+        "seed = 1\n",
+        "s.toml",
+        "r.xml",
+        "<mujoco/>",
+        ["R1"],
+        "payload",
+        {
+            "position": [1.0, 0, 0],
+            "yaw": 0.0,
+            "model": "isotropic",
+            "sigma": 2e-5,
+            "distance": [0.0, 0.0],
+            "transverse": [0.0, 0.0],
+        },
+        1,
+    )
     with LogWriter(tmp_path / "x.mcap", header) as w:
         w.add_channel(fx.LOG, "foxglove.Log", fx.schema_text("foxglove.Log"))
         with pytest.raises(ValueError):
@@ -316,11 +362,11 @@ def test_the_writer_hook_keeps_channels_and_times_honest(tmp_path):
             w.add_channel("/campaign/pose", "foxglove.Log", fx.schema_text("foxglove.Log"))
         t = w.next_time(5)
         w.write(fx.LOG, fx.log_message(t, "hello"), t)
-        with pytest.raises(ValueError):                    # not after the last message
+        with pytest.raises(ValueError):  # not after the last message
             w.write(fx.LOG, fx.log_message(t, "again"), t)
-        with pytest.raises(ValueError):                    # never registered
+        with pytest.raises(ValueError):  # never registered
             w.write(fx.SCENE, fx.scene_update([]), w.next_time(0))
-        with pytest.raises(ValueError):                    # the schema requires "name"
+        with pytest.raises(ValueError):  # the schema requires "name"
             msg = fx.log_message(w.next_time(0), "x")
             del msg["name"]
             w.write(fx.LOG, msg, w.next_time(0))

@@ -20,6 +20,7 @@ NaN or infinity, zero or negative where a positive is needed, an array of the wr
 unknown key, a bad start_time, absurd repeats, a joint beyond its limit: `calbench simulate`
 exits 2 with one line and writes nothing.
 """
+
 from __future__ import annotations
 
 import copy
@@ -30,9 +31,9 @@ import random
 import tomllib
 from pathlib import Path
 
+import badcases as bc
 import pytest
 
-import badcases as bc
 from calbench.bench.core.errors import InputError
 from calbench.bench.log.read import read_log
 from calbench.bench.log.recover import recover_log
@@ -55,17 +56,38 @@ def base(tmp_path_factory):
 
 # --------------------------------------------------------------------------- comparing logs
 
+
 def pose_data(log, p: int) -> tuple:
     """Everything a log says about pose p, as bytes."""
-    ms = [(m.state, m.repeat, tuple(m.reflectors), m.position.tobytes(), m.covariance.tobytes(),
-           m.visible.tobytes()) for m in log.measurements if m.pose == p]
+    ms = [
+        (
+            m.state,
+            m.repeat,
+            tuple(m.reflectors),
+            m.position.tobytes(),
+            m.covariance.tobytes(),
+            m.visible.tobytes(),
+        )
+        for m in log.measurements
+        if m.pose == p
+    ]
     w = log.wrenches[p]
-    out = (ms, log.poses[p].unloaded.tobytes(), log.poses[p].loaded.tobytes(),
-           w.force.tobytes(), w.moment.tobytes(), w.site, w.mass)
+    out = (
+        ms,
+        log.poses[p].unloaded.tobytes(),
+        log.poses[p].loaded.tobytes(),
+        w.force.tobytes(),
+        w.moment.tobytes(),
+        w.site,
+        w.mass,
+    )
     if log.truth is not None and p in log.truth.joints:
         j = log.truth.joints[p]
-        out += (j.unloaded.qpos.tobytes(), j.loaded.deflection.tobytes(),
-                log.truth.reflectors[p].loaded.position_world.tobytes())
+        out += (
+            j.unloaded.qpos.tobytes(),
+            j.loaded.deflection.tobytes(),
+            log.truth.reflectors[p].loaded.position_world.tobytes(),
+        )
     return out
 
 
@@ -119,6 +141,7 @@ def check_log_case(mut: Path, ref, tmp: Path, run_cli: bool, capsys, must_refuse
 
 # --------------------------------------------------------------------------- bytes
 
+
 def test_bit_flips_and_cuts(base, tmp_path, capsys):
     d, _, log, ref = base
     rng = random.Random(SEED)
@@ -147,6 +170,7 @@ def test_a_bit_flip_that_decompresses_is_always_caught(base, tmp_path):
 
 
 # --------------------------------------------------------------------------- JSON
+
 
 def leaves(msg, schema, path=()):
     """(path, schema) of every field a mutation can make invalid."""
@@ -226,21 +250,30 @@ def json_mutation(rng, topic, msg, n_poses):
 def test_schema_violating_messages_are_always_refused(base, tmp_path, capsys):
     d, _, log, ref = base
     rng = random.Random(SEED + 1)
-    topics = ["/campaign/info", "/campaign/pose", "/campaign/wrench", "/tracker/measurement",
-              "/campaign/pose_done", "/truth/parameters", "/truth/reflectors", "/truth/joints"]
+    topics = [
+        "/campaign/info",
+        "/campaign/pose",
+        "/campaign/wrench",
+        "/tracker/measurement",
+        "/campaign/pose_done",
+        "/truth/parameters",
+        "/truth/reflectors",
+        "/truth/joints",
+    ]
     n_poses = ref.n_poses_planned
     for i in range(N_JSON):
         mut = tmp_path / f"j{i}.mcap"
         special = i % 11
-        if special == 0:                                       # a missing channel
-            what = rng.choice(["/campaign/info", "/campaign/pose", "/campaign/wrench",
-                               "/tracker/measurement"])
+        if special == 0:  # a missing channel
+            what = rng.choice(
+                ["/campaign/info", "/campaign/pose", "/campaign/wrench", "/tracker/measurement"]
+            )
             bc.drop_topic(log, mut, what)
-        elif special == 1:                                     # not JSON
+        elif special == 1:  # not JSON
             target = (rng.choice(topics[1:5]), rng.randrange(n_poses))
             what = f"not JSON in {target}"
             bc.rewrite_json(log, mut, bc.edit_pose(*target, lambda m: json.dumps(m).encode()[:-3]))
-        elif special == 2:                                     # a message given twice
+        elif special == 2:  # a message given twice
             topic = rng.choice(topics[1:5])
             what = f"{topic} twice"
             dup = []
@@ -253,6 +286,7 @@ def test_schema_violating_messages_are_always_refused(base, tmp_path, capsys):
                     dup.append(m)
                     return dup[0]
                 return m
+
             bc.rewrite_json(log, mut, edit)
         else:
             topic = rng.choice(topics)
@@ -265,6 +299,7 @@ def test_schema_violating_messages_are_always_refused(base, tmp_path, capsys):
                     hit.append(desc)
                     return new
                 return m
+
             bc.rewrite_json(log, mut, edit)
             what = f"{topic}: {hit}"
         try:
@@ -276,14 +311,15 @@ def test_schema_violating_messages_are_always_refused(base, tmp_path, capsys):
 
 # --------------------------------------------------------------------------- scenarios
 
+
 def toml(doc: dict, path=()) -> str:
     """A TOML writer that also writes what a careless user would: nan, inf, any type."""
+
     def val(v):
         if isinstance(v, bool):
             return "true" if v else "false"
         if isinstance(v, float):
-            return "nan" if v != v else ("inf" if v == math.inf else "-inf" if v == -math.inf
-                                         else repr(v))
+            return "nan" if v != v else ("inf" if v == math.inf else "-inf" if v == -math.inf else repr(v))
         if isinstance(v, (int,)):
             return str(v)
         if isinstance(v, str):
@@ -293,6 +329,7 @@ def toml(doc: dict, path=()) -> str:
         if isinstance(v, dict):
             return "{" + ", ".join(f"{k} = {val(x)}" for k, x in v.items()) + "}"
         raise TypeError(v)
+
     lines, tables, arrays = [], [], []
     for k, v in doc.items():
         if isinstance(v, dict):
@@ -311,21 +348,39 @@ def toml(doc: dict, path=()) -> str:
     return "\n".join(lines)
 
 
-REQUIRED = [("robot",), ("seed",), ("truth",), ("truth", "compliance"), ("truth", "compensator"),
-            ("truth", "compensator", "stiffness"), ("truth", "compensator", "preload"),
-            ("tracker",), ("tracker", "position"), ("load",), ("load", "mass"), ("pose",),
-            ("pose", 0, "q")]
-POSITIVE = [("truth", "compliance", 2), ("tracker", "sigma"), ("load", "mass"),
-            ("pose", 1, "repeats")]
+REQUIRED = [
+    ("robot",),
+    ("seed",),
+    ("truth",),
+    ("truth", "compliance"),
+    ("truth", "compensator"),
+    ("truth", "compensator", "stiffness"),
+    ("truth", "compensator", "preload"),
+    ("tracker",),
+    ("tracker", "position"),
+    ("load",),
+    ("load", "mass"),
+    ("pose",),
+    ("pose", 0, "q"),
+]
+POSITIVE = [("truth", "compliance", 2), ("tracker", "sigma"), ("load", "mass"), ("pose", 1, "repeats")]
 VECTORS = [("truth", "compliance"), ("tracker", "position"), ("pose", 0, "q"), ("pose", 1, "q")]
-NUMBERS = [("truth", "compliance", 0), ("truth", "compensator", "stiffness"), ("tracker", "sigma"),
-           ("tracker", "position", 1), ("load", "mass"), ("pose", 0, "q", 3), ("tracker", "yaw")]
+NUMBERS = [
+    ("truth", "compliance", 0),
+    ("truth", "compensator", "stiffness"),
+    ("tracker", "sigma"),
+    ("tracker", "position", 1),
+    ("load", "mass"),
+    ("pose", 0, "q", 3),
+    ("tracker", "yaw"),
+]
 
 
 def scenario_mutation(rng, doc):
     m = copy.deepcopy(doc)
-    kind = rng.choice(["required", "type", "nonfinite", "positive", "length", "unknown",
-                       "start_time", "repeats", "limit"])
+    kind = rng.choice(
+        ["required", "type", "nonfinite", "positive", "length", "unknown", "start_time", "repeats", "limit"]
+    )
     if kind == "required":
         path = rng.choice(REQUIRED)
         set_path(m, path, DELETE)
@@ -356,8 +411,9 @@ def scenario_mutation(rng, doc):
         path = table + ("colour",)
     elif kind == "start_time":
         path = ("start_time",)
-        m["start_time"] = rng.choice(["tomorrow", "2024-13-01T00:00:00Z", "1969-12-31T23:00:00Z",
-                                      "2024-03-01T09:30:00", 17])
+        m["start_time"] = rng.choice(
+            ["tomorrow", "2024-13-01T00:00:00Z", "1969-12-31T23:00:00Z", "2024-03-01T09:30:00", 17]
+        )
     elif kind == "repeats":
         path = ("pose", 0, "repeats")
         m["pose"][0]["repeats"] = rng.choice([10**9, 10**12, 2**62])

@@ -6,21 +6,22 @@ Statistics: every |z| < 4 on a noisy log fails by chance with probability ~8 x 6
 of the z's over many seeds). The altered-truth log shifts k3 by 10 % = 13 of its standard
 deviations (0.52e-9 of 0.07e-6), so its |z| ~ 13 > 4 whatever the noise.
 """
+
 from __future__ import annotations
 
 import json
 import re
 from pathlib import Path
 
+import badcases as bc
 import numpy as np
 import pytest
+from conftest import K_TRUE, PAPER
 
+from calbench.bench.log.idreport import IdentificationReport
 from calbench.bench.log.writer import read_log, strip_truth
 from calbench.identify.cli import main
-from calbench.bench.log.idreport import IdentificationReport
 from calbench.identify.report.identification import run_identify
-import badcases as bc
-from conftest import K_TRUE, PAPER
 
 NAMES = ["k1", "k2", "k3", "k4", "k5", "k6", "compensator_stiffness", "compensator_preload"]
 
@@ -54,6 +55,7 @@ def estimates(rep: dict | IdentificationReport) -> np.ndarray:
 
 # --------------------------------------------------------------------------- accuracy and JSON
 
+
 def test_noisy_log_every_z_below_4_and_contract_json(paper_report):
     rep = paper_report
     assert rep["method"] == "one-step"
@@ -69,7 +71,7 @@ def test_noisy_log_every_z_below_4_and_contract_json(paper_report):
     # chi2/dof of a correct model: mean 1, sd sqrt(2/dof) = 0.13 at 124 dof; 4 sd
     assert abs(rep["chi2_per_dof"] - 1) < 4 * np.sqrt(2 / rep["dof"])
     assert rep["n_lost_poses"] == 0 and rep["outliers"] == []
-    assert rep["seconds"] < 2.0          # the issue's target for the paper campaign
+    assert rep["seconds"] < 2.0  # the issue's target for the paper campaign
 
 
 def test_two_step_runs_and_reports_its_steps(paper_log, tmp_path):
@@ -78,7 +80,7 @@ def test_two_step_runs_and_reports_its_steps(paper_log, tmp_path):
     assert rc == 0
     rep = json.loads(js.read_text())
     assert rep["method"] == "two-step"
-    assert len(rep["step1"]["names"]) == 5 + 3       # k1, k2 at 3 q2, k3..k6 (eq. 19)
+    assert len(rep["step1"]["names"]) == 5 + 3  # k1, k2 at 3 q2, k3..k6 (eq. 19)
     assert rep["step2"]["n_distinct_q2"] == 3
     # the typed report reads its own output back exactly, estimator details included
     assert IdentificationReport.read(js).to_json() == js.read_text()
@@ -99,6 +101,7 @@ def test_two_step_iterated_reports_its_sagged_pose(paper_log, tmp_path):
 
 
 # --------------------------------------------------------------------------- the CI gate
+
 
 def test_check_fails_on_a_log_whose_truth_was_altered(paper_log, tmp_path):
     bad = tmp_path / "altered.mcap"
@@ -131,6 +134,7 @@ def test_check_without_truth_passes_with_a_note(paper_log, tmp_path, capsys):
 
 # --------------------------------------------------------------------------- no leaks
 
+
 def test_estimates_unchanged_by_stripping_the_truth(paper_log, paper_report, tmp_path):
     stripped = tmp_path / "stripped.mcap"
     strip_truth(paper_log, stripped)
@@ -157,6 +161,7 @@ def test_estimates_unchanged_by_scaling_every_stiffness_in_the_mjcf(paper_log, p
 
 
 # --------------------------------------------------------------------------- crashed logs, bad input
+
 
 def test_truncated_log_is_identified_from_its_complete_poses(paper_log, tmp_path):
     data = paper_log.read_bytes()
@@ -192,13 +197,14 @@ def test_not_mcap_missing_model_missing_channel_exit_2(paper_log, tmp_path, caps
 
 # --------------------------------------------------------------------------- outliers
 
+
 def test_outlier_is_reported_and_can_be_dropped(paper_log, paper_report, tmp_path):
     bad = tmp_path / "outlier.mcap"
 
     def msg(topic, m):
         if topic == "/tracker/measurement" and m["pose"] == 5 and m["state"] == "loaded":
             i = next(i for i, v in enumerate(m["visible"]) if v)
-            m["position"][i][2] += 10 * 20e-6 * np.sqrt(2)        # a 10 sigma reading
+            m["position"][i][2] += 10 * 20e-6 * np.sqrt(2)  # a 10 sigma reading
         return m
 
     rewrite(paper_log, bad, msg)
@@ -217,8 +223,11 @@ def test_the_residual_line_names_the_trackers_error_model(paper_log, tmp_path, c
     assert main(["identify", str(paper_log), "--method", "one-step"]) == 0
     assert "σ = 20 µm per reading" in capsys.readouterr().out
     scn = tmp_path / "spec.toml"
-    scn.write_text(PAPER.read_text().replace("[tracker]\n", '[tracker]\nmodel = "spec"\n', 1)
-                   .replace('"../mjcf/', f'"{PAPER.parent.parent.as_posix()}/mjcf/'))
+    scn.write_text(
+        PAPER.read_text()
+        .replace("[tracker]\n", '[tracker]\nmodel = "spec"\n', 1)
+        .replace('"../mjcf/', f'"{PAPER.parent.parent.as_posix()}/mjcf/')
+    )
     log, js = tmp_path / "spec.mcap", tmp_path / "spec.json"
     assert main(["simulate", str(scn), "--out", str(log)]) == 0
     capsys.readouterr()

@@ -7,23 +7,22 @@ truncation error of ~1e-6 x (curvature ratio, < 10 here) and a round-off of 2 x 
 the change they measure, 2 h theta |J| >= 7e-8 m for the weakest column (K_C: 34 um at 100 %),
 i.e. < 1e-5; the stale part of the KKT matrix costs < 1e-6. Allowed: 1e-4 of the column.
 """
-from __future__ import annotations
 
+from __future__ import annotations
 
 from pathlib import Path
 
 import mujoco
 import numpy as np
 import pytest
+from conftest import MJCF, PAPER, fanuc_params
 
 from calbench.bench.campaign.run import plan_campaign, truth_robot
 from calbench.bench.model.robot import Robot
 from calbench.bench.scenario.parse import load_scenario
 from calbench.identify.core.forward import ForwardModel, design_from_observations
-from calbench.identify.study.montecarlo import campaign_observations, true_theta
 from calbench.identify.methods.twostep import step2_rows
-from conftest import MJCF, PAPER, fanuc_params
-
+from calbench.identify.study.montecarlo import campaign_observations, true_theta
 
 
 @pytest.fixture(scope="module")
@@ -41,7 +40,7 @@ def test_forward_model_reproduces_the_simulator(paper):
     robot = Robot.from_file(scn.robot)
     fm = ForwardModel(robot, design_from_observations(robot, obs))
     dp, _ = fm.evaluate(true_theta(scn, Robot.from_file(scn.robot)), jacobian=False)
-    assert np.abs(dp - obs.dp).max() < 1e-10     # both at ~3e-11 m solver precision
+    assert np.abs(dp - obs.dp).max() < 1e-10  # both at ~3e-11 m solver precision
     # a second, warm-started evaluation (the fast path) gives the same
     dp2, _ = fm.evaluate(true_theta(scn, Robot.from_file(scn.robot)) * 1.0, jacobian=False)
     assert np.abs(dp2 - obs.dp).max() < 1e-10
@@ -51,12 +50,16 @@ def test_ift_jacobian_matches_finite_differences(paper):
     scn, _, obs = paper
     robot = Robot.from_file(scn.robot)
     fm = ForwardModel(robot, design_from_observations(robot, obs), tol=1e-12)
-    th = true_theta(scn, Robot.from_file(scn.robot)) * np.array([1.1, 0.9, 1.05, 1.2, 0.95, 1.1, 0.8, 1.05])  # off the truth
+    th = true_theta(scn, Robot.from_file(scn.robot)) * np.array(
+        [1.1, 0.9, 1.05, 1.2, 0.95, 1.1, 0.8, 1.05]
+    )  # off the truth
     _, jac = fm.evaluate(th)
     assert_jacobian_matches_differences(fm, th, jac, 1e-4)
 
 
-def assert_jacobian_matches_differences(fm: ForwardModel, th: np.ndarray, jac: np.ndarray, rel: float) -> None:
+def assert_jacobian_matches_differences(
+    fm: ForwardModel, th: np.ndarray, jac: np.ndarray, rel: float
+) -> None:
     """Every column of ``jac`` within ``rel`` of its largest entry of fm's central differences
     (relative step 1e-3) at ``th``."""
     for j in range(th.size):

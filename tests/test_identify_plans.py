@@ -3,6 +3,7 @@
 Noise-free observations come from the simulated campaign's true reflector positions (with the
 tracker's covariances as weights), built by the same code as a log's observations.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -10,16 +11,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import MJCF, PAPER
 
 from calbench.bench.campaign.run import plan_campaign, truth_robot
 from calbench.bench.model.robot import Robot
 from calbench.bench.scenario.parse import parse_scenario
 from calbench.identify.core.forward import ForwardModel, design_from_observations
 from calbench.identify.core.identifiability import whiten_factors
-from calbench.identify.study.montecarlo import campaign_observations, true_theta
 from calbench.identify.methods.onestep import one_step
 from calbench.identify.methods.twostep import linear_plan, two_step
-from conftest import MJCF, PAPER
+from calbench.identify.study.montecarlo import campaign_observations, true_theta
 
 TEXT = PAPER.read_text()
 HEAD, *POSES = TEXT.split("[[pose]]")
@@ -27,8 +28,7 @@ COMPENSATOR = ("k2", "compensator_stiffness", "compensator_preload")
 
 
 def observations(poses, tmp="/tmp/plan.toml"):
-    head = HEAD.replace('robot = "../mjcf/m900ib700.xml"',
-                        f'robot = "{(MJCF).as_posix()}"')
+    head = HEAD.replace('robot = "../mjcf/m900ib700.xml"', f'robot = "{(MJCF).as_posix()}"')
     scn = parse_scenario(head + "".join("[[pose]]" + POSES[i] for i in poses), Path(tmp))
     tr = truth_robot(scn)
     plans = plan_campaign(scn, tr)
@@ -75,15 +75,15 @@ def test_two_step_is_exact_on_its_own_linear_model(paper):
     for i, row in enumerate(lp.cols):
         q2 = obs.poses[lp.rows_pose[i]].q[1]
         psi, s = geom.angle(q2), geom.length(q2)
-        eta = (1 - truth[7] / s) * np.cos(psi) + truth[7] * ll * np.sin(psi) ** 2 / s ** 3
+        eta = (1 - truth[7] / s) * np.cos(psi) + truth[7] * ll * np.sin(psi) ** 2 / s**3
         kk = k.copy()
-        kk[1] = 1 / (1 / truth[1] + truth[6] * ll * eta)        # eq. (10)
+        kk[1] = 1 / (1 / truth[1] + truth[6] * ll * eta)  # eq. (10)
         synth.append(row @ kk)
     synth = np.array(synth)
     poses, row = [], 0
-    for p in obs.poses:                       # the linear model's prediction replaces dp
+    for p in obs.poses:  # the linear model's prediction replaces dp
         n = len(p.reflectors)
-        poses.append(dataclasses.replace(p, dp=synth[row: row + n]))
+        poses.append(dataclasses.replace(p, dp=synth[row : row + n]))
         row += n
     lin_obs = dataclasses.replace(obs, poses=poses)
     exact = two_step(robot, lin_obs)
@@ -101,17 +101,18 @@ def test_two_step_is_unbiased_where_its_linear_model_holds(tmp_path):
     within 0.25 of its standard deviation. tests/test_montecarlo.py checks the same with noise:
     unbiased within the sampling error."""
     from linear_case import linear_world
+
     scn = parse_scenario(linear_world(tmp_path).read_text(), tmp_path / "linear_world.toml")
     tr = truth_robot(scn)
     obs = campaign_observations(scn, tr, plan_campaign(scn, tr), None)
     robot = Robot.from_file(scn.robot)
     truth = true_theta(scn, robot)
     res = two_step(robot, obs)
-    sd = np.sqrt(np.diag(res.cov))[:6]      # the linear model's CRB: the exact one here to ~1e-4
+    sd = np.sqrt(np.diag(res.cov))[:6]  # the linear model's CRB: the exact one here to ~1e-4
     z = (res.theta[:6] - truth[:6]) / sd
     assert np.all(np.abs(np.delete(z, 1)) < 0.05), z
     assert abs(z[1]) < 0.25, z
-    assert abs(res.theta[6]) < 0.25 * np.sqrt(res.cov[6, 6])        # no compensator, within 0.25 sigma
+    assert abs(res.theta[6]) < 0.25 * np.sqrt(res.cov[6, 6])  # no compensator, within 0.25 sigma
 
 
 def test_two_step_on_the_exact_statics_and_iterated_at_its_sagged_pose(paper):
@@ -123,6 +124,7 @@ def test_two_step_on_the_exact_statics_and_iterated_at_its_sagged_pose(paper):
     -0.7 sigma, s0 to -0.8 sigma; at the TRUE sag the linear model would give K_C +0.8 sigma:
     the rest is the linear model's own error (H00 of eq. 18) feeding the estimated sag."""
     from calbench.identify.methods.twostep_iterated import two_step_iterated
+
     scn, robot, obs = paper
     truth = true_theta(scn, Robot.from_file(scn.robot))
     sd = crb_std(robot, obs, truth)
@@ -146,6 +148,7 @@ def test_iterated_covariance_carries_the_sags_share(paper):
     halves (a wrong A would leave a first-order error that does not). The sag's share is not
     small: k1's std grows by a third and s0's shrinks (the sag and s0 are anti-correlated)."""
     from calbench.identify.methods.twostep_iterated import SagMap, sensitivity, two_step_iterated
+
     scn, robot, obs = paper
     it = two_step_iterated(robot, obs)
     fixed_pose = two_step_iterated(robot, obs, uncertainty=False)
@@ -158,10 +161,14 @@ def test_iterated_covariance_carries_the_sags_share(paper):
     a = sensitivity(SagMap(robot, obs, False), d, it.theta)
     u = [np.random.default_rng(3).normal(size=p.dp.shape) for p in obs.poses]
     errors = []
-    for delta in (0.02, 0.01):                # of the deflection noise sigma
-        pert = dataclasses.replace(obs, poses=[dataclasses.replace(p, dp=p.dp + delta * np.sqrt(2)
-                                                                   * obs.noise_sigma * v)
-                                               for p, v in zip(obs.poses, u)])
+    for delta in (0.02, 0.01):  # of the deflection noise sigma
+        pert = dataclasses.replace(
+            obs,
+            poses=[
+                dataclasses.replace(p, dp=p.dp + delta * np.sqrt(2) * obs.noise_sigma * v)
+                for p, v in zip(obs.poses, u)
+            ],
+        )
         moved = two_step_iterated(robot, pert, start=d, uncertainty=False)
         assert moved.step2["converged"]
         linear = SagMap(robot, pert, False).estimate(d).theta
@@ -172,7 +179,7 @@ def test_iterated_covariance_carries_the_sags_share(paper):
 
 
 def test_vertical_loads_only_name_k1(paper):
-    scn, robot, obs = observations(range(12))            # Table 5 without the lateral pulls
+    scn, robot, obs = observations(range(12))  # Table 5 without the lateral pulls
     for res in (one_step(robot, obs), two_step(robot, obs)):
         assert not res.identifiable[0] and np.isnan(res.theta[0])
         assert "vertical" in res.reasons["k1"] and "5.1" in res.reasons["k1"]
@@ -180,7 +187,7 @@ def test_vertical_loads_only_name_k1(paper):
 
 
 def test_two_distinct_q2_the_two_step_cannot_separate_the_compensator():
-    scn, robot, obs = observations([0, 1, 2, 3, 8, 9, 10, 11, 12, 13, 14, 15])   # q2 = 0, 120
+    scn, robot, obs = observations([0, 1, 2, 3, 8, 9, 10, 11, 12, 13, 14, 15])  # q2 = 0, 120
     two = two_step(robot, obs)
     for name, i in zip(COMPENSATOR, (1, 6, 7)):
         assert not two.identifiable[i] and np.isnan(two.theta[i])
@@ -192,7 +199,7 @@ def test_two_distinct_q2_the_two_step_cannot_separate_the_compensator():
 
 
 def test_one_distinct_q2_names_the_compensator_for_both_methods():
-    scn, robot, obs = observations([8, 9, 10, 11, 12, 13, 14, 15])                 # q2 = 120
+    scn, robot, obs = observations([8, 9, 10, 11, 12, 13, 14, 15])  # q2 = 120
     for res in (one_step(robot, obs), two_step(robot, obs)):
         for name, i in zip(COMPENSATOR, (1, 6, 7)):
             assert not res.identifiable[i] and np.isnan(res.theta[i]), name

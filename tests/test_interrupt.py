@@ -5,6 +5,7 @@ damaged log) as a valid MCAP file; absurd campaign sizes are refused up front.
 "Any MCAP reader" is checked with two that are not calbench's: mcap's seeking ``make_reader``
 (summary, chunk indexes) and ``rerun mcap info`` from the rerun-sdk wheel.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -15,15 +16,15 @@ import sys
 import time
 from pathlib import Path
 
-import pytest
-from mcap.reader import make_reader
-
 import badcases as bc
+import pytest
+from conftest import PAPER
+from mcap.reader import make_reader
+from rerun_cli import rerun_env, rerun_exe
+
 import calbench.bench.scenario.timeline as timeline
 from calbench.bench.log.read import read_log
 from calbench.identify.cli import main
-from conftest import PAPER
-from rerun_cli import rerun_env, rerun_exe
 
 CALBENCH = str(Path(sys.executable).with_name("calbench"))
 
@@ -37,16 +38,25 @@ def opens_everywhere(path: Path, tmp: Path) -> int:
         assert summary is not None and summary.statistics is not None
         n = sum(1 for _ in reader.iter_messages())
     assert n == summary.statistics.message_count
-    r = subprocess.run([rerun_exe(), "mcap", "info", str(path)], env=rerun_env(tmp),
-                       capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        [rerun_exe(), "mcap", "info", str(path)],
+        env=rerun_env(tmp),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 0, r.stdout + r.stderr
     return n
 
 
 def interrupt_mid_campaign(scenario: Path, out: Path, sig: int, min_bytes: int = 150_000):
     """Start `calbench simulate`, wait until the log holds a few poses, send ``sig``."""
-    p = subprocess.Popen([CALBENCH, "simulate", str(scenario), "--out", str(out)], text=True,
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    p = subprocess.Popen(
+        [CALBENCH, "simulate", str(scenario), "--out", str(out)],
+        text=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
     t0 = time.monotonic()
     while time.monotonic() - t0 < 120 and (not out.exists() or out.stat().st_size < min_bytes):
         if p.poll() is not None:
@@ -100,11 +110,12 @@ main(["simulate", sys.argv[1], "--out", sys.argv[2]])
 
 def test_sigkill_then_recover(tmp_path, capsys):
     killed = tmp_path / "killed.mcap"
-    res = subprocess.run([sys.executable, "-c", KILLER, str(PAPER), str(killed), "5"],
-                         capture_output=True, timeout=120)
+    res = subprocess.run(
+        [sys.executable, "-c", KILLER, str(PAPER), str(killed), "5"], capture_output=True, timeout=120
+    )
     assert res.returncode == -9
-    with open(killed, "rb") as f, pytest.raises(Exception):
-        list(make_reader(f).iter_messages())          # what other readers make of it
+    with open(killed, "rb") as f, pytest.raises(Exception):  # noqa: B017 (whatever it raises)
+        list(make_reader(f).iter_messages())  # what other readers make of it
     before = hashlib.sha256(killed.read_bytes()).hexdigest()
     cut = read_log(killed, include_truth=True)
     assert cut.complete_poses == [0, 1, 2, 3, 4] and "cut short" in cut.end
@@ -113,7 +124,7 @@ def test_sigkill_then_recover(tmp_path, capsys):
     assert main(["recover", str(killed), "--out", str(fixed)]) == 0
     out = capsys.readouterr().out
     assert "5 of 16 planned poses kept [0-4]" in out and "cut short" in out
-    assert hashlib.sha256(killed.read_bytes()).hexdigest() == before       # input untouched
+    assert hashlib.sha256(killed.read_bytes()).hexdigest() == before  # input untouched
     opens_everywhere(fixed, tmp_path)
     rec = read_log(fixed, include_truth=True)
     assert rec.complete_poses == cut.complete_poses and rec.truncated
@@ -124,8 +135,11 @@ def test_sigkill_then_recover(tmp_path, capsys):
     assert rec.truth.parameters.springs == cut.truth.parameters.springs
     # the half-begun pose 5 is not in the recovered file at all
     with open(fixed, "rb") as f:
-        poses = {json.loads(m.data)["pose"] for _, ch, m in make_reader(f).iter_messages()
-                 if ch.topic == "/campaign/pose"}
+        poses = {
+            json.loads(m.data)["pose"]
+            for _, ch, m in make_reader(f).iter_messages()
+            if ch.topic == "/campaign/pose"
+        }
     assert poses == {0, 1, 2, 3, 4}
     # and identification reads it like the cut log
     assert main(["identify", str(fixed)]) == 0
@@ -141,10 +155,10 @@ def test_recover_drops_exactly_the_damaged_pose(tmp_path, capsys):
     assert main(["recover", str(bad), "--out", str(fixed)]) == 0
     out = capsys.readouterr().out
     rec = read_log(fixed)
-    assert len(spans) >= 17                               # a chunk ends at every pose_done
+    assert len(spans) >= 17  # a chunk ends at every pose_done
     assert rec.lost_poses == rec.dropped_poses and len(rec.lost_poses) == 1, out
     assert f"dropped pose {rec.lost_poses[0]} (damaged Chunk" in out
-    assert not rec.truncated and "damaged" in rec.end     # the campaign itself finished
+    assert not rec.truncated and "damaged" in rec.end  # the campaign itself finished
     assert f"1 lost [{rec.lost_poses[0]}]" in rec.completeness()
     opens_everywhere(fixed, tmp_path)
     good = read_log(log)
@@ -159,7 +173,7 @@ def test_recover_refuses_what_is_not_mcap(tmp_path, capsys):
     assert main(["recover", str(txt), "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert "magic bytes" in err and "Traceback" not in err and not out.exists()
-    assert main(["recover", str(txt), "--out", str(txt)]) == 2       # output = input
+    assert main(["recover", str(txt), "--out", str(txt)]) == 2  # output = input
     assert txt.read_text() == "not a log\n"
 
 
@@ -169,7 +183,7 @@ def test_an_absurd_campaign_is_refused_up_front(tmp_path, capsys):
     out = tmp_path / "huge.mcap"
     t = time.monotonic()
     assert main(["simulate", str(huge), "--out", str(out)]) == 2
-    assert time.monotonic() - t < 30           # refused before any work (was: 3 min, 34 MB)
+    assert time.monotonic() - t < 30  # refused before any work (was: 3 min, 34 MB)
     err = capsys.readouterr().err
     assert "pose[0].repeats" in err and "4,000,000,000 readings" in err and "--force" in err
     assert "years" in err and not out.exists()
@@ -209,7 +223,9 @@ def test_a_signal_inside_the_writer_waits_for_it():
     block ends, never in the middle of mcap's writer (an interrupt there once left a chunk's
     message indexes behind: a damaged log in ~1 of 40 interrupted campaigns)."""
     import os
+
     from calbench.bench.log.writer import SignalGuard
+
     before = signal.getsignal(signal.SIGINT)
     g = SignalGuard()
     g.install()
@@ -218,10 +234,10 @@ def test_a_signal_inside_the_writer_waits_for_it():
         with pytest.raises(KeyboardInterrupt):
             with g.critical():
                 os.kill(os.getpid(), signal.SIGINT)
-                time.sleep(0.05)                 # the handler runs here, and only notes it
+                time.sleep(0.05)  # the handler runs here, and only notes it
                 reached.append("end of the block")
         assert reached == ["end of the block"]
-        with pytest.raises(KeyboardInterrupt):   # outside a block: at once
+        with pytest.raises(KeyboardInterrupt):  # outside a block: at once
             os.kill(os.getpid(), signal.SIGINT)
             time.sleep(0.05)
     finally:

@@ -6,29 +6,41 @@ sqrt((C_ii C_jj + C_ij^2) / N); tests compare within 4.5 of those (a 1e-5 chance
 a normal approximation; ~100 entries are compared in all). The Monte Carlo's empirical/reported
 std ratio has sampling error sqrt(1 / (2 (N - 1))); it is held within 4 of those.
 """
+
 from __future__ import annotations
 
 import math
 
 import numpy as np
 import pytest
-
-from calbench.bench.core.errors import InputError
-from calbench.bench.tracker.iso10360 import (correlated_covariance, deflection_covariance, draw_correlated,
-                                     field_kernel, marginal_covariance)
-from calbench.bench.tracker.measuring import measure_campaign, reading_times
-from calbench.bench.scenario.parse import TrackerSpec, parse_scenario
-from calbench.bench.tracker.instrument import Measurement, noise_covariance, spec_covariance, to_tracker_frame
-from calbench.identify.core.whitening import Whitener
 from conftest import PAPER
 
-SPEC = TrackerSpec(np.array([3.5, -3.5, 3.2]), model="iso10360", random=0.3,
-                   correlation_angle=math.radians(8.0), correlation_range=0.8, drift=(20e-6, 5e-6))
+from calbench.bench.core.errors import InputError
+from calbench.bench.scenario.parse import TrackerSpec, parse_scenario
+from calbench.bench.tracker.instrument import Measurement, noise_covariance, spec_covariance, to_tracker_frame
+from calbench.bench.tracker.iso10360 import (
+    correlated_covariance,
+    deflection_covariance,
+    draw_correlated,
+    field_kernel,
+    marginal_covariance,
+)
+from calbench.bench.tracker.measuring import measure_campaign, reading_times
+from calbench.identify.core.whitening import Whitener
+
+SPEC = TrackerSpec(
+    np.array([3.5, -3.5, 3.2]),
+    model="iso10360",
+    random=0.3,
+    correlation_angle=math.radians(8.0),
+    correlation_range=0.8,
+    drift=(20e-6, 5e-6),
+)
 
 
 def _within(emp: np.ndarray, ref: np.ndarray, n: int, k: float = 4.5) -> None:
     d = np.sqrt(np.diag(ref))
-    se = np.sqrt((np.outer(d, d) ** 2 + ref ** 2) / n)
+    se = np.sqrt((np.outer(d, d) ** 2 + ref**2) / n)
     assert np.all(np.abs(emp - ref) <= k * se + 1e-30), np.max(np.abs(emp - ref) / se)
 
 
@@ -36,20 +48,21 @@ def test_one_reading_has_the_spec_covariance_at_the_start():
     """Field plus noise make the spec model's single-point covariance; the drift adds with time."""
     y = np.array([[2.0, 3.0, -0.5], [4.0, -1.0, 1.0]])
     assert np.allclose(marginal_covariance(SPEC, y, np.zeros(2)), spec_covariance(SPEC, y), rtol=1e-12)
-    assert np.allclose(noise_covariance(SPEC, y), 0.3 ** 2 * spec_covariance(SPEC, y))
+    assert np.allclose(noise_covariance(SPEC, y), 0.3**2 * spec_covariance(SPEC, y))
     later = marginal_covariance(SPEC, y, np.full(2, 3600.0)) - spec_covariance(SPEC, y)
     # after an hour: translation a^2 per axis plus rotation/scale b^2 |y|^2 spread over the axes
-    assert np.trace(later[0]) == pytest.approx(3 * 20e-6 ** 2 + 3 * (5e-6) ** 2 * (y[0] @ y[0]), rel=1e-9)
+    assert np.trace(later[0]) == pytest.approx(3 * 20e-6**2 + 3 * (5e-6) ** 2 * (y[0] @ y[0]), rel=1e-9)
 
 
 def test_kernel_is_one_at_a_point_and_falls_with_angle_and_range():
     y = np.array([[3.0, 0.0, 0.0]])
-    turned = np.array([[3 * math.cos(0.1), 3 * math.sin(0.1), 0.0]])          # 0.1 rad apart
+    turned = np.array([[3 * math.cos(0.1), 3 * math.sin(0.1), 0.0]])  # 0.1 rad apart
     farther = np.array([[3.8, 0.0, 0.0]])
     assert field_kernel(SPEC, y, y)[0, 0] == 1.0
     chord = 2 * math.sin(0.05)
     assert field_kernel(SPEC, y, turned)[0, 0] == pytest.approx(
-        math.exp(-chord ** 2 / (2 * math.radians(8.0) ** 2)), rel=1e-12)
+        math.exp(-(chord**2) / (2 * math.radians(8.0) ** 2)), rel=1e-12
+    )
     assert field_kernel(SPEC, y, farther)[0, 0] == pytest.approx(math.exp(-0.5), rel=1e-12)
 
 
@@ -69,8 +82,9 @@ def test_deflection_covariance_against_the_drawn_campaign():
     """A pose of two reflectors read twice per state: the analytic covariance of its two
     deflections (every reading, the field, the drift, the means) against 4000 campaigns drawn by
     measure_campaign, the simulator's own path."""
-    world = np.array([[[0.6, 0.2, 1.9], [0.6, -0.4, 1.9]],
-                      [[0.6015, 0.2, 1.8978], [0.6015, -0.4, 1.8975]]])       # (2 states, 2, 3)
+    world = np.array(
+        [[[0.6, 0.2, 1.9], [0.6, -0.4, 1.9]], [[0.6015, 0.2, 1.8978], [0.6015, -0.4, 1.8975]]]
+    )  # (2 states, 2, 3)
     vis = np.ones((2, 2), bool)
     times = reading_times([2], 2)
     n = 4000
@@ -96,9 +110,17 @@ def test_per_pose_whitening_equals_per_reflector_without_correlation():
         a = rng.standard_normal((3, 3))
         covs.append(a @ a.T + np.eye(3))
     per = Whitener.per_reflector(np.array(covs))
-    blocks = [np.block([[covs[0], np.zeros((3, 6))], [np.zeros((3, 3)), covs[1], np.zeros((3, 3))],
-                        [np.zeros((3, 6)), covs[2]]]), covs[3],
-              np.block([[covs[4], np.zeros((3, 3))], [np.zeros((3, 3)), covs[5]]])]
+    blocks = [
+        np.block(
+            [
+                [covs[0], np.zeros((3, 6))],
+                [np.zeros((3, 3)), covs[1], np.zeros((3, 3))],
+                [np.zeros((3, 6)), covs[2]],
+            ]
+        ),
+        covs[3],
+        np.block([[covs[4], np.zeros((3, 3))], [np.zeros((3, 3)), covs[5]]]),
+    ]
     blk = Whitener(blocks)
     x, j = rng.standard_normal((6, 3)), rng.standard_normal((6, 3, 4))
     assert np.allclose(per.vec(x), blk.vec(x), rtol=0, atol=1e-12)
@@ -107,13 +129,18 @@ def test_per_pose_whitening_equals_per_reflector_without_correlation():
     # whitening makes a correlated block's draws standard normal
     full = np.cov(rng.standard_normal((9, 50)))
     w = Whitener([full * 1e-10])
-    assert np.allclose(w.mat(np.eye(9).reshape(3, 3, 9)) @ (full * 1e-10) @ w.mat(np.eye(9).reshape(3, 3, 9)).T,
-                       np.eye(9), atol=1e-9)
+    assert np.allclose(
+        w.mat(np.eye(9).reshape(3, 3, 9)) @ (full * 1e-10) @ w.mat(np.eye(9).reshape(3, 3, 9)).T,
+        np.eye(9),
+        atol=1e-9,
+    )
 
 
 def test_scenario_keys(tmp_path):
-    base = PAPER.read_text().replace('robot = "../mjcf/m900ib700.xml"',
-                                     f'robot = "{(PAPER.parent.parent / "mjcf" / "m900ib700.xml").as_posix()}"')
+    base = PAPER.read_text().replace(
+        'robot = "../mjcf/m900ib700.xml"',
+        f'robot = "{(PAPER.parent.parent / "mjcf" / "m900ib700.xml").as_posix()}"',
+    )
 
     def tracker(extra: str):
         text = base.replace("sigma = 20e-6                     # m per axis (isotropic)", extra)
@@ -122,8 +149,13 @@ def test_scenario_keys(tmp_path):
     t = tracker('model = "iso10360"\nrandom = 0.5\ncorrelation_angle = 20.0\ndrift = [1e-6, 0.0]')
     assert (t.random, t.correlation_angle, t.drift) == (0.5, pytest.approx(math.radians(20)), (1e-6, 0.0))
     back = TrackerSpec.from_dict(t.to_dict())
-    assert (back.model, back.random, back.correlation_angle, back.drift) == (t.model, t.random, t.correlation_angle, t.drift)
-    assert "random" not in tracker('model = "spec"').to_dict()         # other models' headers unchanged
+    assert (back.model, back.random, back.correlation_angle, back.drift) == (
+        t.model,
+        t.random,
+        t.correlation_angle,
+        t.drift,
+    )
+    assert "random" not in tracker('model = "spec"').to_dict()  # other models' headers unchanged
     with pytest.raises(InputError, match=r'tracker.random: expected model = "iso10360" for this key'):
         tracker('model = "spec"\nrandom = 0.5')
     with pytest.raises(InputError, match=r"tracker.random: expected the share of the 1-sigma"):
@@ -145,17 +177,24 @@ def test_a_deflection_is_far_more_accurate_than_two_independent_readings():
 
 def _variant(tmp_path, tracker: str):
     from calbench.bench.scenario.parse import load_scenario
-    text = PAPER.read_text().replace(
-        'robot = "../mjcf/m900ib700.xml"',
-        f'robot = "{(PAPER.parent.parent / "mjcf" / "m900ib700.xml").as_posix()}"').replace(
-        "sigma = 20e-6                     # m per axis (isotropic)", tracker)
+
+    text = (
+        PAPER.read_text()
+        .replace(
+            'robot = "../mjcf/m900ib700.xml"',
+            f'robot = "{(PAPER.parent.parent / "mjcf" / "m900ib700.xml").as_posix()}"',
+        )
+        .replace("sigma = 20e-6                     # m per axis (isotropic)", tracker)
+    )
     p = tmp_path / "variant.toml"
     p.write_text(text)
     return load_scenario(p)
 
 
-STRESS = ('model = "iso10360"\nrandom = 0.1\ncorrelation_angle = 3.0\ncorrelation_range = 0.5\n'
-          'drift = [20e-6, 5e-6]')
+STRESS = (
+    'model = "iso10360"\nrandom = 0.1\ncorrelation_angle = 3.0\ncorrelation_range = 0.5\n'
+    "drift = [20e-6, 5e-6]"
+)
 
 
 def test_monte_carlo_is_honest_under_the_correlated_model(tmp_path):
@@ -167,6 +206,7 @@ def test_monte_carlo_is_honest_under_the_correlated_model(tmp_path):
     assertion shows is far off."""
     from calbench.identify.design.threads import blas_threads
     from calbench.identify.study.montecarlo import run_montecarlo
+
     runs = 300
     with blas_threads(1):
         s = run_montecarlo(_variant(tmp_path, STRESS), runs, ("one-step",)).summary()
@@ -187,6 +227,7 @@ def test_design_whitens_a_candidate_by_the_same_covariance(tmp_path):
     pose's deflections: block diagonal by reflector for the spec tracker, correlated for
     iso10360."""
     from calbench.identify.design.candidates import InfoEngine, load_design_scenario
+
     p0 = np.array([[1.2, 0.3, 1.9], [1.2, -0.3, 1.9], [1.3, 0.0, 1.3]])
     p1 = p0 + np.array([[0.0, 0.0, -0.002], [0.0, 0.0, -0.0021], [0.0005, 0.0, -0.0015]])
     for tracker, correlated in (('model = "spec"', False), (STRESS, True)):
@@ -196,5 +237,5 @@ def test_design_whitens_a_candidate_by_the_same_covariance(tmp_path):
         assert np.allclose(eng.sigma_dp_blocks(p0[None], p1[None])[0], one, rtol=1e-12, atol=0)
         off = one.copy()
         for i in range(3):
-            off[3 * i: 3 * i + 3, 3 * i: 3 * i + 3] = 0
+            off[3 * i : 3 * i + 3, 3 * i : 3 * i + 3] = 0
         assert (np.abs(off).max() > 1e-3 * one.max()) == correlated

@@ -6,11 +6,14 @@ numbers): eq. (1) within 0.1 % with gravity off (the load's own geometric stiffn
 |W| x lever x k ~ 1e-4 of the deflection); Monte Carlo bounds of 4 standard errors of the
 sampling statistics with N runs.
 """
+
 from __future__ import annotations
 
 import mujoco
 import numpy as np
 import pytest
+from conftest import ROOT
+from test_statics import deflection_twist, relaxed_flange, site_pose, small_load_response, tendon_torque_j2
 
 from calbench.bench.campaign.run import run_campaign, scenario_params
 from calbench.bench.model.params import Params, Spring
@@ -22,16 +25,13 @@ from calbench.identify.design.candidates import InfoEngine, load_design_scenario
 from calbench.identify.design.plan import scenario_plan_information
 from calbench.identify.discover.workflow import discover
 from calbench.identify.study.montecarlo import run_montecarlo
-from conftest import ROOT
-from test_statics import (deflection_twist, relaxed_flange, site_pose, small_load_response,
-                          tendon_torque_j2)
 
 KR270 = ROOT / "mjcf" / "kr270.xml"
 KR270_PAPER = ROOT / "scenarios" / "kr270_paper.toml"
 KR270_REALISTIC = ROOT / "scenarios" / "kr270_balancer_realistic.toml"
 BALANCER = "balancer"
 # the balancer's geometry as the MJCF header states it (not read from the model)
-L_C, L_2, PSI_OFFSET = 0.45, 0.25, np.radians(90.0)     # psi = A2 + 90 deg
+L_C, L_2, PSI_OFFSET = 0.45, 0.25, np.radians(90.0)  # psi = A2 + 90 deg
 PAYLOAD = 270.0
 
 
@@ -52,6 +52,7 @@ def make_robot(paper, k_c: float | None = None) -> Robot:
 
 # --------------------------------------------------------------------------- the description
 
+
 def test_description_is_serial_with_one_balancer_named_otherwise():
     """No loop and no passive joint; the balancer's parameters carry its tendon's name, and
     the FANUC's names are nowhere in the model (nothing can work here through a default)."""
@@ -59,12 +60,14 @@ def test_description_is_serial_with_one_balancer_named_otherwise():
     assert robot.loops == () and len(robot.passive_joint) == 0
     assert robot.layout.names[6:] == ("balancer_stiffness", "balancer_preload")
     names = {robot.model.joint(j).name for j in range(robot.model.njnt)} | {
-        robot.model.body(b).name for b in range(robot.model.nbody)}
+        robot.model.body(b).name for b in range(robot.model.nbody)
+    }
     assert not names & {"j1", "j2", "j3", "elbow", "rod", "upper_arm", "forearm", "turret", "link5"}
-    assert robot.compensator_joint(0) == 1                      # the balancer spans A2
+    assert robot.compensator_joint(0) == 1  # the balancer spans A2
 
 
 # --------------------------------------------------------------------------- statics
+
 
 @pytest.mark.parametrize("i", [0, 5, 9, 12])
 def test_eq1_gravity_off_small_load(paper, i):
@@ -136,7 +139,7 @@ def test_eq1_with_balancer_uses_aggregated_k2(paper):
     predicted = j @ np.diag(k_eff) @ j.T @ w
     measured = deflection_twist(robot, e0, e1, robot.flange_site)
     assert np.linalg.norm(measured - predicted) < 1e-3 * np.linalg.norm(predicted)
-    assert abs(k_eff[1] - paper.compliance[1]) > 1e-2 * k_eff[1]   # the balancer shows (> 1 %)
+    assert abs(k_eff[1] - paper.compliance[1]) > 1e-2 * k_eff[1]  # the balancer shows (> 1 %)
 
 
 @pytest.mark.parametrize("i", range(16))
@@ -171,12 +174,14 @@ def test_second_solver_time_stepping_relaxation_agrees(paper):
 def test_apparent_a2_stiffness_varies_over_the_plan(paper):
     """The scenario's claim: K2 + K_C l_c l_2 eta changes by >= 3.5 % between the plan's three
     A2 (so K_C and s0 are identifiable), and the realistic balancer's by < 0.1 %."""
+
     def span(scn):
         robot = Robot.from_file(KR270)
         robot.set_params(scenario_params(scn, robot))
         a2 = np.unique([p.q[1] for p in scn.poses])
         k = [1.0 / scn.compliance[1] + balancer_eq9(robot, a)[1] for a in a2]
         return max(k) / min(k) - 1.0
+
     assert span(paper) >= 0.035
     assert span(load_scenario(KR270_REALISTIC)) < 1e-3
 
@@ -185,6 +190,7 @@ def test_realistic_balancer_holds_most_of_the_arm(paper):
     """The realistic scenario's claim: its preloaded spring always pulls (s > s0) and cancels
     more than 60 % of the arm's gravity torque at A2 over the A2 range (arm horizontal), while
     the paper scenario's stiff spring over-compensates it."""
+
     def cancelled(scn):
         robot = Robot.from_file(KR270)
         robot.set_params(scenario_params(scn, robot))
@@ -198,16 +204,18 @@ def test_realistic_balancer_holds_most_of_the_arm(paper):
             bal.append(tendon_torque_j2(robot, a2))
         grav, bal = np.array(grav), np.array(bal)
         return 1.0 - np.linalg.norm(grav + bal) / np.linalg.norm(grav)
+
     realistic = load_scenario(KR270_REALISTIC)
     robot = Robot.from_file(KR270)
     s0 = realistic.compensators[BALANCER].preload
-    assert s0 < L_C - L_2                       # shorter than the spring ever is: always pulling
+    assert s0 < L_C - L_2  # shorter than the spring ever is: always pulling
     assert cancelled(realistic) > 0.6
-    assert cancelled(paper) < 0.0               # the identifiable spring is no balancer
+    assert cancelled(paper) < 0.0  # the identifiable spring is no balancer
     assert robot.description.compensators == (BALANCER,)
 
 
 # --------------------------------------------------------------------------- identification
+
 
 @pytest.fixture(scope="module")
 def paper_log(tmp_path_factory):
@@ -263,8 +271,27 @@ def test_design_cli_plan_is_feasible_and_identifies(tmp_path, engine):
     """`calbench design` on this robot (a small candidate set for speed): every pose of the plan
     passes every feasibility rule, and a campaign along it identifies with --check."""
     plan, log = tmp_path / "plan.toml", tmp_path / "plan.mcap"
-    assert main(["design", str(KR270_PAPER), "--configs", "10", "--criterion", "A", "--out", str(plan),
-                 "--candidates", "300", "--starts", "2", "--processes", "1"]) == 0
+    assert (
+        main(
+            [
+                "design",
+                str(KR270_PAPER),
+                "--configs",
+                "10",
+                "--criterion",
+                "A",
+                "--out",
+                str(plan),
+                "--candidates",
+                "300",
+                "--starts",
+                "2",
+                "--processes",
+                "1",
+            ]
+        )
+        == 0
+    )
     _, violations = scenario_plan_information(engine, load_scenario(plan))
     assert violations == []
     assert main(["simulate", str(plan), "--out", str(log)]) == 0

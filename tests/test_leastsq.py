@@ -1,6 +1,7 @@
 """The least-squares core (identify/core/leastsq.py) against independent computations: the exact
 linear least-squares solution, scipy's optimum on a nonlinear problem, bounds, held and unseen
 directions, and the stopping rule that applies its last step without evaluating."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -48,9 +49,8 @@ def test_sigma_rule_applies_the_last_step_without_evaluating_again():
         return a @ x, a
 
     x0 = np.zeros(4)
-    sol = levenberg_marquardt(ev, y, x0, np.ones(4), step_tol=1e-2, final_eval=False,
-                              start_eval=ev(x0))
-    assert len(n) == 2                       # the start_eval call made above, and one trial
+    sol = levenberg_marquardt(ev, y, x0, np.ones(4), step_tol=1e-2, final_eval=False, start_eval=ev(x0))
+    assert len(n) == 2  # the start_eval call made above, and one trial
     assert not sol.last_step_evaluated
     np.testing.assert_allclose(sol.x, np.linalg.lstsq(a, y, rcond=None)[0], rtol=1e-10)
 
@@ -66,8 +66,9 @@ def test_nonlinear_problem_reaches_scipys_optimum():
 
     x0 = np.array([1.0, 0.5, 0.0])
     sol = levenberg_marquardt(model, y, x0, np.ones(3), step_tol=1e-8, max_iter=100)
-    ref = scipy.optimize.least_squares(lambda x: model(x)[0] - y, x0, jac=lambda x: model(x)[1],
-                                       xtol=1e-14, ftol=1e-14, gtol=1e-14).x
+    ref = scipy.optimize.least_squares(
+        lambda x: model(x)[0] - y, x0, jac=lambda x: model(x)[1], xtol=1e-14, ftol=1e-14, gtol=1e-14
+    ).x
     cov, _ = covariance(sol.j_w, np.ones(3, bool), np.ones(3), 1e-10)
     # both at the optimum: agreement far inside the estimate's own standard deviation
     assert np.all(np.abs(sol.x - ref) < 1e-6 * np.sqrt(np.diag(cov)))
@@ -78,9 +79,17 @@ def test_bounds_are_respected_and_the_bound_parameter_is_reported():
     a, y = linear_problem(3)
     exact = np.linalg.solve(a.T @ a, a.T @ y)
     lower = np.full(4, -np.inf)
-    lower[1] = exact[1] + 0.5                 # the unconstrained optimum violates it
-    sol = levenberg_marquardt(lambda x: (a @ x, a), y, np.maximum(np.zeros(4), lower), np.ones(4),
-                              lower=lower, gain_tol=1e-12, cost_tol=1e-12, max_iter=100)
+    lower[1] = exact[1] + 0.5  # the unconstrained optimum violates it
+    sol = levenberg_marquardt(
+        lambda x: (a @ x, a),
+        y,
+        np.maximum(np.zeros(4), lower),
+        np.ones(4),
+        lower=lower,
+        gain_tol=1e-12,
+        cost_tol=1e-12,
+        max_iter=100,
+    )
     assert sol.x[1] == pytest.approx(lower[1])
     # the others are the constrained optimum: the linear LS with x1 fixed at its bound
     keep = [0, 2, 3]
@@ -91,12 +100,12 @@ def test_bounds_are_respected_and_the_bound_parameter_is_reported():
 def test_held_and_unseen_directions_do_not_move():
     rng = np.random.default_rng(4)
     a = rng.standard_normal((30, 3))
-    a = np.column_stack([a, a[:, 0] + a[:, 1]])   # column 3 = column 0 + column 1: one unseen direction
+    a = np.column_stack([a, a[:, 0] + a[:, 1]])  # column 3 = column 0 + column 1: one unseen direction
     y = a @ np.array([1.0, -2.0, 0.5, 0.0]) + 0.01 * rng.standard_normal(30)
     x0 = np.array([0.0, 0.0, 0.0, 0.3])
     hold = np.array([False, False, True, False])
     sol = levenberg_marquardt(lambda x: (a @ x, a), y, x0, np.ones(4), hold=hold, step_tol=1e-9)
-    assert sol.x[2] == x0[2]                                  # held
+    assert sol.x[2] == x0[2]  # held
     # minimum-norm steps in column-normalised coordinates (D = column norms): nothing moves
     # along the null vector (1, 1, 0, -1) there, i.e. (D dx) . (D null) = 0
     null = np.array([1.0, 1.0, 0.0, -1.0])
@@ -120,7 +129,7 @@ def test_failed_evaluations_are_damped_not_fatal():
     exact = np.linalg.lstsq(a, y, rcond=None)[0]
 
     def ev(x):
-        if np.linalg.norm(x - exact) > 0.9 * np.linalg.norm(exact):   # far trials have no solution
+        if np.linalg.norm(x - exact) > 0.9 * np.linalg.norm(exact):  # far trials have no solution
             raise RuntimeError("no equilibrium")
         return a @ x, a
 
@@ -142,8 +151,9 @@ def test_active_set_frees_a_correlated_parameter_the_bound_does_not_hold():
     y = a @ np.array([-3.0, -0.5]) + 0.01 * rng.standard_normal(50)
     lower = np.zeros(2)
     ref = scipy.optimize.lsq_linear(a, y, bounds=(lower, np.inf)).x
-    assert ref[0] < 1e-9 and ref[1] > 0.1                      # the case: one bound active
-    sol = levenberg_marquardt(lambda x: (a @ x, a), y, lower.copy(), np.ones(2), lower=lower,
-                              step_tol=1e-9, max_iter=50)
+    assert ref[0] < 1e-9 and ref[1] > 0.1  # the case: one bound active
+    sol = levenberg_marquardt(
+        lambda x: (a @ x, a), y, lower.copy(), np.ones(2), lower=lower, step_tol=1e-9, max_iter=50
+    )
     assert sol.converged
     np.testing.assert_allclose(sol.x, ref, atol=1e-9)

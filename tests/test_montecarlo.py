@@ -10,6 +10,7 @@ Bounds from sampling statistics only, N = 200 runs, 4 standard errors:
 The 8 parameters are correlated estimates of the same noise, so these are not 8 independent
 tests; at 4 standard errors the family-wise false alarm rate is still < 1e-3.
 """
+
 from __future__ import annotations
 
 import json
@@ -17,11 +18,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import PAPER
 
 from calbench.bench.scenario.parse import load_scenario
 from calbench.identify.cli import main
 from calbench.identify.study.montecarlo import run_montecarlo
-from conftest import PAPER
 
 N = 200
 
@@ -50,12 +51,14 @@ def test_two_step_is_unbiased_where_its_linear_model_holds(tmp_path):
     4 standard errors of the mean + that noise-free offset, over N noisy campaigns, for k1..k6
     and K_C (whose truth is 0); and its reported std must be its spread (4 standard errors of
     an sd). A two-step that mis-builds a regressor or a step-2 row fails this."""
+    from linear_case import linear_world
+
     from calbench.bench.campaign.run import plan_campaign, truth_robot
     from calbench.bench.model.robot import Robot
     from calbench.bench.scenario.parse import parse_scenario
-    from calbench.identify.study.montecarlo import campaign_observations, true_theta
     from calbench.identify.methods.twostep import linear_plan, two_step
-    from linear_case import linear_world
+    from calbench.identify.study.montecarlo import campaign_observations, true_theta
+
     path = linear_world(tmp_path)
     scn = parse_scenario(path.read_text(), path)
     tr = truth_robot(scn)
@@ -73,22 +76,33 @@ def test_two_step_is_unbiased_where_its_linear_model_holds(tmp_path):
     est, sd = np.array(est), np.array(sd)
     spread = est.std(axis=0, ddof=1)
     offset = np.abs(nf.theta[:7] - truth[:7])
-    assert np.all(np.abs(est.mean(axis=0) - truth[:7]) < 4 * spread / np.sqrt(N) + offset), \
-        (est.mean(axis=0) - truth[:7]) / spread
-    np.testing.assert_allclose(spread / np.sqrt((sd ** 2).mean(axis=0)), 1.0, atol=4 * np.sqrt(1 / (2 * (N - 1))))
+    assert np.all(np.abs(est.mean(axis=0) - truth[:7]) < 4 * spread / np.sqrt(N) + offset), (
+        est.mean(axis=0) - truth[:7]
+    ) / spread
+    np.testing.assert_allclose(
+        spread / np.sqrt((sd**2).mean(axis=0)), 1.0, atol=4 * np.sqrt(1 / (2 * (N - 1)))
+    )
 
 
 def test_montecarlo_cli_writes_json(tmp_path):
     out = tmp_path / "mc.json"
     assert main(["montecarlo", str(PAPER), "--runs", "3", "--json", str(out)]) == 0
     s = json.loads(out.read_text())
-    assert s["runs"] == 3 and set(s["methods"]) == {"one-step", "two-step", "two-step-weighted", "two-step-iterated"}
+    assert s["runs"] == 3 and set(s["methods"]) == {
+        "one-step",
+        "two-step",
+        "two-step-weighted",
+        "two-step-iterated",
+    }
     assert "two-step-iterated" in s["noise_free_error_over_crb_std"]
     assert main(["montecarlo", str(PAPER), "--runs", "1"]) == 2
 
 
-@pytest.mark.parametrize("extra", ["", "[truth.effects.tracker_drift]\noffset = [30e-6, -20e-6, 25e-6]"],
-                         ids=["nothing hidden", "tracker drift"])
+@pytest.mark.parametrize(
+    "extra",
+    ["", "[truth.effects.tracker_drift]\noffset = [30e-6, -20e-6, 25e-6]"],
+    ids=["nothing hidden", "tracker drift"],
+)
 def test_campaign_observations_are_the_logs_readings(tmp_path, extra):
     """The in-memory campaign (Monte Carlo, the discovery benchmarks and tests) is the campaign
     `simulate` logs, drawn with the same seed: the same deflections to the last bit, the
@@ -98,8 +112,9 @@ def test_campaign_observations_are_the_logs_readings(tmp_path, extra):
     from calbench.bench.campaign.run import plan_campaign, run_campaign, truth_robot
     from calbench.bench.log.writer import read_log
     from calbench.bench.scenario.parse import scenario_variant
-    from calbench.identify.study.montecarlo import campaign_observations
     from calbench.identify.core.observations import from_log
+    from calbench.identify.study.montecarlo import campaign_observations
+
     scn = load_scenario(scenario_variant(PAPER, tmp_path / "s.toml", extra=extra))
     tr = truth_robot(scn)
     plans = run_campaign(scn, tmp_path / "s.mcap")
@@ -112,13 +127,16 @@ def test_campaign_observations_are_the_logs_readings(tmp_path, extra):
     # the noise-free campaign against the truth's own reflector motion, rotated into the tracker
     # frame (bench/tracker/instrument.py: world -> tracker is R^T x) and shifted by the drift, if any
     from calbench.bench.tracker.instrument import tracker_rotation
+
     exact = campaign_observations(scn, tr, plan_campaign(scn, tr), None)
     offset = np.array([30e-6, -20e-6, 25e-6]) if extra else np.zeros(3)
     rot = tracker_rotation(scn.tracker)
     for ob, plan in zip(exact.poses, plans):
         rows = [list(tr.reflector_names).index(r) for r in ob.reflectors]
         motion = (plan.reflectors_world[1][rows] - plan.reflectors_world[0][rows]) @ rot
-        np.testing.assert_allclose(ob.dp, motion + offset, rtol=0, atol=1e-14)   # ~5 m coordinates: a few roundings of 1e-15
+        np.testing.assert_allclose(
+            ob.dp, motion + offset, rtol=0, atol=1e-14
+        )  # ~5 m coordinates: a few roundings of 1e-15
 
 
 WEAK = Path(__file__).resolve().parent / "kr270_weak7.toml"

@@ -5,17 +5,18 @@ the sag to a spring that made the stiffness singular (bench.statics: "singular s
 matrix"), and that one StaticsError ended the whole `calbench montecarlo`, every method's 400
 runs with it. Here the iterated two-step is made to fail on exactly one run of the paper plan.
 """
+
 from __future__ import annotations
 
 import numpy as np
+from conftest import PAPER
 
 from calbench.bench.core.errors import StaticsError
 from calbench.bench.scenario.parse import load_scenario
 from calbench.identify.study import montecarlo as M
-from conftest import PAPER
 
 RUNS = 4
-FAIL_ON = 2          # the third call: run 2 (one block, runs in order)
+FAIL_ON = 2  # the third call: run 2 (one block, runs in order)
 
 
 def test_a_failing_run_is_left_out_and_counted_and_the_rest_stands(monkeypatch):
@@ -30,8 +31,8 @@ def test_a_failing_run_is_left_out_and_counted_and_the_rest_stands(monkeypatch):
 
     scn = load_scenario(PAPER)
     methods = ("one-step", "two-step-iterated")
-    M._setup.cache_clear()                   # the set-up calls two_step_iterated once, on exact data:
-    M._setup(M.MonteCarloJob(M.PortableScenario.from_scenario(scn), methods, scn.seed))   # before flaky
+    M._setup.cache_clear()  # the set-up calls two_step_iterated once, on exact data:
+    M._setup(M.MonteCarloJob(M.PortableScenario.from_scenario(scn), methods, scn.seed))  # before flaky
     monkeypatch.setattr(M, "two_step_iterated", flaky)
     mc = M.run_montecarlo(scn, RUNS, methods=methods)
     M._setup.cache_clear()
@@ -41,8 +42,8 @@ def test_a_failing_run_is_left_out_and_counted_and_the_rest_stands(monkeypatch):
     it = mc.estimates["two-step-iterated"]
     assert np.all(np.isnan(it[FAIL_ON]))
     others = np.delete(it, FAIL_ON, axis=0)
-    assert np.isfinite(others[:, :6]).all()                 # k1..k6 of the other runs
-    assert np.isfinite(mc.estimates["one-step"]).all()      # the other method untouched
+    assert np.isfinite(others[:, :6]).all()  # k1..k6 of the other runs
+    assert np.isfinite(mc.estimates["one-step"]).all()  # the other method untouched
     s = mc.summary()
     assert s["methods"]["two-step-iterated"]["failed_runs"] == 1
     assert s["methods"]["one-step"]["failed_runs"] == 0

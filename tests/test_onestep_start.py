@@ -11,21 +11,22 @@ generic start. The non-convergence itself was a stale Jacobian (the cached KKT p
 the far start's equilibria, identify/core/forward.py's KKT_QTOL): with it fixed the fit from the far
 start converges to the truth too, and the generic repeat stays as the safety net.
 """
+
 from __future__ import annotations
 
 import re
 
 import numpy as np
 import pytest
+from conftest import ROOT
 
 from calbench.bench.campaign.run import plan_campaign, truth_robot
 from calbench.bench.model.robot import Robot
 from calbench.bench.scenario.parse import load_scenario
-from calbench.identify.study.montecarlo import campaign_observations, true_theta
+from calbench.identify.core.whitening import Whitener
 from calbench.identify.methods.onestep import OneStep, generic_start, one_step, sanitize_start
 from calbench.identify.methods.twostep import two_step
-from calbench.identify.core.whitening import Whitener
-from conftest import ROOT
+from calbench.identify.study.montecarlo import campaign_observations, true_theta
 
 KR270_PAPER = ROOT / "scenarios" / "kr270_paper.toml"
 # (q in degrees, lateral wrench or None, repeats): the study's designed plan, to 1e-4 deg
@@ -44,8 +45,10 @@ PLAN = [
 def exact(tmp_path_factory):
     """The plan on the KR 270 with the paper scenario's truth: exact observations, the model."""
     text = KR270_PAPER.read_text(encoding="utf-8")
-    text = text[:text.index("[[pose]]")]
-    text = re.sub(r'^robot = "[^"]*"', f'robot = "{(ROOT / "mjcf" / "kr270.xml").as_posix()}"', text, flags=re.M)
+    text = text[: text.index("[[pose]]")]
+    text = re.sub(
+        r'^robot = "[^"]*"', f'robot = "{(ROOT / "mjcf" / "kr270.xml").as_posix()}"', text, flags=re.M
+    )
     for q, w, rep in PLAN:
         text += f"[[pose]]\nq = {q}\n" + (f"wrench = {w}\n" if w else "") + f"repeats = {rep}\n\n"
     path = tmp_path_factory.mktemp("start") / "designed7.toml"
@@ -65,7 +68,7 @@ def test_the_fit_from_the_far_two_step_start_converges(exact):
     start, replaced = sanitize_start(two.theta, generic_start(robot, obs), robot.layout)
     assert replaced == []
     kc = robot.layout.stiffness_index[0]
-    assert start[kc] > 5 * theta[kc]                        # far from the truth's basin
+    assert start[kc] > 5 * theta[kc]  # far from the truth's basin
     res = OneStep(robot, obs).fit(obs.dp, Whitener.from_observations(obs), start)
     assert res.converged
     np.testing.assert_allclose(res.theta, theta, rtol=1e-6)
@@ -78,6 +81,6 @@ def test_one_step_recovers_the_truth_from_exact_data(exact):
     robot, obs, theta = exact
     res = one_step(robot, obs)
     assert res.converged
-    assert res.start_method == "two-step"            # no generic repeat needed (see above)
+    assert res.start_method == "two-step"  # no generic repeat needed (see above)
     assert np.all(np.isfinite(res.theta))
     np.testing.assert_allclose(res.theta, theta, rtol=1e-6)

@@ -1,5 +1,6 @@
 """Outputs never destroy inputs, every output is checked before work starts, and files are
 written whole or not at all (bench/core/outputs.py), for every verb alike."""
+
 from __future__ import annotations
 
 import hashlib
@@ -7,11 +8,11 @@ import shutil
 from pathlib import Path
 
 import pytest
+from conftest import PAPER
 
 from calbench.bench.core.errors import InputError
 from calbench.bench.core.outputs import atomic_path, check_outputs, write_text
 from calbench.identify.cli import main
-from conftest import PAPER
 
 
 def digest(p: Path) -> str:
@@ -22,7 +23,9 @@ def digest(p: Path) -> str:
 def work(tmp_path_factory) -> Path:
     d = tmp_path_factory.mktemp("outputs")
     shutil.copy(PAPER, d / "s.toml")
-    (d / "s.toml").write_text(PAPER.read_text().replace('robot = "../mjcf/', f'robot = "{PAPER.parent.parent}/mjcf/'))
+    (d / "s.toml").write_text(
+        PAPER.read_text().replace('robot = "../mjcf/', f'robot = "{PAPER.parent.parent}/mjcf/')
+    )
     assert main(["simulate", str(d / "s.toml"), "--out", str(d / "l.mcap")]) == 0
     return d
 
@@ -61,8 +64,11 @@ def test_an_output_through_a_link_to_the_input_is_refused(work, tmp_path):
 @pytest.mark.parametrize("where", ["proc", "directory", "under_file"])
 def test_unwritable_outputs_are_refused_up_front(work, tmp_path, where, capsys):
     (tmp_path / "afile").write_text("x")
-    out = {"proc": Path("/proc/calbench.mcap"), "directory": tmp_path,
-           "under_file": tmp_path / "afile" / "log.mcap"}[where]
+    out = {
+        "proc": Path("/proc/calbench.mcap"),
+        "directory": tmp_path,
+        "under_file": tmp_path / "afile" / "log.mcap",
+    }[where]
     assert main(["simulate", str(work / "s.toml"), "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("calbench simulate: error:") and err.count("\n") == 1
@@ -73,13 +79,19 @@ def test_unwritable_outputs_are_refused_up_front(work, tmp_path, where, capsys):
 def test_demo_checks_all_its_outputs_before_it_starts(tmp_path, where, capsys):
     """`demo --logs` onto a file gave a traceback (FileExistsError) after the campaign began."""
     (tmp_path / "afile").write_text("x")
-    (tmp_path / "d" / "paper_table5_hidden.discover.rrd").mkdir(parents=True)   # the last output
-    logs = {"file": tmp_path / "afile", "proc": Path("/proc/calbench-logs"), "output_is_directory": tmp_path / "d"}[where]
+    (tmp_path / "d" / "paper_table5_hidden.discover.rrd").mkdir(parents=True)  # the last output
+    logs = {
+        "file": tmp_path / "afile",
+        "proc": Path("/proc/calbench-logs"),
+        "output_is_directory": tmp_path / "d",
+    }[where]
     assert main(["demo", "--logs", str(logs)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("calbench demo: error:") and "--logs" in err and err.count("\n") == 1
     assert (tmp_path / "afile").read_text() == "x"
-    assert [p.name for p in (tmp_path / "d").iterdir()] == ["paper_table5_hidden.discover.rrd"]   # nothing begun
+    assert [p.name for p in (tmp_path / "d").iterdir()] == [
+        "paper_table5_hidden.discover.rrd"
+    ]  # nothing begun
 
 
 def test_missing_output_folders_are_created_for_every_verb(work, tmp_path):
@@ -87,7 +99,10 @@ def test_missing_output_folders_are_created_for_every_verb(work, tmp_path):
     assert main(["identify", str(work / "l.mcap"), "--json", str(out)]) == 0
     assert out.is_file()
     out = tmp_path / "mc" / "x" / "mc.json"
-    assert main(["montecarlo", str(work / "s.toml"), "--runs", "2", "--method", "two-step", "--json", str(out)]) == 0
+    assert (
+        main(["montecarlo", str(work / "s.toml"), "--runs", "2", "--method", "two-step", "--json", str(out)])
+        == 0
+    )
     assert out.is_file()
 
 
@@ -104,18 +119,21 @@ def test_interrupted_write_leaves_the_old_file_whole(tmp_path):
             tmp.write_text("half of a new rep")
             raise KeyboardInterrupt
     assert target.read_text() == "the good report\n"
-    assert [p.name for p in tmp_path.iterdir()] == ["report.json"]      # no temporary left behind
+    assert [p.name for p in tmp_path.iterdir()] == ["report.json"]  # no temporary left behind
 
 
 def test_atomic_outputs_get_the_permissions_of_an_ordinary_file(tmp_path):
     import os
+
     umask = os.umask(0o022)
     try:
         write_text(tmp_path / "a.json", "{}")
         (tmp_path / "b.json").write_text("{}")
     finally:
         os.umask(umask)
-    assert (tmp_path / "a.json").stat().st_mode & 0o777 == (tmp_path / "b.json").stat().st_mode & 0o777 == 0o644
+    assert (
+        (tmp_path / "a.json").stat().st_mode & 0o777 == (tmp_path / "b.json").stat().st_mode & 0o777 == 0o644
+    )
 
 
 def test_the_command_line_routes_mujocos_warnings_to_stderr_not_a_file(tmp_path):
@@ -124,12 +142,15 @@ def test_the_command_line_routes_mujocos_warnings_to_stderr_not_a_file(tmp_path)
     (a fresh process: the suite's own handler is installed in this one)."""
     import subprocess
     import sys
-    code = ("import mujoco, numpy as np\n"
-            "from calbench.identify.cli import main\n"
-            f"assert main(['check-robot', {str(PAPER.parent.parent / 'mjcf' / 'kr270.xml')!r}]) == 0\n"
-            "m = mujoco.MjModel.from_xml_string(\"<mujoco><worldbody><body><joint/><geom size='.1'/>"
-            "</body></worldbody></mujoco>\")\n"
-            "d = mujoco.MjData(m); d.qpos[:] = np.nan; mujoco.mj_step(m, d)\n")
+
+    code = (
+        "import mujoco, numpy as np\n"
+        "from calbench.identify.cli import main\n"
+        f"assert main(['check-robot', {str(PAPER.parent.parent / 'mjcf' / 'kr270.xml')!r}]) == 0\n"
+        "m = mujoco.MjModel.from_xml_string(\"<mujoco><worldbody><body><joint/><geom size='.1'/>"
+        '</body></worldbody></mujoco>")\n'
+        "d = mujoco.MjData(m); d.qpos[:] = np.nan; mujoco.mj_step(m, d)\n"
+    )
     r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert "MuJoCo: Nan, Inf or huge value in QPOS" in r.stderr

@@ -1,5 +1,6 @@
 """A plain (non-editable) install: one import name, the shipped files as package data, and a
 demo that runs outside the checkout and writes under the directory it is run from."""
+
 from __future__ import annotations
 
 import os
@@ -9,15 +10,17 @@ import zipfile
 from pathlib import Path
 
 import pytest
-
 from conftest import ROOT
 
 
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("wheel")
-    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(out), str(ROOT)],
-                       capture_output=True, text=True)
+    r = subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(out), str(ROOT)],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 0, r.stderr
     (whl,) = out.glob("calbench-*.whl")
     return whl
@@ -26,7 +29,7 @@ def wheel(tmp_path_factory) -> Path:
 def test_wheel_installs_one_namespace_with_the_models_and_scenarios(wheel):
     names = zipfile.ZipFile(wheel).namelist()
     top = {n.split("/")[0] for n in names if not n.split("/")[0].endswith(".dist-info")}
-    assert top == {"calbench"}                       # no top-level bench or identify
+    assert top == {"calbench"}  # no top-level bench or identify
     assert "calbench/mjcf/m900ib700.xml" in names
     assert "calbench/scenarios/paper_table5.toml" in names
     assert "calbench/studies/discovery_power.toml" in names and "calbench/identify/study/run.py" in names
@@ -38,19 +41,26 @@ def test_wheel_installs_one_namespace_with_the_models_and_scenarios(wheel):
 
 def test_demo_runs_from_a_plain_install_outside_the_checkout(wheel, tmp_path):
     site = tmp_path / "site"
-    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target", str(site), str(wheel)],
-                   check=True, capture_output=True)
+    subprocess.run(
+        [sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target", str(site), str(wheel)],
+        check=True,
+        capture_output=True,
+    )
     work = tmp_path / "elsewhere"
     work.mkdir()
-    code = ("import calbench.identify.cli as c, sys; "
-            "print(c.__file__, file=sys.stderr); sys.exit(c.main(['demo']))")
+    code = (
+        "import calbench.identify.cli as c, sys; "
+        "print(c.__file__, file=sys.stderr); sys.exit(c.main(['demo']))"
+    )
     env = {**os.environ, "PYTHONPATH": str(site), "MPLBACKEND": "Agg", "RERUN_ANALYTICS": "0"}
-    r = subprocess.run([sys.executable, "-c", code], cwd=work, env=env, capture_output=True, text=True,
-                       timeout=600)
+    r = subprocess.run(
+        [sys.executable, "-c", code], cwd=work, env=env, capture_output=True, text=True, timeout=600
+    )
     assert r.returncode == 0, r.stderr[-2000:]
-    assert r.stderr.splitlines()[0].startswith(str(site))      # the installed copy ran, not the checkout
+    assert r.stderr.splitlines()[0].startswith(str(site))  # the installed copy ran, not the checkout
     for f in ("paper_table5.mcap", "paper_table5.rrd", "paper_table5_hidden.discover.json"):
         assert (work / "logs" / f).is_file(), f
     # the list the command line checks up front is exactly what the demo wrote
     from calbench.identify.demo import demo_files
+
     assert {p.name for p in (work / "logs").iterdir()} == {p.name for p in demo_files(work / "logs").values()}

@@ -9,6 +9,7 @@ the preload's variance 1.26x the CRB. Over 100 campaigns the preload's profile f
 of the 100 um ones and on none of the 20 um ones: over 12 campaigns, the chance that none of
 the 100 um ones fails is 0.32^12 ~ 1e-6.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -18,9 +19,9 @@ import numpy as np
 from calbench.bench.campaign.run import plan_campaign, truth_robot
 from calbench.bench.model.robot import Robot
 from calbench.bench.scenario.parse import load_scenario
-from calbench.identify.study.montecarlo import campaign_observations, run_montecarlo
-from calbench.identify.methods.onestep import one_step
 from calbench.identify.core.profile import PROFILE_SIGMAS, profile_check
+from calbench.identify.methods.onestep import one_step
+from calbench.identify.study.montecarlo import campaign_observations, run_montecarlo
 
 WEAK = Path(__file__).resolve().parent / "kr270_weak7.toml"
 CAMPAIGNS = 12
@@ -32,9 +33,9 @@ def test_a_quadratic_profile_passes_and_a_flat_or_bounded_one_does_not():
     x0, sd = np.array([1.0, 2.0, 3.0]), np.array([0.1, 0.2, 0.3])
     quad = profile_check(lambda v, i: ((v[i] - x0[i]) / sd[i]) ** 2, x0, 0.0, sd, x0 - 1, x0 + 1, range(3))
     assert not quad.bad.any()
-    assert np.allclose([quad.rises[i] for i in range(3)], PROFILE_SIGMAS ** 2)
+    assert np.allclose([quad.rises[i] for i in range(3)], PROFILE_SIGMAS**2)
     quart = profile_check(lambda v, i: ((v[i] - x0[i]) / sd[i]) ** 4, x0, 0.0, sd, x0 - 1, x0 + 1, [0])
-    assert quart.bad[0] and np.allclose(quart.rises[0], PROFILE_SIGMAS ** 4)
+    assert quart.bad[0] and np.allclose(quart.rises[0], PROFILE_SIGMAS**4)
     bounded = profile_check(lambda v, i: ((v[i] - x0[i]) / sd[i]) ** 2, x0, 0.0, sd, x0 - 0.1, x0 + 1, [1])
     assert bounded.bad[1] and np.isclose(bounded.rises[1][0], 4.0) and bounded.rises[1][1] is None
 
@@ -52,15 +53,18 @@ def test_identification_flags_the_profile_where_the_fisher_std_is_wrong(tmp_path
     scn = load_scenario(WEAK)
     preload = Robot.from_file(scn.robot).layout.names.index("balancer_preload")
     honest = [f.extra["profile"] for f in _campaigns(scn, CAMPAIGNS)]
-    assert all(preload in p.rises for p in honest)                 # every determined one is checked
+    assert all(preload in p.rises for p in honest)  # every determined one is checked
     assert not any(p.bad.any() for p in honest)
     mjcf = (WEAK.parent / ".." / "mjcf" / "kr270.xml").resolve()
     loud_file = tmp_path / "kr270_weak7_100um.toml"
-    loud_file.write_text(WEAK.read_text().replace("sigma = 2e-05", "sigma = 0.0001")
-                         .replace('robot = "../mjcf/kr270.xml"', f'robot = "{mjcf}"'))
+    loud_file.write_text(
+        WEAK.read_text()
+        .replace("sigma = 2e-05", "sigma = 0.0001")
+        .replace('robot = "../mjcf/kr270.xml"', f'robot = "{mjcf}"')
+    )
     loud = load_scenario(loud_file)
     assert loud.tracker.sigma == 100e-6
     mc = run_montecarlo(loud, 400, methods=("one-step",), progress=False).summary()
     kc = next(p for p in mc["methods"]["one-step"]["parameters"] if p["name"] == "balancer_stiffness")
-    assert abs(kc["empirical_over_reported_std"] - 1) > 4 * np.sqrt(1 / (2 * 399))   # the Fisher std is wrong
+    assert abs(kc["empirical_over_reported_std"] - 1) > 4 * np.sqrt(1 / (2 * 399))  # the Fisher std is wrong
     assert any(f.extra["profile"].bad[preload] for f in _campaigns(loud, CAMPAIGNS))

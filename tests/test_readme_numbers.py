@@ -6,20 +6,21 @@ compensator's torque from eq. (9) (itself held to MuJoCo's tendon in tests/test_
 the best balancer by least squares over the bench's q2 range. The tolerances are the README's
 own rounding.
 """
+
 from __future__ import annotations
 
 import mujoco
 import numpy as np
 import pytest
+from conftest import K_TRUE, MJCF, ROOT, TABLE5, fanuc_params
 from scipy.optimize import least_squares
 
 from calbench.bench.model.loop import motor_forces, motor_jacobian
 from calbench.bench.model.robot import Robot
-from conftest import K_TRUE, MJCF, ROOT, TABLE5, fanuc_params
 
-README = " ".join((ROOT / "README.md").read_text().split())          # line breaks as spaces
+README = " ".join((ROOT / "README.md").read_text().split())  # line breaks as spaces
 SCENARIO = " ".join((ROOT / "scenarios" / "paper_table5.toml").read_text().split())
-Q2 = np.radians(np.linspace(0.0, 120.0, 121))      # the bench's (the paper's) q2 range
+Q2 = np.radians(np.linspace(0.0, 120.0, 121))  # the bench's (the paper's) q2 range
 
 
 @pytest.fixture(scope="module")
@@ -35,7 +36,7 @@ def motor2_gravity_torque(robot: Robot, q: np.ndarray, payload: float = 0.0) -> 
     d.qvel[:] = 0.0
     mujoco.mj_fwdPosition(m, d)
     mujoco.mj_fwdVelocity(m, d)
-    tau = motor_forces(robot, d, -d.qfrc_bias.copy())       # gravity's generalised force
+    tau = motor_forces(robot, d, -d.qfrc_bias.copy())  # gravity's generalised force
     if payload:
         tau = tau + motor_jacobian(robot, d, robot.payload_site)[:3].T @ robot.weight(payload)
     return float(tau[1])
@@ -48,7 +49,11 @@ def amplitude(robot, q_rest, payload) -> tuple[float, float, float]:
     tau = np.array([motor2_gravity_torque(robot, np.r_[q_rest[0], x, q_rest[1:]], payload) for x in q2])
     x = np.column_stack([np.sin(q2), np.cos(q2), np.ones_like(q2)])
     (a, b, c), *_ = np.linalg.lstsq(x, tau, rcond=None)
-    return float(np.hypot(a, b)), float(np.degrees(np.arctan2(b, a))), float(np.std(tau - x @ [a, b, c]) / np.hypot(a, b))
+    return (
+        float(np.hypot(a, b)),
+        float(np.degrees(np.arctan2(b, a))),
+        float(np.std(tau - x @ [a, b, c]) / np.hypot(a, b)),
+    )
 
 
 def test_motor2_gravity_torque_amplitude(robot):
@@ -59,7 +64,7 @@ def test_motor2_gravity_torque_amplitude(robot):
         for q in TABLE5[[0, 2, 6, 9]]:
             a, phi, rel = amplitude(robot, np.delete(q, 1), payload)
             assert a == pytest.approx(a_readme, abs=0.05e3) and phi == pytest.approx(-30.0, abs=0.01)
-            assert rel < 1e-9                                   # exactly a sinusoid
+            assert rel < 1e-9  # exactly a sinusoid
     assert "A = 10.1 kN·m" in README and "17.8 kN·m with the 700 kg payload" in README
 
 
@@ -94,9 +99,15 @@ def test_best_balancer_cancels_87_percent(robot):
     def rest(x):
         return tg + compensator_torque(robot, Q2, x[0] * 1e5, x[1])
 
-    best = min((least_squares(rest, [k, s], bounds=([0.0, 0.05], [1e3, 5.0]))
-                for k in (0.3, 1.0, 3.0) for s in (0.5, 0.8, 1.1)), key=lambda r: r.cost)
-    cancelled = 1 - np.sqrt(np.mean(rest(best.x) ** 2)) / np.sqrt(np.mean(tg ** 2))
+    best = min(
+        (
+            least_squares(rest, [k, s], bounds=([0.0, 0.05], [1e3, 5.0]))
+            for k in (0.3, 1.0, 3.0)
+            for s in (0.5, 0.8, 1.1)
+        ),
+        key=lambda r: r.cost,
+    )
+    cancelled = 1 - np.sqrt(np.mean(rest(best.x) ** 2)) / np.sqrt(np.mean(tg**2))
     assert cancelled == pytest.approx(0.868, abs=0.002)
     assert best.x[0] * 1e5 == pytest.approx(6.0e4, rel=0.02) and best.x[1] == pytest.approx(0.66, abs=0.01)
     assert "cancels 87 %" in README
@@ -105,8 +116,8 @@ def test_best_balancer_cancels_87_percent(robot):
 def test_q2_mapping_is_an_assumption(robot):
     """The paper gives q2 in [0, 120] deg and no zero; q2 = FANUC J2 + 30 deg puts it on J2's
     [-30, 90] deg, and so does the reverse, J2 = 90 deg - q2: the limits cannot tell them apart."""
-    lo, hi = np.degrees(robot.limits()[1])                    # the model's q2 = J2 + 30
-    j2_lo, j2_hi = lo - 30.0, hi - 30.0                       # FANUC J2's own limits
+    lo, hi = np.degrees(robot.limits()[1])  # the model's q2 = J2 + 30
+    j2_lo, j2_hi = lo - 30.0, hi - 30.0  # FANUC J2's own limits
     assert (j2_lo, j2_hi) == (pytest.approx(-64.0, abs=0.1), pytest.approx(90.0, abs=0.1))
     for to_j2 in (lambda q2: q2 - 30.0, lambda q2: 90.0 - q2):
         image = sorted(to_j2(np.array([0.0, 120.0])))

@@ -10,6 +10,7 @@ Tolerances.
 * The rigid fit's Monte Carlo: 400 draws, so an empirical/reported std ratio has sampling error
   1/sqrt(2 x 399) = 0.035; the test allows 4 of them (0.14).
 """
+
 from __future__ import annotations
 
 import json
@@ -17,16 +18,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from calbench.bench.log.writer import read_log
-from calbench.identify.core.rigid import fit_rigid, rotation_exp
-from calbench.identify.cli import main
 from conftest import MJCF, PAPER
 from test_import import identify_json, plan_text, rows_of, simulate_and_export, write_rows
 
+from calbench.bench.log.writer import read_log
+from calbench.identify.cli import main
+from calbench.identify.core.rigid import fit_rigid, rotation_exp
+
 AXIS = np.array([0.3, -0.5, 0.81])
-R_EXTRA = rotation_exp(np.radians(40.0) * AXIS / np.linalg.norm(AXIS))   # tens of degrees, tilted
-TRACKER = np.array([3.5, -3.5, 3.2])                                        # 5.9 m from the base
+R_EXTRA = rotation_exp(np.radians(40.0) * AXIS / np.linalg.norm(AXIS))  # tens of degrees, tilted
+TRACKER = np.array([3.5, -3.5, 3.2])  # 5.9 m from the base
 
 
 @pytest.fixture(scope="module")
@@ -36,8 +37,12 @@ def work(tmp_path_factory) -> Path:
     (d / "plan.toml").write_text(plan_text(False))
     # the same readings from a tracker frame turned by 40 degrees about a tilted axis
     write_rows(d / "turned.csv", rows_of(d / "paper.csv"), lambda y: R_EXTRA.T @ y)
-    assert main(["import", str(d / "turned.csv"), "--plan", str(d / "plan.toml"),
-                 "--out", str(d / "turned.mcap")]) == 0
+    assert (
+        main(
+            ["import", str(d / "turned.csv"), "--plan", str(d / "plan.toml"), "--out", str(d / "turned.mcap")]
+        )
+        == 0
+    )
     return d
 
 
@@ -54,13 +59,13 @@ def test_registered_pose_is_the_true_one_within_its_uncertainty(work):
     reg = log.header["imported"]["registration"]
     assert log.header["imported"]["tracker_pose"] == "registered" and reg["converged"]
     rot = np.array(log.header["tracker"]["rotation"])
-    truth = R_EXTRA                                       # world from the turned frame (yaw 0)
+    truth = R_EXTRA  # world from the turned frame (yaw 0)
     d = rot @ truth.T
     w = np.array([d[2, 1] - d[1, 2], d[0, 2] - d[2, 0], d[1, 0] - d[0, 1]]) / 2
     assert np.all(np.abs(w) < 5 * np.array(reg["rotation_std"])), (w, reg["rotation_std"])
     pos = np.array(log.header["tracker"]["position"])
     assert np.all(np.abs(pos - TRACKER) < 5 * np.array(reg["position_std"]))
-    assert 1e-7 < max(reg["rotation_std"]) < 1e-5        # ~1 urad: 44 points at 20 um over ~2 m
+    assert 1e-7 < max(reg["rotation_std"]) < 1e-5  # ~1 urad: 44 points at 20 um over ~2 m
     # the residual is the tracker's noise: chi2/dof within 4 sd of 1 (dof ~ 250)
     assert abs(reg["chi2_per_dof"] - 1) < 4 * np.sqrt(2 / (3 * reg["points"] - 14))
     assert reg["warnings"] == [] and reg["sag_parameters"]["compensator_preload"] > 0
@@ -70,7 +75,7 @@ def test_rigid_fit_reports_honest_uncertainty():
     rng = np.random.default_rng(7)
     p = rng.uniform(-1.5, 1.5, (40, 3))
     rot, t = rotation_exp(np.radians([10.0, -30.0, 40.0])), np.array([3.0, -4.0, 2.0])
-    y = (p - t) @ rot                                     # tracker frame
+    y = (p - t) @ rot  # tracker frame
     # an anisotropic covariance per point (spec-like: distance 10 um, transverse 40 um)
     u = y / np.linalg.norm(y, axis=1, keepdims=True)
     uu = u[:, :, None] * u[:, None, :]
@@ -108,7 +113,7 @@ def test_without_deflections_the_registration_is_rigid_and_says_so(work, capsys)
 
 def test_readings_of_other_poses_are_refused(work, capsys):
     rows = rows_of(work / "paper.csv")
-    for r in rows:                                          # every pose index shifted by one
+    for r in rows:  # every pose index shifted by one
         r["pose"] = str((int(r["pose"]) + 1) % 16)
     p = write_rows(work / "shifted.csv", rows)
     out = work / "shifted.mcap"
@@ -124,11 +129,25 @@ def test_a_geometry_error_draws_the_warning(work, tmp_path, capsys):
     text = MJCF.read_text()
     assert '<body name="link5" pos="0.785 0 0">' in text
     model = tmp_path / "longer.xml"
-    model.write_text(text.replace('<body name="link5" pos="0.785 0 0">',
-                                  '<body name="link5" pos="0.788 0 0">'))
+    model.write_text(
+        text.replace('<body name="link5" pos="0.785 0 0">', '<body name="link5" pos="0.788 0 0">')
+    )
     out = tmp_path / "longer.mcap"
-    assert main(["import", str(work / "turned.csv"), "--plan", str(work / "plan.toml"),
-                 "--out", str(out), "--model", str(model)]) == 0
+    assert (
+        main(
+            [
+                "import",
+                str(work / "turned.csv"),
+                "--plan",
+                str(work / "plan.toml"),
+                "--out",
+                str(out),
+                "--model",
+                str(model),
+            ]
+        )
+        == 0
+    )
     err = capsys.readouterr().err
     assert "warning: registration residual" in err and "the nominal geometry is off" in err
     reg = read_log(out).header["imported"]["registration"]
@@ -147,14 +166,16 @@ def test_the_imported_log_works_in_every_verb(work, capsys):
     assert (work / "v.rrd").stat().st_size > 0
     assert main(["export", str(log), "--csv", str(work / "again.csv")]) == 0
     back, orig = rows_of(work / "again.csv"), rows_of(work / "turned.csv")
-    assert [(r["pose"], r["state"], r["point"]) for r in back] == \
-        [(r["pose"], r["state"], r["point"]) for r in orig]
+    assert [(r["pose"], r["state"], r["point"]) for r in back] == [
+        (r["pose"], r["state"], r["point"]) for r in orig
+    ]
     assert max(abs(float(a[c]) - float(b[c])) for a, b in zip(back, orig) for c in "xyz") < 1.01e-6
 
 
 def test_a_logged_rotation_must_be_a_rotation():
     from calbench.bench.core.errors import InputError
     from calbench.bench.scenario.parse import TrackerSpec
+
     good = TrackerSpec(np.zeros(3)).placed(TRACKER, R_EXTRA).to_dict()
     assert np.allclose(TrackerSpec.from_dict(good).rotation, R_EXTRA)
     for bad in (np.diag([1.0, 1.0, -1.0]), 1.01 * np.eye(3), [[1, 0], [0, 1]]):
@@ -169,25 +190,42 @@ def test_round_trip_under_the_correlated_tracker(tmp_path):
     not chi2-distributed here, ~0.5 measured: the field is shared by a reflector's two states and
     by nearby poses, and the pose absorbs part of it.)"""
     scn = tmp_path / "iso.toml"
-    scn.write_text(PAPER.read_text().replace('robot = "../mjcf/m900ib700.xml"', f'robot = "{MJCF.as_posix()}"')
-                   .replace("sigma = 20e-6                     # m per axis (isotropic)", 'model = "iso10360"'))
+    scn.write_text(
+        PAPER.read_text()
+        .replace('robot = "../mjcf/m900ib700.xml"', f'robot = "{MJCF.as_posix()}"')
+        .replace("sigma = 20e-6                     # m per axis (isotropic)", 'model = "iso10360"')
+    )
     plan = tmp_path / "plan.toml"
-    plan.write_text(plan_text(False).replace("sigma = 20e-6                     # m per axis (isotropic)",
-                                             'model = "iso10360"'))
+    plan.write_text(
+        plan_text(False).replace(
+            "sigma = 20e-6                     # m per axis (isotropic)", 'model = "iso10360"'
+        )
+    )
     assert main(["simulate", str(scn), "--out", str(tmp_path / "iso.mcap")]) == 0
     assert main(["export", str(tmp_path / "iso.mcap"), "--csv", str(tmp_path / "iso.csv")]) == 0
     rows = rows_of(tmp_path / "iso.csv")
-    assert "sigma" not in rows[0]                         # anisotropic readings: the plan's model
+    assert "sigma" not in rows[0]  # anisotropic readings: the plan's model
     write_rows(tmp_path / "turned.csv", rows, lambda y: R_EXTRA.T @ y)
-    assert main(["import", str(tmp_path / "turned.csv"), "--plan", str(plan),
-                 "--out", str(tmp_path / "turned.mcap")]) == 0
+    assert (
+        main(
+            [
+                "import",
+                str(tmp_path / "turned.csv"),
+                "--plan",
+                str(plan),
+                "--out",
+                str(tmp_path / "turned.mcap"),
+            ]
+        )
+        == 0
+    )
     a = identify_json(tmp_path / "iso.mcap", tmp_path / "a.json")
     b = identify_json(tmp_path / "turned.mcap", tmp_path / "b.json")
     for pa, pb in zip(a["parameters"], b["parameters"]):
         assert abs(pb["estimate"] - pa["estimate"]) < 0.05 * pa["std"], pa["name"]
         assert pb["std"] == pytest.approx(pa["std"], rel=1e-3), pa["name"]
     reg = read_log(tmp_path / "turned.mcap").header["imported"]["registration"]
-    assert reg["warnings"] == []        # no false geometry alarm: chi2/dof below the threshold
+    assert reg["warnings"] == []  # no false geometry alarm: chi2/dof below the threshold
 
 
 def test_unloaded_positions_are_the_same_stacked_or_scalar():
@@ -199,6 +237,7 @@ def test_unloaded_positions_are_the_same_stacked_or_scalar():
     from calbench.bench.scenario.parse import load_scenario
     from calbench.identify.core.forward import ForwardModel, design_from_observations
     from calbench.identify.study.montecarlo import campaign_observations, true_theta
+
     scn = load_scenario(PAPER)
     tr = truth_robot(scn)
     obs = campaign_observations(scn, tr, plan_campaign(scn, tr), None)
@@ -208,7 +247,7 @@ def test_unloaded_positions_are_the_same_stacked_or_scalar():
         fm = ForwardModel(robot, design_from_observations(robot, obs), batched=batched)
         theta = true_theta(scn, robot)
         fm.evaluate(theta)
-        fm.evaluate(theta * 1.01)                          # warm: the stacked path when batched
+        fm.evaluate(theta * 1.01)  # warm: the stacked path when batched
         out.append(fm.unloaded)
     (xa, ja), (xb, jb) = out
     assert np.max(np.abs(xa - xb)) < 1e-10
@@ -219,6 +258,7 @@ def test_the_view_says_the_log_was_imported_and_registered(work):
     """An imported log's pose page names the readings file and the registration's fit, in the
     numbers /campaign/info.imported records; a simulated log's page says neither."""
     from test_view import page_at
+
     info = read_log(work / "turned.mcap").header["imported"]
     reg = info["registration"]
     pages = {}
@@ -226,7 +266,12 @@ def test_the_view_says_the_log_was_imported_and_registered(work):
         rrd = work / f"{name}.rrd"
         assert main(["view", str(work / f"{name}.mcap"), "--rrd", str(rrd)]) == 0
         pages[name] = page_at(rrd, 0)
-    assert f"**Imported** from `{info['source']}` ({info['rows']} readings in {info['units']})" in pages["turned"]
-    assert (f"tracker pose registered to the readings: residual {reg['rms'] * 1e6:.1f} µm RMS per "
-            f"axis against {reg['expected_rms'] * 1e6:.1f} µm expected") in pages["turned"]
+    assert (
+        f"**Imported** from `{info['source']}` ({info['rows']} readings in {info['units']})"
+        in pages["turned"]
+    )
+    assert (
+        f"tracker pose registered to the readings: residual {reg['rms'] * 1e6:.1f} µm RMS per "
+        f"axis against {reg['expected_rms'] * 1e6:.1f} µm expected"
+    ) in pages["turned"]
     assert "Imported" not in pages["paper"]

@@ -1,16 +1,16 @@
 """The identify JSON's per-observation block: what `calbench view --identified` draws."""
+
 from __future__ import annotations
 
 import json
 
 import numpy as np
+from conftest import PAPER
 
 from calbench.bench.log.writer import read_log
 from calbench.bench.view.recording import measured_deflections
 from calbench.identify.cli import main
 from calbench.identify.core.observations import from_log
-from conftest import PAPER
-
 
 
 def test_observations_are_measured_minus_residual_and_match_the_chi2(tmp_path):

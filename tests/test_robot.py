@@ -8,16 +8,17 @@ error ~1e-15), allowed 1e-12; central differences of a force linear in K_C and s
 h = 1e-6 carry O(h^2) = 1e-12 truncation and eps |g| / (h |dg/dtheta_i| theta_i) ~ 1e-7
 round-off at worst here, allowed 1e-6 of each column.
 """
+
 from __future__ import annotations
 
 import mujoco
 import numpy as np
 import pytest
+from conftest import K_TRUE, MJCF, PAPER
 
 from calbench.bench.campaign.run import pose_load
 from calbench.bench.model.robot import LOOP_MARGIN, LOOP_MARGIN_ANGLE, Params, Robot, Spring
 from calbench.bench.scenario.parse import load_scenario
-from conftest import K_TRUE, MJCF, PAPER
 
 
 def make_robot() -> Robot:
@@ -49,7 +50,7 @@ def test_derived_loop_rule_is_the_crank_to_arm_angle_on_the_fanuc():
     for q in lim[:, 0] + (lim[:, 1] - lim[:, 0]) * rng.random((40, robot.n_act)):
         (cond,) = robot.loop_conditioning(q)
         assert cond == pytest.approx(np.tan(crank_arm_angle(robot, q) / 2), abs=1e-12)
-        old = np.mod(q[2] - q[1] + np.radians(120.0), np.pi)       # the old table's angle
+        old = np.mod(q[2] - q[1] + np.radians(120.0), np.pi)  # the old table's angle
         assert robot.loop_ok(q) is bool(min(old, np.pi - old) >= np.radians(10.0))
     assert LOOP_MARGIN == pytest.approx(np.tan(LOOP_MARGIN_ANGLE / 2), rel=1e-15)
     # the margin's two sides, at both degenerate configurations (q3 - q2 = -120 and 60 deg)
@@ -78,7 +79,7 @@ def test_dforce_dtheta_is_the_derivative_of_the_passive_force():
     q = np.radians([20.0, 35.0, -30.0, 45.0, -30.0, 60.0])
     robot.set_command(q)
     qpos = robot.rigid_qpos(q)
-    qpos[robot.act_qpos] += rng.normal(scale=2e-3, size=robot.n_act)   # deflected springs
+    qpos[robot.act_qpos] += rng.normal(scale=2e-3, size=robot.n_act)  # deflected springs
     theta = np.r_[K_TRUE, 2.6e6, 0.83]
     to_params = robot.layout.params
     passive_force(robot, qpos, to_params(theta))

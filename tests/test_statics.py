@@ -4,18 +4,24 @@ Tolerances come from the physics: the linear VJM formula (1) differs from the ex
 equilibrium by terms of order |W| * lever * k (the load's own geometric stiffness), ~1e-4 here,
 well inside the 0.1 % the issue asks for; finite differences carry O(h^2) error.
 """
-from __future__ import annotations
 
+from __future__ import annotations
 
 import mujoco
 import numpy as np
 import pytest
-
-from calbench.bench.model.loop import loop_gap, motor_jacobian, motor_map
-from calbench.bench.model.robot import Robot
-from calbench.bench.statics.equilibrium import LOOP_TOL, Load, NewtonPoint, StaticsError, StaticsSolver, statics_options
 from conftest import K_TRUE, MJCF, TABLE5, fanuc_params
 
+from calbench.bench.model.loop import loop_gap, motor_jacobian
+from calbench.bench.model.robot import Robot
+from calbench.bench.statics.equilibrium import (
+    LOOP_TOL,
+    Load,
+    NewtonPoint,
+    StaticsError,
+    StaticsSolver,
+    statics_options,
+)
 
 
 def make_robot(k_c: float = 2.6e6, s0: float = 0.83) -> Robot:
@@ -188,7 +194,7 @@ def test_eq16_equivalent_serial_compliance_is_not_diagonal():
     e0 = solver.solve(q, gravity=False)
     robot.data.qpos[:] = e0.qpos
     mujoco.mj_kinematics(m, robot.data)
-    axis = robot.data.xaxis[robot.act_joint[1]].copy()        # J2's axis in the world
+    axis = robot.data.xaxis[robot.act_joint[1]].copy()  # J2's axis in the world
     moment = 50.0
 
     def turn(body: str) -> np.ndarray:
@@ -200,8 +206,8 @@ def test_eq16_equivalent_serial_compliance_is_not_diagonal():
     on_forearm, on_upper = turn("forearm"), turn("upper_arm")
     np.testing.assert_allclose(on_forearm, [0.0, k3], atol=1e-4 * k3)
     np.testing.assert_allclose(on_upper, [k2, -k2], rtol=1e-4)
-    np.testing.assert_allclose(on_forearm - on_upper, [-k2, k2 + k3], rtol=1e-4)   # the elbow torque
-    printed = np.array([[k2, -k3], [-k3, k3]]) @ [0.0, 1.0]    # what eq. (16) as printed says
+    np.testing.assert_allclose(on_forearm - on_upper, [-k2, k2 + k3], rtol=1e-4)  # the elbow torque
+    printed = np.array([[k2, -k3], [-k3, k3]]) @ [0.0, 1.0]  # what eq. (16) as printed says
     assert np.abs(printed - (on_forearm - on_upper)).max() > 0.5 * k3
 
 
@@ -246,9 +252,10 @@ def test_apparent_j2_stiffness_varies_over_plan_q2_range():
     compensator's and the drive's springs only) equals eq. (10) with sin^2,
     K2 + K_C l_c l_2 eta(psi) at the equilibrium's q2, to 1e-4 (the moment's own geometric
     stiffness); over q2 in [0, 120] deg it varies by 16.3 % (README "Default truth values")."""
-    from conftest import fanuc_truth
+    from conftest import PAPER, fanuc_truth
+
     from calbench.bench.scenario.parse import load_scenario
-    from conftest import PAPER
+
     robot = Robot.from_file(MJCF)
     truth = fanuc_truth(load_scenario(PAPER))
     robot.set_params(truth)
@@ -268,8 +275,10 @@ def test_apparent_j2_stiffness_varies_over_plan_q2_range():
         k_eq10.append(1.0 / truth.compliance[1] + compensator_torque_and_stiffness(robot, e0.qpos[j2])[1])
     np.testing.assert_allclose(k_statics, k_eq10, rtol=1e-4)
     # so eq. (10), checked at the (spring-sagged) equilibria, gives the variation over the range
-    k = [1.0 / truth.compliance[1] + compensator_torque_and_stiffness(robot, q2)[1]
-         for q2 in np.radians(np.linspace(0.0, 120.0, 1201))]
+    k = [
+        1.0 / truth.compliance[1] + compensator_torque_and_stiffness(robot, q2)[1]
+        for q2 in np.radians(np.linspace(0.0, 120.0, 1201))
+    ]
     assert max(k) / min(k) - 1.0 == pytest.approx(0.163, abs=0.0005)
 
 
@@ -285,8 +294,9 @@ def relaxed_flange(robot: Robot, q: np.ndarray, load: Load, damping: float, max_
     mujoco.mj_forward(m, d)
     for step in range(max_steps):
         d.qfrc_applied[:] = 0.0
-        mujoco.mj_applyFT(m, d, load.force, load.moment, d.site_xpos[load.site], m.site_bodyid[load.site],
-                          d.qfrc_applied)
+        mujoco.mj_applyFT(
+            m, d, load.force, load.moment, d.site_xpos[load.site], m.site_bodyid[load.site], d.qfrc_applied
+        )
         mujoco.mj_step(m, d)
         if step > 100 and np.abs(d.qvel).max() < 1e-9:
             break
@@ -319,6 +329,7 @@ def test_degenerate_parallelogram_is_a_clear_error():
 # --------------------------------------------------------------------------- building blocks
 # bench/statics/equilibrium.py's public pieces, each against an independent computation (mink-style:
 # every Jacobian against finite differences).
+
 
 def solved(q=TABLE5[9], tol=1e-10, wrench=None):
     robot = make_robot()
@@ -356,12 +367,14 @@ def test_residual_is_the_force_balance_at_a_solution():
     robot, solver, load, _, e1 = solved()
     with statics_options(robot):
         res = solver.residual(e1.qpos, load, e1.lam, e1.basis)
-        assert np.abs(res.r).max() <= solver.tol * e1.gravity_scale * 1.01   # scale moves ~1e-3
+        assert np.abs(res.r).max() <= solver.tol * e1.gravity_scale * 1.01  # scale moves ~1e-3
         assert np.abs(res.c_r).max() <= LOOP_TOL
         unloaded = solver.residual(e1.qpos, None, e1.lam, e1.basis)
         m, d = robot.model, robot.data
         qfrc = np.zeros(m.nv)
-        mujoco.mj_applyFT(m, d, load.force, load.moment, d.site_xpos[load.site], m.site_bodyid[load.site], qfrc)
+        mujoco.mj_applyFT(
+            m, d, load.force, load.moment, d.site_xpos[load.site], m.site_bodyid[load.site], qfrc
+        )
     # both sides are sums of ~1e4 N*m terms: agreement to round-off (1e-16 x 1e4 x a few)
     np.testing.assert_allclose(res.r - unloaded.r, qfrc, atol=1e-9)
 

@@ -3,6 +3,7 @@
 In-process and small (the cluster is tests/test_cluster.py's): 2-3 cells of 2-3 identify-only
 campaigns of the paper plan.
 """
+
 from __future__ import annotations
 
 import math
@@ -10,6 +11,7 @@ import math
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from conftest import PAPER
 
 from calbench.bench.core.errors import InputError
 from calbench.identify.cli import main
@@ -17,7 +19,6 @@ from calbench.identify.study import load_study, prepare, run_study
 from calbench.identify.study.campaign import TIMING_COLUMNS
 from calbench.identify.study.run import design_key
 from calbench.identify.study.spec import scaled
-from conftest import PAPER
 
 BASE = f'scenario = "{PAPER.as_posix()}"\n'
 
@@ -28,25 +29,66 @@ def write(tmp_path, body: str, name: str = "study.toml"):
     return p
 
 
-@pytest.mark.parametrize("body, key, expected", [
-    (BASE + 'seeds = 2\n[[axis]]\nkey = "tracker.sigmaa"\nvalues = [1e-5]\n', "tracker.sigmaa", "no such key"),
-    (BASE + 'seeds = 2\n[[axis]]\nkey = "tracker.sigma"\nvalues = []\n', "axis[0].values", "non-empty"),
-    (BASE + 'seeds = 2\n[[axis]]\nkey = "tracker.sigma"\nvalues = [2e-5, -1e-5]\n', "tracker.sigma", "> 0"),
-    (BASE + 'seeds = 2\n[[axis]]\nkey = "load.mass"\nvalues = ["heavy"]\n', "load.mass", "finite number"),
-    (BASE + 'seeds = 2\n[[axis]]\nkey = "truth.compliance[7]"\nvalues = [1e-7]\n', "truth.compliance[7]", "index"),
-    (BASE + 'seeds = 2\n[[axis]]\nkey = "plan"\nvalues = ["design:Q:12"]\n', "plan", "design:<criterion>:<M>"),
-    (BASE + 'seeds = 2\n[[axis]]\nkey = "plan"\nvalues = ["missing.toml"]\n', "plan", "readable scenario file"),
-    (BASE + 'seeds = 2\n[[axis]]\nname = "s"\nkey = "seed"\nvalues = [1, 2]\n', "seed", "other than robot and seed"),
-    (BASE + 'seeds = 0\n', "seeds", ">= 1"),
-    (BASE + 'seeds = 2\nmagic = 1\n', "magic", "no such key"),
-    (BASE + 'seeds = 2\n[campaign]\nmethod = "three-step"\n', "campaign.method", "one-step"),
-    (BASE + 'seeds = 2\n[[axis]]\nname = "m"\nvalues = [1.0]\nscales = "nothing"\n', "axis[0].scales", "another axis"),
-    (BASE + 'seeds = 2\n[[axis]]\nname = "e"\ncases = [{label = "j3", set = {"truth.effects.joint_nonlinearity" = '
+@pytest.mark.parametrize(
+    "body, key, expected",
+    [
+        (
+            BASE + 'seeds = 2\n[[axis]]\nkey = "tracker.sigmaa"\nvalues = [1e-5]\n',
+            "tracker.sigmaa",
+            "no such key",
+        ),
+        (BASE + 'seeds = 2\n[[axis]]\nkey = "tracker.sigma"\nvalues = []\n', "axis[0].values", "non-empty"),
+        (
+            BASE + 'seeds = 2\n[[axis]]\nkey = "tracker.sigma"\nvalues = [2e-5, -1e-5]\n',
+            "tracker.sigma",
+            "> 0",
+        ),
+        (BASE + 'seeds = 2\n[[axis]]\nkey = "load.mass"\nvalues = ["heavy"]\n', "load.mass", "finite number"),
+        (
+            BASE + 'seeds = 2\n[[axis]]\nkey = "truth.compliance[7]"\nvalues = [1e-7]\n',
+            "truth.compliance[7]",
+            "index",
+        ),
+        (
+            BASE + 'seeds = 2\n[[axis]]\nkey = "plan"\nvalues = ["design:Q:12"]\n',
+            "plan",
+            "design:<criterion>:<M>",
+        ),
+        (
+            BASE + 'seeds = 2\n[[axis]]\nkey = "plan"\nvalues = ["missing.toml"]\n',
+            "plan",
+            "readable scenario file",
+        ),
+        (
+            BASE + 'seeds = 2\n[[axis]]\nname = "s"\nkey = "seed"\nvalues = [1, 2]\n',
+            "seed",
+            "other than robot and seed",
+        ),
+        (BASE + "seeds = 0\n", "seeds", ">= 1"),
+        (BASE + "seeds = 2\nmagic = 1\n", "magic", "no such key"),
+        (BASE + 'seeds = 2\n[campaign]\nmethod = "three-step"\n', "campaign.method", "one-step"),
+        (
+            BASE + 'seeds = 2\n[[axis]]\nname = "m"\nvalues = [1.0]\nscales = "nothing"\n',
+            "axis[0].scales",
+            "another axis",
+        ),
+        (
+            BASE
+            + 'seeds = 2\n[[axis]]\nname = "e"\ncases = [{label = "j3", set = {"truth.effects.joint_nonlinearity" = '
             '{joint = 3, cubic = 6000000000000}}}]\n[[axis]]\nname = "m"\nvalues = [0.5]\nscales = "e"\n',
-     "axis[0] e", "floats only"),
-    (BASE + 'seeds = 2\n[[axis]]\nname = "cell"\nkey = "load.mass"\nvalues = [1.0]\n', "axis[0].name", "result column"),
-])
-def test_bad_studies_are_refused_naming_the_file_and_key_before_any_task(tmp_path, capsys, body, key, expected):
+            "axis[0] e",
+            "floats only",
+        ),
+        (
+            BASE + 'seeds = 2\n[[axis]]\nname = "cell"\nkey = "load.mass"\nvalues = [1.0]\n',
+            "axis[0].name",
+            "result column",
+        ),
+    ],
+)
+def test_bad_studies_are_refused_naming_the_file_and_key_before_any_task(
+    tmp_path, capsys, body, key, expected
+):
     path = write(tmp_path, body)
     with pytest.raises(InputError) as e:
         load_study(path)
@@ -55,11 +97,19 @@ def test_bad_studies_are_refused_naming_the_file_and_key_before_any_task(tmp_pat
     assert main(["study", str(path), "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert str(path) in err and key in err
-    assert not out.exists() and not (tmp_path / "r.parquet.parts").exists() and not (tmp_path / "r_plots").exists()
+    assert (
+        not out.exists()
+        and not (tmp_path / "r.parquet.parts").exists()
+        and not (tmp_path / "r_plots").exists()
+    )
 
 
 def test_the_grid_applies_every_axis_and_cells_with_equal_inputs_share_them(tmp_path):
-    study = load_study(write(tmp_path, BASE + """seeds = 3
+    study = load_study(
+        write(
+            tmp_path,
+            BASE
+            + """seeds = 3
 [set]
 "load.mass" = 500.0
 [[axis]]
@@ -73,7 +123,9 @@ scales = "effect"
 [[axis]]
 key = "tracker.sigma"
 values = [1e-5, 3e-5]
-"""))
+""",
+        )
+    )
     assert len(study.cells) == 8
     c = {(cl.values["effect"], cl.values["magnitude"], cl.values["tracker.sigma"]): cl for cl in study.cells}
     half = c[("base", 0.5, 3e-5)]
@@ -92,7 +144,11 @@ values = [1e-5, 3e-5]
 def test_cells_that_differ_by_a_hidden_effect_share_their_designed_plan(tmp_path):
     """The design model never has the truth's hidden effects (nominal_robot), so one plan per
     design:<c>:<M> and visible scenario serves every effect; a visible change designs anew."""
-    study = load_study(write(tmp_path, BASE + """seeds = 1
+    study = load_study(
+        write(
+            tmp_path,
+            BASE
+            + """seeds = 1
 [[axis]]
 name = "effect"
 cases = [{label = "none"},
@@ -101,7 +157,9 @@ cases = [{label = "none"},
 [[axis]]
 key = "plan"
 values = ["design:A:8"]
-"""))
+""",
+        )
+    )
     keys = {cl.values["effect"]: design_key(cl) for cl in study.cells}
     assert keys["none"] == keys["base"]
     assert keys["soft"] != keys["none"]
@@ -109,31 +167,44 @@ values = ["design:A:8"]
 
 def test_plot_ticks_name_a_plan_file_by_its_name():
     from calbench.identify.study.plots import _x
+
     x, labels = _x(["../scenarios/paper_table5.toml", "design:A:8", "/abs/plans/kr270_paper.toml"])
     assert list(x) == [0.0, 1.0, 2.0]
     assert labels == ["paper_table5.toml", "design:A:8", "kr270_paper.toml"]
-    assert _x([1e-5, 2e-5])[1] is None                  # numeric axes keep their values
+    assert _x([1e-5, 2e-5])[1] is None  # numeric axes keep their values
 
 
 def test_the_shipped_studies_are_valid():
     from importlib.resources import files
+
     power = load_study(files("calbench.studies") / "discovery_power.toml")
-    assert len(power.cells) == 48 and len({c.inputs for c in power.cells}) == 43      # "none" x 6 is one
+    assert len(power.cells) == 48 and len({c.inputs for c in power.cells}) == 43  # "none" x 6 is one
     expected = {c.values["effect"]: c.expected for c in power.cells}
-    assert expected == {"none": "nothing", "forearm": "link_compliance[forearm]",
-                        "upper_arm": "link_compliance[upper_arm]", "base": "base_compliance",
-                        "j3": "joint_nonlinearity[j3]", "compensator": "compensator", "drift": "tracker_drift",
-                        "tool": "unexplained"}
+    assert expected == {
+        "none": "nothing",
+        "forearm": "link_compliance[forearm]",
+        "upper_arm": "link_compliance[upper_arm]",
+        "base": "base_compliance",
+        "j3": "joint_nonlinearity[j3]",
+        "compensator": "compensator",
+        "drift": "tracker_drift",
+        "tool": "unexplained",
+    }
     plans = load_study(files("calbench.studies") / "tracker_poses_plan.toml")
     assert len(plans.cells) == 12 and {c.plan.split(":")[0] for c in plans.cells} == {
-        str(PAPER.resolve()), "design"}
+        str(PAPER.resolve()),
+        "design",
+    }
 
 
-SMALL = BASE + """seeds = {seeds}
+SMALL = (
+    BASE
+    + """seeds = {seeds}
 [[axis]]
 key = "tracker.sigma"
 values = [1e-5, 4e-5]
 """
+)
 
 
 def test_an_identify_only_task_does_not_import_discovery(tmp_path):
@@ -142,12 +213,15 @@ def test_an_identify_only_task_does_not_import_discovery(tmp_path):
     process runs such a study and must not have imported it."""
     import subprocess
     import sys
+
     study = write(tmp_path, SMALL.format(seeds=1))
-    code = ("import sys\n"
-            "from calbench.identify.study import load_study, prepare, run_study\n"
-            f"out = run_study(prepare(load_study({str(study)!r}), {str(tmp_path / 'r.parquet')!r}))\n"
-            "assert out.ran == 2 and out.failed == 0, out\n"
-            "print('calbench.identify.discover.workflow' in sys.modules)\n")
+    code = (
+        "import sys\n"
+        "from calbench.identify.study import load_study, prepare, run_study\n"
+        f"out = run_study(prepare(load_study({str(study)!r}), {str(tmp_path / 'r.parquet')!r}))\n"
+        "assert out.ran == 2 and out.failed == 0, out\n"
+        "print('calbench.identify.discover.workflow' in sys.modules)\n"
+    )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "False"
@@ -215,5 +289,6 @@ def test_study_cli_prints_the_cell_summary_and_draws_plots(tmp_path, capsys):
     assert "RMS z" in captured.out and "in this process" in captured.err
     assert (tmp_path / "r_plots" / "accuracy_tracker.sigma.png").stat().st_size > 0
     import json
+
     cells = json.loads(js.read_text())["cells"]
     assert [c["campaigns"] for c in cells] == [2, 2] and all(c["failed"] == 0 for c in cells)

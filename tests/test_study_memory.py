@@ -8,6 +8,7 @@ path forced through ``needs_log``) give bit-identical Parquet rows, timing colum
 the cell kinds the shipped studies use: isotropic, spec and iso10360 trackers, one-step and
 two-step, a hidden tracker drift, and discover (a hidden effect, a model without the compensator).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -15,6 +16,7 @@ import dataclasses
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from conftest import PAPER
 
 from calbench.bench.campaign.run import run_campaign
 from calbench.bench.log.writer import read_log
@@ -25,7 +27,6 @@ from calbench.identify.report.identification import truth_vector
 from calbench.identify.study import campaign as campaign_mod
 from calbench.identify.study import load_study, prepare, run_study
 from calbench.identify.study.campaign import TIMING_COLUMNS, needs_log, simulate_in_memory
-from conftest import PAPER
 
 SPEC = 'model = "spec"\ndistance = [1.0e-5, 2.0e-6]\ntransverse = [2.0e-5, 3.0e-6]\n'
 DRIFT = "[truth.effects.tracker_drift]\noffset = [30e-6, -20e-6, 25e-6]\n"
@@ -39,8 +40,11 @@ def differences(u, v, where="obs") -> list[str]:
         same = u.shape == v.shape and u.dtype == v.dtype and u.tobytes() == v.tobytes()
         return [] if same else [f"{where}: differs"]
     if dataclasses.is_dataclass(u):
-        return [d for f in dataclasses.fields(u) for d in differences(getattr(u, f.name), getattr(v, f.name),
-                                                                      f"{where}.{f.name}")]
+        return [
+            d
+            for f in dataclasses.fields(u)
+            for d in differences(getattr(u, f.name), getattr(v, f.name), f"{where}.{f.name}")
+        ]
     if isinstance(u, (list, tuple)):
         if len(u) != len(v):
             return [f"{where}: length {len(u)} vs {len(v)}"]
@@ -57,14 +61,15 @@ def _scenario(tmp_path, tracker: str = "", extra: str = ""):
     return load_scenario(path)
 
 
-@pytest.mark.parametrize("tracker, extra", [("", ""), (SPEC, ""), ("", DRIFT)],
-                         ids=["isotropic", "spec", "tracker drift"])
+@pytest.mark.parametrize(
+    "tracker, extra", [("", ""), (SPEC, ""), ("", DRIFT)], ids=["isotropic", "spec", "tracker drift"]
+)
 def test_the_in_memory_campaign_is_what_a_reader_of_its_log_without_truth_gets(tmp_path, tracker, extra):
     scn = _scenario(tmp_path, tracker, extra)
     assert not needs_log(scn)
     sim = simulate_in_memory(scn)
     run_campaign(scn, tmp_path / "s.mcap")
-    log = read_log(tmp_path / "s.mcap")                      # without truth, as identify reads it
+    log = read_log(tmp_path / "s.mcap")  # without truth, as identify reads it
     logged = from_log(log)
     # every field to the last bit; the source only names where they came from (nothing reads it)
     assert differences(dataclasses.replace(sim.obs, source=logged.source), logged) == []
@@ -79,6 +84,7 @@ def test_the_iso10360_tracker_goes_through_the_log():
     """Its covariances depend on the readings' times as the log stamps them (module docstring
     of identify/study/campaign.py): such a campaign is simulated into a log and read back."""
     from calbench.bench.scenario.parse import TrackerSpec
+
     scn = load_scenario(PAPER)
     iso = dataclasses.replace(scn, tracker=TrackerSpec(scn.tracker.position, model="iso10360"))
     assert needs_log(iso) and not needs_log(scn)
@@ -129,7 +135,12 @@ def _run_both_ways(tmp_path, monkeypatch, text: str):
     in_memory = len(written)
     monkeypatch.setattr(campaign_mod, "needs_log", lambda scn: True)
     run_study(prepare(load_study(study), tmp_path / "logs.parquet"))
-    return _rows(tmp_path / "memory.parquet"), _rows(tmp_path / "logs.parquet"), in_memory, len(written) - in_memory
+    return (
+        _rows(tmp_path / "memory.parquet"),
+        _rows(tmp_path / "logs.parquet"),
+        in_memory,
+        len(written) - in_memory,
+    )
 
 
 def _assert_identical(a: dict, b: dict) -> None:
@@ -141,7 +152,7 @@ def _assert_identical(a: dict, b: dict) -> None:
 def test_an_identify_study_in_memory_has_the_rows_of_the_study_through_logs(tmp_path, monkeypatch):
     mem, logs, n_mem, n_logs = _run_both_ways(tmp_path, monkeypatch, IDENTIFY)
     assert mem["error"] == [""] * 8 and logs["error"] == [""] * 8
-    assert (n_mem, n_logs) == (2, 8)                     # in memory: only the iso10360 cell's logs
+    assert (n_mem, n_logs) == (2, 8)  # in memory: only the iso10360 cell's logs
     _assert_identical(mem, logs)
 
 
@@ -149,5 +160,5 @@ def test_a_discover_study_in_memory_has_the_rows_of_the_study_through_logs(tmp_p
     mem, logs, n_mem, n_logs = _run_both_ways(tmp_path, monkeypatch, DISCOVER)
     assert mem["error"] == [""] * 2 and logs["error"] == [""] * 2
     assert (n_mem, n_logs) == (0, 2)
-    assert all(mem["named_first"])                      # discover ran and named something (or nothing)
+    assert all(mem["named_first"])  # discover ran and named something (or nothing)
     _assert_identical(mem, logs)

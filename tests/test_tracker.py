@@ -1,4 +1,5 @@
 """Simulated laser tracker: frames, noise model and its statistics, determinism, visibility."""
+
 from __future__ import annotations
 
 import math
@@ -9,12 +10,18 @@ import pytest
 
 from calbench.bench.scenario.parse import TrackerSpec
 from calbench.bench.tracker.instrument import (
-    Measurement, mean_reading, measure, noise_covariance, to_tracker_frame, to_world_frame,
-    tracker_rotation, visible_sites,
+    Measurement,
+    mean_reading,
+    measure,
+    noise_covariance,
+    to_tracker_frame,
+    to_world_frame,
+    tracker_rotation,
+    visible_sites,
 )
 
 N_DRAWS = 20000
-K_SE = 5.0   # tolerance in standard errors: a two-sided 5-sigma miss has probability ~6e-7
+K_SE = 5.0  # tolerance in standard errors: a two-sided 5-sigma miss has probability ~6e-7
 
 
 def spec(model: str = "spec", yaw: float = 0.7, **kw) -> TrackerSpec:
@@ -33,19 +40,19 @@ def test_rotation_is_yaw_about_z():
 def test_frame_round_trip_and_known_point():
     s = spec(yaw=math.pi / 2)
     # the world +y direction is the tracker's +x axis after a 90 degree yaw
-    np.testing.assert_allclose(to_tracker_frame(s, [s.position + [0, 3, 0]]), [[3, 0, 0]],
-                               atol=1e-15)
+    np.testing.assert_allclose(to_tracker_frame(s, [s.position + [0, 3, 0]]), [[3, 0, 0]], atol=1e-15)
     pts = np.random.default_rng(0).uniform(-5, 5, (50, 3))
     s = spec(yaw=-2.1)
     np.testing.assert_allclose(to_world_frame(s, to_tracker_frame(s, pts)), pts, atol=1e-14)
     np.testing.assert_allclose(to_tracker_frame(s, to_world_frame(s, pts)), pts, atol=1e-14)
     # distances from the tracker are frame independent
-    np.testing.assert_allclose(np.linalg.norm(to_tracker_frame(s, pts), axis=1),
-                               np.linalg.norm(pts - s.position, axis=1), rtol=1e-14)
+    np.testing.assert_allclose(
+        np.linalg.norm(to_tracker_frame(s, pts), axis=1), np.linalg.norm(pts - s.position, axis=1), rtol=1e-14
+    )
 
 
 def test_isotropic_covariance():
-    cov = noise_covariance(spec("isotropic", sigma=20e-6), np.array([[1, 2, 3], [4, 0, 0.]]))
+    cov = noise_covariance(spec("isotropic", sigma=20e-6), np.array([[1, 2, 3], [4, 0, 0.0]]))
     assert cov.shape == (2, 3, 3)
     np.testing.assert_array_equal(cov, np.broadcast_to(np.eye(3) * (20e-6) ** 2, (2, 3, 3)))
 
@@ -79,8 +86,7 @@ def test_sample_statistics_match_model(model):
     s = spec(model, sigma=20e-6)
     truth_w = np.array([[5.0, 3.0, 1.5]])
     truth_t = to_tracker_frame(s, truth_w)[0]
-    m = measure(s, np.repeat(truth_w, N_DRAWS, axis=0), np.ones(N_DRAWS, bool),
-                np.random.default_rng(12345))
+    m = measure(s, np.repeat(truth_w, N_DRAWS, axis=0), np.ones(N_DRAWS, bool), np.random.default_rng(12345))
     sigma = noise_covariance(s, truth_t[None])[0]
     np.testing.assert_allclose(m.covariance, np.broadcast_to(sigma, (N_DRAWS, 3, 3)))
     err = m.position - truth_t
@@ -96,7 +102,7 @@ def test_sample_statistics_match_model(model):
     for d in (u, v):
         model_var = d @ sigma @ d
         assert abs(np.var(err @ d, ddof=1) - model_var) < K_SE * model_var * np.sqrt(2 / (n - 1))
-    if model == "spec":   # anisotropy really present: along-sight sd well below transverse sd
+    if model == "spec":  # anisotropy really present: along-sight sd well below transverse sd
         assert np.std(err @ u) < 0.5 * np.std(err @ v)
 
 
@@ -152,8 +158,10 @@ def scene():
     model = mujoco.MjModel.from_xml_string(SCENE)
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
-    ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, n)
-           for n in ("hidden", "side", "behind", "past_ghost", "on_face")]
+    ids = [
+        mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, n)
+        for n in ("hidden", "side", "behind", "past_ghost", "on_face")
+    ]
     tracker = TrackerSpec(position=np.array([0.0, 0.0, 1.0]), yaw=0.4)
     return model, data, tracker, ids
 
@@ -168,13 +176,13 @@ def test_visibility_occlusion(scene):
 def test_visibility_group_below_3_blocks(scene):
     model, data, tracker, ids = scene
     ghost = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "ghost")
-    model.geom_group[ghost] = 0     # the same box, now in a blocking group, hides past_ghost
+    model.geom_group[ghost] = 0  # the same box, now in a blocking group, hides past_ghost
     assert not visible_sites(model, data, tracker, ids)[3]
 
 
 def test_visibility_follows_the_pose(scene):
     model, data, tracker, ids = scene
-    data.qpos[0] = 0.5              # slide the sites 0.5 m along y: "hidden" clears the wall
+    data.qpos[0] = 0.5  # slide the sites 0.5 m along y: "hidden" clears the wall
     mujoco.mj_kinematics(model, data)
     assert visible_sites(model, data, tracker, ids)[0]
     with pytest.raises(ValueError):
@@ -187,20 +195,23 @@ def test_mean_reading_against_a_hand_computation():
     only 'visible' row has no position)."""
     s = TrackerSpec(position=np.array([1.0, 2.0, 3.0]), yaw=math.pi / 2)
     nan3, nan33 = [np.nan] * 3, np.full((3, 3), np.nan)
-    first = Measurement(position=np.array([[1.0, 0.0, 0.0], nan3, nan3]),
-                        covariance=np.array([np.diag([1.0, 4.0, 9.0]) * 1e-10, nan33, nan33]),
-                        visible=np.array([True, False, True]))
-    second = Measurement(position=np.array([[3.0, 2.0, 0.0], [0.0, 1.0, 1.0], nan3]),
-                         covariance=np.array([np.eye(3) * 1e-10, np.eye(3) * 4e-10, nan33]),
-                         visible=np.array([True, True, False]))
+    first = Measurement(
+        position=np.array([[1.0, 0.0, 0.0], nan3, nan3]),
+        covariance=np.array([np.diag([1.0, 4.0, 9.0]) * 1e-10, nan33, nan33]),
+        visible=np.array([True, False, True]),
+    )
+    second = Measurement(
+        position=np.array([[3.0, 2.0, 0.0], [0.0, 1.0, 1.0], nan3]),
+        covariance=np.array([np.eye(3) * 1e-10, np.eye(3) * 4e-10, nan33]),
+        visible=np.array([True, True, False]),
+    )
     m = mean_reading(s, [first, second])
     assert m.seen.tolist() == [True, True, False] and m.count.tolist() == [2, 1, 0]
     # reflector 0: tracker-frame mean (2, 1, 0) -> world (-1, 2, 0) + (1, 2, 3)
     np.testing.assert_allclose(m.position[0], [0.0, 4.0, 3.0], rtol=0, atol=1e-15)
     # covariance of the mean: (diag(1,4,9) + I) e-10 / 2^2 = diag(0.5, 1.25, 2.5) e-10 in the
     # tracker frame; the 90 deg yaw swaps x and y
-    np.testing.assert_allclose(m.covariance[0], np.diag([1.25, 0.5, 2.5]) * 1e-10, rtol=1e-15,
-                               atol=1e-25)
+    np.testing.assert_allclose(m.covariance[0], np.diag([1.25, 0.5, 2.5]) * 1e-10, rtol=1e-15, atol=1e-25)
     # reflector 1: one reading (0, 1, 1) -> world (-1, 0, 1) + (1, 2, 3), its own covariance
     np.testing.assert_allclose(m.position[1], [0.0, 2.0, 4.0], rtol=0, atol=1e-15)
     np.testing.assert_allclose(m.covariance[1], np.eye(3) * 4e-10, rtol=1e-15, atol=1e-25)

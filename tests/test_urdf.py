@@ -10,6 +10,7 @@ equal the URDF's <inertial> values exactly; the parallelogram's passive angles a
 sums its geometry dictates; the compensator's triangle (paper Fig. 4) has the l_c, l_2 and angle
 the overlay placed. (The statics of such a robot are held to eq. (1) in test_description.py.)
 """
+
 from __future__ import annotations
 
 import json
@@ -20,24 +21,38 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
+from urdf_robots import ACTUATED, MOUNTS, TRUTH_K, arm_overlay, arm_urdf, joints, link_masses, scenario
 
 from calbench.bench.model.robot import Robot
 from calbench.bench.robots.urdf import CONTINUOUS_RANGE, PLACEHOLDER_STIFFNESS
 from calbench.identify.cli import main
-from urdf_robots import ACTUATED, MOUNTS, TRUTH_K, arm_overlay, arm_urdf, joints, link_masses, scenario
 
 VARIANTS = {"serial": (False, False), "compensator": (True, False), "loop": (False, True)}
 
 
-def build(folder: Path, compensator=False, loop=False, urdf: str | None = None, overlay: str | None = None,
-          name: str = "arm") -> tuple[int, Path]:
+def build(
+    folder: Path,
+    compensator=False,
+    loop=False,
+    urdf: str | None = None,
+    overlay: str | None = None,
+    name: str = "arm",
+) -> tuple[int, Path]:
     """Write the URDF and overlay into ``folder``, run from-urdf; (exit status, output path)."""
     folder.mkdir(parents=True, exist_ok=True)
     (folder / f"{name}.urdf").write_text(urdf if urdf is not None else arm_urdf(loop=loop))
     (folder / f"{name}.toml").write_text(overlay if overlay is not None else arm_overlay(compensator, loop))
     out = folder / f"{name}.xml"
-    rc = main(["from-urdf", str(folder / f"{name}.urdf"), "--overlay", str(folder / f"{name}.toml"),
-               "--out", str(out)])
+    rc = main(
+        [
+            "from-urdf",
+            str(folder / f"{name}.urdf"),
+            "--overlay",
+            str(folder / f"{name}.toml"),
+            "--out",
+            str(out),
+        ]
+    )
     return rc, out
 
 
@@ -54,6 +69,7 @@ def built(tmp_path_factory) -> dict[str, Path]:
 
 # --------------------------------------------------------------------------- end to end
 
+
 @pytest.mark.parametrize("tag", list(VARIANTS))
 def test_a_robot_from_urdf_simulates_and_identifies(built, tag, tmp_path, capsys):
     comp, loop = VARIANTS[tag]
@@ -65,8 +81,10 @@ def test_a_robot_from_urdf_simulates_and_identifies(built, tag, tmp_path, capsys
     assert "check passed" in capsys.readouterr().out
     rep = json.loads(js.read_text())
     names = [p["name"] for p in rep["parameters"]]
-    assert names == [f"k{i + 1}" for i in range(6)] + (["balancer_stiffness", "balancer_preload"] if comp else [])
-    for p in rep["parameters"]:                   # every parameter determined, none skipped by --check
+    assert names == [f"k{i + 1}" for i in range(6)] + (
+        ["balancer_stiffness", "balancer_preload"] if comp else []
+    )
+    for p in rep["parameters"]:  # every parameter determined, none skipped by --check
         assert p["estimate"] is not None and p["z"] is not None and abs(p["z"]) < 4.0
     assert [p["truth"] for p in rep["parameters"][:6]] == pytest.approx(TRUTH_K, rel=1e-12)
 
@@ -96,6 +114,7 @@ def test_the_robots_pass_check_robot(built, capsys):
 
 
 # --------------------------------------------------------------------------- the conversion
+
 
 def _rot(axis, angle) -> np.ndarray:
     x, y, z = np.asarray(axis, float) / np.linalg.norm(axis)
@@ -127,8 +146,13 @@ def urdf_fk(q: dict[str, float], loop: bool = False) -> dict[str, np.ndarray]:
 def test_sites_sit_where_the_urdf_kinematics_put_them(built):
     robot = Robot.from_file(built["serial"])
     m, d = robot.model, robot.data
-    ov = {"payload": ("tool0", (0.35, 0, -0.15)), "flange": ("tool0", (0, 0, 0)),
-          "r1": ("link_6", (0.25, 0.3, 0.25)), "r2": ("tool0", (0.15, -0.3, 0.25)), "r3": ("tool0", (0.15, 0, -0.35))}
+    ov = {
+        "payload": ("tool0", (0.35, 0, -0.15)),
+        "flange": ("tool0", (0, 0, 0)),
+        "r1": ("link_6", (0.25, 0.3, 0.25)),
+        "r2": ("tool0", (0.15, -0.3, 0.25)),
+        "r3": ("tool0", (0.15, 0, -0.35)),
+    }
     rng = np.random.default_rng(7)
     for _ in range(5):
         q = rng.uniform(-1.5, 1.5, 6)
@@ -145,13 +169,15 @@ def test_masses_ranges_and_springs_come_from_the_urdf_and_the_overlay(built):
         robot = Robot.from_file(built[tag])
         m = robot.model
         for link, mass in link_masses(loop).items():
-            assert m.body(link).mass[0] == mass                # exactly the URDF's <inertial>
-        assert m.body("tool0").mass[0] == 0.0                  # a frame: no mass, none invented
+            assert m.body(link).mass[0] == mass  # exactly the URDF's <inertial>
+        assert m.body("tool0").mass[0] == 0.0  # a frame: no mass, none invented
         assert np.all(m.geom_contype == 0) and np.all(m.geom_conaffinity == 0)
         d = robot.description
         assert d.actuated == tuple(ACTUATED) and d.reflectors == ("r1", "r2", "r3")
         assert (d.payload, d.flange) == ("payload", "flange")
-        assert d.compensators == (("balancer",) if comp else ()) and d.loops == (("parallelogram",) if loop else ())
+        assert d.compensators == (("balancer",) if comp else ()) and d.loops == (
+            ("parallelogram",) if loop else ()
+        )
         for name, typ, *_, lim in joints(loop):
             if typ == "fixed":
                 continue
@@ -169,8 +195,10 @@ def test_the_same_urdf_and_overlay_give_the_same_bytes(built, tmp_path):
 
 
 def test_hints_for_design_and_discovery_reach_the_description(tmp_path):
-    top = ('wrist = "link_5"\nlinks = ["link_2", "link_3"]\nmass_compensators = ["link_1"]\n'
-           'compensator_sites = "balancer"\n')
+    top = (
+        'wrist = "link_5"\nlinks = ["link_2", "link_3"]\nmass_compensators = ["link_1"]\n'
+        'compensator_sites = "balancer"\n'
+    )
     rc, out = build(tmp_path / "named", compensator=True, overlay=arm_overlay(True, top=top))
     assert rc == 0
     d = Robot.from_file(out).description
@@ -205,7 +233,7 @@ def test_the_parallelogram_closes_as_its_geometry_says(built):
 def test_the_compensator_triangle_is_the_one_the_overlay_placed(built):
     robot = Robot.from_file(built["compensator"])
     geo = robot.compensator_geometry(0)
-    assert geo.joint == 1                                      # across J2
+    assert geo.joint == 1  # across J2
     assert geo.l_c == pytest.approx(0.9, abs=1e-12) and geo.l_2 == pytest.approx(0.45, abs=1e-12)
     assert abs(geo.offset) == pytest.approx(math.radians(40.0), abs=1e-12)
     p = robot.params().springs["balancer"]
@@ -213,6 +241,7 @@ def test_the_compensator_triangle_is_the_one_the_overlay_placed(built):
 
 
 # --------------------------------------------------------------------------- bad input
+
 
 def _sub(old: str, new: str, compensator=False, loop=False) -> str:
     text = arm_overlay(compensator, loop)
@@ -225,36 +254,108 @@ BAD = {
     "toml syntax": (_sub("[payload]", "[payload"), None, "arm.toml", "line 3"),
     "unknown key": ("reflector = 1\n" + arm_overlay(), None, "arm.toml", "reflector: expected no such key"),
     "actuated missing": (_sub("actuated = ", "# "), None, "arm.toml", "actuated: expected this required key"),
-    "actuated unknown": (_sub('"joint_6"]', '"joint_7"]'), None, "arm.toml", "actuated[5]: expected a revolute"),
+    "actuated unknown": (
+        _sub('"joint_6"]', '"joint_7"]'),
+        None,
+        "arm.toml",
+        "actuated[5]: expected a revolute",
+    ),
     "actuated fixed": (_sub('"joint_6"]', '"tool0_joint"]'), None, "arm.toml", "actuated[5]"),
-    "actuated twice": (_sub('"joint_2"', '"joint_1"'), None, "arm.toml", "actuated[1]: expected each joint once"),
-    "a joint left free": (_sub(', "joint_6"]', "]"), None, "arm.toml", "actuated: expected every moving joint"),
-    "unknown link": (_sub('link = "tool0"', 'link = "tool9"'), None, "arm.toml", "payload.link: expected a link"),
-    "short pos": (_sub("pos = [0.35, 0.0, -0.15]", "pos = [0.35, 0.0]"), None, "arm.toml", "payload.pos: expected an array of 3"),
-    "too few reflectors": (arm_overlay().split("[reflectors.r3]")[0], None, "arm.toml", "reflectors: expected at least 3"),
-    "site name taken": (_sub("[reflectors.r3]", "[reflectors.payload]"), None, "arm.toml",
-                        "reflectors.payload: expected a site name other than 'payload'"),
-    "spring without stiffness": (_sub("stiffness = 1.5e6\n", "", compensator=True), None, "arm.toml",
-                                 "compensators.balancer.stiffness: expected this required key"),
-    "spring across two joints": (_sub('to = { link = "link_2"', 'to = { link = "link_3"', compensator=True), None,
-                                 "arm.toml", "compensators.balancer: expected attachments on two links with one actuated hinge"),
-    "loop passive incomplete": (_sub('passive = ["elbow", "rod"]', 'passive = ["elbow"]', loop=True), "loop",
-                                "arm.toml", "loops.parallelogram.passive: expected the joints between rod and link_3"),
-    "loop passive actuated": (_sub('passive = ["elbow", "rod"]', 'passive = ["elbow", "joint_2"]', loop=True), "loop",
-                              "arm.toml", "loops.parallelogram.passive[1]: expected a moving, not actuated joint"),
-    "loop that cannot close": (_sub("pos = [-0.4, -0.35, 0.0]", "pos = [-0.4, -0.2, 0.0]", loop=True), "loop",
-                               "arm.toml", "loops.parallelogram: expected sites that the passive joints can bring together"),
-    "mounts of no spring": (arm_overlay(top='compensator_sites = "spring"\n'), None, "arm.toml",
-                            "compensator_sites: expected the name of a [compensators.NAME] table (none)"),
-    "hint of no link": (arm_overlay(top='links = ["link_2", "link_9"]\n'), None, "arm.toml",
-                        "links[1]: expected a link of arm.urdf"),
-    "missing inertial": (arm_overlay(), arm_urdf(no_inertial="link_3"), "arm.urdf",
-                         "link 'link_3': expected an <inertial> on every moving link"),
-    "mimic joint": (arm_overlay(), arm_urdf().replace('<axis xyz="1.0 0.0 0.0"/><limit effort="20000" velocity="2"/></joint>\n'
-                                                      '  <joint name="tool0_joint"',
-                                                      '<axis xyz="1.0 0.0 0.0"/><limit effort="20000" velocity="2"/>'
-                                                      '<mimic joint="joint_4"/></joint>\n  <joint name="tool0_joint"'),
-                    "arm.urdf", "joint 'joint_6': expected no <mimic>"),
+    "actuated twice": (
+        _sub('"joint_2"', '"joint_1"'),
+        None,
+        "arm.toml",
+        "actuated[1]: expected each joint once",
+    ),
+    "a joint left free": (
+        _sub(', "joint_6"]', "]"),
+        None,
+        "arm.toml",
+        "actuated: expected every moving joint",
+    ),
+    "unknown link": (
+        _sub('link = "tool0"', 'link = "tool9"'),
+        None,
+        "arm.toml",
+        "payload.link: expected a link",
+    ),
+    "short pos": (
+        _sub("pos = [0.35, 0.0, -0.15]", "pos = [0.35, 0.0]"),
+        None,
+        "arm.toml",
+        "payload.pos: expected an array of 3",
+    ),
+    "too few reflectors": (
+        arm_overlay().split("[reflectors.r3]")[0],
+        None,
+        "arm.toml",
+        "reflectors: expected at least 3",
+    ),
+    "site name taken": (
+        _sub("[reflectors.r3]", "[reflectors.payload]"),
+        None,
+        "arm.toml",
+        "reflectors.payload: expected a site name other than 'payload'",
+    ),
+    "spring without stiffness": (
+        _sub("stiffness = 1.5e6\n", "", compensator=True),
+        None,
+        "arm.toml",
+        "compensators.balancer.stiffness: expected this required key",
+    ),
+    "spring across two joints": (
+        _sub('to = { link = "link_2"', 'to = { link = "link_3"', compensator=True),
+        None,
+        "arm.toml",
+        "compensators.balancer: expected attachments on two links with one actuated hinge",
+    ),
+    "loop passive incomplete": (
+        _sub('passive = ["elbow", "rod"]', 'passive = ["elbow"]', loop=True),
+        "loop",
+        "arm.toml",
+        "loops.parallelogram.passive: expected the joints between rod and link_3",
+    ),
+    "loop passive actuated": (
+        _sub('passive = ["elbow", "rod"]', 'passive = ["elbow", "joint_2"]', loop=True),
+        "loop",
+        "arm.toml",
+        "loops.parallelogram.passive[1]: expected a moving, not actuated joint",
+    ),
+    "loop that cannot close": (
+        _sub("pos = [-0.4, -0.35, 0.0]", "pos = [-0.4, -0.2, 0.0]", loop=True),
+        "loop",
+        "arm.toml",
+        "loops.parallelogram: expected sites that the passive joints can bring together",
+    ),
+    "mounts of no spring": (
+        arm_overlay(top='compensator_sites = "spring"\n'),
+        None,
+        "arm.toml",
+        "compensator_sites: expected the name of a [compensators.NAME] table (none)",
+    ),
+    "hint of no link": (
+        arm_overlay(top='links = ["link_2", "link_9"]\n'),
+        None,
+        "arm.toml",
+        "links[1]: expected a link of arm.urdf",
+    ),
+    "missing inertial": (
+        arm_overlay(),
+        arm_urdf(no_inertial="link_3"),
+        "arm.urdf",
+        "link 'link_3': expected an <inertial> on every moving link",
+    ),
+    "mimic joint": (
+        arm_overlay(),
+        arm_urdf().replace(
+            '<axis xyz="1.0 0.0 0.0"/><limit effort="20000" velocity="2"/></joint>\n'
+            '  <joint name="tool0_joint"',
+            '<axis xyz="1.0 0.0 0.0"/><limit effort="20000" velocity="2"/>'
+            '<mimic joint="joint_4"/></joint>\n  <joint name="tool0_joint"',
+        ),
+        "arm.urdf",
+        "joint 'joint_6': expected no <mimic>",
+    ),
     "not a URDF": (arm_overlay(), "<robot><link name='a'>", "arm.urdf", "(file): expected a readable URDF"),
 }
 
@@ -288,12 +389,16 @@ def test_a_link_without_inertial_is_an_error_even_without_geometry_unless_it_is_
     to its parent (tool0) is a frame and fine; one with geometry is not."""
     bare = arm_urdf(no_inertial="link_5").replace(
         '    <visual><origin xyz="0.1 0.0 0.0" rpy="1.5707963267948966 0.0 0.0"/><geometry><cylinder radius="0.1" length="0.22"/></geometry></visual>\n'
-        '    <collision><origin xyz="0.1 0.0 0.0" rpy="1.5707963267948966 0.0 0.0"/><geometry><cylinder radius="0.1" length="0.22"/></geometry></collision>\n', "")
-    assert "<cylinder radius=\"0.1\" length=\"0.22\"/>" not in bare
+        '    <collision><origin xyz="0.1 0.0 0.0" rpy="1.5707963267948966 0.0 0.0"/><geometry><cylinder radius="0.1" length="0.22"/></geometry></collision>\n',
+        "",
+    )
+    assert '<cylinder radius="0.1" length="0.22"/>' not in bare
     rc, _ = build(tmp_path / "a", urdf=bare)
     assert rc == 2 and "link 'link_5': expected an <inertial>" in capsys.readouterr().err
-    tool = arm_urdf().replace('  <link name="tool0"/>\n', '  <link name="tool0"><visual><geometry><box size="0.1 0.1 0.1"/>'
-                              '</geometry></visual></link>\n')
+    tool = arm_urdf().replace(
+        '  <link name="tool0"/>\n',
+        '  <link name="tool0"><visual><geometry><box size="0.1 0.1 0.1"/></geometry></visual></link>\n',
+    )
     rc, _ = build(tmp_path / "b", urdf=tool)
     assert rc == 2 and "link 'tool0': expected an <inertial>" in capsys.readouterr().err
 
@@ -305,8 +410,10 @@ TET_V = np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0], [0, 0, 0.1]])
 
 
 def _mesh(uri: str, scale=(1, 1, 1), xyz=(0, 0, 0), rpy=(0, 0, 0)) -> str:
-    return (f'    <collision><origin xyz="{" ".join(map(str, xyz))}" rpy="{" ".join(map(str, rpy))}"/>'
-            f'<geometry><mesh filename="{uri}" scale="{" ".join(map(str, scale))}"/></geometry></collision>\n')
+    return (
+        f'    <collision><origin xyz="{" ".join(map(str, xyz))}" rpy="{" ".join(map(str, rpy))}"/>'
+        f'<geometry><mesh filename="{uri}" scale="{" ".join(map(str, scale))}"/></geometry></collision>\n'
+    )
 
 
 def test_meshes_found_are_written_inline_and_missing_ones_left_out_with_a_warning(tmp_path, capsys):
@@ -322,9 +429,11 @@ def test_meshes_found_are_written_inline_and_missing_ones_left_out_with_a_warnin
     (pkg / "meshes" / "shell.dae").write_text("<COLLADA/>")
     (tmp_path / "tools").mkdir()
     (tmp_path / "tools" / "tip.obj").write_text(TET)
-    placed = {"link_6": (2.0, (0.05, 0.02, -0.01), (0.0, 0.0, 0.5), "package://arm_support/meshes/tet.obj"),
-              "link_4": (1.0, (0.0, 0.1, 0.0), (0.3, 0.0, 0.0), "package://tools/tip.obj"),
-              "link_2": (1.0, (0.0, 0.0, 0.3), (0.0, 0.0, 0.0), "../meshes/tet.obj")}
+    placed = {
+        "link_6": (2.0, (0.05, 0.02, -0.01), (0.0, 0.0, 0.5), "package://arm_support/meshes/tet.obj"),
+        "link_4": (1.0, (0.0, 0.1, 0.0), (0.3, 0.0, 0.0), "package://tools/tip.obj"),
+        "link_2": (1.0, (0.0, 0.0, 0.3), (0.0, 0.0, 0.0), "../meshes/tet.obj"),
+    }
     extra = {link: _mesh(uri, (s, s, s), xyz, rpy) for link, (s, xyz, rpy, uri) in placed.items()}
     extra["link_5"] = _mesh("package://nowhere/meshes/gone.stl")
     extra["link_3"] = _mesh("../meshes/shell.dae") + _mesh("../meshes/absent.stl")
@@ -333,7 +442,10 @@ def test_meshes_found_are_written_inline_and_missing_ones_left_out_with_a_warnin
     assert rc == 0
     warnings = capsys.readouterr().err.strip().splitlines()
     assert len(warnings) == 3 and all(w.startswith("calbench from-urdf: warning: ") for w in warnings)
-    assert any("link_5: mesh package://nowhere/meshes/gone.stl left out (no [packages] nowhere" in w for w in warnings)
+    assert any(
+        "link_5: mesh package://nowhere/meshes/gone.stl left out (no [packages] nowhere" in w
+        for w in warnings
+    )
     assert any("link_3: mesh ../meshes/shell.dae left out" in w for w in warnings)
     assert any("link_3: mesh ../meshes/absent.stl left out" in w for w in warnings)
     text = out.read_text()
@@ -343,15 +455,19 @@ def test_meshes_found_are_written_inline_and_missing_ones_left_out_with_a_warnin
     shutil.move(out, moved)
     robot = Robot.from_file(moved)
     m, d = robot.model, robot.data
-    assert m.nmesh == 3 and m.ngeom == 7 + 3                    # the arm's 7 primitives kept
+    assert m.nmesh == 3 and m.ngeom == 7 + 3  # the arm's 7 primitives kept
     q = np.radians([20.0, 30.0, -40.0, 50.0, 60.0, -70.0])
     d.qpos[:] = robot.rigid_qpos(q)
     mujoco.mj_kinematics(m, d)
     fk = urdf_fk(dict(zip(ACTUATED, q)))
     for link, (s, xyz, rpy, _) in placed.items():
-        g = next(g for g in range(m.ngeom) if m.geom_bodyid[g] == m.body(link).id and m.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH)
+        g = next(
+            g
+            for g in range(m.ngeom)
+            if m.geom_bodyid[g] == m.body(link).id and m.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH
+        )
         mid = m.geom_dataid[g]
-        v = m.mesh_vert[m.mesh_vertadr[mid]: m.mesh_vertadr[mid] + m.mesh_vertnum[mid]]
+        v = m.mesh_vert[m.mesh_vertadr[mid] : m.mesh_vertadr[mid] + m.mesh_vertnum[mid]]
         world = d.geom_xpos[g] + v @ d.geom_xmat[g].reshape(3, 3).T
         t = fk[link] @ _origin(xyz, rpy)
         expected = (t[:3, :3] @ (s * TET_V).T).T + t[:3, 3]

@@ -7,6 +7,7 @@ The rerun CLI runs with a scratch HOME / XDG dirs, CI=1 and analytics off (tests
 so it never touches the user's settings. Recordings store float32: positions of a few metres
 read back to ~1e-6 m, which bounds the tolerances below.
 """
+
 from __future__ import annotations
 
 import json
@@ -18,27 +19,33 @@ import mujoco
 import numpy as np
 import pytest
 import rerun as rr
+from conftest import K_TRUE, MJCF, PAPER
 from rerun.chunk import RrdReader
+from rerun_cli import rerun_env, rerun_exe
 
 from calbench.bench.campaign.run import run_campaign
 from calbench.bench.core.errors import InputError
-from calbench.bench.model.geoms import geom_shapes, reflector_posts
 from calbench.bench.log.idreport import IdentificationReport
 from calbench.bench.log.writer import read_log, strip_truth
+from calbench.bench.model.geoms import geom_shapes, reflector_posts
 from calbench.bench.model.robot import Robot
 from calbench.bench.scenario.parse import TrackerSpec, load_scenario
 from calbench.bench.tracker.instrument import to_world_frame
-from calbench.bench.view.recording import (Discovery, _geom_archetype, build_blueprint, measured_deflections,
-                                 plan_view, write_discovery_recording, write_recording)
 from calbench.bench.view.params import WIDTH
+from calbench.bench.view.recording import (
+    Discovery,
+    _geom_archetype,
+    build_blueprint,
+    measured_deflections,
+    plan_view,
+    write_discovery_recording,
+    write_recording,
+)
 from calbench.bench.view.scene import HALF_FOV_TAN, framing
 from calbench.identify.cli import main as calbench_main
 
-from rerun_cli import rerun_env, rerun_exe
-from conftest import K_TRUE, MJCF, PAPER
-
-F32 = 2e-6          # m: float32 resolution of world coordinates of a few metres, with margin
-TRUE = [*K_TRUE, 2.6e6, 0.83]      # the paper scenario's truth, SI
+F32 = 2e-6  # m: float32 resolution of world coordinates of a few metres, with margin
+TRUE = [*K_TRUE, 2.6e6, 0.83]  # the paper scenario's truth, SI
 BASE = ["k1", "k2", "k3", "k4", "k5", "k6", "compensator_stiffness", "compensator_preload"]
 
 
@@ -46,8 +53,7 @@ BASE = ["k1", "k2", "k3", "k4", "k5", "k6", "compensator_stiffness", "compensato
 def scratch_home(tmp_path, monkeypatch):
     """Also the in-process SDK: scratch HOME, CI=1 (no viewer is ever spawned), no analytics."""
     for k, v in rerun_env(tmp_path).items():
-        if k in ("HOME", "XDG_CONFIG_HOME", "XDG_DATA_HOME", "XDG_CACHE_HOME", "CI",
-                 "RERUN_ANALYTICS"):
+        if k in ("HOME", "XDG_CONFIG_HOME", "XDG_DATA_HOME", "XDG_CACHE_HOME", "CI", "RERUN_ANALYTICS"):
             monkeypatch.setenv(k, v)
 
 
@@ -109,8 +115,7 @@ def text(v) -> str:
 
 def static(rrd: Path, entity: str, component: str):
     for c in chunks(rrd):
-        if c.entity_path == entity and c.is_static and \
-                component in c.to_record_batch().schema.names:
+        if c.entity_path == entity and c.is_static and component in c.to_record_batch().schema.names:
             return column(c, component)[0]
     raise KeyError((entity, component))
 
@@ -122,8 +127,11 @@ def expected_deflection(log_path: Path, pose: int, reflector: str) -> np.ndarray
     spec = TrackerSpec(position=np.asarray(t["position"], float), yaw=float(t["yaw"]))
     mean = {}
     for state in ("unloaded", "loaded"):
-        pts = [m.position[m.reflectors.index(reflector)] for m in log.measurements
-               if m.pose == pose and m.state == state and m.visible[m.reflectors.index(reflector)]]
+        pts = [
+            m.position[m.reflectors.index(reflector)]
+            for m in log.measurements
+            if m.pose == pose and m.state == state and m.visible[m.reflectors.index(reflector)]
+        ]
         mean[state] = to_world_frame(spec, np.mean(pts, axis=0)[None])[0]
     return mean["loaded"] - mean["unloaded"]
 
@@ -148,24 +156,37 @@ def kinematics(log_path: Path, qpos: np.ndarray, body: str) -> tuple[np.ndarray,
     return data.xpos[b].copy(), data.xmat[b].reshape(3, 3).copy()
 
 
-def write_identified(path: Path, log_path: Path, predictions: bool, full: bool = True,
-                     factor: float = 1.01, truth: bool = True, extra: dict | None = None) -> Path:
+def write_identified(
+    path: Path,
+    log_path: Path,
+    predictions: bool,
+    full: bool = True,
+    factor: float = 1.01,
+    truth: bool = True,
+    extra: dict | None = None,
+) -> Path:
     """A report of the paper's parameters at `factor` times the truth (std 2 %); predictions
     0.9 times the log's measured deflections."""
     params = []
     for n, t in zip(BASE, TRUE):
         p = {"name": n, "estimate": t * factor}
         if full:
-            p.update(unit={"compensator_stiffness": "N/m", "compensator_preload": "m"}.get(
-                n, "rad/(N*m)"), std=abs(t) * 0.02, truth=t if truth else None)
+            p.update(
+                unit={"compensator_stiffness": "N/m", "compensator_preload": "m"}.get(n, "rad/(N*m)"),
+                std=abs(t) * 0.02,
+                truth=t if truth else None,
+            )
         params.append(p)
     if extra:
         params.append(extra)
     doc: dict = {"method": "one-step", "parameters": params}
     if predictions:
         d = measured_deflections(read_log(log_path))
-        doc["observations"] = [{"pose": p, "reflector": r, "predicted": (0.9 * v).tolist()}
-                               for p, refl in d.items() for r, v in refl.items()]
+        doc["observations"] = [
+            {"pose": p, "reflector": r, "predicted": (0.9 * v).tolist()}
+            for p, refl in d.items()
+            for r, v in refl.items()
+        ]
         doc["observations"].append({"pose": 0, "reflector": "refl_a"})  # malformed: skipped
     path.write_text(json.dumps(doc))
     return path
@@ -176,24 +197,48 @@ def write_identified(path: Path, log_path: Path, predictions: bool, full: bool =
 
 def test_rrd_verifies_and_has_the_expected_entities(paper_rrd, tmp_path):
     exe = rerun_exe()
-    r = subprocess.run([exe, "rrd", "verify", str(paper_rrd)], env=rerun_env(tmp_path),
-                       capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        [exe, "rrd", "verify", str(paper_rrd)],
+        env=rerun_env(tmp_path),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 0, r.stdout + r.stderr
-    r = subprocess.run([exe, "rrd", "print", str(paper_rrd)], env=rerun_env(tmp_path),
-                       capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        [exe, "rrd", "print", str(paper_rrd)],
+        env=rerun_env(tmp_path),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 0, r.stderr
     printed = r.stdout
-    for e in ("/robot/forearm", "/robot/link6/tool_plate", "/robot/link6/reflectors/refl_a",
-              "/robot/upper_arm/upper_arm_geom", "/robot/tendon/compensator", "/robot/payload",
-              "/tracker", "/tracker/line_of_sight", "/measured/loaded", "/measured/unloaded",
-              "/deflection/x200/measured", "/deflection/x200/uncertainty_3sigma",
-              "/truth/reflectors/loaded", "/truth/deflection/x200", "/truth/deformed_x200/forearm",
-              "/plots/deflection_mm/refl_a", "/info/pose", "/viewport", "/time_panel"):
+    for e in (
+        "/robot/forearm",
+        "/robot/link6/tool_plate",
+        "/robot/link6/reflectors/refl_a",
+        "/robot/upper_arm/upper_arm_geom",
+        "/robot/tendon/compensator",
+        "/robot/payload",
+        "/tracker",
+        "/tracker/line_of_sight",
+        "/measured/loaded",
+        "/measured/unloaded",
+        "/deflection/x200/measured",
+        "/deflection/x200/uncertainty_3sigma",
+        "/truth/reflectors/loaded",
+        "/truth/deflection/x200",
+        "/truth/deformed_x200/forearm",
+        "/plots/deflection_mm/refl_a",
+        "/info/pose",
+        "/viewport",
+        "/time_panel",
+    ):
         assert f"- {e} -" in printed, e
     # loaded back through the SDK: the same entities, and geometry for every drawn body
     paths = entity_paths(paper_rrd)
-    model = mujoco.MjModel.from_xml_string(read_log(paper_rrd.with_name("paper_table5.mcap"))
-                                           .mjcf_text)
+    model = mujoco.MjModel.from_xml_string(read_log(paper_rrd.with_name("paper_table5.mcap")).mjcf_text)
     for b in range(1, model.nbody):
         assert f"/robot/{model.body(b).name}" in paths
     assert not any(p.startswith(("/parameters", "/model", "/residual")) for p in paths)
@@ -209,8 +254,7 @@ def test_arrow_is_the_magnified_deflection_of_the_log(paper_log, paper_rrd):
     names = [lab.split()[0] for lab in labels[pose]]
     j = names.index("refl_b")
     expected = 200.0 * expected_deflection(paper_log, pose, "refl_b")
-    np.testing.assert_allclose(vectors[pose][j], expected.astype(np.float32), rtol=2e-7,
-                               atol=1e-9)
+    np.testing.assert_allclose(vectors[pose][j], expected.astype(np.float32), rtol=2e-7, atol=1e-9)
     # the (hover) label gives the true-scale size; the 3D view shows no text on arrows
     assert labels[pose][j] == f"refl_b measured {np.linalg.norm(expected) / 200 * 1e3:.3f} mm"
     shown = rows_at(paper_rrd, "/deflection/x200/measured", "Arrows3D:show_labels")[pose]
@@ -236,7 +280,7 @@ def test_robot_is_drawn_at_the_command(paper_log, paper_rrd):
     np.testing.assert_allclose(t, x, atol=F32)
     np.testing.assert_allclose(R, M, atol=1e-6)
     x_true, _ = kinematics(paper_log, log.truth.joints[pose].unloaded.qpos, "link6")
-    assert np.linalg.norm(x_true - x) > 1e-3          # the sag: the two differ by centimetres
+    assert np.linalg.norm(x_true - x) > 1e-3  # the sag: the two differ by centimetres
 
 
 def test_truth_ghost_is_the_magnified_joint_deflection(paper_log, paper_rrd, tmp_path):
@@ -266,6 +310,7 @@ def test_no_truth_outside_the_truth_tree(paper_log, stripped_log, tmp_path):
     """Hiding truth/ leaves exactly what a real campaign shows: every entity outside truth/ has
     the same data whether the log (and the report) carry truth or not. Only the pose page's
     legend differs, since it names what is drawn."""
+
     def content(rrd: Path) -> dict:
         out = {}
         for c in chunks(rrd):
@@ -279,16 +324,18 @@ def test_no_truth_outside_the_truth_tree(paper_log, stripped_log, tmp_path):
                 if name == "TextDocument:text":
                     vals = [text(v).split("**In the 3D view**")[0] for v in vals]
                 key = (c.entity_path, name, c.is_static)
-                out.setdefault(key, []).extend(zip(column(c, "pose") if not c.is_static
-                                                   else [None] * len(vals), vals))
+                out.setdefault(key, []).extend(
+                    zip(column(c, "pose") if not c.is_static else [None] * len(vals), vals)
+                )
         return {k: sorted(v, key=lambda t: -1 if t[0] is None else t[0]) for k, v in out.items()}
 
     full, real = tmp_path / "full.rrd", tmp_path / "real.rrd"
     (tmp_path / "t").mkdir()
     (tmp_path / "r").mkdir()
     write_recording(paper_log, full, write_identified(tmp_path / "t/id.json", paper_log, True))
-    write_recording(stripped_log, real, write_identified(tmp_path / "r/id.json", paper_log, True,
-                                                         truth=False))
+    write_recording(
+        stripped_log, real, write_identified(tmp_path / "r/id.json", paper_log, True, truth=False)
+    )
     a, b = content(full), content(real)
     assert a.keys() == b.keys()
     for k in a:
@@ -335,8 +382,7 @@ def test_model_ghost_from_the_truth_values_is_the_truth_ghost(paper_log, strippe
     t, _ = body_pose(real, "/model/deformed_x200/link6", 8)
     np.testing.assert_allclose(t, body_pose(rrd, "/model/deformed_x200/link6", 8)[0], atol=F32)
     # the blueprint hides the true ghost beside the model's (it would sit on top of it)
-    bp = build_blueprint(plan_view(read_log(paper_log, include_truth=True),
-                                   IdentificationReport.read(ident)))
+    bp = build_blueprint(plan_view(read_log(paper_log, include_truth=True), IdentificationReport.read(ident)))
     scene = bp.root_container.contents[0]
     assert "/truth/deformed_x200" in scene.visualizer_overrides
 
@@ -356,11 +402,18 @@ def test_identified_with_predictions(paper_log, tmp_path):
     rrd = tmp_path / "id.rrd"
     s = write_recording(paper_log, rrd, identified=ident)
     assert s.predicted == s.arrows
-    assert any("1 entries" in w for w in s.warnings)   # the command line prints these
+    assert any("1 entries" in w for w in s.warnings)  # the command line prints these
     paths = entity_paths(rrd)
-    for e in ("/deflection/x200/model", "/residual/x2000/model", "/residual/x2000/noise_3sigma",
-              "/plots/residual_um/model", "/plots/residual_um/noise", "/parameters/table",
-              "/parameters/chart/0_µrad__N_m/estimate", "/truth/parameters/table"):
+    for e in (
+        "/deflection/x200/model",
+        "/residual/x2000/model",
+        "/residual/x2000/noise_3sigma",
+        "/plots/residual_um/model",
+        "/plots/residual_um/noise",
+        "/parameters/table",
+        "/parameters/chart/0_µrad__N_m/estimate",
+        "/truth/parameters/table",
+    ):
         assert e in paths, e
     meas = rows_at(rrd, "/deflection/x200/measured", "Arrows3D:vectors")
     start = rows_at(rrd, "/deflection/x200/measured", "Arrows3D:origins")
@@ -370,8 +423,9 @@ def test_identified_with_predictions(paper_log, tmp_path):
     # residual = measured - 0.9 measured, magnified 2000 = 10 x the arrows' 200
     np.testing.assert_allclose(res[pose], 10 * 0.1 * np.array(meas[pose]), rtol=1e-5, atol=1e-6)
     # and it ends at the measured arrow's tip
-    np.testing.assert_allclose(np.array(res_o[pose]) + res[pose],
-                               np.array(start[pose]) + meas[pose], atol=F32)
+    np.testing.assert_allclose(
+        np.array(res_o[pose]) + res[pose], np.array(start[pose]) + meas[pose], atol=F32
+    )
     # the residual plot: RMS per axis of the pose's residuals, in um
     rms = rows_at(rrd, "/plots/residual_um/model", "Scalars:scalars")[pose]
     d = measured_deflections(read_log(paper_log))[pose]
@@ -388,18 +442,22 @@ def test_parameter_chart_names_every_parameter_and_reads_back(paper_log, tmp_pat
     ident = write_identified(tmp_path / "id.json", paper_log, predictions=False)
     rrd = tmp_path / "id.rrd"
     write_recording(paper_log, rrd, identified=ident)
-    shown = {"k1": 0.25 * 1.01, "compensator_stiffness": 2600 * 1.01,
-             "compensator_preload": 830 * 1.01}
+    shown = {"k1": 0.25 * 1.01, "compensator_stiffness": 2600 * 1.01, "compensator_preload": 830 * 1.01}
     texts = []
     for c in chunks(rrd):
-        if c.entity_path.startswith("/parameters/chart") and "Points2D:labels" in \
-                c.to_record_batch().schema.names:
+        if (
+            c.entity_path.startswith("/parameters/chart")
+            and "Points2D:labels" in c.to_record_batch().schema.names
+        ):
             texts += column(c, "Points2D:labels")[0]
     for n in BASE[:6]:
         assert n in texts
     assert "compensator_stiffness (kN/m)" in texts and "compensator_preload (mm)" in texts
-    for block, name in (("0_µrad__N_m", "k1"), ("1_kN_m", "compensator_stiffness"),
-                        ("2_mm", "compensator_preload")):
+    for block, name in (
+        ("0_µrad__N_m", "k1"),
+        ("1_kN_m", "compensator_stiffness"),
+        ("2_mm", "compensator_preload"),
+    ):
         base = f"/parameters/chart/{block}"
         ticks = [float(t) for t in static(rrd, f"{base}/ticks", "Points2D:labels")]
         labels = static(rrd, f"{base}/estimate", "Points2D:labels")
@@ -434,8 +492,9 @@ def test_identified_report_with_an_unidentifiable_parameter(paper_log, tmp_path)
     rrd = tmp_path / "id.rrd"
     s = write_recording(paper_log, rrd, identified=ident)
     assert s.poses == 16 and "identified model" in s.ghost
-    assert static(rrd, "/parameters/chart/0_µrad__N_m/not_identifiable",
-                  "Points2D:labels") == ["not identifiable"]
+    assert static(rrd, "/parameters/chart/0_µrad__N_m/not_identifiable", "Points2D:labels") == [
+        "not identifiable"
+    ]
     page = page_at(rrd, 0)
     assert "k1 not identified: taken as rigid" in page
 
@@ -471,8 +530,9 @@ def test_blueprint_opens_at_pose_0_framing_robot_tool_and_tracker(paper_log, tmp
     assert np.all(np.abs(rel @ right) <= HALF_FOV_TAN * depth + 1e-9)
     assert np.all(np.abs(rel @ up) <= HALF_FOV_TAN * depth + 1e-9)
     # and it is tight: some point touches the edge
-    assert np.max(np.maximum(np.abs(rel @ right), np.abs(rel @ up)) / depth) \
-        == pytest.approx(HALF_FOV_TAN, rel=1e-6)
+    assert np.max(np.maximum(np.abs(rel @ right), np.abs(rel @ up)) / depth) == pytest.approx(
+        HALF_FOV_TAN, rel=1e-6
+    )
 
 
 def _screen_x(eye, target, p):
@@ -492,6 +552,7 @@ def test_the_tracker_stands_beyond_the_tool_and_apart_from_it(scenario, tmp_path
     on the KR 270 the profile put the tracker 0.05 half-widths behind the tool, and the camera
     turns by the least 5-degree step that sets them apart."""
     from calbench.bench.view.scene import TRACKER_APART
+
     log_path = tmp_path / "c.mcap"
     run_campaign(load_scenario(PAPER.parent / scenario), log_path)
     log = read_log(log_path, include_truth=True)
@@ -501,7 +562,7 @@ def test_the_tracker_stands_beyond_the_tool_and_apart_from_it(scenario, tmp_path
     tool = np.nanmean(plan.scenes[0].reflector_sites, axis=0)
     (xt, dt), (xk, dk) = _screen_x(eye, target, tool), _screen_x(eye, target, tracker)
     assert abs(xk - xt) >= TRACKER_APART and dk > dt
-    if scenario == "paper_table5.toml":                 # in profile: across the arm's plane
+    if scenario == "paper_table5.toml":  # in profile: across the arm's plane
         arm = tool[:2] - plan.scenes[0].robot.xpos[1][:2]
         assert abs((eye - target)[:2] @ arm) < 1e-9 * np.linalg.norm(arm) * np.linalg.norm(eye - target)
 
@@ -536,12 +597,20 @@ def test_discovery_view(paper_log, tmp_path):
     d = measured_deflections(read_log(paper_log))
 
     def report(frac: float, rms: float) -> IdentificationReport:
-        obs = [{"pose": p, "reflector": r, "predicted": (frac * v).tolist()}
-               for p, refl in d.items() for r, v in refl.items()]
-        doc = {"method": "discover", "residual_rms": rms, "expected_residual_rms": 27e-6,
-               "parameters": [{"name": n, "estimate": t, "unit": ""} for n, t in zip(BASE, TRUE)],
-               "observations": obs}
+        obs = [
+            {"pose": p, "reflector": r, "predicted": (frac * v).tolist()}
+            for p, refl in d.items()
+            for r, v in refl.items()
+        ]
+        doc = {
+            "method": "discover",
+            "residual_rms": rms,
+            "expected_residual_rms": 27e-6,
+            "parameters": [{"name": n, "estimate": t, "unit": ""} for n, t in zip(BASE, TRUE)],
+            "observations": obs,
+        }
         return IdentificationReport.from_json(json.dumps(doc))
+
     disc = Discovery(report(0.8, 300e-6), report(0.99, 25e-6), ("link_compliance (forearm)",))
     rrd = tmp_path / "d.rrd"
     s = write_discovery_recording(paper_log, rrd, disc)
@@ -550,16 +619,21 @@ def test_discovery_view(paper_log, tmp_path):
     after = rows_at(rrd, "/residual/x2000/after", "Arrows3D:vectors")
     meas = rows_at(rrd, "/deflection/x200/measured", "Arrows3D:vectors")
     np.testing.assert_allclose(before[4], 2000 * 0.2 * np.array(meas[4]) / 200, rtol=1e-5)
-    np.testing.assert_allclose(after[4], 2000 * 0.01 * np.array(meas[4]) / 200, rtol=1e-4,
-                               atol=1e-6)
+    np.testing.assert_allclose(after[4], 2000 * 0.01 * np.array(meas[4]) / 200, rtol=1e-4, atol=1e-6)
     page = page_at(rrd, 4)
     assert "named link_compliance (forearm)" in page and "300.0 µm → 25.0 µm" in page
     # the worst residual of the user's model, found independently: largest 0.2 |d| / sigma
     plan = plan_view(read_log(paper_log, include_truth=True))
-    worst = max(((np.sqrt(0.2 * v @ np.linalg.solve(sc.deflection()[1][i], 0.2 * v)), p, r)
-                 for sc in plan.scenes for p, refl in d.items() if p == sc.index
-                 for i, (r, v) in enumerate((nm, refl[nm]) for nm in plan.names if nm in refl)),
-                key=lambda t: t[0])
+    worst = max(
+        (
+            (np.sqrt(0.2 * v @ np.linalg.solve(sc.deflection()[1][i], 0.2 * v)), p, r)
+            for sc in plan.scenes
+            for p, refl in d.items()
+            if p == sc.index
+            for i, (r, v) in enumerate((nm, refl[nm]) for nm in plan.names if nm in refl)
+        ),
+        key=lambda t: t[0],
+    )
     assert f"pose {worst[1]} {worst[2]} ({worst[0]:.1f}σ)" in page
     assert {"/plots/residual_um/before", "/plots/residual_um/after"} <= entity_paths(rrd)
 
@@ -573,8 +647,7 @@ def test_cli_discover_writes_its_view(paper_log, tmp_path, capsys):
     rrd = tmp_path / "d.rrd"
     assert rrd.exists() and f"rerun {rrd}" in out
     assert json.loads(js.read_text())["view_rrd"] == str(rrd)
-    assert {"/residual/x2000/before", "/residual/x2000/after",
-            "/parameters/table"} <= entity_paths(rrd)
+    assert {"/residual/x2000/before", "/residual/x2000/after", "/parameters/table"} <= entity_paths(rrd)
     # an existing output is refused (exit 2) before any work
     assert calbench_main(["discover", str(log), "--rrd", str(log)]) == 2
 
@@ -606,6 +679,7 @@ def test_bad_input_exits_2(paper_log, tmp_path, capsys):
     assert calbench_main(["view", str(tmp_path / "missing.mcap"), "--rrd", str(out)]) == 2
     # an MCAP without the tracker channel
     from mcap.writer import Writer
+
     bare = tmp_path / "bare.mcap"
     with open(bare, "wb") as f:
         w = Writer(f)
@@ -616,11 +690,9 @@ def test_bad_input_exits_2(paper_log, tmp_path, capsys):
         write_recording(bare, out)
     assert calbench_main(["view", str(bare), "--rrd", str(out)]) == 2
     bad = tmp_path / "bad.json"
-    for text in ("{not json", json.dumps({"method": "x"}),
-                 json.dumps({"parameters": [{"name": "k1"}]})):
+    for text in ("{not json", json.dumps({"method": "x"}), json.dumps({"parameters": [{"name": "k1"}]})):
         bad.write_text(text)
-        assert calbench_main(["view", str(paper_log), "--rrd", str(out),
-                              "--identified", str(bad)]) == 2
+        assert calbench_main(["view", str(paper_log), "--rrd", str(out), "--identified", str(bad)]) == 2
         assert str(bad) in capsys.readouterr().err
     assert not out.exists()
     assert calbench_main(["view", str(paper_log), "--rrd", str(out), "--magnify", "0"]) == 2
@@ -640,8 +712,14 @@ def test_every_geom_type_is_drawn():
     model = mujoco.MjModel.from_xml_string(xml)
     shapes = {s.name: s for s in geom_shapes(model)}
     kinds = {name: type(_geom_archetype(rr, shape)).__name__ for name, shape in shapes.items()}
-    assert kinds == {"box": "Boxes3D", "cap": "Capsules3D", "cyl": "Cylinders3D",
-                     "sph": "Ellipsoids3D", "ell": "Ellipsoids3D", "msh": "Mesh3D"}
+    assert kinds == {
+        "box": "Boxes3D",
+        "cap": "Capsules3D",
+        "cyl": "Cylinders3D",
+        "sph": "Ellipsoids3D",
+        "ell": "Ellipsoids3D",
+        "msh": "Mesh3D",
+    }
     ghost = _geom_archetype(rr, shapes["box"], (1, 2, 3, 80))
     assert ghost.colors.as_arrow_array().to_pylist() == [0x01020350]
     # the capsule starts at one end of its segment (rerun capsules grow along +z)
@@ -653,9 +731,14 @@ def test_every_geom_type_is_drawn():
 
 def test_report_tolerates_optional_fields(tmp_path):
     p = tmp_path / "id.json"
-    p.write_text(json.dumps({"parameters": [{"name": "k2", "estimate": 1e-7, "std": None,
-                                             "truth": None}],
-                             "observations": "not a list"}))
+    p.write_text(
+        json.dumps(
+            {
+                "parameters": [{"name": "k2", "estimate": 1e-7, "std": None, "truth": None}],
+                "observations": "not a list",
+            }
+        )
+    )
     ident = IdentificationReport.read(p)
     assert ident.parameters[0].std is None and ident.predictions() == {}
     assert ident.read_warnings
@@ -683,12 +766,14 @@ def test_logged_body_pose_places_geoms_where_mujoco_does(paper_log, paper_rrd):
 
 def test_spawn_failure_falls_back_to_a_file(paper_log, tmp_path, capsys, monkeypatch):
     import calbench.bench.cli as cli
+
     log = tmp_path / "c.mcap"
     shutil.copy(paper_log, log)
     monkeypatch.setattr(cli, "has_display", lambda: True)
 
     def no_viewer(self, **kw):
         raise RuntimeError("no viewer here")
+
     monkeypatch.setattr(rr.RecordingStream, "spawn", no_viewer)
     assert calbench_main(["view", str(log)]) == 0
     assert "could not spawn" in capsys.readouterr().err

@@ -10,6 +10,7 @@ passive ``rod`` whose end the overlay connects to the forearm's rear; J3 is then
 an rpy, to exercise orientations); masses of a ~1.6 t robot; every moving link has an
 <inertial> with off-axis centres of mass.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -35,15 +36,57 @@ LOOP = [
 ]
 # link: mass, com, diagonal inertia, geometry (URDF <geometry> body), geometry origin xyz, rpy
 LINKS = {
-    "base_link": (500.0, (0, 0, 0.2), (40, 40, 50), '<cylinder radius="0.4" length="0.45"/>', (0, 0, 0.225), (0, 0, 0)),
+    "base_link": (
+        500.0,
+        (0, 0, 0.2),
+        (40, 40, 50),
+        '<cylinder radius="0.4" length="0.45"/>',
+        (0, 0, 0.225),
+        (0, 0, 0),
+    ),
     "link_1": (600.0, (0.1, 0, 0.3), (90, 110, 100), '<box size="0.7 0.6 0.6"/>', (0.1, 0, 0.3), (0, 0, 0)),
-    "link_2": (400.0, (0.02, 0, 0.55), (50, 50, 8), '<cylinder radius="0.15" length="0.9"/>', (0, 0, 0.55), (0, 0, 0)),
-    "link_3": (300.0, (0.4, 0.01, 0.15), (6, 45, 45), '<cylinder radius="0.13" length="0.8"/>', (0.5, 0, 0.2), (0, 1.5707963267948966, 0)),
+    "link_2": (
+        400.0,
+        (0.02, 0, 0.55),
+        (50, 50, 8),
+        '<cylinder radius="0.15" length="0.9"/>',
+        (0, 0, 0.55),
+        (0, 0, 0),
+    ),
+    "link_3": (
+        300.0,
+        (0.4, 0.01, 0.15),
+        (6, 45, 45),
+        '<cylinder radius="0.13" length="0.8"/>',
+        (0.5, 0, 0.2),
+        (0, 1.5707963267948966, 0),
+    ),
     "link_4": (60.0, (0.12, 0, 0.01), (0.8, 1.5, 1.5), '<box size="0.25 0.2 0.2"/>', (0.12, 0, 0), (0, 0, 0)),
-    "link_5": (40.0, (0.1, 0, 0), (0.4, 0.6, 0.6), '<cylinder radius="0.1" length="0.22"/>', (0.1, 0, 0), (1.5707963267948966, 0, 0)),
-    "link_6": (30.0, (0.04, 0, -0.02), (0.5, 0.3, 0.3), '<box size="0.05 0.36 0.36"/>', (0.06, 0, 0), (0, 0, 0)),
+    "link_5": (
+        40.0,
+        (0.1, 0, 0),
+        (0.4, 0.6, 0.6),
+        '<cylinder radius="0.1" length="0.22"/>',
+        (0.1, 0, 0),
+        (1.5707963267948966, 0, 0),
+    ),
+    "link_6": (
+        30.0,
+        (0.04, 0, -0.02),
+        (0.5, 0.3, 0.3),
+        '<box size="0.05 0.36 0.36"/>',
+        (0.06, 0, 0),
+        (0, 0, 0),
+    ),
     "crank": (50.0, (-0.2, 0, 0), (0.2, 1.0, 1.0), '<box size="0.45 0.08 0.08"/>', (-0.2, 0, 0), (0, 0, 0)),
-    "rod": (30.0, (0, 0, 0.55), (3.0, 3.0, 0.05), '<cylinder radius="0.04" length="1.1"/>', (0, 0, 0.55), (0, 0, 0)),
+    "rod": (
+        30.0,
+        (0, 0, 0.55),
+        (3.0, 3.0, 0.05),
+        '<cylinder radius="0.04" length="1.1"/>',
+        (0, 0, 0.55),
+        (0, 0, 0),
+    ),
 }
 
 
@@ -55,24 +98,36 @@ def _link(name: str, inertial: bool = True, extra: str = "") -> str:
     if name == "tool0":
         return '  <link name="tool0"/>\n'
     mass, com, inertia, geom, gxyz, grpy = LINKS[name]
-    ine = (f'    <inertial><origin xyz="{_v(com)}" rpy="0 0 0"/><mass value="{mass!r}"/>'
-           f'<inertia ixx="{inertia[0]!r}" iyy="{inertia[1]!r}" izz="{inertia[2]!r}" ixy="0" ixz="0" iyz="0"/>'
-           '</inertial>\n') if inertial else ""
-    return (f'  <link name="{name}">\n{ine}'
-            f'    <visual><origin xyz="{_v(gxyz)}" rpy="{_v(grpy)}"/><geometry>{geom}</geometry></visual>\n'
-            f'    <collision><origin xyz="{_v(gxyz)}" rpy="{_v(grpy)}"/><geometry>{geom}</geometry></collision>\n'
-            f'{extra}  </link>\n')
+    ine = (
+        (
+            f'    <inertial><origin xyz="{_v(com)}" rpy="0 0 0"/><mass value="{mass!r}"/>'
+            f'<inertia ixx="{inertia[0]!r}" iyy="{inertia[1]!r}" izz="{inertia[2]!r}" ixy="0" ixz="0" iyz="0"/>'
+            "</inertial>\n"
+        )
+        if inertial
+        else ""
+    )
+    return (
+        f'  <link name="{name}">\n{ine}'
+        f'    <visual><origin xyz="{_v(gxyz)}" rpy="{_v(grpy)}"/><geometry>{geom}</geometry></visual>\n'
+        f'    <collision><origin xyz="{_v(gxyz)}" rpy="{_v(grpy)}"/><geometry>{geom}</geometry></collision>\n'
+        f"{extra}  </link>\n"
+    )
 
 
 def _joint(j) -> str:
     name, typ, parent, child, xyz, rpy, axis, lim = j
-    out = (f'  <joint name="{name}" type="{typ}"><parent link="{parent}"/><child link="{child}"/>'
-           f'<origin xyz="{_v(xyz)}" rpy="{_v(rpy)}"/>')
+    out = (
+        f'  <joint name="{name}" type="{typ}"><parent link="{parent}"/><child link="{child}"/>'
+        f'<origin xyz="{_v(xyz)}" rpy="{_v(rpy)}"/>'
+    )
     if axis is not None:
         out += f'<axis xyz="{_v(axis)}"/>'
     if lim is not None:
-        out += (f'<limit lower="{float(np.radians(lim[0]))!r}" upper="{float(np.radians(lim[1]))!r}" effort="50000" '
-                'velocity="1.5"/>')
+        out += (
+            f'<limit lower="{float(np.radians(lim[0]))!r}" upper="{float(np.radians(lim[1]))!r}" effort="50000" '
+            'velocity="1.5"/>'
+        )
     elif typ == "continuous":
         out += '<limit effort="20000" velocity="2"/>'
     return out + "</joint>\n"
@@ -82,16 +137,24 @@ def joints(loop: bool = False) -> list:
     return LOOP if loop else SERIAL
 
 
-def arm_urdf(loop: bool = False, no_inertial: str | None = None, extra_links: dict | None = None,
-             extra_joints: str = "") -> str:
+def arm_urdf(
+    loop: bool = False,
+    no_inertial: str | None = None,
+    extra_links: dict | None = None,
+    extra_joints: str = "",
+) -> str:
     """The arm's URDF text; ``no_inertial`` drops that link's <inertial>; ``extra_links`` maps a
     link to extra XML inside it (e.g. a mesh <collision>); ``extra_joints`` adds raw XML."""
     js = joints(loop)
     names = ["base_link"] + [j[3] for j in js]
     extra_links = extra_links or {}
     body = "".join(_link(n, n != no_inertial, extra_links.get(n, "")) for n in names)
-    return (f'<?xml version="1.0"?>\n<robot name="{"arm6_loop" if loop else "arm6"}">\n{body}'
-            + "".join(_joint(j) for j in js) + extra_joints + "</robot>\n")
+    return (
+        f'<?xml version="1.0"?>\n<robot name="{"arm6_loop" if loop else "arm6"}">\n{body}'
+        + "".join(_joint(j) for j in js)
+        + extra_joints
+        + "</robot>\n"
+    )
 
 
 def link_masses(loop: bool = False) -> dict[str, float]:
@@ -125,8 +188,7 @@ pos = [0.15, 0.0, -0.35]
 
 # Compensator across J2 (paper Fig. 4): l_c = 0.9 m from J2 on the turret, 40 deg behind the
 # vertical; l_2 = 0.45 m up the upper arm; both 0.35 m off the arm's plane.
-BAL_FROM = '{{ link = "link_1", pos = [{!r}, 0.35, {!r}] }}'.format(
-    float(0.3 - 0.9 * np.sin(np.radians(40.0))), float(0.55 + 0.9 * np.cos(np.radians(40.0))))
+BAL_FROM = f'{{ link = "link_1", pos = [{float(0.3 - 0.9 * np.sin(np.radians(40.0)))!r}, 0.35, {float(0.55 + 0.9 * np.cos(np.radians(40.0)))!r}] }}'
 BAL_TO = '{ link = "link_2", pos = [0.0, 0.35, 0.45] }'
 COMPENSATOR = f"""
 [compensators.balancer]
@@ -146,7 +208,9 @@ site2 = { link = "link_3", pos = [-0.4, -0.35, 0.0] }
 """
 
 
-def arm_overlay(compensator: bool = False, loop: bool = False, actuated=None, extra: str = "", top: str = "") -> str:
+def arm_overlay(
+    compensator: bool = False, loop: bool = False, actuated=None, extra: str = "", top: str = ""
+) -> str:
     """The overlay; ``top`` adds top-level keys (before the first table), ``extra`` tables."""
     text = OVERLAY.format(actuated="[" + ", ".join(f'"{a}"' for a in (actuated or ACTUATED)) + "]")
     return top + text + (COMPENSATOR if compensator else "") + (LOOP_OVERLAY if loop else "") + extra
@@ -166,19 +230,29 @@ def poses(loop: bool = False) -> list[tuple[list[float], list[float] | None]]:
         for k, q3 in enumerate((-30.0, 10.0, 40.0)):
             if loop and abs(q3 - q2) > 60.0:
                 q3 = q2 + np.sign(q3 - q2) * 60.0
-            q = [15.0 * (i - 2), q2, q3, [0.0, 60.0, -90.0][k], [30.0, -45.0, 60.0][(i + k) % 3],
-                 [0.0, 90.0, -45.0][(i + 2 * k) % 3]]
+            q = [
+                15.0 * (i - 2),
+                q2,
+                q3,
+                [0.0, 60.0, -90.0][k],
+                [30.0, -45.0, 60.0][(i + k) % 3],
+                [0.0, 90.0, -45.0][(i + 2 * k) % 3],
+            ]
             out.append((q, None))
-    for q, w in (([30.0, 20.0, 0.0, 0.0, 30.0, 0.0], [0.0, 5000.0, -3000.0, 0.0, 0.0, 0.0]),
-                 ([-45.0, 40.0, 20.0, 45.0, -30.0, 90.0], [4000.0, -3000.0, -2000.0, 500.0, 0.0, 0.0]),
-                 ([60.0, 0.0, -20.0, -60.0, 45.0, -90.0], [-3000.0, -4000.0, -3000.0, 0.0, 600.0, 0.0])):
+    for q, w in (
+        ([30.0, 20.0, 0.0, 0.0, 30.0, 0.0], [0.0, 5000.0, -3000.0, 0.0, 0.0, 0.0]),
+        ([-45.0, 40.0, 20.0, 45.0, -30.0, 90.0], [4000.0, -3000.0, -2000.0, 500.0, 0.0, 0.0]),
+        ([60.0, 0.0, -20.0, -60.0, 45.0, -90.0], [-3000.0, -4000.0, -3000.0, 0.0, 600.0, 0.0]),
+    ):
         out.append((q, w))
     return out
 
 
 def scenario(robot: str, compensator: bool = False, loop: bool = False, seed: int = 3) -> str:
-    lines = [f'name = "urdf arm"\nrobot = "{robot}"\nseed = {seed}\n\n[truth]',
-             f"compliance = [{', '.join(repr(k) for k in TRUTH_K)}]"]
+    lines = [
+        f'name = "urdf arm"\nrobot = "{robot}"\nseed = {seed}\n\n[truth]',
+        f"compliance = [{', '.join(repr(k) for k in TRUTH_K)}]",
+    ]
     if compensator:
         lines.append("\n[truth.compensators.balancer]\nstiffness = 1.5e6\npreload = 0.8")
     lines.append("\n[tracker]\nsigma = 20e-6\nposition = [4.0, -2.5, 1.8]\n\n[load]\nmass = 400.0\n")

@@ -6,6 +6,7 @@ by pose, each pose made durable on disk before the next begins (a crash loses at
 in progress). The noise comes from one generator seeded by the scenario (or --seed), consumed
 in plan order, so the same scenario and seed give the same log, byte for byte.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
@@ -14,18 +15,18 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from calbench.bench.model.effects import Readings, apply_effects, effect_from_truth
 from calbench.bench.core.errors import InputError
+from calbench.bench.core.progress import ProgressSink, sink
 from calbench.bench.log.foxglove import FoxgloveWriter
 from calbench.bench.log.writer import LogHeader, LogWriter
+from calbench.bench.model.effects import Readings, apply_effects, effect_from_truth
 from calbench.bench.model.robot import LOOP_MARGIN, LOOP_MARGIN_ANGLE, Params, Robot
-from calbench.bench.scenario.timeline import check_size, estimate, repeats_key
 from calbench.bench.scenario.parse import Scenario, check_joint_limits
 from calbench.bench.scenario.parse import scenario_params as _scenario_params
+from calbench.bench.scenario.timeline import check_size, estimate, repeats_key
 from calbench.bench.statics.equilibrium import Equilibrium, Load, StaticsError, StaticsSolver
-from calbench.bench.tracker.measuring import measure_campaign, reading_times
 from calbench.bench.tracker.instrument import Measurement, to_tracker_frame, tracker_rotation, visible_sites
-from calbench.bench.core.progress import ProgressSink, sink
+from calbench.bench.tracker.measuring import measure_campaign, reading_times
 
 STATES = ("unloaded", "loaded")
 
@@ -38,9 +39,9 @@ class PosePlan:
     q: np.ndarray
     load: Load
     mass: float | None
-    equilibria: tuple[Equilibrium, Equilibrium]       # unloaded, loaded
-    reflectors_world: np.ndarray                       # (2, n, 3) true positions
-    visible: np.ndarray                                # (2, n) bool
+    equilibria: tuple[Equilibrium, Equilibrium]  # unloaded, loaded
+    reflectors_world: np.ndarray  # (2, n, 3) true positions
+    visible: np.ndarray  # (2, n) bool
 
 
 def scenario_params(scn: Scenario, robot: Robot) -> Params:
@@ -60,8 +61,9 @@ def truth_robot(scn: Scenario) -> Robot:
         try:
             robot = apply_effects(Path(scn.robot), effects)
         except (ValueError, NotImplementedError) as exc:
-            raise InputError(scn.path, "truth.effects", "effects that apply to the robot's MJCF",
-                             f"{scn.robot}: {exc}") from exc
+            raise InputError(
+                scn.path, "truth.effects", "effects that apply to the robot's MJCF", f"{scn.robot}: {exc}"
+            ) from exc
     robot.set_params(scenario_params(scn, robot))
     return robot
 
@@ -77,7 +79,7 @@ def reading_drift(scn: Scenario, index: int, reflectors: list[str]) -> np.ndarra
         if effect.measurement_side:
             term = effect.deflection_term(params, Readings(tuple((index, r) for r in reflectors), rot))
             total = term if total is None else total + term
-    return None if total is None else total @ rot      # world -> tracker frame: R^T x
+    return None if total is None else total @ rot  # world -> tracker frame: R^T x
 
 
 def drifted(m: Measurement, shift: np.ndarray | None) -> Measurement:
@@ -91,7 +93,9 @@ def pose_load(robot: Robot, scn: Scenario, pose) -> tuple[Load, float | None]:
     return Load.mass(robot, scn.load_mass), scn.load_mass
 
 
-def plan_campaign(scn: Scenario, robot: Robot | None = None, progress: ProgressSink | None = None) -> list[PosePlan]:
+def plan_campaign(
+    scn: Scenario, robot: Robot | None = None, progress: ProgressSink | None = None
+) -> list[PosePlan]:
     """Solve and check every pose; raise InputError naming the first bad one."""
     robot = robot or truth_robot(scn)
     check_joint_limits(scn, robot.limits())
@@ -103,7 +107,8 @@ def plan_campaign(scn: Scenario, robot: Robot | None = None, progress: ProgressS
         if np.any(cond < LOOP_MARGIN):
             worst = robot.description.loops[int(np.argmin(cond))]
             raise InputError(
-                scn.path, key,
+                scn.path,
+                key,
                 f"a command where loop {worst!r} is well conditioned: inverse condition number of its "
                 f"passive-joint Jacobian >= {LOOP_MARGIN:.3f} (for a planar two-hinge loop, its links "
                 f"{np.degrees(LOOP_MARGIN_ANGLE):.0f} deg or more from parallel), got {cond.min():.3f}",
@@ -117,8 +122,12 @@ def plan_campaign(scn: Scenario, robot: Robot | None = None, progress: ProgressS
             raise InputError(scn.path, key, "a pose with a static equilibrium", str(exc)) from None
         for state, e in zip(STATES, (e0, e1)):
             if not e.acceptable:
-                raise InputError(scn.path, key, f"a pose with a static equilibrium ({state} did not converge)",
-                                 [round(float(np.degrees(x)), 3) for x in pose.q])
+                raise InputError(
+                    scn.path,
+                    key,
+                    f"a pose with a static equilibrium ({state} did not converge)",
+                    [round(float(np.degrees(x)), 3) for x in pose.q],
+                )
         refl = np.empty((2, len(robot.reflector_sites), 3))
         vis = np.empty((2, len(robot.reflector_sites)), dtype=bool)
         for s, e in enumerate((e0, e1)):
@@ -127,8 +136,12 @@ def plan_campaign(scn: Scenario, robot: Robot | None = None, progress: ProgressS
             refl[s] = robot.data.site_xpos[robot.reflector_sites]
             vis[s] = visible_sites(robot.model, robot.data, scn.tracker, robot.reflector_sites)
         if not (vis[0] & vis[1]).any():
-            raise InputError(scn.path, key, "a pose where the tracker sees at least one reflector both unloaded and loaded",
-                             "every reflector hidden by the robot")
+            raise InputError(
+                scn.path,
+                key,
+                "a pose where the tracker sees at least one reflector both unloaded and loaded",
+                "every reflector hidden by the robot",
+            )
         plans.append(PosePlan(i, pose.q, load, mass, (e0, e1), refl, vis))
         if progress:
             progress.update(f"solving pose {i + 1}/{len(scn.poses)}")
@@ -144,8 +157,9 @@ def truth_record(scn: Scenario, robot: Robot) -> dict:
     return d
 
 
-def run_campaign(scn: Scenario, out: str | Path, progress: ProgressSink | None = None,
-                 force: bool = False) -> list[PosePlan]:
+def run_campaign(
+    scn: Scenario, out: str | Path, progress: ProgressSink | None = None, force: bool = False
+) -> list[PosePlan]:
     """Simulate the whole campaign into one MCAP log at `out`. Returns the solved plan.
     ``progress`` (bench/core/progress.py) hears of every solved and every measured pose. A campaign
     beyond bench/scenario/timeline.py's size limits is refused (InputError) unless ``force``."""
@@ -161,8 +175,14 @@ def run_campaign(scn: Scenario, out: str | Path, progress: ProgressSink | None =
     out.parent.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(scn.seed)
     repeats = [p.repeats for p in scn.poses]
-    measured = measure_campaign(scn.tracker, [p.reflectors_world for p in plans], [p.visible for p in plans],
-                                repeats, rng, reading_times(repeats, len(robot.reflector_names)))
+    measured = measure_campaign(
+        scn.tracker,
+        [p.reflectors_world for p in plans],
+        [p.visible for p in plans],
+        repeats,
+        rng,
+        reading_times(repeats, len(robot.reflector_names)),
+    )
     header = LogHeader(
         scenario_name=scn.name,
         scenario_text=scn.text,
@@ -182,25 +202,41 @@ def run_campaign(scn: Scenario, out: str | Path, progress: ProgressSink | None =
         fox.start(n, plans[0].q if plans else np.zeros(robot.n_act))
         for plan, pose in zip(plans, scn.poses):
             readings: tuple[list, list] = ([], [])
-            for s, state in enumerate(STATES):     # in causal order, stamped by the log's clock
+            for s, state in enumerate(STATES):  # in causal order, stamped by the log's clock
                 if state == "loaded":
-                    log.wrench(plan.index, plan.load.force, plan.load.moment, robot.payload_name,
-                               plan.mass)
+                    log.wrench(plan.index, plan.load.force, plan.load.moment, robot.payload_name, plan.mass)
                 log.pose(plan.index, state, plan.q)
                 shift = reading_drift(scn, plan.index, robot.reflector_names) if s == 1 else None
                 for rep in range(pose.repeats):
                     m = drifted(measured[(plan.index, state, rep)], shift)
-                    log.measurement(plan.index, state, rep, robot.reflector_names, m.position, m.covariance, m.visible)
+                    log.measurement(
+                        plan.index, state, rep, robot.reflector_names, m.position, m.covariance, m.visible
+                    )
                     readings[s].append(m)
                 e = plan.equilibria[s]
                 log.truth_reflectors(plan.index, state, robot.reflector_names, plan.reflectors_world[s])
                 log.truth_joints(plan.index, state, e.qpos, e.deflection)
             e0, e1 = plan.equilibria
-            fox.pose(plan.index, plan.q, readings, (e0.qpos, e1.qpos), plan.reflectors_world,
-                     (e0.deflection, e1.deflection))  # Foxglove's view; the truth on /truth/ only
+            fox.pose(
+                plan.index,
+                plan.q,
+                readings,
+                (e0.qpos, e1.qpos),
+                plan.reflectors_world,
+                (e0.deflection, e1.deflection),
+            )  # Foxglove's view; the truth on /truth/ only
             log.pose_done(plan.index)
             progress.update(f"measured pose {plan.index + 1}/{n}")
     return plans
 
 
-__all__ = ["PosePlan", "plan_campaign", "reading_drift", "drifted", "run_campaign", "truth_robot", "scenario_params", "to_tracker_frame"]
+__all__ = [
+    "PosePlan",
+    "plan_campaign",
+    "reading_drift",
+    "drifted",
+    "run_campaign",
+    "truth_robot",
+    "scenario_params",
+    "to_tracker_frame",
+]

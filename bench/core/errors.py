@@ -5,6 +5,7 @@ exit status (2 for bad input, :class:`InputError`). :class:`StaticsError` says t
 configuration has no static equilibrium (a degenerate loop, a diverging solve); a campaign
 reports it as bad input naming the pose.
 """
+
 from __future__ import annotations
 
 import numpy as np

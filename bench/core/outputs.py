@@ -15,13 +15,14 @@ leaves either the old file or the new one, never half of one. (The campaign's MC
 exception by design: it is written in place, pose by pose, so that a crash leaves a log readable
 up to its last finished pose; see bench/log/writer.py.)
 """
+
 from __future__ import annotations
 
 import contextlib
 import os
 import tempfile
+from collections.abc import Iterator, Mapping
 from pathlib import Path
-from typing import Iterator, Mapping
 
 from .errors import InputError
 
@@ -35,8 +36,9 @@ def _same(a: Path, b: Path) -> bool:
         return False
 
 
-def check_outputs(outputs: Mapping[str, str | os.PathLike | None],
-                  inputs: Mapping[str, str | os.PathLike | None] = ()) -> dict[str, Path]:
+def check_outputs(
+    outputs: Mapping[str, str | os.PathLike | None], inputs: Mapping[str, str | os.PathLike | None] = ()
+) -> dict[str, Path]:
     """Validate output paths (flag -> path; None entries are skipped) against the inputs
     (name -> path) and each other; create missing parent folders. Returns flag -> Path."""
     outs = {k: Path(v) for k, v in outputs.items() if v is not None}
@@ -56,7 +58,7 @@ def check_outputs(outputs: Mapping[str, str | os.PathLike | None],
 
 def _check_folder(flag: str, out: Path) -> None:
     parent = out.parent if str(out.parent) else Path(".")
-    for anc in (parent, *parent.parents):          # nearest existing ancestor must be a folder
+    for anc in (parent, *parent.parents):  # nearest existing ancestor must be a folder
         if anc.exists():
             if not anc.is_dir():
                 raise InputError(out, flag, "a path whose folders are folders", f"{anc} is a file")
@@ -67,7 +69,9 @@ def _check_folder(flag: str, out: Path) -> None:
         os.close(fd)
         os.unlink(probe)
     except OSError as e:
-        raise InputError(out, flag, "a writable folder for this output", f"{parent}: {e.strerror or e}") from None
+        raise InputError(
+            out, flag, "a writable folder for this output", f"{parent}: {e.strerror or e}"
+        ) from None
 
 
 @contextlib.contextmanager
@@ -77,13 +81,14 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     ``suffix`` (default: path's own) matters for writers that choose a format by extension."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix if suffix is None else suffix,
-                               dir=path.parent)
+    fd, tmp = tempfile.mkstemp(
+        prefix=f".{path.name}.", suffix=path.suffix if suffix is None else suffix, dir=path.parent
+    )
     os.close(fd)
     tmp = Path(tmp)
     umask = os.umask(0)
     os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)       # mkstemp makes 0600; a report is meant to be shared
+    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; a report is meant to be shared
     try:
         yield tmp
         os.replace(tmp, path)

@@ -5,6 +5,7 @@ Library functions take an optional ``progress`` object and call ``start(total)``
 :class:`Progress`, a dependency-free bar on stderr shown only on a terminal; notebooks and
 tests pass nothing (or any object with these two methods).
 """
+
 from __future__ import annotations
 
 import sys

@@ -1,5 +1,6 @@
 """The files calbench ships: robot models and scenarios, found the same way in a checkout
 (editable install) and in a plain install (package data under site-packages/calbench/)."""
+
 from __future__ import annotations
 
 from importlib.resources import files

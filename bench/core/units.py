@@ -3,6 +3,7 @@
 SI inside, µrad/(N·m), kN/m and mm in what people read (the terminal table of ``identify``,
 the HTML report, the Rerun view). One table, so the three never disagree.
 """
+
 from __future__ import annotations
 
 # SI unit -> (label shown, factor from SI)

@@ -20,14 +20,16 @@ Units: SI (parameters in their ``unit``; deflections and residuals in m, world f
 Vectors are tuples of floats and undefined values None, exactly as in the JSON, so a report
 compares equal to itself read back.
 """
+
 from __future__ import annotations
 
 import json
 import math
 import os
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 from calbench.bench.core.errors import InputError
 
@@ -63,10 +65,17 @@ class ParameterEstimate:
     reason: str | None = None
 
     def to_dict(self) -> dict:
-        return {"name": self.name, "unit": self.unit, "estimate": _num(self.estimate),
-                "std": _num(self.std), "truth": _num(self.truth), "error": _num(self.error),
-                "z": _num(self.z), "identifiable": bool(self.identifiable),
-                "reason": self.reason}
+        return {
+            "name": self.name,
+            "unit": self.unit,
+            "estimate": _num(self.estimate),
+            "std": _num(self.std),
+            "truth": _num(self.truth),
+            "error": _num(self.error),
+            "z": _num(self.z),
+            "identifiable": bool(self.identifiable),
+            "reason": self.reason,
+        }
 
 
 @dataclass(frozen=True)
@@ -95,8 +104,14 @@ class ObservationFit:
     def to_dict(self) -> dict:
         def listed(v: Vec3 | None) -> list[float] | None:
             return None if v is None else list(v)
-        return {"pose": self.pose, "reflector": self.reflector, "measured": listed(self.measured),
-                "predicted": list(self.predicted), "residual": listed(self.residual)}
+
+        return {
+            "pose": self.pose,
+            "reflector": self.reflector,
+            "measured": listed(self.measured),
+            "predicted": list(self.predicted),
+            "residual": listed(self.residual),
+        }
 
 
 # keys the report derives from its fields when it writes; ignored when read
@@ -110,14 +125,14 @@ class IdentificationReport:
 
     method: str | None
     parameters: tuple[ParameterEstimate, ...]
-    residual_rms: float | None = None           # m, per coordinate
-    noise_sigma: float | None = None            # m, the tracker's nominal per-axis sigma
+    residual_rms: float | None = None  # m, per coordinate
+    noise_sigma: float | None = None  # m, the tracker's nominal per-axis sigma
     chi2_per_dof: float | None = None
     chi2: float | None = None
     dof: int | None = None
     expected_residual_rms: float | None = None  # m, what the tracker noise alone leaves
     whitened_residual_rms: float | None = None
-    covariance: tuple[tuple[float | None, ...], ...] | None = None   # of the parameters, SI
+    covariance: tuple[tuple[float | None, ...], ...] | None = None  # of the parameters, SI
     log: str | None = None
     model: str | None = None
     n_poses_planned: int | None = None
@@ -125,7 +140,7 @@ class IdentificationReport:
     lost_poses: tuple[int, ...] = ()
     truncated: bool = False
     n_observations: int | None = None
-    outliers: tuple[Outlier, ...] = ()         # none screened when the threshold is None
+    outliers: tuple[Outlier, ...] = ()  # none screened when the threshold is None
     outlier_threshold_sigma: float | None = None
     dropped_outliers: tuple[Outlier, ...] = ()
     seconds: float | None = None
@@ -168,15 +183,21 @@ class IdentificationReport:
             "residual_rms": _num(self.residual_rms),
             "noise_sigma": _num(self.noise_sigma),
             "chi2_per_dof": _num(self.chi2_per_dof),
-            "chi2": _num(self.chi2), "dof": self.dof,
+            "chi2": _num(self.chi2),
+            "dof": self.dof,
             "expected_residual_rms": _num(self.expected_residual_rms),
             "whitened_residual_rms": _num(self.whitened_residual_rms),
-            "covariance": None if self.covariance is None else
-            [[_num(x) for x in row] for row in self.covariance],
-            "log": self.log, "model": self.model,
-            "n_poses_planned": self.n_poses_planned, "n_poses_used": self.n_poses_used,
-            "lost_poses": list(self.lost_poses), "n_lost_poses": self.n_lost_poses,
-            "truncated": bool(self.truncated), "n_observations": self.n_observations,
+            "covariance": None
+            if self.covariance is None
+            else [[_num(x) for x in row] for row in self.covariance],
+            "log": self.log,
+            "model": self.model,
+            "n_poses_planned": self.n_poses_planned,
+            "n_poses_used": self.n_poses_used,
+            "lost_poses": list(self.lost_poses),
+            "n_lost_poses": self.n_lost_poses,
+            "truncated": bool(self.truncated),
+            "n_observations": self.n_observations,
             "identifiable": self.identifiable,
             "unidentifiable": self.unidentifiable,
             "outliers": [o.to_dict() for o in self.outliers],
@@ -194,7 +215,7 @@ class IdentificationReport:
         return json.dumps(self.to_dict(), indent=2, allow_nan=False)
 
     @classmethod
-    def from_json(cls, text: str, source: object = "<report>") -> "IdentificationReport":
+    def from_json(cls, text: str, source: object = "<report>") -> IdentificationReport:
         """Parse a report (see the module doc for what may be missing). Raises InputError
         naming ``source`` and the key when it is not JSON or a present key has the wrong type."""
         try:
@@ -204,14 +225,15 @@ class IdentificationReport:
         return _Reader(source).report(doc)
 
     @classmethod
-    def read(cls, path: str | os.PathLike) -> "IdentificationReport":
+    def read(cls, path: str | os.PathLike) -> IdentificationReport:
         """:meth:`from_json` of a file."""
         path = Path(path)
         try:
             text = path.read_text()
         except OSError as e:
-            raise InputError(path, "file", "a readable JSON file (calbench identify --json)",
-                             e.strerror) from None
+            raise InputError(
+                path, "file", "a readable JSON file (calbench identify --json)", e.strerror
+            ) from None
         except UnicodeDecodeError as e:
             raise InputError(path, "file", "JSON (calbench identify --json)", str(e)) from None
         return cls.from_json(text, path)
@@ -259,22 +281,30 @@ class _Reader:
             raise self.fail(name, "a list", type(x).__name__)
         return x
 
-    def parameter(self, p: Any, i: int, identifiable: Mapping,
-                  reasons: Mapping) -> ParameterEstimate:
+    def parameter(self, p: Any, i: int, identifiable: Mapping, reasons: Mapping) -> ParameterEstimate:
         key = f"parameters[{i}]"
         if not isinstance(p, dict) or not isinstance(p.get("name"), str) or "estimate" not in p:
-            raise self.fail(key, "an object with a string name and an estimate (a number, or "
-                            "null when not identifiable)", p)
+            raise self.fail(
+                key,
+                "an object with a string name and an estimate (a number, or null when not identifiable)",
+                p,
+            )
         at, name = key + ".", p["name"]
         est = self.number(p, "estimate", at)
         ident = p.get("identifiable", identifiable.get(name, est is not None))
         if not isinstance(ident, bool):
             raise self.fail(at + "identifiable", "true or false", ident)
         return ParameterEstimate(
-            name=name, unit=self.string(p, "unit", at) or "", estimate=est,
-            std=self.number(p, "std", at), truth=self.number(p, "truth", at),
-            error=self.number(p, "error", at), z=self.number(p, "z", at), identifiable=ident,
-            reason=self.string(p, "reason", at) if "reason" in p else reasons.get(name))
+            name=name,
+            unit=self.string(p, "unit", at) or "",
+            estimate=est,
+            std=self.number(p, "std", at),
+            truth=self.number(p, "truth", at),
+            error=self.number(p, "error", at),
+            z=self.number(p, "z", at),
+            identifiable=ident,
+            reason=self.string(p, "reason", at) if "reason" in p else reasons.get(name),
+        )
 
     def outlier(self, o: Any, key: str) -> Outlier:
         at = key + "."
@@ -297,9 +327,13 @@ class _Reader:
         vecs = {}
         for k in ("measured", "predicted", "residual"):
             v = o.get(k)
-            ok = isinstance(v, list) and len(v) == 3 and all(
-                isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
-                for x in v)
+            ok = (
+                isinstance(v, list)
+                and len(v) == 3
+                and all(
+                    isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v
+                )
+            )
             if v is not None and not ok:
                 return None
             vecs[k] = _vec3(v) if ok else None
@@ -312,19 +346,21 @@ class _Reader:
         if c is None:
             return None
         if not isinstance(c, list) or not all(isinstance(r, list) and len(r) == len(c) for r in c):
-            raise self.fail("covariance", "a square list of lists of numbers or null",
-                            type(c).__name__)
-        return tuple(tuple(self.value(x, f"covariance[{i}][{j}]") for j, x in enumerate(r))
-                     for i, r in enumerate(c))
+            raise self.fail("covariance", "a square list of lists of numbers or null", type(c).__name__)
+        return tuple(
+            tuple(self.value(x, f"covariance[{i}][{j}]") for j, x in enumerate(r)) for i, r in enumerate(c)
+        )
 
     def report(self, doc: Any) -> IdentificationReport:
         if not isinstance(doc, dict) or not isinstance(doc.get("parameters"), list):
-            raise self.fail("parameters", "a list of {name, unit, estimate, std, truth}",
-                            type(doc.get("parameters") if isinstance(doc, dict) else doc).__name__)
+            raise self.fail(
+                "parameters",
+                "a list of {name, unit, estimate, std, truth}",
+                type(doc.get("parameters") if isinstance(doc, dict) else doc).__name__,
+            )
         identifiable = doc.get("identifiable") if isinstance(doc.get("identifiable"), dict) else {}
         reasons = doc.get("unidentifiable") if isinstance(doc.get("unidentifiable"), dict) else {}
-        params = tuple(self.parameter(p, i, identifiable, reasons)
-                       for i, p in enumerate(doc["parameters"]))
+        params = tuple(self.parameter(p, i, identifiable, reasons) for i, p in enumerate(doc["parameters"]))
         warnings: list[str] = []
         raw_obs = doc.get("observations")
         if raw_obs is not None and not isinstance(raw_obs, list):
@@ -332,8 +368,10 @@ class _Reader:
             raw_obs = None
         fits = [self.observation(o) for o in raw_obs or []]
         if None in fits:
-            warnings.append(f"observations: {fits.count(None)} entries without pose, reflector "
-                            "and a predicted [dx, dy, dz] were skipped")
+            warnings.append(
+                f"observations: {fits.count(None)} entries without pose, reflector "
+                "and a predicted [dx, dy, dz] were skipped"
+            )
         lost = self.items(doc, "lost_poses")
         if not all(isinstance(p, int) and not isinstance(p, bool) for p in lost):
             raise self.fail("lost_poses", "a list of pose indices", lost)
@@ -359,11 +397,14 @@ class _Reader:
             lost_poses=tuple(lost),
             truncated=truncated,
             n_observations=self.integer(doc, "n_observations"),
-            outliers=tuple(self.outlier(o, f"outliers[{i}]")
-                           for i, o in enumerate(self.items(doc, "outliers"))),
+            outliers=tuple(
+                self.outlier(o, f"outliers[{i}]") for i, o in enumerate(self.items(doc, "outliers"))
+            ),
             outlier_threshold_sigma=self.number(doc, "outlier_threshold_sigma"),
-            dropped_outliers=tuple(self.outlier(o, f"dropped_outliers[{i}]")
-                                   for i, o in enumerate(self.items(doc, "dropped_outliers"))),
+            dropped_outliers=tuple(
+                self.outlier(o, f"dropped_outliers[{i}]")
+                for i, o in enumerate(self.items(doc, "dropped_outliers"))
+            ),
             seconds=self.number(doc, "seconds"),
             observations=tuple(f for f in fits if f is not None),
             details={k: v for k, v in doc.items() if k not in known},

@@ -29,6 +29,7 @@ when read, they are checked like the rest. Topics the reader does not use (the F
 are not decoded. Log times are not interpreted, so logs of earlier versions (times from 1970)
 read as before.
 """
+
 from __future__ import annotations
 
 import json
@@ -40,15 +41,31 @@ from typing import Any
 import numpy as np
 from mcap.records import Attachment, Channel, Footer, Message, Metadata
 
-from .records import (STATES, CampaignLog, CampaignTruth, MeasurementRecord, PerState,
-                          TruthJoints, TruthParameters, TruthReflectors, WrenchRecord)
 from calbench.bench.core.errors import InputError
-from .schema import (GROUND_TRUTH_METADATA, REQUIRED_TOPICS, SCENARIO_METADATA, SCHEMAS,
-                        TRUTH_PREFIX, Problem, problems)
-from .scan import Cut, Damage, scan
 
-END_METADATA = "campaign_end"         # how the campaign ended (bench/log/writer.py writes it)
-RECOVERED_METADATA = "recovered"      # written by `calbench recover`
+from .records import (
+    CampaignLog,
+    CampaignTruth,
+    MeasurementRecord,
+    PerState,
+    TruthJoints,
+    TruthParameters,
+    TruthReflectors,
+    WrenchRecord,
+)
+from .scan import Cut, Damage, scan
+from .schema import (
+    GROUND_TRUTH_METADATA,
+    REQUIRED_TOPICS,
+    SCENARIO_METADATA,
+    SCHEMAS,
+    TRUTH_PREFIX,
+    Problem,
+    problems,
+)
+
+END_METADATA = "campaign_end"  # how the campaign ended (bench/log/writer.py writes it)
+RECOVERED_METADATA = "recovered"  # written by `calbench recover`
 RECOVER_HINT = "`calbench recover LOG --out FIXED.mcap` keeps its valid poses"
 # the topics this reader decodes; the others (Foxglove's view) are passed by
 DECODED = frozenset(SCHEMAS)
@@ -70,16 +87,15 @@ class CorruptLogError(InputError):
 
 # --------------------------------------------------------------------------- message checks
 
+
 def _pose_of(m: Any) -> Any:
     return m.get("pose") if isinstance(m, dict) else None
 
 
-JOINT_VECTORS = {"/campaign/pose": "q", "/truth/joints": "deflection",
-                 "/truth/parameters": "compliance"}
+JOINT_VECTORS = {"/campaign/pose": "q", "/truth/joints": "deflection", "/truth/parameters": "compliance"}
 
 
-def message_problems(topic: str, m: Any, n_poses: int | None,
-                     n_joints: int | None = None) -> list[Problem]:
+def message_problems(topic: str, m: Any, n_poses: int | None, n_joints: int | None = None) -> list[Problem]:
     """Every reason to refuse message ``m`` of ``topic``: its schema, then what a schema cannot
     say (the pose within the plan of ``n_poses``, one value per joint of ``n_joints`` in every
     command, deflection and compliance, a reading's lists agreeing, covariances symmetric
@@ -89,17 +105,28 @@ def message_problems(topic: str, m: Any, n_poses: int | None,
         return found
     pose = _pose_of(m)
     if n_poses is not None and pose is not None and pose >= n_poses:
-        return [Problem("pose", f"a pose index of the plan (0..{n_poses - 1}; /campaign/info "
-                                f"n_poses = {n_poses})", pose)]
+        return [
+            Problem(
+                "pose",
+                f"a pose index of the plan (0..{n_poses - 1}; /campaign/info n_poses = {n_poses})",
+                pose,
+            )
+        ]
     key = JOINT_VECTORS.get(topic)
     if key and n_joints is not None and len(m[key]) != n_joints:
-        return [Problem(key, f"{n_joints} items, one per actuated joint as in every command",
-                        f"{len(m[key])} items")]
+        return [
+            Problem(
+                key, f"{n_joints} items, one per actuated joint as in every command", f"{len(m[key])} items"
+            )
+        ]
     if topic == "/tracker/measurement":
         return _measurement_problems(m)
     if topic == "/truth/reflectors" and len(m["position_world"]) != len(m["reflectors"]):
-        return [Problem("position_world", f"{len(m['reflectors'])} rows, one per reflector",
-                        len(m["position_world"]))]
+        return [
+            Problem(
+                "position_world", f"{len(m['reflectors'])} rows, one per reflector", len(m["position_world"])
+            )
+        ]
     return []
 
 
@@ -113,17 +140,32 @@ def _measurement_problems(m: dict) -> list[Problem]:
     for i, vis in enumerate(m["visible"]):
         for key in ("position", "covariance"):
             if (m[key][i] is not None) != vis:
-                return [Problem(f"{key}[{i}]", "null exactly where visible is false",
-                                m[key][i] if m[key][i] is None else f"a value with visible {vis}")]
+                return [
+                    Problem(
+                        f"{key}[{i}]",
+                        "null exactly where visible is false",
+                        m[key][i] if m[key][i] is None else f"a value with visible {vis}",
+                    )
+                ]
         if vis:
             c = np.asarray(m["covariance"][i], dtype=float)
             scale = np.abs(c).max()
             if not scale > 0 or np.abs(c - c.T).max() > SYMMETRY_TOL * scale:
-                return [Problem(f"covariance[{i}]", "a symmetric positive definite 3x3 matrix",
-                                "an asymmetric or zero matrix")]
+                return [
+                    Problem(
+                        f"covariance[{i}]",
+                        "a symmetric positive definite 3x3 matrix",
+                        "an asymmetric or zero matrix",
+                    )
+                ]
             if np.linalg.eigvalsh(0.5 * (c + c.T)).min() <= 0:
-                return [Problem(f"covariance[{i}]", "a symmetric positive definite 3x3 matrix",
-                                "a matrix with an eigenvalue <= 0")]
+                return [
+                    Problem(
+                        f"covariance[{i}]",
+                        "a symmetric positive definite 3x3 matrix",
+                        "a matrix with an eigenvalue <= 0",
+                    )
+                ]
     return []
 
 
@@ -139,11 +181,12 @@ def decode(topic: str, data: bytes, index: int) -> tuple[Any, str | None]:
     """(the JSON of one message, None), or (None, why it is not JSON)."""
     try:
         return json.loads(data), None
-    except (ValueError, RecursionError) as e:   # JSONDecodeError and UnicodeDecodeError
+    except (ValueError, RecursionError) as e:  # JSONDecodeError and UnicodeDecodeError
         return None, f"message #{index} is not JSON ({type(e).__name__}: {str(e)[:80]})"
 
 
 # --------------------------------------------------------------------------- the reader
+
 
 @dataclass
 class _Collected:
@@ -187,28 +230,41 @@ def _take(c: _Collected, topic: str, m: dict, log_time: int) -> None:
         c.poses.setdefault(m["pose"], {})[m["state"]] = np.asarray(m["q"], dtype=float)
     elif topic == "/campaign/wrench":
         c.wrenches[m["pose"]] = WrenchRecord(
-            pose=m["pose"], force=np.asarray(m["force"], dtype=float),
-            moment=np.asarray(m["moment"], dtype=float), site=m["site"], mass=m["mass"])
+            pose=m["pose"],
+            force=np.asarray(m["force"], dtype=float),
+            moment=np.asarray(m["moment"], dtype=float),
+            site=m["site"],
+            mass=m["mass"],
+        )
     elif topic == "/tracker/measurement":
-        c.meas.append(MeasurementRecord(
-            pose=m["pose"], state=m["state"], repeat=m["repeat"], reflectors=list(m["reflectors"]),
-            position=_nan_rows(m["position"], (3,)), covariance=_nan_rows(m["covariance"], (3, 3)),
-            visible=np.asarray(m["visible"], dtype=bool), time=int(log_time)))
+        c.meas.append(
+            MeasurementRecord(
+                pose=m["pose"],
+                state=m["state"],
+                repeat=m["repeat"],
+                reflectors=list(m["reflectors"]),
+                position=_nan_rows(m["position"], (3,)),
+                covariance=_nan_rows(m["covariance"], (3, 3)),
+                visible=np.asarray(m["visible"], dtype=bool),
+                time=int(log_time),
+            )
+        )
     elif topic == "/campaign/pose_done":
         c.done.add(m["pose"])
     elif topic == "/truth/parameters":
         c.t_params = m
     elif topic == "/truth/reflectors":
         c.t_refl.setdefault(m["pose"], {})[m["state"]] = TruthReflectors(
-            tuple(m["reflectors"]), np.asarray(m["position_world"], dtype=float))
+            tuple(m["reflectors"]), np.asarray(m["position_world"], dtype=float)
+        )
     elif topic == "/truth/joints":
         c.t_joints.setdefault(m["pose"], {})[m["state"]] = TruthJoints(
-            np.asarray(m["qpos"], dtype=float), np.asarray(m["deflection"], dtype=float))
+            np.asarray(m["qpos"], dtype=float), np.asarray(m["deflection"], dtype=float)
+        )
 
 
 def _per_state(d: dict[int, dict[str, Any]], keep: set[int]) -> dict[int, PerState]:
-    return {p: PerState(v.get("unloaded"), v.get("loaded")) for p, v in sorted(d.items())
-            if p in keep}
+    return {p: PerState(v.get("unloaded"), v.get("loaded")) for p, v in sorted(d.items()) if p in keep}
 
 
 def _check_reflector_lists(path: Path, header: list[str], meas: list[MeasurementRecord]) -> None:
@@ -216,16 +272,17 @@ def _check_reflector_lists(path: Path, header: list[str], meas: list[Measurement
     all name the same list (its rows are matched by position between states and repeats)."""
     known, first = set(header), {}
     for m in meas:
-        key = _key("/tracker/measurement", {"pose": m.pose, "state": m.state, "repeat": m.repeat},
-                   "reflectors")
+        key = _key(
+            "/tracker/measurement", {"pose": m.pose, "state": m.state, "repeat": m.repeat}, "reflectors"
+        )
         unknown = [r for r in m.reflectors if r not in known]
         if unknown:
-            raise CorruptLogError(path, key, "reflectors that /campaign/info lists "
-                                  f"({', '.join(header) or 'none'})", unknown)
+            raise CorruptLogError(
+                path, key, f"reflectors that /campaign/info lists ({', '.join(header) or 'none'})", unknown
+            )
         names = first.setdefault(m.pose, m.reflectors)
         if m.reflectors != names:
-            raise CorruptLogError(path, key, f"the list of the pose's first reading {names}",
-                                  m.reflectors)
+            raise CorruptLogError(path, key, f"the list of the pose's first reading {names}", m.reflectors)
 
 
 def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLog:
@@ -241,11 +298,10 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
     saw_truth = cut = False
     n_poses: int | None = None
     n_joints: int | None = None
-    pending: list[tuple[str, dict]] = []      # pose messages met before /campaign/info
+    pending: list[tuple[str, dict]] = []  # pose messages met before /campaign/info
     for rec in scan(path):
         if isinstance(rec, Damage):
-            raise CorruptLogError(path, f"byte {rec.offset}", f"an undamaged {rec.record} record",
-                                  rec.why)
+            raise CorruptLogError(path, f"byte {rec.offset}", f"an undamaged {rec.record} record", rec.why)
         if isinstance(rec, Cut):
             cut = True
             break
@@ -258,7 +314,7 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
             if topic.startswith(TRUTH_PREFIX):
                 saw_truth = True
                 if not include_truth:
-                    continue                               # never decoded
+                    continue  # never decoded
             m, why = decode(topic, rec.data, rec.sequence)
             if why:
                 raise CorruptLogError(path, topic, "JSON messages", why)
@@ -267,17 +323,18 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
                 p = found[0]
                 raise CorruptLogError(path, _key(topic, m, p.field), p.expected, p.got)
             if topic == "/campaign/pose" and n_joints is None:
-                n_joints = len(m["q"])               # the first command fixes it (old logs)
+                n_joints = len(m["q"])  # the first command fixes it (old logs)
             if not c.once(_identity(topic, m)):
                 raise CorruptLogError(path, _key(topic, m, ""), "each message once", "a duplicate")
             if topic == "/campaign/info":
                 n_poses = m["n_poses"]
                 n_joints = m.get("n_joints", n_joints)
-                for t, pm in pending:                    # now the plan is known
+                for t, pm in pending:  # now the plan is known
                     found = message_problems(t, pm, n_poses, n_joints)
                     if found:
-                        raise CorruptLogError(path, _key(t, pm, found[0].field), found[0].expected,
-                                              found[0].got)
+                        raise CorruptLogError(
+                            path, _key(t, pm, found[0].field), found[0].expected, found[0].got
+                        )
             elif n_poses is None and "pose" in m:
                 pending.append((topic, m))
             _take(c, topic, m, rec.log_time)
@@ -299,24 +356,30 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
     present = set(topics.values())
     for topic in REQUIRED_TOPICS:
         if topic not in present:
-            raise InputError(path, topic, "a channel with this topic in the campaign log",
-                             "no such channel")
+            raise InputError(path, topic, "a channel with this topic in the campaign log", "no such channel")
     if c.info is None:
         raise InputError(path, "/campaign/info", "one campaign info message", "none")
 
     complete = sorted(c.done)
     keep = set(complete)
-    for p in complete:                       # a complete pose is all there
+    for p in complete:  # a complete pose is all there
         states = c.poses.get(p, {})
         if len(states) != 2:
-            raise CorruptLogError(path, f"/campaign/pose pose {p}", "the command of a complete "
-                                  "pose in both states", sorted(states) or "none")
+            raise CorruptLogError(
+                path,
+                f"/campaign/pose pose {p}",
+                "the command of a complete pose in both states",
+                sorted(states) or "none",
+            )
         if p not in c.wrenches:
-            raise CorruptLogError(path, f"/campaign/wrench pose {p}", "the load of a complete pose",
-                                  "none")
+            raise CorruptLogError(path, f"/campaign/wrench pose {p}", "the load of a complete pose", "none")
         if not np.allclose(states["unloaded"], states["loaded"], rtol=0, atol=COMMAND_TOL):
-            raise CorruptLogError(path, f"/campaign/pose pose {p} loaded: q", "the command of the "
-                                  "unloaded state (a pose is one command)", states["loaded"].tolist())
+            raise CorruptLogError(
+                path,
+                f"/campaign/pose pose {p} loaded: q",
+                "the command of the unloaded state (a pose is one command)",
+                states["loaded"].tolist(),
+            )
     _check_reflector_lists(path, c.info["reflectors"], c.meas)
     truth = None
     if include_truth and saw_truth:
@@ -325,16 +388,23 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
         if t_params is None and "parameters" in t_meta:
             t_params, why = decode(GROUND_TRUTH_METADATA, t_meta["parameters"].encode(), 0)
             if why or problems(t_params, SCHEMAS["/truth/parameters"]):
-                raise CorruptLogError(path, "ground_truth.parameters",
-                                      "the /truth/parameters message as JSON", why or "other fields")
+                raise CorruptLogError(
+                    path,
+                    "ground_truth.parameters",
+                    "the /truth/parameters message as JSON",
+                    why or "other fields",
+                )
         truth = CampaignTruth(
             parameters=_truth_parameters(path, t_params),
-            reflectors=_per_state(c.t_refl, keep), joints=_per_state(c.t_joints, keep),
-            scenario_text=t_meta.get("scenario_text"))
+            reflectors=_per_state(c.t_refl, keep),
+            joints=_per_state(c.t_joints, keep),
+            scenario_text=t_meta.get("scenario_text"),
+        )
     end, truncated = log_end(cut, metadata)
     scenario_text = (metadata.get(SCENARIO_METADATA) or {}).get("text")
     return CampaignLog(
-        path=path, header=c.info,
+        path=path,
+        header=c.info,
         scenario_text=scenario_text if scenario_text is not None else scenario_att,
         mjcf_text=mjcf_text,
         poses=_per_state(c.poses, keep),
@@ -354,11 +424,15 @@ def log_end(cut: bool, metadata: dict[str, dict]) -> tuple[str, bool]:
     the campaign stopped before its end."""
     rec = metadata.get(RECOVERED_METADATA)
     if rec is not None:
-        return (f"the log was recovered by `calbench recover` from one that "
-                f"{rec.get('source_end', 'was damaged')}", rec.get("campaign_finished") != "true")
+        return (
+            f"the log was recovered by `calbench recover` from one that "
+            f"{rec.get('source_end', 'was damaged')}",
+            rec.get("campaign_finished") != "true",
+        )
     if cut:
-        return ("the log was cut short: the file ends without its footer (the campaign was "
-                "killed or crashed)"), True
+        return (
+            "the log was cut short: the file ends without its footer (the campaign was killed or crashed)"
+        ), True
     end = metadata.get(END_METADATA) or {}
     status = end.get("status", "finished")
     if status == "finished":
@@ -381,9 +455,12 @@ def _truth_parameters(path: Path, m: dict | None) -> TruthParameters | None:
     try:
         return TruthParameters.from_message(m)
     except (KeyError, TypeError, ValueError) as e:
-        raise CorruptLogError(path, "/truth/parameters",
-                              "compliance [one number per actuated joint] and compensator(s) "
-                              "{stiffness, preload}", str(e)) from None
+        raise CorruptLogError(
+            path,
+            "/truth/parameters",
+            "compliance [one number per actuated joint] and compensator(s) {stiffness, preload}",
+            str(e),
+        ) from None
 
 
 def has_truth(path: str | os.PathLike) -> bool:
@@ -404,5 +481,14 @@ def has_truth(path: str | os.PathLike) -> bool:
     return False
 
 
-__all__ = ["read_log", "has_truth", "message_problems", "decode", "log_end", "CorruptLogError",
-           "END_METADATA", "RECOVERED_METADATA", "DECODED"]
+__all__ = [
+    "read_log",
+    "has_truth",
+    "message_problems",
+    "decode",
+    "log_end",
+    "CorruptLogError",
+    "END_METADATA",
+    "RECOVERED_METADATA",
+    "DECODED",
+]

@@ -13,12 +13,14 @@ One record per topic family:
 
 Units: SI throughout (m, rad, N, N*m; covariances in m^2).
 """
+
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
-from typing import Any, Generic, Mapping, Sequence, TypeVar
+from typing import Any, Generic, TypeVar
 
 import numpy as np
 
@@ -60,7 +62,7 @@ class MeasurementRecord:
     visible: np.ndarray
     time: int | None = None
 
-    def in_order(self, names: Sequence[str]) -> "MeasurementRecord":
+    def in_order(self, names: Sequence[str]) -> MeasurementRecord:
         """This reading with its rows in ``names`` order; a reflector it does not list is not
         visible (NaN rows). Returns ``self`` when the order already matches."""
         if list(self.reflectors) == list(names):
@@ -80,22 +82,22 @@ class WrenchRecord:
     """The load of a pose's loaded state (``/campaign/wrench``), world frame."""
 
     pose: int
-    force: np.ndarray          # (3,) N
-    moment: np.ndarray         # (3,) N*m
-    site: str                  # MJCF site the wrench acts at
-    mass: float | None         # kg when the load is a hanging payload, else None
+    force: np.ndarray  # (3,) N
+    moment: np.ndarray  # (3,) N*m
+    site: str  # MJCF site the wrench acts at
+    mass: float | None  # kg when the load is a hanging payload, else None
 
 
 @dataclass(frozen=True)
 class TruthParameters:
     """The simulated robot's true parameters (``/truth/parameters``)."""
 
-    compliance: np.ndarray            # (N,) rad/(N*m), motors 1..N
-    springs: Mapping[str, Spring]     # compensator springs by tendon name
-    effects: Mapping[str, Any]        # hidden effects, as the scenario's [truth.effects.*]
+    compliance: np.ndarray  # (N,) rad/(N*m), motors 1..N
+    springs: Mapping[str, Spring]  # compensator springs by tendon name
+    effects: Mapping[str, Any]  # hidden effects, as the scenario's [truth.effects.*]
 
     @classmethod
-    def from_message(cls, m: Mapping[str, Any]) -> "TruthParameters":
+    def from_message(cls, m: Mapping[str, Any]) -> TruthParameters:
         """Parse the JSON message; raises KeyError, TypeError or ValueError when malformed."""
         k = np.asarray(m["compliance"], dtype=float)
         if k.ndim != 1 or k.size == 0:
@@ -111,15 +113,15 @@ class TruthReflectors:
     """True reflector positions of one pose and state (``/truth/reflectors``)."""
 
     reflectors: tuple[str, ...]
-    position_world: np.ndarray        # (n, 3) m
+    position_world: np.ndarray  # (n, 3) m
 
 
 @dataclass(frozen=True)
 class TruthJoints:
     """True equilibrium of one pose and state (``/truth/joints``)."""
 
-    qpos: np.ndarray                  # full MuJoCo qpos
-    deflection: np.ndarray            # (N,) rad, motor-space deflection from the command
+    qpos: np.ndarray  # full MuJoCo qpos
+    deflection: np.ndarray  # (N,) rad, motor-space deflection from the command
 
 
 @dataclass(frozen=True)
@@ -172,8 +174,9 @@ class CampaignLog:
         lost = self.lost_poses
         if not lost and not self.truncated:
             return None
-        text = (f"{len(self.complete_poses)} of {self.n_poses_planned} planned poses complete"
-                + (f", {len(lost)} lost {pose_list(lost)}" if lost else ""))
+        text = f"{len(self.complete_poses)} of {self.n_poses_planned} planned poses complete" + (
+            f", {len(lost)} lost {pose_list(lost)}" if lost else ""
+        )
         if self.dropped_poses:
             text += f" (damaged and dropped: {pose_list(self.dropped_poses)})"
         return f"{text}; {self.end}"
@@ -181,8 +184,7 @@ class CampaignLog:
     def tracker_spec(self) -> TrackerSpec:
         """The tracker of the header (position m, yaw rad, noise model); InputError naming the
         log and the key when it is malformed."""
-        return TrackerSpec.from_dict(self.header.get("tracker"), self.path,
-                                     "/campaign/info.tracker")
+        return TrackerSpec.from_dict(self.header.get("tracker"), self.path, "/campaign/info.tracker")
 
     @cached_property
     def _by_state(self) -> dict[tuple[int, str], list[MeasurementRecord]]:
@@ -210,5 +212,15 @@ def pose_list(poses: Sequence[int]) -> str:
     return "[" + ", ".join(out) + "]"
 
 
-__all__ = ["pose_list", "STATES", "PerState", "MeasurementRecord", "WrenchRecord", "TruthParameters",
-           "TruthReflectors", "TruthJoints", "CampaignTruth", "CampaignLog"]
+__all__ = [
+    "pose_list",
+    "STATES",
+    "PerState",
+    "MeasurementRecord",
+    "WrenchRecord",
+    "TruthParameters",
+    "TruthReflectors",
+    "TruthJoints",
+    "CampaignTruth",
+    "CampaignLog",
+]

@@ -21,6 +21,7 @@ reader opens and that bench/log/read.py accepts:
 It cannot recover a log whose ``/campaign/info`` message is damaged (CorruptLogError), and a
 file that is not MCAP is an InputError: both exit status 2.
 """
+
 from __future__ import annotations
 
 import json
@@ -32,13 +33,22 @@ from typing import Any
 import numpy as np
 from mcap.records import Channel, Message, MessageIndex, Metadata
 
-from .records import pose_list
-from .writer import copy_log
 from calbench.bench.core.errors import InputError
-from .read import (COMMAND_TOL, DECODED, END_METADATA, RECOVERED_METADATA, CorruptLogError,
-                      decode, message_problems, read_log)
-from .schema import REQUIRED_TOPICS
+
+from .read import (
+    COMMAND_TOL,
+    DECODED,
+    END_METADATA,
+    RECOVERED_METADATA,
+    CorruptLogError,
+    decode,
+    message_problems,
+    read_log,
+)
+from .records import pose_list
 from .scan import Cut, Damage, scan
+from .schema import REQUIRED_TOPICS
+from .writer import copy_log
 
 
 @dataclass
@@ -46,13 +56,13 @@ class Recovery:
     """What :func:`recover_log` kept and left out."""
 
     source: Path
-    source_end: str                                   # "finished", "was cut short", ...
+    source_end: str  # "finished", "was cut short", ...
     complete_poses: list[int] = field(default_factory=list)
-    dropped: dict[int, str] = field(default_factory=dict)   # pose -> why it was left out
-    damage: list[str] = field(default_factory=list)         # damaged records, in words
+    dropped: dict[int, str] = field(default_factory=dict)  # pose -> why it was left out
+    damage: list[str] = field(default_factory=list)  # damaged records, in words
     n_planned: int = 0
     notes: list[str] = field(default_factory=list)
-    finished: bool = True                             # the campaign itself ran to its end
+    finished: bool = True  # the campaign itself ran to its end
 
     @property
     def lost_poses(self) -> list[int]:
@@ -60,12 +70,16 @@ class Recovery:
 
     def summary(self) -> str:
         """One line for the command line."""
-        text = (f"{len(self.complete_poses)} of {self.n_planned} planned poses kept"
-                f" {pose_list(self.complete_poses)}" if self.complete_poses else
-                f"no complete pose of {self.n_planned} planned")
+        text = (
+            f"{len(self.complete_poses)} of {self.n_planned} planned poses kept"
+            f" {pose_list(self.complete_poses)}"
+            if self.complete_poses
+            else f"no complete pose of {self.n_planned} planned"
+        )
         if self.dropped:
-            text += "; dropped " + ", ".join(f"pose {p} ({why})" for p, why in
-                                             sorted(self.dropped.items())[:5])
+            text += "; dropped " + ", ".join(
+                f"pose {p} ({why})" for p, why in sorted(self.dropped.items())[:5]
+            )
             text += "" if len(self.dropped) <= 5 else f" and {len(self.dropped) - 5} more"
         return f"{text}; the source {self.source_end}"
 
@@ -83,17 +97,17 @@ class _Salvage:
         self.topics = {r.id: r.topic for r in events if isinstance(r, Channel)}
         self.n_poses: int | None = None
         self.n_joints: int | None = None
-        self.reflectors: set[str] = set()       # the header's
-        self.valid: set[int] = set()            # decoded messages that pass every check
-        self.pose_of: dict[int, int] = {}       # event index -> pose of a valid message
-        self.span_of: dict[int, int] = {}       # event index -> the marker closing its span
-        self.done: dict[int, int] = {}          # pose -> event index of its marker
-        self.bad: dict[int, str] = {}           # pose -> why it is left out
+        self.reflectors: set[str] = set()  # the header's
+        self.valid: set[int] = set()  # decoded messages that pass every check
+        self.pose_of: dict[int, int] = {}  # event index -> pose of a valid message
+        self.span_of: dict[int, int] = {}  # event index -> the marker closing its span
+        self.done: dict[int, int] = {}  # pose -> event index of its marker
+        self.bad: dict[int, str] = {}  # pose -> why it is left out
         self._span: list[int] = []
         self._poses: set[int] = set()
         self._taint: str | None = None
         self._seen: set[tuple] = set()
-        closed = None                           # after a damaged chunk: did it end a pose?
+        closed = None  # after a damaged chunk: did it end a pose?
         for i, e in enumerate(events):
             if isinstance(e, Damage):
                 self._taint = self._taint or f"damaged {e.record} at byte {e.offset}"
@@ -102,42 +116,49 @@ class _Salvage:
                 if closed is False and self.topics.get(e.channel_id) == "/campaign/pose_done":
                     closed = True
             else:
-                if closed:                          # the damaged chunk held a pose's marker:
-                    self._close(None)               # that pose is lost, the next one is clean
+                if closed:  # the damaged chunk held a pose's marker:
+                    self._close(None)  # that pose is lost, the next one is clean
                 closed = None
                 if isinstance(e, Message) and e.channel_id in self.topics:
                     self._message(i, e, self.topics[e.channel_id])
 
     def _message(self, i: int, e: Message, topic: str) -> None:
         if topic not in DECODED:
-            if self._poses:                       # inside a pose: it follows the pose
+            if self._poses:  # inside a pose: it follows the pose
                 self._span.append(i)
             return
         m, why = decode(topic, e.data, e.sequence)
         pose = _pose(m)
         if why is None:
             found = message_problems(topic, m, self.n_poses, self.n_joints)
-            why = (f"{topic} {found[0].field}: expected {found[0].expected}".replace(" :", ":")
-                   if found else None)
+            why = (
+                f"{topic} {found[0].field}: expected {found[0].expected}".replace(" :", ":")
+                if found
+                else None
+            )
         key = (topic, pose, *((m.get("state"), m.get("repeat")) if isinstance(m, dict) else ()))
         if why is None and key in self._seen:
             why = f"a second {topic} message"
         self._seen.add(key)
         if topic == "/campaign/info":
             if why is not None or self.n_poses is not None:
-                raise CorruptLogError(self.src, "/campaign/info", "one valid campaign info message "
-                                      "to recover from", why or "two")
+                raise CorruptLogError(
+                    self.src,
+                    "/campaign/info",
+                    "one valid campaign info message to recover from",
+                    why or "two",
+                )
             self.n_poses = m["n_poses"]
             self.n_joints = m.get("n_joints")
             self.reflectors = set(m["reflectors"])
-        if why is not None:                       # it taints the pose it sits among, and its
-            self._taint = self._taint or why      # own pose (when that is one of the plan)
+        if why is not None:  # it taints the pose it sits among, and its
+            self._taint = self._taint or why  # own pose (when that is one of the plan)
             if pose is not None and (self.n_poses is None or 0 <= pose < self.n_poses):
                 self.bad.setdefault(pose, why)
             return
         self.valid.add(i)
         if topic == "/campaign/pose" and self.n_joints is None:
-            self.n_joints = len(m["q"])           # the first command fixes it (old logs)
+            self.n_joints = len(m["q"])  # the first command fixes it (old logs)
         if pose is None:
             return
         self.pose_of[i] = pose
@@ -175,8 +196,7 @@ class _Salvage:
                 q.setdefault(p, {})[state] = msg["q"]
             elif topic == "/tracker/measurement":
                 lists.setdefault(p, set()).add(tuple(msg["reflectors"]))
-        need = {("/campaign/pose", "unloaded"), ("/campaign/pose", "loaded"),
-                ("/campaign/wrench", None)}
+        need = {("/campaign/pose", "unloaded"), ("/campaign/pose", "loaded"), ("/campaign/wrench", None)}
         for p in self.done:
             if p in self.bad:
                 continue
@@ -193,16 +213,14 @@ def recover_log(src: str | os.PathLike, dst: str | os.PathLike) -> Recovery:
     """Rewrite ``src`` as a valid MCAP file at ``dst`` (see the module docstring). Reads ``src``
     whole before ``dst`` is created."""
     src = Path(src)
-    events = list(scan(src))                  # InputError when src is not MCAP
+    events = list(scan(src))  # InputError when src is not MCAP
     damage = [e for e in events if isinstance(e, Damage)]
     sal = _Salvage(src, events)
     if sal.n_poses is None:
-        raise CorruptLogError(src, "/campaign/info", "a campaign info message to recover from",
-                              "none")
+        raise CorruptLogError(src, "/campaign/info", "a campaign info message to recover from", "none")
     for topic in REQUIRED_TOPICS:
         if topic not in sal.topics.values():
-            raise CorruptLogError(src, topic, "a channel with this topic to recover from",
-                                  "no such channel")
+            raise CorruptLogError(src, topic, "a channel with this topic to recover from", "no such channel")
     complete = set(sal.complete(events))
     markers = {sal.done[p] for p in complete}
     # the data section's CRC covers every record: alone in failing, it points at one outside the
@@ -213,15 +231,14 @@ def recover_log(src: str | os.PathLike, dst: str | os.PathLike) -> Recovery:
     def keep(r: Any) -> bool:
         i = index[id(r)]
         if isinstance(r, Message):
-            if i in sal.span_of:                  # a pose's message: its pose decides
-                return sal.span_of[i] in markers and (i not in sal.pose_of
-                                                      or sal.pose_of[i] in complete)
+            if i in sal.span_of:  # a pose's message: its pose decides
+                return sal.span_of[i] in markers and (i not in sal.pose_of or sal.pose_of[i] in complete)
             if sal.topics.get(r.channel_id) in DECODED:
-                return i in sal.valid and i not in sal.pose_of   # info, truth parameters
+                return i in sal.valid and i not in sal.pose_of  # info, truth parameters
             return not _in_open_pose(i)
         if isinstance(r, Metadata):
             return metadata_ok and r.name != RECOVERED_METADATA
-        return True                               # attachments (a damaged one is a Damage)
+        return True  # attachments (a damaged one is a Damage)
 
     last_marker = max(sal.done.values(), default=-1)
     open_from = min((j for j in sal.pose_of if j > last_marker), default=len(events))
@@ -231,18 +248,29 @@ def recover_log(src: str | os.PathLike, dst: str | os.PathLike) -> Recovery:
         return i > open_from
 
     end, finished = _source_end(events, damage)
-    rec = Recovery(src, end, finished=finished, complete_poses=sorted(complete),
-                   dropped={p: why for p, why in sorted(sal.bad.items()) if p < sal.n_poses},
-                   damage=[str(d) for d in damage], n_planned=sal.n_poses)
+    rec = Recovery(
+        src,
+        end,
+        finished=finished,
+        complete_poses=sorted(complete),
+        dropped={p: why for p, why in sorted(sal.bad.items()) if p < sal.n_poses},
+        damage=[str(d) for d in damage],
+        n_planned=sal.n_poses,
+    )
     if not metadata_ok:
         rec.notes.append("the data section's CRC failed: the metadata records were left out")
-    extra = {RECOVERED_METADATA: {"source": src.name, "source_end": rec.source_end,
-                                  "campaign_finished": json.dumps(rec.finished),
-                                  "dropped_poses": json.dumps(sorted(rec.dropped)),
-                                  "damage": "; ".join(rec.damage)[:2000]}}
+    extra = {
+        RECOVERED_METADATA: {
+            "source": src.name,
+            "source_end": rec.source_end,
+            "campaign_finished": json.dumps(rec.finished),
+            "dropped_poses": json.dumps(sorted(rec.dropped)),
+            "damage": "; ".join(rec.damage)[:2000],
+        }
+    }
     copy_log(events, dst, keep=keep, metadata=extra)
     try:
-        read_log(dst, include_truth=True)         # what was written must read: else no file
+        read_log(dst, include_truth=True)  # what was written must read: else no file
     except InputError:
         Path(dst).unlink(missing_ok=True)
         raise

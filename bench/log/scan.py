@@ -23,35 +23,61 @@ by its MessageIndex records), a :class:`Damage` in place of each damaged record,
 :class:`Cut` last when the file ends before its footer. It does not stop at damage, so a salvage (``calbench recover``) can keep
 what follows; a strict reader stops at the first. Unknown opcodes are skipped, as MCAP asks.
 """
+
 from __future__ import annotations
 
 import os
 import struct
 import zlib
 from collections import Counter
+from collections.abc import Iterator
 from dataclasses import dataclass
 from io import BytesIO
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
-from mcap.records import (Attachment, AttachmentIndex, Channel, Chunk, ChunkIndex, DataEnd,
-                          Footer, Header, Message, MessageIndex, Metadata, MetadataIndex, Schema,
-                          Statistics, SummaryOffset)
+from mcap.records import (
+    Attachment,
+    AttachmentIndex,
+    Channel,
+    Chunk,
+    ChunkIndex,
+    DataEnd,
+    Footer,
+    Header,
+    Message,
+    MessageIndex,
+    Metadata,
+    MetadataIndex,
+    Schema,
+    Statistics,
+    SummaryOffset,
+)
 from mcap.stream_reader import breakup_chunk
 
 from calbench.bench.core.errors import InputError
 
 MAGIC = b"\x89MCAP0\r\n"
 MAGIC_TEXT = "an MCAP file (magic bytes 89 4D 43 41 50 30 0D 0A)"
-_RECORD_TYPES = {Opcode.ATTACHMENT: Attachment, Opcode.ATTACHMENT_INDEX: AttachmentIndex,
-                 Opcode.CHANNEL: Channel, Opcode.CHUNK: Chunk, Opcode.CHUNK_INDEX: ChunkIndex,
-                 Opcode.DATA_END: DataEnd, Opcode.FOOTER: Footer, Opcode.HEADER: Header,
-                 Opcode.MESSAGE: Message, Opcode.MESSAGE_INDEX: MessageIndex,
-                 Opcode.METADATA: Metadata, Opcode.METADATA_INDEX: MetadataIndex,
-                 Opcode.SCHEMA: Schema, Opcode.STATISTICS: Statistics,
-                 Opcode.SUMMARY_OFFSET: SummaryOffset}
+_RECORD_TYPES = {
+    Opcode.ATTACHMENT: Attachment,
+    Opcode.ATTACHMENT_INDEX: AttachmentIndex,
+    Opcode.CHANNEL: Channel,
+    Opcode.CHUNK: Chunk,
+    Opcode.CHUNK_INDEX: ChunkIndex,
+    Opcode.DATA_END: DataEnd,
+    Opcode.FOOTER: Footer,
+    Opcode.HEADER: Header,
+    Opcode.MESSAGE: Message,
+    Opcode.MESSAGE_INDEX: MessageIndex,
+    Opcode.METADATA: Metadata,
+    Opcode.METADATA_INDEX: MetadataIndex,
+    Opcode.SCHEMA: Schema,
+    Opcode.STATISTICS: Statistics,
+    Opcode.SUMMARY_OFFSET: SummaryOffset,
+}
 
 
 @dataclass(frozen=True)
@@ -59,7 +85,7 @@ class Damage:
     """A complete record whose content is wrong: ``offset`` is its first byte in the file."""
 
     offset: int
-    record: str          # the record type ("Chunk", "Attachment", ...) or "record"
+    record: str  # the record type ("Chunk", "Attachment", ...) or "record"
     why: str
 
     def __str__(self) -> str:
@@ -111,16 +137,19 @@ def scan(path: str | os.PathLike) -> Iterator[Any]:
 
 def _scan(f, size: int, finished: bool) -> Iterator[Any]:
     pos = len(MAGIC)
-    crc = zlib.crc32(MAGIC)                 # running CRC of the data section
-    seen: Counter = Counter()               # messages read per channel
-    chunk_counts: Counter | None = None     # messages of the chunk just read, for its indexes
+    crc = zlib.crc32(MAGIC)  # running CRC of the data section
+    seen: Counter = Counter()  # messages read per channel
+    chunk_counts: Counter | None = None  # messages of the chunk just read, for its indexes
     chunk_damaged = False
     stats: Statistics | None = None
     while True:
         head = f.read(9)
         if len(head) < 9:
-            yield (Damage(pos, "file", "it ends without a footer although it ends with MCAP's "
-                                       "closing magic") if finished else Cut(pos))
+            yield (
+                Damage(pos, "file", "it ends without a footer although it ends with MCAP's closing magic")
+                if finished
+                else Cut(pos)
+            )
             return
         opcode, length = struct.unpack("<BQ", head)
         if length > size - pos - 9:
@@ -136,7 +165,7 @@ def _scan(f, size: int, finished: bool) -> Iterator[Any]:
         crc_before, crc = crc, zlib.crc32(body, zlib.crc32(head, crc))
         here, pos = pos, pos + 9 + length
         if opcode not in _RECORD_TYPES:
-            continue                        # unknown records are skipped (the MCAP spec)
+            continue  # unknown records are skipped (the MCAP spec)
         name = _RECORD_TYPES[opcode].__name__
         try:
             rec = _parse(opcode, body)
@@ -158,13 +187,16 @@ def _scan(f, size: int, finished: bool) -> Iterator[Any]:
             continue
         if isinstance(rec, MessageIndex):
             if chunk_counts is not None and chunk_counts.get(rec.channel_id, 0) != len(rec.records):
-                yield Damage(here, name, f"indexes {len(rec.records)} messages of channel "
-                                         f"{rec.channel_id} where its chunk holds "
-                                         f"{chunk_counts.get(rec.channel_id, 0)}")
+                yield Damage(
+                    here,
+                    name,
+                    f"indexes {len(rec.records)} messages of channel "
+                    f"{rec.channel_id} where its chunk holds "
+                    f"{chunk_counts.get(rec.channel_id, 0)}",
+                )
             elif chunk_counts is None and not chunk_damaged:
-                yield Damage(here, name, "indexes a chunk that is not there (a record before it "
-                                         "was lost)")
-            yield rec                       # after a damaged chunk: which channels it held
+                yield Damage(here, name, "indexes a chunk that is not there (a record before it was lost)")
+            yield rec  # after a damaged chunk: which channels it held
             continue
         chunk_counts = None
         chunk_damaged = False
@@ -177,9 +209,13 @@ def _scan(f, size: int, finished: bool) -> Iterator[Any]:
                 continue
         elif isinstance(rec, DataEnd):
             if rec.data_section_crc and rec.data_section_crc != crc_before:
-                yield Damage(here, name, "the data section's CRC does not match (with every "
-                                         "chunk and attachment intact: a metadata record is "
-                                         "damaged)")
+                yield Damage(
+                    here,
+                    name,
+                    "the data section's CRC does not match (with every "
+                    "chunk and attachment intact: a metadata record is "
+                    "damaged)",
+                )
         elif isinstance(rec, Statistics):
             stats = rec
         elif isinstance(rec, Footer):
@@ -199,24 +235,31 @@ def _chunk_problem(e: Exception) -> str:
     return f"cannot be decompressed or decoded ({type(e).__name__}: {text})"
 
 
-def _check_summary(f, footer: Footer, here: int, stats: Statistics | None,
-                   seen: Counter) -> Iterator[Damage]:
-    if not (footer.summary_start <= footer.summary_offset_start <= here
-            or footer.summary_offset_start == 0 and footer.summary_start <= here):
+def _check_summary(f, footer: Footer, here: int, stats: Statistics | None, seen: Counter) -> Iterator[Damage]:
+    if not (
+        footer.summary_start <= footer.summary_offset_start <= here
+        or footer.summary_offset_start == 0
+        and footer.summary_start <= here
+    ):
         yield Damage(here, "Footer", "its summary offsets point outside the file")
         return
     if footer.summary_crc and footer.summary_start:
         f.seek(footer.summary_start)
         data = f.read(here - footer.summary_start) + struct.pack(
-            "<BQQQ", Opcode.FOOTER, 20, footer.summary_start, footer.summary_offset_start)
+            "<BQQQ", Opcode.FOOTER, 20, footer.summary_start, footer.summary_offset_start
+        )
         if zlib.crc32(data) != footer.summary_crc:
             yield Damage(here, "Footer", "the summary's CRC does not match")
             return
     if stats is not None:
         counts = {c: n for c, n in stats.channel_message_counts.items() if n}
         if stats.message_count != sum(seen.values()) or counts != {c: n for c, n in seen.items() if n}:
-            yield Damage(here, "Statistics", f"the summary counts {stats.message_count} messages, "
-                                             f"the file holds {sum(seen.values())} readable ones")
+            yield Damage(
+                here,
+                "Statistics",
+                f"the summary counts {stats.message_count} messages, "
+                f"the file holds {sum(seen.values())} readable ones",
+            )
 
 
 __all__ = ["MAGIC", "MAGIC_TEXT", "Damage", "Cut", "scan", "open_mcap"]

@@ -13,11 +13,13 @@ text. Numbers must be finite: JSON has no NaN or Infinity, and a reader that acc
 
 Units: SI throughout (m, rad, N, N*m; covariances in m^2).
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 from .records import STATES
 
@@ -46,8 +48,11 @@ def _num_array(n: int | None, desc: str = "") -> dict:
 
 
 def _obj(props: dict, required: Sequence[str] | None = None, title: str = "") -> dict:
-    s: dict[str, Any] = {"type": "object", "properties": props,
-                         "required": list(props if required is None else required)}
+    s: dict[str, Any] = {
+        "type": "object",
+        "properties": props,
+        "required": list(props if required is None else required),
+    }
     if title:
         s = {"$schema": "https://json-schema.org/draft/2020-12/schema", "title": title, **s}
     return s
@@ -57,79 +62,143 @@ _POSE = {"type": "integer", "minimum": 0, "description": "pose index in the plan
 _STATE = {"type": "string", "enum": list(STATES)}
 _NAMES = {"type": "array", "items": {"type": "string"}}
 _MAT3 = {"type": "array", "minItems": 3, "maxItems": 3, "items": _num_array(3)}
-_SPRING = _obj({"stiffness": {"type": "number", "description": "N/m"},
-                "preload": {"type": "number", "description": "m"}})
+_SPRING = _obj(
+    {"stiffness": {"type": "number", "description": "N/m"}, "preload": {"type": "number", "description": "m"}}
+)
 
 SCHEMAS: dict[str, dict] = {
-    "/campaign/info": _obj({
-        "scenario_name": {"type": "string"},
-        "robot": {"type": "string", "description": "MJCF file name"},
-        "n_poses": {"type": "integer", "minimum": 0},
-        "reflectors": _NAMES,
-        "payload_site": {"type": "string"},
-        "tracker": _obj({
-            "position": _num_array(3, "m, world frame"),
-            "yaw": {"type": "number", "description": "rad about world z"},
-            "model": {"type": "string"},
-            "sigma": {"type": "number", "description": "m, per axis"},
-            "distance": _num_array(2, "ISO 10360-10 style [a m, b m/m]"),
-            "transverse": _num_array(2, "ISO 10360-10 style [a m, b m/m]"),
-            "rotation": {"type": "array", "minItems": 3, "maxItems": 3, "items": _num_array(3),
-                         "description": "world-from-tracker rotation matrix, when the tracker was "
-                                        "registered (any orientation); yaw is then its heading"},
-            "random": {"type": "number", "description": "iso10360: share of the 1-sigma that is "
-                                                        "independent noise"},
-            "correlation_angle": {"type": "number", "description": "iso10360: rad"},
-            "correlation_range": {"type": "number", "description": "iso10360: m"},
-            "drift": _num_array(2, "iso10360: [a m, b m/m] per sqrt(hour)"),
-        }, required=("position", "yaw", "model", "sigma", "distance", "transverse")),
-        "seed": {"type": "integer"},
-        "calbench_version": {"type": "string"},
-        "n_joints": {"type": "integer", "minimum": 1,
-                     "description": "actuated joints: the length of every q and deflection"},
-        "imported": {"type": "object", "description": "present when the log was made by "
-                     "`calbench import` from real readings: file, units, registration"},
-    }, required=("scenario_name", "robot", "n_poses", "reflectors", "payload_site", "tracker",
-                 "seed", "calbench_version"), title="calbench.CampaignInfo"),
-    "/campaign/pose": _obj({
-        "pose": _POSE, "state": _STATE,
-        "q": _num_array(None, "rad, commanded, one per actuated joint (calbench:actuated order)"),
-    }, title="calbench.Pose"),
-    "/campaign/wrench": _obj({
-        "pose": _POSE,
-        "state": {"type": "string", "enum": ["loaded"]},
-        "force": _num_array(3, "N, world frame"),
-        "moment": _num_array(3, "N*m, world frame"),
-        "site": {"type": "string", "description": "MJCF site where the wrench is applied"},
-        "mass": {"type": ["number", "null"], "description": "kg, hanging payload, or null"},
-    }, title="calbench.Wrench"),
-    "/tracker/measurement": _obj({
-        "pose": _POSE, "state": _STATE,
-        "repeat": {"type": "integer", "minimum": 0},
-        "reflectors": _NAMES,
-        "position": {"type": "array", "items": {**_num_array(3), "type": ["array", "null"]},
-                     "description": "m, tracker frame; null when not visible"},
-        "covariance": {"type": "array", "items": {**_MAT3, "type": ["array", "null"]},
-                       "description": "m^2; null when not visible"},
-        "visible": {"type": "array", "items": {"type": "boolean"}},
-    }, title="calbench.TrackerMeasurement"),
+    "/campaign/info": _obj(
+        {
+            "scenario_name": {"type": "string"},
+            "robot": {"type": "string", "description": "MJCF file name"},
+            "n_poses": {"type": "integer", "minimum": 0},
+            "reflectors": _NAMES,
+            "payload_site": {"type": "string"},
+            "tracker": _obj(
+                {
+                    "position": _num_array(3, "m, world frame"),
+                    "yaw": {"type": "number", "description": "rad about world z"},
+                    "model": {"type": "string"},
+                    "sigma": {"type": "number", "description": "m, per axis"},
+                    "distance": _num_array(2, "ISO 10360-10 style [a m, b m/m]"),
+                    "transverse": _num_array(2, "ISO 10360-10 style [a m, b m/m]"),
+                    "rotation": {
+                        "type": "array",
+                        "minItems": 3,
+                        "maxItems": 3,
+                        "items": _num_array(3),
+                        "description": "world-from-tracker rotation matrix, when the tracker was "
+                        "registered (any orientation); yaw is then its heading",
+                    },
+                    "random": {
+                        "type": "number",
+                        "description": "iso10360: share of the 1-sigma that is independent noise",
+                    },
+                    "correlation_angle": {"type": "number", "description": "iso10360: rad"},
+                    "correlation_range": {"type": "number", "description": "iso10360: m"},
+                    "drift": _num_array(2, "iso10360: [a m, b m/m] per sqrt(hour)"),
+                },
+                required=("position", "yaw", "model", "sigma", "distance", "transverse"),
+            ),
+            "seed": {"type": "integer"},
+            "calbench_version": {"type": "string"},
+            "n_joints": {
+                "type": "integer",
+                "minimum": 1,
+                "description": "actuated joints: the length of every q and deflection",
+            },
+            "imported": {
+                "type": "object",
+                "description": "present when the log was made by "
+                "`calbench import` from real readings: file, units, registration",
+            },
+        },
+        required=(
+            "scenario_name",
+            "robot",
+            "n_poses",
+            "reflectors",
+            "payload_site",
+            "tracker",
+            "seed",
+            "calbench_version",
+        ),
+        title="calbench.CampaignInfo",
+    ),
+    "/campaign/pose": _obj(
+        {
+            "pose": _POSE,
+            "state": _STATE,
+            "q": _num_array(None, "rad, commanded, one per actuated joint (calbench:actuated order)"),
+        },
+        title="calbench.Pose",
+    ),
+    "/campaign/wrench": _obj(
+        {
+            "pose": _POSE,
+            "state": {"type": "string", "enum": ["loaded"]},
+            "force": _num_array(3, "N, world frame"),
+            "moment": _num_array(3, "N*m, world frame"),
+            "site": {"type": "string", "description": "MJCF site where the wrench is applied"},
+            "mass": {"type": ["number", "null"], "description": "kg, hanging payload, or null"},
+        },
+        title="calbench.Wrench",
+    ),
+    "/tracker/measurement": _obj(
+        {
+            "pose": _POSE,
+            "state": _STATE,
+            "repeat": {"type": "integer", "minimum": 0},
+            "reflectors": _NAMES,
+            "position": {
+                "type": "array",
+                "items": {**_num_array(3), "type": ["array", "null"]},
+                "description": "m, tracker frame; null when not visible",
+            },
+            "covariance": {
+                "type": "array",
+                "items": {**_MAT3, "type": ["array", "null"]},
+                "description": "m^2; null when not visible",
+            },
+            "visible": {"type": "array", "items": {"type": "boolean"}},
+        },
+        title="calbench.TrackerMeasurement",
+    ),
     "/campaign/pose_done": _obj({"pose": _POSE}, title="calbench.PoseDone"),
-    "/truth/parameters": _obj({
-        "compliance": _num_array(None, "rad/(N*m), one per actuated joint"),
-        "compensator": _SPRING,
-        "compensators": {"type": "object", "additionalProperties": _SPRING,
-                         "description": "compensator tendons other than 'compensator', by name"},
-        "effects": {"type": "object"},
-    }, required=("compliance", "effects"), title="calbench.TruthParameters"),
-    "/truth/reflectors": _obj({
-        "pose": _POSE, "state": _STATE, "reflectors": _NAMES,
-        "position_world": {"type": "array", "items": _num_array(3), "description": "m"},
-    }, title="calbench.TruthReflectors"),
-    "/truth/joints": _obj({
-        "pose": _POSE, "state": _STATE,
-        "qpos": _num_array(None, "full MuJoCo qpos at equilibrium"),
-        "deflection": _num_array(None, "rad, motor-space deflection from the command, per actuated joint"),
-    }, title="calbench.TruthJoints"),
+    "/truth/parameters": _obj(
+        {
+            "compliance": _num_array(None, "rad/(N*m), one per actuated joint"),
+            "compensator": _SPRING,
+            "compensators": {
+                "type": "object",
+                "additionalProperties": _SPRING,
+                "description": "compensator tendons other than 'compensator', by name",
+            },
+            "effects": {"type": "object"},
+        },
+        required=("compliance", "effects"),
+        title="calbench.TruthParameters",
+    ),
+    "/truth/reflectors": _obj(
+        {
+            "pose": _POSE,
+            "state": _STATE,
+            "reflectors": _NAMES,
+            "position_world": {"type": "array", "items": _num_array(3), "description": "m"},
+        },
+        title="calbench.TruthReflectors",
+    ),
+    "/truth/joints": _obj(
+        {
+            "pose": _POSE,
+            "state": _STATE,
+            "qpos": _num_array(None, "full MuJoCo qpos at equilibrium"),
+            "deflection": _num_array(
+                None, "rad, motor-space deflection from the command, per actuated joint"
+            ),
+        },
+        title="calbench.TruthJoints",
+    ),
 }
 TOPICS = tuple(SCHEMAS)
 
@@ -145,12 +214,17 @@ _JSON_TYPES = {
     "boolean": lambda v: isinstance(v, bool),
     "null": lambda v: v is None,
     "integer": lambda v: isinstance(v, int) and not isinstance(v, bool),
-    "number": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool)
-    and math.isfinite(v),
+    "number": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v),
 }
-_TYPE_WORDS = {"object": "an object", "array": "an array", "string": "a string",
-               "boolean": "true or false", "null": "null", "integer": "an integer",
-               "number": "a finite number"}
+_TYPE_WORDS = {
+    "object": "an object",
+    "array": "an array",
+    "string": "a string",
+    "boolean": "true or false",
+    "null": "null",
+    "integer": "an integer",
+    "number": "a finite number",
+}
 
 
 @dataclass(frozen=True)
@@ -180,6 +254,7 @@ def problems(instance: Any, schema: dict, where: str = "") -> list[Problem]:
     """Every problem of ``instance`` against ``schema`` (empty: valid). Supports type (and type
     lists), enum, minimum, required, properties, additionalProperties (a schema), items,
     minItems, maxItems."""
+
     def sub(key) -> str:
         return f"{where}[{key}]" if isinstance(key, int) else (f"{where}.{key}" if where else key)
 
@@ -221,5 +296,14 @@ def validate(instance: Any, schema: dict) -> list[str]:
     return [str(p) for p in problems(instance, schema)]
 
 
-__all__ = ["TRUTH_PREFIX", "GROUND_TRUTH_METADATA", "SCENARIO_METADATA", "REQUIRED_TOPICS",
-           "SCHEMAS", "TOPICS", "Problem", "problems", "validate"]
+__all__ = [
+    "TRUTH_PREFIX",
+    "GROUND_TRUTH_METADATA",
+    "SCENARIO_METADATA",
+    "REQUIRED_TOPICS",
+    "SCHEMAS",
+    "TOPICS",
+    "Problem",
+    "problems",
+    "validate",
+]

@@ -29,6 +29,7 @@ Why this format
 
 Units: SI throughout (m, rad, N, N*m; covariances in m^2).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -38,24 +39,48 @@ import re
 import signal
 import threading
 import tomllib
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterable, Mapping
+from typing import Any
 
 import numpy as np
-from mcap.records import Attachment, Channel, Footer, Header, Message, Metadata, Schema
+from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
 from mcap.writer import CompressionType, Writer
 
-from .records import (STATES, CampaignLog, CampaignTruth, MeasurementRecord, PerState,
-                          TruthJoints, TruthParameters, TruthReflectors, WrenchRecord)
+from calbench.bench.scenario.timeline import (
+    DEFAULT_START,
+    LOAD_S,
+    MOVE_S,
+    UNLOAD_S,
+    CampaignClock,
+    reading_seconds,
+    start_ns,
+)
+
 from .read import END_METADATA, CorruptLogError, has_truth, read_log
-from .schema import (GROUND_TRUTH_METADATA, REQUIRED_TOPICS, SCENARIO_METADATA, SCHEMAS,
-                        TOPICS, TRUTH_PREFIX, validate)
+from .records import (
+    STATES,
+    CampaignLog,
+    CampaignTruth,
+    MeasurementRecord,
+    PerState,
+    TruthJoints,
+    TruthParameters,
+    TruthReflectors,
+    WrenchRecord,
+)
 from .scan import MAGIC as MCAP_MAGIC
 from .scan import Cut, Damage, scan
-from calbench.bench.scenario.timeline import (DEFAULT_START, LOAD_S, MOVE_S, UNLOAD_S, CampaignClock, reading_seconds,
-                       start_ns)
-
+from .schema import (
+    GROUND_TRUTH_METADATA,
+    REQUIRED_TOPICS,
+    SCENARIO_METADATA,
+    SCHEMAS,
+    TOPICS,
+    TRUTH_PREFIX,
+    validate,
+)
 
 # ---------------------------------------------------------------------------------------------
 # helpers
@@ -65,6 +90,7 @@ from calbench.bench.scenario.timeline import (DEFAULT_START, LOAD_S, MOVE_S, UNL
 def _version() -> str:
     try:
         from importlib.metadata import version
+
         return version("calbench")
     except Exception:  # not installed (running from a checkout)
         return "0.0.0"
@@ -73,6 +99,7 @@ def _version() -> str:
 def _mcap_version() -> str:
     try:
         from importlib.metadata import version
+
         return version("mcap")
     except Exception:
         return "unknown"
@@ -121,8 +148,8 @@ def redact_truth(scenario_text: str) -> str:
     TOML layout) the scenario is replaced by a comment rather than risk leaking the truth.
     """
     out: list[str] = []
-    in_truth = False      # inside a [truth...] table
-    at_top = True         # before the first table header (top-level keys)
+    in_truth = False  # inside a [truth...] table
+    at_top = True  # before the first table header (top-level keys)
     skipping_value = False  # skipping continuation lines of a multi-line top-level truth value
     depth = 0
     for line in scenario_text.splitlines(keepends=True):
@@ -258,7 +285,7 @@ class SignalGuard:
         elif h == signal.SIG_DFL:
             if signum == signal.SIGINT:
                 raise KeyboardInterrupt
-            self.uninstall()                      # the default action: end the process
+            self.uninstall()  # the default action: end the process
             os.kill(os.getpid(), signum)
 
 
@@ -309,38 +336,44 @@ class LogWriter:
         self._closed = False
         self._guard = SignalGuard()
         self._guard.install()
-        self._writer = Writer(self._file, chunk_size=chunk_size,
-                              compression=CompressionType.ZSTD, enable_data_crcs=True)
+        self._writer = Writer(
+            self._file, chunk_size=chunk_size, compression=CompressionType.ZSTD, enable_data_crcs=True
+        )
         # The library string is the only free-form header field; mcap would put its own
         # version there. Ours names both versions and nothing time- or host-dependent.
-        self._writer.start(profile="",
-                           library=f"calbench/{_version()}; mcap-python/{_mcap_version()}")
+        self._writer.start(profile="", library=f"calbench/{_version()}; mcap-python/{_mcap_version()}")
         self._channels: dict[str, int] = {}
         self._extra_schemas: dict[str, dict] = {}
         self._schema_ids: dict[tuple[str, bytes], int] = {}
         for topic, schema in SCHEMAS.items():
             sid = self._writer.register_schema(
-                name=schema["title"], encoding="jsonschema",
-                data=json.dumps(schema, sort_keys=True).encode())
+                name=schema["title"], encoding="jsonschema", data=json.dumps(schema, sort_keys=True).encode()
+            )
             self._channels[topic] = self._writer.register_channel(
-                topic=topic, message_encoding="json", schema_id=sid)
+                topic=topic, message_encoding="json", schema_id=sid
+            )
 
         t0 = self.clock.start
         self._write("/campaign/info", info, t0)
-        self._writer.add_metadata(SCENARIO_METADATA,
-                                  {"name": str(h.scenario_name), "text": public_scenario})
-        self._writer.add_attachment(create_time=t0, log_time=t0,
-                                    name=Path(h.scenario_filename).name,
-                                    media_type="application/toml",
-                                    data=public_scenario.encode())
-        self._writer.add_attachment(create_time=t0, log_time=t0,
-                                    name=Path(h.robot_filename).name,
-                                    media_type="application/xml",
-                                    data=h.mjcf_text.encode())
+        self._writer.add_metadata(SCENARIO_METADATA, {"name": str(h.scenario_name), "text": public_scenario})
+        self._writer.add_attachment(
+            create_time=t0,
+            log_time=t0,
+            name=Path(h.scenario_filename).name,
+            media_type="application/toml",
+            data=public_scenario.encode(),
+        )
+        self._writer.add_attachment(
+            create_time=t0,
+            log_time=t0,
+            name=Path(h.robot_filename).name,
+            media_type="application/xml",
+            data=h.mjcf_text.encode(),
+        )
         self._sync()  # schemas, channels and info durable before the first pose
 
     # -- context manager ---------------------------------------------------------------------
-    def __enter__(self) -> "LogWriter":
+    def __enter__(self) -> LogWriter:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
@@ -367,17 +400,17 @@ class LogWriter:
             raise ValueError(f"{topic}: message does not match its schema: {problems}")
         t = max(nominal_time, self._last_time + 1)  # strictly increasing, still deterministic
         self._last_time = t
-        self.clock.now = max(self.clock.now, t)       # the next step lasts from here
+        self.clock.now = max(self.clock.now, t)  # the next step lasts from here
         seq = self._seq.get(topic, 0)
         self._seq[topic] = seq + 1
         data = json.dumps(msg, allow_nan=False, separators=(",", ":")).encode()
         with self._guard.critical():
-            self._writer.add_message(channel_id=self._channels[topic], log_time=t, data=data,
-                                     publish_time=t, sequence=seq)
+            self._writer.add_message(
+                channel_id=self._channels[topic], log_time=t, data=data, publish_time=t, sequence=seq
+            )
 
     # -- extra channels (the Foxglove topics of bench/log/foxglove.py) ----------------------------
-    def add_channel(self, topic: str, schema_name: str, schema_text: str,
-                    check: bool = True) -> None:
+    def add_channel(self, topic: str, schema_name: str, schema_text: str, check: bool = True) -> None:
         """Register one more JSON channel whose messages follow the JSON Schema ``schema_text``
         (registered under ``schema_name``; channels with the same schema share one record).
         Contract topics cannot be re-registered. A topic under /truth/ is ground truth and
@@ -390,9 +423,11 @@ class LogWriter:
         sid = self._schema_ids.get((schema_name, data))
         if sid is None:
             sid = self._schema_ids[(schema_name, data)] = self._writer.register_schema(
-                name=schema_name, encoding="jsonschema", data=data)
+                name=schema_name, encoding="jsonschema", data=data
+            )
         self._channels[topic] = self._writer.register_channel(
-            topic=topic, message_encoding="json", schema_id=sid)
+            topic=topic, message_encoding="json", schema_id=sid
+        )
         self._extra_schemas[topic] = schema if check else {}
 
     def next_time(self, nominal_time: int) -> int:
@@ -413,29 +448,36 @@ class LogWriter:
         """Commanded joint angles (rad, controller convention) of one pose and load state.
         The unloaded command starts the pose: the robot then drives there and settles."""
         p, s = _pose_index(pose), _state(state)
-        self._write("/campaign/pose",
-                    {"pose": p, "state": s, "q": _list(_floats(q, self._joints, "q"))},
-                    self.clock.at(at))
+        self._write(
+            "/campaign/pose",
+            {"pose": p, "state": s, "q": _list(_floats(q, self._joints, "q"))},
+            self.clock.at(at),
+        )
         if s == "unloaded":
             self.clock.advance(MOVE_S)
 
-    def wrench(self, pose: int, force, moment, site: str, mass: float | None,
-               at: int | None = None) -> None:
+    def wrench(self, pose: int, force, moment, site: str, mass: float | None, at: int | None = None) -> None:
         """The load of the loaded state: force (N) and moment (N*m) in the world frame,
         applied at MJCF ``site``; ``mass`` (kg) when it is a hanging payload, else None.
         Stamped when the load hangs still."""
         p = _pose_index(pose)
         t = self.clock.at(at) if at is not None else self.clock.advance(LOAD_S)
-        self._write("/campaign/wrench", {
-            "pose": p, "state": "loaded",
-            "force": _list(_floats(force, (3,), "force")),
-            "moment": _list(_floats(moment, (3,), "moment")),
-            "site": str(site),
-            "mass": None if mass is None else float(mass),
-        }, t)
+        self._write(
+            "/campaign/wrench",
+            {
+                "pose": p,
+                "state": "loaded",
+                "force": _list(_floats(force, (3,), "force")),
+                "moment": _list(_floats(moment, (3,), "moment")),
+                "site": str(site),
+                "mass": None if mass is None else float(mass),
+            },
+            t,
+        )
 
-    def measurement(self, pose, state, repeat, reflectors, position, covariance,
-                    visible, at: int | None = None) -> None:
+    def measurement(
+        self, pose, state, repeat, reflectors, position, covariance, visible, at: int | None = None
+    ) -> None:
         """One tracker reading of all reflectors: ``position`` (n,3) m in the tracker frame,
         NaN rows (or anything) where ``visible`` is False; ``covariance`` (n,3,3) m^2.
         Invisible reflectors are written as null. Stamped when the reading is complete."""
@@ -448,8 +490,10 @@ class LogWriter:
         pos = np.asarray(position, dtype=float)
         cov = np.asarray(covariance, dtype=float)
         if vis.shape != (n,) or pos.shape != (n, 3) or cov.shape != (n, 3, 3):
-            raise ValueError(f"measurement: expected visible ({n},), position ({n},3), "
-                             f"covariance ({n},3,3); got {vis.shape}, {pos.shape}, {cov.shape}")
+            raise ValueError(
+                f"measurement: expected visible ({n},), position ({n},3), "
+                f"covariance ({n},3,3); got {vis.shape}, {pos.shape}, {cov.shape}"
+            )
         pos_out: list = []
         cov_out: list = []
         for i in range(n):
@@ -459,10 +503,19 @@ class LogWriter:
             else:
                 pos_out.append(None)
                 cov_out.append(None)
-        self._write("/tracker/measurement", {
-            "pose": p, "state": s, "repeat": r, "reflectors": names,
-            "position": pos_out, "covariance": cov_out, "visible": [bool(v) for v in vis],
-        }, t)
+        self._write(
+            "/tracker/measurement",
+            {
+                "pose": p,
+                "state": s,
+                "repeat": r,
+                "reflectors": names,
+                "position": pos_out,
+                "covariance": cov_out,
+                "visible": [bool(v) for v in vis],
+            },
+            t,
+        )
 
     def truth_parameters(self, params: dict) -> None:
         """The simulated robot's true parameters (``/truth/parameters``); also written as the
@@ -479,18 +532,26 @@ class LogWriter:
         p, s = _pose_index(pose), _state(state)
         names = [str(x) for x in reflectors]
         pw = _floats(position_world, (len(names), 3), "position_world")
-        self._write("/truth/reflectors", {"pose": p, "state": s, "reflectors": names,
-                                          "position_world": _list(pw)},
-                    self.clock.now)
+        self._write(
+            "/truth/reflectors",
+            {"pose": p, "state": s, "reflectors": names, "position_world": _list(pw)},
+            self.clock.now,
+        )
 
     def truth_joints(self, pose, state, qpos, deflection) -> None:
         """Full MuJoCo qpos at equilibrium and the motor-space deflection (rad, one per actuated
         joint) from the commanded angles."""
         p, s = _pose_index(pose), _state(state)
-        self._write("/truth/joints", {
-            "pose": p, "state": s, "qpos": _list(_floats(qpos, None, "qpos")),
-            "deflection": _list(_floats(deflection, self._joints, "deflection")),
-        }, self.clock.now)
+        self._write(
+            "/truth/joints",
+            {
+                "pose": p,
+                "state": s,
+                "qpos": _list(_floats(qpos, None, "qpos")),
+                "deflection": _list(_floats(deflection, self._joints, "deflection")),
+            },
+            self.clock.now,
+        )
 
     def pose_done(self, pose: int, at: int | None = None) -> None:
         """Mark ``pose`` complete (stamped when the load is off) and make everything written
@@ -528,13 +589,17 @@ class LogWriter:
         if self._closed:
             return
         with self._guard.critical():
-            self._writer.add_metadata(END_METADATA, {"status": status, "reason": reason,
-                                                     "complete_poses": str(self._done)})
+            self._writer.add_metadata(
+                END_METADATA, {"status": status, "reason": reason, "complete_poses": str(self._done)}
+            )
             if self._truth_params is not None:
-                self._writer.add_metadata(GROUND_TRUTH_METADATA, {
-                    "parameters": json.dumps(self._truth_params, sort_keys=True, allow_nan=False),
-                    "scenario_text": self._header.scenario_text,
-                })
+                self._writer.add_metadata(
+                    GROUND_TRUTH_METADATA,
+                    {
+                        "parameters": json.dumps(self._truth_params, sort_keys=True, allow_nan=False),
+                        "scenario_text": self._header.scenario_text,
+                    },
+                )
             self._writer.finish()
             self._closed = True
             self._file.close()
@@ -575,11 +640,16 @@ def _jsonable(x: Any) -> Any:
     return x
 
 
-def copy_log(records: Iterable[Any], dst: str | os.PathLike, *,
-             keep_topic: Callable[[str], bool] = lambda t: True,
-             keep: Callable[[Any], bool] = lambda r: True,
-             metadata: Mapping[str, Mapping[str, str]] = (), finish: bool = True,
-             chunk_size: int = 16 * 1024) -> None:
+def copy_log(
+    records: Iterable[Any],
+    dst: str | os.PathLike,
+    *,
+    keep_topic: Callable[[str], bool] = lambda t: True,
+    keep: Callable[[Any], bool] = lambda r: True,
+    metadata: Mapping[str, Mapping[str, str]] = (),
+    finish: bool = True,
+    chunk_size: int = 16 * 1024,
+) -> None:
     """Write ``records`` (as :func:`bench.mcapscan.scan` yields them, Damage and Cut skipped) to
     a new MCAP file: channels whose topic passes ``keep_topic`` (with their schemas), and the
     messages, metadata and attachments that pass ``keep``; then the extra ``metadata`` records.
@@ -591,8 +661,7 @@ def copy_log(records: Iterable[Any], dst: str | os.PathLike, *,
     new_channel: dict[int, int] = {}
     topics: dict[int, str] = {}
     with open(dst, "wb") as f:
-        w = Writer(f, chunk_size=chunk_size, compression=CompressionType.ZSTD,
-                   enable_data_crcs=True)
+        w = Writer(f, chunk_size=chunk_size, compression=CompressionType.ZSTD, enable_data_crcs=True)
         started = False
         for rec in records:
             if isinstance(rec, Header) and not started:
@@ -612,8 +681,9 @@ def copy_log(records: Iterable[Any], dst: str | os.PathLike, *,
                         sc = schemas[rec.schema_id]
                         new_schema[rec.schema_id] = w.register_schema(sc.name, sc.encoding, sc.data)
                     sid = new_schema[rec.schema_id]
-                new_channel[rec.id] = w.register_channel(rec.topic, rec.message_encoding, sid,
-                                                         dict(rec.metadata))
+                new_channel[rec.id] = w.register_channel(
+                    rec.topic, rec.message_encoding, sid, dict(rec.metadata)
+                )
             elif isinstance(rec, Message):
                 cid = new_channel.get(rec.channel_id)
                 if cid is None or not keep(rec):
@@ -626,8 +696,7 @@ def copy_log(records: Iterable[Any], dst: str | os.PathLike, *,
                     w.add_metadata(rec.name, dict(rec.metadata))
             elif isinstance(rec, Attachment):
                 if keep(rec):
-                    w.add_attachment(rec.create_time, rec.log_time, rec.name, rec.media_type,
-                                     rec.data)
+                    w.add_attachment(rec.create_time, rec.log_time, rec.name, rec.media_type, rec.data)
         if not started:
             w.start(profile="", library=f"calbench/{_version()}; mcap-python/{_mcap_version()}")
         for name, md in dict(metadata).items():
@@ -638,8 +707,7 @@ def copy_log(records: Iterable[Any], dst: str | os.PathLike, *,
             w.flush()
 
 
-def strip_truth(src: str | os.PathLike, dst: str | os.PathLike,
-                chunk_size: int = 16 * 1024) -> None:
+def strip_truth(src: str | os.PathLike, dst: str | os.PathLike, chunk_size: int = 16 * 1024) -> None:
     """Copy a log without its ``/truth/`` channels, their schemas and messages, and without
     the ``ground_truth`` metadata: what a real campaign would have recorded.
 
@@ -655,15 +723,38 @@ def strip_truth(src: str | os.PathLike, dst: str | os.PathLike,
     for r in records:
         if isinstance(r, Damage):
             raise CorruptLogError(src, f"byte {r.offset}", f"an undamaged {r.record} record", r.why)
-    copy_log(records, dst, keep_topic=lambda t: not t.startswith(TRUTH_PREFIX),
-             keep=lambda r: not (isinstance(r, Metadata) and r.name == GROUND_TRUTH_METADATA),
-             finish=not any(isinstance(r, Cut) for r in records), chunk_size=chunk_size)
+    copy_log(
+        records,
+        dst,
+        keep_topic=lambda t: not t.startswith(TRUTH_PREFIX),
+        keep=lambda r: not (isinstance(r, Metadata) and r.name == GROUND_TRUTH_METADATA),
+        finish=not any(isinstance(r, Cut) for r in records),
+        chunk_size=chunk_size,
+    )
 
 
 __all__ = [
-    "TRUTH_PREFIX", "SCHEMAS", "TOPICS", "LogHeader", "LogWriter", "MeasurementRecord",
-    "CampaignLog", "CampaignTruth", "PerState", "WrenchRecord", "TruthParameters",
-    "TruthReflectors", "TruthJoints", "read_log", "strip_truth", "has_truth", "redact_truth",
-    "validate", "copy_log", "MCAP_MAGIC", "REQUIRED_TOPICS", "GROUND_TRUTH_METADATA",
+    "TRUTH_PREFIX",
+    "SCHEMAS",
+    "TOPICS",
+    "LogHeader",
+    "LogWriter",
+    "MeasurementRecord",
+    "CampaignLog",
+    "CampaignTruth",
+    "PerState",
+    "WrenchRecord",
+    "TruthParameters",
+    "TruthReflectors",
+    "TruthJoints",
+    "read_log",
+    "strip_truth",
+    "has_truth",
+    "redact_truth",
+    "validate",
+    "copy_log",
+    "MCAP_MAGIC",
+    "REQUIRED_TOPICS",
+    "GROUND_TRUTH_METADATA",
     "SCENARIO_METADATA",
 ]

@@ -34,6 +34,7 @@ identify/design/candidates.py). :func:`read_description` checks names and elemen
 ``calbench check-robot`` (bench/robots/check.py) also checks the geometry (loops close,
 reflectors not collinear and visible, statics converge).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -76,9 +77,13 @@ KEYS: dict[str, tuple[bool, int | None, str, str]] = {
     "links": (False, None, "body", "bodies whose root compliance discovery tries"),
     "compensator_sites": (False, 2, "site", "two sites between which discovery tries a spring"),
 }
-_KINDS = {"joint": mujoco.mjtObj.mjOBJ_JOINT, "equality": mujoco.mjtObj.mjOBJ_EQUALITY,
-          "tendon": mujoco.mjtObj.mjOBJ_TENDON, "site": mujoco.mjtObj.mjOBJ_SITE,
-          "body": mujoco.mjtObj.mjOBJ_BODY}
+_KINDS = {
+    "joint": mujoco.mjtObj.mjOBJ_JOINT,
+    "equality": mujoco.mjtObj.mjOBJ_EQUALITY,
+    "tendon": mujoco.mjtObj.mjOBJ_TENDON,
+    "site": mujoco.mjtObj.mjOBJ_SITE,
+    "body": mujoco.mjtObj.mjOBJ_BODY,
+}
 MIN_REFLECTORS = 3
 
 
@@ -90,7 +95,7 @@ def custom_texts(model: mujoco.MjModel) -> dict[str, str]:
         name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_TEXT, i) or ""
         if name.startswith(PREFIX):
             adr, size = int(model.text_adr[i]), int(model.text_size[i])
-            out[name[len(PREFIX):]] = raw[adr: adr + size].rstrip(b"\0").decode()
+            out[name[len(PREFIX) :]] = raw[adr : adr + size].rstrip(b"\0").decode()
     return out
 
 
@@ -103,17 +108,22 @@ def read_description(model: mujoco.MjModel) -> Description:
     texts = custom_texts(model)
     for key in texts:
         if key not in KEYS:
-            raise DescriptionError(f"custom text {PREFIX}{key}: unknown; known: "
-                                   + ", ".join(PREFIX + k for k in KEYS))
+            raise DescriptionError(
+                f"custom text {PREFIX}{key}: unknown; known: " + ", ".join(PREFIX + k for k in KEYS)
+            )
     names: dict[str, tuple[str, ...]] = {}
     for key, (required, count, kind, what) in KEYS.items():
         words = tuple(texts.get(key, "").split())
         if required and not words:
-            raise DescriptionError(f"custom text {PREFIX}{key}: required ({what}); add "
-                                   f'<custom><text name="{PREFIX}{key}" data="..."/></custom>')
+            raise DescriptionError(
+                f"custom text {PREFIX}{key}: required ({what}); add "
+                f'<custom><text name="{PREFIX}{key}" data="..."/></custom>'
+            )
         if count is not None and words and len(words) != count:
-            raise DescriptionError(f"custom text {PREFIX}{key}: {'one' if count == 1 else count} "
-                                   f"{kind} name{'s' if count > 1 else ''}, got {list(words)}")
+            raise DescriptionError(
+                f"custom text {PREFIX}{key}: {'one' if count == 1 else count} "
+                f"{kind} name{'s' if count > 1 else ''}, got {list(words)}"
+            )
         if len(set(words)) != len(words):
             raise DescriptionError(f"custom text {PREFIX}{key}: a name is listed twice in {list(words)}")
         for w in words:
@@ -126,25 +136,38 @@ def read_description(model: mujoco.MjModel) -> Description:
             raise DescriptionError(f"{PREFIX}actuated: joint {j!r} must be a hinge")
     for e in names["loops"]:
         eid = _id(model, _KINDS["equality"], e)
-        if (model.eq_type[eid] != mujoco.mjtEq.mjEQ_CONNECT
-                or model.eq_objtype[eid] != mujoco.mjtObj.mjOBJ_SITE):
-            raise DescriptionError(f"{PREFIX}loops: equality {e!r} must be a <connect> between two "
-                                   "sites (site1, site2)")
+        if (
+            model.eq_type[eid] != mujoco.mjtEq.mjEQ_CONNECT
+            or model.eq_objtype[eid] != mujoco.mjtObj.mjOBJ_SITE
+        ):
+            raise DescriptionError(
+                f"{PREFIX}loops: equality {e!r} must be a <connect> between two sites (site1, site2)"
+            )
     for t in names["compensators"]:
         tid = _id(model, _KINDS["tendon"], t)
         adr, num = model.tendon_adr[tid], model.tendon_num[tid]
         if num != 2 or any(model.wrap_type[adr + i] != mujoco.mjtWrap.mjWRAP_SITE for i in range(num)):
-            raise DescriptionError(f"{PREFIX}compensators: tendon {t!r} must be a <spatial> tendon "
-                                   "between exactly two sites (a straight spring)")
+            raise DescriptionError(
+                f"{PREFIX}compensators: tendon {t!r} must be a <spatial> tendon "
+                "between exactly two sites (a straight spring)"
+            )
     if len(names["reflectors"]) < MIN_REFLECTORS:
-        raise DescriptionError(f"{PREFIX}reflectors: at least {MIN_REFLECTORS} sites, got "
-                               f"{list(names['reflectors'])}")
+        raise DescriptionError(
+            f"{PREFIX}reflectors: at least {MIN_REFLECTORS} sites, got {list(names['reflectors'])}"
+        )
     one = {k: (v[0] if v else None) for k, v in names.items()}
-    return Description(actuated=names["actuated"], reflectors=names["reflectors"],
-                       payload=one["payload"], loops=names["loops"],
-                       compensators=names["compensators"], flange=one["flange"],
-                       mass_compensators=names["mass_compensators"], wrist=one["wrist"],
-                       links=names["links"], compensator_sites=names["compensator_sites"])
+    return Description(
+        actuated=names["actuated"],
+        reflectors=names["reflectors"],
+        payload=one["payload"],
+        loops=names["loops"],
+        compensators=names["compensators"],
+        flange=one["flange"],
+        mass_compensators=names["mass_compensators"],
+        wrist=one["wrist"],
+        links=names["links"],
+        compensator_sites=names["compensator_sites"],
+    )
 
 
 def spec_names(spec: mujoco.MjSpec, key: str) -> list[str]:
@@ -171,5 +194,13 @@ def set_spec_names(spec: mujoco.MjSpec, key: str, names) -> None:
         spec.add_text(name=PREFIX + key, data=" ".join(names))
 
 
-__all__ = ["PREFIX", "KEYS", "Description", "DescriptionError", "custom_texts", "read_description",
-           "spec_names", "set_spec_names"]
+__all__ = [
+    "PREFIX",
+    "KEYS",
+    "Description",
+    "DescriptionError",
+    "custom_texts",
+    "read_description",
+    "spec_names",
+    "set_spec_names",
+]

@@ -29,11 +29,12 @@ filled, by name). A compliance of exactly 0 in a scenario's truth means "rigid":
 not created at all (no dof). A fitting structure that does hold a hinge whose compliance is set
 to 0 locks it with a spring of stiffness 1/RIGID_COMPLIANCE (1e12 N*m/rad, ~1e5 x the drives).
 """
+
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import mujoco
 import numpy as np
@@ -42,15 +43,16 @@ from .description import set_spec_names, spec_names
 from .params import LEGACY_COMPENSATOR as COMPENSATOR
 from .robot import Robot
 
-RIGID_COMPLIANCE = 1e-12     # rad/(N*m): the lock used for a present hinge set to compliance 0
+RIGID_COMPLIANCE = 1e-12  # rad/(N*m): the lock used for a present hinge set to compliance 0
 AXES = "xyz"
 BEAM_SUFFIX = "_beam"
-HUB_MASS_FRACTION = 1e-3      # MuJoCo needs mass on a moving body: the hub keeps this share
-BASE_POINT_MASS = 1.0         # kg at the base's hinge point when the base has no mass of its own
+HUB_MASS_FRACTION = 1e-3  # MuJoCo needs mass on a moving body: the hub keeps this share
+BASE_POINT_MASS = 1.0  # kg at the base's hinge point when the base has no mass of its own
 _TMP_PREFIX = "__effects_move__"
 
 
 # --------------------------------------------------------------------------- the Effect type
+
 
 @dataclass(frozen=True)
 class Readings:
@@ -85,14 +87,17 @@ class Effect:
     units: tuple[str, ...] = ()
     _apply: Callable[[mujoco.MjSpec, np.ndarray, dict], None] = field(default=None, repr=False, compare=False)
     _set: Callable[[Robot, np.ndarray, dict], None] = field(default=None, repr=False, compare=False)
-    _measure: Callable[[np.ndarray, dict, Readings], np.ndarray] | None = field(default=None, repr=False,
-                                                                               compare=False)
+    _measure: Callable[[np.ndarray, dict, Readings], np.ndarray] | None = field(
+        default=None, repr=False, compare=False
+    )
 
     def _check(self, params) -> np.ndarray:
         p = np.atleast_1d(np.asarray(params, dtype=float))
         if p.shape != (len(self.param_names),):
-            raise ValueError(f"{self.name}: expected {len(self.param_names)} parameters "
-                             f"{self.param_names}, got {p.tolist()}")
+            raise ValueError(
+                f"{self.name}: expected {len(self.param_names)} parameters "
+                f"{self.param_names}, got {p.tolist()}"
+            )
         if not np.isfinite(p).all():
             raise ValueError(f"{self.name}: parameters must be finite, got {p.tolist()}")
         return p
@@ -138,7 +143,7 @@ class Prior:
     lower: float
     upper: float
     size: float
-    linear: bool = False     # the deflections are linear in it: one start finds the optimum
+    linear: bool = False  # the deflections are linear in it: one start finds the optimum
 
 
 # Per physical UNIT: the default priors of any effect parameter with that unit. A new effect with
@@ -148,21 +153,25 @@ UNIT_PRIORS: dict[str, Prior] = {
     # robot is a broken part, not a compliance); starts at a typical size so that hinges that
     # only move together (upper-arm x and z, braced by the coupler rod) are not locked
     "rad/(N*m)": Prior(start=1e-8, lower=1e-12, upper=1e-6, size=1e-8),
-    "N*m/rad^3": Prior(start=0.0, lower=-np.inf, upper=np.inf, size=1e12),   # cubic: none
-    "N/m": Prior(start=1e6, lower=1.0, upper=1e9, size=1e6),                 # spring rate
-    "m": Prior(start=1.0, lower=1e-3, upper=10.0, size=1.0),                 # free length
+    "N*m/rad^3": Prior(start=0.0, lower=-np.inf, upper=np.inf, size=1e12),  # cubic: none
+    "N/m": Prior(start=1e6, lower=1.0, upper=1e9, size=1e6),  # spring rate
+    "m": Prior(start=1.0, lower=1e-3, upper=10.0, size=1.0),  # free length
 }
 
 REGISTRY: dict[str, Callable[..., Effect]] = {}
 _FROM_TRUTH: dict[str, Callable[[dict], tuple[dict, np.ndarray]]] = {}
 # effect -> the structural options discovery tries on a robot (a function of the Robot)
 DISCOVERY_OPTIONS: dict[str, Callable[[Robot], list[dict]]] = {}
-_PRIORS: dict[str, dict[str, Prior]] = {}             # effect -> parameter name -> prior override
+_PRIORS: dict[str, dict[str, Prior]] = {}  # effect -> parameter name -> prior override
 
 
-def register(name: str, from_truth: Callable[[dict], tuple[dict, np.ndarray]] | None = None, *,
-             discover: list[dict] | Callable[[Robot], list[dict]] | None = None,
-             priors: dict[str, Prior] | None = None):
+def register(
+    name: str,
+    from_truth: Callable[[dict], tuple[dict, np.ndarray]] | None = None,
+    *,
+    discover: list[dict] | Callable[[Robot], list[dict]] | None = None,
+    priors: dict[str, Prior] | None = None,
+):
     """Decorator: add an effect factory (keyword options -> Effect) to the library.
 
     from_truth maps a scenario table (bench.scenario, SI) to (factory options, parameters).
@@ -170,6 +179,7 @@ def register(name: str, from_truth: Callable[[dict], tuple[dict, np.ndarray]] | 
     candidates: a list, or a function of the robot returning one (e.g. one per actuated
     joint); None keeps the effect out of discovery (truth only). priors overrides
     :data:`UNIT_PRIORS` for named parameters."""
+
     def deco(factory: Callable[..., Effect]) -> Callable[..., Effect]:
         REGISTRY[name] = factory
         if from_truth is not None:
@@ -180,6 +190,7 @@ def register(name: str, from_truth: Callable[[dict], tuple[dict, np.ndarray]] | 
         if priors:
             _PRIORS[name] = dict(priors)
         return factory
+
     return deco
 
 
@@ -205,6 +216,7 @@ def effect_from_truth(name: str, table: dict) -> tuple[Effect, np.ndarray]:
 
 
 # --------------------------------------------------------------------------- applying
+
 
 class EffectRobot(Robot):
     """A Robot compiled from an edited spec; keeps the effects and the edited MJCF."""
@@ -237,17 +249,22 @@ def apply_effects(xml_or_path, effects: list[tuple[Effect, np.ndarray]]) -> Effe
     for effect, params in effects:
         effect.apply(spec, params)
     model = spec.compile()
-    source = Path(xml_or_path) if isinstance(xml_or_path, Path) or (
-        isinstance(xml_or_path, str) and "<mujoco" not in xml_or_path) else None
+    source = (
+        Path(xml_or_path)
+        if isinstance(xml_or_path, Path) or (isinstance(xml_or_path, str) and "<mujoco" not in xml_or_path)
+        else None
+    )
     return EffectRobot(model, augmented_xml(spec, effects), effects, source)
 
 
 def augmented_xml(spec: mujoco.MjSpec, effects: list[tuple[Effect, np.ndarray]]) -> str:
     """The edited spec as MJCF, every number exact (compiler savecompiled="false"; the default
     saves compiled values rounded to ~6 digits), headed by a comment naming the effects."""
-    lines = [f"  {e.name} {e.options}: " + ", ".join(
-        f"{n} = {float(v)!r} {u}" for n, v, u in zip(e.param_names, np.atleast_1d(p), e.units))
-        for e, p in effects]
+    lines = [
+        f"  {e.name} {e.options}: "
+        + ", ".join(f"{n} = {float(v)!r} {u}" for n, v, u in zip(e.param_names, np.atleast_1d(p), e.units))
+        for e, p in effects
+    ]
     if lines:
         spec.comment = "\n  Augmented by calbench (bench/model/effects.py) with:\n" + "\n".join(lines) + "\n"
     spec.compiler.savecompiled = False
@@ -255,6 +272,7 @@ def augmented_xml(spec: mujoco.MjSpec, effects: list[tuple[Effect, np.ndarray]])
 
 
 # --------------------------------------------------------------------------- spec helpers
+
 
 def _joint_id(robot: Robot, name: str) -> int:
     jid = mujoco.mj_name2id(robot.model, mujoco.mjtObj.mjOBJ_JOINT, name)
@@ -325,11 +343,11 @@ def _move_bodies(spec: mujoco.MjSpec, names: list[str], new_parent) -> None:
     local pose. MjSpec has no in-place move: copy, delete, attach the copy, restore the names,
     and re-create the equality constraints that the deletion removed."""
     src = spec.copy()
-    for t in list(src.tendons):        # attach would bring the copy's tendons/equalities along
+    for t in list(src.tendons):  # attach would bring the copy's tendons/equalities along
         src.delete(t)
     for e in list(src.equalities):
         src.delete(e)
-    for e in list(src.texts) + list(src.numerics) + list(src.tuples):   # the robot description: kept once
+    for e in list(src.texts) + list(src.numerics) + list(src.tuples):  # the robot description: kept once
         src.delete(e)
     eqs = [{f: getattr(e, f) for f in _EQ_FIELDS} for e in spec.equalities]
     eqs = [{k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in e.items()} for e in eqs]
@@ -338,17 +356,24 @@ def _move_bodies(spec: mujoco.MjSpec, names: list[str], new_parent) -> None:
         spec.delete(spec.body(n))
     if (len(spec.tendons), len(spec.actuators), len(spec.sensors), len(spec.excludes)) != counts:
         raise NotImplementedError(
-            f"moving {names} would drop tendons/actuators/sensors/excludes that reference them")
+            f"moving {names} would drop tendons/actuators/sensors/excludes that reference them"
+        )
     for n in names:
         frame = new_parent.add_frame()
         frame.attach_body(src.body(n), _TMP_PREFIX, "")
-    for kind in (mujoco.mjtObj.mjOBJ_BODY, mujoco.mjtObj.mjOBJ_JOINT, mujoco.mjtObj.mjOBJ_GEOM,
-                 mujoco.mjtObj.mjOBJ_SITE, mujoco.mjtObj.mjOBJ_CAMERA, mujoco.mjtObj.mjOBJ_LIGHT,
-                 mujoco.mjtObj.mjOBJ_FRAME):
+    for kind in (
+        mujoco.mjtObj.mjOBJ_BODY,
+        mujoco.mjtObj.mjOBJ_JOINT,
+        mujoco.mjtObj.mjOBJ_GEOM,
+        mujoco.mjtObj.mjOBJ_SITE,
+        mujoco.mjtObj.mjOBJ_CAMERA,
+        mujoco.mjtObj.mjOBJ_LIGHT,
+        mujoco.mjtObj.mjOBJ_FRAME,
+    ):
         for el in new_parent.find_all(kind):
             if el.name.startswith(_TMP_PREFIX):
-                el.name = el.name[len(_TMP_PREFIX):]
-    leftover = spec.find_default(_TMP_PREFIX + "main")   # the copy's (empty) default class
+                el.name = el.name[len(_TMP_PREFIX) :]
+    leftover = spec.find_default(_TMP_PREFIX + "main")  # the copy's (empty) default class
     if leftover is not None:
         try:
             spec.delete(leftover)
@@ -365,9 +390,10 @@ def _move_bodies(spec: mujoco.MjSpec, names: list[str], new_parent) -> None:
 
 # --------------------------------------------------------------------------- link_compliance
 
+
 def _link_truth(t: dict) -> tuple[dict, np.ndarray]:
     c = np.asarray(t["compliance"], dtype=float)
-    axes = "".join(a for a, ci in zip(AXES, c) if ci != 0.0)   # 0 = rigid: no hinge at all
+    axes = "".join(a for a, ci in zip(AXES, c) if ci != 0.0)  # 0 = rigid: no hinge at all
     return {"link": t["link"], "axes": axes}, c[c != 0.0]
 
 
@@ -375,8 +401,11 @@ def _beam_hinge(link: str, axis: str) -> str:
     return f"{link}_r{axis}"
 
 
-@register("link_compliance", from_truth=_link_truth,
-          discover=lambda robot: [{"link": b} for b in robot.description.links])
+@register(
+    "link_compliance",
+    from_truth=_link_truth,
+    discover=lambda robot: [{"link": b} for b in robot.description.links],
+)
 def link_compliance(link: str, axes: str = AXES, pivot: tuple = (0.0, 0.0, 0.0)) -> Effect:
     """Bending and torsion springs at the root of a link: any body of the arm (discovery tries
     the robot's ``calbench:links``; the FANUC's upper arm and forearm).
@@ -447,9 +476,14 @@ def link_compliance(link: str, axes: str = AXES, pivot: tuple = (0.0, 0.0, 0.0))
     pivot = tuple(float(x) for x in pivot)
     if len(pivot) != 3:
         raise ValueError(f"link_compliance: pivot must be a 3-vector, got {pivot!r}")
-    return Effect("link_compliance", tuple(f"c{a}" for a in axes),
-                  {"link": link, "axes": axes, "pivot": pivot},
-                  ("rad/(N*m)",) * len(axes), apply, set_)
+    return Effect(
+        "link_compliance",
+        tuple(f"c{a}" for a in axes),
+        {"link": link, "axes": axes, "pivot": pivot},
+        ("rad/(N*m)",) * len(axes),
+        apply,
+        set_,
+    )
 
 
 def _has_joint(body) -> bool:
@@ -459,14 +493,14 @@ def _has_joint(body) -> bool:
 
 # --------------------------------------------------------------------------- base_compliance
 
+
 def _base_truth(t: dict) -> tuple[dict, np.ndarray]:
     c = np.asarray(t["compliance"], dtype=float)
     axes = "".join(a for a, ci in zip("xy", c) if ci != 0.0)
     return {"axes": axes}, c[c != 0.0]
 
 
-@register("base_compliance", from_truth=_base_truth,
-          discover=lambda robot: [{"body": root_body_name(robot)}])
+@register("base_compliance", from_truth=_base_truth, discover=lambda robot: [{"body": root_body_name(robot)}])
 def base_compliance(axes: str = "xy", body: str | None = None) -> Effect:
     """Tilt of the robot's base on its foundation (anchor bolts, floor plate).
 
@@ -487,8 +521,7 @@ def base_compliance(axes: str = "xy", body: str | None = None) -> Effect:
     def apply(spec, p, o):
         name = o["body"] or _root_body(spec)
         b = _body(spec, name)
-        if b.find_all(mujoco.mjtObj.mjOBJ_JOINT) and any(
-                j.name.startswith(name + "_r") for j in b.joints):
+        if b.find_all(mujoco.mjtObj.mjOBJ_JOINT) and any(j.name.startswith(name + "_r") for j in b.joints):
             raise ValueError("base_compliance is already applied")
         for a, c in zip(o["axes"], p):
             _add_hinge(b, f"{name}_r{a}", np.eye(3)[AXES.index(a)], c)
@@ -504,18 +537,28 @@ def base_compliance(axes: str = "xy", body: str | None = None) -> Effect:
         for a, c in zip(o["axes"], p):
             robot.model.jnt_stiffness[_joint_id(robot, f"{name}_r{a}")] = _stiffness(c)
 
-    return Effect("base_compliance", tuple(f"c{a}" for a in axes), {"axes": axes, "body": body},
-                  ("rad/(N*m)",) * len(axes), apply, set_)
+    return Effect(
+        "base_compliance",
+        tuple(f"c{a}" for a in axes),
+        {"axes": axes, "body": body},
+        ("rad/(N*m)",) * len(axes),
+        apply,
+        set_,
+    )
 
 
 # --------------------------------------------------------------------------- joint_nonlinearity
+
 
 def _nonlin_truth(t: dict) -> tuple[dict, np.ndarray]:
     return {"joint": int(t["joint"])}, np.array([float(t["cubic"])])
 
 
-@register("joint_nonlinearity", from_truth=_nonlin_truth,
-          discover=lambda robot: [{"joint": j} for j in range(1, robot.n_act + 1)])
+@register(
+    "joint_nonlinearity",
+    from_truth=_nonlin_truth,
+    discover=lambda robot: [{"joint": j} for j in range(1, robot.n_act + 1)],
+)
 def joint_nonlinearity(joint: int = 2) -> Effect:
     """A hardening (cubic > 0) or softening (< 0) drive spring on actuated axis `joint` (1..N,
     the robot's calbench:actuated order).
@@ -532,8 +575,10 @@ def joint_nonlinearity(joint: int = 2) -> Effect:
     def apply(spec, p, o):
         names = spec_names(spec, "actuated")
         if joint > len(names):
-            raise ValueError(f"joint_nonlinearity: the robot has {len(names)} actuated joints "
-                             f"(calbench:actuated), not {joint}")
+            raise ValueError(
+                f"joint_nonlinearity: the robot has {len(names)} actuated joints "
+                f"(calbench:actuated), not {joint}"
+            )
         spec.joint(names[joint - 1]).stiffness[2] = p[0]
 
     def set_(robot, p, o):
@@ -546,12 +591,16 @@ def joint_nonlinearity(joint: int = 2) -> Effect:
 
 # --------------------------------------------------------------------------- compensator
 
+
 def _comp_truth(t: dict) -> tuple[dict, np.ndarray]:
     return {}, np.array([float(t["stiffness"]), float(t["preload"])])
 
 
-@register("compensator", from_truth=_comp_truth,
-          discover=lambda robot: [{}] if robot.description.compensator_sites else [])
+@register(
+    "compensator",
+    from_truth=_comp_truth,
+    discover=lambda robot: [{}] if robot.description.compensator_sites else [],
+)
 def compensator() -> Effect:
     """A spring gravity compensator (paper eqs. 7-11), for a model that lacks one: discovery
     tries it where the robot description names its mounts (``calbench:compensator_sites``;
@@ -562,13 +611,15 @@ def compensator() -> Effect:
     between those sites; on a model that has one, only its K_C and s0 are set. Parameters K_C
     in N/m, s0 in m.
     """
+
     def apply(spec, p, o):
         sites = spec_names(spec, "compensator_sites")
         if len(sites) != 2 or any(spec.site(x) is None for x in sites):
-            raise ValueError("compensator: the robot description names no two sites to mount a "
-                             "spring between (calbench:compensator_sites)")
-        t = next((t for t in spec.tendons
-                  if sorted(w.target.name for w in t.path) == sorted(sites)), None)
+            raise ValueError(
+                "compensator: the robot description names no two sites to mount a "
+                "spring between (calbench:compensator_sites)"
+            )
+        t = next((t for t in spec.tendons if sorted(w.target.name for w in t.path) == sorted(sites)), None)
         if t is None:
             t = spec.add_tendon(name=COMPENSATOR)
             t.wrap_site(sites[0])
@@ -580,13 +631,22 @@ def compensator() -> Effect:
 
     def set_(robot, p, o):
         m = robot.model
-        sites = sorted(mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, x)
-                       for x in robot.description.compensator_sites)
-        t = next((t for t in range(m.ntendon)
-                  if sorted(m.wrap_objid[m.tendon_adr[t]: m.tendon_adr[t] + m.tendon_num[t]]) == sites), -1)
+        sites = sorted(
+            mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, x) for x in robot.description.compensator_sites
+        )
+        t = next(
+            (
+                t
+                for t in range(m.ntendon)
+                if sorted(m.wrap_objid[m.tendon_adr[t] : m.tendon_adr[t] + m.tendon_num[t]]) == sites
+            ),
+            -1,
+        )
         if len(sites) != 2 or t < 0:
-            raise ValueError("the model has no spring between its calbench:compensator_sites: apply the "
-                             "effect (and recompile) first")
+            raise ValueError(
+                "the model has no spring between its calbench:compensator_sites: apply the "
+                "effect (and recompile) first"
+            )
         robot.model.tendon_stiffness[t] = p[0]
         robot.model.tendon_lengthspring[t] = p[1]
 
@@ -607,6 +667,7 @@ def without_compensator(xml_or_path) -> str:
 
 # --------------------------------------------------------------------------- tool_compliance
 
+
 def _tool_truth(t: dict) -> tuple[dict, np.ndarray]:
     c = np.asarray(t["compliance"], dtype=float)
     axes = "".join(a for a, ci in zip("yz", c) if ci != 0.0)
@@ -614,7 +675,7 @@ def _tool_truth(t: dict) -> tuple[dict, np.ndarray]:
 
 
 TOOL_BODY = "tool"
-TOOL_MASS = 1.0                    # kg on the moving tool body (MuJoCo needs mass there)
+TOOL_MASS = 1.0  # kg on the moving tool body (MuJoCo needs mass there)
 
 
 @register("tool_compliance", from_truth=_tool_truth)
@@ -646,7 +707,11 @@ def tool_compliance(axes: str = "yz", body: str | None = None, mount: tuple | No
         at = o["mount"]
         if at is None:
             f = spec.site(flange[0]) if flange else None
-            at = tuple(np.asarray(f.pos, float)) if f is not None and f.parent.name == b.name else (0.0, 0.0, 0.0)
+            at = (
+                tuple(np.asarray(f.pos, float))
+                if f is not None and f.parent.name == b.name
+                else (0.0, 0.0, 0.0)
+            )
         if spec.body(TOOL_BODY) is not None:
             raise ValueError("tool_compliance is already applied")
         tool = b.add_body(name=TOOL_BODY, pos=list(at))
@@ -660,8 +725,13 @@ def tool_compliance(axes: str = "yz", body: str | None = None, mount: tuple | No
         carried = set(payload) | set(spec_names(spec, "reflectors"))
         moving = [s for s in b.sites if s.name in carried]
         for s in moving:
-            keep = dict(name=s.name, pos=list(np.asarray(s.pos, float) - np.asarray(at)),
-                        quat=list(s.quat), size=list(s.size), rgba=list(s.rgba))
+            keep = dict(
+                name=s.name,
+                pos=list(np.asarray(s.pos, float) - np.asarray(at)),
+                quat=list(s.quat),
+                size=list(s.size),
+                rgba=list(s.rgba),
+            )
             spec.delete(s)
             tool.add_site(**keep)
 
@@ -669,22 +739,32 @@ def tool_compliance(axes: str = "yz", body: str | None = None, mount: tuple | No
         for a, c in zip(o["axes"], p):
             robot.model.jnt_stiffness[_joint_id(robot, f"tool_r{a}")] = _stiffness(c)
 
-    return Effect("tool_compliance", tuple(f"c{a}" for a in axes),
-                  {"axes": axes, "body": body, "mount": mount},
-                  ("rad/(N*m)",) * len(axes), apply, set_)
+    return Effect(
+        "tool_compliance",
+        tuple(f"c{a}" for a in axes),
+        {"axes": axes, "body": body, "mount": mount},
+        ("rad/(N*m)",) * len(axes),
+        apply,
+        set_,
+    )
 
 
 # --------------------------------------------------------------------------- tracker_drift
+
 
 def _drift_truth(t: dict) -> tuple[dict, np.ndarray]:
     return {}, np.asarray(t["offset"], dtype=float)
 
 
-DRIFT_PRIOR = Prior(start=0.0, lower=-np.inf, upper=np.inf, size=1e-5, linear=True)   # m: 10 um
+DRIFT_PRIOR = Prior(start=0.0, lower=-np.inf, upper=np.inf, size=1e-5, linear=True)  # m: 10 um
 
 
-@register("tracker_drift", from_truth=_drift_truth, discover=[{}],
-          priors={"bx": DRIFT_PRIOR, "by": DRIFT_PRIOR, "bz": DRIFT_PRIOR})
+@register(
+    "tracker_drift",
+    from_truth=_drift_truth,
+    discover=[{}],
+    priors={"bx": DRIFT_PRIOR, "by": DRIFT_PRIOR, "bz": DRIFT_PRIOR},
+)
 def tracker_drift() -> Effect:
     """A constant offset b between the unloaded and the loaded readings, in the tracker frame
     (thermal drift of the instrument or of the reflector nests between the two readings of each
@@ -693,14 +773,33 @@ def tracker_drift() -> Effect:
     and it is linear in b. Nothing in the MJCF changes (the augmented model's header names it).
     Parameters bx, by, bz in m.
     """
+
     def measure(p, o, readings: Readings):
         return np.tile(np.asarray(readings.tracker_rotation, float) @ p, (len(readings.rows), 1))
 
     return Effect("tracker_drift", ("bx", "by", "bz"), {}, ("m", "m", "m"), _no_edit, _no_edit, measure)
 
 
-__all__ = ["Effect", "EffectRobot", "Readings", "tracker_drift", "REGISTRY", "register", "effect_from_truth", "apply_effects", "Prior",
-           "UNIT_PRIORS", "DISCOVERY_OPTIONS", "priors", "discovery_library",
-           "load_spec", "augmented_xml", "link_compliance", "base_compliance", "joint_nonlinearity", "compensator",
-           "tool_compliance",
-           "RIGID_COMPLIANCE"]
+__all__ = [
+    "Effect",
+    "EffectRobot",
+    "Readings",
+    "tracker_drift",
+    "REGISTRY",
+    "register",
+    "effect_from_truth",
+    "apply_effects",
+    "Prior",
+    "UNIT_PRIORS",
+    "DISCOVERY_OPTIONS",
+    "priors",
+    "discovery_library",
+    "load_spec",
+    "augmented_xml",
+    "link_compliance",
+    "base_compliance",
+    "joint_nonlinearity",
+    "compensator",
+    "tool_compliance",
+    "RIGID_COMPLIANCE",
+]

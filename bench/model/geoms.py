@@ -10,6 +10,7 @@ The MJCF gives the reflectors as sites only (a site has no drawn shape), so
 :func:`reflector_posts` adds what a person expects to see: a post from the nearest surface of
 the reflector's body to the reflector.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -54,8 +55,13 @@ def geom_shapes(model: mujoco.MjModel) -> list[GeomShape]:
         if kind is None or (kind == "mesh" and model.geom_dataid[g] < 0):
             continue
         s = model.geom_size[g].astype(float)
-        size = {"box": s[:3], "capsule": s[:2], "cylinder": s[:2], "mesh": s[:3],
-                "ellipsoid": s[:3] if typ == mujoco.mjtGeom.mjGEOM_ELLIPSOID else s[[0, 0, 0]]}[kind]
+        size = {
+            "box": s[:3],
+            "capsule": s[:2],
+            "cylinder": s[:2],
+            "mesh": s[:3],
+            "ellipsoid": s[:3] if typ == mujoco.mjtGeom.mjGEOM_ELLIPSOID else s[[0, 0, 0]],
+        }[kind]
         matid = model.geom_matid[g]
         rgba = (model.mat_rgba[matid] if matid >= 0 else model.geom_rgba[g]).astype(float)
         verts = faces = None
@@ -63,11 +69,22 @@ def geom_shapes(model: mujoco.MjModel) -> list[GeomShape]:
             m = int(model.geom_dataid[g])
             va, vn = model.mesh_vertadr[m], model.mesh_vertnum[m]
             fa, fn = model.mesh_faceadr[m], model.mesh_facenum[m]
-            verts = model.mesh_vert[va:va + vn].astype(float)
-            faces = model.mesh_face[fa:fa + fn].astype(np.uint32)
-        out.append(GeomShape(g, int(model.geom_bodyid[g]), model.geom(g).name or f"geom{g}", kind,
-                             size.copy(), model.geom_pos[g].astype(float),
-                             model.geom_quat[g].astype(float), rgba, verts, faces))
+            verts = model.mesh_vert[va : va + vn].astype(float)
+            faces = model.mesh_face[fa : fa + fn].astype(np.uint32)
+        out.append(
+            GeomShape(
+                g,
+                int(model.geom_bodyid[g]),
+                model.geom(g).name or f"geom{g}",
+                kind,
+                size.copy(),
+                model.geom_pos[g].astype(float),
+                model.geom_quat[g].astype(float),
+                rgba,
+                verts,
+                faces,
+            )
+        )
     return out
 
 
@@ -109,8 +126,7 @@ def _nearest_on_geom(shape: GeomShape, p: np.ndarray) -> np.ndarray:
     return shape.pos + R @ near
 
 
-def reflector_posts(model: mujoco.MjModel, shapes: list[GeomShape],
-                    sites: list[int]) -> list[ReflectorPost]:
+def reflector_posts(model: mujoco.MjModel, shapes: list[GeomShape], sites: list[int]) -> list[ReflectorPost]:
     """A post for each reflector site, from the nearest drawn geom of its body (``shapes`` as
     :func:`geom_shapes` returns them); a body without geoms gets a post from its origin."""
     out = []
@@ -130,8 +146,11 @@ def tendon_sites(model: mujoco.MjModel) -> list[tuple[str, list[int]]]:
     out = []
     for t in range(model.ntendon):
         adr, num = model.tendon_adr[t], model.tendon_num[t]
-        sites = [int(model.wrap_objid[a]) for a in range(adr, adr + num)
-                 if model.wrap_type[a] == mujoco.mjtWrap.mjWRAP_SITE]
+        sites = [
+            int(model.wrap_objid[a])
+            for a in range(adr, adr + num)
+            if model.wrap_type[a] == mujoco.mjtWrap.mjWRAP_SITE
+        ]
         if len(sites) >= 2:
             out.append((model.tendon(t).name or f"tendon{t}", sites))
     return out

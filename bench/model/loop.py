@@ -10,6 +10,7 @@ Paper §3.4: a loop's stiffness must be modelled through the Jacobian with respe
 motors: J_c,a dq_a + J_c,p dq_p = 0, so dq = N dq_a with N = [I; -J_c,p^+ J_c,a] (rows ordered
 as MuJoCo's dofs). A motor-space Jacobian of any point is then J_site N.
 """
+
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
@@ -20,7 +21,9 @@ import numpy as np
 if TYPE_CHECKING:
     from .robot import Robot
 
-LOOP_TOL = 1e-12      # m, a closed loop's gap (bench/statics/equilibrium.py: the same ~1e-12 rad x a metre-long link)
+LOOP_TOL = (
+    1e-12  # m, a closed loop's gap (bench/statics/equilibrium.py: the same ~1e-12 rad x a metre-long link)
+)
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -28,8 +31,9 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
-def loop_gap(robot: Robot, data: mujoco.MjData, jac: np.ndarray | None = None,
-             scratch: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def loop_gap(
+    robot: Robot, data: mujoco.MjData, jac: np.ndarray | None = None, scratch: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Gap c (3L,) and Jacobian J_c (3L, nv) of the robot's L loops, rows ordered loop by loop.
 
     Each loop contributes x_a - x_b (m) and J_a - J_b; the position stage (and mj_comPos, as
@@ -41,7 +45,7 @@ def loop_gap(robot: Robot, data: mujoco.MjData, jac: np.ndarray | None = None,
     xpos = data.site_xpos
     gaps = []
     for i, (a, b) in enumerate(robot.loops):
-        ja = jc[3 * i: 3 * i + 3]
+        ja = jc[3 * i : 3 * i + 3]
         mujoco.mj_jacSite(m, data, ja, None, a)
         mujoco.mj_jacSite(m, data, jb, None, b)
         ja -= jb
@@ -75,11 +79,11 @@ def constraint_basis(jc: np.ndarray) -> np.ndarray:
     """
     if jc.shape[0] == 3:
         return _loop_basis(jc)
-    blocks = [_loop_basis(jc[i: i + 3]) for i in range(0, jc.shape[0], 3)]
+    blocks = [_loop_basis(jc[i : i + 3]) for i in range(0, jc.shape[0], 3)]
     out = np.zeros((jc.shape[0], sum(b.shape[1] for b in blocks)))
     col = 0
     for i, b in enumerate(blocks):
-        out[3 * i: 3 * i + 3, col: col + b.shape[1]] = b
+        out[3 * i : 3 * i + 3, col : col + b.shape[1]] = b
         col += b.shape[1]
     return out
 
@@ -95,9 +99,15 @@ def constraint_basis_stack(jc: np.ndarray) -> np.ndarray:
     n = jc.shape[0]
     blocks = []
     for i in range(0, jc.shape[1], 3):
-        gram = np.einsum("nik,njk->nij", jc[:, i: i + 3], jc[:, i: i + 3])
-        cands = np.stack([np.cross(gram[:, 0], gram[:, 1]), np.cross(gram[:, 0], gram[:, 2]),
-                          np.cross(gram[:, 1], gram[:, 2])], axis=1)
+        gram = np.einsum("nik,njk->nij", jc[:, i : i + 3], jc[:, i : i + 3])
+        cands = np.stack(
+            [
+                np.cross(gram[:, 0], gram[:, 1]),
+                np.cross(gram[:, 0], gram[:, 2]),
+                np.cross(gram[:, 1], gram[:, 2]),
+            ],
+            axis=1,
+        )
         pick = np.einsum("nkj,nkj->nk", cands, cands).argmax(axis=1)
         nrm = cands[np.arange(n), pick]
         nn = np.sqrt(np.einsum("nj,nj->n", nrm, nrm))
@@ -115,7 +125,7 @@ def constraint_basis_stack(jc: np.ndarray) -> np.ndarray:
     out = np.zeros((n, jc.shape[1], sum(b.shape[2] for b in blocks)))
     col = 0
     for i, b in enumerate(blocks):
-        out[:, 3 * i: 3 * i + 3, col: col + b.shape[2]] = b
+        out[:, 3 * i : 3 * i + 3, col : col + b.shape[2]] = b
         col += b.shape[2]
     return out
 

@@ -16,14 +16,15 @@ The scenario and the log spell the tendon named :data:`LEGACY_COMPENSATOR` as
 ``[truth.compensator]`` and ``/truth/parameters.compensator`` (docs/contract.md); any other
 tendon T as ``[truth.compensators.T]`` and ``compensators.T``.
 """
+
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Mapping, Sequence
 
 import numpy as np
 
-LEGACY_COMPENSATOR = "compensator"   # the contract's [truth.compensator] / "compensator" key
+LEGACY_COMPENSATOR = "compensator"  # the contract's [truth.compensator] / "compensator" key
 
 COMPLIANCE_UNIT = "rad/(N*m)"
 SPRING_UNITS = ("N/m", "m")
@@ -94,7 +95,8 @@ class ParamLayout:
     @property
     def names(self) -> tuple[str, ...]:
         return tuple(f"k{i + 1}" for i in range(self.n_joints)) + tuple(
-            f"{t}_{what}" for t in self.compensators for what in ("stiffness", "preload"))
+            f"{t}_{what}" for t in self.compensators for what in ("stiffness", "preload")
+        )
 
     @property
     def units(self) -> tuple[str, ...]:
@@ -125,8 +127,13 @@ class ParamLayout:
         if theta.shape != (self.n,):
             raise ValueError(f"theta must have the {self.n} parameters {self.names}, got shape {theta.shape}")
         k = self.n_joints
-        return Params(theta[:k].copy(), {t: Spring(float(theta[k + 2 * i]), float(theta[k + 2 * i + 1]))
-                                         for i, t in enumerate(self.compensators)})
+        return Params(
+            theta[:k].copy(),
+            {
+                t: Spring(float(theta[k + 2 * i]), float(theta[k + 2 * i + 1]))
+                for i, t in enumerate(self.compensators)
+            },
+        )
 
     def theta(self, params: Params) -> np.ndarray:
         """Params -> theta; ValueError when they do not fit this layout."""
@@ -134,10 +141,12 @@ class ParamLayout:
         if k.shape != (self.n_joints,):
             raise ValueError(f"expected {self.n_joints} compliances, got {k.shape}")
         if set(params.springs) != set(self.compensators):
-            raise ValueError(f"expected the compensator springs {list(self.compensators)}, "
-                             f"got {list(params.springs)}")
-        springs = [v for t in self.compensators
-                   for v in (params.springs[t].stiffness, params.springs[t].preload)]
+            raise ValueError(
+                f"expected the compensator springs {list(self.compensators)}, got {list(params.springs)}"
+            )
+        springs = [
+            v for t in self.compensators for v in (params.springs[t].stiffness, params.springs[t].preload)
+        ]
         return np.concatenate([k, np.asarray(springs, dtype=float)])
 
     # -- what an estimator may assume ---------------------------------------------------------
@@ -158,5 +167,12 @@ class ParamLayout:
         return np.array([BOUNDS[u][1] for u in self.units])
 
 
-__all__ = ["LEGACY_COMPENSATOR", "GENERIC", "BOUNDS", "Spring", "Params", "ParamLayout",
-           "springs_from_message"]
+__all__ = [
+    "LEGACY_COMPENSATOR",
+    "GENERIC",
+    "BOUNDS",
+    "Spring",
+    "Params",
+    "ParamLayout",
+    "springs_from_message",
+]

@@ -16,6 +16,7 @@ Everything elastic (joint stiffness, the compensator springs) is written here fr
 truth or an estimator's theta (bench/model/params.py), so the file's own stiffness values never
 matter. Controller angles are the model's hinge angles.
 """
+
 from __future__ import annotations
 
 import math
@@ -25,8 +26,9 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from .description import Description, DescriptionError, read_description
 from calbench.bench.core.errors import StaticsError
+
+from .description import Description, DescriptionError, read_description
 from .loop import LOOP_TOL, loop_gap
 from .params import ParamLayout, Params, Spring
 
@@ -39,11 +41,11 @@ from .params import ParamLayout, Params, Spring
 # tan(5 deg) keeps alpha >= 10 deg. Commands closer are rejected (bench.campaign) or never
 # sampled (design): bench.statics has no unique equilibrium at the degenerate pose itself.
 LOOP_MARGIN = math.tan(math.radians(5.0))
-LOOP_MARGIN_ANGLE = math.radians(10.0)   # alpha of LOOP_MARGIN for a planar two-hinge loop
-_SNAP = 1e-9           # motor-map entries this close to an integer are that integer (a parallel linkage)
-_CLOSE_ITER = 20       # Gauss-Newton steps of the loop closure before continuation
-_CONTINUATION = 16     # steps of the continuation from the reference configuration
-_LINEAR_PROBES = 8     # random commands that decide whether the loops close linearly
+LOOP_MARGIN_ANGLE = math.radians(10.0)  # alpha of LOOP_MARGIN for a planar two-hinge loop
+_SNAP = 1e-9  # motor-map entries this close to an integer are that integer (a parallel linkage)
+_CLOSE_ITER = 20  # Gauss-Newton steps of the loop closure before continuation
+_CONTINUATION = 16  # steps of the continuation from the reference configuration
+_LINEAR_PROBES = 8  # random commands that decide whether the loops close linearly
 
 
 @dataclass(frozen=True)
@@ -83,8 +85,11 @@ def path_joints(model: mujoco.MjModel, body_a: int, body_b: int) -> list[int]:
     up_a, up_b = ancestors(model, body_a), ancestors(model, body_b)
     common = next(b for b in up_a if b in up_b)
     bodies = up_a[: up_a.index(common)] + up_b[: up_b.index(common)]
-    return sorted(int(j) for b in bodies
-                  for j in range(model.body_jntadr[b], model.body_jntadr[b] + model.body_jntnum[b]))
+    return sorted(
+        int(j)
+        for b in bodies
+        for j in range(model.body_jntadr[b], model.body_jntadr[b] + model.body_jntnum[b])
+    )
 
 
 class Robot:
@@ -108,13 +113,14 @@ class Robot:
         self.layout = ParamLayout(self.n_act, desc.compensators)
         # flat indices of (dof of motor i, column i) in dforce_dtheta's (nv, n_params) result
         self._spring_entries = self.act_dof * self.layout.n + np.arange(self.n_act)
-        self.tendons = np.array([name2id(model, mujoco.mjtObj.mjOBJ_TENDON, t) for t in desc.compensators],
-                                dtype=int)
+        self.tendons = np.array(
+            [name2id(model, mujoco.mjtObj.mjOBJ_TENDON, t) for t in desc.compensators], dtype=int
+        )
         # each tendon's sparse row of ten_J: a fixed pattern of the model
         self._ten_pattern = []
         for t in self.tendons:
             adr, nnz = int(model.ten_J_rowadr[t]), int(model.ten_J_rownnz[t])
-            self._ten_pattern.append((slice(adr, adr + nnz), model.ten_J_colind[adr: adr + nnz].copy()))
+            self._ten_pattern.append((slice(adr, adr + nnz), model.ten_J_colind[adr : adr + nnz].copy()))
         self.payload_site = site(desc.payload)
         self.payload_name = desc.payload
         self.flange_site = site(desc.flange) if desc.flange else -1
@@ -124,7 +130,8 @@ class Robot:
         # positions coincide: the connect equalities named by calbench:loops
         eq = [name2id(model, mujoco.mjtObj.mjOBJ_EQUALITY, e) for e in desc.loops]
         self.loops: tuple[tuple[int, int], ...] = tuple(
-            (int(model.eq_obj1id[e]), int(model.eq_obj2id[e])) for e in eq)
+            (int(model.eq_obj1id[e]), int(model.eq_obj2id[e])) for e in eq
+        )
         self._derive_passive()
 
     # -- derived structure --------------------------------------------------------------
@@ -134,26 +141,36 @@ class Robot:
         actuated = set(self.act_joint.tolist())
         per_loop, passive = [], []
         for (a, b), name in zip(self.loops, self.description.loops):
-            js = [j for j in path_joints(m, m.site_bodyid[a], m.site_bodyid[b])
-                  if j not in actuated and m.jnt_stiffness[j] == 0.0]
+            js = [
+                j
+                for j in path_joints(m, m.site_bodyid[a], m.site_bodyid[b])
+                if j not in actuated and m.jnt_stiffness[j] == 0.0
+            ]
             for j in js:
-                if int(m.jnt_type[j]) not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
-                    raise DescriptionError(f"{self.source or 'MJCF'}: calbench:loops: loop {name!r} passes "
-                                           f"through joint {m.joint(j).name!r}, which is not a hinge or slide")
+                if int(m.jnt_type[j]) not in (
+                    int(mujoco.mjtJoint.mjJNT_HINGE),
+                    int(mujoco.mjtJoint.mjJNT_SLIDE),
+                ):
+                    raise DescriptionError(
+                        f"{self.source or 'MJCF'}: calbench:loops: loop {name!r} passes "
+                        f"through joint {m.joint(j).name!r}, which is not a hinge or slide"
+                    )
             if not js:
-                raise DescriptionError(f"{self.source or 'MJCF'}: calbench:loops: loop {name!r} has no "
-                                       "passive (unsprung, not actuated) joint between its two sites")
+                raise DescriptionError(
+                    f"{self.source or 'MJCF'}: calbench:loops: loop {name!r} has no "
+                    "passive (unsprung, not actuated) joint between its two sites"
+                )
             per_loop.append(np.array(js, dtype=int))
             passive += [j for j in js if j not in passive]
         self.passive_joint = np.array(sorted(passive), dtype=int)
         self.passive_qpos = m.jnt_qposadr[self.passive_joint]
         self.passive_dof = m.jnt_dofadr[self.passive_joint]
-        self.loop_passive = per_loop       # joint ids of each loop's passive joints
+        self.loop_passive = per_loop  # joint ids of each loop's passive joints
         self._loop_passive_dof = [m.jnt_dofadr[js] for js in per_loop]
-        self._kd = mujoco.MjData(m)        # scratch for the closure (never the statics' data)
+        self._kd = mujoco.MjData(m)  # scratch for the closure (never the statics' data)
         self._ref = m.qpos0.copy()
         self._closure_map = np.zeros((len(self.passive_joint), self.n_act))
-        self.linear_loops = True           # the passive joints are exact linear maps of the motors
+        self.linear_loops = True  # the passive joints are exact linear maps of the motors
         if len(self.passive_joint):
             self._ref = self._close(self._ref, self._ref)
             n = self._passive_map(self._ref)
@@ -161,7 +178,9 @@ class Robot:
             # a parallel linkage closes exactly along the map everywhere; decided on random
             # commands within the limits (+-180 deg at most), once
             lim = np.clip(self.limits(), -np.pi, np.pi)
-            probes = lim[:, 0] + (lim[:, 1] - lim[:, 0]) * np.random.default_rng(0).random((_LINEAR_PROBES, self.n_act))
+            probes = lim[:, 0] + (lim[:, 1] - lim[:, 0]) * np.random.default_rng(0).random(
+                (_LINEAR_PROBES, self.n_act)
+            )
             self.linear_loops = all(np.abs(self._gap(self._predict(q))[0]).max() <= LOOP_TOL for q in probes)
 
     def _gap(self, qpos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -197,23 +216,26 @@ class Robot:
         cur = ref.copy()
         for s in range(1, _CONTINUATION + 1):
             nxt = cur.copy()
-            nxt[self.act_qpos] = ref[self.act_qpos] + s / _CONTINUATION * (qpos[self.act_qpos] - ref[self.act_qpos])
+            nxt[self.act_qpos] = ref[self.act_qpos] + s / _CONTINUATION * (
+                qpos[self.act_qpos] - ref[self.act_qpos]
+            )
             nxt[self.passive_qpos] += self._passive_map(cur) @ (nxt[self.act_qpos] - cur[self.act_qpos])
             cur = self._newton_close(nxt)
             if cur is None:
                 raise StaticsError(
                     f"the loops {list(self.description.loops)} do not close at command "
-                    f"{np.degrees(qpos[self.act_qpos]).round(3).tolist()} deg")
+                    f"{np.degrees(qpos[self.act_qpos]).round(3).tolist()} deg"
+                )
         return cur
 
     # -- construction -------------------------------------------------------------------
     @classmethod
-    def from_file(cls, path: str | Path) -> "Robot":
+    def from_file(cls, path: str | Path) -> Robot:
         path = Path(path)
         return cls(mujoco.MjModel.from_xml_path(str(path)), source=path)
 
     @classmethod
-    def from_xml(cls, text: str) -> "Robot":
+    def from_xml(cls, text: str) -> Robot:
         return cls(mujoco.MjModel.from_xml_string(text))
 
     # -- parameters ---------------------------------------------------------------------
@@ -258,8 +280,9 @@ class Robot:
             out[:, col + 1] = s.stiffness * mom
         return out
 
-    def dforce_dtheta_stack(self, params: Params, qpos: np.ndarray, command: np.ndarray,
-                            ten_j: np.ndarray, ten_length: np.ndarray) -> np.ndarray:
+    def dforce_dtheta_stack(
+        self, params: Params, qpos: np.ndarray, command: np.ndarray, ten_j: np.ndarray, ten_length: np.ndarray
+    ) -> np.ndarray:
         """:meth:`dforce_dtheta` of n configurations at once (n, nv, n_params), from their
         stacked MjData fields (as mujoco.batch binds them): qpos (n, nq), the commands (n, n_act),
         ten_J (n, nJ, MuJoCo's sparse values) and ten_length (n, ntendon), position stage
@@ -279,9 +302,13 @@ class Robot:
     def params(self) -> Params:
         """The parameters the model currently holds (for the simulator's truth only)."""
         m = self.model
-        return Params(1.0 / m.jnt_stiffness[self.act_joint].copy(),
-                      {name: Spring(float(m.tendon_stiffness[t]), float(m.tendon_lengthspring[t][0]))
-                       for name, t in zip(self.description.compensators, self.tendons)})
+        return Params(
+            1.0 / m.jnt_stiffness[self.act_joint].copy(),
+            {
+                name: Spring(float(m.tendon_stiffness[t]), float(m.tendon_lengthspring[t][0]))
+                for name, t in zip(self.description.compensators, self.tendons)
+            },
+        )
 
     def limits(self) -> np.ndarray:
         """(n_act, 2) controller joint limits in rad."""
@@ -307,7 +334,7 @@ class Robot:
         not finite (a loop that did not close) counts as degenerate."""
         out = np.zeros((len(jc), len(self.loops)))
         for i, dofs in enumerate(self._loop_passive_dof):
-            jp = jc[:, 3 * i: 3 * i + 3][:, :, dofs]
+            jp = jc[:, 3 * i : 3 * i + 3][:, :, dofs]
             norms = np.sqrt(np.einsum("nij,nij->nj", jp, jp))
             ok = np.all(norms > 0, axis=1) & np.all(np.isfinite(jp), axis=(1, 2)) & (len(dofs) <= 3)
             if ok.any():
@@ -359,8 +386,10 @@ class Robot:
         qpos[:, self.act_qpos] = q
         if len(self.passive_joint) and len(q):
             ref = self._ref
-            qpos[:, self.passive_qpos] = ref[self.passive_qpos] + (q - ref[self.act_qpos]) @ self._closure_map.T
-            if self.linear_loops:   # closed exactly by the map (rigid_qpos)
+            qpos[:, self.passive_qpos] = (
+                ref[self.passive_qpos] + (q - ref[self.act_qpos]) @ self._closure_map.T
+            )
+            if self.linear_loops:  # closed exactly by the map (rigid_qpos)
                 return qpos
             c = gaps(qpos) if gaps is not None else np.array([self._gap(x)[0] for x in qpos])
             for i in np.flatnonzero(~(np.abs(c).max(axis=1) <= LOOP_TOL)):
@@ -394,12 +423,14 @@ class Robot:
         joint between its two sites' bodies. ValueError when that is not one actuated hinge."""
         m = self.model
         t = self.tendons[which]
-        a, b = m.wrap_objid[m.tendon_adr[t]: m.tendon_adr[t] + 2]
+        a, b = m.wrap_objid[m.tendon_adr[t] : m.tendon_adr[t] + 2]
         js = path_joints(m, m.site_bodyid[a], m.site_bodyid[b])
         name = self.description.compensators[which]
         if len(js) != 1 or js[0] not in self.act_joint:
-            raise ValueError(f"compensator {name!r} spans joints {[m.joint(j).name for j in js]}: the "
-                             "triangle of paper eqs. 7-11 needs exactly one actuated hinge between its sites")
+            raise ValueError(
+                f"compensator {name!r} spans joints {[m.joint(j).name for j in js]}: the "
+                "triangle of paper eqs. 7-11 needs exactly one actuated hinge between its sites"
+            )
         return int(np.flatnonzero(self.act_joint == js[0])[0])
 
     def compensator_geometry(self, which: int = 0) -> CompensatorGeometry:
@@ -411,7 +442,7 @@ class Robot:
         d = mujoco.MjData(m)
         d.qpos[:] = self.rigid_qpos(np.zeros(self.n_act))
         mujoco.mj_kinematics(m, d)
-        a, b = m.wrap_objid[m.tendon_adr[t]: m.tendon_adr[t] + 2]
+        a, b = m.wrap_objid[m.tendon_adr[t] : m.tendon_adr[t] + 2]
         joint = self.act_joint[i]
         # b: the attachment that the joint moves (its body below the joint's), a: the other
         if int(m.jnt_bodyid[joint]) in ancestors(m, m.site_bodyid[a]):
@@ -428,5 +459,14 @@ class Robot:
         return CompensatorGeometry(float(l_c), float(l_2), float(psi), i)
 
 
-__all__ = ["Robot", "Params", "Spring", "ParamLayout", "CompensatorGeometry", "LOOP_MARGIN", "ancestors",
-           "LOOP_MARGIN_ANGLE", "path_joints"]
+__all__ = [
+    "Robot",
+    "Params",
+    "Spring",
+    "ParamLayout",
+    "CompensatorGeometry",
+    "LOOP_MARGIN",
+    "ancestors",
+    "LOOP_MARGIN_ANGLE",
+    "path_joints",
+]

@@ -22,6 +22,7 @@ Checks, in order, each failure an InputError naming the element (exit status 2):
 On success :func:`check_robot` returns a :class:`RobotCheck`, a short summary of what calbench
 derived from the model.
 """
+
 from __future__ import annotations
 
 import itertools
@@ -32,19 +33,19 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from calbench.bench.model.description import DescriptionError
 from calbench.bench.core.errors import InputError, StaticsError
+from calbench.bench.model.description import DescriptionError
 from calbench.bench.model.loop import LOOP_TOL, loop_gap
 from calbench.bench.model.robot import LOOP_MARGIN, LOOP_MARGIN_ANGLE, Robot
 from calbench.bench.scenario.parse import TrackerSpec
 from calbench.bench.statics.equilibrium import Load, StaticsSolver
 from calbench.bench.tracker.instrument import visible_sites
 
-MIN_SPREAD = 0.01            # m, second singular value of the centred reflector positions
-TRACKER_DISTANCE = 5.0       # m from axis 1, at least twice the payload's reach
-TRACKER_HEIGHT = 3.0         # m above the world's z = 0
-TRACKER_AZIMUTH = -45.0      # deg from the payload's direction at the reference pose
-DEFAULT_MASS = 100.0         # kg hung at the payload site for the loaded grid
+MIN_SPREAD = 0.01  # m, second singular value of the centred reflector positions
+TRACKER_DISTANCE = 5.0  # m from axis 1, at least twice the payload's reach
+TRACKER_HEIGHT = 3.0  # m above the world's z = 0
+TRACKER_AZIMUTH = -45.0  # deg from the payload's direction at the reference pose
+DEFAULT_MASS = 100.0  # kg hung at the payload site for the loaded grid
 
 
 @dataclass
@@ -53,44 +54,55 @@ class RobotCheck:
 
     path: Path
     actuated: tuple[str, ...]
-    loops: dict[str, list[str]]            # loop -> its passive joints
-    compensators: dict[str, str]           # tendon -> the actuated joint it spans ("" if none)
+    loops: dict[str, list[str]]  # loop -> its passive joints
+    compensators: dict[str, str]  # tendon -> the actuated joint it spans ("" if none)
     reflectors: tuple[str, ...]
     payload: str
     flange: str | None
     parameters: tuple[str, ...]
-    reference_conditioning: list[float]    # per loop, at the reference pose
+    reference_conditioning: list[float]  # per loop, at the reference pose
     tracker: np.ndarray
-    poses: int = 0                         # grid poses solved (unloaded and loaded)
-    skipped: int = 0                       # grid poses within the loop margin
-    max_gap: float = 0.0                   # m, largest loop gap at an equilibrium
+    poses: int = 0  # grid poses solved (unloaded and loaded)
+    skipped: int = 0  # grid poses within the loop margin
+    max_gap: float = 0.0  # m, largest loop gap at an equilibrium
     optional: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
     def lines(self) -> list[str]:
         """The summary, for people."""
-        out = [f"{self.path}: a calbench robot",
-               f"  {len(self.actuated)} actuated joints: {' '.join(self.actuated)}",
-               f"  parameters: {' '.join(self.parameters)}"]
+        out = [
+            f"{self.path}: a calbench robot",
+            f"  {len(self.actuated)} actuated joints: {' '.join(self.actuated)}",
+            f"  parameters: {' '.join(self.parameters)}",
+        ]
         if self.loops:
             for (name, passive), c in zip(self.loops.items(), self.reference_conditioning):
-                out.append(f"  loop {name}: passive joints {' '.join(passive)}; conditioning {c:.3f} at the "
-                           f"reference pose, commands need >= {LOOP_MARGIN:.4f} (tan 5 deg: a planar "
-                           f"two-hinge loop {math.degrees(LOOP_MARGIN_ANGLE):.0f} deg from flat)")
+                out.append(
+                    f"  loop {name}: passive joints {' '.join(passive)}; conditioning {c:.3f} at the "
+                    f"reference pose, commands need >= {LOOP_MARGIN:.4f} (tan 5 deg: a planar "
+                    f"two-hinge loop {math.degrees(LOOP_MARGIN_ANGLE):.0f} deg from flat)"
+                )
         else:
             out.append("  no kinematic loop (a serial robot)")
         for t, j in self.compensators.items():
-            out.append(f"  compensator {t}: across {j}" if j else
-                       f"  compensator {t}: not across one actuated hinge (the two-step method does not apply)")
+            out.append(
+                f"  compensator {t}: across {j}"
+                if j
+                else f"  compensator {t}: not across one actuated hinge (the two-step method does not apply)"
+            )
         if not self.compensators:
             out.append("  no compensator spring")
-        out.append(f"  reflectors: {' '.join(self.reflectors)} (not collinear, all seen from a tracker at "
-                   f"[{', '.join(f'{x:.2f}' for x in self.tracker)}] m at the reference pose)")
+        out.append(
+            f"  reflectors: {' '.join(self.reflectors)} (not collinear, all seen from a tracker at "
+            f"[{', '.join(f'{x:.2f}' for x in self.tracker)}] m at the reference pose)"
+        )
         out.append(f"  payload site: {self.payload}" + (f"; flange: {self.flange}" if self.flange else ""))
         for key, names in self.optional.items():
             out.append(f"  {key}: {' '.join(names)}")
-        out.append(f"  statics converge at {self.poses} grid poses, unloaded and loaded"
-                   + (f" ({self.skipped} skipped: within the loop margin)" if self.skipped else "")
-                   + f"; largest loop gap {self.max_gap:.1e} m")
+        out.append(
+            f"  statics converge at {self.poses} grid poses, unloaded and loaded"
+            + (f" ({self.skipped} skipped: within the loop margin)" if self.skipped else "")
+            + f"; largest loop gap {self.max_gap:.1e} m"
+        )
         return out
 
 
@@ -122,8 +134,9 @@ def _deg(q) -> list[float]:
     return [round(float(math.degrees(x)), 3) for x in q]
 
 
-def check_robot(path: str | Path, tracker: np.ndarray | None = None, mass: float = DEFAULT_MASS,
-                per_joint: int = 3) -> RobotCheck:
+def check_robot(
+    path: str | Path, tracker: np.ndarray | None = None, mass: float = DEFAULT_MASS, per_joint: int = 3
+) -> RobotCheck:
     """Run the checks of the module docstring on the MJCF at ``path``; InputError at the first
     failure, naming the element."""
     path = Path(path)
@@ -137,23 +150,35 @@ def check_robot(path: str | Path, tracker: np.ndarray | None = None, mass: float
         robot = Robot(model, path)
     except DescriptionError as exc:
         key, _, what = str(exc).removeprefix(f"{path}: ").partition(": ")
-        raise InputError(path, key, "a valid robot description (docs/contract.md, Robot description)",
-                         what) from None
+        raise InputError(
+            path, key, "a valid robot description (docs/contract.md, Robot description)", what
+        ) from None
     except StaticsError as exc:
         raise InputError(path, "calbench:loops", "loops that close at the reference pose", str(exc)) from None
     m = robot.model
     desc = robot.description
     for name, j in zip(desc.actuated, robot.act_joint):
         if not m.jnt_stiffness[j] > 0:
-            raise InputError(path, f"calbench:actuated: joint {name!r}", "a stiffness > 0 (the VJM spring; "
-                             "any value: a scenario writes the real one)", float(m.jnt_stiffness[j]))
+            raise InputError(
+                path,
+                f"calbench:actuated: joint {name!r}",
+                "a stiffness > 0 (the VJM spring; any value: a scenario writes the real one)",
+                float(m.jnt_stiffness[j]),
+            )
 
-    free = [j for j in range(m.njnt) if j not in robot.act_joint and j not in robot.passive_joint
-            and not m.jnt_stiffness[j] > 0]
+    free = [
+        j
+        for j in range(m.njnt)
+        if j not in robot.act_joint and j not in robot.passive_joint and not m.jnt_stiffness[j] > 0
+    ]
     if free:
-        raise InputError(path, f"joint {m.joint(free[0]).name!r}", "an actuated joint (calbench:actuated), a "
-                         "loop's passive joint (calbench:loops) or a spring (stiffness > 0)",
-                         "a free joint: the statics have no equilibrium")
+        raise InputError(
+            path,
+            f"joint {m.joint(free[0]).name!r}",
+            "an actuated joint (calbench:actuated), a "
+            "loop's passive joint (calbench:loops) or a spring (stiffness > 0)",
+            "a free joint: the statics have no equilibrium",
+        )
 
     comps = {}
     for c, t in enumerate(desc.compensators):
@@ -169,32 +194,51 @@ def check_robot(path: str | Path, tracker: np.ndarray | None = None, mass: float
     pts = d.site_xpos[robot.reflector_sites]
     spread = np.linalg.svd(pts - pts.mean(axis=0), compute_uv=False)
     if spread[1] < MIN_SPREAD:
-        raise InputError(path, "calbench:reflectors", f"reflectors not on one line (spread >= "
-                         f"{MIN_SPREAD * 100:.0f} cm across it)", f"{spread[1] * 100:.2g} cm for "
-                         + ", ".join(desc.reflectors))
+        raise InputError(
+            path,
+            "calbench:reflectors",
+            f"reflectors not on one line (spread >= {MIN_SPREAD * 100:.0f} cm across it)",
+            f"{spread[1] * 100:.2g} cm for " + ", ".join(desc.reflectors),
+        )
     spot = default_tracker(robot) if tracker is None else np.asarray(tracker, dtype=float)
     seen = visible_sites(m, d, TrackerSpec(position=spot), robot.reflector_sites)
     if not seen.all():
         hidden = [n for n, s in zip(desc.reflectors, seen) if not s]
-        raise InputError(path, "calbench:reflectors", f"every reflector seen from a tracker at "
-                         f"{np.round(spot, 2).tolist()} m at the reference pose (q = 0)",
-                         "hidden: " + ", ".join(hidden))
+        raise InputError(
+            path,
+            "calbench:reflectors",
+            f"every reflector seen from a tracker at "
+            f"{np.round(spot, 2).tolist()} m at the reference pose (q = 0)",
+            "hidden: " + ", ".join(hidden),
+        )
     reference = [float(x) for x in robot.loop_conditioning(np.zeros(robot.n_act))]
 
     # the grid: loops close, statics converge
     solver = StaticsSolver(robot)
     load = Load.mass(robot, mass)
-    out = RobotCheck(path, desc.actuated,
-                     {e: [m.joint(j).name for j in js] for e, js in zip(desc.loops, robot.loop_passive)},
-                     comps, desc.reflectors, desc.payload, desc.flange, robot.layout.names, reference, spot,
-                     optional={k: v for k in ("mass_compensators", "links", "compensator_sites")
-                               if (v := getattr(desc, k))} | ({"wrist": (desc.wrist,)} if desc.wrist else {}))
+    out = RobotCheck(
+        path,
+        desc.actuated,
+        {e: [m.joint(j).name for j in js] for e, js in zip(desc.loops, robot.loop_passive)},
+        comps,
+        desc.reflectors,
+        desc.payload,
+        desc.flange,
+        robot.layout.names,
+        reference,
+        spot,
+        optional={
+            k: v for k in ("mass_compensators", "links", "compensator_sites") if (v := getattr(desc, k))
+        }
+        | ({"wrist": (desc.wrist,)} if desc.wrist else {}),
+    )
     for q in grid(robot, per_joint):
         try:
             qpos = robot.rigid_qpos(q)
         except StaticsError as exc:
-            raise InputError(path, "calbench:loops", f"loops that close at every pose (command {_deg(q)} deg)",
-                             str(exc)) from None
+            raise InputError(
+                path, "calbench:loops", f"loops that close at every pose (command {_deg(q)} deg)", str(exc)
+            ) from None
         if robot.loops:
             d.qpos[:] = qpos
             mujoco.mj_kinematics(m, d)
@@ -202,8 +246,12 @@ def check_robot(path: str | Path, tracker: np.ndarray | None = None, mass: float
             gap = np.abs(loop_gap(robot, d)[0]).reshape(-1, 3).max(axis=1)
             if gap.max() > LOOP_TOL:
                 bad = desc.loops[int(np.argmax(gap))]
-                raise InputError(path, f"calbench:loops: {bad}", f"a loop that closes at command {_deg(q)} deg",
-                                 f"gap {gap.max():.1e} m")
+                raise InputError(
+                    path,
+                    f"calbench:loops: {bad}",
+                    f"a loop that closes at command {_deg(q)} deg",
+                    f"gap {gap.max():.1e} m",
+                )
             if not robot.loop_ok(q, qpos):
                 out.skipped += 1
                 continue
@@ -211,12 +259,16 @@ def check_robot(path: str | Path, tracker: np.ndarray | None = None, mass: float
             try:
                 e = solver.solve(q, ld)
             except StaticsError as exc:
-                raise InputError(path, f"statics at command {_deg(q)} deg ({state})", "an equilibrium",
-                                 str(exc)) from None
+                raise InputError(
+                    path, f"statics at command {_deg(q)} deg ({state})", "an equilibrium", str(exc)
+                ) from None
             if not e.acceptable:
-                raise InputError(path, f"statics at command {_deg(q)} deg ({state})",
-                                 "an equilibrium that converges (residual and loop gap)",
-                                 f"residual {e.residual:.1e} N*m, loop gap {e.loop_violation:.1e} m")
+                raise InputError(
+                    path,
+                    f"statics at command {_deg(q)} deg ({state})",
+                    "an equilibrium that converges (residual and loop gap)",
+                    f"residual {e.residual:.1e} N*m, loop gap {e.loop_violation:.1e} m",
+                )
             out.max_gap = max(out.max_gap, e.loop_violation)
         out.poses += 1
     if out.poses == 0:

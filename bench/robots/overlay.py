@@ -22,6 +22,7 @@ Positions are metres in the named link's URDF frame. Everything is validated lik
 (bench/scenario/parse.py): an :class:`~bench.errors.InputError` naming the file, the key and what was
 expected. Whether the links and joints exist is the URDF's business (bench/robots/urdf.py).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -30,8 +31,19 @@ from pathlib import Path
 from calbench.bench.core.errors import InputError
 from calbench.bench.scenario.parse import _Checker, _describe, _read, _toml
 
-TOP_KEYS = ("actuated", "payload", "flange", "reflectors", "compensators", "loops", "packages",
-            "wrist", "links", "mass_compensators", "compensator_sites")
+TOP_KEYS = (
+    "actuated",
+    "payload",
+    "flange",
+    "reflectors",
+    "compensators",
+    "loops",
+    "packages",
+    "wrist",
+    "links",
+    "mass_compensators",
+    "compensator_sites",
+)
 PAYLOAD_SITE = "payload"
 FLANGE_SITE = "flange"
 MOUNT_SITES = ("compensator_mount_from", "compensator_mount_to")
@@ -105,8 +117,10 @@ class Overlay:
     def named_links(self) -> list[tuple[str, str]]:
         """(overlay key, link) of every link the hints name."""
         return ([("wrist", self.wrist)] if self.wrist else []) + [
-            (f"{key}[{i}]", link) for key in ("links", "mass_compensators")
-            for i, link in enumerate(getattr(self, key))]
+            (f"{key}[{i}]", link)
+            for key in ("links", "mass_compensators")
+            for i, link in enumerate(getattr(self, key))
+        ]
 
 
 def _name(c: _Checker, name: str, what: str) -> str:
@@ -123,7 +137,9 @@ def _names(c: _Checker, key: str, what: str) -> tuple[str, ...]:
         raise c.fail(key, expected, _describe(value))
     for i, v in enumerate(value):
         if not isinstance(v, str) or not v:
-            raise InputError(c.file, f"{c.key(key)}[{i}]", f"a {what} name (a non-empty string)", _describe(v))
+            raise InputError(
+                c.file, f"{c.key(key)}[{i}]", f"a {what} name (a non-empty string)", _describe(v)
+            )
         if v in value[:i]:
             raise InputError(c.file, f"{c.key(key)}[{i}]", f"each {what} once", v)
     return tuple(value)
@@ -142,19 +158,31 @@ def _attach(parent: _Checker, key: str, site: str) -> Attach:
 def _compensator(tables: _Checker, name: str) -> CompensatorSpec:
     c = tables.sub(name)
     c.only(("stiffness", "preload", "from", "to"))
-    return CompensatorSpec(name, _attach(c, "from", f"{name}_from"), _attach(c, "to", f"{name}_to"),
-                           c.number("stiffness", positive=True), c.number("preload", positive=True),
-                           c.prefix)
+    return CompensatorSpec(
+        name,
+        _attach(c, "from", f"{name}_from"),
+        _attach(c, "to", f"{name}_to"),
+        c.number("stiffness", positive=True),
+        c.number("preload", positive=True),
+        c.prefix,
+    )
 
 
 def _loop(tables: _Checker, name: str) -> LoopSpec:
     c = tables.sub(name)
     c.only(("passive", "site1", "site2"))
-    return LoopSpec(name, _attach(c, "site1", f"{name}_site1"), _attach(c, "site2", f"{name}_site2"),
-                    _names(c, "passive", "joint"), c.prefix)
+    return LoopSpec(
+        name,
+        _attach(c, "site1", f"{name}_site1"),
+        _attach(c, "site2", f"{name}_site2"),
+        _names(c, "passive", "joint"),
+        c.prefix,
+    )
 
 
-def _mounts(top: _Checker, compensators: tuple[CompensatorSpec, ...]) -> tuple[tuple[str, str], tuple[Attach, ...]]:
+def _mounts(
+    top: _Checker, compensators: tuple[CompensatorSpec, ...]
+) -> tuple[tuple[str, str], tuple[Attach, ...]]:
     """``compensator_sites``: the name of an overlay compensator (its two sites) or a table
     {from, to} of two new sites (:data:`MOUNT_SITES`)."""
     value = top.raw("compensator_sites")
@@ -162,8 +190,13 @@ def _mounts(top: _Checker, compensators: tuple[CompensatorSpec, ...]) -> tuple[t
         for c in compensators:
             if c.name == value:
                 return (c.start.name, c.end.name), ()
-        raise top.fail("compensator_sites", "the name of a [compensators.NAME] table ("
-                       + (", ".join(c.name for c in compensators) or "none") + ") or a table {from, to}", value)
+        raise top.fail(
+            "compensator_sites",
+            "the name of a [compensators.NAME] table ("
+            + (", ".join(c.name for c in compensators) or "none")
+            + ") or a table {from, to}",
+            value,
+        )
     c = top.sub("compensator_sites")
     c.only(("from", "to"))
     mounts = (_attach(c, "from", MOUNT_SITES[0]), _attach(c, "to", MOUNT_SITES[1]))
@@ -186,7 +219,9 @@ def parse_overlay(text: str, path: str | Path) -> Overlay:
     actuated = _names(top, "actuated", "joint")
     payload = _attach(top, "payload", PAYLOAD_SITE)
     flange = _attach(top, "flange", FLANGE_SITE) if top.has("flange") else None
-    reflectors = tuple(_attach(t, name, name) for t, name in _named_tables(top, "reflectors", "reflector site"))
+    reflectors = tuple(
+        _attach(t, name, name) for t, name in _named_tables(top, "reflectors", "reflector site")
+    )
     if len(reflectors) < 3:
         raise top.fail("reflectors", "at least 3 [reflectors.NAME] tables (link, pos)", f"{len(reflectors)}")
     compensators = tuple(_compensator(t, n) for t, n in _named_tables(top, "compensators", "tendon"))
@@ -200,15 +235,31 @@ def parse_overlay(text: str, path: str | Path) -> Overlay:
     wrist = top.string("wrist") if top.has("wrist") else None
     if wrist == "":
         raise top.fail("wrist", "a link name of the URDF", wrist)
-    ov = Overlay(path, actuated, payload, reflectors, flange, compensators, loops, packages, wrist=wrist,
-                 links=_names(top, "links", "link") if top.has("links") else (),
-                 mass_compensators=_names(top, "mass_compensators", "link") if top.has("mass_compensators") else (),
-                 compensator_sites=sites, mounts=mounts)
+    ov = Overlay(
+        path,
+        actuated,
+        payload,
+        reflectors,
+        flange,
+        compensators,
+        loops,
+        packages,
+        wrist=wrist,
+        links=_names(top, "links", "link") if top.has("links") else (),
+        mass_compensators=_names(top, "mass_compensators", "link") if top.has("mass_compensators") else (),
+        compensator_sites=sites,
+        mounts=mounts,
+    )
     seen: dict[str, str] = {}
     for s in ov.sites():
         if s.name in seen:
-            raise InputError(path, s.key, f"a site name other than {s.name!r}, which {seen[s.name]} "
-                             "already gives (site names must be unique)", s.name)
+            raise InputError(
+                path,
+                s.key,
+                f"a site name other than {s.name!r}, which {seen[s.name]} "
+                "already gives (site names must be unique)",
+                s.name,
+            )
         seen[s.name] = s.key
     return ov
 
@@ -219,5 +270,13 @@ def load_overlay(path: str | Path) -> Overlay:
     return parse_overlay(_read(path, "overlay"), path)
 
 
-__all__ = ["Attach", "CompensatorSpec", "LoopSpec", "Overlay", "parse_overlay", "load_overlay",
-           "PAYLOAD_SITE", "FLANGE_SITE"]
+__all__ = [
+    "Attach",
+    "CompensatorSpec",
+    "LoopSpec",
+    "Overlay",
+    "parse_overlay",
+    "load_overlay",
+    "PAYLOAD_SITE",
+    "FLANGE_SITE",
+]

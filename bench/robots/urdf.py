@@ -39,6 +39,7 @@ The result is checked as calbench will use it: compiled, read as a :class:`~benc
 (description, loop closure at the zero pose, each compensator across one actuated hinge), and
 each loop's unsprung joints between its two sites must be exactly the overlay's ``passive``.
 """
+
 from __future__ import annotations
 
 import math
@@ -49,14 +50,15 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from calbench.bench.model.description import set_spec_names
 from calbench.bench.core.errors import CalbenchError, InputError
+from calbench.bench.model.description import set_spec_names
 from calbench.bench.model.robot import Robot
+
 from .overlay import Attach, Overlay
 
-PLACEHOLDER_STIFFNESS = 1.0e6          # N*m/rad on every actuated hinge until a scenario sets it
+PLACEHOLDER_STIFFNESS = 1.0e6  # N*m/rad on every actuated hinge until a scenario sets it
 CONTINUOUS_RANGE = (-2 * math.pi, 2 * math.pi)
-MESH_DIGITS = 6                        # inlined mesh vertices to 1 um
+MESH_DIGITS = 6  # inlined mesh vertices to 1 um
 MOVING_TYPES = ("revolute", "continuous", "prismatic")
 _NO_INFER = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_FALSE
 
@@ -90,8 +92,11 @@ class UrdfTree:
 
     def moving_links(self) -> set[str]:
         """Links below at least one non-fixed joint (they move with some joint)."""
-        return {link for link in self.links
-                if any(j is not None and self.joints[j].type != "fixed" for _, j in self._up(link))}
+        return {
+            link
+            for link in self.links
+            if any(j is not None and self.joints[j].type != "fixed" for _, j in self._up(link))
+        }
 
     def fixed_to_parent(self, link: str) -> bool:
         return any(j.child == link and j.type == "fixed" for j in self.joints.values())
@@ -131,12 +136,13 @@ class Conversion:
     warnings: tuple[str, ...]
     actuated: tuple[str, ...]
     passive: tuple[str, ...]
-    moving_mass: float                 # kg, every body that moves
+    moving_mass: float  # kg, every body that moves
     geoms: int
     meshes: int
 
 
 # --------------------------------------------------------------------------- the URDF
+
 
 def read_urdf(path: str | Path) -> UrdfTree:
     """The URDF's links and joints; InputError when it is not a URDF."""
@@ -150,15 +156,22 @@ def read_urdf(path: str | Path) -> UrdfTree:
     links = {}
     for el in root.findall("link"):
         name = el.get("name", "")
-        links[name] = UrdfLink(name, el.find("inertial") is not None,
-                               el.find("visual") is not None or el.find("collision") is not None)
+        links[name] = UrdfLink(
+            name,
+            el.find("inertial") is not None,
+            el.find("visual") is not None or el.find("collision") is not None,
+        )
     joints = {}
     for el in root.findall("joint"):
         name = el.get("name", "")
         parent, child, mimic = el.find("parent"), el.find("child"), el.find("mimic")
-        joints[name] = UrdfJoint(name, el.get("type", ""), parent.get("link", "") if parent is not None else "",
-                                 child.get("link", "") if child is not None else "",
-                                 mimic.get("joint") if mimic is not None else None)
+        joints[name] = UrdfJoint(
+            name,
+            el.get("type", ""),
+            parent.get("link", "") if parent is not None else "",
+            child.get("link", "") if child is not None else "",
+            mimic.get("joint") if mimic is not None else None,
+        )
     return UrdfTree(path, root.get("name", path.stem), links, joints)
 
 
@@ -167,19 +180,34 @@ def check_urdf(tree: UrdfTree) -> None:
     moving links without a mass. InputError naming the elements."""
     for j in tree.joints.values():
         if j.mimic is not None:
-            raise InputError(tree.path, f"joint {j.name!r}", "no <mimic> (the statics would ignore the "
-                             "coupling; describe it as a loop in the overlay, or remove it)",
-                             f"a mimic of {j.mimic!r}")
+            raise InputError(
+                tree.path,
+                f"joint {j.name!r}",
+                "no <mimic> (the statics would ignore the "
+                "coupling; describe it as a loop in the overlay, or remove it)",
+                f"a mimic of {j.mimic!r}",
+            )
         if j.type not in MOVING_TYPES + ("fixed",):
-            raise InputError(tree.path, f"joint {j.name!r}", "a revolute, continuous, prismatic or fixed "
-                             "joint (calbench's robots stand on the floor)", j.type)
+            raise InputError(
+                tree.path,
+                f"joint {j.name!r}",
+                "a revolute, continuous, prismatic or fixed joint (calbench's robots stand on the floor)",
+                j.type,
+            )
     moving = tree.moving_links()
-    missing = [n for n, link in tree.links.items() if n in moving and not link.inertial
-               and (link.geometry or not tree.fixed_to_parent(n))]
+    missing = [
+        n
+        for n, link in tree.links.items()
+        if n in moving and not link.inertial and (link.geometry or not tree.fixed_to_parent(n))
+    ]
     if missing:
-        raise InputError(tree.path, ("link " if len(missing) == 1 else "links ") + ", ".join(map(repr, missing)),
-                         "an <inertial> on every moving link (calbench takes masses from the URDF and "
-                         "never infers them from geometry)", "none")
+        raise InputError(
+            tree.path,
+            ("link " if len(missing) == 1 else "links ") + ", ".join(map(repr, missing)),
+            "an <inertial> on every moving link (calbench takes masses from the URDF and "
+            "never infers them from geometry)",
+            "none",
+        )
 
 
 def _moving_joints(tree: UrdfTree) -> list[str]:
@@ -193,42 +221,67 @@ def check_overlay(tree: UrdfTree, ov: Overlay) -> None:
     named = [(f"{a.key}.link", a.link) for a in ov.sites()] + ov.named_links()
     for key, link in named:
         if link not in tree.links:
-            raise InputError(ov.path, key, f"a link of {tree.path.name} (" + ", ".join(tree.links) + ")", link)
+            raise InputError(
+                ov.path, key, f"a link of {tree.path.name} (" + ", ".join(tree.links) + ")", link
+            )
     for i, name in enumerate(ov.actuated):
         j = joints.get(name)
         if j is None or j.type not in ("revolute", "continuous"):
-            raise InputError(ov.path, f"actuated[{i}]", f"a revolute or continuous joint of {tree.path.name} "
-                             "(the VJM springs are torsional): " + ", ".join(
-                                 n for n, jj in joints.items() if jj.type in ("revolute", "continuous")),
-                             name if j is None else f"{name} ({j.type})")
+            raise InputError(
+                ov.path,
+                f"actuated[{i}]",
+                f"a revolute or continuous joint of {tree.path.name} "
+                "(the VJM springs are torsional): "
+                + ", ".join(n for n, jj in joints.items() if jj.type in ("revolute", "continuous")),
+                name if j is None else f"{name} ({j.type})",
+            )
     passive: set[str] = set()
     for lp in ov.loops:
         for i, name in enumerate(lp.passive):
             j = joints.get(name)
             if j is None or j.type == "fixed" or name in ov.actuated:
-                why = ("no such joint" if j is None else "a fixed joint" if j.type == "fixed"
-                       else "an actuated joint")
-                raise InputError(ov.path, f"{lp.key}.passive[{i}]", f"a moving, not actuated joint of "
-                                 f"{tree.path.name}", f"{name} ({why})")
+                why = (
+                    "no such joint"
+                    if j is None
+                    else "a fixed joint"
+                    if j.type == "fixed"
+                    else "an actuated joint"
+                )
+                raise InputError(
+                    ov.path,
+                    f"{lp.key}.passive[{i}]",
+                    f"a moving, not actuated joint of {tree.path.name}",
+                    f"{name} ({why})",
+                )
             passive.add(name)
         # the statics take a loop's passive joints to be its unsprung joints (bench/model/robot.py)
         unsprung = [n for n in tree.joints_between(lp.site1.link, lp.site2.link) if n not in ov.actuated]
         if sorted(unsprung) != sorted(lp.passive):
-            raise InputError(ov.path, f"{lp.key}.passive", f"the joints between {lp.site1.link} and "
-                             f"{lp.site2.link} that are not actuated: {sorted(unsprung)}", list(lp.passive))
+            raise InputError(
+                ov.path,
+                f"{lp.key}.passive",
+                f"the joints between {lp.site1.link} and "
+                f"{lp.site2.link} that are not actuated: {sorted(unsprung)}",
+                list(lp.passive),
+            )
     free = [n for n in _moving_joints(tree) if n not in ov.actuated and n not in passive]
     if free:
-        raise InputError(ov.path, "actuated", f"every moving joint of {tree.path.name} actuated or a loop's "
-                         "passive joint (a free joint has no static equilibrium)",
-                         "not listed: " + ", ".join(free))
+        raise InputError(
+            ov.path,
+            "actuated",
+            f"every moving joint of {tree.path.name} actuated or a loop's "
+            "passive joint (a free joint has no static equilibrium)",
+            "not listed: " + ", ".join(free),
+        )
 
 
 # --------------------------------------------------------------------------- meshes
 
+
 def _mesh_file(file: str, tree: UrdfTree, meshdir: str, ov: Overlay) -> tuple[Path | None, str]:
     """Where a URDF mesh URI points on disk, or (None, why not)."""
     if file.startswith("package://"):
-        pkg, _, rest = file[len("package://"):].partition("/")
+        pkg, _, rest = file[len("package://") :].partition("/")
         if pkg in ov.packages:
             return ov.packages[pkg] / rest, ""
         for folder in tree.path.resolve().parents:
@@ -236,7 +289,7 @@ def _mesh_file(file: str, tree: UrdfTree, meshdir: str, ov: Overlay) -> tuple[Pa
                 return folder / rest, ""
         return None, f"no [packages] {pkg} in the overlay and no folder named {pkg!r} above the URDF"
     if file.startswith("file://"):
-        file = file[len("file://"):]
+        file = file[len("file://") :]
     p = Path(file)
     return (p if p.is_absolute() else tree.path.parent / meshdir / p), ""
 
@@ -253,8 +306,8 @@ def _load_mesh(path: Path, scale) -> tuple[np.ndarray, np.ndarray]:
     rot = np.zeros(9)
     mujoco.mju_quat2Mat(rot, m.mesh_quat[0])
     # MuJoCo centres a compiled mesh on its inertial frame (mesh_pos, mesh_quat): undo it
-    verts = m.mesh_pos[0] + m.mesh_vert[va: va + vn].astype(float) @ rot.reshape(3, 3).T
-    return np.round(verts, MESH_DIGITS) + 0.0, m.mesh_face[fa: fa + fn].copy()
+    verts = m.mesh_pos[0] + m.mesh_vert[va : va + vn].astype(float) @ rot.reshape(3, 3).T
+    return np.round(verts, MESH_DIGITS) + 0.0, m.mesh_face[fa : fa + fn].copy()
 
 
 def _inline_meshes(spec: mujoco.MjSpec, tree: UrdfTree, ov: Overlay) -> list[str]:
@@ -279,8 +332,10 @@ def _inline_meshes(spec: mujoco.MjSpec, tree: UrdfTree, ov: Overlay) -> list[str
                 continue
         geoms = users.get(mesh.name, [])
         links = sorted({g.parent.name for g in geoms})
-        warnings.append(f"{', '.join(links) or 'no link'}: mesh {mesh.file} left out ({why}); "
-                        "that geometry neither hides reflectors nor is drawn")
+        warnings.append(
+            f"{', '.join(links) or 'no link'}: mesh {mesh.file} left out ({why}); "
+            "that geometry neither hides reflectors nor is drawn"
+        )
         for g in geoms:
             spec.delete(g)
         spec.delete(mesh)
@@ -288,6 +343,7 @@ def _inline_meshes(spec: mujoco.MjSpec, tree: UrdfTree, ov: Overlay) -> list[str
 
 
 # --------------------------------------------------------------------------- the MJCF
+
 
 def _site(spec: mujoco.MjSpec, a: Attach, rgba) -> None:
     spec.body(a.link).add_site(name=a.name, pos=list(a.pos), size=[0.02, 0.02, 0.02], rgba=rgba)
@@ -298,7 +354,7 @@ def _joints(spec: mujoco.MjSpec, tree: UrdfTree, ov: Overlay) -> None:
         if tree.joints[j.name].type == "continuous":
             j.range = list(CONTINUOUS_RANGE)
             j.limited = mujoco.mjtLimited.mjLIMITED_TRUE
-        j.stiffness = [PLACEHOLDER_STIFFNESS if j.name in ov.actuated else 0.0, 0.0, 0.0]   # linear (eq. 1)
+        j.stiffness = [PLACEHOLDER_STIFFNESS if j.name in ov.actuated else 0.0, 0.0, 0.0]  # linear (eq. 1)
         j.springref = 0.0
 
 
@@ -312,15 +368,25 @@ def _additions(spec: mujoco.MjSpec, ov: Overlay) -> None:
     for c in ov.compensators:
         _site(spec, c.start, [0.1, 0.6, 0.9, 1.0])
         _site(spec, c.end, [0.1, 0.6, 0.9, 1.0])
-        t = spec.add_tendon(name=c.name, stiffness=c.stiffness, springlength=[c.preload, c.preload],
-                            width=0.02, rgba=[0.1, 0.6, 0.9, 1.0])
+        t = spec.add_tendon(
+            name=c.name,
+            stiffness=c.stiffness,
+            springlength=[c.preload, c.preload],
+            width=0.02,
+            rgba=[0.1, 0.6, 0.9, 1.0],
+        )
         t.wrap_site(c.start.name)
         t.wrap_site(c.end.name)
     for lp in ov.loops:
         _site(spec, lp.site1, [0.3, 0.3, 0.3, 1.0])
         _site(spec, lp.site2, [0.3, 0.3, 0.3, 1.0])
-        spec.add_equality(name=lp.name, type=mujoco.mjtEq.mjEQ_CONNECT, objtype=mujoco.mjtObj.mjOBJ_SITE,
-                          name1=lp.site1.name, name2=lp.site2.name)
+        spec.add_equality(
+            name=lp.name,
+            type=mujoco.mjtEq.mjEQ_CONNECT,
+            objtype=mujoco.mjtObj.mjOBJ_SITE,
+            name1=lp.site1.name,
+            name2=lp.site2.name,
+        )
     for mount in ov.mounts:
         _site(spec, mount, [0.1, 0.6, 0.9, 1.0])
     set_spec_names(spec, "actuated", ov.actuated)
@@ -340,22 +406,35 @@ def _check_built(model: mujoco.MjModel, ov: Overlay) -> Robot:
     """The model as calbench reads it; InputError naming the overlay key that does not fit."""
     try:
         robot = Robot(model, source=ov.path)
-    except CalbenchError as exc:        # a loop that does not close
+    except CalbenchError as exc:  # a loop that does not close
         d = mujoco.MjData(model)
         mujoco.mj_kinematics(model, d)
-        gaps = [float(np.linalg.norm(d.site(lp.site1.name).xpos - d.site(lp.site2.name).xpos)) for lp in ov.loops]
+        gaps = [
+            float(np.linalg.norm(d.site(lp.site1.name).xpos - d.site(lp.site2.name).xpos)) for lp in ov.loops
+        ]
         worst = ov.loops[int(np.argmax(gaps))]
-        raise InputError(ov.path, worst.key, "sites that the passive joints can bring together", f"{exc}; "
-                         f"{worst.site1.name} and {worst.site2.name} are {max(gaps):.4g} m apart at the "
-                         "URDF's zero pose") from None
-    except ValueError as exc:           # DescriptionError and anything MuJoCo refuses
-        raise InputError(ov.path, "(robot description)", "a description calbench can read", str(exc)) from None
+        raise InputError(
+            ov.path,
+            worst.key,
+            "sites that the passive joints can bring together",
+            f"{exc}; "
+            f"{worst.site1.name} and {worst.site2.name} are {max(gaps):.4g} m apart at the "
+            "URDF's zero pose",
+        ) from None
+    except ValueError as exc:  # DescriptionError and anything MuJoCo refuses
+        raise InputError(
+            ov.path, "(robot description)", "a description calbench can read", str(exc)
+        ) from None
     for i, c in enumerate(ov.compensators):
         try:
             robot.compensator_joint(i)
         except ValueError as exc:
-            raise InputError(ov.path, c.key, f"attachments on two links with one actuated hinge between "
-                             f"them (paper Fig. 4)", str(exc)) from None
+            raise InputError(
+                ov.path,
+                c.key,
+                "attachments on two links with one actuated hinge between them (paper Fig. 4)",
+                str(exc),
+            ) from None
     return robot
 
 
@@ -364,16 +443,20 @@ def build_spec(tree: UrdfTree, ov: Overlay) -> tuple[mujoco.MjSpec, list[str]]:
     try:
         spec = mujoco.MjSpec.from_file(str(tree.path))
     except ValueError as exc:
-        raise InputError(tree.path, "(file)", "a URDF that MuJoCo reads", str(exc).replace("\n", " ")) from None
+        raise InputError(
+            tree.path, "(file)", "a URDF that MuJoCo reads", str(exc).replace("\n", " ")
+        ) from None
     spec.compiler.inertiafromgeom = _NO_INFER
     spec.compiler.fusestatic = False
     spec.compiler.discardvisual = False
-    spec.compiler.savecompiled = False       # every number saved exactly
-    spec.comment = (f" calbench robot built by `calbench from-urdf {tree.path.name} --overlay "
-                    f"{ov.path.name}`.\n  Masses and inertias: the URDF's <inertial> elements (nothing "
-                    "inferred from geometry).\n  Stiffness of the actuated hinges: a placeholder "
-                    f"{PLACEHOLDER_STIFFNESS:g} N*m/rad; a scenario's [truth] replaces it.\n  Meshes are "
-                    "written inline; see bench/robots/urdf.py for the conventions. ")
+    spec.compiler.savecompiled = False  # every number saved exactly
+    spec.comment = (
+        f" calbench robot built by `calbench from-urdf {tree.path.name} --overlay "
+        f"{ov.path.name}`.\n  Masses and inertias: the URDF's <inertial> elements (nothing "
+        "inferred from geometry).\n  Stiffness of the actuated hinges: a placeholder "
+        f"{PLACEHOLDER_STIFFNESS:g} N*m/rad; a scenario's [truth] replaces it.\n  Meshes are "
+        "written inline; see bench/robots/urdf.py for the conventions. "
+    )
     for g in spec.geoms:
         g.contype = 0
         g.conaffinity = 0
@@ -393,15 +476,33 @@ def convert(urdf: str | Path, ov: Overlay) -> Conversion:
     try:
         model = spec.compile()
     except ValueError as exc:
-        raise InputError(tree.path, "(compile)", "a URDF that MuJoCo compiles", str(exc).replace("\n", " ")) from None
+        raise InputError(
+            tree.path, "(compile)", "a URDF that MuJoCo compiles", str(exc).replace("\n", " ")
+        ) from None
     robot = _check_built(model, ov)
     xml = spec.to_xml()
-    moving = model.body_weldid != 0          # bodies not welded to the world
-    return Conversion(xml=xml, warnings=tuple(warnings), actuated=ov.actuated,
-                      passive=tuple(model.joint(j).name for j in robot.passive_joint),
-                      moving_mass=float(model.body_mass[moving].sum()), geoms=int(model.ngeom),
-                      meshes=int(model.nmesh))
+    moving = model.body_weldid != 0  # bodies not welded to the world
+    return Conversion(
+        xml=xml,
+        warnings=tuple(warnings),
+        actuated=ov.actuated,
+        passive=tuple(model.joint(j).name for j in robot.passive_joint),
+        moving_mass=float(model.body_mass[moving].sum()),
+        geoms=int(model.ngeom),
+        meshes=int(model.nmesh),
+    )
 
 
-__all__ = ["PLACEHOLDER_STIFFNESS", "CONTINUOUS_RANGE", "UrdfTree", "UrdfLink", "UrdfJoint", "Conversion",
-           "read_urdf", "check_urdf", "check_overlay", "build_spec", "convert"]
+__all__ = [
+    "PLACEHOLDER_STIFFNESS",
+    "CONTINUOUS_RANGE",
+    "UrdfTree",
+    "UrdfLink",
+    "UrdfJoint",
+    "Conversion",
+    "read_urdf",
+    "check_urdf",
+    "check_overlay",
+    "build_spec",
+    "convert",
+]

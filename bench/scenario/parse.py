@@ -5,38 +5,42 @@ The file speaks degrees for joint angles and the tracker yaw; everything returne
 key path (0-based for ``[[pose]]`` entries and vector elements, e.g. ``pose[3].q[1]``) and what
 was expected, so the CLI can report it and exit with status 2.
 """
+
 from __future__ import annotations
 
 import math
 import os
 import re
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from datetime import date, datetime
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from calbench.bench.core.errors import InputError
 from calbench.bench.model.params import LEGACY_COMPENSATOR, Params, Spring
+
 from .timeline import DEFAULT_START, parse_start_time
 
 TRACKER_MODELS = ("isotropic", "spec", "iso10360")
 DEFAULT_SIGMA = 20e-6
-DEFAULT_DISTANCE = (10e-6, 0.3e-6)      # Leica AT500 ADM: 10 um + 0.3 um/m
-DEFAULT_TRANSVERSE = (15e-6, 6e-6)      # Leica AT500 angular: 15 um + 6 um/m
+DEFAULT_DISTANCE = (10e-6, 0.3e-6)  # Leica AT500 ADM: 10 um + 0.3 um/m
+DEFAULT_TRANSVERSE = (15e-6, 6e-6)  # Leica AT500 angular: 15 um + 6 um/m
 # model = "iso10360" (bench/tracker/iso10360.py, where each default is argued): the share of a reading's
 # 1-sigma that is independent noise, the systematic field's correlation lengths, the drift.
 DEFAULT_RANDOM = 0.25
 DEFAULT_CORRELATION_ANGLE = math.radians(10.0)
-DEFAULT_CORRELATION_RANGE = 1.0         # m
-DEFAULT_DRIFT = (5e-6, 1e-6)            # m and m/m per sqrt(hour)
+DEFAULT_CORRELATION_RANGE = 1.0  # m
+DEFAULT_DRIFT = (5e-6, 1e-6)  # m and m/m per sqrt(hour)
 ISO10360_KEYS = ("random", "correlation_angle", "correlation_range", "drift")
-JOINT_LIMIT_TOL = 1e-9                  # rad, absorbs degree->radian round-off at a limit
+JOINT_LIMIT_TOL = 1e-9  # rad, absorbs degree->radian round-off at a limit
 
 
 # --------------------------------------------------------------------------- data
+
 
 def _frozen(a: Any) -> np.ndarray:
     """A float copy that cannot be modified, so frozen dataclasses stay frozen."""
@@ -59,6 +63,7 @@ class TrackerSpec:
     registered tracker, identify/shopfloor/tracker_pose.py: any orientation), by that world-from-tracker
     matrix; ``yaw`` is then the rotation's heading, for readers that know only yaw.
     """
+
     position: np.ndarray
     yaw: float = 0.0
     model: str = "isotropic"
@@ -75,27 +80,35 @@ class TrackerSpec:
         """The JSON form of the log header's ``tracker`` (CONTRACT.md, ``/campaign/info``):
         SI throughout (position m, yaw rad, sigma m, ``[a m, b m/m]`` error laws; ``rotation``,
         3 rows of 3, only when set)."""
-        d = {"position": [float(x) for x in self.position], "yaw": float(self.yaw),
-             "model": self.model, "sigma": float(self.sigma),
-             "distance": [float(x) for x in self.distance],
-             "transverse": [float(x) for x in self.transverse]}
+        d = {
+            "position": [float(x) for x in self.position],
+            "yaw": float(self.yaw),
+            "model": self.model,
+            "sigma": float(self.sigma),
+            "distance": [float(x) for x in self.distance],
+            "transverse": [float(x) for x in self.transverse],
+        }
         if self.rotation is not None:
             d["rotation"] = np.asarray(self.rotation, dtype=float).tolist()
         if self.model == "iso10360":
-            d.update(random=float(self.random), correlation_angle=float(self.correlation_angle),
-                     correlation_range=float(self.correlation_range),
-                     drift=[float(x) for x in self.drift])
+            d.update(
+                random=float(self.random),
+                correlation_angle=float(self.correlation_angle),
+                correlation_range=float(self.correlation_range),
+                drift=[float(x) for x in self.drift],
+            )
         return d
 
-    def placed(self, position: np.ndarray, rotation: np.ndarray) -> "TrackerSpec":
+    def placed(self, position: np.ndarray, rotation: np.ndarray) -> TrackerSpec:
         """This tracker (same noise model) at ``position`` (m) with world-from-tracker
         ``rotation``."""
         rot = _rotation_matrix(rotation, "<rotation>", "rotation")
-        return replace(self, position=_frozen(position), rotation=rot,
-                       yaw=float(math.atan2(rot[1, 0], rot[0, 0])))
+        return replace(
+            self, position=_frozen(position), rotation=rot, yaw=float(math.atan2(rot[1, 0], rot[0, 0]))
+        )
 
     @classmethod
-    def from_dict(cls, d: Any, file: object = "<tracker>", key: str = "tracker") -> "TrackerSpec":
+    def from_dict(cls, d: Any, file: object = "<tracker>", key: str = "tracker") -> TrackerSpec:
         """The inverse of :meth:`to_dict`, validated like the scenario's ``[tracker]`` table but
         in SI (yaw in rad). Missing optional keys take the scenario defaults; unknown keys are
         ignored (a log header may carry more). Bad values raise InputError naming ``file`` and
@@ -106,6 +119,7 @@ class TrackerSpec:
 @dataclass(frozen=True)
 class Pose:
     """One measurement configuration: joint angles (rad), optional world wrench, repeat count."""
+
     q: np.ndarray
     wrench: np.ndarray | None
     repeats: int = 1
@@ -114,6 +128,7 @@ class Pose:
 @dataclass(frozen=True)
 class Work:
     """Where the calibrated robot will work: joint angles (rad) and the process wrench."""
+
     q: np.ndarray
     wrench: np.ndarray
 
@@ -121,22 +136,24 @@ class Work:
 @dataclass(frozen=True)
 class Scenario:
     """A validated campaign, in SI units, with the exact text it was read from."""
+
     path: Path
     text: str
     robot: Path
     seed: int
-    compliance: np.ndarray                # (N,) rad/(N*m), N = the robot's calbench:actuated
-    compensators: dict[str, Spring]       # by tendon ([truth.compensator] is the tendon "compensator")
+    compliance: np.ndarray  # (N,) rad/(N*m), N = the robot's calbench:actuated
+    compensators: dict[str, Spring]  # by tendon ([truth.compensator] is the tendon "compensator")
     effects: dict[str, dict]
     tracker: TrackerSpec
     load_mass: float
     work: Work | None
     poses: tuple[Pose, ...]
-    name: str = ""               # the file's `name`, else its stem
-    start_time: datetime = DEFAULT_START   # UTC; when the campaign's log clock starts
+    name: str = ""  # the file's `name`, else its stem
+    start_time: datetime = DEFAULT_START  # UTC; when the campaign's log clock starts
 
 
 # --------------------------------------------------------------------------- field checks
+
 
 class _Checker:
     """Typed access to one TOML table, raising InputError with the full key path."""
@@ -168,7 +185,7 @@ class _Checker:
             raise InputError(self.file, self.key(name), "this required key to be present")
         return self.table[name]
 
-    def sub(self, name: str) -> "_Checker":
+    def sub(self, name: str) -> _Checker:
         value = self.raw(name)
         if not isinstance(value, dict):
             raise self.fail(name, "a table", _describe(value))
@@ -193,8 +210,7 @@ class _Checker:
             raise self.fail(name, "one of " + ", ".join(f'"{c}"' for c in choices), value)
         return value
 
-    def vector(self, name: str, n: int | None, *, positive: bool = False,
-               nonneg: bool = False) -> np.ndarray:
+    def vector(self, name: str, n: int | None, *, positive: bool = False, nonneg: bool = False) -> np.ndarray:
         """An array of n numbers (n None: any number >= 1)."""
         value = self.raw(name)
         what = f"an array of {n} numbers" if n is not None else "a non-empty array of numbers"
@@ -203,8 +219,7 @@ class _Checker:
         if (n is not None and len(value) != n) or not value:
             raise self.fail(name, what, f"{len(value)} elements")
         key = self.key(name)
-        return np.array([_number(self.file, f"{key}[{i}]", v, positive, nonneg)
-                         for i, v in enumerate(value)])
+        return np.array([_number(self.file, f"{key}[{i}]", v, positive, nonneg) for i, v in enumerate(value)])
 
 
 def _describe(value: Any) -> str:
@@ -239,11 +254,30 @@ def _number(file: Path, key: str, value: Any, positive: bool, nonneg: bool) -> f
 
 # --------------------------------------------------------------------------- sections
 
-TOP_KEYS = ("name", "description", "start_time", "robot", "seed", "truth", "tracker", "load", "work",
-            "pose", "design")
+TOP_KEYS = (
+    "name",
+    "description",
+    "start_time",
+    "robot",
+    "seed",
+    "truth",
+    "tracker",
+    "load",
+    "work",
+    "pose",
+    "design",
+)
 # [design]: settings of `calbench design` (identify/design_candidates.py validates the values)
-DESIGN_KEYS = ("min_height", "min_radius", "candidates", "seed", "clearance", "compensator_margin",
-               "lateral_force", "lateral_fraction")
+DESIGN_KEYS = (
+    "min_height",
+    "min_radius",
+    "candidates",
+    "seed",
+    "clearance",
+    "compensator_margin",
+    "lateral_force",
+    "lateral_fraction",
+)
 EFFECT_KEYS = ("link_compliance", "base_compliance", "joint_nonlinearity", "tool_compliance", "tracker_drift")
 
 
@@ -254,22 +288,26 @@ def _effects(c: _Checker) -> dict[str, dict]:
     if c.has("link_compliance"):
         e = c.sub("link_compliance")
         e.only(("link", "compliance"))
-        out["link_compliance"] = {"link": e.string("link"),     # a body of the robot (its MJCF decides)
-                                  "compliance": _frozen(e.vector("compliance", 3, nonneg=True))}
+        out["link_compliance"] = {
+            "link": e.string("link"),  # a body of the robot (its MJCF decides)
+            "compliance": _frozen(e.vector("compliance", 3, nonneg=True)),
+        }
     if c.has("base_compliance"):
         e = c.sub("base_compliance")
         e.only(("compliance",))
         out["base_compliance"] = {"compliance": _frozen(e.vector("compliance", 2, nonneg=True))}
-    if c.has("tool_compliance"):      # truth-only: not a discovery candidate (bench/model/effects.py)
+    if c.has("tool_compliance"):  # truth-only: not a discovery candidate (bench/model/effects.py)
         e = c.sub("tool_compliance")
         e.only(("compliance",))
         out["tool_compliance"] = {"compliance": _frozen(e.vector("compliance", 2, nonneg=True))}
     if c.has("joint_nonlinearity"):
         e = c.sub("joint_nonlinearity")
         e.only(("joint", "cubic"))
-        out["joint_nonlinearity"] = {"joint": e.integer("joint", 1),          # 1..N: the robot decides
-                                     "cubic": e.number("cubic")}
-    if c.has("tracker_drift"):        # measurement side: an offset of the loaded readings
+        out["joint_nonlinearity"] = {
+            "joint": e.integer("joint", 1),  # 1..N: the robot decides
+            "cubic": e.number("cubic"),
+        }
+    if c.has("tracker_drift"):  # measurement side: an offset of the loaded readings
         e = c.sub("tracker_drift")
         e.only(("offset",))
         out["tracker_drift"] = {"offset": _frozen(e.vector("offset", 3))}
@@ -292,7 +330,7 @@ def _tracker(c: _Checker) -> TrackerSpec:
     return _tracker_spec(c, yaw_to_rad=math.radians)
 
 
-ROTATION_TOL = 1e-9      # |R^T R - I| and |det R - 1| of a rotation read back from JSON
+ROTATION_TOL = 1e-9  # |R^T R - I| and |det R - 1| of a rotation read back from JSON
 
 
 def _rotation_matrix(value: Any, file: object, key: str) -> np.ndarray:
@@ -303,11 +341,17 @@ def _rotation_matrix(value: Any, file: object, key: str) -> np.ndarray:
         rot = np.zeros(0)
     ok = rot.shape == (3, 3) and bool(np.all(np.isfinite(rot)))
     if ok:
-        ok = (np.abs(rot.T @ rot - np.eye(3)).max() < ROTATION_TOL
-              and abs(np.linalg.det(rot) - 1) < ROTATION_TOL)
+        ok = (
+            np.abs(rot.T @ rot - np.eye(3)).max() < ROTATION_TOL
+            and abs(np.linalg.det(rot) - 1) < ROTATION_TOL
+        )
     if not ok:
-        raise InputError(file, key, "a rotation matrix (3 rows of 3 numbers, orthonormal, det +1)",
-                         _describe(value) if not isinstance(value, list) else value)
+        raise InputError(
+            file,
+            key,
+            "a rotation matrix (3 rows of 3 numbers, orthonormal, det +1)",
+            _describe(value) if not isinstance(value, list) else value,
+        )
     return _frozen(rot)
 
 
@@ -324,15 +368,17 @@ def _tracker_spec(c: _Checker, yaw_to_rad: Callable[[float], float]) -> TrackerS
         if c.has("random"):
             iso["random"] = c.number("random", positive=True)
             if iso["random"] > 1:
-                raise c.fail("random", "the share of the 1-sigma that is independent noise, in (0, 1]",
-                             iso["random"])
+                raise c.fail(
+                    "random", "the share of the 1-sigma that is independent noise, in (0, 1]", iso["random"]
+                )
         if c.has("correlation_angle"):
             iso["correlation_angle"] = yaw_to_rad(c.number("correlation_angle", positive=True))
         if c.has("correlation_range"):
             iso["correlation_range"] = c.number("correlation_range", positive=True)
         if c.has("drift"):
             iso["drift"] = tuple(float(x) for x in c.vector("drift", 2, nonneg=True))
-    return TrackerSpec(**iso,
+    return TrackerSpec(
+        **iso,
         position=_frozen(c.vector("position", 3)),
         yaw=yaw_to_rad(c.number("yaw")) if c.has("yaw") else 0.0,
         model=model,
@@ -347,8 +393,11 @@ def _joint_vector(c: _Checker, name: str, n: int | None) -> np.ndarray:
     """Joint angles in degrees -> rad: one per actuated joint, as many as truth.compliance."""
     value = c.raw(name)
     if n is not None and isinstance(value, list) and len(value) != n:
-        raise c.fail(name, f"an array of {n} numbers (one per actuated joint, as in truth.compliance)",
-                     f"{len(value)} elements")
+        raise c.fail(
+            name,
+            f"an array of {n} numbers (one per actuated joint, as in truth.compliance)",
+            f"{len(value)} elements",
+        )
     return _frozen(np.radians(c.vector(name, n)))
 
 
@@ -364,7 +413,7 @@ def _joint_count(top: dict, truth: dict) -> int | None:
     lengths = [n for n in lengths if n > 0]
     if not lengths:
         return None
-    return max(dict.fromkeys(lengths), key=lengths.count)   # first (compliance) wins ties
+    return max(dict.fromkeys(lengths), key=lengths.count)  # first (compliance) wins ties
 
 
 def _spring(c: _Checker) -> Spring:
@@ -381,7 +430,9 @@ def _compensators(truth: _Checker) -> dict[str, Spring]:
         tables = truth.sub("compensators")
         for name in tables.table:
             if name in out:
-                raise tables.fail(name, f"one table per tendon: [truth.{LEGACY_COMPENSATOR}] already gives it")
+                raise tables.fail(
+                    name, f"one table per tendon: [truth.{LEGACY_COMPENSATOR}] already gives it"
+                )
             out[name] = _spring(tables.sub(name))
     return out
 
@@ -393,11 +444,13 @@ def _poses(file: Path, value: Any, n_joints: int | None) -> tuple[Pose, ...]:
     for i, entry in enumerate(value):
         p = _Checker(file, entry, f"pose[{i}]")
         p.only(("q", "wrench", "repeats"))
-        poses.append(Pose(
-            q=_joint_vector(p, "q", n_joints),
-            wrench=_frozen(p.vector("wrench", 6)) if p.has("wrench") else None,
-            repeats=p.integer("repeats", lo=1) if p.has("repeats") else 1,
-        ))
+        poses.append(
+            Pose(
+                q=_joint_vector(p, "q", n_joints),
+                wrench=_frozen(p.vector("wrench", 6)) if p.has("wrench") else None,
+                repeats=p.integer("repeats", lo=1) if p.has("repeats") else 1,
+            )
+        )
     return tuple(poses)
 
 
@@ -406,18 +459,17 @@ def _poses(file: Path, value: Any, n_joints: int | None) -> tuple[Pose, ...]:
 _LINE = re.compile(r"line (\d+)")
 
 
-def _toml(text: str, path: Path) -> "_Checker":
+def _toml(text: str, path: Path) -> _Checker:
     """A TOML document as a checked top-level table (syntax errors name the line)."""
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         m = _LINE.search(str(exc))
-        raise InputError(path, f"line {m.group(1)}" if m else "(syntax)",
-                         "valid TOML", str(exc)) from None
+        raise InputError(path, f"line {m.group(1)}" if m else "(syntax)", "valid TOML", str(exc)) from None
     return _Checker(path, doc, "")
 
 
-def _document(text: str, path: Path) -> "_Checker":
+def _document(text: str, path: Path) -> _Checker:
     """The scenario's top-level table: TOML, known keys, name and description strings."""
     top = _toml(text, path)
     top.only(TOP_KEYS)
@@ -427,7 +479,7 @@ def _document(text: str, path: Path) -> "_Checker":
     return top
 
 
-def _robot(top: "_Checker", path: Path) -> Path:
+def _robot(top: _Checker, path: Path) -> Path:
     robot_rel = top.string("robot")
     robot = (path.parent / robot_rel).resolve()
     if not robot.is_file():
@@ -435,7 +487,7 @@ def _robot(top: "_Checker", path: Path) -> Path:
     return robot
 
 
-def _truth(top: "_Checker") -> tuple[np.ndarray, dict[str, Spring], dict[str, dict]]:
+def _truth(top: _Checker) -> tuple[np.ndarray, dict[str, Spring], dict[str, dict]]:
     """The [truth] table: N compliances, the compensator springs by tendon, the effects."""
     truth = top.sub("truth")
     truth.only(("compliance", "compensator", "compensators", "effects"))
@@ -445,7 +497,7 @@ def _truth(top: "_Checker") -> tuple[np.ndarray, dict[str, Spring], dict[str, di
     return compliance, compensators, effects
 
 
-def _campaign(top: "_Checker", path: Path, n_joints: int | None) -> dict[str, Any]:
+def _campaign(top: _Checker, path: Path, n_joints: int | None) -> dict[str, Any]:
     """What a scenario and a plan share: the load, the work pose, the poses, the name. Every q
     has ``n_joints`` angles (None: as many as the file's poses mostly have)."""
     if n_joints is None:
@@ -459,11 +511,15 @@ def _campaign(top: "_Checker", path: Path, n_joints: int | None) -> dict[str, An
         w = top.sub("work")
         w.only(("q", "wrench"))
         work = Work(q=_joint_vector(w, "q", n_joints), wrench=_frozen(w.vector("wrench", 6)))
-    return {"load_mass": load.number("mass", positive=True), "work": work,
-            "poses": _poses(path, top.raw("pose"), n_joints),
-            "name": top.string("name") if top.has("name") else path.stem,
-            "start_time": (parse_start_time(top.raw("start_time"), path) if top.has("start_time")
-                           else DEFAULT_START)}
+    return {
+        "load_mass": load.number("mass", positive=True),
+        "work": work,
+        "poses": _poses(path, top.raw("pose"), n_joints),
+        "name": top.string("name") if top.has("name") else path.stem,
+        "start_time": (
+            parse_start_time(top.raw("start_time"), path) if top.has("start_time") else DEFAULT_START
+        ),
+    }
 
 
 def parse_scenario(text: str, path: str | Path, seed: int | None = None) -> Scenario:
@@ -479,7 +535,7 @@ def parse_scenario(text: str, path: str | Path, seed: int | None = None) -> Scen
         seed = top.integer("seed", lo=0)
     else:
         if top.has("seed"):
-            top.integer("seed", lo=0)           # still reject a malformed value in the file
+            top.integer("seed", lo=0)  # still reject a malformed value in the file
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise InputError("--seed", "seed", "an integer >= 0", seed)
         seed = int(seed)
@@ -510,6 +566,7 @@ class Plan:
     A ``[truth]`` table, if present (a plan written by ``calbench design`` carries its prior),
     is validated like a scenario's and otherwise ignored.
     """
+
     path: Path
     text: str
     robot: Path
@@ -520,7 +577,7 @@ class Plan:
     work: Work | None
     poses: tuple[Pose, ...]
     name: str = ""
-    start_time: datetime = DEFAULT_START   # UTC; a readings file's seconds count from here
+    start_time: datetime = DEFAULT_START  # UTC; a readings file's seconds count from here
 
 
 def parse_plan(text: str, path: str | Path) -> Plan:
@@ -536,12 +593,22 @@ def parse_plan(text: str, path: str | Path) -> Plan:
     tr = top.sub("tracker")
     placed = tr.has("position")
     if not placed and tr.has("yaw"):
-        raise tr.fail("yaw", "a tracker position with the yaw (without a position, `calbench "
-                      "import` registers the whole tracker pose)")
+        raise tr.fail(
+            "yaw",
+            "a tracker position with the yaw (without a position, `calbench "
+            "import` registers the whole tracker pose)",
+        )
     if not placed:
         tr = _Checker(path, {**tr.table, "position": [0.0, 0.0, 0.0]}, tr.prefix)
-    return Plan(path=path, text=text, robot=robot, seed=seed, tracker=_tracker(tr),
-                tracker_placed=placed, **_campaign(top, path, n_joints))
+    return Plan(
+        path=path,
+        text=text,
+        robot=robot,
+        seed=seed,
+        tracker=_tracker(tr),
+        tracker_placed=placed,
+        **_campaign(top, path, n_joints),
+    )
 
 
 def load_plan(path: str | Path) -> Plan:
@@ -563,8 +630,15 @@ def _read(path: Path, what: str) -> str:
         raise InputError(path, "(file)", f"a readable UTF-8 {what} file", str(exc)) from None
 
 
-def scenario_variant(src: str | Path, out: str | Path, *, name: str | None = None, seed: int | None = None,
-                     compensator: tuple[float, float] | None = None, extra: str = "") -> Path:
+def scenario_variant(
+    src: str | Path,
+    out: str | Path,
+    *,
+    name: str | None = None,
+    seed: int | None = None,
+    compensator: tuple[float, float] | None = None,
+    extra: str = "",
+) -> Path:
     """Write a copy of scenario ``src`` at ``out`` with a few truths changed, keeping its comments.
 
     The robot path is made absolute (the copy may live elsewhere); ``name``, ``seed`` and the
@@ -589,8 +663,11 @@ def scenario_variant(src: str | Path, out: str | Path, *, name: str | None = Non
     if compensator is not None:
         # within [truth.compensator]: up to the next line that opens a table
         for key, value in zip(("stiffness", "preload"), compensator):
-            sub(rf"(^\[truth\.compensator\](?:(?!^\[).)*?^{key}\s*=\s*)\S+", repr(float(value)),
-                re.MULTILINE | re.DOTALL)
+            sub(
+                rf"(^\[truth\.compensator\](?:(?!^\[).)*?^{key}\s*=\s*)\S+",
+                repr(float(value)),
+                re.MULTILINE | re.DOTALL,
+            )
     if extra:
         sub(r"^()(?=\[tracker\])", extra.strip() + "\n\n")
     parse_scenario(text, out)  # raises InputError on a bad variant, before writing it
@@ -603,18 +680,33 @@ def scenario_params(scn: Scenario, n_joints: int, compensators: tuple[str, ...])
     compensator tendons (its calbench:actuated and calbench:compensators); InputError naming
     the key that does not fit the robot."""
     if len(scn.compliance) != n_joints:
-        raise InputError(scn.path, "truth.compliance", f"an array of {n_joints} numbers (one per actuated "
-                         f"joint of {scn.robot.name})", f"{len(scn.compliance)} elements")
+        raise InputError(
+            scn.path,
+            "truth.compliance",
+            f"an array of {n_joints} numbers (one per actuated joint of {scn.robot.name})",
+            f"{len(scn.compliance)} elements",
+        )
+
     def key(t: str) -> str:
         return f"truth.{LEGACY_COMPENSATOR}" if t == LEGACY_COMPENSATOR else f"truth.compensators.{t}"
+
     for t in compensators:
         if t not in scn.compensators:
-            raise InputError(scn.path, key(t), f"this table (stiffness, preload): {scn.robot.name} has the "
-                             f"compensator tendon {t!r}")
+            raise InputError(
+                scn.path,
+                key(t),
+                f"this table (stiffness, preload): {scn.robot.name} has the compensator tendon {t!r}",
+            )
     for t in scn.compensators:
         if t not in compensators:
-            raise InputError(scn.path, key(t), "a compensator tendon of the robot (calbench:compensators: "
-                             + (", ".join(compensators) or "none") + ")", t)
+            raise InputError(
+                scn.path,
+                key(t),
+                "a compensator tendon of the robot (calbench:compensators: "
+                + (", ".join(compensators) or "none")
+                + ")",
+                t,
+            )
     return Params(np.asarray(scn.compliance, dtype=float), {t: scn.compensators[t] for t in compensators})
 
 
@@ -629,18 +721,25 @@ def check_joint_limits(scn: Scenario, limits: np.ndarray) -> None:
         named.append(("work.q", scn.work.q))
     for key, q in named:
         if len(q) != n:
-            raise InputError(scn.path, key, f"an array of {n} numbers (one per actuated joint of "
-                             f"{scn.robot.name})", f"{len(q)} elements")
+            raise InputError(
+                scn.path,
+                key,
+                f"an array of {n} numbers (one per actuated joint of {scn.robot.name})",
+                f"{len(q)} elements",
+            )
         for j in range(n):
             lo, hi = limits[j]
             if not lo - JOINT_LIMIT_TOL <= q[j] <= hi + JOINT_LIMIT_TOL:
                 raise InputError(
-                    scn.path, f"{key}[{j}]",
-                    f"joint {j + 1} within [{math.degrees(lo):.3f}, {math.degrees(hi):.3f}] "
-                    "degrees", round(math.degrees(q[j]), 6))
+                    scn.path,
+                    f"{key}[{j}]",
+                    f"joint {j + 1} within [{math.degrees(lo):.3f}, {math.degrees(hi):.3f}] degrees",
+                    round(math.degrees(q[j]), 6),
+                )
 
 
 # --------------------------------------------------------------------------- writing
+
 
 def scenario_as_dict(scn: Scenario, relative_to: str | Path) -> dict:
     """The scenario in file units (degrees), with ``robot`` relative to directory ``relative_to``.
@@ -648,29 +747,42 @@ def scenario_as_dict(scn: Scenario, relative_to: str | Path) -> dict:
     Feed it, possibly edited (e.g. new poses), to :func:`scenario_to_toml` to write a plan.
     Angles are rounded to 1e-10 degree (< 2e-12 rad) so the file reads 30.0, not 29.999...
     """
+
     def deg(q: np.ndarray) -> list[float]:
         return np.round(np.degrees(q), 10).tolist()
 
     tr = scn.tracker
-    header = {k: v for k, v in tomllib.loads(scn.text).items()
-              if k in ("name", "description", "start_time")}
+    header = {k: v for k, v in tomllib.loads(scn.text).items() if k in ("name", "description", "start_time")}
     doc: dict[str, Any] = {
         **header,
         "robot": Path(os.path.relpath(scn.robot, Path(relative_to).resolve())).as_posix(),
         "seed": scn.seed,
         "truth": Params(scn.compliance, scn.compensators).as_dict(),
-        "tracker": {"sigma": tr.sigma, "position": tr.position.tolist(),
-                    "yaw": round(math.degrees(tr.yaw), 10), "model": tr.model,
-                    "distance": list(tr.distance), "transverse": list(tr.transverse),
-                    **({"random": tr.random, "correlation_angle": round(math.degrees(tr.correlation_angle), 10),
-                        "correlation_range": tr.correlation_range, "drift": list(tr.drift)}
-                       if tr.model == "iso10360" else {})},
+        "tracker": {
+            "sigma": tr.sigma,
+            "position": tr.position.tolist(),
+            "yaw": round(math.degrees(tr.yaw), 10),
+            "model": tr.model,
+            "distance": list(tr.distance),
+            "transverse": list(tr.transverse),
+            **(
+                {
+                    "random": tr.random,
+                    "correlation_angle": round(math.degrees(tr.correlation_angle), 10),
+                    "correlation_range": tr.correlation_range,
+                    "drift": list(tr.drift),
+                }
+                if tr.model == "iso10360"
+                else {}
+            ),
+        },
         "load": {"mass": scn.load_mass},
     }
     if scn.effects:
         doc["truth"]["effects"] = {
             name: {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in e.items()}
-            for name, e in scn.effects.items()}
+            for name, e in scn.effects.items()
+        }
     if scn.work is not None:
         doc["work"] = {"q": deg(scn.work.q), "wrench": scn.work.wrench.tolist()}
     poses = []
@@ -723,11 +835,11 @@ def _toml_value(v: Any) -> str:
     if isinstance(v, float):
         if not math.isfinite(v):
             raise ValueError(f"cannot write non-finite number {v} to a scenario")
-        return repr(v)                          # shortest text that reads back bit-exact
+        return repr(v)  # shortest text that reads back bit-exact
     if isinstance(v, str):
         return _toml_string(v)
     if isinstance(v, (datetime, date)):
-        return v.isoformat()                    # a TOML date-time literal
+        return v.isoformat()  # a TOML date-time literal
     if isinstance(v, Path):
         return _toml_string(v.as_posix())
     if isinstance(v, (list, tuple)):
@@ -741,15 +853,17 @@ def _is_table_array(v: Any) -> bool:
 
 def _emit(table: dict, path: list[str], lines: list[str]) -> None:
     """Write scalars first, then sub-tables, then arrays of tables (TOML ordering rules)."""
-    scalars = [(k, v) for k, v in table.items()
-               if v is not None and not isinstance(v, dict) and not _is_table_array(v)]
+    scalars = [
+        (k, v)
+        for k, v in table.items()
+        if v is not None and not isinstance(v, dict) and not _is_table_array(v)
+    ]
     for k, v in scalars:
         lines.append(f"{_toml_key(k)} = {_toml_value(v)}")
     for k, v in table.items():
         if isinstance(v, dict):
             sub = path + [_toml_key(k)]
-            has_scalars = any(not isinstance(x, dict) and not _is_table_array(x)
-                              for x in v.values())
+            has_scalars = any(not isinstance(x, dict) and not _is_table_array(x) for x in v.values())
             if has_scalars or not v:
                 lines.extend(["", f"[{'.'.join(sub)}]"])
             _emit(v, sub, lines)

@@ -37,37 +37,39 @@ once (schemas, scenario, MJCF). The estimate rounds each up (:data:`SECONDS_PER_
 :data:`BYTES_PER_REFLECTOR_READING`, :data:`BYTES_PER_POSE`, :data:`BYTES_FIXED`), so it is an
 upper bound of the log's size (tests/test_interrupt.py).
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from datetime import date, datetime, timedelta, timezone
-from typing import Any, Sequence
+from datetime import UTC, date, datetime, timedelta
+from typing import Any
 
 from calbench.bench.core.errors import InputError
 
-DEFAULT_START = datetime(2025, 1, 6, 8, 0, 0, tzinfo=timezone.utc)   # a Monday, 08:00 UTC
+DEFAULT_START = datetime(2025, 1, 6, 8, 0, 0, tzinfo=UTC)  # a Monday, 08:00 UTC
 MOVE_S = 60.0
 READING_PER_REFLECTOR_S = 10.0
 LOAD_S = 300.0
 UNLOAD_S = 180.0
 NS = 1_000_000_000
 # the latest start a campaign may have: MCAP tools commonly hold times as int64 ns (year 2262)
-LATEST = datetime(2200, 1, 1, tzinfo=timezone.utc)
+LATEST = datetime(2200, 1, 1, tzinfo=UTC)
 
-SECONDS_PER_READING = 3e-4          # simulated, this machine, rounded up from 0.2 ms
-SECONDS_PER_POSE = 0.01             # the pose's two equilibria and checks
-SECONDS_PER_FIT = 0.05              # one Monte Carlo run's identification (paper plan: ~0.02 s)
-BYTES_PER_REFLECTOR_READING = 50    # compressed log, rounded up from ~36
-BYTES_PER_POSE = 6_000              # rounded up from ~4.3 kB
-BYTES_FIXED = 64_000                # rounded up from ~50 kB
-MAX_SECONDS = 600.0                 # refuse what would run more than 10 min without --force
-MAX_LOG_BYTES = 1e9                 # or write more than 1 GB
+SECONDS_PER_READING = 3e-4  # simulated, this machine, rounded up from 0.2 ms
+SECONDS_PER_POSE = 0.01  # the pose's two equilibria and checks
+SECONDS_PER_FIT = 0.05  # one Monte Carlo run's identification (paper plan: ~0.02 s)
+BYTES_PER_REFLECTOR_READING = 50  # compressed log, rounded up from ~36
+BYTES_PER_POSE = 6_000  # rounded up from ~4.3 kB
+BYTES_FIXED = 64_000  # rounded up from ~50 kB
+MAX_SECONDS = 600.0  # refuse what would run more than 10 min without --force
+MAX_LOG_BYTES = 1e9  # or write more than 1 GB
 
 
 def start_ns(when: datetime) -> int:
     """ns since 1970 (UTC) of an aware datetime."""
-    delta = when - datetime(1970, 1, 1, tzinfo=timezone.utc)
+    delta = when - datetime(1970, 1, 1, tzinfo=UTC)
     return (delta.days * 86_400 + delta.seconds) * NS + delta.microseconds * 1000
 
 
@@ -86,9 +88,9 @@ def parse_start_time(value: Any, file: object, key: str = "start_time") -> datet
         raise InputError(file, key, what, got)
     if when.tzinfo is None or when.utcoffset() is None:
         raise InputError(file, key, what + " (the offset says which clock)", when.isoformat())
-    if not datetime(1970, 1, 1, tzinfo=timezone.utc) <= when < LATEST:
+    if not datetime(1970, 1, 1, tzinfo=UTC) <= when < LATEST:
         raise InputError(file, key, f"a date-time between 1970 and {LATEST.year}", when.isoformat())
-    return when.astimezone(timezone.utc)
+    return when.astimezone(UTC)
 
 
 class CampaignClock:
@@ -122,17 +124,21 @@ class Estimate:
 
     poses: int
     readings: int
-    seconds: float          # simulation on this machine
+    seconds: float  # simulation on this machine
     log_bytes: float
-    real_seconds: float     # the campaign on a robot, by the clock above
-    runs: int = 1           # Monte Carlo runs (no log written)
+    real_seconds: float  # the campaign on a robot, by the clock above
+    runs: int = 1  # Monte Carlo runs (no log written)
 
     def words(self) -> str:
         if self.runs > 1:
-            return (f"{self.runs:,} runs of {self.readings:,} readings: ~{duration(self.seconds)} "
-                    "to simulate and identify here")
-        return (f"{self.readings:,} readings: ~{duration(self.seconds)} to simulate here and "
-                f"~{size(self.log_bytes)} of log; on a real robot ~{duration(self.real_seconds)}")
+            return (
+                f"{self.runs:,} runs of {self.readings:,} readings: ~{duration(self.seconds)} "
+                "to simulate and identify here"
+            )
+        return (
+            f"{self.readings:,} readings: ~{duration(self.seconds)} to simulate here and "
+            f"~{size(self.log_bytes)} of log; on a real robot ~{duration(self.real_seconds)}"
+        )
 
 
 def estimate(repeats: Sequence[int], n_reflectors: int) -> Estimate:
@@ -140,19 +146,28 @@ def estimate(repeats: Sequence[int], n_reflectors: int) -> Estimate:
     readings = 2 * sum(int(r) for r in repeats)
     n = len(repeats)
     return Estimate(
-        poses=n, readings=readings,
+        poses=n,
+        readings=readings,
         seconds=SECONDS_PER_READING * readings + SECONDS_PER_POSE * n,
-        log_bytes=BYTES_FIXED + BYTES_PER_POSE * n
+        log_bytes=BYTES_FIXED
+        + BYTES_PER_POSE * n
         + BYTES_PER_REFLECTOR_READING * max(n_reflectors, 1) * readings,
-        real_seconds=n * (MOVE_S + LOAD_S + UNLOAD_S) + readings * reading_seconds(n_reflectors))
+        real_seconds=n * (MOVE_S + LOAD_S + UNLOAD_S) + readings * reading_seconds(n_reflectors),
+    )
 
 
 def montecarlo_estimate(repeats: Sequence[int], n_reflectors: int, runs: int) -> Estimate:
     """A Monte Carlo study: the plan is solved once, then each run draws every reading and
     identifies; no log is written."""
     one = estimate(repeats, n_reflectors)
-    return Estimate(one.poses, one.readings, SECONDS_PER_POSE * one.poses + runs * (
-        SECONDS_PER_READING * one.readings + SECONDS_PER_FIT), 0.0, one.real_seconds, int(runs))
+    return Estimate(
+        one.poses,
+        one.readings,
+        SECONDS_PER_POSE * one.poses + runs * (SECONDS_PER_READING * one.readings + SECONDS_PER_FIT),
+        0.0,
+        one.real_seconds,
+        int(runs),
+    )
 
 
 def check_size(est: Estimate, file: object, key: str) -> None:
@@ -161,9 +176,13 @@ def check_size(est: Estimate, file: object, key: str) -> None:
     if est.seconds <= MAX_SECONDS and est.log_bytes <= MAX_LOG_BYTES:
         return
     limit = duration(MAX_SECONDS) + ("" if est.runs > 1 else f" and {size(MAX_LOG_BYTES)} of log")
-    raise InputError(file, key, f"a {'study' if est.runs > 1 else 'campaign'} this machine "
-                     f"finishes in reasonable time (at most {limit}; --force runs it anyway)",
-                     Said(est.words()))
+    raise InputError(
+        file,
+        key,
+        f"a {'study' if est.runs > 1 else 'campaign'} this machine "
+        f"finishes in reasonable time (at most {limit}; --force runs it anyway)",
+        Said(est.words()),
+    )
 
 
 class Said(str):
@@ -200,11 +219,28 @@ def size(nbytes: float) -> str:
 
 def iso(t_ns: int) -> str:
     """ns since 1970 as ISO 8601 UTC (for messages and tests)."""
-    when = datetime(1970, 1, 1, tzinfo=timezone.utc) + timedelta(microseconds=t_ns // 1000)
+    when = datetime(1970, 1, 1, tzinfo=UTC) + timedelta(microseconds=t_ns // 1000)
     return when.isoformat().replace("+00:00", "Z")
 
 
-__all__ = ["DEFAULT_START", "MOVE_S", "READING_PER_REFLECTOR_S", "LOAD_S", "UNLOAD_S",
-           "CampaignClock", "Estimate", "estimate", "montecarlo_estimate", "check_size",
-           "repeats_key", "parse_start_time", "start_ns",
-           "reading_seconds", "duration", "size", "iso", "MAX_SECONDS", "MAX_LOG_BYTES"]
+__all__ = [
+    "DEFAULT_START",
+    "MOVE_S",
+    "READING_PER_REFLECTOR_S",
+    "LOAD_S",
+    "UNLOAD_S",
+    "CampaignClock",
+    "Estimate",
+    "estimate",
+    "montecarlo_estimate",
+    "check_size",
+    "repeats_key",
+    "parse_start_time",
+    "start_ns",
+    "reading_seconds",
+    "duration",
+    "size",
+    "iso",
+    "MAX_SECONDS",
+    "MAX_LOG_BYTES",
+]

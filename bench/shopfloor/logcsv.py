@@ -30,10 +30,11 @@ poses, in log order, in the tracker frame; ``time`` is the reading's log time; `
 written when every reading's covariance is isotropic (sigma^2 I), which is then exactly what the
 import reads back; otherwise the plan's tracker model gives the covariances again on import.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -42,15 +43,16 @@ from calbench.bench.campaign.run import pose_load
 from calbench.bench.core.errors import InputError
 from calbench.bench.log.records import CampaignLog
 from calbench.bench.log.writer import LogHeader, LogWriter
-from calbench.bench.tracker.measuring import schedule
-from calbench.bench.scenario.timeline import NS
-from .readings import ReadingsTable, Row, group, iso8601
 from calbench.bench.model.robot import Robot
 from calbench.bench.scenario.parse import Plan, TrackerSpec
+from calbench.bench.scenario.timeline import NS
 from calbench.bench.tracker.instrument import noise_covariance
+from calbench.bench.tracker.measuring import schedule
+
+from .readings import ReadingsTable, Row, group, iso8601
 
 STATES = ("unloaded", "loaded")
-TICK = 1_000_000          # ns: a pose's command, load and end stamped 1-3 ms around its readings
+TICK = 1_000_000  # ns: a pose's command, load and end stamped 1-3 ms around its readings
 
 
 @dataclass(frozen=True)
@@ -60,10 +62,10 @@ class ImportedReading:
     :class:`bench.tracker.Measurement` (tracker frame, NaN rows where not seen)."""
 
     repeat: int
-    position: np.ndarray        # (n, 3) m
-    covariance: np.ndarray      # (n, 3, 3) m^2
-    visible: np.ndarray         # (n,) bool
-    time: float                 # s: the table's (its kind), or the campaign clock's
+    position: np.ndarray  # (n, 3) m
+    covariance: np.ndarray  # (n, 3, 3) m^2
+    visible: np.ndarray  # (n,) bool
+    time: float  # s: the table's (its kind), or the campaign clock's
 
 
 Readings = dict[tuple[int, str], list[ImportedReading]]
@@ -73,11 +75,11 @@ Readings = dict[tuple[int, str], list[ImportedReading]]
 class ImportSummary:
     """What an import wrote."""
 
-    poses: list[int]                # poses written, in the order written
-    lost: list[int]                 # plan poses without a single reading
-    one_state: list[int]            # poses measured in one state only (no deflection)
+    poses: list[int]  # poses written, in the order written
+    lost: list[int]  # plan poses without a single reading
+    one_state: list[int]  # poses measured in one state only (no deflection)
     rows: int
-    readings: int                   # /tracker/measurement messages
+    readings: int  # /tracker/measurement messages
 
 
 def reading_covariance(tracker: TrackerSpec, position: np.ndarray, sigma: np.ndarray) -> np.ndarray:
@@ -115,18 +117,25 @@ def measured_order(table: ReadingsTable) -> list[int]:
             last_u = max(u, key=lambda r: r.time)
             first_l = min(ld, key=lambda r: r.time)
             if first_l.time < last_u.time:
-                raise InputError(table.path, f"line {first_l.line}, column time",
-                                 f"the loaded readings of pose {p} after its unloaded ones (line "
-                                 f"{last_u.line} is unloaded and later)",
-                                 _time_as_written(table, first_l.time))
+                raise InputError(
+                    table.path,
+                    f"line {first_l.line}, column time",
+                    f"the loaded readings of pose {p} after its unloaded ones (line "
+                    f"{last_u.line} is unloaded and later)",
+                    _time_as_written(table, first_l.time),
+                )
         span[p] = (min(r.time for r in rows), max(r.time for r in rows))
     order = sorted(poses, key=lambda p: span[p])
     for a, b in zip(order, order[1:]):
         if span[b][0] < span[a][1]:
             first_b = min((r for r in table.readings if r.pose == b), key=lambda r: r.time)
-            raise InputError(table.path, f"line {first_b.line}, column time",
-                             f"pose {b}'s readings after every reading of pose {a} (a campaign "
-                             "measures one pose at a time)", _time_as_written(table, first_b.time))
+            raise InputError(
+                table.path,
+                f"line {first_b.line}, column time",
+                f"pose {b}'s readings after every reading of pose {a} (a campaign "
+                "measures one pose at a time)",
+                _time_as_written(table, first_b.time),
+            )
     return order
 
 
@@ -137,17 +146,38 @@ def campaign_readings(table: ReadingsTable, names: list[str], tracker: TrackerSp
     readings (bench.measuring.schedule, s since the first reading)."""
     order = measured_order(table)
     grouped = {(p, s): group(table.of(p, s), names) for p in order for s in STATES}
-    clock = None if table.has_time else schedule(
-        [(p, len(grouped[(p, "unloaded")]), len(grouped[(p, "loaded")])) for p in order], len(names))
-    return {(p, s): [ImportedReading(g.repeat, g.position,
-                                     reading_covariance(tracker, g.position, g.sigma), g.visible,
-                                     g.time if clock is None else clock[(p, s, g.repeat)])
-                     for g in gs]
-            for (p, s), gs in grouped.items()}
+    clock = (
+        None
+        if table.has_time
+        else schedule(
+            [(p, len(grouped[(p, "unloaded")]), len(grouped[(p, "loaded")])) for p in order], len(names)
+        )
+    )
+    return {
+        (p, s): [
+            ImportedReading(
+                g.repeat,
+                g.position,
+                reading_covariance(tracker, g.position, g.sigma),
+                g.visible,
+                g.time if clock is None else clock[(p, s, g.repeat)],
+            )
+            for g in gs
+        ]
+        for (p, s), gs in grouped.items()
+    }
 
 
-def write_imported_log(plan: Plan, readings: Readings, tracker: TrackerSpec, model: Path,
-                       out: Path, imported: dict, rows: int, time_origin: int | None = None) -> ImportSummary:
+def write_imported_log(
+    plan: Plan,
+    readings: Readings,
+    tracker: TrackerSpec,
+    model: Path,
+    out: Path,
+    imported: dict,
+    rows: int,
+    time_origin: int | None = None,
+) -> ImportSummary:
     """Write the log of ``readings`` (:func:`campaign_readings`, ``rows`` CSV rows) taken along
     ``plan`` with the tracker at ``tracker``'s pose, the robot described by the MJCF ``model``;
     ``imported`` goes into ``/campaign/info``. Everything is checked before the file exists.
@@ -161,8 +191,12 @@ def write_imported_log(plan: Plan, readings: Readings, tracker: TrackerSpec, mod
     names = list(robot.reflector_names)
     for i, pose in enumerate(plan.poses):
         if len(pose.q) != robot.n_act:
-            raise InputError(plan.path, f"pose[{i}].q", f"an array of {robot.n_act} numbers (one per "
-                             f"actuated joint of {model.name})", f"{len(pose.q)} elements")
+            raise InputError(
+                plan.path,
+                f"pose[{i}].q",
+                f"an array of {robot.n_act} numbers (one per actuated joint of {model.name})",
+                f"{len(pose.q)} elements",
+            )
     order = list(dict.fromkeys(p for p, _ in readings))
     loads = {p: pose_load(robot, plan, plan.poses[p]) for p in order}
 
@@ -172,13 +206,22 @@ def write_imported_log(plan: Plan, readings: Readings, tracker: TrackerSpec, mod
     first = [r.time for p in order for s in STATES for r in readings[(p, s)]]
     start = plan.start_time
     if time_origin is not None and first:
-        start = min(start, datetime.fromtimestamp((at(min(first)) - NS) / NS, tz=timezone.utc))
+        start = min(start, datetime.fromtimestamp((at(min(first)) - NS) / NS, tz=UTC))
     header = LogHeader(
-        scenario_name=plan.name, scenario_text=plan.text, scenario_filename=plan.path.name,
-        robot_filename=model.name, mjcf_text=model.read_text(encoding="utf-8"),
-        reflectors=names, payload_site=robot.model.site(robot.payload_site).name,
-        tracker=tracker.to_dict(), seed=int(plan.seed), n_poses=len(plan.poses),
-        imported=imported, n_joints=robot.n_act, start_time=start)
+        scenario_name=plan.name,
+        scenario_text=plan.text,
+        scenario_filename=plan.path.name,
+        robot_filename=model.name,
+        mjcf_text=model.read_text(encoding="utf-8"),
+        reflectors=names,
+        payload_site=robot.model.site(robot.payload_site).name,
+        tracker=tracker.to_dict(),
+        seed=int(plan.seed),
+        n_poses=len(plan.poses),
+        imported=imported,
+        n_joints=robot.n_act,
+        start_time=start,
+    )
     n_read = 0
     with LogWriter(out, header) as log:
         for p in order:
@@ -190,12 +233,19 @@ def write_imported_log(plan: Plan, readings: Readings, tracker: TrackerSpec, mod
             for state, reads in (("unloaded", u), ("loaded", ld)):
                 if state == "loaded":
                     t_load = ld[0].time if ld else None
-                    log.wrench(p, load.force, load.moment, site, mass,
-                               at=at(t_load, -2 * TICK) if ld else at(u[-1].time, TICK))
+                    log.wrench(
+                        p,
+                        load.force,
+                        load.moment,
+                        site,
+                        mass,
+                        at=at(t_load, -2 * TICK) if ld else at(u[-1].time, TICK),
+                    )
                     log.pose(p, "loaded", q, at=at(t_load, -TICK) if ld else at(u[-1].time, 2 * TICK))
                 for g in reads:
-                    log.measurement(p, state, g.repeat, names, g.position, g.covariance, g.visible,
-                                    at=at(g.time))
+                    log.measurement(
+                        p, state, g.repeat, names, g.position, g.covariance, g.visible, at=at(g.time)
+                    )
                     n_read += 1
             log.pose_done(p, at=at((ld or u)[-1].time, 3 * TICK))
     one = [p for p in order if not (readings[(p, "unloaded")] and readings[(p, "loaded")])]
@@ -221,13 +271,22 @@ def export_rows(log: CampaignLog) -> list[Row]:
         t = None if m.time is None else m.time / 1e9
         for i, name in enumerate(m.reflectors):
             if m.visible[i] and np.all(np.isfinite(m.position[i])):
-                rows.append(Row(m.pose, m.state, name, m.position[i].copy(), t,
-                                isotropic_sigma(m.covariance[i])))
+                rows.append(
+                    Row(m.pose, m.state, name, m.position[i].copy(), t, isotropic_sigma(m.covariance[i]))
+                )
     if rows and any(r.sigma is None for r in rows):
         rows = [Row(r.pose, r.state, r.point, r.position, r.time, None) for r in rows]
     return rows
 
 
-__all__ = ["ImportedReading", "Readings", "ImportSummary", "reading_covariance", "measured_order",
-           "campaign_readings", "write_imported_log",
-           "export_rows", "isotropic_sigma"]
+__all__ = [
+    "ImportedReading",
+    "Readings",
+    "ImportSummary",
+    "reading_covariance",
+    "measured_order",
+    "campaign_readings",
+    "write_imported_log",
+    "export_rows",
+    "isotropic_sigma",
+]

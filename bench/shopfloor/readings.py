@@ -24,15 +24,16 @@ moves a reflector by millimetres, and two real readings never agree to the last 
 
 Units: SI inside (m, s); mm only in the file.
 """
+
 from __future__ import annotations
 
 import csv
 import io
 import math
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
-from typing import Iterable, Sequence
 
 import numpy as np
 
@@ -46,24 +47,24 @@ UNITS = {"mm": 1e-3, "m": 1.0}
 # and FARO Vantage data sheets start at 0.8 m and 0.6 m; 0.3 m leaves room) to 100 m (the AT960's
 # 160 m diameter). A file in metres read as millimetres puts a robot 3 m away at 3 mm, one in
 # millimetres read as metres at 3 km: both are refused.
-MIN_RANGE = 0.3                 # m
-MAX_RANGE = 100.0               # m
+MIN_RANGE = 0.3  # m
+MAX_RANGE = 100.0  # m
 # A reading's 1-sigma: from 0.1 um (below any tracker's resolution) to 1 mm (no tracker reading
 # is that poor; a sigma in um read as mm lands here).
-SIGMA_RANGE = (1e-7, 1e-3)      # m
-EPOCH = datetime(1970, 1, 1, tzinfo=timezone.utc)
+SIGMA_RANGE = (1e-7, 1e-3)  # m
+EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 
 
 @dataclass(frozen=True)
 class Reading:
     """One row: a reflector seen once in one state of one pose (SI, tracker frame)."""
 
-    line: int                   # 1-based line in the file (the header is line 1)
+    line: int  # 1-based line in the file (the header is line 1)
     pose: int
     state: str
     point: str
-    position: np.ndarray        # (3,) m, tracker frame
-    time: float | None = None   # s: since the campaign's start, or since 1970 (UTC) when ``absolute``
+    position: np.ndarray  # (3,) m, tracker frame
+    time: float | None = None  # s: since the campaign's start, or since 1970 (UTC) when ``absolute``
     sigma: float | None = None  # m, per axis
 
 
@@ -75,7 +76,7 @@ class ReadingsTable:
     units: str
     columns: tuple[str, ...]
     readings: tuple[Reading, ...]
-    absolute_time: bool = False     # times are ISO 8601 (s since 1970) rather than campaign seconds
+    absolute_time: bool = False  # times are ISO 8601 (s since 1970) rather than campaign seconds
 
     @property
     def has_time(self) -> bool:
@@ -104,10 +105,10 @@ class GroupedReading:
     Rows of reflectors with fewer than k + 1 rows are not visible (NaN)."""
 
     repeat: int
-    position: np.ndarray        # (n, 3) m, tracker frame, NaN where not seen
-    visible: np.ndarray         # (n,) bool
-    sigma: np.ndarray           # (n,) m, NaN where not given or not seen
-    time: float | None          # s (the table's time kind): when the last of its rows was read
+    position: np.ndarray  # (n, 3) m, tracker frame, NaN where not seen
+    visible: np.ndarray  # (n,) bool
+    sigma: np.ndarray  # (n,) m, NaN where not given or not seen
+    time: float | None  # s (the table's time kind): when the last of its rows was read
 
 
 def group(rows: Sequence[Reading], names: Sequence[str]) -> list[GroupedReading]:
@@ -133,6 +134,7 @@ def group(rows: Sequence[Reading], names: Sequence[str]) -> list[GroupedReading]
 
 # --------------------------------------------------------------------------- reading
 
+
 def _where(line: int, column: str) -> str:
     return f"line {line}, column {column}"
 
@@ -155,17 +157,30 @@ def _time(path: Path, line: int, text: str) -> tuple[float, bool]:
         pass
     else:
         if not math.isfinite(x) or x < 0:
-            raise InputError(path, _where(line, "time"),
-                             "seconds >= 0 since the campaign's start or an ISO 8601 date-time", text)
+            raise InputError(
+                path,
+                _where(line, "time"),
+                "seconds >= 0 since the campaign's start or an ISO 8601 date-time",
+                text,
+            )
         return x, False
     try:
         when = datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
     except ValueError:
-        raise InputError(path, _where(line, "time"), "seconds since the campaign's start or an ISO "
-                         "8601 date-time with a UTC offset, e.g. 2026-01-05T08:12:30.5Z", text) from None
+        raise InputError(
+            path,
+            _where(line, "time"),
+            "seconds since the campaign's start or an ISO "
+            "8601 date-time with a UTC offset, e.g. 2026-01-05T08:12:30.5Z",
+            text,
+        ) from None
     if when.tzinfo is None or when.utcoffset() is None:
-        raise InputError(path, _where(line, "time"), "an ISO 8601 date-time with a UTC offset "
-                         "(Z or +hh:mm: the offset says which clock)", text)
+        raise InputError(
+            path,
+            _where(line, "time"),
+            "an ISO 8601 date-time with a UTC offset (Z or +hh:mm: the offset says which clock)",
+            text,
+        )
     return (when - EPOCH).total_seconds(), True
 
 
@@ -174,19 +189,25 @@ def _header(path: Path, fields: list[str]) -> tuple[str, ...]:
     for i, name in enumerate(names):
         col = f"column {i + 1}"
         if name not in REQUIRED + OPTIONAL:
-            raise InputError(path, f"line 1, {col}", "a column named one of "
-                             + ", ".join(REQUIRED + OPTIONAL), fields[i])
+            raise InputError(
+                path, f"line 1, {col}", "a column named one of " + ", ".join(REQUIRED + OPTIONAL), fields[i]
+            )
         if name in names[:i]:
             raise InputError(path, f"line 1, {col}", "each column once", fields[i])
     missing = [c for c in REQUIRED if c not in names]
     if missing:
-        raise InputError(path, "line 1", "a header row with the columns " + ",".join(REQUIRED)
-                         + " (optional: time, sigma)", ",".join(fields))
+        raise InputError(
+            path,
+            "line 1",
+            "a header row with the columns " + ",".join(REQUIRED) + " (optional: time, sigma)",
+            ",".join(fields),
+        )
     return names
 
 
-def read_readings(path: str | Path, n_poses: int, points: Sequence[str], units: str = "mm",
-                  text: str | None = None) -> ReadingsTable:
+def read_readings(
+    path: str | Path, n_poses: int, points: Sequence[str], units: str = "mm", text: str | None = None
+) -> ReadingsTable:
     """Read and validate a readings CSV for a plan of ``n_poses`` poses whose robot has the
     reflector sites ``points`` (see the module docstring for every rule). ``text`` is the
     file's content when already read."""
@@ -218,57 +239,89 @@ def read_readings(path: str | Path, n_poses: int, points: Sequence[str], units: 
         for values in rows:
             line = rows.line_num
             if not any(v.strip() for v in values):
-                continue                                    # blank lines
+                continue  # blank lines
             if len(values) != len(columns):
-                raise InputError(path, f"line {line}", f"{len(columns)} fields as in the header "
-                                 f"({','.join(columns)})", f"{len(values)} fields")
+                raise InputError(
+                    path,
+                    f"line {line}",
+                    f"{len(columns)} fields as in the header ({','.join(columns)})",
+                    f"{len(values)} fields",
+                )
             cell = {name: values[i].strip() for name, i in col.items()}
             try:
                 pose = int(cell["pose"])
             except ValueError:
-                raise InputError(path, _where(line, "pose"), "a 0-based pose index (an integer)",
-                                 cell["pose"]) from None
+                raise InputError(
+                    path, _where(line, "pose"), "a 0-based pose index (an integer)", cell["pose"]
+                ) from None
             if not 0 <= pose < n_poses:
-                raise InputError(path, _where(line, "pose"),
-                                 f"a pose of the plan: an index in 0..{n_poses - 1}", cell["pose"])
+                raise InputError(
+                    path,
+                    _where(line, "pose"),
+                    f"a pose of the plan: an index in 0..{n_poses - 1}",
+                    cell["pose"],
+                )
             state = cell["state"].lower()
             if state not in STATES:
-                raise InputError(path, _where(line, "state"), "unloaded or loaded",
-                                 cell["state"] or "an empty cell")
+                raise InputError(
+                    path, _where(line, "state"), "unloaded or loaded", cell["state"] or "an empty cell"
+                )
             point = cell["point"]
             if point not in known:
-                raise InputError(path, _where(line, "point"), "a reflector site of the robot: "
-                                 + ", ".join(points), point or "an empty cell")
+                raise InputError(
+                    path,
+                    _where(line, "point"),
+                    "a reflector site of the robot: " + ", ".join(points),
+                    point or "an empty cell",
+                )
             xyz = np.array([_number(path, line, c, cell[c]) for c in ("x", "y", "z")]) * scale
             rng = float(np.linalg.norm(xyz))
             if not MIN_RANGE <= rng <= MAX_RANGE:
                 other = "m" if units == "mm" else "mm"
-                raise InputError(path, _where(line, "x"), f"a reflector {MIN_RANGE:g} to "
-                                 f"{MAX_RANGE:g} m from the tracker (x, y, z in {units}; is the "
-                                 f"file in {other}? --units {other})",
-                                 f"{rng:.4g} m away")
+                raise InputError(
+                    path,
+                    _where(line, "x"),
+                    f"a reflector {MIN_RANGE:g} to "
+                    f"{MAX_RANGE:g} m from the tracker (x, y, z in {units}; is the "
+                    f"file in {other}? --units {other})",
+                    f"{rng:.4g} m away",
+                )
             t = None
             if "time" in col:
                 t, is_abs = _time(path, line, cell["time"])
                 if absolute is None:
                     absolute = is_abs
                 elif is_abs != absolute:
-                    raise InputError(path, _where(line, "time"), "the same kind of time in every row ("
-                                     + ("ISO 8601 date-times" if absolute else "seconds") + ")",
-                                     cell["time"])
+                    raise InputError(
+                        path,
+                        _where(line, "time"),
+                        "the same kind of time in every row ("
+                        + ("ISO 8601 date-times" if absolute else "seconds")
+                        + ")",
+                        cell["time"],
+                    )
             sigma = None
             if "sigma" in col:
                 sigma = _number(path, line, "sigma", cell["sigma"]) * scale
                 lo, hi = SIGMA_RANGE
                 if not lo <= sigma <= hi:
-                    raise InputError(path, _where(line, "sigma"), f"a 1-sigma from {lo / scale:g} "
-                                     f"to {hi / scale:g} {units}", cell["sigma"])
+                    raise InputError(
+                        path,
+                        _where(line, "sigma"),
+                        f"a 1-sigma from {lo / scale:g} to {hi / scale:g} {units}",
+                        cell["sigma"],
+                    )
             key = (pose, point, tuple(float(v) for v in xyz))
             twin = seen.setdefault(key, (state, line))
             if twin[0] != state:
-                raise InputError(path, _where(line, "state"), f"a {state} reading that differs from the "
-                                 f"{twin[0]} one (line {twin[1]} has the same x, y, z: a row copied "
-                                 "into both states?)", state)
+                raise InputError(
+                    path,
+                    _where(line, "state"),
+                    f"a {state} reading that differs from the "
+                    f"{twin[0]} one (line {twin[1]} has the same x, y, z: a row copied "
+                    "into both states?)",
+                    state,
+                )
             out.append(Reading(line, pose, state, point, xyz, t, sigma))
     except csv.Error as exc:
         raise InputError(path, f"line {rows.line_num}", "valid CSV", str(exc)) from None
@@ -279,6 +332,7 @@ def read_readings(path: str | Path, n_poses: int, points: Sequence[str], units: 
 
 # --------------------------------------------------------------------------- writing
 
+
 @dataclass(frozen=True)
 class Row:
     """One row to write (SI): the export side of :class:`Reading`."""
@@ -286,14 +340,14 @@ class Row:
     pose: int
     state: str
     point: str
-    position: np.ndarray        # (3,) m, tracker frame
-    time: float | None = None   # s since 1970 (UTC): written as ISO 8601
+    position: np.ndarray  # (3,) m, tracker frame
+    time: float | None = None  # s since 1970 (UTC): written as ISO 8601
     sigma: float | None = None  # m
 
 
 def iso8601(seconds: float) -> str:
     """Seconds since 1970 (UTC) as ISO 8601 with microseconds and a Z."""
-    when = datetime.fromtimestamp(seconds, tz=timezone.utc)
+    when = datetime.fromtimestamp(seconds, tz=UTC)
     return when.isoformat(timespec="microseconds").replace("+00:00", "Z")
 
 
@@ -312,11 +366,25 @@ def readings_csv(rows: Iterable[Row], units: str = "mm") -> str:
     for r in rows:
         xyz = [f"{v * scale:.{digits}f}" for v in r.position]
         extra = ([iso8601(r.time)] if with_time else []) + (
-            [f"{r.sigma * scale:.{digits}f}"] if with_sigma else [])
+            [f"{r.sigma * scale:.{digits}f}"] if with_sigma else []
+        )
         w.writerow([r.pose, r.state, r.point, *xyz, *extra])
     return buf.getvalue()
 
 
-__all__ = ["REQUIRED", "OPTIONAL", "UNITS", "MIN_RANGE", "MAX_RANGE", "SIGMA_RANGE", "Reading",
-           "ReadingsTable", "GroupedReading", "group", "read_readings", "Row", "readings_csv",
-           "iso8601"]
+__all__ = [
+    "REQUIRED",
+    "OPTIONAL",
+    "UNITS",
+    "MIN_RANGE",
+    "MAX_RANGE",
+    "SIGMA_RANGE",
+    "Reading",
+    "ReadingsTable",
+    "GroupedReading",
+    "group",
+    "read_readings",
+    "Row",
+    "readings_csv",
+    "iso8601",
+]

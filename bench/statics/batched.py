@@ -28,23 +28,36 @@ the solver's tolerance; tests/test_batch_statics.py checks it configuration by c
 The batch runs a copy of the robot's model taken at construction (its parameters and options as
 they are then): after ``Robot.set_params``, :meth:`BatchStatics.sync` its ``Robot.PARAM_FIELDS``.
 """
+
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import mujoco
 import mujoco.batch
 import numpy as np
 
 from calbench.bench.model.loop import constraint_basis_stack
-from .equilibrium import (CONTRACTION, LOOP_TOL, MJ_MAXVAL, Equilibrium, Load, StaticsSolver,
-                      equilibrium_acceptable, ift_tangent, kkt_matrix, statics_options)
+
+from .equilibrium import (
+    CONTRACTION,
+    LOOP_TOL,
+    MJ_MAXVAL,
+    Equilibrium,
+    Load,
+    StaticsSolver,
+    equilibrium_acceptable,
+    ift_tangent,
+    kkt_matrix,
+    statics_options,
+)
 
 _POS = int(mujoco.mjtStage.mjSTAGE_POS)
 # (rows, qpos, lam, r, stalled, iteration) -> (A (k, nv, nv), give-up mask (k,)): BatchStatics.newton's
-StackedStiffness = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int],
-                            "tuple[np.ndarray, np.ndarray]"]
+StackedStiffness = Callable[
+    [np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int], "tuple[np.ndarray, np.ndarray]"
+]
 _VEL = int(mujoco.mjtStage.mjSTAGE_VEL)
 
 
@@ -54,36 +67,37 @@ def take_load(load: Load | None, rows) -> Load | None:
     if load is None:
         return None
     f, m, site = np.asarray(load.force, float), np.asarray(load.moment, float), np.asarray(load.site)
-    return Load(f[rows] if f.ndim == 2 else f, m[rows] if m.ndim == 2 else m,
-                site[rows] if site.ndim else load.site)
+    return Load(
+        f[rows] if f.ndim == 2 else f, m[rows] if m.ndim == 2 else m, site[rows] if site.ndim else load.site
+    )
 
 
 @dataclass(frozen=True)
 class StackedResidual:
     """:class:`bench.statics.Residual` of n configurations, with what the solve reports."""
 
-    r: np.ndarray         # (n, nv) g + J_c^T B lam, N*m
-    c_r: np.ndarray       # (n, nc) B^T c, m
-    jc_r: np.ndarray      # (n, nc, nv) B^T J_c
-    gap: np.ndarray       # (n,) |c|, m
-    gravity: np.ndarray   # (n,) max |qfrc_bias|, N*m
+    r: np.ndarray  # (n, nv) g + J_c^T B lam, N*m
+    c_r: np.ndarray  # (n, nc) B^T c, m
+    jc_r: np.ndarray  # (n, nc, nv) B^T J_c
+    gap: np.ndarray  # (n,) |c|, m
+    gravity: np.ndarray  # (n,) max |qfrc_bias|, N*m
 
 
 @dataclass(frozen=True)
 class Equilibria:
     """n solved static poses, the stacked :class:`bench.statics.Equilibrium` (same units)."""
 
-    qpos: np.ndarray            # (n, nq)
-    command: np.ndarray         # (n, n_act)
-    lam: np.ndarray             # (n, nc) in the basis
-    basis: np.ndarray           # (n, 3L, nc)
-    residual: np.ndarray        # (n,) max |r|, N*m; inf where the solve failed
-    gravity_scale: np.ndarray   # (n,) max |qfrc_bias| at the solution, N*m
+    qpos: np.ndarray  # (n, nq)
+    command: np.ndarray  # (n, n_act)
+    lam: np.ndarray  # (n, nc) in the basis
+    basis: np.ndarray  # (n, 3L, nc)
+    residual: np.ndarray  # (n,) max |r|, N*m; inf where the solve failed
+    gravity_scale: np.ndarray  # (n,) max |qfrc_bias| at the solution, N*m
     loop_violation: np.ndarray  # (n,) |c|, m
-    iterations: np.ndarray      # (n,) Newton steps
-    converged: np.ndarray       # (n,) bool: Newton's own criterion met
-    r: np.ndarray = field(repr=False)      # (n, nv) residual vector at the solution
-    jc_r: np.ndarray = field(repr=False)   # (n, nc, nv) B^T J_c at the solution
+    iterations: np.ndarray  # (n,) Newton steps
+    converged: np.ndarray  # (n,) bool: Newton's own criterion met
+    r: np.ndarray = field(repr=False)  # (n, nv) residual vector at the solution
+    jc_r: np.ndarray = field(repr=False)  # (n, nc, nv) B^T J_c at the solution
     stalls: np.ndarray = field(repr=False, default=None)  # (n,) exact matrices re-assembled on a stall
 
     def __len__(self) -> int:
@@ -94,18 +108,28 @@ class Equilibria:
         """(n,) bool: bench.statics' acceptance rule, configuration by configuration."""
         return equilibrium_acceptable(self.residual, self.gravity_scale, self.loop_violation)
 
-    def take(self, rows) -> "Equilibria":
-        return Equilibria(**{k: None if getattr(self, k) is None else getattr(self, k)[rows]
-                             for k in self.__dataclass_fields__})
+    def take(self, rows) -> Equilibria:
+        return Equilibria(
+            **{
+                k: None if getattr(self, k) is None else getattr(self, k)[rows]
+                for k in self.__dataclass_fields__
+            }
+        )
 
     def equilibrium(self, i: int, act_qpos: np.ndarray) -> Equilibrium:
         """Configuration i as a scalar Equilibrium (without a Newton factor)."""
-        return Equilibrium(qpos=self.qpos[i].copy(), command=self.command[i].copy(),
-                           deflection=self.qpos[i, act_qpos] - self.command[i], lam=self.lam[i].copy(),
-                           residual=float(self.residual[i]), gravity_scale=float(self.gravity_scale[i]),
-                           loop_violation=float(self.loop_violation[i]), iterations=int(self.iterations[i]),
-                           stalls=int(self.stalls[i]) if self.stalls is not None else 0,
-                           basis=self.basis[i].copy())
+        return Equilibrium(
+            qpos=self.qpos[i].copy(),
+            command=self.command[i].copy(),
+            deflection=self.qpos[i, act_qpos] - self.command[i],
+            lam=self.lam[i].copy(),
+            residual=float(self.residual[i]),
+            gravity_scale=float(self.gravity_scale[i]),
+            loop_violation=float(self.loop_violation[i]),
+            iterations=int(self.iterations[i]),
+            stalls=int(self.stalls[i]) if self.stalls is not None else 0,
+            basis=self.basis[i].copy(),
+        )
 
 
 class BatchStatics:
@@ -186,7 +210,7 @@ class BatchStatics:
             return (jp, jr) if rotation else jp
         dofs = np.flatnonzero(self._chain[body])
         jnt = m.dof_jntid[dofs]
-        axis = self._xaxis[ids][:, jnt]                                   # (n, k, 3)
+        axis = self._xaxis[ids][:, jnt]  # (n, k, 3)
         hinge = self._hinge[dofs]
         col = np.where(hinge[None, :, None], _cross(axis, p[:, None, :] - self._xanchor[ids][:, jnt]), axis)
         jp = np.zeros((len(ids), 3, m.nv))
@@ -204,7 +228,7 @@ class BatchStatics:
         for a, b in self.robot.loops:
             gaps.append(xs[:, a] - xs[:, b])
             jacs.append(self.site_jacobian(ids, a) - self.site_jacobian(ids, b))
-        if not gaps:      # a serial robot
+        if not gaps:  # a serial robot
             return np.zeros((len(ids), 0)), np.zeros((len(ids), 0, self.nv))
         if len(gaps) == 1:
             return gaps[0], jacs[0]
@@ -215,8 +239,9 @@ class BatchStatics:
         self.forward(ids, qpos, _POS)
         return constraint_basis_stack(self.loop_gap(ids)[1])
 
-    def residual(self, ids: np.ndarray, qpos: np.ndarray, load: Load | None, lam: np.ndarray,
-                 basis: np.ndarray) -> StackedResidual:
+    def residual(
+        self, ids: np.ndarray, qpos: np.ndarray, load: Load | None, lam: np.ndarray, basis: np.ndarray
+    ) -> StackedResidual:
         """StaticsSolver.residual of each configuration (batch left at qpos)."""
         self.forward(ids, qpos)
         g = self._passive[ids] - self._bias[ids]
@@ -227,15 +252,29 @@ class BatchStatics:
             for site in np.unique(sites):
                 rows = slice(None) if sites.ndim == 0 else sites == site
                 jp, jr = self.site_jacobian(ids[rows], int(site), rotation=True)
-                g[rows] += np.einsum("nij,ni->nj", jp, force[rows]) + np.einsum("nij,ni->nj", jr, moment[rows])
+                g[rows] += np.einsum("nij,ni->nj", jp, force[rows]) + np.einsum(
+                    "nij,ni->nj", jr, moment[rows]
+                )
         c, jc = self.loop_gap(ids)
         jc_r = np.einsum("nkr,nkv->nrv", basis, jc)
         r = g + np.einsum("nrv,nr->nv", jc_r, lam)
-        return StackedResidual(r, np.einsum("nkr,nk->nr", basis, c), jc_r,
-                               np.sqrt(np.einsum("nk,nk->n", c, c)), np.abs(self._bias[ids]).max(axis=1))
+        return StackedResidual(
+            r,
+            np.einsum("nkr,nk->nr", basis, c),
+            jc_r,
+            np.sqrt(np.einsum("nk,nk->n", c, c)),
+            np.abs(self._bias[ids]).max(axis=1),
+        )
 
-    def stiffness_at(self, ids: np.ndarray, qpos: np.ndarray, load: Load | None, lam: np.ndarray,
-                     basis: np.ndarray, r0: np.ndarray) -> np.ndarray:
+    def stiffness_at(
+        self,
+        ids: np.ndarray,
+        qpos: np.ndarray,
+        load: Load | None,
+        lam: np.ndarray,
+        basis: np.ndarray,
+        r0: np.ndarray,
+    ) -> np.ndarray:
         """StaticsSolver.stiffness_fd stacked: A = d r / d q (n, nv, nv) by forward differences
         (the solver's fd_step), r0 the residual at qpos. The batch is left at the last column."""
         h = self.solver.fd_step
@@ -267,10 +306,12 @@ class BatchStatics:
 
     def rigid(self, q: np.ndarray) -> np.ndarray:
         """Robot.rigid_qpos of n commands (n, nq), the loop gaps checked on the batch."""
+
         def gaps(qpos: np.ndarray) -> np.ndarray:
-            ids = self.place(qpos)          # may grow the batch: read its fields after
+            ids = self.place(qpos)  # may grow the batch: read its fields after
             xs = self.site_xpos[ids]
             return np.concatenate([xs[:, a] - xs[:, b] for a, b in self.robot.loops], axis=1)
+
         return self.robot.rigid_qpos_stack(q, gaps)
 
     def at(self, eq: Equilibria, stage: int = _POS) -> np.ndarray:
@@ -281,7 +322,9 @@ class BatchStatics:
     def dforce(self, eq: Equilibria, params) -> np.ndarray:
         """d g / d theta at fixed q (n, nv, p) at each equilibrium: Robot.dforce_dtheta_stack."""
         ids = self.at(eq)
-        return self.robot.dforce_dtheta_stack(params, eq.qpos, eq.command, self.ten_j[ids], self.ten_length[ids])
+        return self.robot.dforce_dtheta_stack(
+            params, eq.qpos, eq.command, self.ten_j[ids], self.ten_length[ids]
+        )
 
     def sites(self, eq: Equilibria, sites) -> tuple[np.ndarray, np.ndarray]:
         """Positions (n, k, 3) and d position / d q (n, k, 3, nv) of k sites at each equilibrium."""
@@ -290,8 +333,14 @@ class BatchStatics:
         jac = np.stack([self.site_jacobian(ids, int(s)) for s in sites], axis=1)
         return pos, jac
 
-    def solve(self, q: np.ndarray, load: Load | None = None, warm: Equilibria | None = None,
-              warm_stiffness: np.ndarray | None = None, qpos0: np.ndarray | None = None) -> Equilibria:
+    def solve(
+        self,
+        q: np.ndarray,
+        load: Load | None = None,
+        warm: Equilibria | None = None,
+        warm_stiffness: np.ndarray | None = None,
+        qpos0: np.ndarray | None = None,
+    ) -> Equilibria:
         """Static equilibria at the commands q (n, n_act) under gravity and an optional load
         (force and moment (n, 3) or (3,), one site), the stacked :meth:`StaticsSolver.solve`.
 
@@ -315,9 +364,18 @@ class BatchStatics:
         self.reserve(n)
         return np.arange(n)
 
-    def newton(self, q: np.ndarray, qpos: np.ndarray, basis: np.ndarray, load: Load | None, *,
-               lam: np.ndarray | None = None, factor: np.ndarray | None = None,
-               stiffness: "StackedStiffness | None" = None, max_iter: int | None = None) -> Equilibria:
+    def newton(
+        self,
+        q: np.ndarray,
+        qpos: np.ndarray,
+        basis: np.ndarray,
+        load: Load | None,
+        *,
+        lam: np.ndarray | None = None,
+        factor: np.ndarray | None = None,
+        stiffness: StackedStiffness | None = None,
+        max_iter: int | None = None,
+    ) -> Equilibria:
         """:meth:`StaticsSolver.newton` stacked over the rows of q (n, n_act), from qpos and lam
         (default zero), refresh=1: the matrix is assembled on the first step (unless ``factor``,
         KKT inverses (n, K, K), is given) and whenever a step stalled; a chord otherwise.
@@ -342,11 +400,15 @@ class BatchStatics:
             factor = np.array(factor, dtype=float)
             fresh = np.ones(n, bool)
         if stiffness is None:
+
             def stiffness(rows, qp, lm, r, stalled, iteration):
-                return (self.stiffness_at(ids[rows], qp, take_load(load, rows), lm, basis[rows], r),
-                        np.zeros(len(rows), bool))
+                return (
+                    self.stiffness_at(ids[rows], qp, take_load(load, rows), lm, basis[rows], r),
+                    np.zeros(len(rows), bool),
+                )
+
         res = self.residual(ids, qpos, load, lam, basis)
-        force_tol = s.tol * np.maximum(1.0, res.gravity)   # the gravity scale at the start
+        force_tol = s.tol * np.maximum(1.0, res.gravity)  # the gravity scale at the start
         # what each configuration ends with
         out_r, out_jc = res.r.copy(), res.jc_r.copy()
         out_norm = np.abs(res.r).max(axis=1)
@@ -355,7 +417,7 @@ class BatchStatics:
         stalls = np.zeros(n, int)
         converged = np.zeros(n, bool)
         prev = np.full(n, np.inf)
-        act = np.arange(n)          # rows still iterating
+        act = np.arange(n)  # rows still iterating
         for it in range(max_iter + 1):
             norm = np.abs(res.r).max(axis=1)
             out_r[act], out_jc[act], out_norm[act] = res.r, res.jc_r, norm
@@ -376,7 +438,7 @@ class BatchStatics:
                 factor[rows], singular = _inverse(kkt_matrix(a, res.jc_r[need]))
                 stalls[rows] += stalled[need]
                 fresh[rows] = True
-                out_norm[rows[singular]] = np.inf     # a singular KKT matrix: no equilibrium here
+                out_norm[rows[singular]] = np.inf  # a singular KKT matrix: no equilibrium here
                 drop = singular | give_up
                 if drop.any():
                     ok = np.ones(len(act), bool)
@@ -391,16 +453,27 @@ class BatchStatics:
             its[act] += 1
             # a step to NaN or past MuJoCo's bound: no equilibrium here (MuJoCo would warn, write
             # MUJOCO_LOG.TXT into the user's folder and reset the world to qpos0)
-            sane = np.all(np.abs(qpos[act]) < MJ_MAXVAL, axis=1)   # False for NaN too
+            sane = np.all(np.abs(qpos[act]) < MJ_MAXVAL, axis=1)  # False for NaN too
             if not sane.all():
                 out_norm[act[~sane]] = np.inf
                 act = act[sane]
                 if not len(act):
                     break
             res = self.residual(ids[act], qpos[act], take_load(load, act), lam[act], basis[act])
-        return Equilibria(qpos=qpos, command=q, lam=lam, basis=basis, residual=out_norm, gravity_scale=out_grav,
-                          loop_violation=out_gap, iterations=its, converged=converged, r=out_r, jc_r=out_jc,
-                          stalls=stalls)
+        return Equilibria(
+            qpos=qpos,
+            command=q,
+            lam=lam,
+            basis=basis,
+            residual=out_norm,
+            gravity_scale=out_grav,
+            loop_violation=out_gap,
+            iterations=its,
+            converged=converged,
+            r=out_r,
+            jc_r=out_jc,
+            stalls=stalls,
+        )
 
 
 def dof_chains(model: mujoco.MjModel) -> np.ndarray:
@@ -410,7 +483,7 @@ def dof_chains(model: mujoco.MjModel) -> np.ndarray:
         a = b
         while a > 0:
             adr, num = model.body_dofadr[a], model.body_dofnum[a]
-            out[b, adr: adr + num] = True
+            out[b, adr : adr + num] = True
             a = model.body_parentid[a]
     return out
 

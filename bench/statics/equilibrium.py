@@ -40,12 +40,14 @@ campaign, 600 random feasible equilibria, the estimator over +-40 % parameter mo
 constant ever fires, 0.2/0.5 and 1e-12/1e-13 give identical step counts. With springs 10 x
 softer 0.2 takes 16 % fewer steps than 0.5 and leaves no solve unconverged (0.5: one).
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Callable, Iterator, NamedTuple
+from typing import NamedTuple
 
 import mujoco
 import numpy as np
@@ -65,7 +67,7 @@ DISABLE_FLAGS = (
 # unstable", writes MUJOCO_LOG.TXT into the working folder and resets the data to qpos0; Newton
 # stops before handing it such a point
 MJ_MAXVAL = 1e10
-CONTRACTION = 0.2     # a step gaining less than this factor re-assembles the chord matrix
+CONTRACTION = 0.2  # a step gaining less than this factor re-assembles the chord matrix
 
 
 @contextmanager
@@ -91,17 +93,17 @@ def statics_options(robot: Robot, gravity: bool = True) -> Iterator[None]:
 class Equilibrium:
     """A solved static pose. Lengths in m, angles in rad, forces in N and N*m."""
 
-    qpos: np.ndarray          # full MuJoCo qpos at equilibrium
-    command: np.ndarray       # (n_act,) commanded controller angles
-    deflection: np.ndarray    # (n_act,) actuated joint angle minus command (the VJM spring deflections)
-    lam: np.ndarray           # loop constraint forces in the reduced constraint basis
-    residual: float           # max |g + J_c^T lam| over all dofs, N*m
-    gravity_scale: float      # max |gravity generalized force| over dofs at the solution, N*m
-    loop_violation: float     # |c(q)|, m
-    iterations: int           # Newton steps taken
+    qpos: np.ndarray  # full MuJoCo qpos at equilibrium
+    command: np.ndarray  # (n_act,) commanded controller angles
+    deflection: np.ndarray  # (n_act,) actuated joint angle minus command (the VJM spring deflections)
+    lam: np.ndarray  # loop constraint forces in the reduced constraint basis
+    residual: float  # max |g + J_c^T lam| over all dofs, N*m
+    gravity_scale: float  # max |gravity generalized force| over dofs at the solution, N*m
+    loop_violation: float  # |c(q)|, m
+    iterations: int  # Newton steps taken
     factor: np.ndarray | None = field(default=None, repr=False, compare=False)  # KKT inverse, warm starts
-    stalls: int = 0           # times the cheap matrix stalled and the exact one was used
-    basis: np.ndarray | None = field(default=None, repr=False, compare=False)   # the basis of lam
+    stalls: int = 0  # times the cheap matrix stalled and the exact one was used
+    basis: np.ndarray | None = field(default=None, repr=False, compare=False)  # the basis of lam
 
     @property
     def acceptable(self) -> bool:
@@ -113,7 +115,9 @@ def equilibrium_acceptable(residual, gravity_scale, loop_violation):
     """The acceptance rule of an equilibrium, elementwise over arrays of solves: residual within
     1e-8 of the gravity scale and loop closed to 1 nm (100 x looser than the solver's own
     tolerance, so only a solve that failed trips it)."""
-    return (np.asarray(residual) <= 1e-8 * np.maximum(gravity_scale, 1.0)) & (np.asarray(loop_violation) <= 1e-9)
+    return (np.asarray(residual) <= 1e-8 * np.maximum(gravity_scale, 1.0)) & (
+        np.asarray(loop_violation) <= 1e-9
+    )
 
 
 @dataclass(frozen=True)
@@ -125,20 +129,20 @@ class Load:
     site: int
 
     @staticmethod
-    def mass(robot: Robot, mass: float) -> "Load":
+    def mass(robot: Robot, mass: float) -> Load:
         """A mass hanging at the payload site, its weight under the model's gravity."""
         return Load(robot.weight(mass), np.zeros(3), robot.payload_site)
 
     @staticmethod
-    def wrench(robot: Robot, w: np.ndarray) -> "Load":
+    def wrench(robot: Robot, w: np.ndarray) -> Load:
         w = np.asarray(w, dtype=float)
         return Load(w[:3].copy(), w[3:].copy(), robot.payload_site)
 
 
 class Residual(NamedTuple):
-    r: np.ndarray        # (nv,) g + J_c^T B lam, N*m
-    c_r: np.ndarray      # (nc,) B^T c, m
-    jc_r: np.ndarray     # (nc, nv) B^T J_c
+    r: np.ndarray  # (nv,) g + J_c^T B lam, N*m
+    c_r: np.ndarray  # (nc,) B^T c, m
+    jc_r: np.ndarray  # (nc, nv) B^T J_c
 
 
 class NewtonPoint(NamedTuple):
@@ -147,8 +151,8 @@ class NewtonPoint(NamedTuple):
     qpos: np.ndarray
     lam: np.ndarray
     residual: Residual
-    iteration: int       # steps taken so far
-    stalled: bool        # the last step contracted the residual by less than CONTRACTION
+    iteration: int  # steps taken so far
+    stalled: bool  # the last step contracted the residual by less than CONTRACTION
 
 
 # (point) -> A = d r / d q (nv, nv) at point.qpos, or None to give up (the caller has a better plan)
@@ -158,12 +162,12 @@ StiffnessProvider = Callable[[NewtonPoint], "np.ndarray | None"]
 class NewtonResult(NamedTuple):
     qpos: np.ndarray
     lam: np.ndarray
-    jc_r: np.ndarray          # B^T J_c at qpos
-    residual: float           # max |r|, N*m
-    iterations: int           # steps taken
+    jc_r: np.ndarray  # B^T J_c at qpos
+    residual: float  # max |r|, N*m
+    iterations: int  # steps taken
     converged: bool
     factor: np.ndarray | None  # the last KKT inverse
-    stalls: int               # matrices assembled because the previous one stalled
+    stalls: int  # matrices assembled because the previous one stalled
 
 
 def kkt_matrix(a: np.ndarray, jc_r: np.ndarray) -> np.ndarray:
@@ -236,8 +240,9 @@ class StaticsSolver:
         jc_r = basis.T @ jc
         return Residual(g + jc_r.T @ lam, basis.T @ c, jc_r)
 
-    def stiffness_fd(self, qpos, load, lam, basis, r0: np.ndarray | None = None,
-                     tap: Callable[[int], None] | None = None) -> np.ndarray:
+    def stiffness_fd(
+        self, qpos, load, lam, basis, r0: np.ndarray | None = None, tap: Callable[[int], None] | None = None
+    ) -> np.ndarray:
         """A = d r / d q (nv, nv) by forward differences (step fd_step): the exact matrix.
 
         r0: r at qpos if already known. tap(j), if given, runs after column j's forward pass
@@ -266,9 +271,18 @@ class StaticsSolver:
         mujoco.mjd_inverseFD(m, d, self.fd_step, 0, self._dfdq, None, None, None, None, None, None)
         return -self._dfdq.T
 
-    def newton(self, qpos: np.ndarray, lam: np.ndarray, basis: np.ndarray, load: Load | None,
-               stiffness: StiffnessProvider, *, factor: np.ndarray | None = None, refresh: int = 1,
-               max_iter: int | None = None) -> NewtonResult:
+    def newton(
+        self,
+        qpos: np.ndarray,
+        lam: np.ndarray,
+        basis: np.ndarray,
+        load: Load | None,
+        stiffness: StiffnessProvider,
+        *,
+        factor: np.ndarray | None = None,
+        refresh: int = 1,
+        max_iter: int | None = None,
+    ) -> NewtonResult:
         """Chord Newton on the KKT system from (qpos, lam) (module docstring: tolerances).
 
         The matrix comes from ``stiffness``: on each of the first ``refresh`` iterations (a
@@ -306,7 +320,8 @@ class StaticsSolver:
                 except np.linalg.LinAlgError:
                     raise StaticsError(
                         f"singular stiffness (KKT) matrix at command {self._command_deg()} deg: "
-                        "a degenerate configuration (is a kinematic loop degenerate?)") from None
+                        "a degenerate configuration (is a kinematic loop degenerate?)"
+                    ) from None
             prev = res_norm
             # the inverse of a 10x10 KKT matrix (condition ~1e7) is accurate to ~1e-9 relative:
             # ample for Newton steps, whose errors the next residual corrects
@@ -314,7 +329,7 @@ class StaticsSolver:
             qpos = qpos + step[:nv]
             lam = lam + step[nv:]
             it += 1
-            if not np.all(np.abs(qpos) < MJ_MAXVAL):      # NaN too: MuJoCo would warn and reset
+            if not np.all(np.abs(qpos) < MJ_MAXVAL):  # NaN too: MuJoCo would warn and reset
                 raise StaticsError(f"statics diverged at command {self._command_deg()} deg")
             res = self.residual(qpos, load, lam, basis)
         return NewtonResult(qpos, lam, res.jc_r, res_norm, it, False, factor, stalls)
@@ -358,8 +373,15 @@ class StaticsSolver:
                     return self.stiffness_fd(p.qpos, load, p.lam, basis, p.residual.r)
                 return self.stiffness_inverse_dynamics(p.qpos)
 
-            sol = self.newton(qpos, np.zeros(basis.shape[1]), basis, load, stiffness,
-                              factor=None if warm is None else warm.factor, refresh=2)
+            sol = self.newton(
+                qpos,
+                np.zeros(basis.shape[1]),
+                basis,
+                load,
+                stiffness,
+                factor=None if warm is None else warm.factor,
+                refresh=2,
+            )
             self.forward(sol.qpos)
             c, _ = loop_gap(robot, robot.data)
             grav = float(np.abs(robot.data.qfrc_bias).max())
@@ -377,7 +399,9 @@ class StaticsSolver:
             basis=basis,
         )
 
-    def tangent(self, eq: Equilibrium, load: Load | None, dforce: np.ndarray, gravity: bool = True) -> np.ndarray:
+    def tangent(
+        self, eq: Equilibrium, load: Load | None, dforce: np.ndarray, gravity: bool = True
+    ) -> np.ndarray:
         """dq/dtheta (nv, p) at an equilibrium (:func:`ift_tangent` with the exact matrix).
 
         dforce (nv, p): d g / d theta at fixed q. The robot's parameters must be those of `eq`.
@@ -391,6 +415,21 @@ class StaticsSolver:
         return ift_tangent(kkt_matrix(a, res.jc_r), dforce)[: robot.model.nv]
 
 
-__all__ = ["DISABLE_FLAGS", "LOOP_TOL", "CONTRACTION", "MJ_MAXVAL", "StaticsError", "statics_options", "Equilibrium", "equilibrium_acceptable",
-           "Load", "Residual", "NewtonPoint", "NewtonResult", "StiffnessProvider", "kkt_matrix",
-           "ift_tangent", "StaticsSolver"]
+__all__ = [
+    "DISABLE_FLAGS",
+    "LOOP_TOL",
+    "CONTRACTION",
+    "MJ_MAXVAL",
+    "StaticsError",
+    "statics_options",
+    "Equilibrium",
+    "equilibrium_acceptable",
+    "Load",
+    "Residual",
+    "NewtonPoint",
+    "NewtonResult",
+    "StiffnessProvider",
+    "kkt_matrix",
+    "ift_tangent",
+    "StaticsSolver",
+]

@@ -4,6 +4,7 @@ The tracker frame has its origin at ``TrackerSpec.position`` and is rotated by `
 world z (or by ``TrackerSpec.rotation``, a registered tracker's full orientation). Measurements are reported in that frame, as a real tracker would report them; the
 noise model lives there too (it only depends on the line of sight from the tracker origin).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -13,7 +14,7 @@ import numpy as np
 
 from calbench.bench.scenario.parse import TrackerSpec
 
-OCCLUSION_TOL = 1e-6            # m: a hit closer than the site by more than this occludes it
+OCCLUSION_TOL = 1e-6  # m: a hit closer than the site by more than this occludes it
 BLOCKING_GROUPS = np.array([1, 1, 1, 0, 0, 0], dtype=np.uint8)  # geom groups >= 3 never block
 
 
@@ -23,9 +24,10 @@ class Measurement:
 
     ``position`` and ``covariance`` rows of reflectors that are not visible are NaN.
     """
-    position: np.ndarray        # (n, 3) m
-    covariance: np.ndarray      # (n, 3, 3) m^2
-    visible: np.ndarray         # (n,) bool
+
+    position: np.ndarray  # (n, 3) m
+    covariance: np.ndarray  # (n, 3, 3) m^2
+    visible: np.ndarray  # (n,) bool
 
 
 def _points(points: np.ndarray) -> np.ndarray:
@@ -71,7 +73,7 @@ def noise_covariance(spec: TrackerSpec, points_tracker: np.ndarray) -> np.ndarra
     if spec.model == "isotropic":
         return spec.sigma**2 * eye.copy()
     if spec.model == "iso10360":
-        return spec.random ** 2 * spec_covariance(spec, p)
+        return spec.random**2 * spec_covariance(spec, p)
     if spec.model != "spec":
         raise ValueError(f"unknown tracker noise model {spec.model!r}")
     return spec_covariance(spec, p)
@@ -98,10 +100,11 @@ class MeanReading:
 
     Rows of reflectors never seen are NaN in ``position`` and ``covariance``.
     """
-    position: np.ndarray        # (n, 3) m, world frame
-    covariance: np.ndarray      # (n, 3, 3) m^2, covariance of the mean, world frame
-    seen: np.ndarray            # (n,) bool: seen in at least one reading
-    count: np.ndarray           # (n,) number of readings averaged
+
+    position: np.ndarray  # (n, 3) m, world frame
+    covariance: np.ndarray  # (n, 3, 3) m^2, covariance of the mean, world frame
+    seen: np.ndarray  # (n,) bool: seen in at least one reading
+    count: np.ndarray  # (n,) number of readings averaged
 
 
 def mean_reading(spec: TrackerSpec, readings) -> MeanReading:
@@ -139,8 +142,7 @@ def mean_reading(spec: TrackerSpec, readings) -> MeanReading:
     return MeanReading(mean, cov, seen, cnt.astype(int))
 
 
-def visible_sites(model: mujoco.MjModel, data: mujoco.MjData, spec: TrackerSpec,
-                  site_ids) -> np.ndarray:
+def visible_sites(model: mujoco.MjModel, data: mujoco.MjData, spec: TrackerSpec, site_ids) -> np.ndarray:
     """Line-of-sight test (n,) bool from the tracker to each site at the pose held in ``data``.
 
     Casts ``mj_ray`` from the tracker position toward each site (``data.site_xpos`` must be
@@ -176,8 +178,9 @@ def unoccluded(hit: np.ndarray, dist: np.ndarray) -> np.ndarray:
     return (dist <= OCCLUSION_TOL) | (hit < 0) | (hit >= dist - OCCLUSION_TOL)
 
 
-def measure(spec: TrackerSpec, points_world: np.ndarray, visible: np.ndarray,
-            rng: np.random.Generator) -> Measurement:
+def measure(
+    spec: TrackerSpec, points_world: np.ndarray, visible: np.ndarray, rng: np.random.Generator
+) -> Measurement:
     """Noisy tracker-frame readings of the true ``points_world``.
 
     Noise is drawn only for visible points, one standard-normal (m, 3) block for the m visible

@@ -61,13 +61,15 @@ of a deflection's variance with the defaults.
 
 Units: SI (m, s); the Wiener process's unit time is one hour.
 """
+
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
 from calbench.bench.scenario.parse import TrackerSpec
+
 from .instrument import spec_covariance
 
 HOUR = 3600.0
@@ -84,7 +86,7 @@ def _geometry(y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def field_factors(spec: TrackerSpec, y: np.ndarray) -> np.ndarray:
     """A(y) (n, 3, 4): the systematic field's map from its four unit components."""
     u, rho = _geometry(np.asarray(y, dtype=float))
-    s = np.sqrt(max(1.0 - spec.random ** 2, 0.0))
+    s = np.sqrt(max(1.0 - spec.random**2, 0.0))
     sd = s * (spec.distance[0] + spec.distance[1] * rho)
     st = s * (spec.transverse[0] + spec.transverse[1] * rho)
     a = np.empty((len(u), 3, 4))
@@ -99,7 +101,7 @@ def field_kernel(spec: TrackerSpec, ya: np.ndarray, yb: np.ndarray) -> np.ndarra
     ub, rb = _geometry(np.asarray(yb, dtype=float))
     chord2 = np.maximum(2.0 - 2.0 * ua @ ub.T, 0.0)
     dr2 = (ra[:, None] - rb[None, :]) ** 2
-    return np.exp(-chord2 / (2 * spec.correlation_angle ** 2) - dr2 / (2 * spec.correlation_range ** 2))
+    return np.exp(-chord2 / (2 * spec.correlation_angle**2) - dr2 / (2 * spec.correlation_range**2))
 
 
 def drift_factors(spec: TrackerSpec, y: np.ndarray) -> np.ndarray:
@@ -108,23 +110,25 @@ def drift_factors(spec: TrackerSpec, y: np.ndarray) -> np.ndarray:
     a, b = spec.drift
     g = np.zeros((len(y), 3, DRIFT_DIM))
     g[:, :, :3] = a * np.eye(3)
-    g[:, 0, 4], g[:, 0, 5] = b * y[:, 2], -b * y[:, 1]       # -[y]x: omega x y
+    g[:, 0, 4], g[:, 0, 5] = b * y[:, 2], -b * y[:, 1]  # -[y]x: omega x y
     g[:, 1, 3], g[:, 1, 5] = -b * y[:, 2], b * y[:, 0]
     g[:, 2, 3], g[:, 2, 4] = b * y[:, 1], -b * y[:, 0]
     g[:, :, 6] = b * y
     return g
 
 
-def correlated_covariance(spec: TrackerSpec, ya: np.ndarray, ta: np.ndarray,
-                          yb: np.ndarray, tb: np.ndarray) -> np.ndarray:
+def correlated_covariance(
+    spec: TrackerSpec, ya: np.ndarray, ta: np.ndarray, yb: np.ndarray, tb: np.ndarray
+) -> np.ndarray:
     """(na, 3, nb, 3): the field's and the drift's covariance between readings at tracker-frame
     points ya, yb taken at times ta, tb (s since the campaign's first reading)."""
     fa, fb = field_factors(spec, ya), field_factors(spec, yb)
     ga, gb = drift_factors(spec, ya), drift_factors(spec, yb)
     kappa = field_kernel(spec, ya, yb)
     tmin = np.minimum(np.asarray(ta, float)[:, None], np.asarray(tb, float)[None, :]) / HOUR
-    return (np.einsum("kl,kia,lja->kilj", kappa, fa, fb)
-            + np.einsum("kl,kia,lja->kilj", np.maximum(tmin, 0.0), ga, gb))
+    return np.einsum("kl,kia,lja->kilj", kappa, fa, fb) + np.einsum(
+        "kl,kia,lja->kilj", np.maximum(tmin, 0.0), ga, gb
+    )
 
 
 def correlated_marginal(spec: TrackerSpec, y: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -139,11 +143,10 @@ def correlated_marginal(spec: TrackerSpec, y: np.ndarray, t: np.ndarray) -> np.n
 def marginal_covariance(spec: TrackerSpec, y: np.ndarray, t: np.ndarray) -> np.ndarray:
     """(n, 3, 3): the whole error covariance of single readings (field, drift by then, noise);
     what a fit that treats readings as independent should weight them by (the registration)."""
-    return correlated_marginal(spec, y, t) + spec.random ** 2 * spec_covariance(spec, y)
+    return correlated_marginal(spec, y, t) + spec.random**2 * spec_covariance(spec, y)
 
 
-def draw_correlated(spec: TrackerSpec, y: np.ndarray, t: np.ndarray,
-                    rng: np.random.Generator) -> np.ndarray:
+def draw_correlated(spec: TrackerSpec, y: np.ndarray, t: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """(n, 3): one campaign's field and drift at readings of the points y (n, 3, tracker frame)
     taken at times t (n,) (s since the first reading). Readings of the same point share the
     field's value, readings at the same time the drift's. Consumes rng as: field (P x 4
@@ -151,7 +154,7 @@ def draw_correlated(spec: TrackerSpec, y: np.ndarray, t: np.ndarray,
     distinct times, in increasing order)."""
     y, t = np.asarray(y, dtype=float), np.asarray(t, dtype=float)
     pts, where = np.unique(y, axis=0, return_inverse=True)
-    order = np.argsort(np.unique(where, return_index=True)[1])   # distinct points, first-seen order
+    order = np.argsort(np.unique(where, return_index=True)[1])  # distinct points, first-seen order
     pts = pts[order]
     where = np.argsort(order)[where.reshape(-1)]
     lam, vec = np.linalg.eigh(field_kernel(spec, pts, pts))
@@ -163,8 +166,13 @@ def draw_correlated(spec: TrackerSpec, y: np.ndarray, t: np.ndarray,
     return field + np.einsum("kia,ka->ki", drift_factors(spec, y), w)
 
 
-def deflection_covariance(spec: TrackerSpec, unloaded: Sequence, loaded: Sequence, rows: np.ndarray,
-                          times: tuple[Sequence[float], Sequence[float]] | None) -> np.ndarray:
+def deflection_covariance(
+    spec: TrackerSpec,
+    unloaded: Sequence,
+    loaded: Sequence,
+    rows: np.ndarray,
+    times: tuple[Sequence[float], Sequence[float]] | None,
+) -> np.ndarray:
     """(m, 3, m, 3): covariance of one pose's deflections dp_r = mean(loaded readings of r) -
     mean(unloaded readings of r) for the reflector rows ``rows`` (seen in both states), tracker
     frame. ``unloaded`` and ``loaded`` are the readings (``position`` (n, 3), ``covariance``
@@ -178,10 +186,14 @@ def deflection_covariance(spec: TrackerSpec, unloaded: Sequence, loaded: Sequenc
     m = len(rows)
     out = np.zeros((m, 3, m, 3))
     pts, tms, coef, row_of = [], [], [], []
-    for sign, reads, tt in ((-1.0, unloaded, None if times is None else times[0]),
-                            (1.0, loaded, None if times is None else times[1])):
-        seen = [np.asarray(r.visible, bool) & np.all(np.isfinite(np.asarray(r.position, float)), axis=1)
-                for r in reads]
+    for sign, reads, tt in (
+        (-1.0, unloaded, None if times is None else times[0]),
+        (1.0, loaded, None if times is None else times[1]),
+    ):
+        seen = [
+            np.asarray(r.visible, bool) & np.all(np.isfinite(np.asarray(r.position, float)), axis=1)
+            for r in reads
+        ]
         count = np.sum([s[rows] for s in seen], axis=0) if reads else np.zeros(m)
         for k, (r, s) in enumerate(zip(reads, seen)):
             for j, i in enumerate(rows):
@@ -202,5 +214,14 @@ def deflection_covariance(spec: TrackerSpec, unloaded: Sequence, loaded: Sequenc
     return out + np.einsum("rk,kilj,sl->risj", w, c, w)
 
 
-__all__ = ["HOUR", "field_factors", "field_kernel", "drift_factors", "correlated_covariance",
-           "correlated_marginal", "marginal_covariance", "draw_correlated", "deflection_covariance"]
+__all__ = [
+    "HOUR",
+    "field_factors",
+    "field_kernel",
+    "drift_factors",
+    "correlated_covariance",
+    "correlated_marginal",
+    "marginal_covariance",
+    "draw_correlated",
+    "deflection_covariance",
+]

@@ -13,19 +13,21 @@ systematic field and drift are drawn first, once, at the true points of every vi
 (bench.iso10360.draw_correlated), then each reading's independent noise as above, and the two are
 added.
 """
+
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
-from .iso10360 import draw_correlated
 from calbench.bench.scenario.parse import TrackerSpec
 from calbench.bench.scenario.timeline import LOAD_S, MOVE_S, UNLOAD_S, reading_seconds
+
 from .instrument import Measurement, measure, to_tracker_frame
+from .iso10360 import draw_correlated
 
 STATES = ("unloaded", "loaded")
-Key = tuple[int, str, int]          # (pose, state, repeat)
+Key = tuple[int, str, int]  # (pose, state, repeat)
 
 
 def schedule(poses: Sequence[tuple[int, int, int]], n_reflectors: int) -> dict[Key, float]:
@@ -55,9 +57,14 @@ def reading_times(repeats: Sequence[int], n_reflectors: int) -> dict[Key, float]
     return schedule([(j, n, n) for j, n in enumerate(repeats)], n_reflectors)
 
 
-def measure_campaign(spec: TrackerSpec, points_world: Sequence[np.ndarray], visible: Sequence[np.ndarray],
-                     repeats: Sequence[int], rng: np.random.Generator,
-                     times: dict[Key, float] | None = None) -> dict[Key, Measurement]:
+def measure_campaign(
+    spec: TrackerSpec,
+    points_world: Sequence[np.ndarray],
+    visible: Sequence[np.ndarray],
+    repeats: Sequence[int],
+    rng: np.random.Generator,
+    times: dict[Key, float] | None = None,
+) -> dict[Key, Measurement]:
     """Every reading of a campaign (module docstring): ``points_world[j]`` (2, n, 3) the true
     reflector positions of pose j unloaded and loaded, ``visible[j]`` (2, n) which the tracker
     sees, ``repeats[j]`` readings per state; ``times`` as :func:`reading_times` (needed by the
@@ -79,7 +86,7 @@ def measure_campaign(spec: TrackerSpec, points_world: Sequence[np.ndarray], visi
         at = 0
         for key, vis in rows:
             e = np.zeros((len(visible[key[0]][0]), 3))
-            e[vis] = err[at: at + len(vis)]
+            e[vis] = err[at : at + len(vis)]
             extra[key] = e
             at += len(vis)
     out: dict[Key, Measurement] = {}

@@ -14,6 +14,7 @@ Pure functions: :func:`chart` returns the (entity path, archetype) pairs and the
 view must show; :func:`parameter_table` and :func:`truth_table` return markdown. Rerun draws a
 point's label centred just below it, so text is placed by its points.
 """
+
 from __future__ import annotations
 
 import math
@@ -22,16 +23,16 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.log.idreport import IdentificationReport, ParameterEstimate
 from calbench.bench.core.units import unit_display
+from calbench.bench.log.idreport import IdentificationReport, ParameterEstimate
 
 # chart geometry, in the 2D view's units (the view fits them; about one unit per pixel)
-WIDTH = 400.0         # the axis, from its lowest to its highest tick
-ROW = 22.0            # one parameter
-NAME_X = -40.0        # centre of the name labels
-LABEL_LIFT = 8.0      # a label hangs below its point: lift the point to centre it on a row
+WIDTH = 400.0  # the axis, from its lowest to its highest tick
+ROW = 22.0  # one parameter
+NAME_X = -40.0  # centre of the name labels
+LABEL_LIFT = 8.0  # a label hangs below its point: lift the point to centre it on a row
 TICK = 3.0
-GAP = 16.0            # between blocks
+GAP = 16.0  # between blocks
 
 
 @dataclass
@@ -76,41 +77,71 @@ def chart(rr, ident: IdentificationReport, colors: dict) -> Chart:
     and ``axis``. A block of one parameter carries its name in its title."""
     items: list[tuple[str, object]] = []
     keys = ["estimate"] + (["truth"] if ident.has_truth() else [])
-    for i, (key, text) in enumerate(zip(keys, ("estimate ± 1 std (dot and bar)",
-                                               "truth (tick)"))):
-        items.append((("truth/" if key == "truth" else "") + "parameters/chart/legend", rr.Points2D(
-            [[WIDTH * (0.3 + 0.4 * i), -1.6 * ROW - LABEL_LIFT]], radii=[0.0],
-            colors=[colors[key]], labels=[text], show_labels=True)))
+    for i, (key, text) in enumerate(zip(keys, ("estimate ± 1 std (dot and bar)", "truth (tick)"))):
+        items.append(
+            (
+                ("truth/" if key == "truth" else "") + "parameters/chart/legend",
+                rr.Points2D(
+                    [[WIDTH * (0.3 + 0.4 * i), -1.6 * ROW - LABEL_LIFT]],
+                    radii=[0.0],
+                    colors=[colors[key]],
+                    labels=[text],
+                    show_labels=True,
+                ),
+            )
+        )
     y = 0.0
     for b, (unit, params) in enumerate(blocks(ident)):
         label, f = unit_display(unit)
         # the axis from the estimates alone (± 2 std), so that it reads the same with or without
         # the truth; a truth beyond it is drawn at its end
-        vals = [v * f for p in params if p.estimate is not None
-                for v in (p.estimate - 2 * (p.std or 0), p.estimate + 2 * (p.std or 0))]
+        vals = [
+            v * f
+            for p in params
+            if p.estimate is not None
+            for v in (p.estimate - 2 * (p.std or 0), p.estimate + 2 * (p.std or 0))
+        ]
         ticks = nice_ticks(min([0.0] + vals), max([0.0] + vals))
         x0, x1 = float(ticks[0]), float(ticks[-1])
 
-        def x(v: float) -> float:
+        def x(v: float, x0: float = x0, x1: float = x1) -> float:
             return (v - x0) / (x1 - x0) * WIDTH
+
         base = f"parameters/chart/{b}_{_slug(label)}"
         title = f"{params[0].name} ({label})" if len(params) == 1 else label
-        items.append((f"{base}/title", rr.Points2D([[WIDTH / 2, y - LABEL_LIFT]], radii=[0.0],
-                                                   colors=[colors["text"]], labels=[title],
-                                                   show_labels=True)))
+        items.append(
+            (
+                f"{base}/title",
+                rr.Points2D(
+                    [[WIDTH / 2, y - LABEL_LIFT]],
+                    radii=[0.0],
+                    colors=[colors["text"]],
+                    labels=[title],
+                    show_labels=True,
+                ),
+            )
+        )
         y += ROW
         rows = y + ROW * np.arange(len(params))
         if len(params) > 1:
-            items.append((f"{base}/names", rr.Points2D(
-                [[NAME_X, r - LABEL_LIFT] for r in rows], radii=[0.0], colors=[colors["text"]],
-                labels=[p.name for p in params], show_labels=True)))
+            items.append(
+                (
+                    f"{base}/names",
+                    rr.Points2D(
+                        [[NAME_X, r - LABEL_LIFT] for r in rows],
+                        radii=[0.0],
+                        colors=[colors["text"]],
+                        labels=[p.name for p in params],
+                        show_labels=True,
+                    ),
+                )
+            )
         bars, dots, dot_labels, truths, truth_labels, missing = [], [], [], [], [], []
         for p, r in zip(params, rows):
             if p.truth is not None:
                 tx = min(max(x(p.truth * f), 0.0), WIDTH)
                 truths.append([[tx, r - ROW * 0.4], [tx, r + ROW * 0.4]])
-                truth_labels.append(f"{p.name} truth {_fmt(p.truth * f, p.std and p.std * f)} "
-                                    f"{label}")
+                truth_labels.append(f"{p.name} truth {_fmt(p.truth * f, p.std and p.std * f)} {label}")
             if p.estimate is None:
                 missing.append(r)
                 continue
@@ -118,34 +149,65 @@ def chart(rr, ident: IdentificationReport, colors: dict) -> Chart:
             if p.std:
                 bars.append([[x(e - p.std * f), r], [x(e + p.std * f), r]])
             dots.append([x(e), r])
-            dot_labels.append(f"{p.name} = {_fmt(e, p.std and p.std * f)}"
-                              + (f" ± {_fmt(p.std * f, p.std * f)}" if p.std else "")
-                              + f" {label}")
+            dot_labels.append(
+                f"{p.name} = {_fmt(e, p.std and p.std * f)}"
+                + (f" ± {_fmt(p.std * f, p.std * f)}" if p.std else "")
+                + f" {label}"
+            )
         grid = [[[x(t), y - ROW * 0.5], [x(t), rows[-1] + ROW * 0.5]] for t in ticks]
-        items.append((f"{base}/grid", rr.LineStrips2D(grid, radii=[-0.5],
-                                                     colors=[colors["grid"]])))
+        items.append((f"{base}/grid", rr.LineStrips2D(grid, radii=[-0.5], colors=[colors["grid"]])))
         if truths:
-            items.append((f"truth/{base}/truth", rr.LineStrips2D(
-                truths, radii=[-2.0], colors=[colors["truth"]], labels=truth_labels,
-                show_labels=False)))
+            items.append(
+                (
+                    f"truth/{base}/truth",
+                    rr.LineStrips2D(
+                        truths, radii=[-2.0], colors=[colors["truth"]], labels=truth_labels, show_labels=False
+                    ),
+                )
+            )
         if bars:
-            items.append((f"{base}/std", rr.LineStrips2D(bars, radii=[-3.0],
-                                                        colors=[colors["estimate"]])))
+            items.append((f"{base}/std", rr.LineStrips2D(bars, radii=[-3.0], colors=[colors["estimate"]])))
         if dots:
-            items.append((f"{base}/estimate", rr.Points2D(dots, radii=[-5.0],
-                                                         colors=[colors["estimate"]],
-                                                         labels=dot_labels, show_labels=False)))
+            items.append(
+                (
+                    f"{base}/estimate",
+                    rr.Points2D(
+                        dots, radii=[-5.0], colors=[colors["estimate"]], labels=dot_labels, show_labels=False
+                    ),
+                )
+            )
         if missing:
-            items.append((f"{base}/not_identifiable", rr.Points2D(
-                [[WIDTH / 2, r - LABEL_LIFT] for r in missing], radii=[0.0],
-                colors=[colors["text"]], labels=["not identifiable"] * len(missing),
-                show_labels=True)))
+            items.append(
+                (
+                    f"{base}/not_identifiable",
+                    rr.Points2D(
+                        [[WIDTH / 2, r - LABEL_LIFT] for r in missing],
+                        radii=[0.0],
+                        colors=[colors["text"]],
+                        labels=["not identifiable"] * len(missing),
+                        show_labels=True,
+                    ),
+                )
+            )
         axis_y = rows[-1] + ROW * 0.6
-        items.append((f"{base}/axis", rr.LineStrips2D([[[0.0, axis_y], [WIDTH, axis_y]]],
-                                                     radii=[-1.0], colors=[colors["axis"]])))
-        items.append((f"{base}/ticks", rr.Points2D(
-            [[x(t), axis_y + TICK] for t in ticks], radii=[0.0], colors=[colors["text"]],
-            labels=[f"{t:g}" for t in ticks], show_labels=True)))
+        items.append(
+            (
+                f"{base}/axis",
+                rr.LineStrips2D([[[0.0, axis_y], [WIDTH, axis_y]]], radii=[-1.0], colors=[colors["axis"]]),
+            )
+        )
+        items.append(
+            (
+                f"{base}/ticks",
+                rr.Points2D(
+                    [[x(t), axis_y + TICK] for t in ticks],
+                    radii=[0.0],
+                    colors=[colors["text"]],
+                    labels=[f"{t:g}" for t in ticks],
+                    show_labels=True,
+                ),
+            )
+        )
         y = axis_y + TICK + ROW + GAP
     return Chart(items, y_range=(-2.4 * ROW, y - GAP))
 
@@ -164,17 +226,28 @@ def _estimate(p: ParameterEstimate, f: float) -> str:
 def parameter_table(ident: IdentificationReport) -> str:
     """Markdown: every parameter with its estimate ± std in display units (no truth)."""
     source = Path(ident.source).name if ident.source else "report"
-    lines = [f"**{ident.method or 'identified'}** (`{source}`)", "",
-             "| parameter | estimate ± std | unit |", "|---|---:|---|"]
+    lines = [
+        f"**{ident.method or 'identified'}** (`{source}`)",
+        "",
+        "| parameter | estimate ± std | unit |",
+        "|---|---:|---|",
+    ]
     for p in ident.parameters:
         label, f = unit_display(p.unit)
         lines.append(f"| {p.name} | {_estimate(p, f)} | {label} |")
     if reasons := [p for p in ident.parameters if p.reason]:
         lines += [""] + [f"- {p.name}: {p.reason}" for p in reasons]
     if ident.residual_rms is not None:
-        lines += ["", f"Residual RMS {ident.residual_rms * 1e6:.1f} µm per axis"
-                  + (f" (noise alone leaves {ident.expected_residual_rms * 1e6:.1f} µm)"
-                     if ident.expected_residual_rms else "") + "."]
+        lines += [
+            "",
+            f"Residual RMS {ident.residual_rms * 1e6:.1f} µm per axis"
+            + (
+                f" (noise alone leaves {ident.expected_residual_rms * 1e6:.1f} µm)"
+                if ident.expected_residual_rms
+                else ""
+            )
+            + ".",
+        ]
     return "\n".join(lines)
 
 
@@ -183,16 +256,23 @@ def truth_table(ident: IdentificationReport) -> str | None:
     the report carries; None when it carries none."""
     if not ident.has_truth():
         return None
-    lines = ["**Against the truth** (simulated log)", "",
-             "| parameter | estimate ± std | truth | z | unit |", "|---|---:|---:|---:|---|"]
+    lines = [
+        "**Against the truth** (simulated log)",
+        "",
+        "| parameter | estimate ± std | truth | z | unit |",
+        "|---|---:|---:|---:|---|",
+    ]
     for p in ident.parameters:
         label, f = unit_display(p.unit)
-        z = p.z if p.z is not None else (
-            (p.estimate - p.truth) / p.std if None not in (p.estimate, p.truth) and p.std
-            else None)
+        z = (
+            p.z
+            if p.z is not None
+            else ((p.estimate - p.truth) / p.std if None not in (p.estimate, p.truth) and p.std else None)
+        )
         truth = "-" if p.truth is None else _fmt(p.truth * f, p.std and p.std * f)
-        lines.append(f"| {p.name} | {_estimate(p, f)} | {truth} | "
-                     f"{'-' if z is None else f'{z:+.2f}'} | {label} |")
+        lines.append(
+            f"| {p.name} | {_estimate(p, f)} | {truth} | {'-' if z is None else f'{z:+.2f}'} | {label} |"
+        )
     return "\n".join(lines)
 
 

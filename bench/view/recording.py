@@ -59,6 +59,7 @@ Output: ``--rrd OUT.rrd`` writes a file. Without it the viewer is spawned when t
 display; without a display (or with CI set) the recording goes to ``<log dir>/<log stem>.rrd``
 and the command prints how to open it.
 """
+
 from __future__ import annotations
 
 import math
@@ -70,23 +71,31 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from calbench.bench.core.errors import InputError
+from calbench.bench.core.outputs import atomic_path, check_outputs
+from calbench.bench.log.idreport import IdentificationReport
+from calbench.bench.log.read import read_log
+from calbench.bench.log.records import STATES, CampaignLog
+from calbench.bench.model.geoms import GeomShape, ReflectorPost, geom_shapes, reflector_posts
+from calbench.bench.model.robot import Robot
+
 from . import params as viewparams
 from . import text as viewtext
-from calbench.bench.core.errors import InputError
-from calbench.bench.model.geoms import GeomShape, ReflectorPost, geom_shapes, reflector_posts
-from calbench.bench.log.idreport import IdentificationReport
-from calbench.bench.log.records import STATES, CampaignLog
-from calbench.bench.log.read import read_log
-from calbench.bench.core.outputs import atomic_path, check_outputs
-from calbench.bench.model.robot import Robot
-from .scene import (PoseScene, RobotPose, framing, mean_measurements, model_deflections,
-                        pose_scenes, true_deflections)
+from .scene import (
+    PoseScene,
+    RobotPose,
+    framing,
+    mean_measurements,
+    model_deflections,
+    pose_scenes,
+    true_deflections,
+)
 
 DEFAULT_MAGNIFY = 200.0
-RESIDUAL_FACTOR = 10.0        # residuals are drawn 10x larger than the deflections
+RESIDUAL_FACTOR = 10.0  # residuals are drawn 10x larger than the deflections
 APP_ID = "calbench"
-STEEL_DENSITY = 7850.0        # kg/m^3: the payload block's size from its mass
-SLING = 0.35                  # m from the payload site down to the block
+STEEL_DENSITY = 7850.0  # kg/m^3: the payload block's size from its mass
+SLING = 0.35  # m from the payload site down to the block
 
 # one meaning per colour (RGBA)
 MEASURED = (255, 130, 0, 255)
@@ -97,13 +106,18 @@ RESIDUAL_AFTER = (150, 110, 255, 255)
 NOISE = (170, 170, 170, 60)
 SIGHT = (150, 150, 150, 140)
 UNLOADED_POINT = (150, 150, 150, 255)
-TRACKER = (215, 55, 55, 255)        # mid red: visible on dark and light themes
+TRACKER = (215, 55, 55, 255)  # mid red: visible on dark and light themes
 PAYLOAD = (120, 120, 130, 255)
 TENDON = (150, 150, 160, 255)
 GHOST_ALPHA = 80
-GHOST_MIN_SHIFT = 0.01      # m: a ghost body closer than this to the robot is not drawn
-CHART = {"estimate": MODEL, "truth": TRUTH, "text": (150, 150, 160, 255),
-         "grid": (128, 128, 128, 70), "axis": (140, 140, 150, 255)}
+GHOST_MIN_SHIFT = 0.01  # m: a ghost body closer than this to the robot is not drawn
+CHART = {
+    "estimate": MODEL,
+    "truth": TRUTH,
+    "text": (150, 150, 160, 255),
+    "grid": (128, 128, 128, 70),
+    "axis": (140, 140, 150, 255),
+}
 
 
 MARKERS = ("circle", "square", "diamond", "up", "cross", "down", "asterisk", "plus")
@@ -128,13 +142,18 @@ def _shades(rgb, n: int) -> list[tuple[int, int, int, int]]:
 
 def load_robot(log: CampaignLog) -> Robot:
     if not log.mjcf_text:
-        raise InputError(log.path, "robot MJCF attachment (application/xml)",
-                         "the robot model carried in the log", "none")
+        raise InputError(
+            log.path, "robot MJCF attachment (application/xml)", "the robot model carried in the log", "none"
+        )
     try:
         return Robot.from_xml(log.mjcf_text)
     except ValueError as e:
-        raise InputError(log.path, "robot MJCF attachment", "an MJCF model MuJoCo can load",
-                         str(e).splitlines()[0] if str(e) else "a compile error") from None
+        raise InputError(
+            log.path,
+            "robot MJCF attachment",
+            "an MJCF model MuJoCo can load",
+            str(e).splitlines()[0] if str(e) else "a compile error",
+        ) from None
 
 
 def measured_deflections(log: CampaignLog) -> dict[int, dict[str, np.ndarray]]:
@@ -194,28 +213,42 @@ class ViewPlan:
         return any(source in s.ghosts for s in self.scenes)
 
     def legend(self) -> str:
-        return viewtext.legend(viewtext.Legend(
-            self.magnify, self.residual_magnify, self.has_ghost("truth"), self.has_ghost("model"),
-            self.ghost_note, self.has_truth, bool(self.predicted) and self.discovery is None,
-            self.discovery is not None))
+        return viewtext.legend(
+            viewtext.Legend(
+                self.magnify,
+                self.residual_magnify,
+                self.has_ghost("truth"),
+                self.has_ghost("model"),
+                self.ghost_note,
+                self.has_truth,
+                bool(self.predicted) and self.discovery is None,
+                self.discovery is not None,
+            )
+        )
 
 
-def _residuals_of(scenes: list[PoseScene], names: list[str],
-                  predicted: dict[int, dict[str, tuple]]) -> dict[int, dict[str, np.ndarray]]:
+def _residuals_of(
+    scenes: list[PoseScene], names: list[str], predicted: dict[int, dict[str, tuple]]
+) -> dict[int, dict[str, np.ndarray]]:
     """pose -> reflector -> the log's measured deflection minus ``predicted`` (m)."""
     out: dict[int, dict[str, np.ndarray]] = {}
     for s in scenes:
         d, _, ok = s.deflection()
         pred = predicted.get(s.index, {})
-        row = {names[i]: d[i] - np.asarray(pred[names[i]], float)
-               for i in np.flatnonzero(ok) if names[i] in pred}
+        row = {
+            names[i]: d[i] - np.asarray(pred[names[i]], float) for i in np.flatnonzero(ok) if names[i] in pred
+        }
         if row:
             out[s.index] = row
     return out
 
 
-def plan_view(log: CampaignLog, identified: IdentificationReport | None = None,
-              magnify: float = DEFAULT_MAGNIFY, discovery: Discovery | None = None) -> ViewPlan:
+def plan_view(
+    log: CampaignLog,
+    identified: IdentificationReport | None = None,
+    magnify: float = DEFAULT_MAGNIFY,
+    discovery: Discovery | None = None,
+) -> ViewPlan:
     """Compute what the recording shows (raises InputError on a log it cannot draw)."""
     robot = load_robot(log)
     log.tracker_spec()
@@ -235,14 +268,14 @@ def plan_view(log: CampaignLog, identified: IdentificationReport | None = None,
     plan = ViewPlan(log, robot, names, scenes, magnify, identified, discovery, note)
     if identified is not None:
         import rerun as rr
+
         plan.chart = viewparams.chart(rr, identified, CHART)
     if discovery is not None:
         for key, rep in (("before", discovery.before), ("after", discovery.after)):
             plan.residuals[key] = _residuals_of(scenes, names, rep.predictions())
     elif identified is not None and identified.observations:
         pred = identified.predictions()
-        plan.predicted = {p: {r: np.asarray(v, float) for r, v in refl.items()}
-                          for p, refl in pred.items()}
+        plan.predicted = {p: {r: np.asarray(v, float) for r, v in refl.items()} for p, refl in pred.items()}
         plan.residuals["model"] = _residuals_of(scenes, names, pred)
     return plan
 
@@ -269,21 +302,33 @@ def _geom_archetype(rr, shape: GeomShape, color=None):
     fill = rr.components.FillMode.Solid
     q = rr.Quaternion(xyzw=_xyzw(quat))
     if shape.kind == "box":
-        return rr.Boxes3D(half_sizes=[size], centers=[pos], quaternions=[q], colors=[color],
-                          fill_mode=fill)
+        return rr.Boxes3D(half_sizes=[size], centers=[pos], quaternions=[q], colors=[color], fill_mode=fill)
     if shape.kind == "capsule":
         # MuJoCo: centred, axis z, half-length size[1]; rerun: starts at translation, along +z
         R = np.empty(9)
         mujoco.mju_quat2Mat(R, quat)
         start = pos - R.reshape(3, 3)[:, 2] * size[1]
-        return rr.Capsules3D(lengths=[2 * size[1]], radii=[size[0]], translations=[start],
-                             quaternions=[q], colors=[color], fill_mode=fill)
+        return rr.Capsules3D(
+            lengths=[2 * size[1]],
+            radii=[size[0]],
+            translations=[start],
+            quaternions=[q],
+            colors=[color],
+            fill_mode=fill,
+        )
     if shape.kind == "cylinder":
-        return rr.Cylinders3D(lengths=[2 * size[1]], radii=[size[0]], centers=[pos],
-                              quaternions=[q], colors=[color], fill_mode=fill)
+        return rr.Cylinders3D(
+            lengths=[2 * size[1]],
+            radii=[size[0]],
+            centers=[pos],
+            quaternions=[q],
+            colors=[color],
+            fill_mode=fill,
+        )
     if shape.kind == "ellipsoid":
-        return rr.Ellipsoids3D(half_sizes=[size], centers=[pos], quaternions=[q], colors=[color],
-                               fill_mode=fill)
+        return rr.Ellipsoids3D(
+            half_sizes=[size], centers=[pos], quaternions=[q], colors=[color], fill_mode=fill
+        )
     if shape.kind == "mesh":
         R = np.empty(9)
         mujoco.mju_quat2Mat(R, quat)
@@ -295,6 +340,7 @@ def _geom_archetype(rr, shape: GeomShape, color=None):
 def _part(name: str) -> str:
     """A name as one entity path part (spaces, slashes... escaped)."""
     import rerun as rr
+
     return rr.escape_entity_path_part(name)
 
 
@@ -323,15 +369,26 @@ def _ellipsoids(rr, covs, centers, k: float, color, fill=None):
         h, q = _ellipsoid(c, k)
         hs.append(h)
         qs.append(rr.Quaternion(xyzw=q))
-    return rr.Ellipsoids3D(half_sizes=hs, centers=centers, quaternions=qs, colors=[color],
-                           fill_mode=fill or rr.components.FillMode.Solid)
+    return rr.Ellipsoids3D(
+        half_sizes=hs,
+        centers=centers,
+        quaternions=qs,
+        colors=[color],
+        fill_mode=fill or rr.components.FillMode.Solid,
+    )
 
 
 def _post_archetype(rr, post: ReflectorPost):
     """A reflector on its post: a thin grey rod and a 1.5-inch ball (a tracker's usual SMR)."""
-    return [rr.LineStrips3D([[post.start, post.end]], radii=[0.012], colors=[PAYLOAD]),
-            rr.Ellipsoids3D(half_sizes=[[0.019] * 3], centers=[post.end], colors=[(200, 200, 205)],
-                            fill_mode=rr.components.FillMode.Solid)]
+    return [
+        rr.LineStrips3D([[post.start, post.end]], radii=[0.012], colors=[PAYLOAD]),
+        rr.Ellipsoids3D(
+            half_sizes=[[0.019] * 3],
+            centers=[post.end],
+            colors=[(200, 200, 205)],
+            fill_mode=rr.components.FillMode.Solid,
+        ),
+    ]
 
 
 def _tracker_archetypes(rr, position: np.ndarray) -> list:
@@ -342,10 +399,17 @@ def _tracker_archetypes(rr, position: np.ndarray) -> list:
         for a in (0.0, 2.1, 4.2):
             foot = p + np.array([0.45 * np.cos(a), 0.45 * np.sin(a), -p[2]])
             legs.append([p - [0, 0, 0.15], foot])
-    return [rr.Ellipsoids3D(half_sizes=[[0.14, 0.14, 0.16]], centers=[p], colors=[TRACKER],
-                            fill_mode=rr.components.FillMode.Solid,
-                            labels=["laser tracker"], show_labels=True),
-            rr.LineStrips3D(legs, radii=[0.015], colors=[TRACKER])]
+    return [
+        rr.Ellipsoids3D(
+            half_sizes=[[0.14, 0.14, 0.16]],
+            centers=[p],
+            colors=[TRACKER],
+            fill_mode=rr.components.FillMode.Solid,
+            labels=["laser tracker"],
+            show_labels=True,
+        ),
+        rr.LineStrips3D(legs, radii=[0.015], colors=[TRACKER]),
+    ]
 
 
 def _payload_archetypes(rr, scene: PoseScene) -> list:
@@ -358,15 +422,29 @@ def _payload_archetypes(rr, scene: PoseScene) -> list:
     if w.mass is not None:
         side = (w.mass / STEEL_DENSITY) ** (1 / 3)
         top = scene.payload - [0, 0, SLING]
-        return [rr.Boxes3D(half_sizes=[[side / 2] * 3], centers=[top - [0, 0, side / 2]],
-                           colors=[PAYLOAD], fill_mode=rr.components.FillMode.MajorWireframe,
-                           labels=[f"{w.mass:g} kg payload (loaded state)"], show_labels=False),
-                rr.LineStrips3D([[scene.payload, top]], radii=[0.01], colors=[PAYLOAD])]
+        return [
+            rr.Boxes3D(
+                half_sizes=[[side / 2] * 3],
+                centers=[top - [0, 0, side / 2]],
+                colors=[PAYLOAD],
+                fill_mode=rr.components.FillMode.MajorWireframe,
+                labels=[f"{w.mass:g} kg payload (loaded state)"],
+                show_labels=False,
+            ),
+            rr.LineStrips3D([[scene.payload, top]], radii=[0.01], colors=[PAYLOAD]),
+        ]
     f = np.asarray(w.force, float)
-    return [rr.Arrows3D(origins=[scene.payload], vectors=[f * 4e-4], colors=[PAYLOAD],
-                        radii=[0.02], labels=[f"pull {np.linalg.norm(f) / 1e3:.2f} kN "
-                                              "(loaded state)"], show_labels=False),
-            rr.Clear(recursive=False)]
+    return [
+        rr.Arrows3D(
+            origins=[scene.payload],
+            vectors=[f * 4e-4],
+            colors=[PAYLOAD],
+            radii=[0.02],
+            labels=[f"pull {np.linalg.norm(f) / 1e3:.2f} kN (loaded state)"],
+            show_labels=False,
+        ),
+        rr.Clear(recursive=False),
+    ]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -379,39 +457,60 @@ def build_blueprint(plan: ViewPlan):
     the pose's page, the plots, and the parameters; opened at pose 0 with the side panels
     collapsed and the camera on the robot, its tool and the tracker."""
     import rerun.blueprint as rrb
+
     tag = f"×{plan.magnify:g}"
-    contents = ["+ /robot/**", "+ /tracker/**", "+ /measured/**", "+ /deflection/**",
-                "+ /residual/**", "+ /model/**", "+ /truth/**", "- /truth/parameters/**"]
+    contents = [
+        "+ /robot/**",
+        "+ /tracker/**",
+        "+ /measured/**",
+        "+ /deflection/**",
+        "+ /residual/**",
+        "+ /model/**",
+        "+ /truth/**",
+        "- /truth/parameters/**",
+    ]
     title = f"Deformation and deflection arrows {tag}"
     if plan.residuals:
         title += f", residuals ×{plan.residual_magnify:g}"
     title += " (colours: see the pose page)"
-    eye, target = framing(plan.scenes, plan.log.tracker_spec().position, plan.magnify) \
-        if plan.scenes else (np.array([6.0, -6.0, 4.0]), np.zeros(3))
+    eye, target = (
+        framing(plan.scenes, plan.log.tracker_spec().position, plan.magnify)
+        if plan.scenes
+        else (np.array([6.0, -6.0, 4.0]), np.zeros(3))
+    )
     # with the model's ghost shown, the true one (nearly on top of it) starts hidden
-    hidden = {f"/truth/deformed_{plan.tag}": rrb.EntityBehavior(visible=False)} \
-        if plan.has_ghost("model") and plan.has_ghost("truth") else None
+    hidden = (
+        {f"/truth/deformed_{plan.tag}": rrb.EntityBehavior(visible=False)}
+        if plan.has_ghost("model") and plan.has_ghost("truth")
+        else None
+    )
     scene = rrb.Spatial3DView(
-        name=title, origin="/", contents=contents, overrides=hidden,
+        name=title,
+        origin="/",
+        contents=contents,
+        overrides=hidden,
         eye_controls=rrb.EyeControls3D(position=eye, look_target=target, eye_up=(0, 0, 1)),
-        line_grid=rrb.LineGrid3D(visible=True, spacing=1.0))
+        line_grid=rrb.LineGrid3D(visible=True, spacing=1.0),
+    )
     page = rrb.TextDocumentView(name="This pose: numbers and legend", origin="/info")
     plots = [rrb.TimeSeriesView(name="Deflection (mm)", origin="/plots/deflection_mm")]
     if plan.residuals:
         residual = rrb.TimeSeriesView(name="Residual (µm)", origin="/plots/residual_um")
         plots.insert(0 if plan.discovery else 1, residual)
     if plan.chart is not None:
-        params = [rrb.Spatial2DView(
-            name="Parameters", origin="/parameters/chart",
-            contents=["+ /parameters/chart/**", "+ /truth/parameters/chart/**"],
-            visual_bounds=rrb.VisualBounds2D(x_range=plan.chart.x_range,
-                                             y_range=plan.chart.y_range)),
-            rrb.TextDocumentView(name="Table", origin="/parameters/table")]
+        params = [
+            rrb.Spatial2DView(
+                name="Parameters",
+                origin="/parameters/chart",
+                contents=["+ /parameters/chart/**", "+ /truth/parameters/chart/**"],
+                visual_bounds=rrb.VisualBounds2D(x_range=plan.chart.x_range, y_range=plan.chart.y_range),
+            ),
+            rrb.TextDocumentView(name="Table", origin="/parameters/table"),
+        ]
         if plan.identified.has_truth():
             params.append(rrb.TextDocumentView(name="Truth", origin="/truth/parameters/table"))
         plots = plots[:1] + params + plots[1:] if plan.discovery else params + plots
-    side = rrb.Vertical(page, rrb.Tabs(*plots) if len(plots) > 1 else plots[0],
-                        row_shares=[1, 1])
+    side = rrb.Vertical(page, rrb.Tabs(*plots) if len(plots) > 1 else plots[0], row_shares=[1, 1])
     return rrb.Blueprint(
         rrb.Horizontal(scene, side, column_shares=[3, 2]),
         rrb.TimePanel(timeline="pose", play_state="paused", state="collapsed"),
@@ -431,9 +530,9 @@ class Summary:
     arrows: int
     truth: bool
     predicted: int
-    ghost: str                      # where the ghost's joint deflections come from
-    warnings: list[str] = field(default_factory=list)   # about the --identified report
-    completeness: str | None = None # lost poses, how the log ended (CampaignLog.completeness)
+    ghost: str  # where the ghost's joint deflections come from
+    warnings: list[str] = field(default_factory=list)  # about the --identified report
+    completeness: str | None = None  # lost poses, how the log ended (CampaignLog.completeness)
 
 
 def _log_robot_geoms(rec, rr, shapes: list[GeomShape], bodies: list[str]) -> None:
@@ -447,8 +546,10 @@ def _log_robot_geoms(rec, rr, shapes: list[GeomShape], bodies: list[str]) -> Non
 
 def _log_robot_pose(rec, rr, base: str, pose: RobotPose, bodies: list[str]) -> None:
     for b in range(1, len(bodies)):
-        rec.log(f"{base}/{bodies[b]}", rr.Transform3D(
-            translation=pose.xpos[b], quaternion=rr.Quaternion(xyzw=_xyzw(pose.xquat[b]))))
+        rec.log(
+            f"{base}/{bodies[b]}",
+            rr.Transform3D(translation=pose.xpos[b], quaternion=rr.Quaternion(xyzw=_xyzw(pose.xquat[b]))),
+        )
 
 
 class _Ghost:
@@ -465,8 +566,9 @@ class _Ghost:
             arch = _geom_archetype(rr, sh, color)
             if arch is not None and sh.body > 0:
                 self.geoms.setdefault(sh.body, []).append((_part(sh.name), arch))
-                self.reach[sh.body] = max(self.reach.get(sh.body, 0.0),
-                                          float(np.linalg.norm(sh.pos) + np.max(sh.size)))
+                self.reach[sh.body] = max(
+                    self.reach.get(sh.body, 0.0), float(np.linalg.norm(sh.pos) + np.max(sh.size))
+                )
         self.shown: set[int] = set()
 
     def log(self, rec, ghost: RobotPose, robot: RobotPose) -> None:
@@ -474,15 +576,18 @@ class _Ghost:
         for b, geoms in self.geoms.items():
             entity = f"{self.path}/{self.bodies[b]}"
             dot = min(1.0, abs(float(ghost.xquat[b] @ robot.xquat[b])))
-            shift = np.linalg.norm(ghost.xpos[b] - robot.xpos[b]) + 2 * math.acos(dot) * \
-                self.reach[b]
+            shift = np.linalg.norm(ghost.xpos[b] - robot.xpos[b]) + 2 * math.acos(dot) * self.reach[b]
             if shift < GHOST_MIN_SHIFT:
                 if b in self.shown:
                     rec.log(entity, rr.Clear(recursive=True))
                     self.shown.discard(b)
                 continue
-            rec.log(entity, rr.Transform3D(translation=ghost.xpos[b],
-                                           quaternion=rr.Quaternion(xyzw=_xyzw(ghost.xquat[b]))))
+            rec.log(
+                entity,
+                rr.Transform3D(
+                    translation=ghost.xpos[b], quaternion=rr.Quaternion(xyzw=_xyzw(ghost.xquat[b]))
+                ),
+            )
             if b not in self.shown:
                 for name, arch in geoms:
                     rec.log(f"{entity}/{name}", arch)
@@ -496,17 +601,25 @@ def _pose_page(plan: ViewPlan, s: PoseScene, header: str) -> str:
     def column(per_pose: dict[int, dict[str, np.ndarray]]) -> np.ndarray:
         row = per_pose.get(s.index, {})
         return np.array([row.get(nm, np.full(3, np.nan)) for nm in plan.names]).reshape(n, 3)
+
     cols: dict[str, np.ndarray] = {}
     if plan.predicted:
         cols["model deflection"] = column(plan.predicted)
-    titles = {"model": "residual", "before": "residual, user's model",
-              "after": "residual, with the effects"}
+    titles = {"model": "residual", "before": "residual, user's model", "after": "residual, with the effects"}
     for key, per_pose in plan.residuals.items():
         cols[titles[key]] = column(per_pose)
     table = viewtext.pose_table(plan.names, np.where(ok[:, None], d, np.nan), cov, cols)
-    return viewtext.pose_page(s.index, len(plan.log.complete_poses), s.command, s.wrench, s.sag, table,
-                              float(np.linalg.norm(plan.robot.model.opt.gravity)), header,
-                              "**In the 3D view**\n\n" + plan.legend())
+    return viewtext.pose_page(
+        s.index,
+        len(plan.log.complete_poses),
+        s.command,
+        s.wrench,
+        s.sag,
+        table,
+        float(np.linalg.norm(plan.robot.model.opt.gravity)),
+        header,
+        "**In the 3D view**\n\n" + plan.legend(),
+    )
 
 
 def _discovery_header(plan: ViewPlan) -> str:
@@ -517,14 +630,16 @@ def _discovery_header(plan: ViewPlan) -> str:
     b, a = disc.before, disc.after
     named = ", ".join(disc.named) if disc.named else "nothing (the model fits to the noise level)"
     rms = ""
-    if None not in (b.residual_rms, a.residual_rms, b.expected_residual_rms,
-                    a.expected_residual_rms):
-        rms = (f" Residual RMS {b.residual_rms * um:.1f} µm → {a.residual_rms * um:.1f} µm per "
-               f"axis; noise alone leaves {b.expected_residual_rms * um:.1f} → "
-               f"{a.expected_residual_rms * um:.1f} µm.")
+    if None not in (b.residual_rms, a.residual_rms, b.expected_residual_rms, a.expected_residual_rms):
+        rms = (
+            f" Residual RMS {b.residual_rms * um:.1f} µm → {a.residual_rms * um:.1f} µm per "
+            f"axis; noise alone leaves {b.expected_residual_rms * um:.1f} → "
+            f"{a.expected_residual_rms * um:.1f} µm."
+        )
     worst = _worst(plan)
-    return (f"**calbench discover: named {named}.**{rms}" + (
-        f" Largest disagreements of the user's model: {worst}." if worst else ""))
+    return f"**calbench discover: named {named}.**{rms}" + (
+        f" Largest disagreements of the user's model: {worst}." if worst else ""
+    )
 
 
 def _import_note(plan: ViewPlan) -> str:
@@ -540,8 +655,10 @@ def _import_note(plan: ViewPlan) -> str:
     if imp.get("tracker_pose") == "registered" and isinstance(reg, dict):
         fit = ""
         if isinstance(reg.get("rms"), (int, float)) and isinstance(reg.get("expected_rms"), (int, float)):
-            fit = (f": residual {reg['rms'] * 1e6:.1f} µm RMS per axis against "
-                   f"{reg['expected_rms'] * 1e6:.1f} µm expected")
+            fit = (
+                f": residual {reg['rms'] * 1e6:.1f} µm RMS per axis against "
+                f"{reg['expected_rms'] * 1e6:.1f} µm expected"
+            )
         where = f"; the tracker pose registered to the readings{fit}"
         warn = [w for w in reg.get("warnings") or [] if isinstance(w, str)]
         if warn:
@@ -583,25 +700,38 @@ def log_view(rec, plan: ViewPlan) -> Summary:
         for arch in _post_archetype(rr, post):
             rec.log(f"robot/{bodies[post.body]}/reflectors/{_part(post.name)}", arch, static=True)
     ghost_paths = {"truth": f"truth/deformed_{tag}", "model": f"model/deformed_{tag}"}
-    ghosts = {src: _Ghost(rr, path, shapes, bodies, (*c[:3], GHOST_ALPHA))
-              for (src, path), c in zip(ghost_paths.items(), (TRUTH, MODEL))
-              if plan.has_ghost(src)}
+    ghosts = {
+        src: _Ghost(rr, path, shapes, bodies, (*c[:3], GHOST_ALPHA))
+        for (src, path), c in zip(ghost_paths.items(), (TRUTH, MODEL))
+        if plan.has_ghost(src)
+    }
     for arch in _tracker_archetypes(rr, spec.position):
         rec.log("tracker", arch, static=True)
     for i, (nm, c) in enumerate(zip(names, _shades(MEASURED, len(names)))):
         # shades of one colour tell the kind, a marker per reflector tells them apart
-        rec.log(f"plots/deflection_mm/{_part(nm)}", rr.SeriesLines(colors=[c], names=[nm]),
-                rr.SeriesPoints(colors=[c], names=[nm], markers=[MARKERS[i % len(MARKERS)]],
-                                marker_sizes=[4.0]), static=True)
-    series = {"model": ("residual, identified model", RESIDUAL),
-              "before": ("residual, user's model", RESIDUAL),
-              "after": ("residual, with the named effects", RESIDUAL_AFTER)}
+        rec.log(
+            f"plots/deflection_mm/{_part(nm)}",
+            rr.SeriesLines(colors=[c], names=[nm]),
+            rr.SeriesPoints(colors=[c], names=[nm], markers=[MARKERS[i % len(MARKERS)]], marker_sizes=[4.0]),
+            static=True,
+        )
+    series = {
+        "model": ("residual, identified model", RESIDUAL),
+        "before": ("residual, user's model", RESIDUAL),
+        "after": ("residual, with the named effects", RESIDUAL_AFTER),
+    }
     for key in plan.residuals:
-        rec.log(f"plots/residual_um/{key}", rr.SeriesLines(colors=[series[key][1]],
-                                                           names=[series[key][0]]), static=True)
+        rec.log(
+            f"plots/residual_um/{key}",
+            rr.SeriesLines(colors=[series[key][1]], names=[series[key][0]]),
+            static=True,
+        )
     if plan.residuals:
-        rec.log("plots/residual_um/noise", rr.SeriesLines(
-            colors=[NOISE[:3]], names=["noise alone (RMS per axis)"]), static=True)
+        rec.log(
+            "plots/residual_um/noise",
+            rr.SeriesLines(colors=[NOISE[:3]], names=["noise alone (RMS per axis)"]),
+            static=True,
+        )
     header = "\n\n".join(h for h in (_import_note(plan), _discovery_header(plan)) if h)
 
     arrows = n_pred = 0
@@ -609,59 +739,95 @@ def log_view(rec, plan: ViewPlan) -> Summary:
         rec.set_time("pose", sequence=s.index)
         _log_robot_pose(rec, rr, "robot", s.robot, bodies)
         for tname, pts in s.robot.tendons.items():
-            rec.log(f"robot/tendon/{_part(tname)}",
-                    rr.LineStrips3D([pts], radii=[0.02], colors=[TENDON]))
+            rec.log(f"robot/tendon/{_part(tname)}", rr.LineStrips3D([pts], radii=[0.02], colors=[TENDON]))
         for arch in _payload_archetypes(rr, s):
             rec.log("robot/payload", arch)
-        for src, ghost in ghosts.items():   # a source covers every pose or none
+        for src, ghost in ghosts.items():  # a source covers every pose or none
             ghost.log(rec, s.ghosts[src], s.robot)
         for state in STATES:
             m = s.measured[state]
             seen = np.flatnonzero(np.all(np.isfinite(m), axis=1))
-            rec.log(f"measured/{state}", rr.Points3D(
-                m[seen], radii=[0.022 if state == "unloaded" else 0.015],
-                colors=[UNLOADED_POINT if state == "unloaded" else MEASURED],
-                labels=[f"{names[i]} {state}" for i in seen], show_labels=False))
+            rec.log(
+                f"measured/{state}",
+                rr.Points3D(
+                    m[seen],
+                    radii=[0.022 if state == "unloaded" else 0.015],
+                    colors=[UNLOADED_POINT if state == "unloaded" else MEASURED],
+                    labels=[f"{names[i]} {state}" for i in seen],
+                    show_labels=False,
+                ),
+            )
             if state in s.truth:
                 t = s.truth[state]
                 ok = np.flatnonzero(np.all(np.isfinite(t), axis=1))
-                rec.log(f"truth/reflectors/{state}", rr.Points3D(
-                    t[ok], radii=[0.012], colors=[TRUTH],
-                    labels=[f"{names[i]} {state} (true)" for i in ok], show_labels=False))
+                rec.log(
+                    f"truth/reflectors/{state}",
+                    rr.Points3D(
+                        t[ok],
+                        radii=[0.012],
+                        colors=[TRUTH],
+                        labels=[f"{names[i]} {state} (true)" for i in ok],
+                        show_labels=False,
+                    ),
+                )
         mu = s.measured["unloaded"]
         seen_u = np.flatnonzero(np.all(np.isfinite(mu), axis=1))
-        rec.log("tracker/line_of_sight", rr.LineStrips3D(
-            [[spec.position, mu[i]] for i in seen_u], radii=[0.006], colors=[SIGHT]))
+        rec.log(
+            "tracker/line_of_sight",
+            rr.LineStrips3D([[spec.position, mu[i]] for i in seen_u], radii=[0.006], colors=[SIGHT]),
+        )
         d, cov, ok = s.deflection()
         idx = np.flatnonzero(ok)
         origins = mu[idx]
         tips = origins + plan.magnify * d[idx]
-        rec.log(f"deflection/{tag}/measured", rr.Arrows3D(
-            vectors=plan.magnify * d[idx], origins=origins, colors=[MEASURED], radii=[0.03],
-            labels=[f"{names[i]} measured {np.linalg.norm(d[i]) * 1e3:.3f} mm" for i in idx],
-            show_labels=False))
-        rec.log(f"deflection/{tag}/uncertainty_3sigma", _ellipsoids(
-            rr, cov[idx], tips, 3.0 * plan.magnify, (*MEASURED[:3], 90)))
+        rec.log(
+            f"deflection/{tag}/measured",
+            rr.Arrows3D(
+                vectors=plan.magnify * d[idx],
+                origins=origins,
+                colors=[MEASURED],
+                radii=[0.03],
+                labels=[f"{names[i]} measured {np.linalg.norm(d[i]) * 1e3:.3f} mm" for i in idx],
+                show_labels=False,
+            ),
+        )
+        rec.log(
+            f"deflection/{tag}/uncertainty_3sigma",
+            _ellipsoids(rr, cov[idx], tips, 3.0 * plan.magnify, (*MEASURED[:3], 90)),
+        )
         arrows += len(idx)
         for i in idx:
-            rec.log(f"plots/deflection_mm/{_part(names[i])}",
-                    rr.Scalars(np.linalg.norm(d[i]) * 1e3))
+            rec.log(f"plots/deflection_mm/{_part(names[i])}", rr.Scalars(np.linalg.norm(d[i]) * 1e3))
         if "unloaded" in s.truth and "loaded" in s.truth:
             td = s.truth["loaded"] - s.truth["unloaded"]
             tok = np.flatnonzero(np.all(np.isfinite(td), axis=1))
-            rec.log(f"truth/deflection/{tag}", rr.Arrows3D(
-                vectors=plan.magnify * td[tok], origins=s.truth["unloaded"][tok], colors=[TRUTH],
-                radii=[0.014], labels=[f"{names[i]} true {np.linalg.norm(td[i]) * 1e3:.3f} mm"
-                                       for i in tok], show_labels=False))
+            rec.log(
+                f"truth/deflection/{tag}",
+                rr.Arrows3D(
+                    vectors=plan.magnify * td[tok],
+                    origins=s.truth["unloaded"][tok],
+                    colors=[TRUTH],
+                    radii=[0.014],
+                    labels=[f"{names[i]} true {np.linalg.norm(td[i]) * 1e3:.3f} mm" for i in tok],
+                    show_labels=False,
+                ),
+            )
         # the model's prediction
         pred = plan.predicted.get(s.index, {})
         pi = [i for i in idx if names[i] in pred]
         if plan.predicted:
             pv = np.array([pred[names[i]] for i in pi], float).reshape(-1, 3)
-            rec.log(f"deflection/{tag}/model", rr.Arrows3D(
-                vectors=plan.magnify * pv, origins=mu[pi].reshape(-1, 3), colors=[MODEL],
-                radii=[0.02], labels=[f"{names[i]} model {np.linalg.norm(v) * 1e3:.3f} mm"
-                                      for i, v in zip(pi, pv)], show_labels=False))
+            rec.log(
+                f"deflection/{tag}/model",
+                rr.Arrows3D(
+                    vectors=plan.magnify * pv,
+                    origins=mu[pi].reshape(-1, 3),
+                    colors=[MODEL],
+                    radii=[0.02],
+                    labels=[f"{names[i]} model {np.linalg.norm(v) * 1e3:.3f} mm" for i, v in zip(pi, pv)],
+                    show_labels=False,
+                ),
+            )
             n_pred += len(pi)
         # residuals, ending at the measured tips, and the noise around each tip
         if plan.residuals:
@@ -672,39 +838,58 @@ def log_view(rec, plan: ViewPlan) -> Summary:
                 refl = [nm for nm in names if nm in res and nm in tip_of]
                 vec = np.array([rk * res[nm] for nm in refl]).reshape(-1, 3)
                 color = RESIDUAL_AFTER if key == "after" else RESIDUAL
-                rec.log(f"residual/x{rk:g}/{key}", rr.Arrows3D(
-                    vectors=vec, origins=np.array([tip_of[nm] for nm in refl]).reshape(-1, 3)
-                    - vec, colors=[color], radii=[0.02],
-                    labels=[f"{nm} residual {np.linalg.norm(res[nm]) * 1e6:.0f} um" for nm in refl],
-                    show_labels=False))
+                rec.log(
+                    f"residual/x{rk:g}/{key}",
+                    rr.Arrows3D(
+                        vectors=vec,
+                        origins=np.array([tip_of[nm] for nm in refl]).reshape(-1, 3) - vec,
+                        colors=[color],
+                        radii=[0.02],
+                        labels=[f"{nm} residual {np.linalg.norm(res[nm]) * 1e6:.0f} um" for nm in refl],
+                        show_labels=False,
+                    ),
+                )
                 if res:
-                    rec.log(f"plots/residual_um/{key}", rr.Scalars(
-                        1e6 * math.sqrt(np.mean(np.square(list(res.values()))))))
+                    rec.log(
+                        f"plots/residual_um/{key}",
+                        rr.Scalars(1e6 * math.sqrt(np.mean(np.square(list(res.values()))))),
+                    )
                 rows.append(res)
-            rec.log(f"residual/x{rk:g}/noise_3sigma", _ellipsoids(
-                rr, cov[idx], tips, 3.0 * rk, NOISE, rr.components.FillMode.MajorWireframe))
+            rec.log(
+                f"residual/x{rk:g}/noise_3sigma",
+                _ellipsoids(rr, cov[idx], tips, 3.0 * rk, NOISE, rr.components.FillMode.MajorWireframe),
+            )
             if len(idx):
-                rec.log("plots/residual_um/noise", rr.Scalars(
-                    1e6 * math.sqrt(np.mean([np.trace(c) / 3 for c in cov[idx]]))))
-        rec.log("info/pose", rr.TextDocument(_pose_page(plan, s, header),
-                                             media_type=rr.MediaType.MARKDOWN))
+                rec.log(
+                    "plots/residual_um/noise",
+                    rr.Scalars(1e6 * math.sqrt(np.mean([np.trace(c) / 3 for c in cov[idx]]))),
+                )
+        rec.log("info/pose", rr.TextDocument(_pose_page(plan, s, header), media_type=rr.MediaType.MARKDOWN))
     if plan.identified is not None:
         for path, arch in plan.chart.items:
             rec.log(path, arch, static=True)
-        rec.log("parameters/table", rr.TextDocument(viewparams.parameter_table(plan.identified),
-                                                    media_type=rr.MediaType.MARKDOWN), static=True)
+        rec.log(
+            "parameters/table",
+            rr.TextDocument(viewparams.parameter_table(plan.identified), media_type=rr.MediaType.MARKDOWN),
+            static=True,
+        )
         truth = viewparams.truth_table(plan.identified)
         if truth is not None:
-            rec.log("truth/parameters/table", rr.TextDocument(
-                truth, media_type=rr.MediaType.MARKDOWN), static=True)
+            rec.log(
+                "truth/parameters/table",
+                rr.TextDocument(truth, media_type=rr.MediaType.MARKDOWN),
+                static=True,
+            )
     sources = {"truth": "true joint deflections (/truth/joints)", "model": "the identified model"}
     ghost = " and ".join(v for k, v in sources.items() if plan.has_ghost(k)) or "none"
-    return Summary(len(plan.scenes), arrows, plan.has_truth, n_pred, ghost,
-                   completeness=plan.log.completeness())
+    return Summary(
+        len(plan.scenes), arrows, plan.has_truth, n_pred, ghost, completeness=plan.log.completeness()
+    )
 
 
-def log_campaign(rec, log: CampaignLog, identified: IdentificationReport | None = None,
-                 magnify: float = DEFAULT_MAGNIFY) -> Summary:
+def log_campaign(
+    rec, log: CampaignLog, identified: IdentificationReport | None = None, magnify: float = DEFAULT_MAGNIFY
+) -> Summary:
     """Log the whole campaign (and the identification report) into the RecordingStream."""
     return log_view(rec, plan_view(log, identified, magnify))
 
@@ -722,13 +907,14 @@ def _check_magnify(magnify: float) -> float:
 
 def recording_stream(log_path: str | os.PathLike):
     import rerun as rr
+
     rec = rr.RecordingStream(APP_ID)
     rec.send_recording_name(f"campaign {Path(log_path).name}")
     return rec
 
 
 def _write(plan: ViewPlan, log_path, rrd_path: Path) -> Summary:
-    with atomic_path(rrd_path) as tmp:          # a complete recording or none
+    with atomic_path(rrd_path) as tmp:  # a complete recording or none
         rec = recording_stream(log_path)
         rec.save(tmp, default_blueprint=build_blueprint(plan))
         try:
@@ -739,9 +925,12 @@ def _write(plan: ViewPlan, log_path, rrd_path: Path) -> Summary:
     return summary
 
 
-def write_recording(log_path: str | os.PathLike, rrd_path: str | os.PathLike,
-                    identified: str | os.PathLike | None = None,
-                    magnify: float = DEFAULT_MAGNIFY) -> Summary:
+def write_recording(
+    log_path: str | os.PathLike,
+    rrd_path: str | os.PathLike,
+    identified: str | os.PathLike | None = None,
+    magnify: float = DEFAULT_MAGNIFY,
+) -> Summary:
     """Write the recording of a campaign log (and report) to ``rrd_path``, with its default
     blueprint. Raises InputError on bad input, before the output file is created."""
     magnify = _check_magnify(magnify)
@@ -754,13 +943,16 @@ def write_recording(log_path: str | os.PathLike, rrd_path: str | os.PathLike,
     return summary
 
 
-def write_discovery_recording(log_path: str | os.PathLike, rrd_path: str | os.PathLike,
-                              discovery: Discovery, magnify: float = DEFAULT_MAGNIFY) -> Summary:
+def write_discovery_recording(
+    log_path: str | os.PathLike,
+    rrd_path: str | os.PathLike,
+    discovery: Discovery,
+    magnify: float = DEFAULT_MAGNIFY,
+) -> Summary:
     """The view of `calbench discover`: where the user's model disagreed with the measurements
     and how much of it the named effects removed, on the robot (see the module doc)."""
     log = read_log(log_path, include_truth=True)
-    return _write(plan_view(log, None, _check_magnify(magnify), discovery), log_path,
-                  Path(rrd_path))
+    return _write(plan_view(log, None, _check_magnify(magnify), discovery), log_path, Path(rrd_path))
 
 
 def has_display() -> bool:
@@ -776,7 +968,21 @@ def default_rrd_path(log_path: Path) -> Path:
     return Path(log_path).with_suffix(".rrd")
 
 
-__all__ = ["write_recording", "write_discovery_recording", "Discovery", "has_display",
-           "default_rrd_path", "recording_stream", "Summary", "plan_view", "ViewPlan",
-           "log_view", "log_campaign", "measured_deflections", "build_blueprint", "magnify_tag",
-           "DEFAULT_MAGNIFY", "RESIDUAL_FACTOR"]
+__all__ = [
+    "write_recording",
+    "write_discovery_recording",
+    "Discovery",
+    "has_display",
+    "default_rrd_path",
+    "recording_stream",
+    "Summary",
+    "plan_view",
+    "ViewPlan",
+    "log_view",
+    "log_campaign",
+    "measured_deflections",
+    "build_blueprint",
+    "magnify_tag",
+    "DEFAULT_MAGNIFY",
+    "RESIDUAL_FACTOR",
+]

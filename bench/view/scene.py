@@ -21,6 +21,7 @@ Which robot is which
   joint deflections: no ghost. Effects beyond the motor springs (a compliant link, say) are
   not in the ghost: it shows the joint deflections only.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -28,16 +29,16 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from calbench.bench.log.records import STATES, CampaignLog, PerState, WrenchRecord
 from calbench.bench.core.errors import InputError
-from calbench.bench.model.geoms import tendon_sites
 from calbench.bench.log.idreport import IdentificationReport
+from calbench.bench.log.records import STATES, CampaignLog, PerState, WrenchRecord
+from calbench.bench.model.geoms import tendon_sites
 from calbench.bench.model.robot import Robot
 from calbench.bench.statics.equilibrium import Load, StaticsError, StaticsSolver
 from calbench.bench.tracker.instrument import MeanReading, mean_reading
 
-HALF_FOV_TAN = 0.46   # tangent of the half field of view the framing allows (a margin inside
-                      # the viewer's own: the view is wider than tall, and labels need room)
+HALF_FOV_TAN = 0.46  # tangent of the half field of view the framing allows (a margin inside
+# the viewer's own: the view is wider than tall, and labels need room)
 
 
 @dataclass(frozen=True)
@@ -63,16 +64,21 @@ class Poser:
         d = self.data
         d.qpos[:] = qpos
         mujoco.mj_kinematics(self.robot.model, d)
-        return RobotPose(np.array(qpos, float), d.xpos.copy(), d.xquat.copy(),
-                         {name: d.site_xpos[s].copy() for name, s in self.tendons})
+        return RobotPose(
+            np.array(qpos, float),
+            d.xpos.copy(),
+            d.xquat.copy(),
+            {name: d.site_xpos[s].copy() for name, s in self.tendons},
+        )
 
     def site(self, site: int) -> np.ndarray:
         """World position of ``site`` in the last pose."""
         return self.data.site_xpos[site].copy()
 
 
-def deformed_command(command: np.ndarray, unloaded: np.ndarray, loaded: np.ndarray,
-                     magnify: float) -> np.ndarray:
+def deformed_command(
+    command: np.ndarray, unloaded: np.ndarray, loaded: np.ndarray, magnify: float
+) -> np.ndarray:
     """Motor angles of the ghost: the unloaded equilibrium plus F times the payload's joint
     deflection, ``q + d_u + F (d_l - d_u)`` (rad; ``d`` = motor deflection from the command)."""
     return np.asarray(command, float) + unloaded + magnify * (np.asarray(loaded) - unloaded)
@@ -84,15 +90,15 @@ class PoseScene:
     mean of the repeats, NaN where not seen), the load, and what truth or model adds."""
 
     index: int
-    command: np.ndarray                       # (N,) rad, one per actuated joint
-    robot: RobotPose                          # at the command
-    reflector_sites: np.ndarray               # (n, 3) world, the sites at the command
-    measured: dict[str, np.ndarray]           # state -> (n, 3)
-    measured_cov: dict[str, np.ndarray]       # state -> (n, 3, 3), of the mean of repeats
+    command: np.ndarray  # (N,) rad, one per actuated joint
+    robot: RobotPose  # at the command
+    reflector_sites: np.ndarray  # (n, 3) world, the sites at the command
+    measured: dict[str, np.ndarray]  # state -> (n, 3)
+    measured_cov: dict[str, np.ndarray]  # state -> (n, 3, 3), of the mean of repeats
     wrench: WrenchRecord | None
-    payload: np.ndarray | None                # (3,) world, the payload site at the command
-    truth: dict[str, np.ndarray] = field(default_factory=dict)   # state -> (n, 3) true
-    ghosts: dict[str, RobotPose] = field(default_factory=dict)   # "truth" / "model" -> ghost
+    payload: np.ndarray | None  # (3,) world, the payload site at the command
+    truth: dict[str, np.ndarray] = field(default_factory=dict)  # state -> (n, 3) true
+    ghosts: dict[str, RobotPose] = field(default_factory=dict)  # "truth" / "model" -> ghost
 
     def deflection(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Measured deflection (n, 3), its covariance (n, 3, 3), and which rows are valid."""
@@ -124,9 +130,12 @@ def command_of(log: CampaignLog, pose: int, n_joints: int) -> np.ndarray:
     per = log.poses.get(pose, PerState())
     q = per.unloaded if per.unloaded is not None else per.loaded
     if q is None or np.asarray(q).shape != (n_joints,):
-        raise InputError(log.path, f"/campaign/pose (pose {pose})",
-                         f"the commanded joint angles q[{n_joints}] of every complete pose",
-                         None if q is None else np.asarray(q).tolist())
+        raise InputError(
+            log.path,
+            f"/campaign/pose (pose {pose})",
+            f"the commanded joint angles q[{n_joints}] of every complete pose",
+            None if q is None else np.asarray(q).tolist(),
+        )
     return np.asarray(q, dtype=float)
 
 
@@ -139,13 +148,13 @@ def true_deflections(log: CampaignLog) -> dict[int, tuple[np.ndarray, np.ndarray
         per = joints.get(p)
         if per is None or per.unloaded is None or per.loaded is None:
             return {}
-        out[p] = (np.asarray(per.unloaded.deflection, float),
-                  np.asarray(per.loaded.deflection, float))
+        out[p] = (np.asarray(per.unloaded.deflection, float), np.asarray(per.loaded.deflection, float))
     return out
 
 
-def model_deflections(log: CampaignLog, robot_xml: str, ident: IdentificationReport) \
-        -> tuple[dict[int, tuple[np.ndarray, np.ndarray]], str]:
+def model_deflections(
+    log: CampaignLog, robot_xml: str, ident: IdentificationReport
+) -> tuple[dict[int, tuple[np.ndarray, np.ndarray]], str]:
     """pose -> (unloaded, loaded) motor deflections that the identified model predicts: the
     exact statics of the log's MJCF with the report's estimates, at each command and load.
     Returns ``({}, "none (why)")`` when the report cannot pose the model: it names parameters beyond
@@ -157,12 +166,14 @@ def model_deflections(log: CampaignLog, robot_xml: str, ident: IdentificationRep
     lay = robot.layout
     extra = [n for n in est if n not in lay.names]
     if extra:
-        return {}, (f"none (the model has parameters beyond the motor springs and the "
-                    f"compensators: {', '.join(extra[:3])}{'...' if len(extra) > 3 else ''})")
-    missing = [n for n in lay.names[lay.n_joints:] if est.get(n) is None]
+        return {}, (
+            f"none (the model has parameters beyond the motor springs and the "
+            f"compensators: {', '.join(extra[:3])}{'...' if len(extra) > 3 else ''})"
+        )
+    missing = [n for n in lay.names[lay.n_joints :] if est.get(n) is None]
     if missing:
         return {}, f"none (no estimate of {', '.join(missing)})"
-    rigid = [n for n in lay.names[:lay.n_joints] if est.get(n) is None]
+    rigid = [n for n in lay.names[: lay.n_joints] if est.get(n) is None]
     theta = np.array([est.get(n) or 0.0 for n in lay.names])
     # a compliance of 0 would be an infinite stiffness: a stiff spring stands for "rigid"
     theta[lay.compliance] = np.maximum(theta[lay.compliance], 1e-15)
@@ -174,8 +185,7 @@ def model_deflections(log: CampaignLog, robot_xml: str, ident: IdentificationRep
         q = command_of(log, p, robot.n_act)
         try:
             e0 = solver.solve(q)
-            e1 = e0 if w is None else \
-                solver.solve(q, Load(w.force, w.moment, _site(robot, w.site)), warm=e0)
+            e1 = e0 if w is None else solver.solve(q, Load(w.force, w.moment, _site(robot, w.site)), warm=e0)
         except StaticsError as e:
             return {}, f"none (the identified model has no equilibrium at pose {p}: {e})"
         out[p] = (e0.deflection, e1.deflection)
@@ -188,8 +198,13 @@ def _site(robot: Robot, name: str) -> int:
     return int(s) if s >= 0 else robot.payload_site
 
 
-def pose_scenes(log: CampaignLog, robot: Robot, names: list[str], magnify: float,
-                ghosts: dict[str, dict[int, tuple[np.ndarray, np.ndarray]]]) -> list[PoseScene]:
+def pose_scenes(
+    log: CampaignLog,
+    robot: Robot,
+    names: list[str],
+    magnify: float,
+    ghosts: dict[str, dict[int, tuple[np.ndarray, np.ndarray]]],
+) -> list[PoseScene]:
     """Every complete pose of the log as a :class:`PoseScene`. ``ghosts`` maps a source
     ("truth", "model") to its motor deflections per pose (:func:`true_deflections`,
     :func:`model_deflections`)."""
@@ -209,8 +224,7 @@ def pose_scenes(log: CampaignLog, robot: Robot, names: list[str], magnify: float
         meas, cov, truth = {}, {}, {}
         for state in STATES:
             mean = means.get((p, state))
-            meas[state], cov[state] = (nan, nan_cov) if mean is None else \
-                (mean.position, mean.covariance)
+            meas[state], cov[state] = (nan, nan_cov) if mean is None else (mean.position, mean.covariance)
             tr = truth_refl.get(p, PerState()).get(state)
             if tr is not None:
                 pos = np.full((len(names), 3), np.nan)
@@ -218,18 +232,22 @@ def pose_scenes(log: CampaignLog, robot: Robot, names: list[str], magnify: float
                     if nm in names:
                         pos[names.index(nm)] = tr.position_world[j]
                 truth[state] = pos
-        ghost = {src: poser.at(robot.rigid_qpos(deformed_command(q, *d[p], magnify)))
-                 for src, d in ghosts.items() if p in d}
+        ghost = {
+            src: poser.at(robot.rigid_qpos(deformed_command(q, *d[p], magnify)))
+            for src, d in ghosts.items()
+            if p in d
+        }
         scenes.append(PoseScene(p, q, at_command, refl_sites, meas, cov, w, payload, truth, ghost))
     return scenes
 
 
-TRACKER_APART = 0.25   # the tracker's screen offset from the tool, across, in half-view widths
-AZIMUTH_STEP, AZIMUTH_MAX = 5.0, 60.0   # degrees: how far the camera may turn off the profile
+TRACKER_APART = 0.25  # the tracker's screen offset from the tool, across, in half-view widths
+AZIMUTH_STEP, AZIMUTH_MAX = 5.0, 60.0  # degrees: how far the camera may turn off the profile
 
 
-def framing(scenes: list[PoseScene], tracker: np.ndarray, magnify: float,
-            half_fov_tan: float = HALF_FOV_TAN) -> tuple[np.ndarray, np.ndarray]:
+def framing(
+    scenes: list[PoseScene], tracker: np.ndarray, magnify: float, half_fov_tan: float = HALF_FOV_TAN
+) -> tuple[np.ndarray, np.ndarray]:
     """(eye, target) of a camera that frames the robot and its deflection arrows in every pose
     (stepping through the poses never takes the tool out of view) and the tracker's head.
 
@@ -252,7 +270,7 @@ def framing(scenes: list[PoseScene], tracker: np.ndarray, magnify: float,
     base = scene.robot.xpos[1][:2]
     tool3 = np.nanmean(scene.reflector_sites, axis=0)
     tool = tool3[:2] - base
-    side = np.array([-tool[1], tool[0]])            # normal of the arm's vertical plane
+    side = np.array([-tool[1], tool[0]])  # normal of the arm's vertical plane
     side = side / np.linalg.norm(side) if np.linalg.norm(side) > 1e-9 else np.array([0.0, 1.0])
     if side @ (tracker[:2] - base) > 0:
         side = -side
@@ -270,12 +288,14 @@ def framing(scenes: list[PoseScene], tracker: np.ndarray, magnify: float,
         need = np.maximum(np.abs(rel @ right), np.abs(rel @ up)) / half_fov_tan + rel @ back
         eye = target + back * float(need.max())
 
-        def across(p):                                # screen x in half-widths, and depth
+        def across(p):  # screen x in half-widths, and depth
             r = p - eye
             depth = -(r @ back)
             return (r @ right) / depth / half_fov_tan, depth
+
         (xt, dt), (xk, dk) = across(tool3), across(tracker)
         return eye, abs(xk - xt), dk >= dt
+
     steps = np.arange(0.0, AZIMUTH_MAX + 1e-9, AZIMUTH_STEP)
     for deg in [0.0] + [x for a in steps[1:] for x in (a, -a)]:
         eye, apart, beyond = view(np.radians(deg))
@@ -284,5 +304,15 @@ def framing(scenes: list[PoseScene], tracker: np.ndarray, magnify: float,
     return view(0.0)[0], target
 
 
-__all__ = ["RobotPose", "Poser", "PoseScene", "deformed_command", "mean_measurements",
-           "command_of", "true_deflections", "model_deflections", "pose_scenes", "framing"]
+__all__ = [
+    "RobotPose",
+    "Poser",
+    "PoseScene",
+    "deformed_command",
+    "mean_measurements",
+    "command_of",
+    "true_deflections",
+    "model_deflections",
+    "pose_scenes",
+    "framing",
+]

@@ -3,6 +3,7 @@ no labels for) and the legend that says what each colour means.
 
 Pure functions of arrays and strings; bench/view/recording.py logs their results as ``rr.TextDocument``.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -20,41 +21,49 @@ class Legend:
     residual_magnify: float
     truth_ghost: bool = False
     model_ghost: bool = False
-    ghost_note: str = ""          # why there is no model ghost, or what it assumes
+    ghost_note: str = ""  # why there is no model ghost, or what it assumes
     truth: bool = False
-    predicted: bool = False       # model arrows and residuals (identify)
-    discovery: bool = False       # residuals before/after (discover)
+    predicted: bool = False  # model arrows and residuals (identify)
+    discovery: bool = False  # residuals before/after (discover)
 
 
 def legend(g: Legend) -> str:
     """Markdown bullet list: each colour of the 3D view and what it is."""
     f, fr = f"×{g.magnify:g}", f"×{g.residual_magnify:g}"
-    lines = ["**yellow robot**: at the commanded angles (all a real campaign knows of its pose); "
-             "grey dots on the posts: the reflectors as measured unloaded"]
+    lines = [
+        "**yellow robot**: at the commanded angles (all a real campaign knows of its pose); "
+        "grey dots on the posts: the reflectors as measured unloaded"
+    ]
     if g.truth_ghost:
-        lines.append(f"**green ghost**: the true loaded robot, joint deflections {f} (simulation "
-                     "only" + ("; hidden: show `truth` in the blueprint panel)" if g.model_ghost
-                               else ")"))
+        lines.append(
+            f"**green ghost**: the true loaded robot, joint deflections {f} (simulation "
+            "only" + ("; hidden: show `truth` in the blueprint panel)" if g.model_ghost else ")")
+        )
     if g.model_ghost:
         lines.append(f"**blue ghost**: the identified model's loaded robot, joint deflections {f}")
     if g.ghost_note:
         lines.append(f"model ghost: {g.ghost_note}")
     if not (g.truth_ghost or g.model_ghost or g.discovery):
-        lines.append("no ghost: a real campaign measures reflectors, not joints (`--identified` "
-                     "draws the identified model's)")
-    lines.append(f"**orange arrows**: measured deflection {f}, loaded − unloaded (tip ellipsoid: "
-                 "its 3σ)")
+        lines.append(
+            "no ghost: a real campaign measures reflectors, not joints (`--identified` "
+            "draws the identified model's)"
+        )
+    lines.append(f"**orange arrows**: measured deflection {f}, loaded − unloaded (tip ellipsoid: its 3σ)")
     if g.truth:
         lines.append(f"**green arrows**: true deflection {f}")
     if g.predicted:
         lines.append(f"**blue arrows**: the model's deflection {f}")
-        lines.append(f"**magenta arrows**: residual, measured − model, {fr}, ending at the "
-                     f"measured tip; **grey wire ball**: 3σ of the noise {fr}: an arrow that "
-                     "starts inside it is noise")
+        lines.append(
+            f"**magenta arrows**: residual, measured − model, {fr}, ending at the "
+            f"measured tip; **grey wire ball**: 3σ of the noise {fr}: an arrow that "
+            "starts inside it is noise"
+        )
     if g.discovery:
-        lines.append(f"**magenta arrows**: residual of the user's model {fr}, **violet**: with "
-                     f"the named effects; both end at the measured tip; **grey wire ball**: 3σ "
-                     f"of the noise {fr}: an arrow that starts inside it is noise")
+        lines.append(
+            f"**magenta arrows**: residual of the user's model {fr}, **violet**: with "
+            f"the named effects; both end at the measured tip; **grey wire ball**: 3σ "
+            f"of the noise {fr}: an arrow that starts inside it is noise"
+        )
     lines.append("**grey lines**: the tracker's lines of sight")
     return "\n".join(f"- {line}" for line in lines)
 
@@ -81,8 +90,9 @@ def sigmas(r: np.ndarray, cov: np.ndarray) -> float:
     return float(np.sqrt(r @ np.linalg.solve(cov, r)))
 
 
-def pose_table(names: list[str], measured: np.ndarray, cov: np.ndarray,
-               columns: dict[str, np.ndarray]) -> list[str]:
+def pose_table(
+    names: list[str], measured: np.ndarray, cov: np.ndarray, columns: dict[str, np.ndarray]
+) -> list[str]:
     """Markdown rows: per reflector the measured deflection and, per extra column, its value:
     a deflection (``name`` ends in "deflection": shown in mm) or a residual (µm and sigmas).
     Rows are NaN where the reflector was not seen in both states."""
@@ -105,18 +115,30 @@ def pose_table(names: list[str], measured: np.ndarray, cov: np.ndarray,
     return lines
 
 
-def pose_page(index: int, n_poses: int, command: np.ndarray, wrench: WrenchRecord | None,
-              sag: np.ndarray, table: list[str], gravity: float, header: str = "", footer: str = "") -> str:
+def pose_page(
+    index: int,
+    n_poses: int,
+    command: np.ndarray,
+    wrench: WrenchRecord | None,
+    sag: np.ndarray,
+    table: list[str],
+    gravity: float,
+    header: str = "",
+    footer: str = "",
+) -> str:
     """The markdown page of one pose (``gravity``: see :func:`load_text`)."""
     q = ", ".join(f"{np.degrees(x):.0f}" for x in command)
     s = sag[np.isfinite(sag)]
     lines = ([header, ""] if header else []) + [
         f"### Pose {index} ({n_poses} poses) · q = ({q})°",
-        f"Load: {load_text(wrench, gravity)}."]
+        f"Load: {load_text(wrench, gravity)}.",
+    ]
     if s.size:
         lo, hi = f"{1e3 * s.min():.0f}", f"{1e3 * s.max():.0f}"
-        lines.append(f"Unloaded, the reflectors sit {lo if lo == hi else f'{lo}–{hi}'} mm from "
-                     "their posts: the arm sags under its own weight from the command.")
+        lines.append(
+            f"Unloaded, the reflectors sit {lo if lo == hi else f'{lo}–{hi}'} mm from "
+            "their posts: the arm sags under its own weight from the command."
+        )
     lines += [""] + table
     if footer:
         lines += ["", footer]

@@ -47,6 +47,7 @@ keeps it near 1e-3 (checked against finite differences in tests/test_identify_fo
 3e-4 of re-taking A_base at every solution (1e-2 rad: 4e-3 sd), below the Monte Carlo's own
 stopping tolerance of 1e-2 sd.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -54,14 +55,23 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from calbench.bench.statics.batched import BatchStatics
 from calbench.bench.model.robot import Robot
-from calbench.bench.statics.equilibrium import (Load, NewtonPoint, NewtonResult, StaticsError, StaticsSolver,
-                                    ift_tangent, kkt_matrix, statics_options)
+from calbench.bench.statics.batched import BatchStatics
+from calbench.bench.statics.equilibrium import (
+    Load,
+    NewtonPoint,
+    NewtonResult,
+    StaticsError,
+    StaticsSolver,
+    ift_tangent,
+    kkt_matrix,
+    statics_options,
+)
 
 from .observations import Observations
 
-KKT_QTOL = 1e-3   # rad: A_base is re-taken at a solution that moved more than this from where it was taken
+KKT_QTOL = 1e-3  # rad: A_base is re-taken at a solution that moved more than this from where it was taken
+
 
 @dataclass(frozen=True)
 class PoseDesign:
@@ -70,7 +80,7 @@ class PoseDesign:
     index: int
     q: np.ndarray
     load: Load
-    sites: np.ndarray          # reflector site ids, rows of this pose's dp
+    sites: np.ndarray  # reflector site ids, rows of this pose's dp
 
 
 def design_from_observations(robot: Robot, obs: Observations) -> list[PoseDesign]:
@@ -86,8 +96,11 @@ def design_from_observations(robot: Robot, obs: Observations) -> list[PoseDesign
 
     for p in obs.poses:
         load = Load(np.asarray(p.force, float), np.asarray(p.moment, float), site(p.site))
-        out.append(PoseDesign(p.index, np.asarray(p.q, float), load,
-                              np.array([site(r) for r in p.reflectors], dtype=int)))
+        out.append(
+            PoseDesign(
+                p.index, np.asarray(p.q, float), load, np.array([site(r) for r in p.reflectors], dtype=int)
+            )
+        )
     return out
 
 
@@ -99,9 +112,9 @@ class _Eq:
 
     def __init__(self, qpos, lam, basis, a_base, h_len):
         self.qpos, self.lam, self.basis, self.a_base, self.h_len = qpos, lam, basis, a_base, h_len
-        self.q_kkt = np.array(qpos, dtype=float)   # where a_base and h_len were taken
-        self.theta = None      # parameters of the cached solution
-        self.tangent = None    # d[qpos; lam]/d theta there (when a Jacobian was computed)
+        self.q_kkt = np.array(qpos, dtype=float)  # where a_base and h_len were taken
+        self.theta = None  # parameters of the cached solution
+        self.tangent = None  # d[qpos; lam]/d theta there (when a Jacobian was computed)
 
 
 class ForwardModel:
@@ -114,16 +127,23 @@ class ForwardModel:
     registration, identify/shopfloor/tracker_pose.py, fits them).
     """
 
-    BATCHED = True   # default of ``batched`` (benchmarks switch it to time the scalar loop)
+    BATCHED = True  # default of ``batched`` (benchmarks switch it to time the scalar loop)
 
-    def __init__(self, robot: Robot, design: list[PoseDesign], tol: float = 1e-10,
-                 max_iter: int = 12, fd_step: float = 1e-7, batched: bool | None = None):
+    def __init__(
+        self,
+        robot: Robot,
+        design: list[PoseDesign],
+        tol: float = 1e-10,
+        max_iter: int = 12,
+        fd_step: float = 1e-7,
+        batched: bool | None = None,
+    ):
         self.robot = robot
         # warm evaluations of every equilibrium at once (_evaluate_stacked)
         self.batched = self.BATCHED if batched is None else batched
         self._batch: BatchStatics | None = None
         self.design = design
-        self.max_iter = max_iter       # warm-started Newton steps before A_base is re-taken
+        self.max_iter = max_iter  # warm-started Newton steps before A_base is re-taken
         self.statics = StaticsSolver(robot, tol=tol, fd_step=fd_step)
         self.nv = robot.model.nv
         self._js = np.zeros((3, self.nv))
@@ -137,9 +157,9 @@ class ForwardModel:
         self.n_params = self.n_base
         self._kc = self.layout.stiffness_index
         self._s0 = self.layout.preload_index
-        self._p_kkt: np.ndarray | None = None     # parameters beyond the base A_base was taken at
-        self._params = None                        # the base parameters last written (Params)
-        self.unloaded: tuple[np.ndarray, np.ndarray | None] | None = None   # x0 (M,3), d x0/d theta
+        self._p_kkt: np.ndarray | None = None  # parameters beyond the base A_base was taken at
+        self._params = None  # the base parameters last written (Params)
+        self.unloaded: tuple[np.ndarray, np.ndarray | None] | None = None  # x0 (M,3), d x0/d theta
 
     # Newton iterations after which a stalling chord step gives up (A_base is then re-taken);
     # a subclass whose stiffness matrix is exact but for A_base may allow more
@@ -240,7 +260,7 @@ class ForwardModel:
 
         def stiffness(p: NewtonPoint) -> np.ndarray | None:
             if p.stalled and p.iteration > self.stall_limit:
-                return None    # still stalling: A_base is stale, the caller re-takes it
+                return None  # still stalling: A_base is stale, the caller re-takes it
             return self._stiffness(eq, theta)
 
         try:
@@ -255,7 +275,7 @@ class ForwardModel:
     def _solve(self, des: PoseDesign, load, eq: _Eq, theta, refresh: bool) -> NewtonResult:
         """Equilibrium of one (pose, state): warm Newton, then with a re-taken A_base, then a
         cold solve adopted into the cache. Raises RuntimeError when all three fail."""
-        if refresh:   # the effects' springs live in A_base: re-take it
+        if refresh:  # the effects' springs live in A_base: re-take it
             self._retake(eq, eq.qpos, load, eq.lam, eq.basis, theta)
         sol = self._newton(eq, load, theta)
         if sol is None:
@@ -269,7 +289,13 @@ class ForwardModel:
             self.robot.set_command(des.q)
             new = self._adopt(e.qpos, load, theta)
             eq.qpos, eq.lam, eq.basis, eq.a_base, eq.h_len, eq.q_kkt = (
-                new.qpos, new.lam, new.basis, new.a_base, new.h_len, new.q_kkt)
+                new.qpos,
+                new.lam,
+                new.basis,
+                new.a_base,
+                new.h_len,
+                new.q_kkt,
+            )
             eq.tangent = None
             sol = self._newton(eq, load, theta)
             if sol is None:
@@ -283,12 +309,15 @@ class ForwardModel:
         theta = np.asarray(theta, dtype=float)
         npar = self.n_params
         nb = self.n_base
-        if (theta.shape != (npar,) or not np.all(np.isfinite(theta))
-                or np.any(theta[: self.layout.n_joints] <= 0)):
+        if (
+            theta.shape != (npar,)
+            or not np.all(np.isfinite(theta))
+            or np.any(theta[: self.layout.n_joints] <= 0)
+        ):
             raise ValueError(f"theta must be {npar} finite values with positive compliances, got {theta}")
         robot = self.robot
         m, d = robot.model, robot.data
-        self.write(theta)                             # ValueError for invalid effect values
+        self.write(theta)  # ValueError for invalid effect values
         self.stats["evaluations"] += 1
         dp = np.empty((self.n_obs, 3))
         jac = np.empty((self.n_obs, 3, npar)) if jacobian else None
@@ -310,7 +339,7 @@ class ForwardModel:
                     sol = self._solve(des, load, eq, theta, refresh)
                     eq.qpos, eq.lam, eq.theta, eq.tangent = sol.qpos, sol.lam, theta.copy(), None
                     pos.append(d.site_xpos[des.sites].copy())
-                    if jacobian:   # data holds the solution (Newton's last residual)
+                    if jacobian:  # data holds the solution (Newton's last residual)
                         if self._stale(eq, sol.qpos):
                             self.stats["retakes"] += 1
                             self._retake(eq, sol.qpos, load, sol.lam, eq.basis, theta)
@@ -322,11 +351,11 @@ class ForwardModel:
                             mujoco.mj_jacSite(m, d, self._js, None, int(s))
                             js[i] = self._js @ dq
                         jsite.append(js)
-                dp[row: row + n] = pos[1] - pos[0]
-                x0[row: row + n] = pos[0]
+                dp[row : row + n] = pos[1] - pos[0]
+                x0[row : row + n] = pos[0]
                 if jacobian:
-                    jac[row: row + n] = jsite[1] - jsite[0]
-                    j0[row: row + n] = jsite[0]
+                    jac[row : row + n] = jsite[1] - jsite[0]
+                    j0[row : row + n] = jsite[0]
                 row += n
             self._p_kkt = theta[nb:].copy()
         self.unloaded = (x0, j0)
@@ -337,8 +366,13 @@ class ForwardModel:
         """Warm evaluations run stacked on bench/statics/batched.py, unless the model holds more than
         Robot.set_params writes (a subclass's own parameters and write: discovery's effects),
         which the batch's copy of the model would not see."""
-        return (self.batched and not refresh and self.n_params == self.n_base and type(self).write is ForwardModel.write
-                and type(self)._dforce is ForwardModel._dforce)
+        return (
+            self.batched
+            and not refresh
+            and self.n_params == self.n_base
+            and type(self).write is ForwardModel.write
+            and type(self)._dforce is ForwardModel._dforce
+        )
 
     def _evaluate_stacked(self, theta, jacobian: bool):
         """evaluate()'s loop for all (pose, state) equilibria at once: the same warm Newton (the
@@ -347,8 +381,11 @@ class ForwardModel:
         re-taken A_base and cold fallbacks), then the same IFT tangents, stacked. Inside
         statics_options, the cache initialised."""
         robot, nv = self.robot, self.nv
-        rows = [(des, load, eq) for des, pair in zip(self.design, self._cache)
-                for load, eq in zip((None, des.load), pair)]
+        rows = [
+            (des, load, eq)
+            for des, pair in zip(self.design, self._cache)
+            for load, eq in zip((None, des.load), pair)
+        ]
         n = len(rows)
         if self._batch is None:
             self._batch = BatchStatics(self.statics, nsim=n, nthread=1)
@@ -356,13 +393,15 @@ class ForwardModel:
         bs.sync(*Robot.PARAM_FIELDS)
         q = np.array([des.q for des, _, _ in rows])
         zero = np.zeros(3)
-        load = Load(np.array([zero if ld is None else ld.force for _, ld, _ in rows]),
-                    np.array([zero if ld is None else ld.moment for _, ld, _ in rows]),
-                    np.array([robot.payload_site if ld is None else ld.site for _, ld, _ in rows]))
+        load = Load(
+            np.array([zero if ld is None else ld.force for _, ld, _ in rows]),
+            np.array([zero if ld is None else ld.moment for _, ld, _ in rows]),
+            np.array([robot.payload_site if ld is None else ld.site for _, ld, _ in rows]),
+        )
         qpos = np.array([eq.qpos for *_, eq in rows])
         lam = np.array([eq.lam for *_, eq in rows])
         for i, (*_, eq) in enumerate(rows):
-            if eq.tangent is not None and eq.theta is not None:   # first-order prediction
+            if eq.tangent is not None and eq.theta is not None:  # first-order prediction
                 step = eq.tangent @ (theta - eq.theta)
                 qpos[i] += step[:nv]
                 lam[i] += step[nv:]
@@ -372,8 +411,12 @@ class ForwardModel:
 
         def springs(ids) -> np.ndarray:
             """S(theta) at the poses the batch holds for simulations ids."""
-            return self._springs(theta, robot.tendon_moments_stack(bs.ten_j[ids]),
-                                 bs.ten_length[ids][:, robot.tendons], h_len[ids])
+            return self._springs(
+                theta,
+                robot.tendon_moments_stack(bs.ten_j[ids]),
+                bs.ten_length[ids][:, robot.tendons],
+                h_len[ids],
+            )
 
         def stiffness(idx, qp, lm, r, stalled, iteration):
             return a_base[idx] + springs(idx), stalled & (iteration > 2)
@@ -381,7 +424,7 @@ class ForwardModel:
         sol = bs.newton(q, qpos, basis, load, lam=lam, stiffness=stiffness, max_iter=self.max_iter)
         self.stats["newton_iterations"] += int(sol.iterations[sol.converged].sum())
         qpos, lam = sol.qpos, sol.lam
-        for i in np.flatnonzero(~sol.converged):      # rare: the scalar path's fallbacks
+        for i in np.flatnonzero(~sol.converged):  # rare: the scalar path's fallbacks
             des, ld, eq = rows[i]
             robot.set_command(des.q)
             one = self._solve(des, ld, eq, theta, False)
@@ -389,7 +432,7 @@ class ForwardModel:
             a_base[i], h_len[i], basis[i] = eq.a_base, eq.h_len, eq.basis
         for i, (des, ld, eq) in enumerate(rows):
             eq.qpos, eq.lam, eq.theta, eq.tangent = qpos[i], lam[i], theta.copy(), None
-            if jacobian and self._stale(eq, qpos[i]):     # the tangent needs A_base at the solution
+            if jacobian and self._stale(eq, qpos[i]):  # the tangent needs A_base at the solution
                 self.stats["retakes"] += 1
                 robot.set_command(des.q)
                 self._retake(eq, qpos[i], ld, lam[i], basis[i], theta)
@@ -402,8 +445,9 @@ class ForwardModel:
         jac = None
         if jacobian:
             kkt = kkt_matrix(a_base + springs(ids), res.jc_r)
-            tangent = ift_tangent(kkt, robot.dforce_dtheta_stack(self._params, qpos, q, bs.ten_j[ids],
-                                                                  bs.ten_length[ids]))
+            tangent = ift_tangent(
+                kkt, robot.dforce_dtheta_stack(self._params, qpos, q, bs.ten_j[ids], bs.ten_length[ids])
+            )
             for i, (*_, eq) in enumerate(rows):
                 eq.tangent = tangent[i]
             used = np.unique(np.concatenate([des.sites for des in self.design]))
@@ -414,14 +458,14 @@ class ForwardModel:
         row = 0
         for k, des in enumerate(self.design):
             m = len(des.sites)
-            dp[row: row + m] = pos[2 * k + 1, des.sites] - pos[2 * k, des.sites]
-            x0[row: row + m] = pos[2 * k, des.sites]
+            dp[row : row + m] = pos[2 * k + 1, des.sites] - pos[2 * k, des.sites]
+            x0[row : row + m] = pos[2 * k, des.sites]
             if jacobian:
                 cols = np.searchsorted(used, des.sites)
-                jac[row: row + m] = jsite[2 * k + 1, cols] - jsite[2 * k, cols]
-                j0[row: row + m] = jsite[2 * k, cols]
+                jac[row : row + m] = jsite[2 * k + 1, cols] - jsite[2 * k, cols]
+                j0[row : row + m] = jsite[2 * k, cols]
             row += m
-        self._p_kkt = theta[self.n_base:].copy()
+        self._p_kkt = theta[self.n_base :].copy()
         self.unloaded = (x0, j0)
         return dp, jac
 

@@ -44,6 +44,7 @@ gives the Mahalanobis distance d = |r_w|; d > OUTLIER_SIGMA (5) flags the (pose,
 a tracker reading more than 5 sigma off. For a correct reading d^2 ~ chi^2(3) (slightly less:
 the fit absorbs p of the M*3 degrees of freedom), so P(d > 5) = 1.5e-5 per observation.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -64,15 +65,15 @@ class Identifiability:
     """Result of the rank analysis of a scaled observation matrix."""
 
     names: tuple[str, ...]
-    singular_values: np.ndarray          # of the column-normalised matrix, descending
+    singular_values: np.ndarray  # of the column-normalised matrix, descending
     rank: int
-    identifiable: np.ndarray             # (p,) bool
-    null_vectors: np.ndarray             # (p, p - rank) in column-normalised coordinates
-    column_norms: np.ndarray             # (p,)
+    identifiable: np.ndarray  # (p,) bool
+    null_vectors: np.ndarray  # (p, p - rank) in column-normalised coordinates
+    column_norms: np.ndarray  # (p,)
     reasons: dict[str, str] = field(default_factory=dict)
-    relative_std: np.ndarray | None = None   # (p,) std / |estimate|, after :func:`resolve`
-    unresolved: np.ndarray | None = None     # (p,) bool: rank says yes, the noise says no
-    correlation: np.ndarray | None = None    # (p, p) of the estimate, after :func:`resolve`
+    relative_std: np.ndarray | None = None  # (p,) std / |estimate|, after :func:`resolve`
+    unresolved: np.ndarray | None = None  # (p,) bool: rank says yes, the noise says no
+    correlation: np.ndarray | None = None  # (p, p) of the estimate, after :func:`resolve`
 
     @property
     def condition(self) -> float:
@@ -81,16 +82,22 @@ class Identifiability:
 
     def as_dict(self) -> dict:
         return {
-            "rank": int(self.rank), "n_parameters": len(self.names),
-            "tolerance": RANK_TOL, "null_tolerance": NULL_TOL,
+            "rank": int(self.rank),
+            "n_parameters": len(self.names),
+            "tolerance": RANK_TOL,
+            "null_tolerance": NULL_TOL,
             "singular_values_scaled": [float(x) for x in self.singular_values],
             "condition_number": self.condition,
             "identifiable": {n: bool(b) for n, b in zip(self.names, self.identifiable)},
             "unidentifiable_reasons": dict(self.reasons),
             "max_relative_std": MAX_RELATIVE_STD,
-            "relative_std": (None if self.relative_std is None else
-                             {n: (float(x) if np.isfinite(x) else None)
-                              for n, x in zip(self.names, self.relative_std)}),
+            "relative_std": (
+                None
+                if self.relative_std is None
+                else {
+                    n: (float(x) if np.isfinite(x) else None) for n, x in zip(self.names, self.relative_std)
+                }
+            ),
         }
 
 
@@ -103,13 +110,14 @@ def analyze(jw: np.ndarray, names: tuple[str, ...]) -> Identifiability:
     scale = np.where(zero, 1.0, norms)
     jn = jw / scale
     jn[:, zero] = 0.0
-    _, s, vt = (np.linalg.svd(jn, full_matrices=jn.shape[0] < p) if jn.shape[0]
-                else (None, np.zeros(p), np.eye(p)))
+    _, s, vt = (
+        np.linalg.svd(jn, full_matrices=jn.shape[0] < p) if jn.shape[0] else (None, np.zeros(p), np.eye(p))
+    )
     s_full = np.zeros(p)
     s_full[: len(s)] = s
     rank = int(np.sum(s_full > RANK_TOL * (s_full[0] if s_full[0] > 0 else 1.0)))
-    null = vt[rank:].T                         # (p, p - rank)
-    weight = np.sqrt((null ** 2).sum(axis=1)) if null.size else np.zeros(p)
+    null = vt[rank:].T  # (p, p - rank)
+    weight = np.sqrt((null**2).sum(axis=1)) if null.size else np.zeros(p)
     ident = (weight <= NULL_TOL) & ~zero
     return Identifiability(tuple(names), s_full, rank, ident, null, norms)
 
@@ -125,7 +133,7 @@ def resolve(ident: Identifiability, theta: np.ndarray, cov: np.ndarray) -> np.nd
         sd = np.sqrt(np.where(var >= 0, var, np.nan))
         rel = sd / np.abs(theta)
         corr = np.asarray(cov, dtype=float) / np.outer(sd, sd)
-    unresolved = ident.identifiable & ~(rel <= MAX_RELATIVE_STD)     # NaN is unresolved too
+    unresolved = ident.identifiable & ~(rel <= MAX_RELATIVE_STD)  # NaN is unresolved too
     ident.relative_std, ident.unresolved, ident.correlation = rel, unresolved, corr
     ident.identifiable = ident.identifiable & ~unresolved
     return unresolved
@@ -157,26 +165,38 @@ def explain(ident: Identifiability, layout: ParamLayout, facts: dict) -> dict[st
             zero_col = ident.column_norms[i] <= ZERO_COLUMN_TOL * max(ident.column_norms.max(), 1e-300)
             if zero_col and not seen[j]:
                 if facts["loads_vertical"] and vertical_axes is not None and vertical_axes[j]:
-                    reasons[name] = (f"every load is vertical, so none turns the J{j + 1} axis (paper §5.1): "
-                                     f"k{j + 1} needs a non-vertical load with the arm outstretched")
+                    reasons[name] = (
+                        f"every load is vertical, so none turns the J{j + 1} axis (paper §5.1): "
+                        f"k{j + 1} needs a non-vertical load with the arm outstretched"
+                    )
                 else:
                     reasons[name] = f"no pose's load puts a torque on motor {j + 1}"
                 continue
             if zero_col:
-                reasons[name] = (f"no reflector seen moves when motor {j + 1} turns: the reflector "
-                                 "set sees no rotation about that axis")
+                reasons[name] = (
+                    f"no reflector seen moves when motor {j + 1} turns: the reflector "
+                    "set sees no rotation about that axis"
+                )
                 continue
         if name in comp and n_q2 < 3:
             q, jn = f"q{j2 + 1}", f"J{j2 + 1}"
-            reasons[name] = (f"only {n_q2} distinct {q} in the plan: too few to separate "
-                             f"K_theta{j2 + 1}, K_C and s0 (the paper's step 2, eqs. 21-22, needs the {jn} "
-                             f"stiffness at three {q}; the exact model adds the compensator's torque, "
-                             f"one more equation per {q})")
+            reasons[name] = (
+                f"only {n_q2} distinct {q} in the plan: too few to separate "
+                f"K_theta{j2 + 1}, K_C and s0 (the paper's step 2, eqs. 21-22, needs the {jn} "
+                f"stiffness at three {q}; the exact model adds the compensator's torque, "
+                f"one more equation per {q})"
+            )
             continue
-        mix = [names[k] for k in range(len(names))
-               if ident.null_vectors.size and np.sqrt((ident.null_vectors[k] ** 2).sum()) > NULL_TOL]
-        reasons[name] = ("the plan does not separate " + ", ".join(mix)
-                         + " (a combination of them leaves every measured deflection unchanged)")
+        mix = [
+            names[k]
+            for k in range(len(names))
+            if ident.null_vectors.size and np.sqrt((ident.null_vectors[k] ** 2).sum()) > NULL_TOL
+        ]
+        reasons[name] = (
+            "the plan does not separate "
+            + ", ".join(mix)
+            + " (a combination of them leaves every measured deflection unchanged)"
+        )
     ident.reasons = reasons
     return reasons
 
@@ -185,17 +205,24 @@ def _unresolved_reason(ident: Identifiability, i: int, n_q2: int, j2: int | None
     """Why parameter i is unresolved; ``j2`` the compensator's joint when i is one of its
     parameters (or of that joint's spring), else None."""
     rel = ident.relative_std[i]
-    head = (f"the plan determines it only to +-{100 * rel:,.0f} % of its value, so not even "
-            "that it is not zero" if np.isfinite(rel) and rel < 1e4 else
-            "the plan does not determine it: its standard deviation dwarfs the estimate")
+    head = (
+        f"the plan determines it only to +-{100 * rel:,.0f} % of its value, so not even that it is not zero"
+        if np.isfinite(rel) and rel < 1e4
+        else "the plan does not determine it: its standard deviation dwarfs the estimate"
+    )
     if j2 is not None and n_q2 < 3:
         q = f"q{j2 + 1}"
-        return (head + f": only {n_q2} distinct {q} in the plan; K_theta{j2 + 1}, K_C and s0 "
-                f"need the J{j2 + 1} stiffness at three or more {q} (the paper's step 2, eqs. 21-22)")
+        return (
+            head + f": only {n_q2} distinct {q} in the plan; K_theta{j2 + 1}, K_C and s0 "
+            f"need the J{j2 + 1} stiffness at three or more {q} (the paper's step 2, eqs. 21-22)"
+        )
     corr = ident.correlation[i] if ident.correlation is not None else None
     if corr is not None:
-        others = [(abs(c), k) for k, c in enumerate(corr) if k != i and np.isfinite(c)
-                  and ident.unresolved is not None and not ident.unresolved[k]]
+        others = [
+            (abs(c), k)
+            for k, c in enumerate(corr)
+            if k != i and np.isfinite(c) and ident.unresolved is not None and not ident.unresolved[k]
+        ]
         if others:
             c, k = max(others)
             if c > 0.5:
@@ -209,14 +236,26 @@ def whiten_factors(cov: np.ndarray) -> np.ndarray:
     return np.linalg.inv(chol)
 
 
-def outliers(residual_w: np.ndarray, labels: list[tuple[int, str]],
-             threshold: float = OUTLIER_SIGMA) -> list[dict]:
+def outliers(
+    residual_w: np.ndarray, labels: list[tuple[int, str]], threshold: float = OUTLIER_SIGMA
+) -> list[dict]:
     """(pose, reflector) whose whitened residual (M,3) has Mahalanobis distance > threshold."""
     d = np.linalg.norm(residual_w, axis=1)
-    return [{"pose": int(labels[i][0]), "reflector": labels[i][1], "sigma": float(d[i])}
-            for i in np.flatnonzero(d > threshold)]
+    return [
+        {"pose": int(labels[i][0]), "reflector": labels[i][1], "sigma": float(d[i])}
+        for i in np.flatnonzero(d > threshold)
+    ]
 
 
-__all__ = ["RANK_TOL", "NULL_TOL", "OUTLIER_SIGMA", "MAX_RELATIVE_STD", "Identifiability",
-           "analyze", "resolve", "explain",
-           "whiten_factors", "outliers"]
+__all__ = [
+    "RANK_TOL",
+    "NULL_TOL",
+    "OUTLIER_SIGMA",
+    "MAX_RELATIVE_STD",
+    "Identifiability",
+    "analyze",
+    "resolve",
+    "explain",
+    "whiten_factors",
+    "outliers",
+]

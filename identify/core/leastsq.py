@@ -51,21 +51,24 @@ Within one sigma of the optimum (undamped step < 1 sigma) the step is taken with
 test when ``accept_within_sigma``: there chi2 changes by ~step^2, below its own round-off at
 the solver's precision.
 """
+
 from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 log = logging.getLogger(__name__)
 
-Evaluate = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]   # x -> (f_w (n,), J_w (n, p))
+Evaluate = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]  # x -> (f_w (n,), J_w (n, p))
 
 
 # --------------------------------------------------------------------------- the result type
+
 
 @dataclass
 class Fit:
@@ -77,14 +80,14 @@ class Fit:
     columns elsewhere. ``dof`` = scalar residuals minus the rank the data determine.
     """
 
-    values: np.ndarray                  # (P,)
-    cov: np.ndarray                     # (P, P)
-    identifiable: np.ndarray            # (P,) bool: determined by the data (not held, not at a bound)
-    residual: np.ndarray                # (M, 3) measured - predicted, m
-    residual_w: np.ndarray              # (M, 3) whitened
+    values: np.ndarray  # (P,)
+    cov: np.ndarray  # (P, P)
+    identifiable: np.ndarray  # (P,) bool: determined by the data (not held, not at a bound)
+    residual: np.ndarray  # (M, 3) measured - predicted, m
+    residual_w: np.ndarray  # (M, 3) whitened
     chi2: float
-    n_res: int                          # scalar residuals (3 M)
-    rank: int                           # parameters the data determine
+    n_res: int  # scalar residuals (3 M)
+    rank: int  # parameters the data determine
     iterations: int
     evaluations: int
     converged: bool
@@ -92,12 +95,12 @@ class Fit:
     names: tuple[str, ...] = ()
     units: tuple[str, ...] = ()
     predicted: np.ndarray | None = None  # (M, 3) model deflections, m
-    at_bound: np.ndarray | None = None   # (P,) bool
-    reasons: dict[str, str] = field(default_factory=dict)   # why a parameter is not determined
+    at_bound: np.ndarray | None = None  # (P,) bool
+    reasons: dict[str, str] = field(default_factory=dict)  # why a parameter is not determined
     start: np.ndarray | None = None
     start_method: str = "given"
-    ident: Any = None                    # identify.identifiability.Identifiability, when analysed
-    effects: list = field(default_factory=list)   # discovery: the effects appended to the base
+    ident: Any = None  # identify.identifiability.Identifiability, when analysed
+    effects: list = field(default_factory=list)  # discovery: the effects appended to the base
     model: Any = field(default=None, repr=False)  # the forward model that produced it
     robot: Any = field(default=None, repr=False)
     extra: dict = field(default_factory=dict)
@@ -126,23 +129,24 @@ class Fit:
         out, off = [], self.values.size - sum(len(e.param_names) for e in self.effects)
         for e in self.effects:
             n = len(e.param_names)
-            out.append((e, self.values[off: off + n].copy()))
+            out.append((e, self.values[off : off + n].copy()))
             off += n
         return out
 
 
 # --------------------------------------------------------------------------- the core
 
+
 @dataclass
 class Solution:
     """What :func:`levenberg_marquardt` returns: the point, the model there, and how it got there."""
 
     x: np.ndarray
-    f_w: np.ndarray          # whitened model at x (first-order prediction if the last step was not evaluated)
-    j_w: np.ndarray          # whitened Jacobian, d f_w / d x, at the last evaluation
-    r_w: np.ndarray          # y_w - f_w
-    cost: float              # |r_w|^2
-    free: np.ndarray         # (p,) bool: estimated in the last step (not held, not at a bound, free_fn)
+    f_w: np.ndarray  # whitened model at x (first-order prediction if the last step was not evaluated)
+    j_w: np.ndarray  # whitened Jacobian, d f_w / d x, at the last evaluation
+    r_w: np.ndarray  # y_w - f_w
+    cost: float  # |r_w|^2
+    free: np.ndarray  # (p,) bool: estimated in the last step (not held, not at a bound, free_fn)
     iterations: int
     evaluations: int
     converged: bool
@@ -166,8 +170,8 @@ def svd_step(j: np.ndarray, r: np.ndarray, lam: float, rank_tol: float) -> tuple
     u, s, vt = np.linalg.svd(jn, full_matrices=False)
     keep = s > rank_tol * s[0]
     s_k, u_k, v_k = s[keep], u[:, keep], vt[keep].T
-    du[ok] = (v_k @ (s_k / (s_k ** 2 + lam) * (u_k.T @ r))) / norms[ok]
-    sd[ok] = np.sqrt((v_k ** 2 / s_k ** 2).sum(axis=1)) / norms[ok]
+    du[ok] = (v_k @ (s_k / (s_k**2 + lam) * (u_k.T @ r))) / norms[ok]
+    sd[ok] = np.sqrt((v_k**2 / s_k**2).sum(axis=1)) / norms[ok]
     return du, sd, int(keep.sum())
 
 
@@ -196,15 +200,27 @@ def at_bounds(x: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[np.n
     return lo, hi
 
 
-def levenberg_marquardt(evaluate: Evaluate, y_w: np.ndarray, x0: np.ndarray, scale: np.ndarray, *,
-                        lower: np.ndarray | None = None, upper: np.ndarray | None = None,
-                        hold: np.ndarray | None = None,
-                        free_fn: Callable[[np.ndarray], np.ndarray] | None = None,
-                        valid: Callable[[np.ndarray], bool] | None = None,
-                        step_tol: float = 0.0, gain_tol: float = 0.0, cost_tol: float = 0.0,
-                        rank_tol: float = 1e-5, max_iter: int = 40, max_damping: int = 12,
-                        accept_within_sigma: bool = False, final_eval: bool = True,
-                        start_eval: tuple[np.ndarray, np.ndarray] | None = None) -> Solution:
+def levenberg_marquardt(
+    evaluate: Evaluate,
+    y_w: np.ndarray,
+    x0: np.ndarray,
+    scale: np.ndarray,
+    *,
+    lower: np.ndarray | None = None,
+    upper: np.ndarray | None = None,
+    hold: np.ndarray | None = None,
+    free_fn: Callable[[np.ndarray], np.ndarray] | None = None,
+    valid: Callable[[np.ndarray], bool] | None = None,
+    step_tol: float = 0.0,
+    gain_tol: float = 0.0,
+    cost_tol: float = 0.0,
+    rank_tol: float = 1e-5,
+    max_iter: int = 40,
+    max_damping: int = 12,
+    accept_within_sigma: bool = False,
+    final_eval: bool = True,
+    start_eval: tuple[np.ndarray, np.ndarray] | None = None,
+) -> Solution:
     """Minimise |y_w - f_w(x)|^2 from x0 (see the module docstring for every option).
 
     evaluate(x) -> (f_w, J_w) with J_w = d f_w / d x (unscaled); it may raise RuntimeError or
@@ -246,22 +262,31 @@ def levenberg_marquardt(evaluate: Evaluate, y_w: np.ndarray, x0: np.ndarray, sca
         lo, hi = at_bounds(x, lower, upper)
         du = np.zeros(p)
         sd = np.full(p, np.inf)
-        for _ in range(p):                       # fix bound parameters whose step points out,
-            du[:] = 0.0                          # the worst one at a time: fixing one changes the
-            sd[:] = np.inf                       # others' steps when they are correlated
+        for _ in range(p):  # fix bound parameters whose step points out,
+            du[:] = 0.0  # the worst one at a time: fixing one changes the
+            sd[:] = np.inf  # others' steps when they are correlated
             du[free], sd[free], _ = svd_step(j[:, free], r, 0.0, rank_tol)
             out = free & ((lo & (du < 0)) | (hi & (du > 0)))
             if not out.any():
                 break
-            worst = np.flatnonzero(out)[np.argmax(np.abs(du[out]) / np.where(np.isfinite(sd[out]), sd[out], 1.0))]
+            worst = np.flatnonzero(out)[
+                np.argmax(np.abs(du[out]) / np.where(np.isfinite(sd[out]), sd[out], 1.0))
+            ]
             free[worst] = False
         seen = free & np.isfinite(sd) & (sd > 0)
-        step = float(np.max(np.abs(du[seen]) / sd[seen])) if seen.any() else 0.0   # in sigmas
-        gain = float(np.sum((j[:, free] @ du[free]) ** 2))                        # promised chi2 drop
+        step = float(np.max(np.abs(du[seen]) / sd[seen])) if seen.any() else 0.0  # in sigmas
+        gain = float(np.sum((j[:, free] @ du[free]) ** 2))  # promised chi2 drop
         rho = step / prev_step if np.isfinite(prev_step) and prev_step > 0 else np.inf
         prev_step = step
-        log.debug("it %d chi2 %.6g step %.3g sigma gain %.3g lam %.3g free %d", it, cost, step, gain, lam,
-                  int(free.sum()))
+        log.debug(
+            "it %d chi2 %.6g step %.3g sigma gain %.3g lam %.3g free %d",
+            it,
+            cost,
+            step,
+            gain,
+            lam,
+            int(free.sum()),
+        )
         if step_tol > 0 and (step < step_tol or (rho < 0.5 and rho / (1 - rho) * step < step_tol)):
             x = np.clip(x + scale * du, lower, upper)
             f = f + j @ du
@@ -290,7 +315,9 @@ def levenberg_marquardt(evaluate: Evaluate, y_w: np.ndarray, x0: np.ndarray, sca
                 continue
             r_t = y_w - f_t
             cost_t = float(r_t @ r_t)
-            if (cost_t <= cost + 1e-9 * max(cost, 1.0)) or (accept_within_sigma and lam == 0.0 and step < 1.0):
+            if (cost_t <= cost + 1e-9 * max(cost, 1.0)) or (
+                accept_within_sigma and lam == 0.0 and step < 1.0
+            ):
                 gained = cost - cost_t
                 x, f, j, r, cost = trial, f_t, j_t, r_t, cost_t
                 lam = lam / 10 if lam > 1e-6 else 0.0
@@ -307,9 +334,16 @@ def levenberg_marquardt(evaluate: Evaluate, y_w: np.ndarray, x0: np.ndarray, sca
         r = y_w - f
         cost = float(r @ r)
         evaluated = True
-    log.info("least squares: chi2 %.6g after %d iterations, %d evaluations, %s", cost, it, n_eval,
-             "converged" if converged else "NOT converged")
-    return Solution(x, f, j / scale, r, cost, free, it, n_eval, converged, time.perf_counter() - t0, evaluated)
+    log.info(
+        "least squares: chi2 %.6g after %d iterations, %d evaluations, %s",
+        cost,
+        it,
+        n_eval,
+        "converged" if converged else "NOT converged",
+    )
+    return Solution(
+        x, f, j / scale, r, cost, free, it, n_eval, converged, time.perf_counter() - t0, evaluated
+    )
 
 
 __all__ = ["Fit", "Solution", "levenberg_marquardt", "svd_step", "covariance", "at_bounds"]

@@ -18,33 +18,34 @@ tracker pose from the log header.
 Nothing here reads a ``/truth/`` topic or the ``ground_truth`` record: :func:`from_log` takes a
 :class:`bench.logformat.CampaignLog`, and the caller reads it with ``include_truth=False``.
 """
+
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Iterable, Sequence
 
 import numpy as np
 
 from calbench.bench.core.errors import InputError
 from calbench.bench.log.writer import CampaignLog
 from calbench.bench.scenario.parse import TrackerSpec
-from calbench.bench.tracker.iso10360 import deflection_covariance
 from calbench.bench.tracker.instrument import mean_reading, tracker_rotation
+from calbench.bench.tracker.iso10360 import deflection_covariance
 
 
 @dataclass(frozen=True)
 class PoseObservation:
     """One complete pose: known inputs and the measured deflections of its reflectors."""
 
-    index: int                 # pose index in the plan
-    q: np.ndarray              # (N,) rad, commanded, one per actuated joint
-    force: np.ndarray          # (3,) N, world frame, applied in the loaded state
-    moment: np.ndarray         # (3,) N*m, world frame
-    site: str                  # MJCF site the wrench acts at
+    index: int  # pose index in the plan
+    q: np.ndarray  # (N,) rad, commanded, one per actuated joint
+    force: np.ndarray  # (3,) N, world frame, applied in the loaded state
+    moment: np.ndarray  # (3,) N*m, world frame
+    site: str  # MJCF site the wrench acts at
     reflectors: tuple[str, ...]  # reflectors seen in both states (rows of dp)
-    dp: np.ndarray             # (n, 3) m, world frame
-    cov: np.ndarray            # (n, 3, 3) m^2, each reflector's own (the diagonal blocks)
-    cov_block: np.ndarray | None = None   # (n, 3, n, 3) m^2, all of the pose; None: no correlation
+    dp: np.ndarray  # (n, 3) m, world frame
+    cov: np.ndarray  # (n, 3, 3) m^2, each reflector's own (the diagonal blocks)
+    cov_block: np.ndarray | None = None  # (n, 3, n, 3) m^2, all of the pose; None: no correlation
 
     def block(self) -> np.ndarray:
         """The pose's covariance as a (3n, 3n) matrix (rows: reflectors, then x y z)."""
@@ -56,11 +57,16 @@ class PoseObservation:
             out[i, :, i, :] = self.cov[i]
         return out.reshape(3 * n, 3 * n)
 
-    def subset(self, rows: Sequence[int]) -> "PoseObservation":
+    def subset(self, rows: Sequence[int]) -> PoseObservation:
         rows = list(rows)
         block = None if self.cov_block is None else self.cov_block[np.ix_(rows, range(3), rows, range(3))]
-        return replace(self, reflectors=tuple(self.reflectors[i] for i in rows), dp=self.dp[rows],
-                       cov=self.cov[rows], cov_block=block)
+        return replace(
+            self,
+            reflectors=tuple(self.reflectors[i] for i in rows),
+            dp=self.dp[rows],
+            cov=self.cov[rows],
+            cov_block=block,
+        )
 
 
 @dataclass
@@ -69,7 +75,7 @@ class Observations:
 
     poses: list[PoseObservation]
     tracker: TrackerSpec
-    noise_sigma: float                     # the tracker's nominal per-axis sigma (m), for reports
+    noise_sigma: float  # the tracker's nominal per-axis sigma (m), for reports
     n_planned: int
     lost_poses: list[int] = field(default_factory=list)
     truncated: bool = False
@@ -91,7 +97,7 @@ class Observations:
     def n_obs(self) -> int:
         return sum(len(p.reflectors) for p in self.poses)
 
-    def subset(self, keep: Iterable[tuple[int, str]]) -> "Observations":
+    def subset(self, keep: Iterable[tuple[int, str]]) -> Observations:
         """A copy holding only the (pose, reflector) rows in ``keep`` (e.g. outliers dropped)."""
         keep = set(keep)
         poses = []
@@ -99,13 +105,29 @@ class Observations:
             rows = [i for i, r in enumerate(p.reflectors) if (p.index, r) in keep]
             if rows:
                 poses.append(p.subset(rows))
-        return Observations(poses, self.tracker, self.noise_sigma, self.n_planned,
-                            list(self.lost_poses), self.truncated, self.source)
+        return Observations(
+            poses,
+            self.tracker,
+            self.noise_sigma,
+            self.n_planned,
+            list(self.lost_poses),
+            self.truncated,
+            self.source,
+        )
 
 
-def pose_observation(index: int, q, force, moment, site: str, names: Sequence[str],
-                     unloaded: Sequence, loaded: Sequence, spec: TrackerSpec,
-                     times: tuple[Sequence[float], Sequence[float]] | None = None) -> PoseObservation:
+def pose_observation(
+    index: int,
+    q,
+    force,
+    moment,
+    site: str,
+    names: Sequence[str],
+    unloaded: Sequence,
+    loaded: Sequence,
+    spec: TrackerSpec,
+    times: tuple[Sequence[float], Sequence[float]] | None = None,
+) -> PoseObservation:
     """dp and its covariance for one pose from its readings in both states (eq. 2); the
     readings' rows are in ``names`` order; ``times`` (s since the campaign's first reading, per
     reading) are needed by the iso10360 tracker only."""
@@ -113,14 +135,21 @@ def pose_observation(index: int, q, force, moment, site: str, names: Sequence[st
     m1 = mean_reading(spec, loaded)
     rows = np.flatnonzero(m0.seen & m1.seen)
     rot = tracker_rotation(spec)
-    block = np.einsum("ia,ranb,jb->rinj", rot, deflection_covariance(spec, unloaded, loaded, rows, times), rot)
+    block = np.einsum(
+        "ia,ranb,jb->rinj", rot, deflection_covariance(spec, unloaded, loaded, rows, times), rot
+    )
     n = len(rows)
     return PoseObservation(
-        index=int(index), q=np.asarray(q, dtype=float), force=np.asarray(force, dtype=float),
-        moment=np.asarray(moment, dtype=float), site=str(site),
-        reflectors=tuple(names[i] for i in rows), dp=m1.position[rows] - m0.position[rows],
+        index=int(index),
+        q=np.asarray(q, dtype=float),
+        force=np.asarray(force, dtype=float),
+        moment=np.asarray(moment, dtype=float),
+        site=str(site),
+        reflectors=tuple(names[i] for i in rows),
+        dp=m1.position[rows] - m0.position[rows],
         cov=block[np.arange(n), :, np.arange(n), :],
-        cov_block=block if spec.model == "iso10360" else None)
+        cov_block=block if spec.model == "iso10360" else None,
+    )
 
 
 def from_log(log: CampaignLog) -> Observations:
@@ -148,12 +177,15 @@ def from_log(log: CampaignLog) -> Observations:
         if len(ob.reflectors):
             poses.append(ob)
     if not poses:
-        raise InputError(path, "/tracker/measurement",
-                         "at least one complete pose with a reflector seen unloaded and loaded", "none")
+        raise InputError(
+            path,
+            "/tracker/measurement",
+            "at least one complete pose with a reflector seen unloaded and loaded",
+            "none",
+        )
     n_planned = max(int(log.n_poses_planned), len(log.complete_poses))
     lost = sorted(set(range(n_planned)) - set(log.complete_poses))
-    return Observations(poses, spec, float(spec.sigma), n_planned, lost, bool(log.truncated),
-                        str(path))
+    return Observations(poses, spec, float(spec.sigma), n_planned, lost, bool(log.truncated), str(path))
 
 
 __all__ = ["PoseObservation", "Observations", "from_log", "pose_observation"]

@@ -12,15 +12,16 @@ What a caller does with a marked parameter is its own decision: discovery report
 determined" (identify/discover/uncertainty.py); identification reports it "not determined" too,
 with the rises as the reason (identify/methods/onestep.py, measured there).
 """
+
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import Callable, Iterable
 
 import numpy as np
 
-PROFILE_SIGMAS = 2.0                   # the profile is checked this many Fisher stds from the estimate
-PROFILE_LOW, PROFILE_HIGH = 0.5, 2.0   # its rise there, over the quadratic's, must lie within these
+PROFILE_SIGMAS = 2.0  # the profile is checked this many Fisher stds from the estimate
+PROFILE_LOW, PROFILE_HIGH = 0.5, 2.0  # its rise there, over the quadratic's, must lie within these
 
 # refit(start, i) -> chi2 of the fit with parameter i held at start[i] and the others refitted
 # from start; it may raise ValueError, RuntimeError or LinAlgError (no fit there)
@@ -39,11 +40,18 @@ class Profile:
 
 def quadratic(rise: float | None) -> bool:
     """Whether a rise at PROFILE_SIGMAS Fisher stds is within the factor allowed of the quadratic's."""
-    return rise is not None and PROFILE_LOW * PROFILE_SIGMAS ** 2 <= rise <= PROFILE_HIGH * PROFILE_SIGMAS ** 2
+    return rise is not None and PROFILE_LOW * PROFILE_SIGMAS**2 <= rise <= PROFILE_HIGH * PROFILE_SIGMAS**2
 
 
-def profile_check(refit: Refit, values: np.ndarray, chi2: float, std: np.ndarray, lower: np.ndarray,
-                  upper: np.ndarray, indices: Iterable[int]) -> Profile:
+def profile_check(
+    refit: Refit,
+    values: np.ndarray,
+    chi2: float,
+    std: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    indices: Iterable[int],
+) -> Profile:
     """The check (module docstring) for the parameters ``indices`` of a fit at ``values`` with
     minimum ``chi2`` and Fisher stds ``std``; a parameter without a finite std is skipped."""
     values = np.asarray(values, dtype=float)

@@ -20,6 +20,7 @@ Birge-ratio inflation: the misfit then dominates).
 
 Units: SI (m, rad).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -27,21 +28,21 @@ from dataclasses import dataclass
 import numpy as np
 
 MAX_STEPS = 10
-STEP_TOL = 1e-12        # rad and m: a Gauss-Newton step below this has converged (1e-6 of a um)
+STEP_TOL = 1e-12  # rad and m: a Gauss-Newton step below this has converged (1e-6 of a um)
 
 
 @dataclass(frozen=True)
 class RigidFit:
     """A fitted tracker pose: world point = rotation @ tracker point + position."""
 
-    rotation: np.ndarray        # (3, 3) world from tracker
-    position: np.ndarray        # (3,) m, the tracker frame's origin in the world
-    cov: np.ndarray             # (6, 6) of [rotation about world x, y, z (rad), position (m)]
-    residual: np.ndarray        # (n, 3) m, world: predicted - registered measurement
+    rotation: np.ndarray  # (3, 3) world from tracker
+    position: np.ndarray  # (3,) m, the tracker frame's origin in the world
+    cov: np.ndarray  # (6, 6) of [rotation about world x, y, z (rad), position (m)]
+    residual: np.ndarray  # (n, 3) m, world: predicted - registered measurement
     chi2: float
     n_points: int
-    expected_rms: float         # m per axis: the RMS residual the measurement noise alone gives
-    n_params: int = 6           # parameters fitted (more when fitted jointly with others)
+    expected_rms: float  # m per axis: the RMS residual the measurement noise alone gives
+    n_params: int = 6  # parameters fitted (more when fitted jointly with others)
 
     @property
     def dof(self) -> int:
@@ -59,7 +60,7 @@ class RigidFit:
     @property
     def rms(self) -> float:
         """RMS residual per axis, m."""
-        return float(np.sqrt(np.mean(self.residual ** 2))) if self.residual.size else 0.0
+        return float(np.sqrt(np.mean(self.residual**2))) if self.residual.size else 0.0
 
     @property
     def rotation_std(self) -> np.ndarray:
@@ -130,11 +131,11 @@ def _normal(y, p, cinv, rot, t):
     """J^T W J, J^T W r, r and chi2 at (rot, t) with r = p - (R y + t) (world frame)."""
     ry = y @ rot.T
     r = p - (ry + t)
-    w = rot @ cinv @ rot.T                                   # (n, 3, 3) world-frame weights
+    w = rot @ cinv @ rot.T  # (n, 3, 3) world-frame weights
     jac = np.zeros((len(y), 3, 6))
-    jac[:, :, :3] = -np.array([skew(v) for v in ry])        # d(R y)/dw = -[R y]x
+    jac[:, :, :3] = -np.array([skew(v) for v in ry])  # d(R y)/dw = -[R y]x
     jac[:, :, 3:] = np.eye(3)
-    jw = np.einsum("nki,nkl->nil", jac, w)                  # J^T W per point (6, 3)
+    jw = np.einsum("nki,nkl->nil", jac, w)  # J^T W per point (6, 3)
     jtj = np.einsum("nil,nlj->ij", jw, jac)
     jtr = np.einsum("nil,nl->i", jw, r)
     chi2 = float(np.einsum("ni,nij,nj->", r, w, r))

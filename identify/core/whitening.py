@@ -15,9 +15,10 @@ campaign of equal poses is whitened by one batched product. A whitened residual'
 one reflector are then standard normal (chi2(3) for the outlier test) whatever the correlation:
 L^-1 makes all of them independent.
 """
+
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 from scipy.linalg import solve_triangular
@@ -39,18 +40,23 @@ class Whitener:
         groups: dict[int, list[int]] = {}
         for j, s in enumerate(self.sizes):
             groups.setdefault(s, []).append(j)
-        self._groups = [(np.array(js), np.stack([self.linv[j] for j in js]),
-                         np.stack([self.chol[j] for j in js]),
-                         np.stack([np.arange(self.offsets[j], self.offsets[j + 1]) for j in js]))
-                        for s, js in groups.items()]
+        self._groups = [
+            (
+                np.array(js),
+                np.stack([self.linv[j] for j in js]),
+                np.stack([self.chol[j] for j in js]),
+                np.stack([np.arange(self.offsets[j], self.offsets[j + 1]) for j in js]),
+            )
+            for s, js in groups.items()
+        ]
 
     @classmethod
-    def per_reflector(cls, cov: np.ndarray) -> "Whitener":
+    def per_reflector(cls, cov: np.ndarray) -> Whitener:
         """From per-reflector covariances (M, 3, 3): no correlation between reflectors."""
         return cls(list(np.asarray(cov, dtype=float)))
 
     @classmethod
-    def from_observations(cls, obs) -> "Whitener":
+    def from_observations(cls, obs) -> Whitener:
         """The blocks of identify.observations.Observations (each pose's ``cov_block``)."""
         return cls([p.block() for p in obs.poses])
 

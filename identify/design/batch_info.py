@@ -19,6 +19,7 @@ fails one at its unloaded equilibrium fails for every load and its loaded states
 solved. The result equals the scalar chunk (candidates.scalar_block, InfoEngine.pose per
 candidate): same candidates, blocks within the statics' tolerance (tests/test_design_batch.py).
 """
+
 from __future__ import annotations
 
 import time
@@ -28,8 +29,8 @@ import mujoco
 import mujoco.batch
 import numpy as np
 
-from calbench.bench.statics.batched import BatchStatics, Equilibria
 from calbench.bench.model.robot import LOOP_MARGIN
+from calbench.bench.statics.batched import BatchStatics, Equilibria
 from calbench.bench.statics.equilibrium import Load
 from calbench.bench.tracker.instrument import BLOCKING_GROUPS, sight_lines, unoccluded
 
@@ -68,7 +69,7 @@ class BatchInfo:
         self.statics.watch("xpos", "xipos")
         self.collider = _Collider(engine.feas.cmodel, nthread)
         self.sites = engine.robot.reflector_sites
-        self.seconds: dict[str, float] = defaultdict(float)   # wall time per phase of block()
+        self.seconds: dict[str, float] = defaultdict(float)  # wall time per phase of block()
         self._clock = 0.0
 
     def _phase(self, name: str) -> None:
@@ -83,7 +84,7 @@ class BatchInfo:
         The collision model runs only where the cheaper rules passed."""
         rb, feas, bs = self.eng.robot, self.eng.feas, self.statics
         qpos = bs.rigid(q)
-        ids = bs.place(np.where(np.isfinite(qpos), qpos, 0.0))   # a loop that did not close: degenerate
+        ids = bs.place(np.where(np.isfinite(qpos), qpos, 0.0))  # a loop that did not close: degenerate
         wrist = bs.batch.bind("xpos")[ids][:, feas.wrist]
         jc = np.where(np.isfinite(qpos).all(axis=1)[:, None, None], bs.loop_gap(ids)[1], np.nan)
         loop_ok = np.all(rb.loop_conditioning_stack(jc) >= LOOP_MARGIN, axis=1)
@@ -103,11 +104,13 @@ class BatchInfo:
         collides, clearance, visible = np.zeros(n, bool), np.zeros(n), np.zeros((n, k), bool)
         if ok.any():
             sub = eq.take(ok)
-            ids = self.statics.place(sub.qpos)     # may grow the batch: take it after
+            ids = self.statics.place(sub.qpos)  # may grow the batch: take it after
             feas, b = self.eng.feas, self.statics.batch
-            clearance[ok] = horizontal_clearance(b.bind("xipos")[ids][:, feas.masses],
-                                                 b.bind("xanchor")[ids][:, feas.hinges],
-                                                 b.bind("xaxis")[ids][:, feas.hinges])
+            clearance[ok] = horizontal_clearance(
+                b.bind("xipos")[ids][:, feas.masses],
+                b.bind("xanchor")[ids][:, feas.hinges],
+                b.bind("xaxis")[ids][:, feas.hinges],
+            )
             origin, unit, dist = sight_lines(self.eng.scn.tracker, self.statics.site_xpos[ids][:, self.sites])
             hit = b.ray(origin, unit, geomgroup=BLOCKING_GROUPS, flg_static=True, bodyexclude=-1, ids=ids)[0]
             visible[ok] = unoccluded(hit, dist)
@@ -120,7 +123,9 @@ class BatchInfo:
         return self.eng.feas.equilibrium_violations(*stacked, require_all_visible=True)[0].any(axis=1)
 
     # -- information ---------------------------------------------------------------------------
-    def site_gradients(self, eq: Equilibria, load: Load | None, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def site_gradients(
+        self, eq: Equilibria, load: Load | None, a: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Reflector positions (n, k, 3) and d position / d theta (n, k, 3, p) at each
         equilibrium (InfoEngine._site_jac): the IFT tangent with the exact matrix ``a``."""
         bs = self.statics
@@ -149,7 +154,7 @@ class BatchInfo:
         for r, c in zip(COMMAND_RULES, np.bincount(first[first >= 0], minlength=len(COMMAND_RULES))):
             rejected[r] += int(c)
         vertical = np.concatenate([rb.weight(eng.scn.load_mass), np.zeros(3)])
-        cmd, wrench, kind = [], [], []           # one row per (command, load), loads in order
+        cmd, wrench, kind = [], [], []  # one row per (command, load), loads in order
         commands = []
         for i in np.flatnonzero(first < 0):
             loads = []
@@ -176,7 +181,7 @@ class BatchInfo:
         good0 = ~self.violations(s0)
         self._phase("equilibrium rules")
         rows = np.flatnonzero(good0[cmd])
-        rejected["visibility"] += len(cmd) - len(rows)    # equilibrium rules, as the scalar chunk counts
+        rejected["visibility"] += len(cmd) - len(rows)  # equilibrium rules, as the scalar chunk counts
         if not len(rows):
             return out
         keep = np.flatnonzero(good0)

@@ -27,6 +27,7 @@ fails with ZeroDivisionError on the raw blocks). Every plan's log det moves by t
 Reading validates the file as user input: a missing array, a wrong shape or a non-finite entry
 raises InputError naming the file and the array (exit status 2 on the command line).
 """
+
 from __future__ import annotations
 
 import zipfile
@@ -40,12 +41,16 @@ from calbench.bench.core.errors import InputError
 from .candidates import LOAD_KINDS
 from .certificate import normalise_blocks
 
-NOTE = ("blocks[i] = whitened regressor of candidate i (rows: reflector deflections divided by their "
-        "noise, 2 tracker readings) w.r.t. theta/theta0 (columns); sum_i blocks[i].T @ blocks[i] over a "
-        "plan = its Fisher information; q in degrees; wrench world-frame N, N*m at the payload site")
-NORMALISED_NOTE = ("; NORMALISED: blocks = raw blocks / column_scale (each column's RMS over all rows), "
-                   "so the mean information has a unit diagonal; every plan's log det shifts by "
-                   "-2 sum(log(column_scale)): the D-optimal plan is unchanged (A plans are not)")
+NOTE = (
+    "blocks[i] = whitened regressor of candidate i (rows: reflector deflections divided by their "
+    "noise, 2 tracker readings) w.r.t. theta/theta0 (columns); sum_i blocks[i].T @ blocks[i] over a "
+    "plan = its Fisher information; q in degrees; wrench world-frame N, N*m at the payload site"
+)
+NORMALISED_NOTE = (
+    "; NORMALISED: blocks = raw blocks / column_scale (each column's RMS over all rows), "
+    "so the mean information has a unit diagonal; every plan's log det shifts by "
+    "-2 sum(log(column_scale)): the D-optimal plan is unchanged (A plans are not)"
+)
 
 
 @dataclass(frozen=True)
@@ -53,11 +58,11 @@ class CandidateFile:
     """Candidates read from an NPZ: only q and blocks are required."""
 
     path: Path
-    q: np.ndarray                    # (N, n) rad
-    blocks: np.ndarray               # (N, m, p)
-    wrench: np.ndarray | None        # (N, 6) N, N*m
-    kind: np.ndarray | None          # (N,) 0 vertical, 1 lateral
-    theta0: np.ndarray | None        # (p,)
+    q: np.ndarray  # (N, n) rad
+    blocks: np.ndarray  # (N, m, p)
+    wrench: np.ndarray | None  # (N, 6) N, N*m
+    kind: np.ndarray | None  # (N,) 0 vertical, 1 lateral
+    theta0: np.ndarray | None  # (p,)
     column_scale: np.ndarray | None  # (p,) when the blocks were normalised
 
     def __len__(self) -> int:
@@ -72,20 +77,32 @@ def write_candidates(path, q, blocks, wrench, kind, theta0, param_names, normali
         blocks, s = normalise_blocks(blocks)
         extra["column_scale"] = s
         note += NORMALISED_NOTE
-    np.savez_compressed(path, q=np.degrees(q), blocks=blocks, wrench=wrench,
-                        load_kind=np.array([LOAD_KINDS[k] for k in kind]), theta0=theta0,
-                        param_names=np.array(param_names), note=np.array(note), **extra)
+    np.savez_compressed(
+        path,
+        q=np.degrees(q),
+        blocks=blocks,
+        wrench=wrench,
+        load_kind=np.array([LOAD_KINDS[k] for k in kind]),
+        theta0=theta0,
+        param_names=np.array(param_names),
+        note=np.array(note),
+        **extra,
+    )
 
 
 def _array(z, path, name, expected, required=True):
     if name not in z.files:
         if required:
-            raise InputError(path, name, f"an array {name!r}: {expected}",
-                             "missing; arrays present: " + (", ".join(z.files) or "none"))
+            raise InputError(
+                path,
+                name,
+                f"an array {name!r}: {expected}",
+                "missing; arrays present: " + (", ".join(z.files) or "none"),
+            )
         return None
     try:
         a = z[name]
-    except ValueError as exc:            # object arrays (allow_pickle=False)
+    except ValueError as exc:  # object arrays (allow_pickle=False)
         raise InputError(path, name, expected, str(exc)) from None
     return a
 
@@ -107,9 +124,13 @@ def read_candidates(path: str | Path) -> CandidateFile:
     try:
         z = np.load(path, allow_pickle=False)
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-        raise InputError(path, "(file)", "a readable NPZ archive with arrays q and blocks", str(exc)) from None
+        raise InputError(
+            path, "(file)", "a readable NPZ archive with arrays q and blocks", str(exc)
+        ) from None
     if not isinstance(z, np.lib.npyio.NpzFile):
-        raise InputError(path, "(file)", "an NPZ archive (numpy.savez) with arrays q and blocks", "a single array")
+        raise InputError(
+            path, "(file)", "an NPZ archive (numpy.savez) with arrays q and blocks", "a single array"
+        )
     with z:
         q_exp = "N x n finite joint angles in degrees (one per actuated joint)"
         b_exp = "N x m x p finite numbers, N as in q"
@@ -119,7 +140,9 @@ def read_candidates(path: str | Path) -> CandidateFile:
         n = q.shape[0]
         blocks = _finite(path, "blocks", _array(z, path, "blocks", b_exp), b_exp)
         if blocks.ndim != 3 or blocks.shape[0] != n or min(blocks.shape) < 1:
-            raise InputError(path, "blocks", b_exp.replace("N as in q", f"N = {n} as in q"), f"shape {blocks.shape}")
+            raise InputError(
+                path, "blocks", b_exp.replace("N as in q", f"N = {n} as in q"), f"shape {blocks.shape}"
+            )
         p = blocks.shape[2]
         w_exp = f"{n} x 6 finite forces and moments (N, N*m)"
         wrench = _array(z, path, "wrench", w_exp, required=False)
@@ -141,9 +164,13 @@ def read_candidates(path: str | Path) -> CandidateFile:
             if a is not None:
                 a = _finite(path, name, a, exp)
                 if a.shape != (p,) or not np.all(a > 0):
-                    raise InputError(path, name, exp, f"shape {a.shape}" if a.shape != (p,) else "a value <= 0")
+                    raise InputError(
+                        path, name, exp, f"shape {a.shape}" if a.shape != (p,) else "a value <= 0"
+                    )
             optional[name] = a
-    return CandidateFile(path, np.radians(q), blocks, wrench, kind, optional["theta0"], optional["column_scale"])
+    return CandidateFile(
+        path, np.radians(q), blocks, wrench, kind, optional["theta0"], optional["column_scale"]
+    )
 
 
 __all__ = ["CandidateFile", "NOTE", "read_candidates", "write_candidates"]

@@ -62,6 +62,7 @@ Feasibility rules (each named; :func:`Feasibility.check` returns the violated on
   the unloaded and the loaded equilibrium.
 * ``statics``: both equilibria converge (residual, loop gap) as in bench.campaign.plan_campaign.
 """
+
 from __future__ import annotations
 
 import functools
@@ -82,36 +83,49 @@ from calbench.bench.core.progress import ProgressSink, sink
 from calbench.bench.model.robot import Robot, ancestors
 from calbench.bench.scenario.parse import Scenario, parse_scenario
 from calbench.bench.statics.equilibrium import Equilibrium, Load, StaticsSolver
+from calbench.bench.tracker.instrument import (
+    Measurement,
+    noise_covariance,
+    to_tracker_frame,
+    tracker_rotation,
+    visible_sites,
+)
 from calbench.bench.tracker.iso10360 import deflection_covariance
 from calbench.bench.tracker.measuring import reading_times
-from calbench.bench.tracker.instrument import (Measurement, noise_covariance, to_tracker_frame, tracker_rotation,
-                                    visible_sites)
-
 from calbench.identify.runtime.executor import IN_PROCESS, Executor, InProcess
 from calbench.identify.runtime.portable import PortableScenario
 
-RULES = ("joint_limits", "degenerate_loop", "min_height", "min_radius", "self_collision",
-         "compensator_discontinuity", "statics", "visibility")
+RULES = (
+    "joint_limits",
+    "degenerate_loop",
+    "min_height",
+    "min_radius",
+    "self_collision",
+    "compensator_discontinuity",
+    "statics",
+    "visibility",
+)
 COMMAND_RULES = ("joint_limits", "degenerate_loop", "min_height", "min_radius", "self_collision")
 EQUILIBRIUM_RULES = ("statics", "self_collision", "compensator_discontinuity", "visibility")
-REFERENCE_GAP = 0.02     # m: closer than this in the reference configuration = touching by design
+REFERENCE_GAP = 0.02  # m: closer than this in the reference configuration = touching by design
 LOAD_KINDS = ("vertical", "lateral")
 
 
 # --------------------------------------------------------------------------- settings
 
+
 @dataclass(frozen=True)
 class DesignSettings:
     """The scenario's optional ``[design]`` table (read here from the TOML text)."""
 
-    min_height: float = 0.5            # m, wrist centre z
-    min_radius: float = 1.0            # m, wrist centre from axis 1
-    candidates: int = 10000            # size of the candidate set
-    seed: int | None = None            # candidate sampling; default: the scenario's seed
-    clearance: float = 0.0             # m, collision margin
-    compensator_margin: float = 0.02   # m, §3.3 rule
-    lateral_force: float = 1200.0      # N, horizontal pull of the lateral candidates
-    lateral_fraction: float = 0.5      # share of lateral candidates in the set
+    min_height: float = 0.5  # m, wrist centre z
+    min_radius: float = 1.0  # m, wrist centre from axis 1
+    candidates: int = 10000  # size of the candidate set
+    seed: int | None = None  # candidate sampling; default: the scenario's seed
+    clearance: float = 0.0  # m, collision margin
+    compensator_margin: float = 0.02  # m, §3.3 rule
+    lateral_force: float = 1200.0  # N, horizontal pull of the lateral candidates
+    lateral_fraction: float = 0.5  # share of lateral candidates in the set
 
     def as_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -121,8 +135,11 @@ DESIGN_KEYS = tuple(DesignSettings.__dataclass_fields__)
 
 
 def _design_number(path, key, v, lo=None, hi=None, integer=False):
-    what = ("an integer" if integer else "a finite number") + (f" >= {lo}" if lo is not None else "") + \
-        (f" and <= {hi}" if hi is not None else "")
+    what = (
+        ("an integer" if integer else "a finite number")
+        + (f" >= {lo}" if lo is not None else "")
+        + (f" and <= {hi}" if hi is not None else "")
+    )
     ok = not isinstance(v, bool) and isinstance(v, int if integer else (int, float))
     if not ok or not math.isfinite(float(v)) or (lo is not None and v < lo) or (hi is not None and v > hi):
         raise InputError(path, f"design.{key}", what, v)
@@ -144,10 +161,16 @@ def read_design_settings(path: str | Path, text: str | None = None) -> DesignSet
         if k not in DESIGN_KEYS:
             raise InputError(path, f"design.{k}", "no such key; allowed keys here: " + ", ".join(DESIGN_KEYS))
     kw = {}
-    limits = {"min_height": (None, None, False), "min_radius": (0, None, False),
-              "candidates": (1, None, True), "seed": (0, None, True), "clearance": (0, None, False),
-              "compensator_margin": (0, None, False), "lateral_force": (0, None, False),
-              "lateral_fraction": (0, 1, False)}
+    limits = {
+        "min_height": (None, None, False),
+        "min_radius": (0, None, False),
+        "candidates": (1, None, True),
+        "seed": (0, None, True),
+        "clearance": (0, None, False),
+        "compensator_margin": (0, None, False),
+        "lateral_force": (0, None, False),
+        "lateral_fraction": (0, 1, False),
+    }
     for k, v in tab.items():
         lo, hi, integer = limits[k]
         kw[k] = _design_number(path, k, v, lo, hi, integer)
@@ -209,6 +232,7 @@ def lateral_wrench(q1: float, sign: float, force: float) -> np.ndarray:
 
 # --------------------------------------------------------------------------- feasibility
 
+
 def _collidable(robot_path: Path, margin: float) -> mujoco.MjSpec:
     spec = mujoco.MjSpec.from_file(str(robot_path))
     for g in spec.geoms:
@@ -247,7 +271,7 @@ def excluded_pairs(robot: Robot, robot_path: Path) -> tuple[tuple[str, str], ...
     mujoco.mj_collision(ref, d)
     for c in d.contact[: d.ncon]:
         b1, b2 = int(ref.geom_bodyid[c.geom[0]]), int(ref.geom_bodyid[c.geom[1]])
-        if ref.body_parentid[b1] != b2 and ref.body_parentid[b2] != b1:   # MuJoCo filters those
+        if ref.body_parentid[b1] != b2 and ref.body_parentid[b2] != b1:  # MuJoCo filters those
             pairs.add((ref.body(b1).name, ref.body(b2).name))
     return tuple(sorted({tuple(sorted(p)) for p in pairs}))
 
@@ -275,8 +299,9 @@ class Feasibility:
         self.cdata = mujoco.MjData(self.cmodel)
         self._kd = mujoco.MjData(m)
         self.wrist = wrist_body(robot)
-        self.masses = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, n)
-                       for n in robot.description.mass_compensators]
+        self.masses = [
+            mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, n) for n in robot.description.mass_compensators
+        ]
         self.hinges = list(robot.passive_joint)
         # axis 1: the first actuated joint's axis line, fixed in the world (its body hangs from
         # the world: it does not move with the command)
@@ -301,7 +326,7 @@ class Feasibility:
         mujoco.mj_kinematics(m, d)
         mujoco.mj_collision(m, d)
         out = []
-        if d.ncon == 0:   # slicing d.contact costs ~120 us even when empty
+        if d.ncon == 0:  # slicing d.contact costs ~120 us even when empty
             return out
         for c in d.contact[: d.ncon]:
             b1, b2 = m.geom_bodyid[c.geom[0]], m.geom_bodyid[c.geom[1]]
@@ -314,8 +339,11 @@ class Feasibility:
         m, d = self.robot.model, self._kd
         d.qpos[:] = qpos
         mujoco.mj_kinematics(m, d)
-        return float(horizontal_clearance(d.xipos[self.masses][None], d.xanchor[self.hinges][None],
-                                          d.xaxis[self.hinges][None])[0])
+        return float(
+            horizontal_clearance(
+                d.xipos[self.masses][None], d.xanchor[self.hinges][None], d.xaxis[self.hinges][None]
+            )[0]
+        )
 
     def radius(self, points: np.ndarray) -> np.ndarray:
         """(n,) distance of points (n, 3) from axis 1 (m)."""
@@ -330,23 +358,32 @@ class Feasibility:
         ``loop_ok`` (n,): Robot.loop_ok of each, if already known (else asked here)."""
         lo, hi = self.limits[:, 0], self.limits[:, 1]
         loop_ok = [self.loop(x) for x in q] if loop_ok is None else loop_ok
-        return np.column_stack([
-            ~np.all((q >= lo - 1e-9) & (q <= hi + 1e-9), axis=1),
-            ~np.asarray(loop_ok, bool),
-            wrist[:, 2] < self.settings.min_height,
-            self.radius(wrist) < self.settings.min_radius,
-            np.asarray(collides, bool)])
+        return np.column_stack(
+            [
+                ~np.all((q >= lo - 1e-9) & (q <= hi + 1e-9), axis=1),
+                ~np.asarray(loop_ok, bool),
+                wrist[:, 2] < self.settings.min_height,
+                self.radius(wrist) < self.settings.min_radius,
+                np.asarray(collides, bool),
+            ]
+        )
 
-    def equilibrium_violations(self, acceptable, collides, clearance, visible,
-                               require_all_visible: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    def equilibrium_violations(
+        self, acceptable, collides, clearance, visible, require_all_visible: bool = True
+    ) -> tuple[np.ndarray, np.ndarray]:
         """(n, len(EQUILIBRIUM_RULES)) bool violations and the (n, k) reflectors seen in both
         states, from per-state inputs with the states on axis 1: acceptable and collides (n, 2),
         clearance (n, 2) m, visible (n, 2, k)."""
         vis = np.asarray(visible, bool).all(axis=1)
         seen = vis.all(axis=1) if require_all_visible else vis.any(axis=1)
-        return np.column_stack([~np.asarray(acceptable, bool).all(axis=1), np.asarray(collides, bool).any(axis=1),
-                                np.asarray(clearance).min(axis=1) < self.settings.compensator_margin,
-                                ~seen]), vis
+        return np.column_stack(
+            [
+                ~np.asarray(acceptable, bool).all(axis=1),
+                np.asarray(collides, bool).any(axis=1),
+                np.asarray(clearance).min(axis=1) < self.settings.compensator_margin,
+                ~seen,
+            ]
+        ), vis
 
     # -- combined -----------------------------------------------------------------------------
     def check_command(self, q) -> list[str]:
@@ -366,8 +403,12 @@ class Feasibility:
             vis.append(visible_sites(m, d, self.scn.tracker, self.robot.reflector_sites))
         states = (e0, e1)
         bad, seen = self.equilibrium_violations(
-            [[e.acceptable for e in states]], [[bool(self.collides(e.qpos)) for e in states]],
-            [[self.compensator_clearance(e.qpos) for e in states]], [vis], require_all_visible)
+            [[e.acceptable for e in states]],
+            [[bool(self.collides(e.qpos)) for e in states]],
+            [[self.compensator_clearance(e.qpos) for e in states]],
+            [vis],
+            require_all_visible,
+        )
         return [r for r, b in zip(EQUILIBRIUM_RULES, bad[0]) if b], seen[0]
 
 
@@ -378,7 +419,7 @@ def horizontal_clearance(centres: np.ndarray, anchors: np.ndarray, axes: np.ndar
     axis counts by its foot point. No points or no axes: infinitely far (the rule is void)."""
     if centres.shape[1] == 0 or anchors.shape[1] == 0:
         return np.full(len(centres), np.inf)
-    v = (centres[:, :, None, :2] - anchors[:, None, :, :2])             # (n, k, h, 2)
+    v = centres[:, :, None, :2] - anchors[:, None, :, :2]  # (n, k, h, 2)
     axh = axes[:, None, :, :2]
     n = np.sqrt(np.einsum("...i,...i->...", axh, axh))
     vertical = n < 1e-9
@@ -390,13 +431,14 @@ def horizontal_clearance(centres: np.ndarray, anchors: np.ndarray, axes: np.ndar
 
 # --------------------------------------------------------------------------- information
 
+
 @dataclass
 class PoseInfo:
     q: np.ndarray
-    wrench: np.ndarray            # (6,) world: payload weight or the pull
+    wrench: np.ndarray  # (6,) world: payload weight or the pull
     kind: str
-    block: np.ndarray             # (3 n_visible, p) whitened, normalised regressor
-    visible: np.ndarray           # (n,) bool
+    block: np.ndarray  # (3 n_visible, p) whitened, normalised regressor
+    visible: np.ndarray  # (n,) bool
     violations: list[str]
     dp: np.ndarray | None = None  # (n, 3) deflections (visible rows meaningful)
 
@@ -451,8 +493,9 @@ class InfoEngine:
         if self.scn.tracker.model == "iso10360":
             return np.stack([self.sigma_dp(a, b) for a, b in zip(p0, p1)])
         spec = self.scn.tracker
-        c = (noise_covariance(spec, to_tracker_frame(spec, p0.reshape(-1, 3)))
-             + noise_covariance(spec, to_tracker_frame(spec, p1.reshape(-1, 3))))
+        c = noise_covariance(spec, to_tracker_frame(spec, p0.reshape(-1, 3))) + noise_covariance(
+            spec, to_tracker_frame(spec, p1.reshape(-1, 3))
+        )
         c = (self.rot @ c @ self.rot.T).reshape(n, k, 3, 3)
         out = np.zeros((n, k, 3, k, 3))
         for i in range(k):
@@ -473,8 +516,16 @@ class InfoEngine:
         c = deflection_covariance(spec, reads[0], reads[1], np.arange(n), when)
         return np.einsum("ia,ranb,jb->rinj", self.rot, c, self.rot).reshape(3 * n, 3 * n)
 
-    def pose(self, q, wrench, kind="vertical", e0: Equilibrium | None = None,
-             require_all_visible=True, check=True, repeats: int = 1) -> PoseInfo:
+    def pose(
+        self,
+        q,
+        wrench,
+        kind="vertical",
+        e0: Equilibrium | None = None,
+        require_all_visible=True,
+        check=True,
+        repeats: int = 1,
+    ) -> PoseInfo:
         """Feasibility and the information block of one pose (the unloaded e0 may be reused)."""
         q = np.asarray(q, float)
         wrench = np.asarray(wrench, float)
@@ -492,7 +543,7 @@ class InfoEngine:
             vis = np.ones(len(self.robot.reflector_sites), bool)
         p0, j0 = self._site_jac(e0, None)
         p1, j1 = self._site_jac(e1, load)
-        jac = (j1 - j0)[vis] * self.theta0                 # normalised columns
+        jac = (j1 - j0)[vis] * self.theta0  # normalised columns
         linv = np.linalg.inv(np.linalg.cholesky(self.sigma_dp(p0[vis], p1[vis], repeats)))
         block = linv @ jac.reshape(-1, self.n_params)
         return PoseInfo(q, wrench, kind, block, vis, bad, p1 - p0)
@@ -517,16 +568,17 @@ class InfoEngine:
 
 # --------------------------------------------------------------------------- candidate set
 
+
 @dataclass
 class CandidateSet:
-    q: np.ndarray          # (N, n_joints) rad
-    wrench: np.ndarray     # (N, 6)
-    kind: np.ndarray       # (N,) 0 vertical, 1 lateral
-    blocks: np.ndarray     # (N, m, p)
+    q: np.ndarray  # (N, n_joints) rad
+    wrench: np.ndarray  # (N, 6)
+    kind: np.ndarray  # (N,) 0 vertical, 1 lateral
+    blocks: np.ndarray  # (N, m, p)
     theta0: np.ndarray
     settings: DesignSettings
     stats: dict = field(default_factory=dict)
-    param_names: tuple[str, ...] = ()     # the p parameters (the robot's layout)
+    param_names: tuple[str, ...] = ()  # the p parameters (the robot's layout)
 
     def __len__(self) -> int:
         return len(self.q)
@@ -534,8 +586,10 @@ class CandidateSet:
     def save_npz(self, path: str | Path, normalise: bool = False) -> None:
         """The NPZ of identify/design/candidate_file.py (``normalise``: unit column scales)."""
         from .candidate_file import write_candidates
-        write_candidates(path, self.q, self.blocks, self.wrench, self.kind, self.theta0, self.param_names,
-                         normalise)
+
+        write_candidates(
+            path, self.q, self.blocks, self.wrench, self.kind, self.theta0, self.param_names, normalise
+        )
 
 
 def sample_commands(rng: np.random.Generator, limits: np.ndarray, n: int) -> np.ndarray:
@@ -545,9 +599,9 @@ def sample_commands(rng: np.random.Generator, limits: np.ndarray, n: int) -> np.
     return lo + (hi - lo) * rng.random((n, len(limits)))
 
 
-CANDIDATE_BLOCK = 512   # raw commands per chunk (a few tenths of a second of batched work)
-BATCH = 4096            # commands drawn at a time (the order of the random stream)
-SECONDS_PER_CANDIDATE = 2e-4   # in-process, batched (10^4 in ~1.7 s of CPU), for the executor choice
+CANDIDATE_BLOCK = 512  # raw commands per chunk (a few tenths of a second of batched work)
+BATCH = 4096  # commands drawn at a time (the order of the random stream)
+SECONDS_PER_CANDIDATE = 2e-4  # in-process, batched (10^4 in ~1.7 s of CPU), for the executor choice
 
 
 @dataclass(frozen=True)
@@ -571,6 +625,7 @@ def _engine(scenario: PortableScenario, settings: DesignSettings) -> InfoEngine:
 @functools.lru_cache(maxsize=2)
 def _batch(job: CandidateJob):
     from .batch_info import BatchInfo
+
     return BatchInfo(_engine(job.scenario, job.settings), nthread=job.threads)
 
 
@@ -579,7 +634,9 @@ def candidate_block(job: CandidateJob, q, signs, u_lat, u_vert) -> dict:
     for the job (built once per process; a chunk's result does not depend on the chunks before)."""
     if job.batched:
         return _batch(job).block(q, signs, u_lat, u_vert, job.p_vertical, job.p_lateral)
-    return scalar_block(_engine(job.scenario, job.settings), q, signs, u_lat, u_vert, job.p_vertical, job.p_lateral)
+    return scalar_block(
+        _engine(job.scenario, job.settings), q, signs, u_lat, u_vert, job.p_vertical, job.p_lateral
+    )
 
 
 def scalar_block(eng: InfoEngine, q, signs, u_lat, u_vert, p_vertical: float, p_lateral: float) -> dict:
@@ -618,13 +675,19 @@ def scalar_block(eng: InfoEngine, q, signs, u_lat, u_vert, p_vertical: float, p_
             if info is not None and not info.violations:
                 out.append((qi, w, kind, info.block))
             else:
-                rejected["visibility"] += 1       # equilibrium rules, mostly visibility
+                rejected["visibility"] += 1  # equilibrium rules, mostly visibility
     return {"candidates": out, "rejected": rejected, "passed": passed}
 
 
-def generate_candidates(scn: Scenario, settings: DesignSettings, n: int | None = None,
-                        processes: int | None = None, progress: ProgressSink | None = None,
-                        batched: bool = True, executor: Executor | None = None) -> CandidateSet:
+def generate_candidates(
+    scn: Scenario,
+    settings: DesignSettings,
+    n: int | None = None,
+    processes: int | None = None,
+    progress: ProgressSink | None = None,
+    batched: bool = True,
+    executor: Executor | None = None,
+) -> CandidateSet:
     """At least ``n`` (default settings.candidates) feasible candidates, exactly n returned.
 
     Raw commands are drawn uniformly in the joint ranges (seeded by settings.seed or the
@@ -687,25 +750,63 @@ def generate_candidates(scn: Scenario, settings: DesignSettings, n: int | None =
             if len(qs) >= n:
                 break
             if raw > 200 * n:  # give up only while still short of n
-                raise InputError(scn.path, "design", "settings that leave feasible configurations",
-                                 f"only {len(qs)} of {raw} sampled commands feasible")
+                raise InputError(
+                    scn.path,
+                    "design",
+                    "settings that leave feasible configurations",
+                    f"only {len(qs)} of {raw} sampled commands feasible",
+                )
     finally:
-        results.close()           # cancels the chunks drawn ahead
+        results.close()  # cancels the chunks drawn ahead
     m = max(b.shape[0] for b in blocks)
     out = np.zeros((n, m, eng.n_params))
     for i, b in enumerate(blocks[:n]):
         out[i, : b.shape[0]] = b
-    stats = {"raw_commands": raw, "passed_command_rules": screened,
-             "rejected_first_rule": rejected, "seconds": time.perf_counter() - t0,
-             "threads": threads, "batched": batched, "executor": executor.choice.describe()}
+    stats = {
+        "raw_commands": raw,
+        "passed_command_rules": screened,
+        "rejected_first_rule": rejected,
+        "seconds": time.perf_counter() - t0,
+        "threads": threads,
+        "batched": batched,
+        "executor": executor.choice.describe(),
+    }
     if phase0 is not None:
         stats["phase_seconds"] = {k: round(v - phase0.get(k, 0.0), 4) for k, v in _batch(job).seconds.items()}
-    return CandidateSet(np.array(qs[:n]), np.array(ws[:n]), np.array(kinds[:n], int), out,
-                        eng.theta0, settings, stats, eng.robot.layout.names)
+    return CandidateSet(
+        np.array(qs[:n]),
+        np.array(ws[:n]),
+        np.array(kinds[:n], int),
+        out,
+        eng.theta0,
+        settings,
+        stats,
+        eng.robot.layout.names,
+    )
 
 
-__all__ = ["DesignSettings", "read_design_settings", "load_design_scenario", "nominal_theta",
-           "nominal_robot", "Feasibility", "InfoEngine", "PoseInfo", "CandidateSet",
-           "generate_candidates", "scalar_block", "candidate_block", "CandidateJob", "SECONDS_PER_CANDIDATE",
-           "lateral_wrench", "collision_model", "horizontal_clearance",
-           "excluded_pairs", "wrist_body", "REFERENCE_GAP", "RULES", "COMMAND_RULES", "EQUILIBRIUM_RULES"]
+__all__ = [
+    "DesignSettings",
+    "read_design_settings",
+    "load_design_scenario",
+    "nominal_theta",
+    "nominal_robot",
+    "Feasibility",
+    "InfoEngine",
+    "PoseInfo",
+    "CandidateSet",
+    "generate_candidates",
+    "scalar_block",
+    "candidate_block",
+    "CandidateJob",
+    "SECONDS_PER_CANDIDATE",
+    "lateral_wrench",
+    "collision_model",
+    "horizontal_clearance",
+    "excluded_pairs",
+    "wrist_body",
+    "REFERENCE_GAP",
+    "RULES",
+    "COMMAND_RULES",
+    "EQUILIBRIUM_RULES",
+]

@@ -64,6 +64,7 @@ the default, and the default gap 1e-4 leaves the bound loose by at most
 Columns are scaled internally to unit mean information (as ``normalise_blocks``): log det shifts
 by a constant, g_i are unchanged, so the designs and bounds are those of the blocks as given.
 """
+
 from __future__ import annotations
 
 import math
@@ -97,8 +98,10 @@ def normalise_blocks(blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """
     s = column_scale(blocks)
     if not np.all(s > 0):
-        raise SingularCandidates(f"column(s) {np.flatnonzero(~(s > 0)).tolist()} zero in every block: "
-                                 "those parameters are not identifiable from any plan")
+        raise SingularCandidates(
+            f"column(s) {np.flatnonzero(~(s > 0)).tolist()} zero in every block: "
+            "those parameters are not identifiable from any plan"
+        )
     return blocks / s, s
 
 
@@ -112,25 +115,26 @@ def check_identifiable(blocks: np.ndarray) -> None:
     except np.linalg.LinAlgError:
         ok = False
     if not ok:
-        raise SingularCandidates("the candidates' total information is singular: some parameter "
-                                 "is not identifiable from any plan")
+        raise SingularCandidates(
+            "the candidates' total information is singular: some parameter is not identifiable from any plan"
+        )
 
 
 @dataclass(frozen=True)
 class ApproximateDesign:
     """An approximate design on the candidates and its equivalence-theorem sensitivity."""
 
-    criterion: str              # "D" or "A" (A with weight matrix W: A, pose)
-    p: int                      # parameters
-    weights: np.ndarray         # (N,) w >= 0, sum 1 (w <= cap when capped)
-    cap: float | None           # 1/M for distinct plans, None for repeats
-    sensitivity: np.ndarray     # (N,) g_i = d_i / p (D) or a_i / t (A); optimal iff the max is 1
-    logdet: float               # log det M(w) (blocks as given)
-    trace_w: float              # tr(W M(w)^-1) (A; nan for D)
+    criterion: str  # "D" or "A" (A with weight matrix W: A, pose)
+    p: int  # parameters
+    weights: np.ndarray  # (N,) w >= 0, sum 1 (w <= cap when capped)
+    cap: float | None  # 1/M for distinct plans, None for repeats
+    sensitivity: np.ndarray  # (N,) g_i = d_i / p (D) or a_i / t (A); optimal iff the max is 1
+    logdet: float  # log det M(w) (blocks as given)
+    trace_w: float  # tr(W M(w)^-1) (A; nan for D)
     algorithm: str
     iterations: int
     seconds: float
-    history: tuple = ()         # (iteration, seconds, g_max - 1) at each check
+    history: tuple = ()  # (iteration, seconds, g_max - 1) at each check
 
     @property
     def g_bound(self) -> float:
@@ -148,6 +152,7 @@ class ApproximateDesign:
 
 # --------------------------------------------------------------------------- the algorithms
 
+
 class _Problem:
     """Scaled candidate information A_i (flattened) and the criterion's sensitivities."""
 
@@ -158,11 +163,11 @@ class _Problem:
         self.scale_logdet = 2.0 * float(np.log(s).sum())
         T = compress(b)
         self.p = b.shape[2]
-        self.A = np.einsum("nki,nkj->nij", T, T).reshape(len(b), -1)     # (N, p*p)
+        self.A = np.einsum("nki,nkj->nij", T, T).reshape(len(b), -1)  # (N, p*p)
         # tr(X A_i) for symmetric X from the upper triangle: off-diagonal terms counted twice
         self.tri = np.flatnonzero(np.triu(np.ones((self.p, self.p), bool)).ravel())
         twice = np.where(np.eye(self.p, dtype=bool).ravel()[self.tri], 1.0, 2.0)
-        self.A_tri = np.ascontiguousarray(self.A[:, self.tri] * twice)    # (N, p(p+1)/2)
+        self.A_tri = np.ascontiguousarray(self.A[:, self.tri] * twice)  # (N, p(p+1)/2)
         self.criterion = criterion
         W = np.eye(self.p) if W is None else np.asarray(W, float)
         self.W = W / np.outer(s, s)
@@ -193,6 +198,7 @@ class _Problem:
         Li = np.linalg.inv(L)
         mu, U = np.linalg.eigh(Li @ B @ Li.T)
         if self.criterion == "D":
+
             def d1(a):
                 r = mu / (1 + a * mu)
                 return r.sum(), -(r * r).sum()
@@ -201,7 +207,8 @@ class _Problem:
 
             def d1(a):
                 r = 1.0 / (1 + a * mu)
-                return (c * mu * r * r).sum(), -2 * (c * mu * mu * r ** 3).sum()
+                return (c * mu * r * r).sum(), -2 * (c * mu * mu * r**3).sum()
+
         # the domain: 1 + a mu > 0
         neg = mu[mu < 0]
         hi = amax if neg.size == 0 else min(amax, (1 - 1e-12) / -neg.min())
@@ -212,7 +219,7 @@ class _Problem:
         if ghi >= 0:
             return hi
         lo = 0.0
-        a = -g0 / h0 if h0 < 0 and -g0 / h0 < hi else 0.5 * hi     # the Newton step from 0
+        a = -g0 / h0 if h0 < 0 and -g0 / h0 < hi else 0.5 * hi  # the Newton step from 0
         for _ in range(60):
             g, h = d1(a)
             if g > 0:
@@ -222,7 +229,7 @@ class _Problem:
             a_new = a - g / h if h < 0 else 0.5 * (lo + hi)
             if not lo < a_new < hi:
                 a_new = 0.5 * (lo + hi)
-            if abs(a_new - a) <= 1e-10 * a or hi - lo <= 1e-12 * hi:   # a step, not a root: 1e-10 is plenty
+            if abs(a_new - a) <= 1e-10 * a or hi - lo <= 1e-12 * hi:  # a step, not a root: 1e-10 is plenty
                 return a_new
             a = a_new
         return a
@@ -232,8 +239,19 @@ def _finish(prob: _Problem, w, cap, algorithm, it, t0, history) -> ApproximateDe
     M = prob.info(w)
     _, _, logdet, t, g = prob.state(M)
     trace_w = t if prob.criterion == "A" else math.nan
-    return ApproximateDesign(prob.criterion, prob.p, w, cap, g, logdet + prob.scale_logdet, trace_w, algorithm, it,
-                             time.perf_counter() - t0, tuple(history))
+    return ApproximateDesign(
+        prob.criterion,
+        prob.p,
+        w,
+        cap,
+        g,
+        logdet + prob.scale_logdet,
+        trace_w,
+        algorithm,
+        it,
+        time.perf_counter() - t0,
+        tuple(history),
+    )
 
 
 def _multiplicative(prob: _Problem, tol, max_iter, max_seconds, check_every=10) -> ApproximateDesign:
@@ -255,8 +273,9 @@ def _multiplicative(prob: _Problem, tol, max_iter, max_seconds, check_every=10) 
     return _finish(prob, w, None, "multiplicative", it, t0, history)
 
 
-def _fw_away(prob: _Problem, start: np.ndarray, cap: float | None, tol, max_iter, max_seconds,
-             check_every=10) -> ApproximateDesign:
+def _fw_away(
+    prob: _Problem, start: np.ndarray, cap: float | None, tol, max_iter, max_seconds, check_every=10
+) -> ApproximateDesign:
     """Frank-Wolfe with away steps (uncapped) or pairwise vertex exchange (capped)."""
     t0 = time.perf_counter()
     w = np.asarray(start, float).copy()
@@ -266,7 +285,7 @@ def _fw_away(prob: _Problem, start: np.ndarray, cap: float | None, tol, max_iter
     M = prob.info(w)
     for it in range(1, max_iter + 1):
         if it % 200 == 0:
-            M = prob.info(w)              # no drift from the updates
+            M = prob.info(w)  # no drift from the updates
         L, _, _, _, g = prob.state(M)
         sup = w > 0
         if cap is None:
@@ -286,7 +305,7 @@ def _fw_away(prob: _Problem, start: np.ndarray, cap: float | None, tol, max_iter
         k = int(ks[np.argmin(g[ks])])
         Aj = prob.A[j].reshape(prob.p, prob.p)
         Ak = prob.A[k].reshape(prob.p, prob.p)
-        if cap is not None:                      # pairwise: move weight from k to j
+        if cap is not None:  # pairwise: move weight from k to j
             if j == k:
                 break
             amax = min(w[k], cap - w[j])
@@ -294,12 +313,12 @@ def _fw_away(prob: _Problem, start: np.ndarray, cap: float | None, tol, max_iter
             w[j] += a
             w[k] = 0.0 if a >= amax * (1 - 1e-12) and amax == w[k] else w[k] - a
             M = M + a * (Aj - Ak)
-        elif g[j] - 1.0 >= 1.0 - g[k] or w[k] >= 1.0:   # toward j
+        elif g[j] - 1.0 >= 1.0 - g[k] or w[k] >= 1.0:  # toward j
             a = prob.step(L, Aj - M, 1.0)
             w *= 1 - a
             w[j] += a
             M = (1 - a) * M + a * Aj
-        else:                                        # away from k
+        else:  # away from k
             amax = w[k] / (1 - w[k])
             a = prob.step(L, M - Ak, amax)
             w *= 1 + a
@@ -310,10 +329,18 @@ def _fw_away(prob: _Problem, start: np.ndarray, cap: float | None, tol, max_iter
     return _finish(prob, w / w.sum(), cap, "fw-away", it, t0, history)
 
 
-def approximate_design(blocks: np.ndarray, criterion: str = "D", W: np.ndarray | None = None,
-                       algorithm: str = "fw-away", start=None, cap: float | None = None,
-                       tol: float = 1e-4, max_iter: int = 20000, max_seconds: float = 10.0,
-                       blas_threads: int | None = 1) -> ApproximateDesign:
+def approximate_design(
+    blocks: np.ndarray,
+    criterion: str = "D",
+    W: np.ndarray | None = None,
+    algorithm: str = "fw-away",
+    start=None,
+    cap: float | None = None,
+    tol: float = 1e-4,
+    max_iter: int = 20000,
+    max_seconds: float = 10.0,
+    blas_threads: int | None = 1,
+) -> ApproximateDesign:
     """The approximate D- (or A-, weight W) optimal design on candidate blocks (N, m, p).
 
     Stops when max_i g_i - 1 <= tol (the design is then within a factor 1 + tol of the optimum),
@@ -335,7 +362,9 @@ def _approximate_design(blocks, criterion, W, algorithm, start, cap, tol, max_it
             raise ValueError("the capped (distinct) design uses fw-away")
         return _multiplicative(prob, tol, max_iter, max_seconds)
     if cap is not None and cap * prob.n < 1 - 1e-12:
-        raise ValueError(f"a cap of {cap:g} per row needs at least {math.ceil(1 / cap)} candidates, not {prob.n}")
+        raise ValueError(
+            f"a cap of {cap:g} per row needs at least {math.ceil(1 / cap)} candidates, not {prob.n}"
+        )
     if start is None:
         start = np.full(prob.n, 1.0 / prob.n)
     start = np.asarray(start, float)
@@ -343,7 +372,7 @@ def _approximate_design(blocks, criterion, W, algorithm, start, cap, tol, max_it
         start = _cap_start(start / start.sum(), cap)
     try:
         prob.state(prob.info(start / start.sum()))
-    except np.linalg.LinAlgError:         # a singular start: mix in the uniform design
+    except np.linalg.LinAlgError:  # a singular start: mix in the uniform design
         start = 0.5 * start / start.sum() + 0.5 / prob.n
     return _fw_away(prob, start, cap, tol, max_iter, max_seconds)
 
@@ -362,17 +391,18 @@ def _cap_start(w: np.ndarray, cap: float) -> np.ndarray:
 
 # --------------------------------------------------------------------------- certificates
 
+
 @dataclass(frozen=True)
 class Certificate:
     """A plan's criterion against the certified bound over all M-pose plans from the candidates."""
 
-    criterion: str              # D, A, pose or AD
-    configs: int                # M
-    distinct: bool              # bound over distinct plans (no candidate twice) only
-    plan: float                 # D: log det F; A, pose, AD: the criterion (smaller is better)
-    bound: float                # D: upper bound of log det F; others: lower bound of the criterion
+    criterion: str  # D, A, pose or AD
+    configs: int  # M
+    distinct: bool  # bound over distinct plans (no candidate twice) only
+    plan: float  # D: log det F; A, pose, AD: the criterion (smaller is better)
+    bound: float  # D: upper bound of log det F; others: lower bound of the criterion
     efficiency: float
-    designs: tuple              # the ApproximateDesign(s) behind the bound
+    designs: tuple  # the ApproximateDesign(s) behind the bound
 
     @property
     def p(self) -> int:
@@ -399,9 +429,15 @@ def design_json(d: ApproximateDesign, M: int, q: np.ndarray | None = None, load=
         if load is not None:
             e["load"] = load[i]
         support.append(e)
-    return {"criterion": d.criterion, "algorithm": d.algorithm, "iterations": d.iterations,
-            "seconds": d.seconds, "optimality_gap": d.g_bound - 1.0, "capped": d.cap is not None,
-            "support": support}
+    return {
+        "criterion": d.criterion,
+        "algorithm": d.algorithm,
+        "iterations": d.iterations,
+        "seconds": d.seconds,
+        "optimality_gap": d.g_bound - 1.0,
+        "capped": d.cap is not None,
+        "support": support,
+    }
 
 
 def d_bound(design: ApproximateDesign, M: int) -> float:
@@ -425,9 +461,17 @@ def plan_logdet(blocks: np.ndarray, rows) -> float:
     return float(ld) if sign > 0 else -math.inf
 
 
-def certify(blocks: np.ndarray, rows, criterion: str, G: np.ndarray | None = None, distinct: bool = False,
-            algorithm: str = "fw-away", tol: float = 1e-4, max_seconds: float = 10.0,
-            blas_threads: int | None = 1) -> Certificate:
+def certify(
+    blocks: np.ndarray,
+    rows,
+    criterion: str,
+    G: np.ndarray | None = None,
+    distinct: bool = False,
+    algorithm: str = "fw-away",
+    tol: float = 1e-4,
+    max_seconds: float = 10.0,
+    blas_threads: int | None = 1,
+) -> Certificate:
     """The certificate of plan ``rows`` (indices into blocks, repeats allowed unless distinct).
 
     criterion: D, A, AD or pose (pose needs G, W = G^T G). The approximate design(s) start from
@@ -440,8 +484,9 @@ def certify(blocks: np.ndarray, rows, criterion: str, G: np.ndarray | None = Non
     if distinct and len(np.unique(rows)) != M:
         raise ValueError("a distinct certificate for a plan with repeated rows")
     start = np.bincount(rows, minlength=len(blocks)).astype(float)
-    kw = dict(algorithm=algorithm, start=start, cap=cap, tol=tol, max_seconds=max_seconds,
-              blas_threads=blas_threads)
+    kw = dict(
+        algorithm=algorithm, start=start, cap=cap, tol=tol, max_seconds=max_seconds, blas_threads=blas_threads
+    )
     F = np.einsum("nki,nkj->ij", blocks[rows], blocks[rows])
     designs = []
     if criterion in ("D", "AD"):
@@ -449,7 +494,9 @@ def certify(blocks: np.ndarray, rows, criterion: str, G: np.ndarray | None = Non
         designs.append(dd)
         ub = d_bound(dd, M)
     if criterion in ("A", "AD", "pose"):
-        da = approximate_design(blocks, "A", weight_matrix("A" if criterion == "AD" else criterion, p, G), **kw)
+        da = approximate_design(
+            blocks, "A", weight_matrix("A" if criterion == "AD" else criterion, p, G), **kw
+        )
         designs.append(da)
         lb = a_bound(da, M)
     if criterion == "D":
@@ -461,5 +508,18 @@ def certify(blocks: np.ndarray, rows, criterion: str, G: np.ndarray | None = Non
     return Certificate(criterion, M, distinct, plan, lb, lb / plan, tuple(designs))
 
 
-__all__ = ["ALGORITHMS", "ApproximateDesign", "Certificate", "SingularCandidates", "a_bound", "approximate_design",
-           "certify", "check_identifiable", "d_bound", "column_scale", "design_json", "normalise_blocks", "plan_logdet"]
+__all__ = [
+    "ALGORITHMS",
+    "ApproximateDesign",
+    "Certificate",
+    "SingularCandidates",
+    "a_bound",
+    "approximate_design",
+    "certify",
+    "check_identifiable",
+    "d_bound",
+    "column_scale",
+    "design_json",
+    "normalise_blocks",
+    "plan_logdet",
+]

@@ -16,6 +16,7 @@ covariance of the relative errors (the one-step estimator attains it: tests/test
 
 All four are "smaller is better". A singular F gives +inf.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -57,8 +58,7 @@ def measures(F: np.ndarray, G: np.ndarray | None = None) -> dict:
     sign, logdet = np.linalg.slogdet(F)
     a = float(np.trace(C))
     d = float(np.exp(-logdet / p))
-    out = {"A": a, "D": d, "AD": AD_WEIGHTS[0] * a + AD_WEIGHTS[1] * d,
-           "std": np.sqrt(np.diag(C))}
+    out = {"A": a, "D": d, "AD": AD_WEIGHTS[0] * a + AD_WEIGHTS[1] * d, "std": np.sqrt(np.diag(C))}
     if G is not None:
         out["pose"] = float(np.trace(G @ C @ G.T))
     return out
@@ -91,5 +91,13 @@ def combine(name: str, trw, logdet, p: int):
     raise ValueError(f"unknown criterion {name!r}")
 
 
-__all__ = ["CRITERIA", "AD_WEIGHTS", "information", "covariance", "measures", "criterion_value",
-           "weight_matrix", "combine"]
+__all__ = [
+    "CRITERIA",
+    "AD_WEIGHTS",
+    "information",
+    "covariance",
+    "measures",
+    "criterion_value",
+    "weight_matrix",
+    "combine",
+]

@@ -27,6 +27,7 @@ synchronisation and, on a loaded machine, fight over the cores; ``optimise`` pin
 ``blas_threads`` (default 1) for its duration (identify/design/threads.py;
 benchmarks/certificate_bench.py measures both).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -47,11 +48,11 @@ def compress(blocks: np.ndarray) -> np.ndarray:
 
 @dataclass
 class ExchangeResult:
-    idx: np.ndarray                 # (M,) chosen candidate indices (repeats possible)
-    value: float                    # criterion, recomputed from scratch (no ridge)
-    updated_value: float            # criterion as tracked by the low-rank updates (with ridge)
-    start_values: list[float]       # each start's criterion (from scratch, ridge included)
-    start_results: list[float]      # each start's final criterion
+    idx: np.ndarray  # (M,) chosen candidate indices (repeats possible)
+    value: float  # criterion, recomputed from scratch (no ridge)
+    updated_value: float  # criterion as tracked by the low-rank updates (with ridge)
+    start_values: list[float]  # each start's criterion (from scratch, ridge included)
+    start_results: list[float]  # each start's final criterion
     passes: int
     swaps: int
     distinct: bool = False
@@ -61,8 +62,9 @@ class ExchangeResult:
 class Exchanger:
     """Batched low-rank evaluation of one criterion over a candidate set."""
 
-    def __init__(self, blocks: np.ndarray, criterion: str, G: np.ndarray | None = None,
-                 ridge: float | None = None):
+    def __init__(
+        self, blocks: np.ndarray, criterion: str, G: np.ndarray | None = None, ridge: float | None = None
+    ):
         self.blocks = blocks
         self.T = np.ascontiguousarray(compress(blocks))
         self.TT = np.ascontiguousarray(np.swapaxes(self.T, 1, 2))
@@ -72,7 +74,7 @@ class Exchanger:
         self.G = G
         self.W = weight_matrix(criterion, self.p, G)
         ev, evec = np.linalg.eigh(self.W)
-        self.V = evec * np.sqrt(np.clip(ev, 0, None))          # W = V V^T
+        self.V = evec * np.sqrt(np.clip(ev, 0, None))  # W = V V^T
         self.identity_w = bool(np.allclose(self.W, np.eye(self.p)))
         self.chunk = 256
         self.stats = {"scans": 0, "exact_evaluations": 0}
@@ -146,7 +148,7 @@ class Exchanger:
         if exclude is not None:
             lb = np.where(exclude, np.inf, lb)
         c = min(self.chunk, self.n - 1)
-        head = np.argpartition(lb, c)[: c + 1]          # the chunk + 1 smallest bounds
+        head = np.argpartition(lb, c)[: c + 1]  # the chunk + 1 smallest bounds
         head = head[np.argsort(lb[head], kind="stable")]
         best_j, best_v = -1, np.inf
         v = self._masked(self._exact(U[head[:-1]], head[:-1], logdet, trw), head[:-1], exclude)
@@ -154,13 +156,15 @@ class Exchanger:
         best_j, best_v = int(head[i]), float(v[i])
         if best_v <= lb[head[-1]] or self.n <= c + 1:
             if self.n <= c + 1:  # tiny sets: the last one too
-                vl = float(self._masked(self._exact(U[head[-1:]], head[-1:], logdet, trw), head[-1:], exclude)[0])
+                vl = float(
+                    self._masked(self._exact(U[head[-1:]], head[-1:], logdet, trw), head[-1:], exclude)[0]
+                )
                 if vl < best_v:
                     best_j, best_v = int(head[-1]), vl
             return best_j, best_v
         order = np.argsort(lb, kind="stable")
         for k in range(c, self.n, self.chunk):
-            sel = order[k: k + self.chunk]
+            sel = order[k : k + self.chunk]
             v = self._masked(self._exact(U[sel], sel, logdet, trw), sel, exclude)
             i = int(np.argmin(v))
             if v[i] < best_v:
@@ -207,7 +211,7 @@ class Exchanger:
         swaps = 0
         passes = 0
         order = np.arange(M)
-        for passes in range(1, max_passes + 1):
+        for passes in range(1, max_passes + 1):  # noqa: B007 (read after the loop)
             changed = False
             if rng is not None:
                 rng.shuffle(order)
@@ -235,8 +239,15 @@ class Exchanger:
                 break
         return idx, cur, passes, swaps, history
 
-    def optimise(self, M: int, n_random: int = 8, seed: int = 0, starts=None, distinct: bool = False,
-                 blas_threads: int | None = 1) -> ExchangeResult:
+    def optimise(
+        self,
+        M: int,
+        n_random: int = 8,
+        seed: int = 0,
+        starts=None,
+        distinct: bool = False,
+        blas_threads: int | None = 1,
+    ) -> ExchangeResult:
         """Multi-start exchange: greedy + n_random random starts (+ given ``starts``).
         ``distinct``: no candidate twice. ``blas_threads``: BLAS threads meanwhile (None: as is)."""
         if distinct and M > self.n:
@@ -246,8 +257,9 @@ class Exchanger:
 
     def _optimise(self, M, n_random, seed, starts, distinct) -> ExchangeResult:
         rng = np.random.default_rng(seed)
-        plans = [self.greedy(M, distinct=distinct)] + [rng.choice(self.n, M, replace=False)
-                                                       for _ in range(n_random)]
+        plans = [self.greedy(M, distinct=distinct)] + [
+            rng.choice(self.n, M, replace=False) for _ in range(n_random)
+        ]
         if starts is not None:
             plans += [np.asarray(s, int) for s in starts]
         best = None
@@ -263,8 +275,17 @@ class Exchanger:
             if best is None or val < best[1]:
                 best = (idx, val, hist)
         idx, val, hist = best
-        return ExchangeResult(np.sort(idx), self.exact_value(idx), val, start_values, start_results,
-                              tot_passes, tot_swaps, distinct, hist)
+        return ExchangeResult(
+            np.sort(idx),
+            self.exact_value(idx),
+            val,
+            start_values,
+            start_results,
+            tot_passes,
+            tot_swaps,
+            distinct,
+            hist,
+        )
 
 
 __all__ = ["compress", "Exchanger", "ExchangeResult"]

@@ -16,6 +16,7 @@ pulls carry their wrench; a configuration chosen twice becomes ``repeats = 2``.
 
 The prior guess of the parameters is the scenario's [truth] (see design_candidates).
 """
+
 from __future__ import annotations
 
 import time
@@ -28,10 +29,9 @@ from calbench.bench.core.errors import InputError
 from calbench.bench.core.progress import ProgressSink
 from calbench.bench.scenario.parse import Scenario, scenario_as_dict, scenario_to_toml
 
-from .candidates import (LOAD_KINDS, CandidateSet, DesignSettings, InfoEngine,
-                                lateral_wrench)
-from .criteria import CRITERIA, criterion_value, information, measures
+from .candidates import LOAD_KINDS, CandidateSet, DesignSettings, InfoEngine, lateral_wrench
 from .certificate import SingularCandidates
+from .criteria import CRITERIA, criterion_value, information, measures
 from .selection import Selection, select_rows, selection_text
 
 REFINE_STEPS_DEG = (4.0, 2.0, 1.0)
@@ -39,9 +39,9 @@ REFINE_STEPS_DEG = (4.0, 2.0, 1.0)
 
 @dataclass
 class PlanPose:
-    q: np.ndarray          # rad
-    wrench: np.ndarray     # (6,) world
-    kind: int              # 0 vertical (the scenario's [load]), 1 lateral pull
+    q: np.ndarray  # rad
+    wrench: np.ndarray  # (6,) world
+    kind: int  # 0 vertical (the scenario's [load]), 1 lateral pull
     block: np.ndarray
     repeats: int = 1
 
@@ -55,7 +55,7 @@ class DesignResult:
     timings: dict
     exchange: dict
     refine: dict = field(default_factory=dict)
-    selection: Selection | None = None     # the exchange's rows and their certificate
+    selection: Selection | None = None  # the exchange's rows and their certificate
 
     def information(self) -> np.ndarray:
         return sum(p.repeats * p.block.T @ p.block for p in self.poses)
@@ -96,8 +96,15 @@ def _lateral_sign(q, w) -> float:
     return 1.0 if (-np.sin(q[0]) * w[0] + np.cos(q[0]) * w[1]) >= 0 else -1.0
 
 
-def refine(engine: InfoEngine, poses: list[PlanPose], criterion: str, G, steps=REFINE_STEPS_DEG,
-           budget_s: float = 20.0, progress: ProgressSink | None = None) -> dict:
+def refine(
+    engine: InfoEngine,
+    poses: list[PlanPose],
+    criterion: str,
+    G,
+    steps=REFINE_STEPS_DEG,
+    budget_s: float = 20.0,
+    progress: ProgressSink | None = None,
+) -> dict:
     """Coordinate descent in q on each chosen pose (see the module docstring). In place."""
     t0 = time.perf_counter()
     F = sum(p.repeats * p.block.T @ p.block for p in poses)
@@ -113,7 +120,11 @@ def refine(engine: InfoEngine, poses: list[PlanPose], criterion: str, G, steps=R
                         break
                     q2 = p.q.copy()
                     q2[j] += sgn * np.radians(step)
-                    w2 = p.wrench if p.kind == 0 else lateral_wrench(q2[0], _lateral_sign(p.q, p.wrench), force)
+                    w2 = (
+                        p.wrench
+                        if p.kind == 0
+                        else lateral_wrench(q2[0], _lateral_sign(p.q, p.wrench), force)
+                    )
                     tried += 1
                     try:
                         info = engine.pose(q2, w2, LOAD_KINDS[p.kind])
@@ -129,8 +140,14 @@ def refine(engine: InfoEngine, poses: list[PlanPose], criterion: str, G, steps=R
                         accepted += 1
             if progress:
                 progress.update(f"refining ({step:g} deg) pose {k + 1}/{len(poses)}")
-    return {"before": start, "after": cur, "tried": tried, "accepted": accepted,
-            "seconds": time.perf_counter() - t0, "steps_deg": list(steps)}
+    return {
+        "before": start,
+        "after": cur,
+        "tried": tried,
+        "accepted": accepted,
+        "seconds": time.perf_counter() - t0,
+        "steps_deg": list(steps),
+    }
 
 
 def poses_of_rows(q, wrench, kind, blocks, rows) -> list[PlanPose]:
@@ -151,9 +168,19 @@ def merge_repeats(poses: list[PlanPose]) -> list[PlanPose]:
     return merged
 
 
-def design_plan(scn: Scenario, settings: DesignSettings, cands: CandidateSet, M: int, criterion: str,
-                n_random: int = 8, seed: int = 0, do_refine: bool = True, engine: InfoEngine | None = None,
-                progress: ProgressSink | None = None, distinct: bool = False) -> DesignResult:
+def design_plan(
+    scn: Scenario,
+    settings: DesignSettings,
+    cands: CandidateSet,
+    M: int,
+    criterion: str,
+    n_random: int = 8,
+    seed: int = 0,
+    do_refine: bool = True,
+    engine: InfoEngine | None = None,
+    progress: ProgressSink | None = None,
+    distinct: bool = False,
+) -> DesignResult:
     """The plan of M configurations: exchange on the candidates, certificate of its rows
     (selection.py), then the continuous refinement (which leaves the candidate set: the
     certificate is of the plan before it). ``distinct``: no candidate twice."""
@@ -164,8 +191,13 @@ def design_plan(scn: Scenario, settings: DesignSettings, cands: CandidateSet, M:
     engine = engine or InfoEngine(scn, settings)
     G = work_jacobian(engine, scn)
     if criterion == "pose" and G is None:
-        raise InputError(scn.path, "work", "a [work] table (q in degrees, wrench in N and N*m) for "
-                         "--criterion pose: the pose measure is the compliance error there", None)
+        raise InputError(
+            scn.path,
+            "work",
+            "a [work] table (q in degrees, wrench in N and N*m) for "
+            "--criterion pose: the pose measure is the compliance error there",
+            None,
+        )
     try:
         sel = select_rows(cands.blocks, M, criterion, G, distinct=distinct, n_random=n_random, seed=seed)
     except SingularCandidates as exc:
@@ -180,12 +212,25 @@ def design_plan(scn: Scenario, settings: DesignSettings, cands: CandidateSet, M:
         ref = refine(engine, poses, criterion, G, progress=progress)
     merged = merge_repeats(poses)
     F = sum(p.repeats * p.block.T @ p.block for p in merged)
-    return DesignResult(criterion, merged, plan_measures(F, cands.theta0, G, cands.param_names), exch_meas,
-                        {**sel.seconds, "refine_s": ref.get("seconds", 0.0)},
-                        {"value": r.value, "start_values": r.start_values, "start_results": r.start_results,
-                         "passes": r.passes, "swaps": r.swaps, "scans": sel.exchanger_stats["scans"],
-                         "exact_evaluations": sel.exchanger_stats["exact_evaluations"], "indices": r.idx.tolist()},
-                        ref, sel)
+    return DesignResult(
+        criterion,
+        merged,
+        plan_measures(F, cands.theta0, G, cands.param_names),
+        exch_meas,
+        {**sel.seconds, "refine_s": ref.get("seconds", 0.0)},
+        {
+            "value": r.value,
+            "start_values": r.start_values,
+            "start_results": r.start_results,
+            "passes": r.passes,
+            "swaps": r.swaps,
+            "scans": sel.exchanger_stats["scans"],
+            "exact_evaluations": sel.exchanger_stats["exact_evaluations"],
+            "indices": r.idx.tolist(),
+        },
+        ref,
+        sel,
+    )
 
 
 def plan_scenario_text(scn: Scenario, poses: list[PlanPose], out: Path, comment: str = "") -> str:
@@ -206,22 +251,38 @@ def plan_scenario_text(scn: Scenario, poses: list[PlanPose], out: Path, comment:
 
 def result_json(res: DesignResult, scn: Scenario, cands: CandidateSet, extra: dict | None = None) -> dict:
     out = {
-        "scenario": str(scn.path), "criterion": res.criterion,
+        "scenario": str(scn.path),
+        "criterion": res.criterion,
         "configs": int(sum(p.repeats for p in res.poses)),
-        "measures": res.measures, "measures_before_refinement": res.exchange_measures,
-        "poses": [{"q_deg": np.round(np.degrees(p.q), 6).tolist(), "load": LOAD_KINDS[p.kind],
-                   "wrench": [float(x) for x in p.wrench], "repeats": p.repeats} for p in res.poses],
-        "candidates": {"count": len(cands), "lateral": int(cands.kind.sum()), **cands.stats,
-                       "settings": cands.settings.as_dict()},
-        "exchange": res.exchange, "refinement": res.refine, "timings": res.timings,
+        "measures": res.measures,
+        "measures_before_refinement": res.exchange_measures,
+        "poses": [
+            {
+                "q_deg": np.round(np.degrees(p.q), 6).tolist(),
+                "load": LOAD_KINDS[p.kind],
+                "wrench": [float(x) for x in p.wrench],
+                "repeats": p.repeats,
+            }
+            for p in res.poses
+        ],
+        "candidates": {
+            "count": len(cands),
+            "lateral": int(cands.kind.sum()),
+            **cands.stats,
+            "settings": cands.settings.as_dict(),
+        },
+        "exchange": res.exchange,
+        "refinement": res.refine,
+        "timings": res.timings,
         "prior_theta": {n: float(t) for n, t in zip(cands.param_names, cands.theta0)},
     }
     if res.selection is not None:
         out.update(res.selection.as_json(cands.q, [LOAD_KINDS[k] for k in cands.kind]))
         if res.refine:
             F = res.information()
-            out["certificate"]["refined_plan"] = (float(np.linalg.slogdet(F)[1]) if res.criterion == "D"
-                                                  else float(res.measures[res.criterion]))
+            out["certificate"]["refined_plan"] = (
+                float(np.linalg.slogdet(F)[1]) if res.criterion == "D" else float(res.measures[res.criterion])
+            )
     if extra:
         out.update(extra)
     return out
@@ -230,9 +291,11 @@ def result_json(res: DesignResult, scn: Scenario, cands: CandidateSet, extra: di
 def input_plan_measures(engine: InfoEngine, scn: Scenario, theta0: np.ndarray) -> dict:
     """The scenario's own [[pose]] plan, measured like a designed one, with its rule violations."""
     F_in, viol = scenario_plan_information(engine, scn)
-    return {"configs": int(sum(p.repeats for p in scn.poses)),
-            "measures": plan_measures(F_in, theta0, work_jacobian(engine, scn), engine.robot.layout.names),
-            "violations": viol}
+    return {
+        "configs": int(sum(p.repeats for p in scn.poses)),
+        "measures": plan_measures(F_in, theta0, work_jacobian(engine, scn), engine.robot.layout.names),
+        "violations": viol,
+    }
 
 
 def summary_text(res: DesignResult, cands: CandidateSet, input_plan: dict) -> str:
@@ -240,16 +303,20 @@ def summary_text(res: DesignResult, cands: CandidateSet, input_plan: dict) -> st
     the certificate with the continuous design (selection_text)."""
     m, mi = res.measures, input_plan["measures"]
     configs = int(sum(p.repeats for p in res.poses))
-    text = (f"design: {res.criterion}-optimal plan of {configs} configurations from {len(cands)} candidates\n"
-            f"  A (trace cov) {m['A']:.4g}   D (det^1/8) {m['D']:.4g}   AD {m['AD']:.4g}"
-            + (f"   pose {m['pose']:.4g} m^2 ({m['pose_rms_um']:.2f} um rms)" if "pose" in m else "")
-            + f"\n  scenario's own plan ({input_plan['configs']} poses): A {mi['A']:.4g}   D {mi['D']:.4g}"
-            + (f"   pose {mi['pose']:.4g}" if "pose" in mi else ""))
+    text = (
+        f"design: {res.criterion}-optimal plan of {configs} configurations from {len(cands)} candidates\n"
+        f"  A (trace cov) {m['A']:.4g}   D (det^1/8) {m['D']:.4g}   AD {m['AD']:.4g}"
+        + (f"   pose {m['pose']:.4g} m^2 ({m['pose_rms_um']:.2f} um rms)" if "pose" in m else "")
+        + f"\n  scenario's own plan ({input_plan['configs']} poses): A {mi['A']:.4g}   D {mi['D']:.4g}"
+        + (f"   pose {mi['pose']:.4g}" if "pose" in mi else "")
+    )
     if res.selection is not None:
         text += "\n" + selection_text(res.selection, len(cands), cands.q, [LOAD_KINDS[k] for k in cands.kind])
         if res.refine:
-            text += ("\n  (the certificate is of the exchange's plan on the candidates; the refinement then "
-                     f"moved poses off them: {res.criterion} {res.refine['before']:.6g} -> {res.refine['after']:.6g})")
+            text += (
+                "\n  (the certificate is of the exchange's plan on the candidates; the refinement then "
+                f"moved poses off them: {res.criterion} {res.refine['before']:.6g} -> {res.refine['after']:.6g})"
+            )
     return text
 
 
@@ -257,15 +324,33 @@ def plan_comment(scenario: Path, res: DesignResult) -> str:
     """The header comment of a written PLAN.toml: how it was made and what it predicts."""
     m = res.measures
     configs = int(sum(p.repeats for p in res.poses))
-    return (f"Measurement plan by `calbench design {Path(scenario).name} --configs {configs} "
-            f"--criterion {res.criterion}`\n(prior guess = the scenario's [truth]). Predicted: "
-            f"A = {m['A']:.6g}, D = {m['D']:.6g}, AD = {m['AD']:.6g}"
-            + (f", pose = {m['pose']:.6g} m^2" if "pose" in m else "")
-            + ("" if res.selection is None else
-               f"\nCertified efficiency of the exchange's plan (before refinement): "
-               f"{100 * res.selection.certificate.efficiency:.2f} % of the best {configs}-pose "
-               f"{'distinct ' if res.selection.distinct else ''}plan from the candidates ({res.criterion})"))
+    return (
+        f"Measurement plan by `calbench design {Path(scenario).name} --configs {configs} "
+        f"--criterion {res.criterion}`\n(prior guess = the scenario's [truth]). Predicted: "
+        f"A = {m['A']:.6g}, D = {m['D']:.6g}, AD = {m['AD']:.6g}"
+        + (f", pose = {m['pose']:.6g} m^2" if "pose" in m else "")
+        + (
+            ""
+            if res.selection is None
+            else f"\nCertified efficiency of the exchange's plan (before refinement): "
+            f"{100 * res.selection.certificate.efficiency:.2f} % of the best {configs}-pose "
+            f"{'distinct ' if res.selection.distinct else ''}plan from the candidates ({res.criterion})"
+        )
+    )
 
 
-__all__ = ["poses_of_rows", "merge_repeats", "input_plan_measures", "summary_text", "plan_comment", "design_plan", "plan_scenario_text", "scenario_plan_information",
-           "plan_measures", "refine", "work_jacobian", "PlanPose", "DesignResult"]
+__all__ = [
+    "poses_of_rows",
+    "merge_repeats",
+    "input_plan_measures",
+    "summary_text",
+    "plan_comment",
+    "design_plan",
+    "plan_scenario_text",
+    "scenario_plan_information",
+    "plan_measures",
+    "refine",
+    "work_jacobian",
+    "PlanPose",
+    "DesignResult",
+]

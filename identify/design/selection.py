@@ -11,6 +11,7 @@ something; the plan with repeats is computed too, and the cost against the BEST 
 repeats is bracketed: at least the loss against the repeats plan found (or 0), at most the loss
 against the bound of every plan with repeats. Both ends are exact statements, not estimates.
 """
+
 from __future__ import annotations
 
 import math
@@ -20,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .certificate import Certificate, certify, check_identifiable, design_json
-from .exchange import ExchangeResult, Exchanger
+from .exchange import Exchanger, ExchangeResult
 
 
 def relative_efficiency(criterion: str, plan: float, reference: float, p: int) -> float:
@@ -36,12 +37,12 @@ class Selection:
     """M rows chosen from the candidates, and their certificate."""
 
     criterion: str
-    rows: np.ndarray                  # (M,) sorted, repeats possible unless distinct
+    rows: np.ndarray  # (M,) sorted, repeats possible unless distinct
     exchange: ExchangeResult
     exchanger_stats: dict
     certificate: Certificate
-    seconds: dict                     # exchange_s, certificate_s
-    repeats: "Selection | None" = None  # when distinct: the plan with repeats
+    seconds: dict  # exchange_s, certificate_s
+    repeats: Selection | None = None  # when distinct: the plan with repeats
 
     @property
     def distinct(self) -> bool:
@@ -55,19 +56,28 @@ class Selection:
         p = c.p
         vs_found = relative_efficiency(c.criterion, c.plan, r.plan, p)
         vs_bound = relative_efficiency(c.criterion, c.plan, r.bound, p)
-        return {"repeats_rows": self.repeats.rows.tolist(), "repeats_plan": r.plan,
-                "repeats_bound": r.bound, "repeats_efficiency": r.efficiency,
-                "efficiency_vs_repeats_plan": vs_found, "efficiency_vs_repeats_bound": vs_bound,
-                "cost": {"at_least": max(0.0, 1.0 - vs_found), "at_most": 1.0 - vs_bound}}
+        return {
+            "repeats_rows": self.repeats.rows.tolist(),
+            "repeats_plan": r.plan,
+            "repeats_bound": r.bound,
+            "repeats_efficiency": r.efficiency,
+            "efficiency_vs_repeats_plan": vs_found,
+            "efficiency_vs_repeats_bound": vs_bound,
+            "cost": {"at_least": max(0.0, 1.0 - vs_found), "at_most": 1.0 - vs_bound},
+        }
 
     def as_json(self, q: np.ndarray | None = None, load=None) -> dict:
         """rows, certificate, continuous_design (per criterion behind the bound; q in rad and
         load names of the candidates, when known, label its support) and the distinct cost."""
         cert = self.certificate
-        out = {"rows": self.rows.tolist(), "certificate": cert.as_json(),
-               "continuous_design": {_design_name(d.criterion, cert.criterion): design_json(d, cert.configs, q, load)
-                                     for d in cert.designs},
-               }
+        out = {
+            "rows": self.rows.tolist(),
+            "certificate": cert.as_json(),
+            "continuous_design": {
+                _design_name(d.criterion, cert.criterion): design_json(d, cert.configs, q, load)
+                for d in cert.designs
+            },
+        }
         cost = self.distinct_cost()
         if cost is not None:
             out["distinct"] = cost
@@ -79,9 +89,16 @@ def _design_name(design_criterion: str, plan_criterion: str) -> str:
     return "pose" if design_criterion == "A" and plan_criterion == "pose" else design_criterion
 
 
-def select_rows(blocks: np.ndarray, M: int, criterion: str, G: np.ndarray | None = None,
-                distinct: bool = False, n_random: int = 8, seed: int = 0,
-                blas_threads: int | None = 1) -> Selection:
+def select_rows(
+    blocks: np.ndarray,
+    M: int,
+    criterion: str,
+    G: np.ndarray | None = None,
+    distinct: bool = False,
+    n_random: int = 8,
+    seed: int = 0,
+    blas_threads: int | None = 1,
+) -> Selection:
     """The exchange's best plan of M rows and its certificate (and, when distinct, the plan
     with repeats for the cost). Raises ValueError for M > N distinct rows and
     certificate.SingularCandidates when no plan identifies every parameter."""
@@ -93,7 +110,9 @@ def select_rows(blocks: np.ndarray, M: int, criterion: str, G: np.ndarray | None
     t1 = time.perf_counter()
     cert = certify(blocks, r.idx, criterion, G, distinct=distinct, blas_threads=blas_threads)
     t2 = time.perf_counter()
-    sel = Selection(criterion, r.idx, r, dict(ex.stats), cert, {"exchange_s": t1 - t0, "certificate_s": t2 - t1})
+    sel = Selection(
+        criterion, r.idx, r, dict(ex.stats), cert, {"exchange_s": t1 - t0, "certificate_s": t2 - t1}
+    )
     if distinct:
         sel.repeats = select_rows(blocks, M, criterion, G, False, n_random, seed, blas_threads)
     return sel
@@ -104,8 +123,9 @@ def _rows_text(rows: np.ndarray) -> str:
     return " ".join(f"{i}" + (f"x{c}" if c > 1 else "") for i, c in zip(u, n))
 
 
-def selection_text(sel: Selection, n_candidates: int, q: np.ndarray | None = None, load=None,
-                   max_support: int = 20) -> str:
+def selection_text(
+    sel: Selection, n_candidates: int, q: np.ndarray | None = None, load=None, max_support: int = 20
+) -> str:
     """Lines for people: the certificate as a proven statement, the rows, the distinct cost and
     the continuous design's support (q in rad and load names label it when known)."""
     c = sel.certificate
@@ -116,25 +136,36 @@ def selection_text(sel: Selection, n_candidates: int, q: np.ndarray | None = Non
         unit = f"det^(1/{c.p})"
     else:
         head = f"{c.criterion} {c.plan:.5g} >= bound {c.bound:.5g}"
-        unit = {"A": "the trace of the covariance", "pose": "the work-pose variance"}.get(c.criterion, "the criterion")
-    lines = [f"  certificate ({c.criterion}, every {M}-pose {which[:-1]} from these {n_candidates} candidates): {head}",
-             f"    efficiency {100 * c.efficiency:.1f} %: provably within {100 * (1 - c.efficiency):.1f} % of the best "
-             f"{M}-pose {which[:-1]} from these candidates (in {unit}; equivalence-theorem bound, a proof, "
-             "not an estimate)",
-             f"  rows: {_rows_text(sel.rows)}"]
+        unit = {"A": "the trace of the covariance", "pose": "the work-pose variance"}.get(
+            c.criterion, "the criterion"
+        )
+    lines = [
+        f"  certificate ({c.criterion}, every {M}-pose {which[:-1]} from these {n_candidates} candidates): {head}",
+        f"    efficiency {100 * c.efficiency:.1f} %: provably within {100 * (1 - c.efficiency):.1f} % of the best "
+        f"{M}-pose {which[:-1]} from these candidates (in {unit}; equivalence-theorem bound, a proof, "
+        "not an estimate)",
+        f"  rows: {_rows_text(sel.rows)}",
+    ]
     cost = sel.distinct_cost()
     if cost is not None:
-        lines.append(f"  no repeats: costs {100 * cost['cost']['at_least']:.2f} % to {100 * cost['cost']['at_most']:.2f} % "
-                     f"against the best plan with repeats (found: rows {_rows_text(sel.repeats.rows)}, "
-                     f"efficiency {100 * cost['repeats_efficiency']:.1f} %)")
+        lines.append(
+            f"  no repeats: costs {100 * cost['cost']['at_least']:.2f} % to {100 * cost['cost']['at_most']:.2f} % "
+            f"against the best plan with repeats (found: rows {_rows_text(sel.repeats.rows)}, "
+            f"efficiency {100 * cost['repeats_efficiency']:.1f} %)"
+        )
     in_plan = dict(zip(*np.unique(sel.rows, return_counts=True)))
     for d in c.designs:
         sup = d.support()
-        lines.append(f"  continuous {_design_name(d.criterion, c.criterion)}-optimal design"
-                     f"{' (at most 1/M per row)' if d.cap is not None else ''} ({d.algorithm}, {d.iterations} "
-                     f"iterations, {d.seconds:.2f} s, gap {d.g_bound - 1:.1e}): {len(sup)} support points")
-        lines.append(f"    {'row':>6}  {'poses of ' + str(M):>11}  {'in plan':>7}"
-                     + (f"  {'load':<8}" if load is not None else "") + ("  q (deg)" if q is not None else ""))
+        lines.append(
+            f"  continuous {_design_name(d.criterion, c.criterion)}-optimal design"
+            f"{' (at most 1/M per row)' if d.cap is not None else ''} ({d.algorithm}, {d.iterations} "
+            f"iterations, {d.seconds:.2f} s, gap {d.g_bound - 1:.1e}): {len(sup)} support points"
+        )
+        lines.append(
+            f"    {'row':>6}  {'poses of ' + str(M):>11}  {'in plan':>7}"
+            + (f"  {'load':<8}" if load is not None else "")
+            + ("  q (deg)" if q is not None else "")
+        )
         for i in sup[:max_support]:
             line = f"    {i:>6}  {M * d.weights[i]:>11.2f}  {in_plan.get(i, 0):>7}"
             if load is not None:

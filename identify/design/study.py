@@ -19,6 +19,7 @@ Outputs in DIR: study.json, table1 (3/4/5 distinct q2), fig7_measures_vs_middle_
 10/20/50 % intervals (Table 2), fig8_std_vs_middle_q2.png (per-parameter relative std, Tables
 3-4).
 """
+
 from __future__ import annotations
 
 import itertools
@@ -38,14 +39,16 @@ Q3 = (-30.0, 30.0)
 
 def run_study(scenario: Path, out_dir: Path, progress=None, step: float = 5.0) -> dict:
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     scn, st = load_design_scenario(scenario)
     eng = InfoEngine(scn, st)
     if eng.robot.n_act != 6:
-        raise InputError(scn.robot, "calbench:actuated", "the six axes of the paper's robot for --study",
-                         eng.robot.n_act)
+        raise InputError(
+            scn.robot, "calbench:actuated", "the six axes of the paper's robot for --study", eng.robot.n_act
+        )
     names = eng.robot.layout.names
     npar = len(names)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -64,8 +67,9 @@ def run_study(scenario: Path, out_dir: Path, progress=None, step: float = 5.0) -
                 if not eng.feas.loop(np.radians([0.0, q2, q3, 0, 0, 0])):
                     continue  # q3 - q2 within 10 deg of -120: the loop degenerates (q2 ~ 90, q3 = -30)
                 for w in WRISTS:
-                    b = eng.pose(np.radians([0.0, q2, q3, *w]), weight, require_all_visible=False,
-                                 check=False).block
+                    b = eng.pose(
+                        np.radians([0.0, q2, q3, *w]), weight, require_all_visible=False, check=False
+                    ).block
                     F += b.T @ b
             cache[q2] = F
         return cache[q2]
@@ -86,8 +90,10 @@ def run_study(scenario: Path, out_dir: Path, progress=None, step: float = 5.0) -
                 if k not in best or r[k] < best[k][0]:
                     best[k] = (r[k], combo)
         configs = n * len(Q3) * len(WRISTS)
-        table1[n] = {k: {"value": v, "per_configuration": v * configs, "q2": list(map(float, c))}
-                     for k, (v, c) in best.items()}
+        table1[n] = {
+            k: {"value": v, "per_configuration": v * configs, "q2": list(map(float, c))}
+            for k, (v, c) in best.items()
+        }
     # Fig 7 / Table 2: middle q2 with 0 and 120 fixed
     curves = {k: [] for k in ("O1", "O2", "O3")}
     stds = []
@@ -106,10 +112,14 @@ def run_study(scenario: Path, out_dir: Path, progress=None, step: float = 5.0) -
             ok = grid[v <= v[i] * (1 + loss)]
             row[f"{int(loss * 100)}%"] = [float(ok.min()), float(ok.max())]
         table2[k] = row
-    table3 = {n: {"argmin_q2": float(grid[int(np.argmin(stds[:, j]))]),
-                  "min_relative_std": float(stds[:, j].min()),
-                  "max_over_min": float(stds[:, j].max() / stds[:, j].min())}
-              for j, n in enumerate(names)}
+    table3 = {
+        n: {
+            "argmin_q2": float(grid[int(np.argmin(stds[:, j]))]),
+            "min_relative_std": float(stds[:, j].min()),
+            "max_over_min": float(stds[:, j].max() / stds[:, j].min()),
+        }
+        for j, n in enumerate(names)
+    }
 
     fig, ax = plt.subplots(1, 3, figsize=(13, 4))
     for a, (k, v) in zip(ax, curves.items()):
@@ -132,9 +142,16 @@ def run_study(scenario: Path, out_dir: Path, progress=None, step: float = 5.0) -
     fig.tight_layout()
     fig.savefig(out_dir / "fig8_std_vs_middle_q2.png", dpi=110)
     plt.close(fig)
-    res = {"table1": table1, "table2": table2, "table3_parameters": table3,
-           "curves": {"middle_q2": grid.tolist(), **{k: list(map(float, v)) for k, v in curves.items()},
-                      "relative_std": {n: stds[:, j].tolist() for j, n in enumerate(names)}}}
+    res = {
+        "table1": table1,
+        "table2": table2,
+        "table3_parameters": table3,
+        "curves": {
+            "middle_q2": grid.tolist(),
+            **{k: list(map(float, v)) for k, v in curves.items()},
+            "relative_std": {n: stds[:, j].tolist() for j, n in enumerate(names)},
+        },
+    }
     (out_dir / "study.json").write_text(json.dumps(res, indent=1))
     return res
 

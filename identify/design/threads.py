@@ -6,6 +6,7 @@ fight the other processes (the exchange slowed from 0.8 s to 8.7 s at load 9). `
 limits the BLAS pools to n threads for a ``with`` block (threadpoolctl), None leaves them alone.
 benchmarks/certificate_bench.py measures both side by side.
 """
+
 from __future__ import annotations
 
 from contextlib import nullcontext

@@ -6,8 +6,18 @@ multi-start fit of one candidate), stats (diagnostics), decide (the likelihood-r
 near-ties), uncertainty (what a fit determines), aliasing (what a fit cannot see), story (what a
 person reads), workflow (the whole `calbench discover`).
 """
+
 from .fit import DISCOVERY_EFFECTS, AugmentedForward, Fit, library
 from .workflow import AMBIGUOUS, UNEXPLAINED, discover, discover_observations, story
 
-__all__ = ["DISCOVERY_EFFECTS", "AugmentedForward", "Fit", "library", "AMBIGUOUS", "UNEXPLAINED", "discover",
-           "discover_observations", "story"]
+__all__ = [
+    "DISCOVERY_EFFECTS",
+    "AugmentedForward",
+    "Fit",
+    "library",
+    "AMBIGUOUS",
+    "UNEXPLAINED",
+    "discover",
+    "discover_observations",
+    "story",
+]

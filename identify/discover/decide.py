@@ -25,6 +25,7 @@ misfits m_A, m_B (whitened), LR_A - LR_B = |m_B|^2 - |m_A|^2 + 2 e.(m_B - m_A), 
 standard deviation is 2 |f_A - f_B|_w, twice the whitened distance between the two fits'
 predictions; "inside" means within AMBIGUOUS_SPREAD of those standard deviations.
 """
+
 from __future__ import annotations
 
 import math
@@ -34,9 +35,9 @@ from scipy import stats
 
 from .stats import ALPHA_FIT, chi2_p
 
-ALPHA_EFFECT = 1e-3     # family-wise level of the likelihood-ratio tests over the round's candidates
-MIN_EXPLAINED = 0.5     # or: an accepted effect removes at least this share of the excess chi2
-AMBIGUOUS_BIC = 2.0     # BIC gains closer than this are a near-tie
+ALPHA_EFFECT = 1e-3  # family-wise level of the likelihood-ratio tests over the round's candidates
+MIN_EXPLAINED = 0.5  # or: an accepted effect removes at least this share of the excess chi2
+AMBIGUOUS_BIC = 2.0  # BIC gains closer than this are a near-tie
 AMBIGUOUS_SPREAD = 1.0  # LR difference within this many of its sampling standard deviations
 
 
@@ -59,10 +60,19 @@ def compare(base, cand, n_candidates: int) -> dict:
     bic = float(lr - k * math.log(n))
     p_fit = chi2_p(cand.chi2, cand.dof)
     significant = bool(k > 0 and p_lr < alpha)
-    return {"k": int(k), "lr": float(lr), "p_lr": p_lr, "alpha": alpha, "bic_gain": bic,
-            "explained": float(explained), "chi2": float(cand.chi2), "dof": int(cand.dof), "p_fit": p_fit,
-            "significant": significant,
-            "accept": bool(significant and bic > 0 and (p_fit >= ALPHA_FIT or explained >= MIN_EXPLAINED))}
+    return {
+        "k": int(k),
+        "lr": float(lr),
+        "p_lr": p_lr,
+        "alpha": alpha,
+        "bic_gain": bic,
+        "explained": float(explained),
+        "chi2": float(cand.chi2),
+        "dof": int(cand.dof),
+        "p_fit": p_fit,
+        "significant": significant,
+        "accept": bool(significant and bic > 0 and (p_fit >= ALPHA_FIT or explained >= MIN_EXPLAINED)),
+    }
 
 
 def lr_spread(fit_a, fit_b) -> float:
@@ -83,13 +93,40 @@ def near_ties(best: tuple, others: list[tuple]) -> list[dict]:
         d_bic = st_a["bic_gain"] - st_b["bic_gain"]
         spread = lr_spread(fit_a, fit_b)
         if d_bic < AMBIGUOUS_BIC or d_lr < AMBIGUOUS_SPREAD * spread:
-            out.append({"candidate": label_b, "lr": st_b["lr"], "k": st_b["k"], "bic_gain": st_b["bic_gain"],
-                        "lr_difference": d_lr, "bic_difference": d_bic, "lr_difference_spread": spread})
+            out.append(
+                {
+                    "candidate": label_b,
+                    "lr": st_b["lr"],
+                    "k": st_b["k"],
+                    "bic_gain": st_b["bic_gain"],
+                    "lr_difference": d_lr,
+                    "bic_difference": d_bic,
+                    "lr_difference_spread": spread,
+                }
+            )
     if out:
-        out.insert(0, {"candidate": label_a, "lr": st_a["lr"], "k": st_a["k"], "bic_gain": st_a["bic_gain"],
-                       "lr_difference": 0.0, "bic_difference": 0.0, "lr_difference_spread": 0.0})
+        out.insert(
+            0,
+            {
+                "candidate": label_a,
+                "lr": st_a["lr"],
+                "k": st_a["k"],
+                "bic_gain": st_a["bic_gain"],
+                "lr_difference": 0.0,
+                "bic_difference": 0.0,
+                "lr_difference_spread": 0.0,
+            },
+        )
     return out
 
 
-__all__ = ["ALPHA_EFFECT", "MIN_EXPLAINED", "AMBIGUOUS_BIC", "AMBIGUOUS_SPREAD", "lr_threshold", "compare",
-           "lr_spread", "near_ties"]
+__all__ = [
+    "ALPHA_EFFECT",
+    "MIN_EXPLAINED",
+    "AMBIGUOUS_BIC",
+    "AMBIGUOUS_SPREAD",
+    "lr_threshold",
+    "compare",
+    "lr_spread",
+    "near_ties",
+]

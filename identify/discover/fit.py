@@ -36,6 +36,7 @@ parameters (e.g. in-plane forearm bending, exactly a k3 through the parallelogra
 where it is, so that it never costs the base model anything, and any base parameter still
 unidentifiable is held as in identify/methods/onestep.py.
 """
+
 from __future__ import annotations
 
 import time
@@ -44,12 +45,17 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from calbench.bench.model.effects import DISCOVERY_OPTIONS, Effect, Readings, apply_effects, discovery_library, priors
+from calbench.bench.model.effects import (
+    DISCOVERY_OPTIONS,
+    Effect,
+    Readings,
+    apply_effects,
+    discovery_library,
+    priors,
+)
+from calbench.bench.model.params import ParamLayout
 from calbench.bench.model.robot import Robot
 from calbench.bench.tracker.instrument import tracker_rotation
-
-from calbench.bench.model.params import ParamLayout
-
 from calbench.identify.core.forward import ForwardModel, PoseDesign, design_from_observations
 from calbench.identify.core.identifiability import analyze
 from calbench.identify.core.leastsq import Fit, at_bounds, covariance, levenberg_marquardt
@@ -57,13 +63,13 @@ from calbench.identify.core.whitening import Whitener
 
 # --------------------------------------------------------------------------- the library
 
-DISCOVER_RANK_TOL = 1e-5     # singular value (column-normalised) below which a direction is unseen
-COST_TOL = 1e-3              # chi2 units: a step gaining (or promising) less ends the fit
-STALL_LIMIT = 8              # Newton iterations a stalling step may re-assemble A_base + S (analytic S)
+DISCOVER_RANK_TOL = 1e-5  # singular value (column-normalised) below which a direction is unseen
+COST_TOL = 1e-3  # chi2 units: a step gaining (or promising) less ends the fit
+STALL_LIMIT = 8  # Newton iterations a stalling step may re-assemble A_base + S (analytic S)
 # the base parameters' bounds: ParamLayout.lower / .upper (bench/model/params.py)
 
 
-DISCOVERY_EFFECTS = tuple(DISCOVERY_OPTIONS)   # the effects @register puts in discovery's library
+DISCOVERY_EFFECTS = tuple(DISCOVERY_OPTIONS)  # the effects @register puts in discovery's library
 
 
 def library(robot: Robot) -> list[Effect]:
@@ -92,6 +98,7 @@ def param_units(layout: ParamLayout, effects: list[Effect]) -> list[str]:
 
 # --------------------------------------------------------------------------- forward model
 
+
 class AugmentedForward(ForwardModel):
     """identify/core/forward.py's exact forward model with effect parameters appended to theta.
 
@@ -108,8 +115,14 @@ class AugmentedForward(ForwardModel):
       nothing to dg/dtheta.
     """
 
-    def __init__(self, robot: Robot, design: list[PoseDesign], effects: list[Effect],
-                 readings: Readings | None = None, **kw):
+    def __init__(
+        self,
+        robot: Robot,
+        design: list[PoseDesign],
+        effects: list[Effect],
+        readings: Readings | None = None,
+        **kw,
+    ):
         m = robot.model
         # every tendon is a potential spring (S and the length Hessians cover all of them)
         self._spring_tendons = np.arange(m.ntendon)
@@ -127,7 +140,9 @@ class AugmentedForward(ForwardModel):
         self.readings = readings
         if any(e.measurement_side for e in self.effects) and readings is None:
             raise ValueError("a measurement-side effect needs the observation rows (Readings)")
-        hinge = np.flatnonzero(np.isin(m.jnt_type, (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE)))
+        hinge = np.flatnonzero(
+            np.isin(m.jnt_type, (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE))
+        )
         self._jnt = hinge
         self._jnt_qpos = m.jnt_qposadr[hinge]
         self._jnt_diag = m.jnt_dofadr[hinge] * (m.nv + 1)
@@ -138,7 +153,7 @@ class AugmentedForward(ForwardModel):
     def write(self, theta: np.ndarray) -> None:
         super().write(theta)
         for e, off, n in zip(self.effects, self.offsets, self.sizes):
-            e.set_params(self.robot, theta[off: off + n])
+            e.set_params(self.robot, theta[off : off + n])
 
     # -- the springs, analytically -----------------------------------------------------------
     def _moments(self) -> np.ndarray:
@@ -147,11 +162,13 @@ class AugmentedForward(ForwardModel):
         m, d = self.robot.model, self.robot.data
         out = np.zeros((len(self._spring_tendons), self.nv))
         for i, (adr, nnz) in enumerate(self._ten_rows):
-            out[i, m.ten_J_colind[adr: adr + nnz]] = d.ten_J[adr: adr + nnz]
+            out[i, m.ten_J_colind[adr : adr + nnz]] = d.ten_J[adr : adr + nnz]
         return out
 
     def _deadband(self) -> bool:
-        return bool(np.any(self.robot.model.tendon_lengthspring[:, 0] != self.robot.model.tendon_lengthspring[:, 1]))
+        return bool(
+            np.any(self.robot.model.tendon_lengthspring[:, 0] != self.robot.model.tendon_lengthspring[:, 1])
+        )
 
     def _spring_part(self, theta, t: np.ndarray, h_len) -> np.ndarray:
         """S: d(spring forces)/dq at the pose held in data, from the spring values written in
@@ -166,7 +183,9 @@ class AugmentedForward(ForwardModel):
             if k == 0.0 and b == 0.0 and c == 0.0:
                 continue
             x = float(d.ten_length[tid]) - float(m.tendon_lengthspring[tid][0])
-            s -= (k + 2 * b * x + 3 * c * x * x) * (t[i][:, None] * t[i]) + (k * x + b * x * x + c * x ** 3) * h_len[i]
+            s -= (k + 2 * b * x + 3 * c * x * x) * (t[i][:, None] * t[i]) + (
+                k * x + b * x * x + c * x**3
+            ) * h_len[i]
         x = d.qpos[self._jnt_qpos] - m.qpos_spring[self._jnt_qpos]
         poly = m.jnt_stiffnesspoly[self._jnt]
         s.flat[self._jnt_diag] -= m.jnt_stiffness[self._jnt] + 2 * poly[:, 0] * x + 3 * poly[:, 1] * x * x
@@ -190,8 +209,15 @@ class AugmentedForward(ForwardModel):
         """Every spring value of the model, flat: joint stiffness and polynomial, then every
         tendon's stiffness, polynomial and rest length (lo, hi)."""
         m, tt = self.robot.model, self._spring_tendons
-        return np.concatenate([m.jnt_stiffness, m.jnt_stiffnesspoly.ravel(), m.tendon_stiffness[tt],
-                               m.tendon_stiffnesspoly[tt].ravel(), m.tendon_lengthspring[tt].ravel()])
+        return np.concatenate(
+            [
+                m.jnt_stiffness,
+                m.jnt_stiffnesspoly.ravel(),
+                m.tendon_stiffness[tt],
+                m.tendon_stiffnesspoly[tt].ravel(),
+                m.tendon_lengthspring[tt].ravel(),
+            ]
+        )
 
     def _spring_jacobian(self, theta) -> np.ndarray:
         """d(spring values)/d(effect parameters) (n_springs, n_effect_params), at theta: the
@@ -207,7 +233,7 @@ class AugmentedForward(ForwardModel):
                 continue
             for i in range(off, off + n):
                 h = 1e-6 * (abs(theta[i]) if theta[i] != 0 else self._fd_size[i])
-                p = theta[off: off + n].copy()
+                p = theta[off : off + n].copy()
                 try:
                     p[i - off] = theta[i] + h
                     e.set_params(self.robot, p)
@@ -215,7 +241,7 @@ class AugmentedForward(ForwardModel):
                     p[i - off] = theta[i] - h
                     e.set_params(self.robot, p)
                     sm, step = self._spring_values(), 2 * h
-                except ValueError:                          # at a bound: one-sided
+                except ValueError:  # at a bound: one-sided
                     p[i - off] = theta[i]
                     e.set_params(self.robot, p)
                     sm = self._spring_values()
@@ -223,7 +249,7 @@ class AugmentedForward(ForwardModel):
                     e.set_params(self.robot, p)
                     sp, step = self._spring_values(), h
                 out[:, i - nb] = (sp - sm) / step
-            e.set_params(self.robot, theta[off: off + n])
+            e.set_params(self.robot, theta[off : off + n])
         self._dsprings = (key, out)
         return out
 
@@ -238,7 +264,7 @@ class AugmentedForward(ForwardModel):
         dof = m.jnt_dofadr[self._jnt]
         out[dof, self._jnt] = -x
         out[dof, nj + 2 * self._jnt] = -x * x
-        out[dof, nj + 2 * self._jnt + 1] = -x ** 3
+        out[dof, nj + 2 * self._jnt + 1] = -(x**3)
         if nt:
             t = self._moments()
             k = m.tendon_stiffness[self._spring_tendons]
@@ -248,7 +274,7 @@ class AugmentedForward(ForwardModel):
             i = np.arange(nt)
             out[:, base + i] = -(xt * t.T)
             out[:, base + nt + 2 * i] = -(xt * xt * t.T)
-            out[:, base + nt + 2 * i + 1] = -(xt ** 3 * t.T)
+            out[:, base + nt + 2 * i + 1] = -(xt**3 * t.T)
             half = 0.5 * (k + 2 * b * xt + 3 * c * xt * xt) * t.T
             out[:, base + 3 * nt + 2 * i] = half
             out[:, base + 3 * nt + 2 * i + 1] = half
@@ -290,7 +316,7 @@ class AugmentedForward(ForwardModel):
                     self.write(tm)
                     mujoco.mj_fwdVelocity(m, d)
                     fm = d.qfrc_passive.copy()
-                except ValueError:                          # at a bound: one-sided
+                except ValueError:  # at a bound: one-sided
                     self.write(theta)
                     mujoco.mj_fwdVelocity(m, d)
                     fm, tm = d.qfrc_passive.copy(), theta
@@ -309,14 +335,15 @@ class AugmentedForward(ForwardModel):
         for e, off, n in zip(self.effects, self.offsets, self.sizes):
             if not e.measurement_side:
                 continue
-            p = np.asarray(theta[off: off + n], dtype=float)
+            p = np.asarray(theta[off : off + n], dtype=float)
             term += e.deflection_term(p, self.readings)
             for i in range(n):
                 h = self._fd_size[off + i]
                 dp = np.zeros(n)
                 dp[i] = h
-                jac[:, :, off + i] = (e.deflection_term(p + dp, self.readings)
-                                      - e.deflection_term(p - dp, self.readings)) / (2 * h)
+                jac[:, :, off + i] = (
+                    e.deflection_term(p + dp, self.readings) - e.deflection_term(p - dp, self.readings)
+                ) / (2 * h)
         return term, jac
 
     def evaluate(self, theta, jacobian: bool = True):
@@ -349,15 +376,19 @@ class AugmentedForward(ForwardModel):
 
 # --------------------------------------------------------------------------- fitting
 
+
 def build(model_source, effects: list[tuple[Effect, np.ndarray]], obs) -> tuple[Robot, AugmentedForward]:
     """The candidate robot (user's MJCF + effects) and its forward model for the observations.
     Raises ValueError / NotImplementedError when an effect does not apply to this MJCF."""
     if effects:
         robot = apply_effects(model_source, effects)
     else:
-        robot = (Robot.from_file(model_source) if isinstance(model_source, Path) or
-                 (isinstance(model_source, str) and "<mujoco" not in model_source)
-                 else Robot.from_xml(model_source))
+        robot = (
+            Robot.from_file(model_source)
+            if isinstance(model_source, Path)
+            or (isinstance(model_source, str) and "<mujoco" not in model_source)
+            else Robot.from_xml(model_source)
+        )
     readings = Readings(tuple(obs.labels), tracker_rotation(obs.tracker))
     fm = AugmentedForward(robot, design_from_observations(robot, obs), [e for e, _ in effects], readings)
     return robot, fm
@@ -369,10 +400,20 @@ def whitened(model: AugmentedForward, white: Whitener, theta: np.ndarray) -> tup
     return white.vec(f), white.mat(j)
 
 
-def fit(model: AugmentedForward, dp: np.ndarray, white: Whitener, start: np.ndarray,
-        lower: np.ndarray, upper: np.ndarray, hold: np.ndarray | None = None, *, step_tol: float = 1e-3,
-        max_iter: int = 30, start_eval: tuple[np.ndarray, np.ndarray] | None = None,
-        cost_tol: float = COST_TOL) -> Fit:
+def fit(
+    model: AugmentedForward,
+    dp: np.ndarray,
+    white: Whitener,
+    start: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    hold: np.ndarray | None = None,
+    *,
+    step_tol: float = 1e-3,
+    max_iter: int = 30,
+    start_eval: tuple[np.ndarray, np.ndarray] | None = None,
+    cost_tol: float = COST_TOL,
+) -> Fit:
     """Maximum-likelihood fit of the base + effect parameters (identify/core/leastsq.py's core, with
     minimum-norm steps: directions the plan cannot see are left where they are; bounds by an
     active set and projection). Stops when a step promises or gains less than cost_tol-scale
@@ -389,9 +430,20 @@ def fit(model: AugmentedForward, dp: np.ndarray, white: Whitener, start: np.ndar
     scale = np.where(np.abs(theta0) > 0, np.abs(theta0), model._fd_size)
     yw = white.vec(dp)
     n0 = model.stats["evaluations"]
-    sol = levenberg_marquardt(lambda th: whitened(model, white, th), yw, theta0, scale, lower=lower, upper=upper,
-                              hold=hold, gain_tol=max(step_tol ** 2, 10 * cost_tol), cost_tol=cost_tol,
-                              rank_tol=DISCOVER_RANK_TOL, max_iter=max_iter, start_eval=start_eval)
+    sol = levenberg_marquardt(
+        lambda th: whitened(model, white, th),
+        yw,
+        theta0,
+        scale,
+        lower=lower,
+        upper=upper,
+        hold=hold,
+        gain_tol=max(step_tol**2, 10 * cost_tol),
+        cost_tol=cost_tol,
+        rank_tol=DISCOVER_RANK_TOL,
+        max_iter=max_iter,
+        start_eval=start_eval,
+    )
     theta = sol.x
     at_low, at_high = at_bounds(theta, lower, upper)
     free = ~hold & ~at_low & ~at_high
@@ -404,13 +456,41 @@ def fit(model: AugmentedForward, dp: np.ndarray, white: Whitener, start: np.ndar
     resid_w = sol.r_w.reshape(-1, 3)
     resid = white.unwhiten(resid_w)
     predicted = white.unwhiten(sol.f_w)
-    return Fit(theta, cov, ident, resid, resid_w, sol.cost, sol.r_w.size, rank, sol.iterations,
-               model.stats["evaluations"] - n0, sol.converged, time.perf_counter() - t0,
-               names=tuple(param_names(model.layout, model.effects)),
-               units=tuple(param_units(model.layout, model.effects)),
-               predicted=predicted, at_bound=~free & ~hold, start=theta0, effects=list(model.effects),
-               model=model, robot=model.robot, extra={"jw": sol.j_w})
+    return Fit(
+        theta,
+        cov,
+        ident,
+        resid,
+        resid_w,
+        sol.cost,
+        sol.r_w.size,
+        rank,
+        sol.iterations,
+        model.stats["evaluations"] - n0,
+        sol.converged,
+        time.perf_counter() - t0,
+        names=tuple(param_names(model.layout, model.effects)),
+        units=tuple(param_units(model.layout, model.effects)),
+        predicted=predicted,
+        at_bound=~free & ~hold,
+        start=theta0,
+        effects=list(model.effects),
+        model=model,
+        robot=model.robot,
+        extra={"jw": sol.j_w},
+    )
 
 
-__all__ = ["DISCOVERY_EFFECTS", "library", "label", "effect_priors",
-           "param_names", "param_units", "AugmentedForward", "Fit", "build", "fit", "whitened"]
+__all__ = [
+    "DISCOVERY_EFFECTS",
+    "library",
+    "label",
+    "effect_priors",
+    "param_names",
+    "param_units",
+    "AugmentedForward",
+    "Fit",
+    "build",
+    "fit",
+    "whitened",
+]

@@ -34,6 +34,7 @@ their threshold, before deciding (identify/discover/workflow.py): below, no deci
 the last digits (an unpolished fit's chi2 is an upper bound, its LR a lower one, so the caps
 never make a false alarm more likely).
 """
+
 from __future__ import annotations
 
 import time
@@ -42,17 +43,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from calbench.bench.model.effects import Effect, priors
-
 from calbench.identify.core.leastsq import Fit
 from calbench.identify.core.whitening import Whitener
+
 from .fit import build, effect_priors, fit, whitened
 
-MIN_SIGNATURE = 5.0          # sigma: the smallest unabsorbed signature of a spread start
-VISIBLE_SHARE = 0.05         # |projected column| / |column| below which spreading gains nothing
-SCREEN_MARGIN = 1.0          # chi2: what a screened start must promise to gain over the best fit
-SEARCH_ITER = 8              # iterations of each start's fit
-SEARCH_COST_TOL = 0.05       # chi2: a search fit ends when a step gains less (the polish: fit.COST_TOL)
-BACKOFF, BACKOFF_TRIES = 0.25, 4   # a spread start without an equilibrium moves this share of the way
+MIN_SIGNATURE = 5.0  # sigma: the smallest unabsorbed signature of a spread start
+VISIBLE_SHARE = 0.05  # |projected column| / |column| below which spreading gains nothing
+SCREEN_MARGIN = 1.0  # chi2: what a screened start must promise to gain over the best fit
+SEARCH_ITER = 8  # iterations of each start's fit
+SEARCH_COST_TOL = 0.05  # chi2: a search fit ends when a step gains less (the polish: fit.COST_TOL)
+BACKOFF, BACKOFF_TRIES = 0.25, 4  # a spread start without an equilibrium moves this share of the way
 ERRORS = (ValueError, RuntimeError, np.linalg.LinAlgError)
 
 
@@ -65,7 +66,9 @@ class Start:
     screened: bool = True
 
 
-def unabsorbed_norms(jw: np.ndarray, base_cols: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def unabsorbed_norms(
+    jw: np.ndarray, base_cols: np.ndarray, cols: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """(|column|, |column projected off the span of base_cols|) of the whitened Jacobian's
     ``cols``: a parameter change d moves chi2 by (|projected| d)^2 to first order once the base
     parameters have absorbed what they can."""
@@ -81,9 +84,16 @@ def spread_signature(current: Fit) -> float:
     return float(max(MIN_SIGNATURE, np.sqrt(max(current.chi2 - current.dof, 0.0))))
 
 
-def candidate_starts(effect: Effect, warm: np.ndarray, jw: np.ndarray, base_free: np.ndarray,
-                     lower: np.ndarray, upper: np.ndarray, fresh_base: np.ndarray | None,
-                     signature: float = MIN_SIGNATURE) -> list[Start]:
+def candidate_starts(
+    effect: Effect,
+    warm: np.ndarray,
+    jw: np.ndarray,
+    base_free: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    fresh_base: np.ndarray | None,
+    signature: float = MIN_SIGNATURE,
+) -> list[Start]:
     """The warm, spread and fresh starts (module docstring) for ``effect``, appended last to the
     parameter vector; lower / upper bound every parameter; signature: of the spread starts."""
     n = len(effect.param_names)
@@ -116,7 +126,9 @@ def promised_chi2(yw: np.ndarray, fw: np.ndarray, jw: np.ndarray, free: np.ndarr
     return float(r @ r - np.sum((u.T @ r) ** 2))
 
 
-def start_eval(fm, white: Whitener, st: Start, warm: np.ndarray, record: list) -> tuple[np.ndarray, np.ndarray]:
+def start_eval(
+    fm, white: Whitener, st: Start, warm: np.ndarray, record: list
+) -> tuple[np.ndarray, np.ndarray]:
     """Evaluate a spread or fresh start; a start without a static equilibrium (a softening
     term past the stability limit: the linearised magnitude overshoots) is moved towards the
     warm start by BACKOFF, up to BACKOFF_TRIES times. Raises the last failure."""
@@ -132,8 +144,15 @@ def start_eval(fm, white: Whitener, st: Start, warm: np.ndarray, record: list) -
             object.__setattr__(st, "values", v)
 
 
-def fit_candidate(src, obs, white: Whitener, current: Fit, hold_base: np.ndarray, effect: Effect,
-                  fresh_base: np.ndarray | None = None) -> Fit:
+def fit_candidate(
+    src,
+    obs,
+    white: Whitener,
+    current: Fit,
+    hold_base: np.ndarray,
+    effect: Effect,
+    fresh_base: np.ndarray | None = None,
+) -> Fit:
     """The best (lowest chi2) fit of the current model plus ``effect`` over its starts.
     ``extra["starts"]`` lists every start (label, chi2 or promised chi2, evaluations, error),
     ``extra["start"]`` the winner's. Raises what :func:`build` raises when the effect does not
@@ -160,18 +179,37 @@ def fit_candidate(src, obs, white: Whitener, current: Fit, hold_base: np.ndarray
                 if promise > best.chi2 - SCREEN_MARGIN:
                     record.append({"start": st.label, "promised_chi2": promise, "evaluations": 1})
                     continue
-            f = fit(fm, obs.dp, white, st.values, lo, hi, hold, start_eval=ev, max_iter=SEARCH_ITER,
-                    cost_tol=SEARCH_COST_TOL)
+            f = fit(
+                fm,
+                obs.dp,
+                white,
+                st.values,
+                lo,
+                hi,
+                hold,
+                start_eval=ev,
+                max_iter=SEARCH_ITER,
+                cost_tol=SEARCH_COST_TOL,
+            )
         except ERRORS as exc:
             record.append({"start": st.label, "error": str(exc), "evaluations": 1})
             continue
-        record.append({"start": st.label, "chi2": f.chi2, "evaluations": f.evaluations + (st.label != "warm")})
+        record.append(
+            {"start": st.label, "chi2": f.chi2, "evaluations": f.evaluations + (st.label != "warm")}
+        )
         if best is None or f.chi2 < best.chi2:
             best, label = f, st.label
     if best is None:
         raise RuntimeError(f"{effect.name}: no start of the candidate fit has a static equilibrium")
-    best.extra.update(starts=record, start=label, warm_jw=jw, warm_of=current, polished=False,
-                      bounds=(lo, hi, hold), evaluations=int(sum(r.get("evaluations", 0) for r in record)) + 1)
+    best.extra.update(
+        starts=record,
+        start=label,
+        warm_jw=jw,
+        warm_of=current,
+        polished=False,
+        bounds=(lo, hi, hold),
+        evaluations=int(sum(r.get("evaluations", 0) for r in record)) + 1,
+    )
     best.seconds = time.perf_counter() - t0
     return best
 
@@ -189,14 +227,30 @@ def polish(f: Fit, obs, white: Whitener) -> Fit:
         p = f
     best = p if p.chi2 <= f.chi2 else f
     extra = dict(f.extra)
-    extra["starts"] = f.extra["starts"] + [{"start": "polish " + f.extra["start"], "chi2": p.chi2,
-                                            "evaluations": p.evaluations if p is not f else 0}]
-    extra.update(polished=True, evaluations=f.extra["evaluations"] + (p.evaluations if p is not f else 0),
-                 jw=best.extra["jw"])
+    extra["starts"] = f.extra["starts"] + [
+        {
+            "start": "polish " + f.extra["start"],
+            "chi2": p.chi2,
+            "evaluations": p.evaluations if p is not f else 0,
+        }
+    ]
+    extra.update(
+        polished=True,
+        evaluations=f.extra["evaluations"] + (p.evaluations if p is not f else 0),
+        jw=best.extra["jw"],
+    )
     best.extra = extra
     best.seconds = f.seconds + time.perf_counter() - t0
     return best
 
 
-__all__ = ["MIN_SIGNATURE", "spread_signature", "Start", "unabsorbed_norms", "candidate_starts", "promised_chi2", "fit_candidate",
-           "polish"]
+__all__ = [
+    "MIN_SIGNATURE",
+    "spread_signature",
+    "Start",
+    "unabsorbed_norms",
+    "candidate_starts",
+    "promised_chi2",
+    "fit_candidate",
+    "polish",
+]

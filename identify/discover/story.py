@@ -4,6 +4,7 @@ Everything here reads the report dict of identify/discover/workflow.py, so the t
 and the augmented MJCF say the same numbers: each named effect's parameters are the FINAL joint
 refit's (``steps[i]["parameters"]``), the values written into the augmented MJCF.
 """
+
 from __future__ import annotations
 
 import math
@@ -11,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.log.idreport import IdentificationReport, ObservationFit, ParameterEstimate
 from calbench.bench.core.outputs import atomic_path
+from calbench.bench.log.idreport import IdentificationReport, ObservationFit, ParameterEstimate
 
 from .stats import rms
 
@@ -23,37 +24,63 @@ def _num(x):
     return None if x is None or not np.isfinite(x) else float(x)
 
 
-def view_report(f, obs, rep: dict, stage: str = "after", parameters: list[dict] | None = None) -> IdentificationReport:
+def view_report(
+    f, obs, rep: dict, stage: str = "after", parameters: list[dict] | None = None
+) -> IdentificationReport:
     """A fitted model as an identification report, for `calbench view --identified`: its
     parameters (base and effect; ``identifiable`` = determined by the data; the report's final
     ones unless ``parameters`` is given) and the measured, predicted and residual deflection of
     every observation. ``stage``: "after" (the final model, with the named effects) or "before"
     (the user's model as it is)."""
-    params = tuple(ParameterEstimate(p["name"], p["unit"], p["estimate"], p["std"], identifiable=p["determined"])
-                   for p in (rep["parameters"] if parameters is None else parameters))
-    fits = tuple(ObservationFit(int(pose), r, predicted=tuple(float(x) for x in f.predicted[i]),
-                                measured=tuple(float(x) for x in obs.dp[i]),
-                                residual=tuple(float(x) for x in f.residual[i]))
-                 for i, (pose, r) in enumerate(obs.labels))
-    method = "user model as is" if stage == "before" else (" + ".join(rep["named_effects"]) or "user model as is")
+    params = tuple(
+        ParameterEstimate(p["name"], p["unit"], p["estimate"], p["std"], identifiable=p["determined"])
+        for p in (rep["parameters"] if parameters is None else parameters)
+    )
+    fits = tuple(
+        ObservationFit(
+            int(pose),
+            r,
+            predicted=tuple(float(x) for x in f.predicted[i]),
+            measured=tuple(float(x) for x in obs.dp[i]),
+            residual=tuple(float(x) for x in f.residual[i]),
+        )
+        for i, (pose, r) in enumerate(obs.labels)
+    )
+    method = (
+        "user model as is" if stage == "before" else (" + ".join(rep["named_effects"]) or "user model as is")
+    )
     return IdentificationReport(
         method="discover: " + method,
-        parameters=params, residual_rms=rep[f"rms_{stage}"], noise_sigma=rep["noise_sigma"],
-        chi2_per_dof=f.chi2 / f.dof if f.dof > 0 else None, chi2=float(f.chi2), dof=int(f.dof),
+        parameters=params,
+        residual_rms=rep[f"rms_{stage}"],
+        noise_sigma=rep["noise_sigma"],
+        chi2_per_dof=f.chi2 / f.dof if f.dof > 0 else None,
+        chi2=float(f.chi2),
+        dof=int(f.dof),
         expected_residual_rms=rep[f"noise_rms_{stage}"],
         whitened_residual_rms=rms(f.residual_w),
         covariance=tuple(tuple(_num(x) for x in row) for row in f.cov),
-        log=rep["log"], model=rep["model"], n_poses_planned=obs.n_planned,
-        n_poses_used=len(obs.poses), lost_poses=tuple(obs.lost_poses),
-        truncated=bool(obs.truncated), n_observations=obs.n_obs(), seconds=rep["seconds"],
+        log=rep["log"],
+        model=rep["model"],
+        n_poses_planned=obs.n_planned,
+        n_poses_used=len(obs.poses),
+        lost_poses=tuple(obs.lost_poses),
+        truncated=bool(obs.truncated),
+        n_observations=obs.n_obs(),
+        seconds=rep["seconds"],
         observations=fits,
-        details={"converged": bool(f.converged), "iterations": int(f.iterations),
-                 "evaluations": int(f.evaluations)})
+        details={
+            "converged": bool(f.converged),
+            "iterations": int(f.iterations),
+            "evaluations": int(f.evaluations),
+        },
+    )
 
 
 def plot_residuals(rep: dict, path) -> Path:
     """Per-pose residual RMS before and after, against what noise alone leaves (PNG)."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -64,11 +91,21 @@ def plot_residuals(rep: dict, path) -> Path:
     after = np.array([p["rms_after"] for p in pp]) * UM
     fig, ax = plt.subplots(figsize=(9, 4.2), dpi=110)
     ax.bar(x - 0.2, before, 0.4, label=f"user model (RMS {rep['rms_before'] * UM:.1f} µm)", color="#d62728")
-    ax.bar(x + 0.2, after, 0.4, color="#1f77b4",
-           label=("+ " + " + ".join(rep["named_effects"]) if rep["named_effects"] else "no effect named")
-           + f" (RMS {rep['rms_after'] * UM:.1f} µm)")
-    ax.axhline(rep["noise_rms_before"] * UM, color="k", ls="--", lw=1,
-               label=f"noise alone ({rep['noise_rms_before'] * UM:.1f} µm)")
+    ax.bar(
+        x + 0.2,
+        after,
+        0.4,
+        color="#1f77b4",
+        label=("+ " + " + ".join(rep["named_effects"]) if rep["named_effects"] else "no effect named")
+        + f" (RMS {rep['rms_after'] * UM:.1f} µm)",
+    )
+    ax.axhline(
+        rep["noise_rms_before"] * UM,
+        color="k",
+        ls="--",
+        lw=1,
+        label=f"noise alone ({rep['noise_rms_before'] * UM:.1f} µm)",
+    )
     ax.set_xticks(x, [str(p["pose"]) for p in pp])
     ax.set_xlabel("pose")
     ax.set_ylabel("residual RMS per coordinate (µm)")
@@ -89,16 +126,21 @@ def _value(p: dict) -> str:
 
 
 def _combination(c: dict) -> str:
-    terms = " + ".join((f"{v:.3g}·" if abs(v - 1) > 1e-12 else "") + n for n, v in c["combination"].items()
-                       if abs(v) > 1e-3 * max(abs(x) for x in c["combination"].values()))
+    terms = " + ".join(
+        (f"{v:.3g}·" if abs(v - 1) > 1e-12 else "") + n
+        for n, v in c["combination"].items()
+        if abs(v) > 1e-3 * max(abs(x) for x in c["combination"].values())
+    )
     return f"{terms} = {c['estimate']:.4g} ± {c['std']:.2g}"
 
 
 def _biases(a: dict, n: int = 2) -> str:
     top = [b for b in a["biases"] if b["at_reference_sigma"] is not None][:n]
-    return ", ".join(f"{b['parameter']} {b['at_reference_sigma']:+.2g} sigma"
-                     + (f" ({b['at_reference_percent']:+.2g} %)" if b["at_reference_percent"] is not None else "")
-                     for b in top)
+    return ", ".join(
+        f"{b['parameter']} {b['at_reference_sigma']:+.2g} sigma"
+        + (f" ({b['at_reference_percent']:+.2g} %)" if b["at_reference_percent"] is not None else "")
+        for b in top
+    )
 
 
 def alias_lines(aliasing: list[dict]) -> list[str]:
@@ -113,80 +155,114 @@ def alias_lines(aliasing: list[dict]) -> list[str]:
             out.append(f"  {name}: not computed ({rows[0]['error'][:80]})")
             continue
         if effect == "load_scale":
-            per = ", ".join(f"{b['parameter']} {b['per_percent_mass_relative_percent']:+.2g} %"
-                            for b in rows[0]["biases"][:6] if b.get("per_percent_mass_relative_percent") is not None)
+            per = ", ".join(
+                f"{b['parameter']} {b['per_percent_mass_relative_percent']:+.2g} %"
+                for b in rows[0]["biases"][:6]
+                if b.get("per_percent_mass_relative_percent") is not None
+            )
             a = rows[0]
-            seen = (f"the rest leaves a misfit (not a name) from a mass {100 * a['detectable_magnitude']:.2g} % off"
-                    if a["visible"] else "no size of it leaves a misfit")
-            out.append(f"  load_scale (payload mass known to +-x %): never named (deflections alone cannot tell "
-                       f"it from the compliances); {100 * (1 - a['visible_share']):.3g} % of its signature is "
-                       f"absorbed, {seen}; a mass 1 % high biases {per}")
+            seen = (
+                f"the rest leaves a misfit (not a name) from a mass {100 * a['detectable_magnitude']:.2g} % off"
+                if a["visible"]
+                else "no size of it leaves a misfit"
+            )
+            out.append(
+                f"  load_scale (payload mass known to +-x %): never named (deflections alone cannot tell "
+                f"it from the compliances); {100 * (1 - a['visible_share']):.3g} % of its signature is "
+                f"absorbed, {seen}; a mass 1 % high biases {per}"
+            )
             continue
         if not any(r.get("excited", True) for r in rows):
             out.append(f"  {name}: not excited by this plan (no load moves it)")
             continue
-        seen = [f"{r['parameter']} from {r['detectable_magnitude']:.2g} {r['unit']}" for r in rows if r["visible"]]
-        hidden = [f"{r['parameter']} (at {r['reference_magnitude']:.2g} {r['unit']}: {_biases(r)})"
-                  for r in rows if not r["visible"] and r.get("excited", True)]
-        parts = (["named " + ", ".join(seen)] if seen else []) + \
-                (["absorbed exactly, never seen: " + "; ".join(hidden)] if hidden else [])
+        seen = [
+            f"{r['parameter']} from {r['detectable_magnitude']:.2g} {r['unit']}" for r in rows if r["visible"]
+        ]
+        hidden = [
+            f"{r['parameter']} (at {r['reference_magnitude']:.2g} {r['unit']}: {_biases(r)})"
+            for r in rows
+            if not r["visible"] and r.get("excited", True)
+        ]
+        parts = (["named " + ", ".join(seen)] if seen else []) + (
+            ["absorbed exactly, never seen: " + "; ".join(hidden)] if hidden else []
+        )
         out.append(f"  {name}: " + "; ".join(parts))
     return out
 
 
 def story(rep: dict) -> str:
-    lines = [f"calbench discover: {rep['log']} (model: {rep['model']}; {rep['n_poses']} poses, "
-             f"{rep['n_observations']} reflector deflections, {rep['seconds']:.1f} s)",
-             *([f"  campaign: {rep['completeness']}"] if rep.get("completeness") else []),
-             "Where the model and the measurements disagree:"]
+    lines = [
+        f"calbench discover: {rep['log']} (model: {rep['model']}; {rep['n_poses']} poses, "
+        f"{rep['n_observations']} reflector deflections, {rep['seconds']:.1f} s)",
+        *([f"  campaign: {rep['completeness']}"] if rep.get("completeness") else []),
+        "Where the model and the measurements disagree:",
+    ]
     lines += ["  " + w for w in rep["where_before"]["words"]]
     if rep["rounds"]:
-        lines.append("Candidates (first round; every one tested at the family-wise level "
-                     f"{rep['decision_rule']['alpha_effect_familywise']:g}; score = BIC gain, > 0 favours it):")
+        lines.append(
+            "Candidates (first round; every one tested at the family-wise level "
+            f"{rep['decision_rule']['alpha_effect_familywise']:g}; score = BIC gain, > 0 favours it):"
+        )
         for c in rep["rounds"][0]["candidates"]:
             if c["score"] is None:
                 lines.append(f"  {c['effect']:<20}{c['detail']:<11} not applicable: {c.get('error', '')}")
                 continue
-            lines.append(f"  {c['effect']:<20}{c['detail']:<11} score {c['score']:9.1f}  LR {c['lr']:8.1f} "
-                         f"(k={c['k']}, p={c['p_lr']:.1g})  explains {100 * c['explained']:5.1f} % of the excess  "
-                         f"RMS after {c['rms_after'] * UM:6.1f} um" + ("  ACCEPTED" if c["accepted"] else ""))
+            lines.append(
+                f"  {c['effect']:<20}{c['detail']:<11} score {c['score']:9.1f}  LR {c['lr']:8.1f} "
+                f"(k={c['k']}, p={c['p_lr']:.1g})  explains {100 * c['explained']:5.1f} % of the excess  "
+                f"RMS after {c['rms_after'] * UM:6.1f} um" + ("  ACCEPTED" if c["accepted"] else "")
+            )
     for s in rep["steps"]:
         if s["effect"] == "unexplained":
-            lines.append(f"Named: unexplained: a significant disagreement remains that no candidate of the "
-                         f"library explains (RMS {s['rms_before'] * UM:.1f} um).")
+            lines.append(
+                f"Named: unexplained: a significant disagreement remains that no candidate of the "
+                f"library explains (RMS {s['rms_before'] * UM:.1f} um)."
+            )
             continue
         if s["effect"] == "ambiguous":
-            lines.append("Named: ambiguous: " + " and ".join(
-                f"{t['candidate']} (LR {t['lr']:.1f}, k={t['k']})" for t in s["candidates"])
+            lines.append(
+                "Named: ambiguous: "
+                + " and ".join(f"{t['candidate']} (LR {t['lr']:.1f}, k={t['k']})" for t in s["candidates"])
                 + " explain the data almost equally well (BIC gains within "
                 f"{rep['decision_rule']['ambiguous_bic']:g} or LR difference inside its sampling spread); "
-                "more or better-placed measurements would tell them apart.")
+                "more or better-placed measurements would tell them apart."
+            )
             continue
         ps = ", ".join(_value(p) for p in s["parameters"])
         what = f"{s['effect']} ({s['detail']})" if s["detail"] else s["effect"]
-        lines.append(f"Named: {what}: {ps}; RMS {s['rms_before'] * UM:.1f} -> "
-                     f"{s['rms_after'] * UM:.1f} um (noise alone {s['noise_rms_after'] * UM:.1f} um), "
-                     f"LR {s['lr']:.1f} for {s['k']} parameter(s), p = {s['p_lr']:.1g}.")
+        lines.append(
+            f"Named: {what}: {ps}; RMS {s['rms_before'] * UM:.1f} -> "
+            f"{s['rms_after'] * UM:.1f} um (noise alone {s['noise_rms_after'] * UM:.1f} um), "
+            f"LR {s['lr']:.1f} for {s['k']} parameter(s), p = {s['p_lr']:.1g}."
+        )
     if rep.get("combinations"):
         lines.append("Determined only in combination (the split is not):")
         lines += ["  " + _combination(c) for c in rep["combinations"]]
     if not rep["named_effects"]:
-        lines.append("Named: nothing. No candidate passes its likelihood-ratio test; the user's model explains "
-                     "the data to the noise level.")
+        lines.append(
+            "Named: nothing. No candidate passes its likelihood-ratio test; the user's model explains "
+            "the data to the noise level."
+        )
         for h in rep.get("hints", []):
-            lines.append(f"  Hint below the family-wise threshold: adding {h['effect']} {h['detail']} would lower "
-                         f"chi2 by {h['lr']:.1f} for {h['k']} parameter(s) (p = {h['p_lr']:.1g}, needs < "
-                         f"{h['alpha']:.1g}): more or better-placed measurements would tell.")
+            lines.append(
+                f"  Hint below the family-wise threshold: adding {h['effect']} {h['detail']} would lower "
+                f"chi2 by {h['lr']:.1f} for {h['k']} parameter(s) (p = {h['p_lr']:.1g}, needs < "
+                f"{h['alpha']:.1g}): more or better-placed measurements would tell."
+            )
     if rep.get("aliasing"):
-        lines.append("What a model that fits does not tell you (aliasing of every effect not named: the "
-                     "size this plan names it from, or what it would bias unseen, in sigma and %, at the size "
-                     "a plan would name if nothing absorbed it):")
+        lines.append(
+            "What a model that fits does not tell you (aliasing of every effect not named: the "
+            "size this plan names it from, or what it would bias unseen, in sigma and %, at the size "
+            "a plan would name if nothing absorbed it):"
+        )
         lines += alias_lines(rep["aliasing"])
-    lines.append(f"Gap: residual RMS {rep['rms_before'] * UM:.1f} um before "
-                 f"({rep['rms_before'] / rep['noise_rms_before']:.2f}x noise), {rep['rms_after'] * UM:.1f} um after "
-                 f"({rep['rms_after'] / rep['noise_rms_after']:.2f}x the {rep['noise_rms_after'] * UM:.1f} um noise "
-                 f"alone leaves; tracker sigma {rep['noise_sigma'] * UM:.3g} um per reading); chi2 p "
-                 f"{rep['p_before']:.2g} -> {rep['p_after']:.2g}.")
+    lines.append(
+        f"Gap: residual RMS {rep['rms_before'] * UM:.1f} um before "
+        f"({rep['rms_before'] / rep['noise_rms_before']:.2f}x noise), {rep['rms_after'] * UM:.1f} um after "
+        f"({rep['rms_after'] / rep['noise_rms_after']:.2f}x the {rep['noise_rms_after'] * UM:.1f} um noise "
+        f"alone leaves; tracker sigma {rep['noise_sigma'] * UM:.3g} um per reading); chi2 p "
+        f"{rep['p_before']:.2g} -> {rep['p_after']:.2g}."
+    )
     if rep.get("augmented_model"):
         lines.append(f"Augmented model: {rep['augmented_model']}")
     if rep.get("plot"):

@@ -24,6 +24,7 @@ their marginal covariance whose standard deviation is within MAX_RELATIVE_STD (f
 eigen-decomposition, i.e. the SVD of the Fisher information restricted to them), each as a
 combination sum_i c_i theta_i in SI with its estimate and std.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -31,14 +32,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calbench.bench.model.effects import priors
-
 from calbench.identify.core.leastsq import Fit
 from calbench.identify.core.profile import profile_check
 from calbench.identify.core.whitening import Whitener
 
-MAX_RELATIVE_STD = 1.0   # a parameter whose std exceeds its own size is not determined
-NULL_TOL = 1e-3          # component in the null space that makes a parameter unidentifiable
-RANK_TOL = 1e-8          # singular values of the relative Fisher factor below this x the largest are null
+MAX_RELATIVE_STD = 1.0  # a parameter whose std exceeds its own size is not determined
+NULL_TOL = 1e-3  # component in the null space that makes a parameter unidentifiable
+RANK_TOL = 1e-8  # singular values of the relative Fisher factor below this x the largest are null
 
 
 @dataclass
@@ -50,7 +50,7 @@ class Determination:
     determined: np.ndarray
     estimated: np.ndarray
     combinations: list[dict] = field(default_factory=list)
-    profile: dict = field(default_factory=dict)     # index -> chi2 rise at +-2 Fisher std
+    profile: dict = field(default_factory=dict)  # index -> chi2 rise at +-2 Fisher std
 
 
 def sizes(f: Fit) -> np.ndarray:
@@ -59,7 +59,7 @@ def sizes(f: Fit) -> np.ndarray:
     off = f.values.size - sum(len(e.param_names) for e in f.effects)
     for e in f.effects:
         n = len(e.param_names)
-        out[off: off + n] = np.maximum(out[off: off + n], [p.size for p in priors(e)])
+        out[off : off + n] = np.maximum(out[off : off + n], [p.size for p in priors(e)])
         off += n
     return np.where(out > 0, out, 1.0)
 
@@ -91,8 +91,11 @@ def determination(f: Fit, jw: np.ndarray, undetermined: np.ndarray | None = None
     combos = []
     # combinations of the parameters the Fisher information leaves undetermined; one whose profile
     # is not quadratic stays out (a linear combination of it would be as dishonest as its std)
-    und = np.flatnonzero(~ok & (null_load <= NULL_TOL) & ~(np.zeros(p, bool) if undetermined is None
-                                                          else np.asarray(undetermined, bool))[idx])
+    und = np.flatnonzero(
+        ~ok
+        & (null_load <= NULL_TOL)
+        & ~(np.zeros(p, bool) if undetermined is None else np.asarray(undetermined, bool))[idx]
+    )
     if und.size:
         c_uu = cov_rel[np.ix_(und, und)]
         w, vec = np.linalg.eigh(c_uu)
@@ -100,11 +103,16 @@ def determination(f: Fit, jw: np.ndarray, undetermined: np.ndarray | None = None
             sd = float(np.sqrt(max(lam, 0.0)))
             if sd > MAX_RELATIVE_STD:
                 continue
-            coef = v / size[und]                       # in SI: sum coef_i theta_i, u_i = theta_i / size_i
-            norm = coef[np.argmax(np.abs(v))]          # the leading parameter's coefficient is 1
+            coef = v / size[und]  # in SI: sum coef_i theta_i, u_i = theta_i / size_i
+            norm = coef[np.argmax(np.abs(v))]  # the leading parameter's coefficient is 1
             coef = coef / norm
-            combos.append({"combination": {f.names[idx[j]]: float(c) for j, c in zip(und, coef)},
-                           "estimate": float(coef @ f.values[idx[und]]), "std": sd / abs(norm)})
+            combos.append(
+                {
+                    "combination": {f.names[idx[j]]: float(c) for j, c in zip(und, coef)},
+                    "estimate": float(coef @ f.values[idx[und]]),
+                    "std": sd / abs(norm),
+                }
+            )
     return Determination(std, det, est, combos)
 
 
@@ -116,6 +124,7 @@ def not_quadratic(f: Fit, obs, white: Whitener, det: Determination, indices) -> 
     arm: the Fisher std says the truth is 5 sigma away, the profile 2.4 (benchmarks and
     tests/test_discover.py)."""
     from .fit import fit as fit_model
+
     lo, hi, hold = f.extra["bounds"]
 
     def refit(v: np.ndarray, i: int) -> float:
@@ -125,7 +134,7 @@ def not_quadratic(f: Fit, obs, white: Whitener, det: Determination, indices) -> 
 
     std = np.where(det.determined, det.std, np.nan)
     out = profile_check(refit, f.values, f.chi2, std, lo, hi, indices)
-    f.model.evaluate(f.values, jacobian=False)          # the model back at the estimate
+    f.model.evaluate(f.values, jacobian=False)  # the model back at the estimate
     return out.bad, out.rises
 
 

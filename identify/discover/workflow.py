@@ -30,6 +30,7 @@ record) and the MJCF for geometry (its stiffness values are overwritten by the e
 Nothing here knows about any particular effect. :func:`discover_observations` is the whole
 search on in-memory observations (no file), for benchmarks and notebooks.
 """
+
 from __future__ import annotations
 
 import time
@@ -38,19 +39,27 @@ from pathlib import Path
 
 import numpy as np
 
+from calbench.bench.core.outputs import write_text
+from calbench.bench.log.read import read_log
 from calbench.bench.model.description import set_spec_names, spec_names
 from calbench.bench.model.effects import augmented_xml, load_spec
-from calbench.bench.log.read import read_log
-from calbench.bench.core.outputs import write_text
 from calbench.bench.model.robot import Robot
 from calbench.bench.view.recording import Discovery, write_discovery_recording
-
-from calbench.identify.core.whitening import Whitener
 from calbench.identify.core.model import check_sites, load_model
 from calbench.identify.core.observations import Observations, from_log
+from calbench.identify.core.whitening import Whitener
 from calbench.identify.methods.onestep import one_step
+
 from .aliasing import aliasing_report
-from .decide import ALPHA_EFFECT, AMBIGUOUS_BIC, AMBIGUOUS_SPREAD, MIN_EXPLAINED, compare, lr_threshold, near_ties
+from .decide import (
+    ALPHA_EFFECT,
+    AMBIGUOUS_BIC,
+    AMBIGUOUS_SPREAD,
+    MIN_EXPLAINED,
+    compare,
+    lr_threshold,
+    near_ties,
+)
 from .fit import Fit, build, effect_priors, fit, label, library, whitened
 from .search import fit_candidate, polish
 from .stats import ALPHA_FIT, chi2_p, diagnose, expected_rms, rms
@@ -60,9 +69,9 @@ from .uncertainty import MAX_RELATIVE_STD, determination, not_quadratic
 MAX_ROUNDS = 3
 UNEXPLAINED = "unexplained"
 AMBIGUOUS = "ambiguous"
-HINT_P = 0.01            # a candidate below the family-wise level but at this nominal p is a hint
-BASE_START_ITER = 10     # the one-step estimate only starts the base fit: it need not converge
-POLISH_SHARE = 0.5       # a candidate whose LR reaches this share of its threshold is fitted to convergence
+HINT_P = 0.01  # a candidate below the family-wise level but at this nominal p is a hint
+BASE_START_ITER = 10  # the one-step estimate only starts the base fit: it need not converge
+POLISH_SHARE = 0.5  # a candidate whose LR reaches this share of its threshold is fitted to convergence
 
 
 @dataclass
@@ -90,7 +99,9 @@ def base_fit(src, obs: Observations, white: np.ndarray) -> Fit:
     return base
 
 
-def run_round(src, obs, white, current: Fit, hold_base: np.ndarray, fresh: np.ndarray, lib) -> list[Candidate]:
+def run_round(
+    src, obs, white, current: Fit, hold_base: np.ndarray, fresh: np.ndarray, lib
+) -> list[Candidate]:
     """Fit and test every library candidate not yet in the model."""
     done = {label(e) for e, _ in current.effect_params()}
     cands = [e for e in lib if label(e) not in done]
@@ -105,14 +116,26 @@ def run_round(src, obs, white, current: Fit, hold_base: np.ndarray, fresh: np.nd
             continue
         st = compare(current, c.fit, len(cands))
         if st["k"] > 0 and st["lr"] >= POLISH_SHARE * lr_threshold(st["k"], len(cands)):
-            c.fit = polish(c.fit, obs, white)            # near or past its threshold: the exact LR
+            c.fit = polish(c.fit, obs, white)  # near or past its threshold: the exact LR
             st = compare(current, c.fit, len(cands))
         c.stats = st
-        c.record.update({"score": st["bic_gain"], "lr": st["lr"], "k": st["k"], "p_lr": st["p_lr"],
-                         "alpha": st["alpha"], "explained": st["explained"], "p_fit": st["p_fit"],
-                         "significant": st["significant"], "accepted": st["accept"],
-                         "rms_after": rms(c.fit.residual), "start": c.fit.extra.get("start"),
-                         "evaluations": c.fit.extra.get("evaluations"), "seconds": c.fit.seconds})
+        c.record.update(
+            {
+                "score": st["bic_gain"],
+                "lr": st["lr"],
+                "k": st["k"],
+                "p_lr": st["p_lr"],
+                "alpha": st["alpha"],
+                "explained": st["explained"],
+                "p_fit": st["p_fit"],
+                "significant": st["significant"],
+                "accepted": st["accept"],
+                "rms_after": rms(c.fit.residual),
+                "start": c.fit.extra.get("start"),
+                "evaluations": c.fit.extra.get("evaluations"),
+                "seconds": c.fit.seconds,
+            }
+        )
         out.append(c)
     return out
 
@@ -122,10 +145,17 @@ def _params(f: Fit, det=None, lo: int = 0, hi: int | None = None) -> list[dict]:
     det = determination(f, f.extra["jw"]) if det is None else det
     hi = f.values.size if hi is None else hi
     profile = getattr(det, "profile", {})
-    return [{"name": f.names[i], "unit": f.units[i], "estimate": float(f.values[i]),
-             "std": float(det.std[i]) if det.determined[i] else None, "determined": bool(det.determined[i]),
-             **({"chi2_rise_at_2_fisher_std": profile[i]} if i in profile else {})}
-            for i in range(lo, hi)]
+    return [
+        {
+            "name": f.names[i],
+            "unit": f.units[i],
+            "estimate": float(f.values[i]),
+            "std": float(det.std[i]) if det.determined[i] else None,
+            "determined": bool(det.determined[i]),
+            **({"chi2_rise_at_2_fisher_std": profile[i]} if i in profile else {}),
+        }
+        for i in range(lo, hi)
+    ]
 
 
 def _effect_params(f: Fit, det, effect) -> list[dict]:
@@ -143,16 +173,22 @@ def _step(c: Candidate, before: Fit, obs) -> dict:
     f = c.fit
     det = determination(f, f.extra["jw"])
     eff = f.effects[-1]
-    return {"effect": eff.name, "detail": eff.detail,
-            "rms_before": rms(before.residual), "rms_after": rms(f.residual),
-            "noise_rms_before": expected_rms(obs.cov, before.dof, before.n_res),
-            "noise_rms_after": expected_rms(obs.cov, f.dof, f.n_res),
-            "parameters_at_naming": _effect_params(f, det, eff), "start": f.extra.get("start"),
-            **{k: c.stats[k] for k in ("lr", "k", "p_lr", "alpha", "bic_gain", "explained", "p_fit")}}
+    return {
+        "effect": eff.name,
+        "detail": eff.detail,
+        "rms_before": rms(before.residual),
+        "rms_after": rms(f.residual),
+        "noise_rms_before": expected_rms(obs.cov, before.dof, before.n_res),
+        "noise_rms_after": expected_rms(obs.cov, f.dof, f.n_res),
+        "parameters_at_naming": _effect_params(f, det, eff),
+        "start": f.extra.get("start"),
+        **{k: c.stats[k] for k in ("lr", "k", "p_lr", "alpha", "bic_gain", "explained", "p_fit")},
+    }
 
 
-def _ties_resolved(src, obs, white, with_best: Fit, hold_base, fresh, ties: list[dict], cands: list[Candidate],
-                   n_tests: int) -> list[dict]:
+def _ties_resolved(
+    src, obs, white, with_best: Fit, hold_base, fresh, ties: list[dict], cands: list[Candidate], n_tests: int
+) -> list[dict]:
     """The ties that stay ties: a tied candidate still accepted once the best is in the model
     explains something else (both effects are there, the next round names it) and is dropped."""
     by_label = {c.label: c for c in cands}
@@ -190,28 +226,53 @@ def discover_observations(obs: Observations, src, *, max_rounds: int = MAX_ROUND
         cands = run_round(src, obs, white, current, hold_base, fresh, lib)
         last = cands
         ok = [c for c in cands if c.stats is not None and c.stats["accept"]]
-        rounds.append({"round": rnd + 1, "rms_before": rms(current.residual), "chi2_before": current.chi2,
-                       "candidates": sorted([c.record for c in cands],
-                                            key=lambda r: -(r["score"] if r["score"] is not None else -np.inf))})
+        rounds.append(
+            {
+                "round": rnd + 1,
+                "rms_before": rms(current.residual),
+                "chi2_before": current.chi2,
+                "candidates": sorted(
+                    [c.record for c in cands],
+                    key=lambda r: -(r["score"] if r["score"] is not None else -np.inf),
+                ),
+            }
+        )
         if not ok:
-            hints = [{k: c.record[k] for k in ("effect", "detail", "lr", "k", "p_lr", "alpha", "score")}
-                     for c in cands if c.stats is not None and c.stats["k"] > 0 and c.stats["p_lr"] < HINT_P]
+            hints = [
+                {k: c.record[k] for k in ("effect", "detail", "lr", "k", "p_lr", "alpha", "score")}
+                for c in cands
+                if c.stats is not None and c.stats["k"] > 0 and c.stats["p_lr"] < HINT_P
+            ]
             if chi2_p(current.chi2, current.dof) < ALPHA_FIT:
                 named.append(UNEXPLAINED)
-                steps.append({"effect": UNEXPLAINED, "detail": "no candidate explains the remaining misfit",
-                              "rms_before": rms(current.residual), "rms_after": rms(current.residual)})
+                steps.append(
+                    {
+                        "effect": UNEXPLAINED,
+                        "detail": "no candidate explains the remaining misfit",
+                        "rms_before": rms(current.residual),
+                        "rms_after": rms(current.residual),
+                    }
+                )
             break
         best = max(ok, key=lambda c: c.stats["bic_gain"])
-        ties = near_ties((best.label, best.fit, best.stats),
-                         [(c.label, c.fit, c.stats) for c in cands if c is not best and c.fit is not None])
+        ties = near_ties(
+            (best.label, best.fit, best.stats),
+            [(c.label, c.fit, c.stats) for c in cands if c is not best and c.fit is not None],
+        )
         if ties:
             ties = _ties_resolved(src, obs, white, best.fit, hold_base, fresh, ties, cands, len(cands))
         if ties:
             ambiguous.append({"round": rnd + 1, "candidates": ties})
             named.append(AMBIGUOUS)
-            steps.append({"effect": AMBIGUOUS, "detail": " or ".join(t["candidate"] for t in ties),
-                          "rms_before": rms(current.residual), "rms_after": rms(current.residual),
-                          "candidates": ties})
+            steps.append(
+                {
+                    "effect": AMBIGUOUS,
+                    "detail": " or ".join(t["candidate"] for t in ties),
+                    "rms_before": rms(current.residual),
+                    "rms_after": rms(current.residual),
+                    "candidates": ties,
+                }
+            )
             rounds[-1]["ambiguous"] = [t["candidate"] for t in ties]
             break
         named.append(best.fit.effects[-1].name)
@@ -221,15 +282,20 @@ def discover_observations(obs: Observations, src, *, max_rounds: int = MAX_ROUND
     final = current
     det = determination(final, final.extra["jw"])
     rises: dict = {}
-    if final.effects:                                  # the named effects' stds, checked
+    if final.effects:  # the named effects' stds, checked
         bad, rises = not_quadratic(final, obs, white, det, range(final.model.n_base, final.values.size))
         if bad.any():
             det = determination(final, final.extra["jw"], bad)
     det.profile = rises
-    for s, (e, _) in zip([s for s in steps if s["effect"] not in (UNEXPLAINED, AMBIGUOUS)], final.effect_params()):
-        s["parameters"] = _effect_params(final, det, e)          # the final joint refit: as in the MJCF
-    fresh_cols = [(c.fit.effects[-1], c.fit.extra["warm_jw"][:, -len(c.fit.effects[-1].param_names):])
-                  for c in last if c.fit is not None and c.fit.extra.get("warm_of") is final]
+    for s, (e, _) in zip(
+        [s for s in steps if s["effect"] not in (UNEXPLAINED, AMBIGUOUS)], final.effect_params()
+    ):
+        s["parameters"] = _effect_params(final, det, e)  # the final joint refit: as in the MJCF
+    fresh_cols = [
+        (c.fit.effects[-1], c.fit.extra["warm_jw"][:, -len(c.fit.effects[-1].param_names) :])
+        for c in last
+        if c.fit is not None and c.fit.extra.get("warm_of") is final
+    ]
     if len(fresh_cols) < sum(1 for c in last if c.fit is not None):
         fresh_cols = alias_columns(src, obs, white, final, lib)
     aliasing = aliasing_report(final, final.extra["jw"], det.std, fresh_cols, obs, white, max(len(last), 1))
@@ -246,21 +312,38 @@ def discover_observations(obs: Observations, src, *, max_rounds: int = MAX_ROUND
         "aliasing": aliasing,
         "noise_rms_before": expected_rms(obs.cov, base.dof, base.n_res),
         "noise_rms_after": expected_rms(obs.cov, final.dof, final.n_res),
-        "chi2_before": base.chi2, "dof_before": base.dof, "p_before": chi2_p(base.chi2, base.dof),
-        "chi2_after": final.chi2, "dof_after": final.dof, "p_after": chi2_p(final.chi2, final.dof),
-        "decision_rule": {"alpha_effect_familywise": ALPHA_EFFECT, "bonferroni_over": "the round's candidates",
-                          "global_gate": None, "alpha_fit": ALPHA_FIT, "min_explained_share": MIN_EXPLAINED,
-                          "score": "BIC gain = LR - k ln n", "ambiguous_bic": AMBIGUOUS_BIC,
-                          "ambiguous_lr_spread": AMBIGUOUS_SPREAD, "max_relative_std": MAX_RELATIVE_STD},
-        "where_before": diag_before, "where_after": diag_after,
+        "chi2_before": base.chi2,
+        "dof_before": base.dof,
+        "p_before": chi2_p(base.chi2, base.dof),
+        "chi2_after": final.chi2,
+        "dof_after": final.dof,
+        "p_after": chi2_p(final.chi2, final.dof),
+        "decision_rule": {
+            "alpha_effect_familywise": ALPHA_EFFECT,
+            "bonferroni_over": "the round's candidates",
+            "global_gate": None,
+            "alpha_fit": ALPHA_FIT,
+            "min_explained_share": MIN_EXPLAINED,
+            "score": "BIC gain = LR - k ln n",
+            "ambiguous_bic": AMBIGUOUS_BIC,
+            "ambiguous_lr_spread": AMBIGUOUS_SPREAD,
+            "max_relative_std": MAX_RELATIVE_STD,
+        },
+        "where_before": diag_before,
+        "where_after": diag_after,
         "rounds": rounds,
         "hints": hints,
         "parameters": _params(final, det),
         "combinations": det.combinations,
-        "n_observations": obs.n_obs(), "n_poses": len(obs.poses),
-        "per_pose": [{"pose": a["pose"], "rms_before": a["rms"], "rms_after": b["rms"]}
-                     for a, b in zip(diag_before["per_pose"], diag_after["per_pose"])],
-        "evaluations": int(sum(c["evaluations"] or 0 for r in rounds for c in r["candidates"] if "evaluations" in c)),
+        "n_observations": obs.n_obs(),
+        "n_poses": len(obs.poses),
+        "per_pose": [
+            {"pose": a["pose"], "rms_before": a["rms"], "rms_after": b["rms"]}
+            for a, b in zip(diag_before["per_pose"], diag_after["per_pose"])
+        ],
+        "evaluations": int(
+            sum(c["evaluations"] or 0 for r in rounds for c in r["candidates"] if "evaluations" in c)
+        ),
         "seconds": time.perf_counter() - t0,
     }
     return (rep, final, base) if with_base else (rep, final)
@@ -279,7 +362,7 @@ def alias_columns(src, obs, white, final: Fit, lib) -> list[tuple]:
             _, jw = whitened(fm, white, np.concatenate([final.values, start]))
         except (ValueError, RuntimeError, NotImplementedError, np.linalg.LinAlgError):
             continue
-        out.append((e, jw[:, -start.size:]))
+        out.append((e, jw[:, -start.size :]))
     return out
 
 
@@ -315,23 +398,36 @@ def write_view(log_path, rrd, base: Fit, final: Fit, obs, rep: dict) -> Path:
     """The Rerun recording of the discovery (bench/view/recording.py, ``write_discovery_recording``): on
     the robot, every reflector's residual with the user's model and with the named effects,
     against the noise, per pose; the verdict; the final model's parameters."""
-    named = tuple(s["effect"] + (f" ({s['detail']})" if s["effect"] not in (UNEXPLAINED, AMBIGUOUS) and s["detail"]
-                                 else "") for s in rep["steps"])
-    disc = Discovery(view_report(base, obs, rep, "before", _params(base)), view_report(final, obs, rep), named)
+    named = tuple(
+        s["effect"]
+        + (f" ({s['detail']})" if s["effect"] not in (UNEXPLAINED, AMBIGUOUS) and s["detail"] else "")
+        for s in rep["steps"]
+    )
+    disc = Discovery(
+        view_report(base, obs, rep, "before", _params(base)), view_report(final, obs, rep), named
+    )
     write_discovery_recording(log_path, rrd, disc)
     return Path(rrd)
 
 
-def discover(log_path, model=None, *, out_model=None, plot=None, view_json=None, view_rrd=None,
-             max_rounds: int = MAX_ROUNDS) -> dict:
+def discover(
+    log_path,
+    model=None,
+    *,
+    out_model=None,
+    plot=None,
+    view_json=None,
+    view_rrd=None,
+    max_rounds: int = MAX_ROUNDS,
+) -> dict:
     """Run the whole workflow on a log; returns the JSON report (docs/contract.md keys plus
     extras) and writes the augmented MJCF (when an effect is named), the plot, the view JSON and,
     with ``view_rrd``, the Rerun recording of where the model disagreed (:func:`write_view`)."""
     t0 = time.perf_counter()
     log_path = Path(log_path)
-    log = read_log(log_path)                       # no truth
+    log = read_log(log_path)  # no truth
     obs = from_log(log)
-    robot = load_model(log, model)                 # validates the MJCF (InputError)
+    robot = load_model(log, model)  # validates the MJCF (InputError)
     check_sites(robot, obs, model or log.path)
     src = Path(model) if model is not None else log.mjcf_text
     rep, final, base = discover_observations(obs, src, max_rounds=max_rounds, with_base=True)
@@ -339,12 +435,19 @@ def discover(log_path, model=None, *, out_model=None, plot=None, view_json=None,
     if final.effects:
         aug_path = Path(out_model) if out_model else log_path.with_name(log_path.stem + ".augmented.xml")
         write_text(aug_path, augmented_mjcf(src, final))
-        Robot.from_file(aug_path)                  # must load
-    rep.update({"augmented_model": str(aug_path) if aug_path else None, "log": str(log_path),
-                "model": str(model) if model is not None else "MJCF from the log",
-                "n_poses_planned": log.n_poses_planned, "lost_poses": log.lost_poses,
-                "truncated": log.truncated, "completeness": log.completeness(),
-                "seconds": time.perf_counter() - t0})
+        Robot.from_file(aug_path)  # must load
+    rep.update(
+        {
+            "augmented_model": str(aug_path) if aug_path else None,
+            "log": str(log_path),
+            "model": str(model) if model is not None else "MJCF from the log",
+            "n_poses_planned": log.n_poses_planned,
+            "lost_poses": log.lost_poses,
+            "truncated": log.truncated,
+            "completeness": log.completeness(),
+            "seconds": time.perf_counter() - t0,
+        }
+    )
     if plot:
         rep["plot"] = str(plot_residuals(rep, plot))
     if view_json:
@@ -355,5 +458,18 @@ def discover(log_path, model=None, *, out_model=None, plot=None, view_json=None,
     return rep
 
 
-__all__ = ["discover", "discover_observations", "base_fit", "run_round", "story", "augmented_mjcf",
-           "plot_residuals", "view_report", "write_view", "clean", "UNEXPLAINED", "AMBIGUOUS", "alias_columns"]
+__all__ = [
+    "discover",
+    "discover_observations",
+    "base_fit",
+    "run_round",
+    "story",
+    "augmented_mjcf",
+    "plot_residuals",
+    "view_report",
+    "write_view",
+    "clean",
+    "UNEXPLAINED",
+    "AMBIGUOUS",
+    "alias_columns",
+]

@@ -47,21 +47,21 @@ paper solves eq. (20) once, we iterate because the model is nonlinear in theta.
   with the larger half-width of the profile's quadratic through the rise at 2 sd where it fails.
   With a 20 um tracker every profile passes there (100 of 100), as on both paper plans.
 """
+
 from __future__ import annotations
 
 import numpy as np
 
-from calbench.bench.model.robot import Robot
-
 from calbench.bench.model.params import ParamLayout
-
+from calbench.bench.model.robot import Robot
 from calbench.identify.core.forward import ForwardModel, design_from_observations
 from calbench.identify.core.identifiability import RANK_TOL, analyze, explain, resolve
 from calbench.identify.core.leastsq import Fit, covariance, levenberg_marquardt
 from calbench.identify.core.observations import Observations
 from calbench.identify.core.profile import Profile, profile_check
-from .twostep import TwoStepError, TwoStepResult, group_q2, plan_facts, two_step
 from calbench.identify.core.whitening import Whitener
+
+from .twostep import TwoStepError, TwoStepResult, group_q2, plan_facts, two_step
 
 
 def generic_start(robot: Robot, obs: Observations) -> np.ndarray:
@@ -79,8 +79,9 @@ def generic_start(robot: Robot, obs: Observations) -> np.ndarray:
     return robot.layout.generic_start(preloads)
 
 
-def sanitize_start(theta: np.ndarray, generic: np.ndarray,
-                   layout: ParamLayout) -> tuple[np.ndarray, list[str]]:
+def sanitize_start(
+    theta: np.ndarray, generic: np.ndarray, layout: ParamLayout
+) -> tuple[np.ndarray, list[str]]:
     """Replace NaN or physically invalid entries (every parameter must be > 0) by generic
     values; names the replaced ones. A compensator's pair is replaced together."""
     out = np.array(theta, dtype=float)
@@ -102,9 +103,19 @@ class OneStep:
         self.model = model or ForwardModel(robot, design_from_observations(robot, obs))
         self.facts = plan_facts(robot, obs)
 
-    def fit(self, dp: np.ndarray, white: Whitener, start: np.ndarray, *, scale=None,
-            start_eval: tuple[np.ndarray, np.ndarray] | None = None, step_tol: float = 1e-6,
-            max_iter: int = 40, final_eval: bool = True, start_method: str = "given") -> Fit:
+    def fit(
+        self,
+        dp: np.ndarray,
+        white: Whitener,
+        start: np.ndarray,
+        *,
+        scale=None,
+        start_eval: tuple[np.ndarray, np.ndarray] | None = None,
+        step_tol: float = 1e-6,
+        max_iter: int = 40,
+        final_eval: bool = True,
+        start_method: str = "given",
+    ) -> Fit:
         """Fit to observations dp (M,3) whitened by ``white`` (identify/core/whitening.py).
 
         Iterates in phi = theta with every compensator's s0 replaced by P = K_C s0 (the spring's
@@ -117,7 +128,7 @@ class OneStep:
         """
         model = self.model
         lay = self.robot.layout
-        names, npar = lay.names, lay.n
+        names = lay.names
         phi0 = to_phi(np.array(start, dtype=float), lay)
         scale = np.where(np.abs(phi0) > 0, np.abs(phi0), 1.0) if scale is None else np.asarray(scale)
         yw = white.vec(dp)
@@ -134,11 +145,21 @@ class OneStep:
         # the bound instead of damping its way through max_iter.
         lower = to_phi(lay.lower, lay)
         sol = levenberg_marquardt(
-            evaluate, yw, np.maximum(phi0, lower), scale, valid=valid_phi, lower=lower,
+            evaluate,
+            yw,
+            np.maximum(phi0, lower),
+            scale,
+            valid=valid_phi,
+            lower=lower,
             free_fn=lambda jw: analyze(jw, names).identifiable,
-            step_tol=step_tol, rank_tol=RANK_TOL, max_iter=max_iter, max_damping=30,
-            accept_within_sigma=True, final_eval=final_eval,
-            start_eval=None if start_eval is None else whiten(phi0, *start_eval))
+            step_tol=step_tol,
+            rank_tol=RANK_TOL,
+            max_iter=max_iter,
+            max_damping=30,
+            accept_within_sigma=True,
+            final_eval=final_eval,
+            start_eval=None if start_eval is None else whiten(phi0, *start_eval),
+        )
         phi = sol.x
         ident = analyze(sol.j_w * scale, names)
         free = ident.identifiable
@@ -147,26 +168,44 @@ class OneStep:
         dt = dtheta_dphi(phi, lay)
         cov = dt @ cov_phi @ dt.T
         theta = to_theta(phi, lay)
-        resolve(ident, theta, cov)          # the noise, not just the rank
+        resolve(ident, theta, cov)  # the noise, not just the rank
         bad = ~ident.identifiable.copy()
         for kc, s0 in zip(lay.stiffness_index, lay.preload_index):
-            bad[s0] = bad[kc] or bad[s0]    # s0 = P / K_C needs both
+            bad[s0] = bad[kc] or bad[s0]  # s0 = P / K_C needs both
         cov[bad, :] = np.nan
         cov[:, bad] = np.nan
         explain(ident, lay, self.facts)
         reasons = dict(ident.reasons)
-        for kc, s0 in zip(lay.stiffness_index, lay.preload_index):
+        for s0 in lay.preload_index:
             if bad[s0] and names[s0] not in reasons:
                 reasons[names[s0]] = "s0 = (K_C s0) / K_C and K_C is not identified"
         resid_w = sol.r_w.reshape(-1, 3)
         resid = white.unwhiten(resid_w)
-        return Fit(theta, cov, ~bad, resid, resid_w, sol.cost, sol.r_w.size, int(free.sum()), sol.iterations, model.stats["evaluations"] - n_eval0, sol.converged,
-                   sol.seconds, names=names, units=lay.units, reasons=reasons,
-                   start=np.array(start, float), start_method=start_method, ident=ident, model=model,
-                   robot=self.robot)
+        return Fit(
+            theta,
+            cov,
+            ~bad,
+            resid,
+            resid_w,
+            sol.cost,
+            sol.r_w.size,
+            int(free.sum()),
+            sol.iterations,
+            model.stats["evaluations"] - n_eval0,
+            sol.converged,
+            sol.seconds,
+            names=names,
+            units=lay.units,
+            reasons=reasons,
+            start=np.array(start, float),
+            start_method=start_method,
+            ident=ident,
+            model=model,
+            robot=self.robot,
+        )
 
 
-PROFILE_COST_TOL = 0.01   # chi2: a profile refit stops when a step gains less (as discovery's)
+PROFILE_COST_TOL = 0.01  # chi2: a profile refit stops when a step gains less (as discovery's)
 PROFILE_MAX_ITER = 12
 
 
@@ -185,14 +224,24 @@ def profile(est: OneStep, f: Fit, dp: np.ndarray, white: Whitener) -> Profile:
     def refit(v: np.ndarray, i: int) -> float:
         hold = ~np.asarray(f.identifiable, bool)
         hold[i] = True
-        sol = levenberg_marquardt(evaluate, yw, v, np.where(v != 0, np.abs(v), 1.0), lower=lay.lower,
-                                  upper=lay.upper, hold=hold, valid=valid_phi, rank_tol=RANK_TOL,
-                                  cost_tol=PROFILE_COST_TOL, max_iter=PROFILE_MAX_ITER)
+        sol = levenberg_marquardt(
+            evaluate,
+            yw,
+            v,
+            np.where(v != 0, np.abs(v), 1.0),
+            lower=lay.lower,
+            upper=lay.upper,
+            hold=hold,
+            valid=valid_phi,
+            rank_tol=RANK_TOL,
+            cost_tol=PROFILE_COST_TOL,
+            max_iter=PROFILE_MAX_ITER,
+        )
         return sol.cost
 
     sd = np.sqrt(np.where(np.isfinite(np.diag(f.cov)), np.diag(f.cov), np.nan))
     out = profile_check(refit, f.values, f.chi2, sd, lay.lower, lay.upper, np.flatnonzero(f.identifiable))
-    model.evaluate(f.values, jacobian=False)          # the model back at the estimate
+    model.evaluate(f.values, jacobian=False)  # the model back at the estimate
     return out
 
 
@@ -224,8 +273,14 @@ def valid_phi(phi: np.ndarray) -> bool:
     return bool(np.all(np.isfinite(phi)) and np.all(phi > 0))
 
 
-def one_step(robot: Robot, obs: Observations, start: np.ndarray | None = None,
-             two: TwoStepResult | None = None, check_profile: bool = False, **kw) -> Fit:
+def one_step(
+    robot: Robot,
+    obs: Observations,
+    start: np.ndarray | None = None,
+    two: TwoStepResult | None = None,
+    check_profile: bool = False,
+    **kw,
+) -> Fit:
     """Identify all parameters at once from the observations (see the module docstring);
     ``check_profile``: run :func:`profile` too (its outcome in ``extra["profile"]``)."""
     est = OneStep(robot, obs)
@@ -247,16 +302,18 @@ def one_step(robot: Robot, obs: Observations, start: np.ndarray | None = None,
     return res
 
 
-def fit_from(est: OneStep, dp: np.ndarray, white: Whitener, start: np.ndarray, generic: np.ndarray,
-             method: str, **kw) -> Fit:
+def fit_from(
+    est: OneStep, dp: np.ndarray, white: Whitener, start: np.ndarray, generic: np.ndarray, method: str, **kw
+) -> Fit:
     """``est.fit`` from ``start`` (named ``method``); when that fit does not converge and the
     start is not ``generic``, again from ``generic``, keeping the converged fit, else the lower
     chi2 (see the module docstring: a valid two-step start can lie in another basin)."""
     res = est.fit(dp, white, start, start_method=method, **kw)
     if res.converged or np.array_equal(np.asarray(start, float), generic):
         return res
-    alt = est.fit(dp, white, generic, start_method=f"generic (from the {method} start the fit did not converge)",
-                  **kw)
+    alt = est.fit(
+        dp, white, generic, start_method=f"generic (from the {method} start the fit did not converge)", **kw
+    )
     return alt if (alt.converged, -alt.chi2) > (res.converged, -res.chi2) else res
 
 

@@ -38,6 +38,7 @@ What the linear model leaves out: gravity's and the load's geometric stiffness (
 the Jacobian's change over the gravity deflection, and the compensator's nonlinearity over the
 deflection. The one-step estimator (identify/methods/onestep.py) has none of these approximations.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -47,7 +48,6 @@ import numpy as np
 
 from calbench.bench.model.loop import motor_jacobian
 from calbench.bench.model.robot import Robot
-
 from calbench.identify.core.identifiability import Identifiability, analyze, explain
 from calbench.identify.core.observations import Observations
 from calbench.identify.core.whitening import Whitener
@@ -64,15 +64,19 @@ def two_step_applies(robot: Robot) -> int | None:
     two-step method applies to the robot; TwoStepError saying why not otherwise."""
     names = robot.description.compensators
     if len(names) > 1:
-        raise TwoStepError(f"the two-step method (paper §4, eqs. 19-22) separates one compensator "
-                           f"spring; this robot has {len(names)} ({', '.join(names)}): use the one-step method")
+        raise TwoStepError(
+            f"the two-step method (paper §4, eqs. 19-22) separates one compensator "
+            f"spring; this robot has {len(names)} ({', '.join(names)}): use the one-step method"
+        )
     if not names:
         return None
     try:
         return robot.compensator_joint(0)
     except ValueError as exc:
-        raise TwoStepError(f"the two-step method (paper §4, eqs. 21-22) needs the compensator across one "
-                           f"actuated hinge: {exc}; use the one-step method") from None
+        raise TwoStepError(
+            f"the two-step method (paper §4, eqs. 21-22) needs the compensator across one "
+            f"actuated hinge: {exc}; use the one-step method"
+        ) from None
 
 
 def group_q2(q2: np.ndarray, tol: float = Q2_GROUP_TOL) -> tuple[np.ndarray, np.ndarray]:
@@ -95,13 +99,13 @@ class LinearPlan:
     """Step 1's regressors: per observation row (M,3,N) motor columns J_r,i[:3] tau_i.
     "q2" is the compensator joint's angle (``joint``; None and no groups without one)."""
 
-    cols: np.ndarray          # (M, 3, N): dp = sum_i cols[:, :, i] k_i
-    tau: np.ndarray           # (n_poses, N) motor torques of each pose's load
-    q2_group: np.ndarray      # (n_poses,) group label
-    q2_values: np.ndarray     # (m,) distinct q2
-    rows_pose: np.ndarray     # (M,) index into obs.poses of each observation row
+    cols: np.ndarray  # (M, 3, N): dp = sum_i cols[:, :, i] k_i
+    tau: np.ndarray  # (n_poses, N) motor torques of each pose's load
+    q2_group: np.ndarray  # (n_poses,) group label
+    q2_values: np.ndarray  # (m,) distinct q2
+    rows_pose: np.ndarray  # (M,) index into obs.poses of each observation row
     joint: int | None = None  # the compensator's joint (controller order)
-    vertical: np.ndarray | None = None   # (N,) motor axis along gravity at every pose
+    vertical: np.ndarray | None = None  # (N,) motor axis along gravity at every pose
 
 
 def linear_plan(robot: Robot, obs: Observations, qpos: dict | None = None) -> LinearPlan:
@@ -117,7 +121,7 @@ def linear_plan(robot: Robot, obs: Observations, qpos: dict | None = None) -> Li
     site = lambda n: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, n)  # noqa: E731
     try:
         joint = two_step_applies(robot)
-    except TwoStepError:      # step 1's regressors hold for any robot; no k is split then
+    except TwoStepError:  # step 1's regressors hold for any robot; no k is split then
         joint = None
     n_act = robot.n_act
     g = m.opt.gravity / max(np.linalg.norm(m.opt.gravity), 1e-300)
@@ -141,8 +145,15 @@ def linear_plan(robot: Robot, obs: Observations, qpos: dict | None = None) -> Li
         if qpos is not None:  # the compensator angle at the given configurations (group means)
             q2 = np.array([qpos[p.index][robot.act_qpos[joint]] for p in obs.poses])
             values = np.array([q2[labels == g].mean() for g in range(len(values))])
-    return LinearPlan(np.array(cols).reshape(-1, 3, n_act), np.array(taus).reshape(-1, n_act), labels,
-                      values, np.array(rows, dtype=int), joint, vertical)
+    return LinearPlan(
+        np.array(cols).reshape(-1, 3, n_act),
+        np.array(taus).reshape(-1, n_act),
+        labels,
+        values,
+        np.array(rows, dtype=int),
+        joint,
+        vertical,
+    )
 
 
 def plan_facts(robot: Robot, obs: Observations, lp: LinearPlan | None = None) -> dict:
@@ -153,25 +164,31 @@ def plan_facts(robot: Robot, obs: Observations, lp: LinearPlan | None = None) ->
     forces = np.array([p.force for p in obs.poses])
     moments = np.array([p.moment for p in obs.poses])
     fmax = max(np.abs(forces).max(), 1e-300)
-    vertical = bool(np.all(np.abs(forces[:, :2]) <= 1e-9 * fmax)
-                    and np.all(np.abs(moments[:, 2]) <= 1e-9 * fmax))
-    return {"motor_torque_seen": seen, "loads_vertical": vertical, "vertical_axes": lp.vertical,
-            "compensator_joint": lp.joint,
-            "n_distinct_q2": int(len(lp.q2_values)), "q2_values": lp.q2_values}
+    vertical = bool(
+        np.all(np.abs(forces[:, :2]) <= 1e-9 * fmax) and np.all(np.abs(moments[:, 2]) <= 1e-9 * fmax)
+    )
+    return {
+        "motor_torque_seen": seen,
+        "loads_vertical": vertical,
+        "vertical_axes": lp.vertical,
+        "compensator_joint": lp.joint,
+        "n_distinct_q2": int(len(lp.q2_values)),
+        "q2_values": lp.q2_values,
+    }
 
 
 @dataclass
 class TwoStepResult:
-    theta: np.ndarray                 # (P,) NaN where not identified (the robot's layout)
-    cov: np.ndarray                   # (P,P) NaN rows/cols where not identified
-    identifiable: np.ndarray          # (P,) bool
+    theta: np.ndarray  # (P,) NaN where not identified (the robot's layout)
+    cov: np.ndarray  # (P,P) NaN rows/cols where not identified
+    identifiable: np.ndarray  # (P,) bool
     reasons: dict[str, str]
     step1_names: list[str]
-    step1_k: np.ndarray               # step-1 estimate, NaN where not identified
+    step1_k: np.ndarray  # step-1 estimate, NaN where not identified
     step1_cov: np.ndarray
     q2_values: np.ndarray
-    residual: np.ndarray              # (M,3) dp - B k, m
-    residual_w: np.ndarray            # (M,3) whitened
+    residual: np.ndarray  # (M,3) dp - B k, m
+    residual_w: np.ndarray  # (M,3) whitened
     chi2: float
     dof: int
     step2: dict = field(default_factory=dict)
@@ -182,16 +199,16 @@ def step1_columns(lp: LinearPlan) -> list[tuple[int, int | None]]:
     """Step 1's unknowns in order: (motor i, q2 group or None), the compensator joint's k split
     per group."""
     n_act = lp.cols.shape[2]
-    return [(i, g) for i in range(n_act)
-            for g in (range(len(lp.q2_values)) if i == lp.joint else (None,))]
+    return [(i, g) for i in range(n_act) for g in (range(len(lp.q2_values)) if i == lp.joint else (None,))]
 
 
 def step1(lp: LinearPlan, dp: np.ndarray, white: Whitener):
     """Weighted LS of eqs. (19)-(20). Returns k, cov, names, whitened B, identifiability."""
     unknowns = step1_columns(lp)
     nk = len(unknowns)
-    names = [f"k{i + 1}" if g is None else f"k{i + 1}@{np.degrees(lp.q2_values[g]):.6g}deg"
-             for i, g in unknowns]
+    names = [
+        f"k{i + 1}" if g is None else f"k{i + 1}@{np.degrees(lp.q2_values[g]):.6g}deg" for i, g in unknowns
+    ]
     M = lp.cols.shape[0]
     b = np.zeros((M, 3, nk))
     g_row = lp.q2_group[lp.rows_pose]
@@ -219,12 +236,18 @@ def step2_rows(geom, q2_values: np.ndarray) -> np.ndarray:
     psi = np.array([geom.angle(v) for v in q2_values])
     s = np.array([geom.length(v) for v in q2_values])
     ll = geom.l_c * geom.l_2
-    return np.column_stack([np.ones_like(psi), ll * np.cos(psi),
-                            ll * (ll * np.sin(psi) ** 2 / s ** 3 - np.cos(psi) / s)])
+    return np.column_stack(
+        [np.ones_like(psi), ll * np.cos(psi), ll * (ll * np.sin(psi) ** 2 / s**3 - np.cos(psi) / s)]
+    )
 
 
-def two_step(robot: Robot, obs: Observations, weighted: bool = False,
-             lp: LinearPlan | None = None, white: Whitener | None = None) -> TwoStepResult:
+def two_step(
+    robot: Robot,
+    obs: Observations,
+    weighted: bool = False,
+    lp: LinearPlan | None = None,
+    white: Whitener | None = None,
+) -> TwoStepResult:
     """Paper §4 on the observations. ``weighted``: GLS step 2 (else the paper's eq. 21).
     TwoStepError when the robot is outside the method (module docstring)."""
     two_step_applies(robot)
@@ -240,14 +263,14 @@ def two_step(robot: Robot, obs: Observations, weighted: bool = False,
     resid = dp - np.einsum("mij,j->mi", b, kk)
     resid_w = white.vec(resid).reshape(-1, 3)
     dof = 3 * M - int(ident.identifiable.sum())
-    chi2 = float((resid_w ** 2).sum())
+    chi2 = float((resid_w**2).sum())
 
     theta = np.full(npar, np.nan)
     # map step-1 entries to theta: k_i -> i for every motor but the compensator's joint
     unknowns = step1_columns(lp)
     idx = {col: i for col, (i, g) in enumerate(unknowns) if g is None}
-    split = [col for col, (_, g) in enumerate(unknowns) if g is not None]   # the k2_i columns
-    hmat = np.zeros((npar, len(k)))     # d theta / d k (delta method), filled where defined
+    split = [col for col, (_, g) in enumerate(unknowns) if g is not None]  # the k2_i columns
+    hmat = np.zeros((npar, len(k)))  # d theta / d k (delta method), filled where defined
     ok = np.zeros(npar, bool)
     for src, dst in idx.items():
         if ident.identifiable[src]:
@@ -262,13 +285,13 @@ def two_step(robot: Robot, obs: Observations, weighted: bool = False,
         i_kc, i_s0 = int(lay.stiffness_index[0]), int(lay.preload_index[0])
         c = step2_rows(geom, lp.q2_values)
         big_k = 1.0 / k2i
-        dk = np.diag(-1.0 / k2i ** 2)                      # d K_2i / d k2_i
+        dk = np.diag(-1.0 / k2i**2)  # d K_2i / d k2_i
         cov_big = dk @ kcov[np.ix_(split, split)] @ dk.T
         if weighted:
             wmat = np.linalg.inv(cov_big)
             gmat = np.linalg.solve(c.T @ wmat @ c, c.T @ wmat)
         else:
-            gmat = np.linalg.solve(c.T @ c, c.T)           # eq. (21)
+            gmat = np.linalg.solve(c.T @ c, c.T)  # eq. (21)
         x = gmat @ big_k
         k_theta2, k_c, s0kc = x
         if k_theta2 > 0 and k_c != 0:
@@ -276,15 +299,22 @@ def two_step(robot: Robot, obs: Observations, weighted: bool = False,
             theta[i_kc] = k_c
             theta[i_s0] = s0kc / k_c
             # d(k2, K_C, s0)/dx, then dx/dk2_i = G dK/dk
-            dtx = np.array([[-1.0 / k_theta2 ** 2, 0, 0], [0, 1.0, 0], [0, -s0kc / k_c ** 2, 1.0 / k_c]])
+            dtx = np.array([[-1.0 / k_theta2**2, 0, 0], [0, 1.0, 0], [0, -s0kc / k_c**2, 1.0 / k_c]])
             hmat[np.ix_([j2, i_kc, i_s0], split)] = dtx @ gmat @ dk
             ok[[j2, i_kc, i_s0]] = True
-        step2_info.update({
-            "rows_C": c.tolist(), "K2_aggregated": big_k.tolist(),
-            "K_theta2": float(k_theta2), "K_C": float(k_c), "s0_K_C": float(s0kc),
-            "l_c": geom.l_c, "l_2": geom.l_2, "psi_offset_rad": geom.offset,
-            "residual_K2": (big_k - c @ x).tolist(),
-        })
+        step2_info.update(
+            {
+                "rows_C": c.tolist(),
+                "K2_aggregated": big_k.tolist(),
+                "K_theta2": float(k_theta2),
+                "K_C": float(k_c),
+                "s0_K_C": float(s0kc),
+                "l_c": geom.l_c,
+                "l_2": geom.l_2,
+                "psi_offset_rad": geom.offset,
+                "residual_K2": (big_k - c @ x).tolist(),
+            }
+        )
     kc0 = np.where(np.isfinite(kcov), kcov, 0.0)
     cov = hmat @ kc0 @ hmat.T
     cov[~ok, :] = np.nan
@@ -293,8 +323,9 @@ def two_step(robot: Robot, obs: Observations, weighted: bool = False,
     # reasons: step 1's rank analysis mapped to theta names, plus step 2's requirement
     facts = plan_facts(robot, obs, lp)
     pnames = lay.names
-    theta_ident = Identifiability(pnames, ident.singular_values, ident.rank, ok.copy(),
-                                  np.zeros((npar, 0)), np.ones(npar))
+    theta_ident = Identifiability(
+        pnames, ident.singular_values, ident.rank, ok.copy(), np.zeros((npar, 0)), np.ones(npar)
+    )
     reasons: dict[str, str] = {}
     for src, dst in idx.items():
         if not ident.identifiable[src]:
@@ -303,17 +334,34 @@ def two_step(robot: Robot, obs: Observations, weighted: bool = False,
     if j2 is not None and not ok[j2]:
         q, jn = f"q{j2 + 1}", f"J{j2 + 1}"
         if m < 3:
-            why = (f"only {m} distinct {q} in the plan: step 2 (eqs. 21-22) needs the aggregated "
-                   f"{jn} stiffness at three or more {q} to separate K_theta{j2 + 1}, K_C and s0")
+            why = (
+                f"only {m} distinct {q} in the plan: step 2 (eqs. 21-22) needs the aggregated "
+                f"{jn} stiffness at three or more {q} to separate K_theta{j2 + 1}, K_C and s0"
+            )
         else:
-            why = (f"step 1 did not identify every aggregated {jn} stiffness k{j2 + 1}_i, or step 2 "
-                   f"gave K_theta{j2 + 1} <= 0")
+            why = (
+                f"step 1 did not identify every aggregated {jn} stiffness k{j2 + 1}_i, or step 2 "
+                f"gave K_theta{j2 + 1} <= 0"
+            )
         for n in (pnames[j2], pnames[lay.stiffness_index[0]], pnames[lay.preload_index[0]]):
             reasons[n] = why
     theta_ident.reasons = reasons
-    return TwoStepResult(theta, cov, ok, reasons, names, k, kcov, lp.q2_values, resid, resid_w,
-                         chi2, dof, step2_info, ident)
+    return TwoStepResult(
+        theta, cov, ok, reasons, names, k, kcov, lp.q2_values, resid, resid_w, chi2, dof, step2_info, ident
+    )
 
 
-__all__ = ["group_q2", "LinearPlan", "linear_plan", "plan_facts", "TwoStepResult", "TwoStepError",
-           "two_step_applies", "step1", "step1_columns", "step2_rows", "two_step", "Q2_GROUP_TOL"]
+__all__ = [
+    "group_q2",
+    "LinearPlan",
+    "linear_plan",
+    "plan_facts",
+    "TwoStepResult",
+    "TwoStepError",
+    "two_step_applies",
+    "step1",
+    "step1_columns",
+    "step2_rows",
+    "two_step",
+    "Q2_GROUP_TOL",
+]

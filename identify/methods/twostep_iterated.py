@@ -34,21 +34,22 @@ delta method, C = L Sigma L^T), G = dtheta/dd, S = dD/dtheta and R(d) = D(theta(
 dtheta*/dy = A L with A = I - G (S G - I)^-1 S, so cov = A C A^T (:func:`sensitivity`, G and S
 by central differences).
 """
+
 from __future__ import annotations
 
 import numpy as np
 
 from calbench.bench.model.robot import Robot
 from calbench.bench.statics.equilibrium import StaticsError, StaticsSolver
-
-from calbench.identify.core.whitening import Whitener
 from calbench.identify.core.observations import Observations
+from calbench.identify.core.whitening import Whitener
+
 from .onestep import generic_start
 from .twostep import TwoStepResult, group_q2, linear_plan, two_step, two_step_applies
 
-TOL = 1e-9           # rad: the fixed point's residual (1e-7 of the 1-2 deg sag)
-STEP = 1e-6          # rad: forward-difference step of the Newton Jacobian
-REL_STEP = 1e-5      # relative central-difference step of dD/dtheta (a compliance or a spring)
+TOL = 1e-9  # rad: the fixed point's residual (1e-7 of the 1-2 deg sag)
+STEP = 1e-6  # rad: forward-difference step of the Newton Jacobian
+REL_STEP = 1e-5  # relative central-difference step of dD/dtheta (a compliance or a spring)
 MAX_NEWTON = 20
 
 
@@ -99,8 +100,12 @@ class SagMap:
         rb.set_params(rb.layout.params(self.usable(theta)))
         solver = StaticsSolver(rb)
         try:
-            sags = np.array([solver.solve(np.asarray(p.q, float)).qpos[self.col] - p.q[self.joint]
-                             for p in self.obs.poses])
+            sags = np.array(
+                [
+                    solver.solve(np.asarray(p.q, float)).qpos[self.col] - p.q[self.joint]
+                    for p in self.obs.poses
+                ]
+            )
         finally:
             rb.set_params(saved)
         return np.array([sags[self.group == g].mean() for g in range(self.n)])
@@ -130,13 +135,21 @@ def sensitivity(sm: SagMap, d: np.ndarray, theta: np.ndarray) -> np.ndarray:
         tp[j] += h
         tm[j] -= h
         s[:, j] = (sm.sag(tp) - sm.sag(tm)) / (2 * h)
-    jd = s @ g - np.eye(sm.n)                     # dR/dd at the fixed point
+    jd = s @ g - np.eye(sm.n)  # dR/dd at the fixed point
     return np.eye(npar) - g @ np.linalg.solve(jd, s)
 
 
-def two_step_iterated(robot: Robot, obs: Observations, weighted: bool = False, *, tol: float = TOL,
-                      max_newton: int = MAX_NEWTON, start: np.ndarray | None = None,
-                      jacobian: np.ndarray | None = None, uncertainty: bool = True) -> TwoStepResult:
+def two_step_iterated(
+    robot: Robot,
+    obs: Observations,
+    weighted: bool = False,
+    *,
+    tol: float = TOL,
+    max_newton: int = MAX_NEWTON,
+    start: np.ndarray | None = None,
+    jacobian: np.ndarray | None = None,
+    uncertainty: bool = True,
+) -> TwoStepResult:
     """The two-step estimate at the self-consistent sagged pose (module docstring). ``start``:
     initial sags per q2 group (default 0: the commanded pose); ``jacobian``: dR/dd to reuse
     (chord steps, e.g. the Monte Carlo's noise-free one; re-taken when a chord step does not
@@ -171,7 +184,7 @@ def two_step_iterated(robot: Robot, obs: Observations, weighted: bool = False, *
                 break
             alpha /= 2
         else:
-            if chord:            # a stale chord: re-take the Jacobian and try again
+            if chord:  # a stale chord: re-take the Jacobian and try again
                 jac = None
                 continue
             break
@@ -182,7 +195,7 @@ def two_step_iterated(robot: Robot, obs: Observations, weighted: bool = False, *
     if converged and uncertainty:
         try:
             a = sensitivity(sm, d, est.theta)
-        except (StaticsError, np.linalg.LinAlgError) as exc:    # a step off a usable robot
+        except (StaticsError, np.linalg.LinAlgError) as exc:  # a step off a usable robot
             covariance += f"; the sag's share not computed: {exc}"
         else:
             ok = np.isfinite(est.theta)
@@ -192,10 +205,17 @@ def two_step_iterated(robot: Robot, obs: Observations, weighted: bool = False, *
             cov[:, ~ok] = np.nan
             est.cov = cov
             covariance = "with the sag's share"
-    est.step2 = dict(est.step2, linearised_at="the self-consistent sagged pose", sag_rad=d.tolist(),
-                     covariance=covariance,
-                     newton_iterations=it, map_evaluations=sm.evaluations, converged=converged,
-                     history=history, jacobian=None if jac is None else jac.tolist())
+    est.step2 = dict(
+        est.step2,
+        linearised_at="the self-consistent sagged pose",
+        sag_rad=d.tolist(),
+        covariance=covariance,
+        newton_iterations=it,
+        map_evaluations=sm.evaluations,
+        converged=converged,
+        history=history,
+        jacobian=None if jac is None else jac.tolist(),
+    )
     return est
 
 

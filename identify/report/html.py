@@ -25,6 +25,7 @@ Inputs are checked before anything is written: a missing or unreadable file, JSO
 the named command's report, or an output path equal to an input raise InputError (exit 2)
 naming the file; the HTML is written atomically (bench/core/outputs.py).
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -39,17 +40,17 @@ import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
 from calbench.bench.core.errors import InputError
+from calbench.bench.core.outputs import check_outputs, write_text
 from calbench.bench.log.idreport import IdentificationReport
 from calbench.bench.log.writer import CampaignLog, has_truth, read_log
-from calbench.bench.core.outputs import check_outputs, write_text
 from calbench.bench.view.recording import measured_deflections
+from calbench.identify.discover.stats import ALPHA_FIT as MISFIT_P  # chi2 p below which the model is rejected
+from calbench.identify.discover.story import alias_lines
 
 from . import htmlplots
-from calbench.identify.discover.stats import ALPHA_FIT as MISFIT_P   # chi2 p below which the model is rejected
-from calbench.identify.discover.story import alias_lines
 from .identification import DISPLAY, noise_source
 
-Z95 = 1.959963984540054         # two-sided 95 % quantile of the standard normal
+Z95 = 1.959963984540054  # two-sided 95 % quantile of the standard normal
 KINDS = {
     "identify": ("calbench identify --json", ("method", "parameters", "noise_sigma")),
     "discover": ("calbench discover --json", ("named_effects", "rms_before", "rms_after")),
@@ -77,8 +78,9 @@ def read_json_report(path: str | os.PathLike, kind: str) -> dict:
     missing = [k for k in keys if k not in doc]
     if missing:
         found = ", ".join(sorted(doc)[:6]) or "none"
-        raise InputError(path, missing[0], f"the {what} report (keys {', '.join(keys)})",
-                         f"an object with keys {found}")
+        raise InputError(
+            path, missing[0], f"the {what} report (keys {', '.join(keys)})", f"an object with keys {found}"
+        )
     lists = {"identify": "parameters", "discover": "named_effects", "design": "poses"}[kind]
     if not isinstance(doc[lists], list):
         raise InputError(path, lists, "a list", type(doc[lists]).__name__)
@@ -135,15 +137,14 @@ def um(x) -> str:
 
 def campaign_section(log: CampaignLog, simulated: bool) -> dict:
     h = log.header
-    tr = log.tracker_spec()           # the one parse of the header's tracker (TrackerSpec)
+    tr = log.tracker_spec()  # the one parse of the header's tracker (TrackerSpec)
     names = list(h.get("reflectors") or [])
     lost = log.lost_poses
     defl = measured_deflections(log)
     seen: dict[tuple[int, str], set] = {}
     repeats: dict[int, int] = {}
     for m in log.measurements:
-        seen.setdefault((m.pose, m.state), set()).update(
-            r for r, v in zip(m.reflectors, m.visible) if v)
+        seen.setdefault((m.pose, m.state), set()).update(r for r, v in zip(m.reflectors, m.visible) if v)
         repeats[m.pose] = max(repeats.get(m.pose, 0), m.repeat + 1)
     rows = []
     for p in log.complete_poses:
@@ -155,24 +156,41 @@ def campaign_section(log: CampaignLog, simulated: bool) -> dict:
             load = f"{w.mass:g} kg payload"
         else:
             load = "force [" + ", ".join(f"{f:.0f}" for f in w.force) + "] N"
-        rows.append({"pose": p, "q": "" if q is None else ", ".join(
-                         f"{x:.1f}" for x in np.degrees(q)),
-                     "load": load, "repeats": repeats.get(p, 0),
-                     "seen": f"{len(seen.get((p, 'unloaded'), ()))}/"
-                             f"{len(seen.get((p, 'loaded'), ()))} of {len(names)}",
-                     "deflection": [("–" if n not in defl.get(p, {}) else
-                                     f"{np.linalg.norm(defl[p][n]) * 1e3:.3f}") for n in names]})
-    noise = (f"isotropic, σ = {tr.sigma * 1e6:.3g} µm per axis" if tr.model == "isotropic"
-             else f"{tr.model}: distance {list(tr.distance)}, transverse "
-                  f"{list(tr.transverse)} (a m + b m/m)")
+        rows.append(
+            {
+                "pose": p,
+                "q": "" if q is None else ", ".join(f"{x:.1f}" for x in np.degrees(q)),
+                "load": load,
+                "repeats": repeats.get(p, 0),
+                "seen": f"{len(seen.get((p, 'unloaded'), ()))}/"
+                f"{len(seen.get((p, 'loaded'), ()))} of {len(names)}",
+                "deflection": [
+                    ("–" if n not in defl.get(p, {}) else f"{np.linalg.norm(defl[p][n]) * 1e3:.3f}")
+                    for n in names
+                ],
+            }
+        )
+    noise = (
+        f"isotropic, σ = {tr.sigma * 1e6:.3g} µm per axis"
+        if tr.model == "isotropic"
+        else f"{tr.model}: distance {list(tr.distance)}, transverse {list(tr.transverse)} (a m + b m/m)"
+    )
     return {
-        "scenario": h.get("scenario_name", "?"), "robot": h.get("robot", "?"),
-        "reflectors": names, "payload_site": h.get("payload_site", "?"),
+        "scenario": h.get("scenario_name", "?"),
+        "robot": h.get("robot", "?"),
+        "reflectors": names,
+        "payload_site": h.get("payload_site", "?"),
         "tracker_position": ", ".join(f"{x:.3f}" for x in tr.position),
         "tracker_yaw": f"{math.degrees(tr.yaw):.1f}",
-        "tracker_noise": noise, "seed": h.get("seed"), "simulated": simulated,
-        "planned": log.n_poses_planned, "complete": len(log.complete_poses), "lost": lost,
-        "truncated": log.truncated, "n_readings": len(log.measurements), "rows": rows,
+        "tracker_noise": noise,
+        "seed": h.get("seed"),
+        "simulated": simulated,
+        "planned": log.n_poses_planned,
+        "complete": len(log.complete_poses),
+        "lost": lost,
+        "truncated": log.truncated,
+        "n_readings": len(log.measurements),
+        "rows": rows,
     }
 
 
@@ -183,34 +201,47 @@ def parameters_section(ident: IdentificationReport) -> dict:
         est, std, truth = p.estimate, p.std, p.truth
         ok = est is not None and p.identifiable
         d = decimals(std * f if std else None)
-        z = p.z if p.z is not None else (
-            (est - truth) / std if ok and std and truth is not None else None)
-        rows.append({
-            "name": p.name, "unit": label, "identifiable": ok, "reason": p.reason or "",
-            "estimate": num(est * f, d) if ok else "",
-            "std": num(std * f, d) if ok and std is not None else "–",
-            "ci": (f"[{num((est - Z95 * std) * f, d)}, {num((est + Z95 * std) * f, d)}]"
-                   if ok and std is not None else "–"),
-            "rel": f"{abs(std / est) * 100:.2g}" if ok and std is not None and est else "–",
-            "truth": num(truth * f, d) if truth is not None else "–",
-            "z": f"{z:+.2f}" if z is not None else "–",
-            "z_flag": z is not None and abs(z) > 3,
-        })
+        z = p.z if p.z is not None else ((est - truth) / std if ok and std and truth is not None else None)
+        rows.append(
+            {
+                "name": p.name,
+                "unit": label,
+                "identifiable": ok,
+                "reason": p.reason or "",
+                "estimate": num(est * f, d) if ok else "",
+                "std": num(std * f, d) if ok and std is not None else "–",
+                "ci": (
+                    f"[{num((est - Z95 * std) * f, d)}, {num((est + Z95 * std) * f, d)}]"
+                    if ok and std is not None
+                    else "–"
+                ),
+                "rel": f"{abs(std / est) * 100:.2g}" if ok and std is not None and est else "–",
+                "truth": num(truth * f, d) if truth is not None else "–",
+                "z": f"{z:+.2f}" if z is not None else "–",
+                "z_flag": z is not None and abs(z) > 3,
+            }
+        )
         rel_names.append(p.name)
         rel.append(abs(std / est) * 100 if ok and std is not None and est else None)
     chi2, dof = ident.chi2, ident.dof
     p_fit = float(chi2_dist.sf(chi2, dof)) if chi2 is not None and dof else None
-    return {"method": ident.method, "rows": rows, "has_truth": ident.has_truth(),
-            "misfit": p_fit is not None and p_fit < MISFIT_P,
-            "chi2": f"{chi2:.1f}" if chi2 is not None else "–",
-            "p": f"{p_fit:.2g}" if p_fit is not None else "–",
-            "unidentifiable": [r for r in rows if not r["identifiable"]],
-            "chi2_per_dof": (f"{ident.chi2_per_dof:.3f}" if ident.chi2_per_dof is not None
-                             else "–"), "dof": dof,
-            "residual_rms": um(ident.residual_rms), "expected_rms": um(ident.expected_residual_rms),
-            "noise_source": noise_source(ident), "model": ident.model or "",
-            "n_observations": ident.n_observations,
-            "chart": htmlplots.relative_std_bars(rel_names, rel) if any(rel) else None}
+    return {
+        "method": ident.method,
+        "rows": rows,
+        "has_truth": ident.has_truth(),
+        "misfit": p_fit is not None and p_fit < MISFIT_P,
+        "chi2": f"{chi2:.1f}" if chi2 is not None else "–",
+        "p": f"{p_fit:.2g}" if p_fit is not None else "–",
+        "unidentifiable": [r for r in rows if not r["identifiable"]],
+        "chi2_per_dof": (f"{ident.chi2_per_dof:.3f}" if ident.chi2_per_dof is not None else "–"),
+        "dof": dof,
+        "residual_rms": um(ident.residual_rms),
+        "expected_rms": um(ident.expected_residual_rms),
+        "noise_source": noise_source(ident),
+        "model": ident.model or "",
+        "n_observations": ident.n_observations,
+        "chart": htmlplots.relative_std_bars(rel_names, rel) if any(rel) else None,
+    }
 
 
 def correlation_section(ident: IdentificationReport) -> dict:
@@ -227,48 +258,68 @@ def correlation_section(ident: IdentificationReport) -> dict:
     s = np.sqrt(np.diag(sub))
     corr = np.clip(sub / np.outer(s, s), -1, 1)
     kn = [names[i] for i in keep]
-    strong = [{"a": kn[i], "b": kn[j], "rho": f"{corr[i, j]:+.3f}"}
-              for i in range(len(kn)) for j in range(i + 1, len(kn)) if abs(corr[i, j]) >= 0.9]
-    return {"available": True, "chart": htmlplots.correlation_heatmap(kn, corr),
-            "left_out": [n for i, n in enumerate(names) if i not in keep], "strong": strong}
+    strong = [
+        {"a": kn[i], "b": kn[j], "rho": f"{corr[i, j]:+.3f}"}
+        for i in range(len(kn))
+        for j in range(i + 1, len(kn))
+        if abs(corr[i, j]) >= 0.9
+    ]
+    return {
+        "available": True,
+        "chart": htmlplots.correlation_heatmap(kn, corr),
+        "left_out": [n for i, n in enumerate(names) if i not in keep],
+        "strong": strong,
+    }
 
 
 def residuals_section(ident: IdentificationReport, reflectors: list[str]) -> dict:
     obs = [o for o in ident.observations if o.residual is not None]
     expected = ident.expected_residual_rms
     if not obs or expected is None:
-        return {"available": False,
-                "why": "the identify report carries no per-observation residuals"}
+        return {"available": False, "why": "the identify report carries no per-observation residuals"}
     names = list(reflectors) or sorted({o.reflector for o in obs})
     poses = sorted({o.pose for o in obs})
     grid = np.full((len(names), len(poses)), np.nan)
     for o in obs:
         if o.reflector in names:
-            grid[names.index(o.reflector), poses.index(o.pose)] = \
+            grid[names.index(o.reflector), poses.index(o.pose)] = (
                 np.sqrt(np.mean(np.square(o.residual))) * 1e6
+            )
     exp_um = expected * 1e6
     per_refl = []
     for i, n in enumerate(names):
         v = grid[i][np.isfinite(grid[i])]
         if v.size:
-            rms = float(np.sqrt(np.mean(v ** 2)))
-            per_refl.append({"reflector": n, "n": int(v.size), "rms": f"{rms:.1f}",
-                             "ratio": f"{rms / exp_um:.2f}",
-                             "worst": f"{v.max():.1f} (pose {poses[int(np.nanargmax(grid[i]))]})"})
-    return {"available": True, "expected": f"{exp_um:.1f}",
-            "map": htmlplots.residual_map(poses, names, grid, exp_um),
-            "bars": htmlplots.residual_per_pose(poses, names, grid, exp_um),
-            "per_reflector": per_refl, "outliers": list(ident.outliers),
-            "threshold": ident.outlier_threshold_sigma}
+            rms = float(np.sqrt(np.mean(v**2)))
+            per_refl.append(
+                {
+                    "reflector": n,
+                    "n": int(v.size),
+                    "rms": f"{rms:.1f}",
+                    "ratio": f"{rms / exp_um:.2f}",
+                    "worst": f"{v.max():.1f} (pose {poses[int(np.nanargmax(grid[i]))]})",
+                }
+            )
+    return {
+        "available": True,
+        "expected": f"{exp_um:.1f}",
+        "map": htmlplots.residual_map(poses, names, grid, exp_um),
+        "bars": htmlplots.residual_per_pose(poses, names, grid, exp_um),
+        "per_reflector": per_refl,
+        "outliers": list(ident.outliers),
+        "threshold": ident.outlier_threshold_sigma,
+    }
 
 
 def _generic_rows(x) -> list[dict]:
     """Any JSON (a list of objects, an object of objects or of values) as rows of name/value
     text pairs, for report fields whose layout this page does not fix (hints)."""
+
     def text(v):
         if isinstance(v, float):
             return f"{v:.4g}"
         return v if isinstance(v, str) else json.dumps(v, separators=(", ", ": "))
+
     if isinstance(x, dict):
         return [{"name": str(k), "value": text(v)} for k, v in x.items()]
     if isinstance(x, list):
@@ -277,8 +328,9 @@ def _generic_rows(x) -> list[dict]:
             if isinstance(v, dict):
                 head = v.get("effect") or v.get("name") or ""
                 rest = {k: w for k, w in v.items() if k not in ("effect", "name")}
-                out.append({"name": str(head), "value": "; ".join(
-                    f"{k}: {text(w)}" for k, w in rest.items())})
+                out.append(
+                    {"name": str(head), "value": "; ".join(f"{k}: {text(w)}" for k, w in rest.items())}
+                )
             else:
                 out.append({"name": "", "value": text(v)})
         return out
@@ -297,31 +349,49 @@ def aliasing_rows(aliasing: list[dict]) -> list[dict]:
 
 def typeset(words: str) -> str:
     """The terminal's ASCII units and symbols (the discover story's) as the page writes them."""
-    for ascii_, uni in ((" sigma", " σ"), ("+-", "±"), ("N*m", "N·m"), ("^3", "³"), (" um", " µm"),
-                        ("chi2", "χ²")):
+    for ascii_, uni in (
+        (" sigma", " σ"),
+        ("+-", "±"),
+        ("N*m", "N·m"),
+        ("^3", "³"),
+        (" um", " µm"),
+        ("chi2", "χ²"),
+    ):
         words = words.replace(ascii_, uni)
     return words
 
 
 def ambiguous_rows(ambiguous: list[dict]) -> list[dict]:
     """Each round's near-tie (docs/contract.md's ``ambiguous``) as one row of words."""
-    return [{"name": f"round {a['round']}", "value": " and ".join(
-        f"{t['candidate']} (LR {t['lr']:.1f}, k = {t['k']}, BIC gain {t['bic_gain']:.1f})"
-        for t in a["candidates"])} for a in ambiguous]
+    return [
+        {
+            "name": f"round {a['round']}",
+            "value": " and ".join(
+                f"{t['candidate']} (LR {t['lr']:.1f}, k = {t['k']}, BIC gain {t['bic_gain']:.1f})"
+                for t in a["candidates"]
+            ),
+        }
+        for a in ambiguous
+    ]
 
 
 def discovery_section(disc: dict, path: str | os.PathLike = "--discover") -> dict:
     named = [n for n in disc["named_effects"]]
     steps = disc.get("steps") or []
     if not named:
-        verdict = ("The model explains the measurements to the noise level: no missing effect "
-                   "is named.")
+        verdict = "The model explains the measurements to the noise level: no missing effect is named."
     elif "unexplained" in named:
         verdict = "A disagreement remains that no candidate of the library explains."
     else:
-        verdict = "Named: " + ", ".join(
-            f"{s['effect']}" + (f" ({s['detail']})" if s.get("detail") else "")
-            for s in steps if s.get("effect") != "unexplained") + "."
+        verdict = (
+            "Named: "
+            + ", ".join(
+                f"{s['effect']}" + (f" ({s['detail']})" if s.get("detail") else "")
+                for s in steps
+                if s.get("effect") != "unexplained"
+            )
+            + "."
+        )
     step_rows = []
     for s in steps:
         params = []
@@ -329,57 +399,93 @@ def discovery_section(disc: dict, path: str | os.PathLike = "--discover") -> dic
             label, f = unit_display(str(p.get("unit") or ""))
             e, sd = _finite(p.get("estimate")), _finite(p.get("std"))
             d = decimals(sd * f if sd else None)
-            params.append(f"{p['name']} = {num(None if e is None else e * f, d)}"
-                          + (f" ± {num(sd * f, d)} {label}" if sd is not None
-                             else f" {label} (not determined)"))
-        step_rows.append({"effect": s.get("effect"), "detail": s.get("detail") or "",
-                          "before": um(s.get("rms_before")), "after": um(s.get("rms_after")),
-                          "parameters": params})
+            params.append(
+                f"{p['name']} = {num(None if e is None else e * f, d)}"
+                + (f" ± {num(sd * f, d)} {label}" if sd is not None else f" {label} (not determined)")
+            )
+        step_rows.append(
+            {
+                "effect": s.get("effect"),
+                "detail": s.get("detail") or "",
+                "before": um(s.get("rms_before")),
+                "after": um(s.get("rms_after")),
+                "parameters": params,
+            }
+        )
     pp = disc.get("per_pose") or []
     chart = None
     nb, na = _finite(disc.get("noise_rms_before")), _finite(disc.get("noise_rms_after"))
     if pp and nb is not None:
-        chart = htmlplots.before_after([int(p["pose"]) for p in pp],
-                                       [p["rms_before"] * 1e6 for p in pp],
-                                       [p["rms_after"] * 1e6 for p in pp] if named else None,
-                                       nb * 1e6,
-                                       (na if na is not None else nb) * 1e6)
+        chart = htmlplots.before_after(
+            [int(p["pose"]) for p in pp],
+            [p["rms_before"] * 1e6 for p in pp],
+            [p["rms_after"] * 1e6 for p in pp] if named else None,
+            nb * 1e6,
+            (na if na is not None else nb) * 1e6,
+        )
     cands = []
     for c in disc.get("candidates") or []:
         sc, p_lr = _finite(c.get("score")), _finite(c.get("p_lr"))
-        cands.append({"effect": c.get("effect"), "detail": c.get("detail") or "",
-                      "score": "–" if sc is None else f"{sc:.1f}",
-                      "lr": "–" if _finite(c.get("lr")) is None else f"{c['lr']:.1f}",
-                      "k": c.get("k", "–"), "p": "–" if p_lr is None else f"{p_lr:.2g}",
-                      "accepted": bool(c.get("accepted")), "error": c.get("error")})
+        cands.append(
+            {
+                "effect": c.get("effect"),
+                "detail": c.get("detail") or "",
+                "score": "–" if sc is None else f"{sc:.1f}",
+                "lr": "–" if _finite(c.get("lr")) is None else f"{c['lr']:.1f}",
+                "k": c.get("k", "–"),
+                "p": "–" if p_lr is None else f"{p_lr:.2g}",
+                "accepted": bool(c.get("accepted")),
+                "error": c.get("error"),
+            }
+        )
 
     try:
         ambiguous = ambiguous_rows(disc.get("ambiguous") or [])
     except (KeyError, TypeError, ValueError) as e:
-        raise InputError(path, "ambiguous", "rounds of {round, candidates: [{candidate, lr, k, "
-                         "bic_gain}]} as `calbench discover --json` writes them",
-                         f"{type(e).__name__}: {e}") from None
+        raise InputError(
+            path,
+            "ambiguous",
+            "rounds of {round, candidates: [{candidate, lr, k, "
+            "bic_gain}]} as `calbench discover --json` writes them",
+            f"{type(e).__name__}: {e}",
+        ) from None
     try:
         aliasing = aliasing_rows(disc.get("aliasing") or [])
     except (KeyError, TypeError, ValueError, IndexError) as e:
-        raise InputError(path, "aliasing", "entries as `calbench discover --json` writes them "
-                         "(docs/contract.md)", f"{type(e).__name__}: {e}") from None
+        raise InputError(
+            path,
+            "aliasing",
+            "entries as `calbench discover --json` writes them (docs/contract.md)",
+            f"{type(e).__name__}: {e}",
+        ) from None
 
     def stat(k):
         v = _finite(disc.get(k))
         return "–" if v is None else (f"{v:.3g}" if k.startswith("p_") else f"{v:.1f}")
-    return {"verdict": verdict, "named": named, "steps": step_rows, "chart": chart,
-            "rms_before": um(disc.get("rms_before")), "rms_after": um(disc.get("rms_after")),
-            "noise_before": um(nb), "noise_after": um(na),
-            "chi2_before": stat("chi2_before"), "chi2_after": stat("chi2_after"),
-            "dof_before": disc.get("dof_before", "–"), "dof_after": disc.get("dof_after", "–"),
-            "p_before": stat("p_before"), "p_after": stat("p_after"),
-            "where_before": (disc.get("where_before") or {}).get("words") or [],
-            "where_after": (disc.get("where_after") or {}).get("words") or [],
-            "candidates": cands,
-            "ambiguous": ambiguous, "aliasing": aliasing,
-            "hints": _generic_rows(disc["hints"]) if disc.get("hints") else [],
-            "augmented_model": disc.get("augmented_model")}
+
+    return {
+        "verdict": verdict,
+        "named": named,
+        "steps": step_rows,
+        "chart": chart,
+        "rms_before": um(disc.get("rms_before")),
+        "rms_after": um(disc.get("rms_after")),
+        "noise_before": um(nb),
+        "noise_after": um(na),
+        "chi2_before": stat("chi2_before"),
+        "chi2_after": stat("chi2_after"),
+        "dof_before": disc.get("dof_before", "–"),
+        "dof_after": disc.get("dof_after", "–"),
+        "p_before": stat("p_before"),
+        "p_after": stat("p_after"),
+        "where_before": (disc.get("where_before") or {}).get("words") or [],
+        "where_after": (disc.get("where_after") or {}).get("words") or [],
+        "candidates": cands,
+        "ambiguous": ambiguous,
+        "aliasing": aliasing,
+        "hints": _generic_rows(disc["hints"]) if disc.get("hints") else [],
+        "augmented_model": disc.get("augmented_model"),
+    }
 
 
 def _fixed(x, fmt: str) -> str | None:
@@ -394,76 +500,123 @@ def design_section(design: dict) -> dict:
     if isinstance(cert, dict) and _finite(cert.get("efficiency")) is not None:
         eff = float(cert["efficiency"])
         crit = cert.get("criterion", design["criterion"])
-        if "plan_logdet" in cert:       # D: log det of the information, bounded from above
-            labels = ("log det of the plan's information",
-                      "certified upper bound (no plan from these candidates has more)")
+        if "plan_logdet" in cert:  # D: log det of the information, bounded from above
+            labels = (
+                "log det of the plan's information",
+                "certified upper bound (no plan from these candidates has more)",
+            )
             plan_v, bound_v = _fixed(cert.get("plan_logdet"), ".4f"), _fixed(cert.get("bound_logdet"), ".4f")
-        else:                           # A, AD, pose: the criterion, smaller is better
-            labels = (f"{crit} of the plan (smaller is better)",
-                      "certified lower bound (no plan from these candidates does better)")
+        else:  # A, AD, pose: the criterion, smaller is better
+            labels = (
+                f"{crit} of the plan (smaller is better)",
+                "certified lower bound (no plan from these candidates does better)",
+            )
             plan_v, bound_v = _fixed(cert.get("plan_value"), ".4g"), _fixed(cert.get("bound_value"), ".4g")
-        c = {"criterion": crit, "plan_label": labels[0], "bound_label": labels[1],
-             "plan": plan_v or "–", "bound": bound_v or "–",
-             "efficiency": f"{eff * 100:.2f}", "gap": f"{(1 - eff) * 100:.2f}",
-             "refined": _fixed(cert.get("refined_plan"), ".4f" if "plan_logdet" in cert else ".4g")}
+        c = {
+            "criterion": crit,
+            "plan_label": labels[0],
+            "bound_label": labels[1],
+            "plan": plan_v or "–",
+            "bound": bound_v or "–",
+            "efficiency": f"{eff * 100:.2f}",
+            "gap": f"{(1 - eff) * 100:.2f}",
+            "refined": _fixed(cert.get("refined_plan"), ".4f" if "plan_logdet" in cert else ".4g"),
+        }
     rel = m.get("relative_std") or {}
-    rows = [{"pose": i, "q": ", ".join(f"{x:.1f}" for x in p.get("q_deg", [])),
-             "load": p.get("load", ""), "repeats": p.get("repeats", 1)}
-            for i, p in enumerate(design["poses"])]
-    own = ((design.get("input_plan") or {}).get("measures") or {})
+    rows = [
+        {
+            "pose": i,
+            "q": ", ".join(f"{x:.1f}" for x in p.get("q_deg", [])),
+            "load": p.get("load", ""),
+            "repeats": p.get("repeats", 1),
+        }
+        for i, p in enumerate(design["poses"])
+    ]
+    own = (design.get("input_plan") or {}).get("measures") or {}
 
     def measures(src: dict) -> list[tuple[str, str]]:
-        return [(k, _fixed(src.get(k), ".4g")) for k in ("A", "D", "AD")
-                if _finite(src.get(k)) is not None]
+        return [(k, _fixed(src.get(k), ".4g")) for k in ("A", "D", "AD") if _finite(src.get(k)) is not None]
+
     meas = measures(m)
     if _finite(m.get("pose_rms_um")) is not None:
         meas.append(("pose (µm rms at [work])", f"{m['pose_rms_um']:.2f}"))
-    return {"criterion": design["criterion"], "configs": design.get("configs", len(rows)),
-            "candidates": (design.get("candidates") or {}).get("count"),
-            "certificate": c, "measures": meas, "own": measures(own),
-            "relative_std": [(k, _fixed(v * 100 if _finite(v) is not None else None, ".2g"))
-                             for k, v in rel.items() if _finite(v) is not None],
-            "rows": rows}
+    return {
+        "criterion": design["criterion"],
+        "configs": design.get("configs", len(rows)),
+        "candidates": (design.get("candidates") or {}).get("count"),
+        "certificate": c,
+        "measures": meas,
+        "own": measures(own),
+        "relative_std": [
+            (k, _fixed(v * 100 if _finite(v) is not None else None, ".2g"))
+            for k, v in rel.items()
+            if _finite(v) is not None
+        ],
+        "rows": rows,
+    }
 
 
-def reproduce_section(log_path: Path, log: CampaignLog, simulated: bool, inputs: dict,
-                      out: Path) -> dict:
+def reproduce_section(log_path: Path, log: CampaignLog, simulated: bool, inputs: dict, out: Path) -> dict:
     q = shlex.quote
     cmds = []
     if simulated:
-        cmds.append(("the campaign log (the scenario with its [truth], seed of the log)",
-                     f"calbench simulate {q(str(log.header.get('scenario_name', 'SCENARIO')) + '.toml')} "
-                     f"--out {q(str(log_path))} --seed {log.header.get('seed')}"))
-    def model_flag(model: str | None) -> str:   # identify and discover name the log's own
-        model = str(model or "")                 # MJCF so: "... (from the log)", "MJCF from
+        cmds.append(
+            (
+                "the campaign log (the scenario with its [truth], seed of the log)",
+                f"calbench simulate {q(str(log.header.get('scenario_name', 'SCENARIO')) + '.toml')} "
+                f"--out {q(str(log_path))} --seed {log.header.get('seed')}",
+            )
+        )
+
+    def model_flag(model: str | None) -> str:  # identify and discover name the log's own
+        model = str(model or "")  # MJCF so: "... (from the log)", "MJCF from
         return "" if not model or "from the log" in model else f" --model {q(model)}"  # the log"
+
     if "identify" in inputs:
         path, rep = inputs["identify"]
-        cmds.append(("parameters, correlation, residuals",
-                     f"calbench identify {q(str(log_path))}{model_flag(rep.model)} --method "
-                     f"{q(str(rep.method))} --json {q(str(path))}"))
+        cmds.append(
+            (
+                "parameters, correlation, residuals",
+                f"calbench identify {q(str(log_path))}{model_flag(rep.model)} --method "
+                f"{q(str(rep.method))} --json {q(str(path))}",
+            )
+        )
     if "discover" in inputs:
         path, doc = inputs["discover"]
-        cmds.append(("discovery", f"calbench discover {q(str(log_path))}"
-                                  f"{model_flag(doc.get('model'))} --json {q(str(path))}"))
+        cmds.append(
+            (
+                "discovery",
+                f"calbench discover {q(str(log_path))}{model_flag(doc.get('model'))} --json {q(str(path))}",
+            )
+        )
     if "design" in inputs:
         path, doc = inputs["design"]
         n = (doc.get("candidates") or {}).get("count")
-        cmds.append(("design", f"calbench design {q(str(doc.get('scenario', 'SCENARIO.toml')))} "
-                               f"--configs {doc.get('configs')} --criterion {q(str(doc['criterion']))}"
-                               + (f" --candidates {n}" if n else "")
-                               + (" --no-refine" if doc.get("refinement") == {} else "")
-                               + f" --json {q(str(path))}"))
-    flags = "".join(f" --{'identified' if k == 'identify' else k} {q(str(p))}"
-                    for k, (p, _) in inputs.items())
+        cmds.append(
+            (
+                "design",
+                f"calbench design {q(str(doc.get('scenario', 'SCENARIO.toml')))} "
+                f"--configs {doc.get('configs')} --criterion {q(str(doc['criterion']))}"
+                + (f" --candidates {n}" if n else "")
+                + (" --no-refine" if doc.get("refinement") == {} else "")
+                + f" --json {q(str(path))}",
+            )
+        )
+    flags = "".join(
+        f" --{'identified' if k == 'identify' else k} {q(str(p))}" for k, (p, _) in inputs.items()
+    )
     cmds.append(("this report", f"calbench report {q(str(log_path))}{flags} --out {q(str(out))}"))
-    files_ = [{"role": "campaign log", "path": str(log_path), "size": log_path.stat().st_size,
-               "sha256": _sha256(log_path)}]
+    files_ = [
+        {
+            "role": "campaign log",
+            "path": str(log_path),
+            "size": log_path.stat().st_size,
+            "sha256": _sha256(log_path),
+        }
+    ]
     for k, (p, _) in inputs.items():
-        files_.append({"role": KINDS[k][0], "path": str(p), "size": p.stat().st_size,
-                       "sha256": _sha256(p)})
-    return {"commands": cmds, "files": files_,
-            "version": log.header.get("calbench_version", "?")}
+        files_.append({"role": KINDS[k][0], "path": str(p), "size": p.stat().st_size, "sha256": _sha256(p)})
+    return {"commands": cmds, "files": files_, "version": log.header.get("calbench_version", "?")}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -473,23 +626,31 @@ def reproduce_section(log_path: Path, log: CampaignLog, simulated: bool, inputs:
 
 def render(context: dict) -> str:
     import jinja2
+
     env = jinja2.Environment(
         loader=jinja2.FileSystemLoader(str(files("calbench.identify.report").joinpath("templates"))),
-        autoescape=True, trim_blocks=True, lstrip_blocks=True, undefined=jinja2.StrictUndefined)
+        autoescape=True,
+        trim_blocks=True,
+        lstrip_blocks=True,
+        undefined=jinja2.StrictUndefined,
+    )
     return env.get_template("report.html.j2").render(**context)
 
 
-def build_report(log_path, identified=None, discover=None, design=None,
-                 out: str | os.PathLike = "REPORT.html") -> str:
+def build_report(
+    log_path, identified=None, discover=None, design=None, out: str | os.PathLike = "REPORT.html"
+) -> str:
     """The report's HTML text. ``out`` only names the report in its reproduce section."""
     log_path = Path(log_path)
-    log = read_log(log_path)                     # what identification had: no truth
+    log = read_log(log_path)  # what identification had: no truth
     simulated = has_truth(log_path)
     inputs: dict[str, tuple[Path, dict]] = {}
     for kind, path in (("identify", identified), ("discover", discover), ("design", design)):
         if path is not None:
-            inputs[kind] = (Path(path), read_identified(path) if kind == "identify"
-                            else read_json_report(path, kind))
+            inputs[kind] = (
+                Path(path),
+                read_identified(path) if kind == "identify" else read_json_report(path, kind),
+            )
     ident = inputs.get("identify", (None, None))[1]
     disc = inputs.get("discover", (None, None))[1]
     plan = inputs.get("design", (None, None))[1]
@@ -512,11 +673,24 @@ def build_report(log_path, identified=None, discover=None, design=None,
 def write_report(log_path, out, identified=None, discover=None, design=None) -> Path:
     """Write the report to ``out`` (atomically, bench/core/outputs.py) and return its path.
     Raises InputError before writing anything on bad input."""
-    out = check_outputs({"--out": out}, {"LOG.mcap": log_path, "--identified": identified,
-                                         "--discover": discover, "--design": design})["--out"]
+    out = check_outputs(
+        {"--out": out},
+        {"LOG.mcap": log_path, "--identified": identified, "--discover": discover, "--design": design},
+    )["--out"]
     return write_text(out, build_report(log_path, identified, discover, design, out))
 
 
-__all__ = ["write_report", "build_report", "read_json_report", "read_identified", "campaign_section",
-           "parameters_section", "correlation_section", "residuals_section",
-           "discovery_section", "design_section", "aliasing_rows", "ambiguous_rows"]
+__all__ = [
+    "write_report",
+    "build_report",
+    "read_json_report",
+    "read_identified",
+    "campaign_section",
+    "parameters_section",
+    "correlation_section",
+    "residuals_section",
+    "discovery_section",
+    "design_section",
+    "aliasing_rows",
+    "ambiguous_rows",
+]

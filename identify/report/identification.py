@@ -7,6 +7,7 @@ is the log read a second time with ``include_truth=True`` to fill the truth, err
 columns; the estimate cannot depend on it (tests/test_identify_cli.py strips the truth and
 scales every MJCF stiffness by 10 and checks the estimates do not move).
 """
+
 from __future__ import annotations
 
 import math
@@ -16,17 +17,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from calbench.bench.core.errors import InputError
+from calbench.bench.core.units import DISPLAY
 from calbench.bench.log.idreport import IdentificationReport, ObservationFit, Outlier, ParameterEstimate
 from calbench.bench.log.writer import CampaignTruth, read_log
 from calbench.bench.model.robot import Robot
-from calbench.bench.core.units import DISPLAY
-
-from calbench.identify.core.model import check_sites, load_model
-
 from calbench.identify.core.identifiability import MAX_RELATIVE_STD, OUTLIER_SIGMA, outliers
+from calbench.identify.core.model import check_sites, load_model
 from calbench.identify.core.observations import Observations, from_log
-from calbench.identify.methods.onestep import one_step
 from calbench.identify.core.profile import Profile
+from calbench.identify.methods.onestep import one_step
 from calbench.identify.methods.twostep import TwoStepError, two_step, two_step_applies
 from calbench.identify.methods.twostep_iterated import two_step_iterated
 
@@ -49,22 +48,29 @@ class Identified:
     outliers: list
     dropped: list
     extra: dict
-    names: tuple[str, ...] = ()    # the parameters (the robot's layout) and their units
+    names: tuple[str, ...] = ()  # the parameters (the robot's layout) and their units
     units: tuple[str, ...] = ()
 
 
 def _estimate(robot: Robot, obs: Observations, method: str, check_profile: bool = False):
     if method in ("two-step", "two-step-iterated"):
         r = two_step(robot, obs) if method == "two-step" else two_step_iterated(robot, obs)
-        extra = {"step1": {"names": r.step1_names,
-                           "estimate": [None if not np.isfinite(x) else float(x) for x in r.step1_k],
-                           "std": [None if not np.isfinite(x) else float(math.sqrt(x))
-                                   for x in np.diag(r.step1_cov)]},
-                 "step2": r.step2}
+        extra = {
+            "step1": {
+                "names": r.step1_names,
+                "estimate": [None if not np.isfinite(x) else float(x) for x in r.step1_k],
+                "std": [None if not np.isfinite(x) else float(math.sqrt(x)) for x in np.diag(r.step1_cov)],
+            },
+            "step2": r.step2,
+        }
         return r, extra
     r = one_step(robot, obs, check_profile=check_profile)
-    extra = {"start": r.start_method, "iterations": r.iterations, "evaluations": r.evaluations,
-             "converged": bool(r.converged)}
+    extra = {
+        "start": r.start_method,
+        "iterations": r.iterations,
+        "evaluations": r.evaluations,
+        "converged": bool(r.converged),
+    }
     if check_profile:
         extra["profile"] = profile_report(r.extra["profile"], r.names)
     return r, extra
@@ -74,12 +80,19 @@ def profile_report(pr: Profile, names) -> dict:
     """The profile check per checked parameter (identify/core/profile.py): chi2's rise at +-2 Fisher
     std (None: past a bound, or no fit there) and whether it is the quadratic's (4, within a
     factor 2); a parameter that fails keeps its Fisher std (identify/methods/onestep.py says why)."""
-    return {names[i]: {"rise_plus": _num(r[0]), "rise_minus": _num(r[1]), "quadratic": not bool(pr.bad[i])}
-            for i, r in sorted(pr.rises.items())}
+    return {
+        names[i]: {"rise_plus": _num(r[0]), "rise_minus": _num(r[1]), "quadratic": not bool(pr.bad[i])}
+        for i, r in sorted(pr.rises.items())
+    }
 
 
-def identify(robot: Robot, obs: Observations, method: str = "one-step",
-             drop_outliers: bool = False, check_profile: bool = False) -> Identified:
+def identify(
+    robot: Robot,
+    obs: Observations,
+    method: str = "one-step",
+    drop_outliers: bool = False,
+    check_profile: bool = False,
+) -> Identified:
     """Estimate, flag outliers (> 5 sigma), optionally refit without them; ``check_profile``:
     the one-step's profile check too (identify/methods/onestep.py; ~0.1-0.25 s, which the studies'
     ~0.1 s campaigns do not pay)."""
@@ -89,9 +102,12 @@ def identify(robot: Robot, obs: Observations, method: str = "one-step",
         try:
             two_step_applies(robot)
         except TwoStepError as exc:
-            raise InputError(robot.source or "robot model", f"--method {method}",
-                             "a robot with at most one compensator, across one actuated hinge (paper §4)",
-                             str(exc)) from None
+            raise InputError(
+                robot.source or "robot model",
+                f"--method {method}",
+                "a robot with at most one compensator, across one actuated hinge (paper §4)",
+                str(exc),
+            ) from None
     r, extra = _estimate(robot, obs, method, check_profile)
     found = outliers(r.residual_w, obs.labels, OUTLIER_SIGMA)
     dropped: list = []
@@ -102,9 +118,23 @@ def identify(robot: Robot, obs: Observations, method: str = "one-step",
         dropped = found
         r, extra = _estimate(robot, obs, method, check_profile)
         found = outliers(r.residual_w, obs.labels, OUTLIER_SIGMA)
-    return Identified(method, obs, r.theta, r.cov, r.identifiable, dict(r.reasons), r.residual,
-                      r.residual_w, float(r.chi2), int(r.dof), found, dropped, extra,
-                      robot.layout.names, robot.layout.units)
+    return Identified(
+        method,
+        obs,
+        r.theta,
+        r.cov,
+        r.identifiable,
+        dict(r.reasons),
+        r.residual,
+        r.residual_w,
+        float(r.chi2),
+        int(r.dof),
+        found,
+        dropped,
+        extra,
+        robot.layout.names,
+        robot.layout.units,
+    )
 
 
 def truth_vector(truth: CampaignTruth | None, robot: Robot) -> np.ndarray | None:
@@ -122,8 +152,9 @@ def _num(x) -> float | None:
     return None if x is None or not np.isfinite(x) else float(x)
 
 
-def build_report(res: Identified, truth: np.ndarray | None, log_path, model_name: str,
-                 seconds: float) -> IdentificationReport:
+def build_report(
+    res: Identified, truth: np.ndarray | None, log_path, model_name: str, seconds: float
+) -> IdentificationReport:
     """The report of an identification; ``truth`` (from the log, after the estimate) fills the
     truth, error and z columns."""
     obs = res.obs
@@ -136,32 +167,46 @@ def build_report(res: Identified, truth: np.ndarray | None, log_path, model_name
         t = None if truth is None else float(truth[i])
         err = None if (est is None or t is None) else est - t
         z = None if (err is None or not std) else err / std
-        params.append(ParameterEstimate(name, units[i], est, std, t, err, z,
-                                        bool(res.identifiable[i]), res.reasons.get(name)))
+        params.append(
+            ParameterEstimate(
+                name, units[i], est, std, t, err, z, bool(res.identifiable[i]), res.reasons.get(name)
+            )
+        )
     n = res.residual.size
     cov_diag = np.concatenate([np.diagonal(c) for c in obs.cov]) if obs.poses else np.zeros(0)
     return IdentificationReport(
         method=res.method,
         parameters=tuple(params),
-        residual_rms=float(np.sqrt(np.mean(res.residual ** 2))) if n else None,
+        residual_rms=float(np.sqrt(np.mean(res.residual**2))) if n else None,
         noise_sigma=float(obs.noise_sigma),
         chi2_per_dof=res.chi2 / res.dof if res.dof > 0 else None,
-        chi2=res.chi2, dof=res.dof,
+        chi2=res.chi2,
+        dof=res.dof,
         expected_residual_rms=float(np.sqrt(np.mean(cov_diag) * res.dof / max(n, 1))) if n else None,
-        whitened_residual_rms=float(np.sqrt(np.mean(res.residual_w ** 2))) if n else None,
+        whitened_residual_rms=float(np.sqrt(np.mean(res.residual_w**2))) if n else None,
         covariance=tuple(tuple(_num(res.cov[i, j]) for j in range(len(names))) for i in range(len(names))),
-        log=str(log_path), model=model_name,
-        n_poses_planned=obs.n_planned, n_poses_used=len(obs.poses),
-        lost_poses=tuple(obs.lost_poses), truncated=bool(obs.truncated),
+        log=str(log_path),
+        model=model_name,
+        n_poses_planned=obs.n_planned,
+        n_poses_used=len(obs.poses),
+        lost_poses=tuple(obs.lost_poses),
+        truncated=bool(obs.truncated),
         n_observations=obs.n_obs(),
-        outliers=tuple(Outlier(**o) for o in res.outliers), outlier_threshold_sigma=OUTLIER_SIGMA,
+        outliers=tuple(Outlier(**o) for o in res.outliers),
+        outlier_threshold_sigma=OUTLIER_SIGMA,
         dropped_outliers=tuple(Outlier(**o) for o in res.dropped),
         seconds=seconds,
         # per observation, world frame, m: what `calbench view --identified` draws
         observations=tuple(
-            ObservationFit(int(pose), refl, predicted=tuple(float(x) for x in dp - r),
-                           measured=tuple(float(x) for x in dp), residual=tuple(float(x) for x in r))
-            for (pose, refl), dp, r in zip(obs.labels, obs.dp, res.residual.reshape(-1, 3))),
+            ObservationFit(
+                int(pose),
+                refl,
+                predicted=tuple(float(x) for x in dp - r),
+                measured=tuple(float(x) for x in dp),
+                residual=tuple(float(x) for x in r),
+            )
+            for (pose, refl), dp, r in zip(obs.labels, obs.dp, res.residual.reshape(-1, 3))
+        ),
         details={**res.extra, "tracker_noise_model": obs.tracker.model},
     )
 
@@ -177,11 +222,14 @@ def noise_source(rep: IdentificationReport) -> str:
 
 def format_table(rep: IdentificationReport) -> str:
     has_truth = rep.has_truth()
-    lines = [f"calbench identify: {rep.log} ({rep.method}; model {rep.model})",
-             f"  poses used {rep.n_poses_used} of {rep.n_poses_planned} planned, "
-             f"{rep.n_lost_poses} lost" + (f" {list(rep.lost_poses)}" if rep.lost_poses else "")
-             + (" (log truncated)" if rep.truncated else "")
-             + f"; {rep.n_observations} reflector deflections"]
+    lines = [
+        f"calbench identify: {rep.log} ({rep.method}; model {rep.model})",
+        f"  poses used {rep.n_poses_used} of {rep.n_poses_planned} planned, "
+        f"{rep.n_lost_poses} lost"
+        + (f" {list(rep.lost_poses)}" if rep.lost_poses else "")
+        + (" (log truncated)" if rep.truncated else "")
+        + f"; {rep.n_observations} reflector deflections",
+    ]
     head = f"  {'parameter':<22}{'unit':<12}{'estimate':>12} {'± std':>10}"
     if has_truth:
         head += f"{'truth':>12}{'error':>11}{'z':>7}"
@@ -195,46 +243,57 @@ def format_table(rep: IdentificationReport) -> str:
             lines.append(row)
             continue
         sd = p.std * f
-        dec = max(0, 1 - math.floor(math.log10(sd))) if sd > 0 else 3   # std to 2 digits
+        dec = max(0, 1 - math.floor(math.log10(sd))) if sd > 0 else 3  # std to 2 digits
         row = f"  {p.name:<22}{label:<12}{p.estimate * f:>12.{dec}f} {sd:>10.{dec}f}"
         if has_truth and p.truth is not None:
             row += f"{p.truth * f:>12.{dec}f}{p.error * f:>+11.{dec}f}{p.z:>+7.2f}"
         lines.append(row)
     if rep.residual_rms is not None:
-        lines.append(f"  residual RMS {rep.residual_rms * 1e6:.2f} µm per axis (expected "
-                     f"{rep.expected_residual_rms * 1e6:.2f} µm from the tracker: {noise_source(rep)}, a "
-                     f"deflection is the difference of two); χ²/dof = {rep.chi2_per_dof:.3f} ({rep.dof} dof)")
+        lines.append(
+            f"  residual RMS {rep.residual_rms * 1e6:.2f} µm per axis (expected "
+            f"{rep.expected_residual_rms * 1e6:.2f} µm from the tracker: {noise_source(rep)}, a "
+            f"deflection is the difference of two); χ²/dof = {rep.chi2_per_dof:.3f} ({rep.dof} dof)"
+        )
     for name, why in rep.unidentifiable.items():
         lines.append(f"  not identifiable: {name}: {why}")
     for name, p in rep.details.get("profile", {}).items():
         if not p["quadratic"]:
-            rise = ", ".join("none (past its bound or no fit)" if r is None else f"{r:.2f}"
-                             for r in (p["rise_plus"], p["rise_minus"]))
-            lines.append(f"  chi2 not quadratic: {name}: rises {rise} at +2/-2 std (4 if quadratic); "
-                         "its std is the Fisher std, its error is not Gaussian")
+            rise = ", ".join(
+                "none (past its bound or no fit)" if r is None else f"{r:.2f}"
+                for r in (p["rise_plus"], p["rise_minus"])
+            )
+            lines.append(
+                f"  chi2 not quadratic: {name}: rises {rise} at +2/-2 std (4 if quadratic); "
+                "its std is the Fisher std, its error is not Gaussian"
+            )
     for o in rep.outliers:
-        lines.append(f"  outlier (> {rep.outlier_threshold_sigma:g}σ): pose {o.pose} reflector "
-                     f"{o.reflector}: {o.sigma:.1f}σ" + ("" if rep.dropped_outliers else
-                                                         " (refit without: --drop-outliers)"))
+        lines.append(
+            f"  outlier (> {rep.outlier_threshold_sigma:g}σ): pose {o.pose} reflector "
+            f"{o.reflector}: {o.sigma:.1f}σ"
+            + ("" if rep.dropped_outliers else " (refit without: --drop-outliers)")
+        )
     if rep.dropped_outliers:
-        lines.append("  dropped and refitted without: " + ", ".join(
-            f"pose {o.pose} {o.reflector} ({o.sigma:.1f}σ)" for o in rep.dropped_outliers))
+        lines.append(
+            "  dropped and refitted without: "
+            + ", ".join(f"pose {o.pose} {o.reflector} ({o.sigma:.1f}σ)" for o in rep.dropped_outliers)
+        )
     if rep.details.get("converged") is False:
         lines.append("  WARNING: the estimator did not converge")
     return "\n".join(lines)
 
 
-def run_identify(log_path, model=None, method: str = "one-step",
-                 drop_outliers: bool = False, check_profile: bool = True) -> IdentificationReport:
+def run_identify(
+    log_path, model=None, method: str = "one-step", drop_outliers: bool = False, check_profile: bool = True
+) -> IdentificationReport:
     """Everything `calbench identify` does except printing; returns the report."""
     t0 = time.perf_counter()
-    log = read_log(log_path)                 # no truth: nothing below can see it
+    log = read_log(log_path)  # no truth: nothing below can see it
     obs = from_log(log)
     robot = load_model(log, model)
     check_sites(robot, obs, model or log.path)
     res = identify(robot, obs, method, drop_outliers, check_profile)
     seconds = time.perf_counter() - t0
-    truth = truth_vector(read_log(log_path, include_truth=True).truth, robot)   # for the report only
+    truth = truth_vector(read_log(log_path, include_truth=True).truth, robot)  # for the report only
     model_name = str(model) if model is not None else f"{log.header.get('robot', 'MJCF')} (from the log)"
     return build_report(res, truth, log_path, model_name, seconds)
 
@@ -250,13 +309,11 @@ def check_failed(rep: IdentificationReport, z_max: float = Z_CHECK) -> list[str]
     for p in rep.parameters:
         if p.estimate is None:
             continue
-        if not p.identifiable or p.std is None or not p.std > 0 \
-                or p.std > MAX_RELATIVE_STD * abs(p.estimate):
+        if not p.identifiable or p.std is None or not p.std > 0 or p.std > MAX_RELATIVE_STD * abs(p.estimate):
             bad.append(f"{p.name} is reported as a number the plan does not determine")
         elif p.z is not None and abs(p.z) > z_max:
             bad.append(f"{p.name}: |z| = {abs(p.z):.2f} > {z_max:g}")
     return bad
 
 
-__all__ = ["run_identify", "identify", "format_table", "build_report", "check_failed", "METHODS",
-           "Z_CHECK"]
+__all__ = ["run_identify", "identify", "format_table", "build_report", "check_failed", "METHODS", "Z_CHECK"]

@@ -38,6 +38,7 @@ Ctrl-C (KeyboardInterrupt) while results are awaited cancels every task not yet 
 (``Client.cancel``) before it propagates; what finished has already been handed to the caller,
 who keeps it (:class:`Interrupted` carries a partial result up to the command line).
 """
+
 from __future__ import annotations
 
 import itertools
@@ -45,8 +46,9 @@ import logging
 import os
 import uuid
 from collections import deque
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable, Iterator, Sequence
+from typing import Any
 
 from calbench.bench.core.errors import InputError
 
@@ -57,10 +59,10 @@ SCHEMES = ("tcp://", "tls://")
 KEYWORDS = ("local", "in-process")
 
 # measured on the 2-core machine (benchmarks/scaling_bench.py: "local_cluster", fresh process)
-LOCAL_STARTUP_S = 4.0      # import distributed, LocalCluster + Client, first task importing calbench
-LOCAL_SHUTDOWN_S = 1.0     # Client.close + LocalCluster.close (nannies stop their workers)
-TASK_OVERHEAD_S = 5e-3     # scheduling per task and worker (1000 trivial tasks on 2 workers)
-CONNECT_TIMEOUT_S = 10.0   # how long to keep trying a --scheduler address
+LOCAL_STARTUP_S = 4.0  # import distributed, LocalCluster + Client, first task importing calbench
+LOCAL_SHUTDOWN_S = 1.0  # Client.close + LocalCluster.close (nannies stop their workers)
+TASK_OVERHEAD_S = 5e-3  # scheduling per task and worker (1000 trivial tasks on 2 workers)
+CONNECT_TIMEOUT_S = 10.0  # how long to keep trying a --scheduler address
 
 
 class Interrupted(KeyboardInterrupt):
@@ -75,15 +77,18 @@ class Interrupted(KeyboardInterrupt):
 class ExecutorChoice:
     """Which executor, where, how many workers, and why (for the user)."""
 
-    kind: str                  # IN_PROCESS, LOCAL or REMOTE
-    address: str | None        # the scheduler's address (REMOTE)
-    workers: int               # worker processes (LOCAL; 1 in-process; REMOTE: known once open)
+    kind: str  # IN_PROCESS, LOCAL or REMOTE
+    address: str | None  # the scheduler's address (REMOTE)
+    workers: int  # worker processes (LOCAL; 1 in-process; REMOTE: known once open)
     reason: str
 
     def describe(self) -> str:
         procs = f"{self.workers} worker process" + ("es" if self.workers != 1 else "")
-        where = {IN_PROCESS: "in this process", LOCAL: f"on a local Dask cluster of {procs} (127.0.0.1)",
-                 REMOTE: f"on the Dask cluster at {self.address}"}[self.kind]
+        where = {
+            IN_PROCESS: "in this process",
+            LOCAL: f"on a local Dask cluster of {procs} (127.0.0.1)",
+            REMOTE: f"on the Dask cluster at {self.address}",
+        }[self.kind]
         return f"running {where}: {self.reason}"
 
 
@@ -105,12 +110,14 @@ def break_even_seconds(workers: int, tasks: int = 0) -> float:
 def configured_address() -> str | None:
     """``DASK_SCHEDULER_ADDRESS`` or the dask config's ``scheduler-address`` (None when unset)."""
     import dask
+
     addr = dask.config.get("scheduler-address", None)
     return str(addr) if addr else None
 
 
-def choose(scheduler: str | None, work_seconds: float, tasks: int = 0,
-           workers: int | None = None) -> ExecutorChoice:
+def choose(
+    scheduler: str | None, work_seconds: float, tasks: int = 0, workers: int | None = None
+) -> ExecutorChoice:
     """The executor for a job of about ``work_seconds`` of in-process work in ``tasks`` pieces.
 
     ``scheduler``: an address (tcp://, tls://), "local" (force a local cluster), "in-process",
@@ -135,8 +142,9 @@ def choose(scheduler: str | None, work_seconds: float, tasks: int = 0,
         return ExecutorChoice(LOCAL, None, n, "--scheduler local")
     if scheduler is not None:
         if not scheduler.startswith(SCHEMES) or len(scheduler) <= 6:
-            raise InputError(origin, "scheduler", "tcp://HOST:PORT, tls://HOST:PORT, local or in-process",
-                             scheduler)
+            raise InputError(
+                origin, "scheduler", "tcp://HOST:PORT, tls://HOST:PORT, local or in-process", scheduler
+            )
         return ExecutorChoice(REMOTE, scheduler, 0, f"scheduler from {origin}")
     tasks = max(int(tasks), 1)
     if n < 2 or tasks < 2:
@@ -144,13 +152,23 @@ def choose(scheduler: str | None, work_seconds: float, tasks: int = 0,
         return ExecutorChoice(IN_PROCESS, None, 1, why)
     be = break_even_seconds(n, tasks)
     if work_seconds <= be:
-        return ExecutorChoice(IN_PROCESS, None, 1, f"about {work_seconds:.1f} s of work, below the "
-                              f"{be:.0f} s a local cluster of {n} needs to pay off")
-    return ExecutorChoice(LOCAL, None, n, f"about {work_seconds:.0f} s of work in {tasks} pieces, above the "
-                          f"{be:.0f} s break-even")
+        return ExecutorChoice(
+            IN_PROCESS,
+            None,
+            1,
+            f"about {work_seconds:.1f} s of work, below the "
+            f"{be:.0f} s a local cluster of {n} needs to pay off",
+        )
+    return ExecutorChoice(
+        LOCAL,
+        None,
+        n,
+        f"about {work_seconds:.0f} s of work in {tasks} pieces, above the {be:.0f} s break-even",
+    )
 
 
 # --------------------------------------------------------------------------- executors
+
 
 class Executor:
     """Runs ``fn(*args)`` for many argument tuples; subclasses say where."""
@@ -174,7 +192,7 @@ class Executor:
     def close(self) -> None:
         pass
 
-    def __enter__(self) -> "Executor":
+    def __enter__(self) -> Executor:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -184,6 +202,7 @@ class Executor:
 def single_threaded(fn: Callable, *args: Any) -> Any:
     """Run one piece with at most one BLAS thread (see the module docstring)."""
     from threadpoolctl import threadpool_limits
+
     with threadpool_limits(limits=1, user_api="blas"):
         return fn(*args)
 
@@ -206,6 +225,7 @@ class InProcess(Executor):
 def _calbench_version() -> str | None:
     """Runs on each worker: the calbench version installed there."""
     from importlib.metadata import PackageNotFoundError, version
+
     try:
         return version("calbench")
     except PackageNotFoundError:
@@ -217,28 +237,43 @@ class DaskExecutor(Executor):
 
     def __init__(self, choice: ExecutorChoice, connect_timeout: float | None = None):
         from distributed import Client, LocalCluster, Security
+
         self.cluster = None
         if choice.kind == LOCAL:
             # dashboard_address=None turns the dashboard off, yet the scheduler still serves its
             # HTTP routes (health, metrics) on Dask's default port 8787: pinned to a free port on
             # 127.0.0.1 here, so a second cluster (another calbench run) does not warn that 8787
             # is taken
-            self.cluster = LocalCluster(n_workers=choice.workers, threads_per_worker=1, processes=True,
-                                        host="127.0.0.1", scheduler_port=0, dashboard_address=None,
-                                        scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
-                                        silence_logs=logging.ERROR)
+            self.cluster = LocalCluster(
+                n_workers=choice.workers,
+                threads_per_worker=1,
+                processes=True,
+                host="127.0.0.1",
+                scheduler_port=0,
+                dashboard_address=None,
+                scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+                silence_logs=logging.ERROR,
+            )
             self.client = Client(self.cluster)
         else:
             sec = Security()
             if choice.address.startswith("tls://") and not (sec.tls_ca_file and sec.tls_client_cert):
-                raise InputError("--scheduler", "scheduler", "Dask's security configuration for a tls:// "
-                                 "address (distributed.comm.tls.ca-file, .client.cert, .client.key; e.g. "
-                                 "DASK_DISTRIBUTED__COMM__TLS__CA_FILE; see docs/studies.md)", choice.address)
+                raise InputError(
+                    "--scheduler",
+                    "scheduler",
+                    "Dask's security configuration for a tls:// "
+                    "address (distributed.comm.tls.ca-file, .client.cert, .client.key; e.g. "
+                    "DASK_DISTRIBUTED__COMM__TLS__CA_FILE; see docs/studies.md)",
+                    choice.address,
+                )
             try:
-                self.client = Client(choice.address, timeout=connect_timeout or CONNECT_TIMEOUT_S, security=sec)
+                self.client = Client(
+                    choice.address, timeout=connect_timeout or CONNECT_TIMEOUT_S, security=sec
+                )
             except (OSError, TimeoutError, ValueError) as exc:
-                raise InputError("--scheduler", "scheduler", "a reachable Dask scheduler",
-                                 f"{choice.address}: {exc}") from None
+                raise InputError(
+                    "--scheduler", "scheduler", "a reachable Dask scheduler", f"{choice.address}: {exc}"
+                ) from None
             self._check_workers()
             n = len(self.client.scheduler_info().get("workers", {}))
             choice = ExecutorChoice(REMOTE, choice.address, n, choice.reason)
@@ -250,12 +285,17 @@ class DaskExecutor(Executor):
         for addr, theirs in self.client.run(_calbench_version).items():
             if theirs != mine:
                 self.close()
-                raise InputError("--scheduler", "workers", f"calbench {mine} installed on every worker "
-                                 "(pip install calbench there)", f"{addr}: {theirs or 'not installed'}")
+                raise InputError(
+                    "--scheduler",
+                    "workers",
+                    f"calbench {mine} installed on every worker (pip install calbench there)",
+                    f"{addr}: {theirs or 'not installed'}",
+                )
 
     def _submit(self, fn, args, tag: str, i: int):
-        return self.client.submit(single_threaded, fn, *args, key=f"calbench-{fn.__name__}-{tag}-{i}",
-                                  retries=0)
+        return self.client.submit(
+            single_threaded, fn, *args, key=f"calbench-{fn.__name__}-{tag}-{i}", retries=0
+        )
 
     def _cancel(self, futures) -> None:
         pending = [f for f in futures if not f.done()]
@@ -264,8 +304,9 @@ class DaskExecutor(Executor):
 
     def run(self, fn, arglist, shared=()):
         from distributed import as_completed
+
         tag = uuid.uuid4().hex[:12]
-        held = [self.client.scatter([x], hash=False)[0] for x in shared]   # each as one object
+        held = [self.client.scatter([x], hash=False)[0] for x in shared]  # each as one object
         futures = [self._submit(fn, (*held, *a), tag, i) for i, a in enumerate(arglist)]
         index = {f.key: i for i, f in enumerate(futures)}
         try:
@@ -273,7 +314,7 @@ class DaskExecutor(Executor):
                 res = fut.result()
                 fut.release()
                 yield index[fut.key], res
-        finally:                      # done, failed, interrupted or abandoned: nothing left running
+        finally:  # done, failed, interrupted or abandoned: nothing left running
             self._cancel(futures)
             self._cancel(held)
 
@@ -310,5 +351,18 @@ def open_executor(choice: ExecutorChoice) -> Executor:
     return InProcess(choice) if choice.kind == IN_PROCESS else DaskExecutor(choice)
 
 
-__all__ = ["ExecutorChoice", "Executor", "InProcess", "DaskExecutor", "Interrupted", "choose", "open_executor",
-           "break_even_seconds", "machine_workers", "configured_address", "IN_PROCESS", "LOCAL", "REMOTE"]
+__all__ = [
+    "ExecutorChoice",
+    "Executor",
+    "InProcess",
+    "DaskExecutor",
+    "Interrupted",
+    "choose",
+    "open_executor",
+    "break_even_seconds",
+    "machine_workers",
+    "configured_address",
+    "IN_PROCESS",
+    "LOCAL",
+    "REMOTE",
+]

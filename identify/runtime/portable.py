@@ -9,6 +9,7 @@ of the user, one file per distinct robot, so even killed workers leave nothing t
 the scenario's ``robot`` key points at it. The texts are the identity: the same
 PortableScenario gives the same Scenario values everywhere.
 """
+
 from __future__ import annotations
 
 import functools
@@ -30,11 +31,11 @@ _ROBOT_LINE = re.compile(r"""^(\s*robot\s*=\s*)(?:"[^"\n]*"|'[^'\n]*')""", re.MU
 
 def with_robot(text: str, robot: str) -> str:
     """The scenario text with its top-level ``robot`` set to ``robot`` (comments kept)."""
-    quoted = json.dumps(robot, ensure_ascii=False)      # a JSON string is a TOML basic string
+    quoted = json.dumps(robot, ensure_ascii=False)  # a JSON string is a TOML basic string
     new, n = _ROBOT_LINE.subn(lambda m: m.group(1) + quoted, text, count=1)
     if n == 1 and tomllib.loads(new).get("robot") == robot:
         return new
-    doc = tomllib.loads(text)           # an unusual spelling: rewrite the whole document
+    doc = tomllib.loads(text)  # an unusual spelling: rewrite the whole document
     doc["robot"] = robot
     return scenario_to_toml(doc)
 
@@ -60,17 +61,21 @@ class PortableScenario:
 
     text: str
     mjcf: str
-    robot_name: str           # the MJCF's file name, e.g. m900ib700.xml
-    filename: str             # the scenario's file name, for messages and logs
+    robot_name: str  # the MJCF's file name, e.g. m900ib700.xml
+    filename: str  # the scenario's file name, for messages and logs
 
     @classmethod
-    def from_scenario(cls, scn: Scenario) -> "PortableScenario":
+    def from_scenario(cls, scn: Scenario) -> PortableScenario:
         robot = Path(scn.robot)
-        return cls(with_robot(scn.text, robot.name), robot.read_text(encoding="utf-8"), robot.name,
-                   Path(scn.path).name)
+        return cls(
+            with_robot(scn.text, robot.name),
+            robot.read_text(encoding="utf-8"),
+            robot.name,
+            Path(scn.path).name,
+        )
 
     @classmethod
-    def from_doc(cls, doc: dict, mjcf: str, robot_name: str, filename: str) -> "PortableScenario":
+    def from_doc(cls, doc: dict, mjcf: str, robot_name: str, filename: str) -> PortableScenario:
         """From a scenario document (bench.scenario file units) and the MJCF text."""
         return cls(scenario_to_toml({**doc, "robot": robot_name}), mjcf, robot_name, filename)
 

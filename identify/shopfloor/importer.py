@@ -11,6 +11,7 @@ Steps, each validated before any output exists:
    and with which tracker pose (the plan's, or the registration with its residual and
    uncertainty).
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -18,12 +19,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from calbench.bench.core.errors import InputError
-from calbench.bench.shopfloor.logcsv import ImportSummary, campaign_readings, write_imported_log
 from calbench.bench.core.outputs import atomic_path
-from calbench.bench.shopfloor.readings import ReadingsTable, read_readings
 from calbench.bench.model.robot import Robot
 from calbench.bench.scenario.parse import Plan, TrackerSpec, check_joint_limits, load_plan
 from calbench.bench.scenario.timeline import start_ns
+from calbench.bench.shopfloor.logcsv import ImportSummary, campaign_readings, write_imported_log
+from calbench.bench.shopfloor.readings import ReadingsTable, read_readings
 
 from .tracker_pose import Registration, check_placed, register
 
@@ -58,8 +59,13 @@ def load_robot(plan: Plan, model: Path | None) -> tuple[Robot, Path]:
     return robot, path
 
 
-def import_readings(csv_path: str | Path, plan_path: str | Path, out: str | Path, units: str = "mm",
-                    model: str | Path | None = None) -> ImportResult:
+def import_readings(
+    csv_path: str | Path,
+    plan_path: str | Path,
+    out: str | Path,
+    units: str = "mm",
+    model: str | Path | None = None,
+) -> ImportResult:
     """Import ``csv_path`` taken along ``plan_path`` into the log ``out`` (module docstring)."""
     csv_path, out = Path(csv_path), Path(out)
     plan = load_plan(plan_path)
@@ -82,16 +88,29 @@ def import_readings(csv_path: str | Path, plan_path: str | Path, out: str | Path
     else:
         registration = register(plan, model_path, readings, table, plan.tracker)
         tracker = plan.tracker.placed(registration.fit.position, registration.fit.rotation)
-    imported = {"source": csv_path.name, "sha256": hashlib.sha256(raw).hexdigest(),
-                "units": units, "rows": len(table.readings),
-                "tracker_pose": "plan" if registration is None else "registered",
-                "registration": None if registration is None else registration.as_dict()}
+    imported = {
+        "source": csv_path.name,
+        "sha256": hashlib.sha256(raw).hexdigest(),
+        "units": units,
+        "rows": len(table.readings),
+        "tracker_pose": "plan" if registration is None else "registered",
+        "registration": None if registration is None else registration.as_dict(),
+    }
     origin = None if not table.has_time else 0 if table.absolute_time else start_ns(plan.start_time)
     with atomic_path(out) as tmp:
-        summary = write_imported_log(plan, readings, tracker, model_path, tmp, imported,
-                                     len(table.readings), origin)
-    return ImportResult(out, plan, table, tracker, summary, imported, registration,
-                        [] if registration is None else list(registration.warnings))
+        summary = write_imported_log(
+            plan, readings, tracker, model_path, tmp, imported, len(table.readings), origin
+        )
+    return ImportResult(
+        out,
+        plan,
+        table,
+        tracker,
+        summary,
+        imported,
+        registration,
+        [] if registration is None else list(registration.warnings),
+    )
 
 
 __all__ = ["ImportResult", "import_readings", "load_robot"]

@@ -45,6 +45,7 @@ of the plan's poses (wrong pose indices, point names or unit): InputError naming
 With no pose measured in both states nothing says how much the robot sags: the rigid
 registration of the unloaded readings is kept, with a warning.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
@@ -55,25 +56,32 @@ import numpy as np
 
 from calbench.bench.campaign.run import pose_load
 from calbench.bench.core.errors import InputError
-from calbench.bench.tracker.iso10360 import correlated_marginal
-from calbench.bench.shopfloor.logcsv import Readings
-from calbench.bench.shopfloor.readings import ReadingsTable
-from calbench.identify.core.rigid import RigidFit, fit_rigid, non_collinear, rotation_exp, skew
 from calbench.bench.model.robot import Robot
 from calbench.bench.scenario.parse import Plan, TrackerSpec
+from calbench.bench.shopfloor.logcsv import Readings
+from calbench.bench.shopfloor.readings import ReadingsTable
 from calbench.bench.tracker.instrument import mean_reading, tracker_rotation
-
+from calbench.bench.tracker.iso10360 import correlated_marginal
 from calbench.identify.core.forward import ForwardModel, design_from_observations
 from calbench.identify.core.identifiability import RANK_TOL, analyze
 from calbench.identify.core.leastsq import covariance, levenberg_marquardt
 from calbench.identify.core.observations import Observations, PoseObservation, pose_observation
-from calbench.identify.methods.onestep import dtheta_dphi, generic_start, one_step, sanitize_start, to_phi, to_theta, valid_phi
+from calbench.identify.core.rigid import RigidFit, fit_rigid, non_collinear, rotation_exp
+from calbench.identify.methods.onestep import (
+    dtheta_dphi,
+    generic_start,
+    one_step,
+    sanitize_start,
+    to_phi,
+    to_theta,
+    valid_phi,
+)
 
-GEOMETRY_CHI2 = 4.0     # warn when chi2/dof > 1 + GEOMETRY_CHI2 sqrt(2/dof)
-GEOMETRY_ROUNDS = 5     # fits to settle the geometric misfit's variance (2-3 suffice)
-ABSURD_RMS = 0.2        # m per axis of the rigid registration: beyond, not the plan's poses
+GEOMETRY_CHI2 = 4.0  # warn when chi2/dof > 1 + GEOMETRY_CHI2 sqrt(2/dof)
+GEOMETRY_ROUNDS = 5  # fits to settle the geometric misfit's variance (2-3 suffice)
+ABSURD_RMS = 0.2  # m per axis of the rigid registration: beyond, not the plan's poses
 POSE_NAMES = ("rx", "ry", "rz", "tx", "ty", "tz")
-POSE_SCALE = 1e-3       # rad and m: the size of the correction the joint fit makes to the start
+POSE_SCALE = 1e-3  # rad and m: the size of the correction the joint fit makes to the start
 
 
 @dataclass(frozen=True)
@@ -83,10 +91,10 @@ class PointData:
     in the tracker frame) and fixes the row order of ``y``."""
 
     obs: Observations | None
-    y: np.ndarray               # (2, M, 3) m: unloaded, loaded, rows of obs
-    cov: np.ndarray             # (2, M, 3, 3) m^2
-    lines: list[int]            # a CSV line of each row (for messages)
-    unloaded: tuple[list[tuple[int, str]], np.ndarray, np.ndarray, list[int]]   # every unloaded point
+    y: np.ndarray  # (2, M, 3) m: unloaded, loaded, rows of obs
+    cov: np.ndarray  # (2, M, 3, 3) m^2
+    lines: list[int]  # a CSV line of each row (for messages)
+    unloaded: tuple[list[tuple[int, str]], np.ndarray, np.ndarray, list[int]]  # every unloaded point
 
 
 @dataclass
@@ -96,11 +104,11 @@ class Registration:
     fit: RigidFit
     evaluations: int
     converged: bool
-    sag: str                            # how the prediction includes the sag
-    theta: np.ndarray | None            # the elastic parameters of the sag (SI), None when rigid
-    names: tuple[str, ...] = ()         # their names (the robot's parameter layout)
-    geometry_rms: float = 0.0           # m per axis: the nominal geometry's misfit, estimated
-    misfit_chi2: float | None = None    # chi2 of the fit weighted by the readings' errors alone
+    sag: str  # how the prediction includes the sag
+    theta: np.ndarray | None  # the elastic parameters of the sag (SI), None when rigid
+    names: tuple[str, ...] = ()  # their names (the robot's parameter layout)
+    geometry_rms: float = 0.0  # m per axis: the nominal geometry's misfit, estimated
+    misfit_chi2: float | None = None  # chi2 of the fit weighted by the readings' errors alone
     warnings: list[str] = field(default_factory=list)
 
     def as_dict(self) -> dict:
@@ -108,20 +116,29 @@ class Registration:
         f = self.fit
         return {
             "method": "tracker pose fitted to the readings against the nominal model at the commanded "
-                      "poses (identify/shopfloor/tracker_pose.py); sag: " + self.sag,
-            "points": f.n_points, "evaluations": self.evaluations, "converged": self.converged,
-            "rotation": f.rotation.tolist(), "position": f.position.tolist(),
-            "rms": f.rms, "expected_rms": f.expected_rms, "chi2_per_dof": f.chi2_per_dof,
-            "rotation_std": f.rotation_std.tolist(), "position_std": f.position_std.tolist(),
-            "uncertainty_scaled_by": f.scale, "geometry_rms": self.geometry_rms,
-            "sag_parameters": None if self.theta is None else
-            {n: float(v) for n, v in zip(self.names, self.theta)},
+            "poses (identify/shopfloor/tracker_pose.py); sag: " + self.sag,
+            "points": f.n_points,
+            "evaluations": self.evaluations,
+            "converged": self.converged,
+            "rotation": f.rotation.tolist(),
+            "position": f.position.tolist(),
+            "rms": f.rms,
+            "expected_rms": f.expected_rms,
+            "chi2_per_dof": f.chi2_per_dof,
+            "rotation_std": f.rotation_std.tolist(),
+            "position_std": f.position_std.tolist(),
+            "uncertainty_scaled_by": f.scale,
+            "geometry_rms": self.geometry_rms,
+            "sag_parameters": None
+            if self.theta is None
+            else {n: float(v) for n, v in zip(self.names, self.theta)},
             "warnings": list(self.warnings),
         }
 
 
-def point_data(plan: Plan, robot: Robot, readings: Readings, table: ReadingsTable,
-               names: list[str], tracker: TrackerSpec) -> PointData:
+def point_data(
+    plan: Plan, robot: Robot, readings: Readings, table: ReadingsTable, names: list[str], tracker: TrackerSpec
+) -> PointData:
     """Mean readings per state in the tracker frame (bench.tracker.mean_reading with the
     tracker at the origin, unrotated). Their covariance is that of the readings' independent
     error, plus, for the iso10360 tracker, the field and the drift at the readings' mean time
@@ -139,6 +156,7 @@ def point_data(plan: Plan, robot: Robot, readings: Readings, table: ReadingsTabl
             c[m.seen] += correlated_marginal(tracker, m.position[m.seen], np.full(int(m.seen.sum()), t))
             m = replace(m, covariance=c)
         return m
+
     first_line: dict[tuple[int, str, str], int] = {}
     for r in table.readings:
         first_line.setdefault((r.pose, r.state, r.point), r.line)
@@ -156,9 +174,18 @@ def point_data(plan: Plan, robot: Robot, readings: Readings, table: ReadingsTabl
         if not u or not ld:
             continue
         load, _ = pose_load(robot, plan, plan.poses[p])
-        ob = pose_observation(p, plan.poses[p].q, load.force, load.moment,
-                              robot.model.site(load.site).name, names, u, ld, at_origin,
-                              ([r.time - t_first for r in u], [r.time - t_first for r in ld]))
+        ob = pose_observation(
+            p,
+            plan.poses[p].q,
+            load.force,
+            load.moment,
+            robot.model.site(load.site).name,
+            names,
+            u,
+            ld,
+            at_origin,
+            ([r.time - t_first for r in u], [r.time - t_first for r in ld]),
+        )
         if not len(ob.reflectors):
             continue
         poses.append(ob)
@@ -201,7 +228,7 @@ class JointModel:
         cov = np.zeros((m, 6, 6))
         cov[:, :3, :3], cov[:, 3:, 3:] = pts.cov[0] + g, pts.cov[1] + g
         cov[:, :3, 3:] = cov[:, 3:, :3] = g
-        self.linv = np.linalg.inv(np.linalg.cholesky(cov))                 # (M, 6, 6)
+        self.linv = np.linalg.inv(np.linalg.cholesky(cov))  # (M, 6, 6)
         self.y_w = self._white(pts.y)
 
     def _white(self, v: np.ndarray) -> np.ndarray:
@@ -250,34 +277,54 @@ def _skews(v: np.ndarray) -> np.ndarray:
     return out
 
 
-def register(plan: Plan, model: Path, readings: Readings, table: ReadingsTable,
-             tracker: TrackerSpec) -> Registration:
+def register(
+    plan: Plan, model: Path, readings: Readings, table: ReadingsTable, tracker: TrackerSpec
+) -> Registration:
     """Register the tracker (module docstring); ``tracker`` gives the noise model."""
     robot = Robot.from_file(model)
     names = list(robot.reflector_names)
     pts = point_data(plan, robot, readings, table, names, tracker)
     keys, uy, uc, ulines = pts.unloaded
     if not non_collinear(uy):
-        raise InputError(table.path, "state", "unloaded readings of at least three reflector "
-                         "positions not on one line, to register the tracker", f"{len(uy)} points")
+        raise InputError(
+            table.path,
+            "state",
+            "unloaded readings of at least three reflector "
+            "positions not on one line, to register the tracker",
+            f"{len(uy)} points",
+        )
     rigid = fit_rigid(uy, rigid_points(robot, plan, keys), uc)
     if rigid.rms > ABSURD_RMS:
         worst = int(np.argmax(np.linalg.norm(rigid.residual, axis=1)))
-        raise InputError(table.path, f"line {ulines[worst]}",
-                         f"unloaded readings that match the plan's poses (registered rigidly, within "
-                         f"{ABSURD_RMS * 1e3:.0f} mm RMS; check the pose indices, the point names and "
-                         "--units)", f"{rigid.rms * 1e3:.0f} mm RMS, pose {keys[worst][0]} "
-                         f"{keys[worst][1]} {np.linalg.norm(rigid.residual[worst]) * 1e3:.0f} mm off")
+        raise InputError(
+            table.path,
+            f"line {ulines[worst]}",
+            f"unloaded readings that match the plan's poses (registered rigidly, within "
+            f"{ABSURD_RMS * 1e3:.0f} mm RMS; check the pose indices, the point names and "
+            "--units)",
+            f"{rigid.rms * 1e3:.0f} mm RMS, pose {keys[worst][0]} "
+            f"{keys[worst][1]} {np.linalg.norm(rigid.residual[worst]) * 1e3:.0f} mm off",
+        )
     if pts.obs is None or not non_collinear(pts.y[0]):
-        reg = Registration(rigid, 1, True, "none (rigid kinematics)", None, (),
-                           warnings=["no pose was measured in both states at three or more reflector "
-                            "positions, so the unloaded sag could not be estimated: the tracker is "
-                            "registered against rigid kinematics"])
+        reg = Registration(
+            rigid,
+            1,
+            True,
+            "none (rigid kinematics)",
+            None,
+            (),
+            warnings=[
+                "no pose was measured in both states at three or more reflector "
+                "positions, so the unloaded sag could not be estimated: the tracker is "
+                "registered against rigid kinematics"
+            ],
+        )
         return _judged(reg)
     # the start: the rigid registration, and the one-step estimate from the deflections it rotates
     placed = tracker.placed(rigid.position, rigid.rotation)
-    obs_world = Observations([_rotated(p, rigid.rotation) for p in pts.obs.poses], placed,
-                             pts.obs.noise_sigma, pts.obs.n_planned)
+    obs_world = Observations(
+        [_rotated(p, rigid.rotation) for p in pts.obs.poses], placed, pts.obs.noise_sigma, pts.obs.n_planned
+    )
     estimator = Robot.from_file(model)
     theta0 = one_step(estimator, obs_world).values
     lay = robot.layout
@@ -294,9 +341,18 @@ def register(plan: Plan, model: Path, readings: Readings, table: ReadingsTable,
     for _ in range(GEOMETRY_ROUNDS):
         joint = JointModel(fm, pts, rot, g2)
         sol = levenberg_marquardt(
-            joint.evaluate, joint.y_w, x, scale, valid=lambda z: valid_phi(z[6:]),
-            free_fn=lambda jw: analyze(jw, names).identifiable, step_tol=1e-6, rank_tol=RANK_TOL,
-            max_iter=40, max_damping=30, accept_within_sigma=True)
+            joint.evaluate,
+            joint.y_w,
+            x,
+            scale,
+            valid=lambda z: valid_phi(z[6:]),
+            free_fn=lambda jw: analyze(jw, names).identifiable,
+            step_tol=1e-6,
+            rank_tol=RANK_TOL,
+            max_iter=40,
+            max_damping=30,
+            accept_within_sigma=True,
+        )
         evaluations += sol.evaluations
         # re-centre the rotation (w = 0): its Jacobian columns are then exact for the covariance
         rot = rotation_exp(sol.x[:3]) @ rot
@@ -311,24 +367,39 @@ def register(plan: Plan, model: Path, readings: Readings, table: ReadingsTable,
             break
     jw = joint._white(jac)
     r_w = joint.y_w - joint._white(f)
-    misfit_chi2 = float(np.sum(JointModel(fm, pts, rot)._white(pts.y - f) ** 2))   # readings' errors only
+    misfit_chi2 = float(np.sum(JointModel(fm, pts, rot)._white(pts.y - f) ** 2))  # readings' errors only
     free = analyze(jw * scale, names).identifiable
     cov, rank = covariance(jw * scale, free, scale, RANK_TOL)
-    resid = (xs - (pts.y @ rot.T + x[3:6])).reshape(-1, 3)              # predicted - registered, world
+    resid = (xs - (pts.y @ rot.T + x[3:6])).reshape(-1, 3)  # predicted - registered, world
     expected = float(np.sqrt(noise_var))
-    fit = RigidFit(rot, x[3:6].copy(), np.nan_to_num(cov[:6, :6]), resid, float(r_w @ r_w),
-                   resid.shape[0], expected, n_params=rank)
+    fit = RigidFit(
+        rot,
+        x[3:6].copy(),
+        np.nan_to_num(cov[:6, :6]),
+        resid,
+        float(r_w @ r_w),
+        resid.shape[0],
+        expected,
+        n_params=rank,
+    )
     theta = to_theta(x[6:], lay)
-    reg = Registration(fit, evaluations, sol.converged and settled,
-                       "the exact statics (gravity and load) with the elastic parameters fitted "
-                       "jointly with the pose", theta, tuple(lay.names),
-                       geometry_rms=float(np.sqrt(g2)), misfit_chi2=misfit_chi2,
-                       warnings=[] if sol.converged else ["the joint registration did not converge"])
+    reg = Registration(
+        fit,
+        evaluations,
+        sol.converged and settled,
+        "the exact statics (gravity and load) with the elastic parameters fitted jointly with the pose",
+        theta,
+        tuple(lay.names),
+        geometry_rms=float(np.sqrt(g2)),
+        misfit_chi2=misfit_chi2,
+        warnings=[] if sol.converged else ["the joint registration did not converge"],
+    )
     return _judged(reg)
 
 
-def check_placed(plan: Plan, model: Path, readings: Readings, table: ReadingsTable,
-                 tracker: TrackerSpec) -> float:
+def check_placed(
+    plan: Plan, model: Path, readings: Readings, table: ReadingsTable, tracker: TrackerSpec
+) -> float:
     """With the tracker where the plan puts it, the unloaded readings must be the plan's poses:
     InputError beyond ABSURD_RMS (a wrong yaw, position or unit, poses out of order), naming the
     worst row. Returns the RMS distance per axis to rigid kinematics (m: the sag, the geometry
@@ -337,15 +408,19 @@ def check_placed(plan: Plan, model: Path, readings: Readings, table: ReadingsTab
     names = list(robot.reflector_names)
     keys, uy, uc, ulines = point_data(plan, robot, readings, table, names, tracker).unloaded
     resid = rigid_points(robot, plan, keys) - (uy @ tracker_rotation(tracker).T + tracker.position)
-    rms = float(np.sqrt(np.mean(resid ** 2))) if len(resid) else 0.0
+    rms = float(np.sqrt(np.mean(resid**2))) if len(resid) else 0.0
     if rms > ABSURD_RMS:
         worst = int(np.argmax(np.linalg.norm(resid, axis=1)))
-        raise InputError(table.path, f"line {ulines[worst]}",
-                         f"unloaded readings that match the plan's poses seen from its [tracker] "
-                         f"position and yaw (within {ABSURD_RMS * 1e3:.0f} mm RMS; check them, the pose "
-                         "indices, the point names and --units; without a position the tracker is "
-                         "registered)", f"{rms * 1e3:.0f} mm RMS, pose {keys[worst][0]} {keys[worst][1]} "
-                         f"{np.linalg.norm(resid[worst]) * 1e3:.0f} mm off")
+        raise InputError(
+            table.path,
+            f"line {ulines[worst]}",
+            f"unloaded readings that match the plan's poses seen from its [tracker] "
+            f"position and yaw (within {ABSURD_RMS * 1e3:.0f} mm RMS; check them, the pose "
+            "indices, the point names and --units; without a position the tracker is "
+            "registered)",
+            f"{rms * 1e3:.0f} mm RMS, pose {keys[worst][0]} {keys[worst][1]} "
+            f"{np.linalg.norm(resid[worst]) * 1e3:.0f} mm off",
+        )
     return rms
 
 
@@ -361,15 +436,24 @@ def _judged(reg: Registration) -> Registration:
     chi2 = fit.chi2 if reg.misfit_chi2 is None else reg.misfit_chi2
     per_dof = chi2 / max(fit.dof, 1)
     if fit.dof > 0 and per_dof > 1 + GEOMETRY_CHI2 * np.sqrt(2 / fit.dof):
-        model_rms = reg.geometry_rms or np.sqrt(max(fit.rms ** 2 - fit.expected_rms ** 2, 0.0))
+        model_rms = reg.geometry_rms or np.sqrt(max(fit.rms**2 - fit.expected_rms**2, 0.0))
         reg.warnings.append(
             f"registration residual {fit.rms * 1e6:.0f} um RMS per axis where the tracker alone "
             f"gives {fit.expected_rms * 1e6:.0f} um (chi2/dof {per_dof:.1f}): the nominal geometry "
             f"is off by ~{model_rms * 1e3:.2f} mm RMS per axis; deflections cancel that to first "
             "order (README, Real measurements), the tracker's registered rotation does not (its "
-            "uncertainty includes the misfit)")
+            "uncertainty includes the misfit)"
+        )
     return reg
 
 
-__all__ = ["Registration", "register", "check_placed", "point_data", "rigid_points", "JointModel", "ABSURD_RMS",
-           "GEOMETRY_CHI2"]
+__all__ = [
+    "Registration",
+    "register",
+    "check_placed",
+    "point_data",
+    "rigid_points",
+    "JointModel",
+    "ABSURD_RMS",
+    "GEOMETRY_CHI2",
+]

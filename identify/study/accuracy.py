@@ -8,6 +8,7 @@ estimator's spread reaches (identify/study/montecarlo.py measures it), so it pre
 accuracy before anyone measures: the same plan under isotropic, spec and iso10360 noise
 (README, "Real measurements") differs only here.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -15,10 +16,10 @@ import numpy as np
 from calbench.bench.campaign.run import plan_campaign, truth_robot
 from calbench.bench.model.robot import Robot
 from calbench.bench.scenario.parse import Scenario
-
 from calbench.identify.core.forward import ForwardModel, design_from_observations
-from .montecarlo import campaign_observations, true_theta
 from calbench.identify.core.whitening import Whitener
+
+from .montecarlo import campaign_observations, true_theta
 
 
 def cramer_rao(scn: Scenario) -> tuple[np.ndarray, tuple[str, ...]]:
@@ -29,7 +30,7 @@ def cramer_rao(scn: Scenario) -> tuple[np.ndarray, tuple[str, ...]]:
     robot = Robot.from_file(scn.robot)
     theta = true_theta(scn, robot)
     _, jac = ForwardModel(robot, design_from_observations(robot, obs)).evaluate(theta)
-    jw = Whitener.from_observations(obs).mat(jac) * theta           # scaled columns
+    jw = Whitener.from_observations(obs).mat(jac) * theta  # scaled columns
     return np.linalg.pinv(jw.T @ jw) * np.outer(theta, theta), tuple(robot.layout.names)
 
 

@@ -20,6 +20,7 @@ knows. tests/test_study_memory.py runs studies both ways and compares their rows
 The function depends on nothing but its arguments (texts, seeds): it runs the same in-process
 and on any Dask worker that has calbench installed.
 """
+
 from __future__ import annotations
 
 import math
@@ -34,13 +35,12 @@ import numpy as np
 import pyarrow as pa
 
 from calbench.bench.campaign.run import plan_campaign, run_campaign, scenario_params, truth_robot
-from calbench.bench.model.effects import without_compensator
 from calbench.bench.core.errors import InputError
 from calbench.bench.core.outputs import write_text
+from calbench.bench.model.effects import without_compensator
 from calbench.bench.model.robot import Robot
 from calbench.bench.scenario.parse import Scenario
 from calbench.bench.scenario.timeline import check_size, estimate, repeats_key
-
 from calbench.identify.core.observations import Observations
 from calbench.identify.runtime.portable import PortableScenario
 
@@ -56,14 +56,33 @@ def result_columns(param_names) -> dict[str, pa.DataType]:
     """The measured columns of a study's rows, for a robot whose parameters are ``param_names``
     (its layout: k1..kN, then each compensator's stiffness and preload)."""
     return {
-        "cell": _I, "replicate": _I, "seed": _I, "cell_id": _S,
+        "cell": _I,
+        "replicate": _I,
+        "seed": _I,
+        "cell_id": _S,
         **{f"{p}_{f}": _F for p in param_names for f in PARAM_FIELDS},
-        "chi2": _F, "dof": _I, "chi2_per_dof": _F, "residual_rms": _F, "noise_sigma": _F,
-        "n_poses_planned": _I, "n_poses_used": _I, "converged": _B,
-        "expected": _S, "named_first": _S, "named_effects": _S, "detected": _B,
-        "rms_before": _F, "rms_after": _F, "noise_rms_before": _F, "noise_rms_after": _F,
-        "simulate_s": _F, "identify_s": _F, "discover_s": _F, "campaign_s": _F,
-        "worker": _S, "error": _S,
+        "chi2": _F,
+        "dof": _I,
+        "chi2_per_dof": _F,
+        "residual_rms": _F,
+        "noise_sigma": _F,
+        "n_poses_planned": _I,
+        "n_poses_used": _I,
+        "converged": _B,
+        "expected": _S,
+        "named_first": _S,
+        "named_effects": _S,
+        "detected": _B,
+        "rms_before": _F,
+        "rms_after": _F,
+        "noise_rms_before": _F,
+        "noise_rms_after": _F,
+        "simulate_s": _F,
+        "identify_s": _F,
+        "discover_s": _F,
+        "campaign_s": _F,
+        "worker": _S,
+        "error": _S,
     }
 
 
@@ -76,10 +95,10 @@ class CampaignJob:
     apart, once per cluster: :func:`run_campaigns`), what to run after the simulation, and the
     (replicate, seed) pairs."""
 
-    scenario: PortableScenario          # its mjcf is empty here
+    scenario: PortableScenario  # its mjcf is empty here
     method: str
     discover: bool
-    without: tuple[str, ...]            # effects discover's model lacks (its MJCF is shared)
+    without: tuple[str, ...]  # effects discover's model lacks (its MJCF is shared)
     expected: str | None
     replicates: tuple[tuple[int, int], ...]
 
@@ -97,7 +116,7 @@ def _named_first(rep: dict) -> str:
     return f"{s['effect']}[{s['detail']}]"
 
 
-LOG_TRACKER_MODELS = ("iso10360",)   # tracker models whose covariances use the log's stamps
+LOG_TRACKER_MODELS = ("iso10360",)  # tracker models whose covariances use the log's stamps
 
 
 def needs_log(scn: Scenario) -> bool:
@@ -123,19 +142,24 @@ def simulate_in_memory(scn: Scenario) -> Simulated:
     generator seeded by the scenario's seed, consumed as run_campaign does), then the
     observations as ``from_log`` makes them (InputError when no pose can be used, as it does)."""
     from .montecarlo import campaign_observations
+
     truth_rb = truth_robot(scn)
     repeats = [p.repeats for p in scn.poses]
     check_size(estimate(repeats, len(truth_rb.reflector_names)), scn.path, repeats_key(repeats))
     plans = plan_campaign(scn, truth_rb)
     obs = campaign_observations(scn, truth_rb, plans, np.random.default_rng(scn.seed))
     if not obs.poses:
-        raise InputError(scn.path, "/tracker/measurement",
-                         "at least one complete pose with a reflector seen unloaded and loaded", "none")
-    mjcf = Path(scn.robot).read_text()             # what run_campaign attaches to the log
+        raise InputError(
+            scn.path,
+            "/tracker/measurement",
+            "at least one complete pose with a reflector seen unloaded and loaded",
+            "none",
+        )
+    mjcf = Path(scn.robot).read_text()  # what run_campaign attaches to the log
     rb = Robot.from_xml(mjcf)
     try:
         truth = rb.layout.theta(scenario_params(scn, truth_rb))
-    except ValueError:                              # as report.truth_vector
+    except ValueError:  # as report.truth_vector
         truth = None
     return Simulated(obs, mjcf, truth)
 
@@ -145,6 +169,7 @@ def identify_in_memory(sim: Simulated, method: str):
     checked, the estimate, then the truth for the report's error columns."""
     from calbench.identify.core.model import check_sites
     from calbench.identify.report.identification import build_report, identify
+
     t0 = time.perf_counter()
     robot = Robot.from_xml(sim.mjcf)
     check_sites(robot, sim.obs, sim.obs.source)
@@ -156,25 +181,33 @@ def discover_in_memory(sim: Simulated, discover_model: str | None) -> dict:
     """discover.workflow.discover on the in-memory campaign: the user's model (the log's MJCF or
     the one without ``discover_without``'s effects), the search, and the augmented MJCF built
     and loaded (discover's check that it loads), not written."""
-    from calbench.identify.discover.workflow import augmented_mjcf, discover_observations
     from calbench.identify.core.model import check_sites
+    from calbench.identify.discover.workflow import augmented_mjcf, discover_observations
+
     src = sim.mjcf if discover_model is None else discover_model
     check_sites(Robot.from_xml(src), sim.obs, sim.obs.source)
     rep, final = discover_observations(sim.obs, src)
     if final.effects:
-        Robot.from_xml(augmented_mjcf(src, final))    # must load
+        Robot.from_xml(augmented_mjcf(src, final))  # must load
     return rep
 
 
-def one_campaign(job: CampaignJob, replicate: int, seed: int, folder: Path,
-                 discover_model: str | None = None) -> dict:
+def one_campaign(
+    job: CampaignJob, replicate: int, seed: int, folder: Path, discover_model: str | None = None
+) -> dict:
     """Simulate, identify (and discover) one campaign; its record (without the cell's columns).
     In memory unless :func:`needs_log` (module docstring). Discovery is imported only where a
     campaign runs it: its import (scipy.stats, ~0.9 s once per worker) was most of the per-task
     overhead of identify-only studies."""
     from calbench.identify.report.identification import run_identify
-    rec: dict = {"replicate": replicate, "seed": seed, "expected": job.expected,
-                 "worker": f"{socket.gethostname()}:{os.getpid()}", "error": ""}
+
+    rec: dict = {
+        "replicate": replicate,
+        "seed": seed,
+        "expected": job.expected,
+        "worker": f"{socket.gethostname()}:{os.getpid()}",
+        "error": "",
+    }
     t0 = time.perf_counter()
     log = folder / f"campaign{replicate}.mcap"
     try:
@@ -183,7 +216,7 @@ def one_campaign(job: CampaignJob, replicate: int, seed: int, folder: Path,
         if needs_log(scn):
             run_campaign(scn, log)
             t1 = time.perf_counter()
-            rep = run_identify(log, None, job.method, check_profile=False)   # as in memory
+            rep = run_identify(log, None, job.method, check_profile=False)  # as in memory
         else:
             sim = simulate_in_memory(scn)
             t1 = time.perf_counter()
@@ -193,15 +226,22 @@ def one_campaign(job: CampaignJob, replicate: int, seed: int, folder: Path,
         for p in rep.parameters:
             for f in PARAM_FIELDS:
                 rec[f"{p.name}_{f}"] = _num(getattr(p, f))
-        rec.update(chi2=_num(rep.chi2), dof=rep.dof, chi2_per_dof=_num(rep.chi2_per_dof),
-                   residual_rms=_num(rep.residual_rms), noise_sigma=_num(rep.noise_sigma),
-                   n_poses_planned=rep.n_poses_planned, n_poses_used=rep.n_poses_used,
-                   converged=rep.details.get("converged"))
+        rec.update(
+            chi2=_num(rep.chi2),
+            dof=rep.dof,
+            chi2_per_dof=_num(rep.chi2_per_dof),
+            residual_rms=_num(rep.residual_rms),
+            noise_sigma=_num(rep.noise_sigma),
+            n_poses_planned=rep.n_poses_planned,
+            n_poses_used=rep.n_poses_used,
+            converged=rep.details.get("converged"),
+        )
         if job.discover:
             if sim is not None:
                 d = discover_in_memory(sim, discover_model)
             else:
                 from calbench.identify.discover.workflow import discover
+
                 model = None
                 if discover_model is not None:
                     model = folder / "model.xml"
@@ -209,11 +249,16 @@ def one_campaign(job: CampaignJob, replicate: int, seed: int, folder: Path,
                         write_text(model, discover_model)
                 d = discover(log, model, out_model=folder / "augmented.xml")
             first = _named_first(d)
-            rec.update(named_first=first, named_effects=",".join(d["named_effects"]),
-                       detected=None if job.expected is None else first == job.expected,
-                       rms_before=d["rms_before"], rms_after=d["rms_after"],
-                       noise_rms_before=d["noise_rms_before"], noise_rms_after=d["noise_rms_after"],
-                       discover_s=time.perf_counter() - t2)
+            rec.update(
+                named_first=first,
+                named_effects=",".join(d["named_effects"]),
+                detected=None if job.expected is None else first == job.expected,
+                rms_before=d["rms_before"],
+                rms_after=d["rms_after"],
+                noise_rms_before=d["noise_rms_before"],
+                noise_rms_after=d["noise_rms_after"],
+                discover_s=time.perf_counter() - t2,
+            )
     except Exception as exc:  # noqa: BLE001 - a failed campaign is a row of the study, not its end
         rec["error"] = f"{type(exc).__name__}: {exc}".splitlines()[0][:500]
     finally:
@@ -244,6 +289,19 @@ def empty_record(columns: dict[str, pa.DataType]) -> dict:
     return {k: (math.nan if t == _F else None) for k, t in columns.items()}
 
 
-__all__ = ["CampaignJob", "run_campaigns", "one_campaign", "needs_log", "LOG_TRACKER_MODELS", "simulate_in_memory", "Simulated",
-           "identify_in_memory", "discover_in_memory", "discover_model_text", "result_columns",
-           "TIMING_COLUMNS", "REMOVABLE", "empty_record"]
+__all__ = [
+    "CampaignJob",
+    "run_campaigns",
+    "one_campaign",
+    "needs_log",
+    "LOG_TRACKER_MODELS",
+    "simulate_in_memory",
+    "Simulated",
+    "identify_in_memory",
+    "discover_in_memory",
+    "discover_model_text",
+    "result_columns",
+    "TIMING_COLUMNS",
+    "REMOVABLE",
+    "empty_record",
+]

@@ -25,6 +25,7 @@ process, a local Dask cluster or the user's). A task carries the scenario's and 
 from a copy of the same estimator state, and run r's noise comes from the generator seeded by
 (seed, r) alone, so the numbers are bit-identical whatever ran them and in whatever order.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -36,30 +37,41 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.statics.batched import BatchStatics
-from calbench.bench.campaign.run import PosePlan, drifted, plan_campaign, reading_drift, truth_robot, scenario_params
+from calbench.bench.campaign.run import (
+    PosePlan,
+    drifted,
+    plan_campaign,
+    reading_drift,
+    scenario_params,
+    truth_robot,
+)
 from calbench.bench.core.progress import ProgressSink, sink
 from calbench.bench.model.robot import Robot
 from calbench.bench.scenario.parse import Scenario
+from calbench.bench.statics.batched import BatchStatics
 from calbench.bench.statics.equilibrium import StaticsSolver
-from calbench.bench.tracker.measuring import measure_campaign, reading_times
 from calbench.bench.tracker.instrument import Measurement, noise_covariance, to_tracker_frame
-
-from calbench.identify.runtime.executor import Executor, InProcess, Interrupted
+from calbench.bench.tracker.measuring import measure_campaign, reading_times
 from calbench.identify.core.observations import Observations, pose_observation
+from calbench.identify.core.whitening import Whitener
 from calbench.identify.methods.onestep import OneStep, fit_from, generic_start, sanitize_start, to_phi
-from calbench.identify.runtime.portable import PortableScenario
 from calbench.identify.methods.twostep import TwoStepError, linear_plan, two_step, two_step_applies
 from calbench.identify.methods.twostep_iterated import two_step_iterated
-from calbench.identify.core.whitening import Whitener
+from calbench.identify.runtime.executor import Executor, InProcess, Interrupted
+from calbench.identify.runtime.portable import PortableScenario
 
 METHODS = ("one-step", "two-step", "two-step-weighted", "two-step-iterated")
-MC_STEP_TOL = 1e-2   # sigma: see identify/methods/onestep.py, stopping rule
-RUNS_PER_TASK = 50   # a task of ~0.5-1 s: Dask's ~5 ms of scheduling per task stays < 1 %
+MC_STEP_TOL = 1e-2  # sigma: see identify/methods/onestep.py, stopping rule
+RUNS_PER_TASK = 50  # a task of ~0.5-1 s: Dask's ~5 ms of scheduling per task stays < 1 %
 # in-process seconds per run on the paper campaign (measured here: noise and observations, then
 # each estimator), for the choice of executor only
-SECONDS_PER_RUN = {"observations": 0.004, "one-step": 0.007, "two-step": 0.002, "two-step-weighted": 0.002,
-                   "two-step-iterated": 0.26}
+SECONDS_PER_RUN = {
+    "observations": 0.004,
+    "one-step": 0.007,
+    "two-step": 0.002,
+    "two-step-weighted": 0.002,
+    "two-step-iterated": 0.26,
+}
 
 
 def true_theta(scn: Scenario, robot: Robot) -> np.ndarray:
@@ -75,8 +87,9 @@ def two_step_ok(robot: Robot) -> bool:
     return True
 
 
-def campaign_observations(scn: Scenario, robot: Robot, plans: list[PosePlan],
-                          rng: np.random.Generator | None) -> Observations:
+def campaign_observations(
+    scn: Scenario, robot: Robot, plans: list[PosePlan], rng: np.random.Generator | None
+) -> Observations:
     """Observations of a solved campaign: noisy readings (rng; bench.measuring.measure_campaign,
     the generator consumed as by bench.campaign.run_campaign) or exact ones (rng None, with the
     tracker's covariances still attached as weights), on the campaign's timeline. The truth's
@@ -86,8 +99,9 @@ def campaign_observations(scn: Scenario, robot: Robot, plans: list[PosePlan],
     repeats = [p.repeats for p in scn.poses]
     times = reading_times(repeats, len(names))
     if rng is not None:
-        measured = measure_campaign(spec, [p.reflectors_world for p in plans], [p.visible for p in plans],
-                                    repeats, rng, times)
+        measured = measure_campaign(
+            spec, [p.reflectors_world for p in plans], [p.visible for p in plans], repeats, rng, times
+        )
     poses = []
     for plan, pose in zip(plans, scn.poses):
         readings = []
@@ -107,10 +121,21 @@ def campaign_observations(scn: Scenario, robot: Robot, plans: list[PosePlan],
                     reps.append(drifted(measured[(plan.index, state, r)], shift))
             readings.append(reps)
         site = robot.model.site(plan.load.site).name
-        when = tuple([times[(plan.index, state, r)] for r in range(pose.repeats)]
-                     for state in ("unloaded", "loaded"))
-        ob = pose_observation(plan.index, plan.q, plan.load.force, plan.load.moment, site, names,
-                              readings[0], readings[1], spec, when)
+        when = tuple(
+            [times[(plan.index, state, r)] for r in range(pose.repeats)] for state in ("unloaded", "loaded")
+        )
+        ob = pose_observation(
+            plan.index,
+            plan.q,
+            plan.load.force,
+            plan.load.moment,
+            site,
+            names,
+            readings[0],
+            readings[1],
+            spec,
+            when,
+        )
         if len(ob.reflectors):
             poses.append(ob)
     return Observations(poses, spec, float(spec.sigma), len(scn.poses), [], False, str(scn.path))
@@ -122,33 +147,42 @@ class MonteCarlo:
     runs: int
     truth: np.ndarray
     crb: np.ndarray
-    estimates: dict[str, np.ndarray]      # method -> (runs, P), NaN where not identified
-    stds: dict[str, np.ndarray]           # method -> (runs, P) reported
+    estimates: dict[str, np.ndarray]  # method -> (runs, P), NaN where not identified
+    stds: dict[str, np.ndarray]  # method -> (runs, P) reported
     times: dict[str, float]
-    noise_free: dict[str, np.ndarray]     # method -> (P,) estimate on exact data (model error)
+    noise_free: dict[str, np.ndarray]  # method -> (P,) estimate on exact data (model error)
     setup_time: float
-    names: tuple[str, ...] = ()           # the parameters (the robot's layout)
+    names: tuple[str, ...] = ()  # the parameters (the robot's layout)
     units: tuple[str, ...] = ()
-    executor: str = "in this process"     # where the runs ran (identify/runtime/executor.py)
+    executor: str = "in this process"  # where the runs ran (identify/runtime/executor.py)
     wall_seconds: float = float("nan")
-    failed: dict[str, int] = field(default_factory=dict)   # method -> runs it failed on (an error)
+    failed: dict[str, int] = field(default_factory=dict)  # method -> runs it failed on (an error)
 
     def summary(self) -> dict:
         n = self.runs
         crb_sd0 = np.sqrt(np.diag(self.crb))
         model_error = {
-            meth: {name: (None if not np.isfinite(v) else float((v - t) / sd))
-                   for name, v, t, sd in zip(self.names, est, self.truth, crb_sd0)}
-            for meth, est in self.noise_free.items()}
-        out = {"scenario": self.scenario, "runs": n,
-               "sampling_error": {"bias_over_sigma": 1 / np.sqrt(n),
-                                  "variance_ratio": float(np.sqrt(2 / max(n - 1, 1))),
-                                  "std_ratio": float(np.sqrt(1 / (2 * max(n - 1, 1))))},
-               "setup_seconds": self.setup_time, "wall_seconds": self.wall_seconds,
-               "executor": self.executor,
-               "noise_free_error_over_crb_std": model_error,
-               "crb_std": {n_: float(v) for n_, v in zip(self.names, crb_sd0)},
-               "methods": {}}
+            meth: {
+                name: (None if not np.isfinite(v) else float((v - t) / sd))
+                for name, v, t, sd in zip(self.names, est, self.truth, crb_sd0)
+            }
+            for meth, est in self.noise_free.items()
+        }
+        out = {
+            "scenario": self.scenario,
+            "runs": n,
+            "sampling_error": {
+                "bias_over_sigma": 1 / np.sqrt(n),
+                "variance_ratio": float(np.sqrt(2 / max(n - 1, 1))),
+                "std_ratio": float(np.sqrt(1 / (2 * max(n - 1, 1)))),
+            },
+            "setup_seconds": self.setup_time,
+            "wall_seconds": self.wall_seconds,
+            "executor": self.executor,
+            "noise_free_error_over_crb_std": model_error,
+            "crb_std": {n_: float(v) for n_, v in zip(self.names, crb_sd0)},
+            "methods": {},
+        }
         crb_sd = np.sqrt(np.diag(self.crb))
         for meth, est in self.estimates.items():
             sd = self.stds[meth]
@@ -164,25 +198,38 @@ class MonteCarlo:
                 mean = float(c.mean())
                 rep = float(np.sqrt(np.mean(sd[ok, i] ** 2)))
                 z = (c - self.truth[i]) / sd[ok, i]
-                rows.append({
-                    "name": name, "unit": self.units[i], "truth": float(self.truth[i]),
-                    "identified_runs": int(ok.sum()), "mean": mean,
-                    "bias": mean - float(self.truth[i]),
-                    "bias_over_sigma": (mean - float(self.truth[i])) / emp_sd,
-                    "empirical_std": emp_sd, "reported_std": rep,
-                    "empirical_over_reported_std": emp_sd / rep,
-                    "crb_std": float(crb_sd[i]),
-                    "variance_over_crb": emp_sd ** 2 / float(crb_sd[i]) ** 2,
-                    "mse_over_crb": float(np.mean((c - self.truth[i]) ** 2)) / float(crb_sd[i]) ** 2,
-                    # heavy tails (the two-step's s0 = (s0 K_C) / K_C): a spread that ignores them
-                    "robust_std_over_crb_std": float(1.4826 * np.median(np.abs(c - np.median(c))))
-                    / float(crb_sd[i]),
-                    "fraction_abs_z_over_4": float(np.mean(np.abs(z) > 4)),
-                    "noise_free_error_over_crb_std": float((self.noise_free[meth][i] - self.truth[i]) / crb_sd[i])
-                    if np.isfinite(self.noise_free[meth][i]) else None,
-                })
-            out["methods"][meth] = {"seconds": self.times[meth], "failed_runs": self.failed.get(meth, 0),
-                                    "seconds_per_run": self.times[meth] / n, "parameters": rows}
+                rows.append(
+                    {
+                        "name": name,
+                        "unit": self.units[i],
+                        "truth": float(self.truth[i]),
+                        "identified_runs": int(ok.sum()),
+                        "mean": mean,
+                        "bias": mean - float(self.truth[i]),
+                        "bias_over_sigma": (mean - float(self.truth[i])) / emp_sd,
+                        "empirical_std": emp_sd,
+                        "reported_std": rep,
+                        "empirical_over_reported_std": emp_sd / rep,
+                        "crb_std": float(crb_sd[i]),
+                        "variance_over_crb": emp_sd**2 / float(crb_sd[i]) ** 2,
+                        "mse_over_crb": float(np.mean((c - self.truth[i]) ** 2)) / float(crb_sd[i]) ** 2,
+                        # heavy tails (the two-step's s0 = (s0 K_C) / K_C): a spread that ignores them
+                        "robust_std_over_crb_std": float(1.4826 * np.median(np.abs(c - np.median(c))))
+                        / float(crb_sd[i]),
+                        "fraction_abs_z_over_4": float(np.mean(np.abs(z) > 4)),
+                        "noise_free_error_over_crb_std": float(
+                            (self.noise_free[meth][i] - self.truth[i]) / crb_sd[i]
+                        )
+                        if np.isfinite(self.noise_free[meth][i])
+                        else None,
+                    }
+                )
+            out["methods"][meth] = {
+                "seconds": self.times[meth],
+                "failed_runs": self.failed.get(meth, 0),
+                "seconds_per_run": self.times[meth] / n,
+                "parameters": rows,
+            }
         return out
 
 
@@ -204,8 +251,8 @@ class _Setup:
     plans: list[PosePlan]
     robot: Robot
     obs0: Observations
-    lp: object                   # the two-step's linear plan (None when it does not apply)
-    est: OneStep                 # after the noise-free fit: every run starts from a copy of it
+    lp: object  # the two-step's linear plan (None when it does not apply)
+    est: OneStep  # after the noise-free fit: every run starts from a copy of it
     theta0: np.ndarray
     scale: np.ndarray
     f0: np.ndarray
@@ -214,7 +261,7 @@ class _Setup:
     crb: np.ndarray
     noise_free: dict[str, np.ndarray]
     seconds: float
-    sag0: tuple | None = None    # the iterated two-step's noise-free sag and Newton Jacobian
+    sag0: tuple | None = None  # the iterated two-step's noise-free sag and Newton Jacobian
 
 
 @functools.lru_cache(maxsize=4)
@@ -223,7 +270,7 @@ def _setup(job: MonteCarloJob) -> _Setup:
     scn = job.scenario.scenario(job.seed)
     truth_rb = truth_robot(scn)
     plans = plan_campaign(scn, truth_rb)
-    robot = Robot.from_file(scn.robot)              # the estimator's own model: geometry only
+    robot = Robot.from_file(scn.robot)  # the estimator's own model: geometry only
     lay = robot.layout
     if any(m != "one-step" for m in job.methods):
         two_step_applies(robot)
@@ -245,7 +292,8 @@ def _setup(job: MonteCarloJob) -> _Setup:
         # of the two-step's model error is H00 (eq. 18) and the nonlinearity over the deflection
         lp_true = linear_plan(robot, obs0, {p.index: p.equilibria[0].qpos for p in plans})
         noise_free["two-step at the true sagged configuration"] = two_step(
-            robot, obs0, False, lp=lp_true, white=white0).theta
+            robot, obs0, False, lp=lp_true, white=white0
+        ).theta
         if "two-step-iterated" in job.methods:
             # the iterated method's self-consistent sag on exact data: every run starts there,
             # with its Newton Jacobian as the chord (identify/methods/twostep_iterated.py)
@@ -263,8 +311,24 @@ def _setup(job: MonteCarloJob) -> _Setup:
     _, jt = _fresh(est).model.evaluate(theta_true)
     jtw = white0.mat(jt) * theta_true  # scaled columns
     crb = np.linalg.pinv(jtw.T @ jtw) * np.outer(theta_true, theta_true)
-    return _Setup(scn, truth_rb, plans, robot, obs0, lp, est, theta0, scale, f0, j0, theta_true, crb,
-                  noise_free, time.perf_counter() - t0, sag0)
+    return _Setup(
+        scn,
+        truth_rb,
+        plans,
+        robot,
+        obs0,
+        lp,
+        est,
+        theta0,
+        scale,
+        f0,
+        j0,
+        theta_true,
+        crb,
+        noise_free,
+        time.perf_counter() - t0,
+        sag0,
+    )
 
 
 def _fresh(est: OneStep) -> OneStep:
@@ -273,8 +337,9 @@ def _fresh(est: OneStep) -> OneStep:
     are shared, not copied: the robot and the statics solvers (bench/statics/equilibrium.py,
     bench/statics/batched.py), whose MuJoCo model parameters, state and buffers every evaluation
     rewrites, and the observations (read-only); what is copied is the warm-start cache."""
-    shared = [est.robot, est.obs] + [v for v in vars(est.model).values()
-                                     if isinstance(v, (StaticsSolver, BatchStatics))]
+    shared = [est.robot, est.obs] + [
+        v for v in vars(est.model).values() if isinstance(v, (StaticsSolver, BatchStatics))
+    ]
     return copy.deepcopy(est, {id(o): o for o in shared})
 
 
@@ -302,8 +367,16 @@ def run_block(job: MonteCarloJob, first: int, stop: int) -> dict:
                 if meth == "one-step":
                     est = _fresh(s.est)
                     n_eval = est.model.stats["evaluations"]
-                    res = est.fit(obs.dp, white, s.theta0, scale=s.scale, start_eval=(s.f0, s.j0),
-                                  final_eval=False, step_tol=MC_STEP_TOL, start_method="noise-free estimate")
+                    res = est.fit(
+                        obs.dp,
+                        white,
+                        s.theta0,
+                        scale=s.scale,
+                        start_eval=(s.f0, s.j0),
+                        final_eval=False,
+                        step_tol=MC_STEP_TOL,
+                        start_method="noise-free estimate",
+                    )
                     iters.append((res.iterations, est.model.stats["evaluations"] - n_eval))
                 elif meth == "two-step-iterated":
                     res = two_step_iterated(s.robot, obs, start=s.sag0[0], jacobian=s.sag0[1])
@@ -327,8 +400,14 @@ def estimated_seconds(runs: int, methods=METHODS) -> float:
     return runs * (SECONDS_PER_RUN["observations"] + sum(SECONDS_PER_RUN[m] for m in methods))
 
 
-def run_montecarlo(scn: Scenario, runs: int, methods=METHODS, progress: ProgressSink | None = None,
-                   seed: int | None = None, executor: Executor | None = None) -> MonteCarlo:
+def run_montecarlo(
+    scn: Scenario,
+    runs: int,
+    methods=METHODS,
+    progress: ProgressSink | None = None,
+    seed: int | None = None,
+    executor: Executor | None = None,
+) -> MonteCarlo:
     """N runs of the estimators on the scenario's campaign; see the module docstring. The
     two-step methods need a robot the two-step applies to (TwoStepError otherwise).
 
@@ -352,15 +431,27 @@ def run_montecarlo(scn: Scenario, runs: int, methods=METHODS, progress: Progress
     bar.start(runs, "Monte Carlo")
 
     def result(keep: np.ndarray) -> MonteCarlo:
-        mc = MonteCarlo(str(scn.path), int(keep.sum()), s.theta_true, s.crb,
-                        {m: v[keep] for m, v in estimates.items()}, {m: v[keep] for m, v in stds.items()},
-                        times, s.noise_free, s.seconds, lay.names, lay.units, executor.choice.describe(),
-                        time.perf_counter() - t_wall, dict(failed))
+        mc = MonteCarlo(
+            str(scn.path),
+            int(keep.sum()),
+            s.theta_true,
+            s.crb,
+            {m: v[keep] for m, v in estimates.items()},
+            {m: v[keep] for m, v in stds.items()},
+            times,
+            s.noise_free,
+            s.seconds,
+            lay.names,
+            lay.units,
+            executor.choice.describe(),
+            time.perf_counter() - t_wall,
+            dict(failed),
+        )
         mc.iterations = np.array([it for i in sorted(iters) for it in iters[i]])
         return mc
 
     try:
-        with contextlib.closing(executor.run(run_block, blocks)) as results:   # closed: nothing left running
+        with contextlib.closing(executor.run(run_block, blocks)) as results:  # closed: nothing left running
             for i, out in results:
                 _, a, b = blocks[i]
                 for m in methods:
@@ -377,25 +468,41 @@ def run_montecarlo(scn: Scenario, runs: int, methods=METHODS, progress: Progress
 
 
 def format_summary(s: dict) -> str:
-    lines = [f"Monte Carlo: {s['runs']} runs of {Path(s['scenario']).name} "
-             f"(sampling error: bias/sigma +-{s['sampling_error']['bias_over_sigma']:.3f}, "
-             f"variance ratio +-{s['sampling_error']['variance_ratio']:.3f})"]
+    lines = [
+        f"Monte Carlo: {s['runs']} runs of {Path(s['scenario']).name} "
+        f"(sampling error: bias/sigma +-{s['sampling_error']['bias_over_sigma']:.3f}, "
+        f"variance ratio +-{s['sampling_error']['variance_ratio']:.3f})"
+    ]
     for meth, d in s["methods"].items():
         fails = f"; failed on {d['failed_runs']} runs (left out)" if d.get("failed_runs") else ""
         lines.append(f"\n{meth}  ({d['seconds']:.2f} s, {1e3 * d['seconds_per_run']:.1f} ms/run{fails})")
-        lines.append(f"  {'parameter':<22}{'bias/sd':>9}{'sd/rep.sd':>11}{'var/CRB':>9}{'MSE/CRB':>9}"
-                     f"{'noise-free err/CRBsd':>22}")
+        lines.append(
+            f"  {'parameter':<22}{'bias/sd':>9}{'sd/rep.sd':>11}{'var/CRB':>9}{'MSE/CRB':>9}"
+            f"{'noise-free err/CRBsd':>22}"
+        )
         for p in d["parameters"]:
             if "bias_over_sigma" not in p:
                 lines.append(f"  {p['name']:<22}  not identified")
                 continue
             nfe = p["noise_free_error_over_crb_std"]
             g = lambda x: f"{x:.3f}" if abs(x) < 1e4 else f"{x:.2e}"  # noqa: E731
-            lines.append(f"  {p['name']:<22}{g(p['bias_over_sigma']):>9} {g(p['empirical_over_reported_std']):>10}"
-                         f" {g(p['variance_over_crb']):>9} {g(p['mse_over_crb']):>9}"
-                         f"{(g(nfe) if nfe is not None else 'n/a'):>22}")
+            lines.append(
+                f"  {p['name']:<22}{g(p['bias_over_sigma']):>9} {g(p['empirical_over_reported_std']):>10}"
+                f" {g(p['variance_over_crb']):>9} {g(p['mse_over_crb']):>9}"
+                f"{(g(nfe) if nfe is not None else 'n/a'):>22}"
+            )
     return "\n".join(lines)
 
 
-__all__ = ["campaign_observations", "run_montecarlo", "run_block", "estimated_seconds", "MonteCarlo",
-           "MonteCarloJob", "format_summary", "true_theta", "two_step_ok", "RUNS_PER_TASK"]
+__all__ = [
+    "campaign_observations",
+    "run_montecarlo",
+    "run_block",
+    "estimated_seconds",
+    "MonteCarlo",
+    "MonteCarloJob",
+    "format_summary",
+    "true_theta",
+    "two_step_ok",
+    "RUNS_PER_TASK",
+]

@@ -7,6 +7,7 @@
   the expected effect first against the axis, one curve per combination of the other axes'
   values, with binomial error bars (2 standard errors).
 """
+
 from __future__ import annotations
 
 import itertools
@@ -41,8 +42,10 @@ def _slug(name: str) -> str:
 
 def _pyplot():
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     return plt
 
 
@@ -70,8 +73,12 @@ def accuracy_plots(study: Study, pooled: dict, folder: Path) -> list[Path]:
         if ax1.lines:
             ax1.legend(fontsize=7, ncol=2)
         ax2.plot(x, [np.nan if r["rms_z"] is None else r["rms_z"] for r in rows], "o-", label="RMS z")
-        ax2.plot(x, [np.nan if r["coverage_2sigma"] is None else r["coverage_2sigma"] for r in rows], "s-",
-                 label="coverage of ±2σ")
+        ax2.plot(
+            x,
+            [np.nan if r["coverage_2sigma"] is None else r["coverage_2sigma"] for r in rows],
+            "s-",
+            label="coverage of ±2σ",
+        )
         ax2.axhline(1.0, color="grey", lw=0.8)
         ax2.axhline(0.954, color="grey", lw=0.8, ls="--")
         ax2.set_ylim(0.0, max(1.5, *[r["rms_z"] or 0 for r in rows]) * 1.05)
@@ -104,9 +111,11 @@ def power_plots(study: Study, cells: list[dict], folder: Path, max_curves: int =
         fig, ax = plt.subplots(figsize=(7, 4.5))
         for combo in combos:
             want = dict(zip([b.name for b in others], combo))
-            pts = [(c["values"][a.name], c["detection_rate"], c["campaigns"] - c["failed"])
-                   for c in cells if all(c["values"][k] == v for k, v in want.items())
-                   and c["detection_rate"] is not None]
+            pts = [
+                (c["values"][a.name], c["detection_rate"], c["campaigns"] - c["failed"])
+                for c in cells
+                if all(c["values"][k] == v for k, v in want.items()) and c["detection_rate"] is not None
+            ]
             if not pts:
                 continue
             pts.sort()
@@ -114,8 +123,14 @@ def power_plots(study: Study, cells: list[dict], folder: Path, max_curves: int =
             pv = np.array([p[1] for p in pts], float)
             nv = np.maximum([p[2] for p in pts], 1)
             err = 2 * np.sqrt(pv * (1 - pv) / nv)
-            ax.errorbar(xv, pv, yerr=err, marker="o", capsize=3,
-                        label=", ".join(f"{k}={v}" for k, v in want.items()) or "all")
+            ax.errorbar(
+                xv,
+                pv,
+                yerr=err,
+                marker="o",
+                capsize=3,
+                label=", ".join(f"{k}={v}" for k, v in want.items()) or "all",
+            )
         ax.axhline(0.9, color="grey", lw=0.8, ls="--")
         ax.set_ylim(-0.05, 1.05)
         ax.set_xlabel(a.name)

@@ -10,6 +10,7 @@
    Ctrl-C cancels what is running and raises executor.Interrupted with the outcome; what finished
    is in RESULTS.parquet.
 """
+
 from __future__ import annotations
 
 import copy
@@ -23,26 +24,32 @@ from pathlib import Path
 import pyarrow as pa
 
 from calbench.identify.runtime.executor import Executor, InProcess, Interrupted
-from .campaign import (LOG_TRACKER_MODELS, CampaignJob, discover_model_text, empty_record, result_columns,
-                       run_campaigns)
+
+from .campaign import (
+    LOG_TRACKER_MODELS,
+    CampaignJob,
+    discover_model_text,
+    empty_record,
+    result_columns,
+    run_campaigns,
+)
 from .spec import Cell, Study, digest
 from .store import ResultStore
 
-CONSOLIDATE_S = 30.0     # journal -> RESULTS.parquet at most this often (and at the end), and
-                         # never more than 10 % of the time: a merge rewrites the whole file
-TARGET_TASK_S = 2.0      # campaigns per task: about this long (scheduling ~5 ms per task)
+CONSOLIDATE_S = 30.0  # journal -> RESULTS.parquet at most this often (and at the end), and
+# never more than 10 % of the time: a merge rewrites the whole file
+TARGET_TASK_S = 2.0  # campaigns per task: about this long (scheduling ~5 ms per task)
 # in-process seconds per campaign on the paper plan, for the executor choice and task sizes
 # (measured, benchmarks/scaling_bench.py --memory-only: simulate + identify 0.083 s in memory,
 # 0.20 s through the log, which iso10360 trackers need; discover 1.1 with nothing to find to
 # ~3 with an effect)
 SECONDS_PER_CAMPAIGN = {"identify": 0.09, "identify_log": 0.2, "discover": 2.0}
-SECONDS_PER_DESIGN = 10.0   # 2000 candidates (batched), exchange and refinement
+SECONDS_PER_DESIGN = 10.0  # 2000 candidates (batched), exchange and refinement
 
 
 def campaign_seconds(cell: Cell) -> float:
     tracker = cell.doc.get("tracker") or {}
-    ident = SECONDS_PER_CAMPAIGN["identify_log" if tracker.get("model") in LOG_TRACKER_MODELS
-                                 else "identify"]
+    ident = SECONDS_PER_CAMPAIGN["identify_log" if tracker.get("model") in LOG_TRACKER_MODELS else "identify"]
     return ident + (SECONDS_PER_CAMPAIGN["discover"] if cell.campaign.discover else 0)
 
 
@@ -60,7 +67,9 @@ def schema(study: Study) -> pa.Schema:
     """The results' columns: cell and replicate first, then the axes, then the measurements."""
     fields = [pa.field("cell", pa.int64()), pa.field("replicate", pa.int64())]
     fields += [pa.field(a.name, _axis_type(a.column)) for a in study.axes]
-    fields += [pa.field(k, t) for k, t in result_columns(study.param_names).items() if k not in ("cell", "replicate")]
+    fields += [
+        pa.field(k, t) for k, t in result_columns(study.param_names).items() if k not in ("cell", "replicate")
+    ]
     return pa.schema(fields)
 
 
@@ -78,14 +87,14 @@ class StudyOutcome:
     """What a run of a study did (the command line prints it)."""
 
     out: Path
-    total: int                      # campaigns in the grid
-    before: int                     # finished before this run
-    ran: int = 0                    # finished in this run
-    failed: int = 0                 # of all rows, campaigns whose record holds an error
-    designs: int = 0                # plans designed in this run
+    total: int  # campaigns in the grid
+    before: int  # finished before this run
+    ran: int = 0  # finished in this run
+    failed: int = 0  # of all rows, campaigns whose record holds an error
+    designs: int = 0  # plans designed in this run
     seconds: float = 0.0
     interrupted: bool = False
-    rows: int = 0                   # in RESULTS.parquet now
+    rows: int = 0  # in RESULTS.parquet now
 
 
 @dataclass
@@ -94,7 +103,7 @@ class Pending:
 
     study: Study
     store: ResultStore
-    missing: dict[int, list[int]] = field(default_factory=dict)    # cell index -> replicates
+    missing: dict[int, list[int]] = field(default_factory=dict)  # cell index -> replicates
     before: int = 0
 
     @property
@@ -102,14 +111,20 @@ class Pending:
         return sum(len(r) for r in self.missing.values())
 
     def _design_keys(self) -> set:
-        return {design_key(c) for c in self.study.cells if self.missing.get(c.index) and c.plan.startswith("design:")
-                and design_key(c) not in self.store.plans}
+        return {
+            design_key(c)
+            for c in self.study.cells
+            if self.missing.get(c.index)
+            and c.plan.startswith("design:")
+            and design_key(c) not in self.store.plans
+        }
 
     def estimated_seconds(self) -> float:
         """About how long the missing work takes in this process (for the executor choice)."""
         unique = {self.study.cells[i].inputs: (self.study.cells[i], len(r)) for i, r in self.missing.items()}
-        return (sum(campaign_seconds(c) * n for c, n in unique.values())
-                + SECONDS_PER_DESIGN * len(self._design_keys()))
+        return sum(campaign_seconds(c) * n for c, n in unique.values()) + SECONDS_PER_DESIGN * len(
+            self._design_keys()
+        )
 
     def tasks(self) -> int:
         return sum(math.ceil(len(r) / per_task(self.study.cells[i])) for i, r in self.missing.items())
@@ -132,19 +147,28 @@ def design_key(cell: Cell) -> str:
 def prepare(study: Study, out: str | Path) -> Pending:
     """Read what RESULTS.parquet (and its journal) hold; refuse results of another study."""
     from calbench.bench.core.errors import InputError
+
     store = ResultStore(out, schema(study), study.text)
     have = store.load()
     known = {c.cell_id for c in study.cells}
     ids = have.column("cell_id").to_pylist()
     foreign = sum(1 for c in ids if c not in known)
     if foreign:
-        raise InputError(out, "--out", "results of this study (the same base scenario, axes and settings) or a "
-                         "new file", f"{foreign} campaigns of cells this study does not have")
+        raise InputError(
+            out,
+            "--out",
+            "results of this study (the same base scenario, axes and settings) or a new file",
+            f"{foreign} campaigns of cells this study does not have",
+        )
     done = set(zip(ids, have.column("replicate").to_pylist()))
     beyond = sum(1 for _, r in done if r >= study.seeds)
     if beyond:
-        raise InputError(out, "--out", f"at most seeds = {study.seeds} campaigns per cell (raise seeds, or use "
-                         "another --out)", f"{beyond} campaigns beyond them")
+        raise InputError(
+            out,
+            "--out",
+            f"at most seeds = {study.seeds} campaigns per cell (raise seeds, or use another --out)",
+            f"{beyond} campaigns beyond them",
+        )
     p = Pending(study, store, before=len(done))
     for cell in study.cells:
         miss = [r for r in range(study.seeds) if (cell.cell_id, r) not in done]
@@ -157,6 +181,7 @@ def _design(study: Study, cell: Cell, executor: Executor, progress) -> list:
     """The [[pose]] entries of the plan design:<criterion>:<M> for the cell's scenario."""
     from calbench.identify.design.candidates import generate_candidates, read_design_settings
     from calbench.identify.design.plan import design_plan, plan_scenario_text
+
     _, criterion, m = cell.plan.split(":")
     scn = study.portable(cell).scenario(seed=study.seed)
     settings = read_design_settings(scn.path, scn.text)
@@ -169,6 +194,7 @@ def _design(study: Study, cell: Cell, executor: Executor, progress) -> list:
 def run_study(pending: Pending, executor: Executor | None = None, progress=None) -> StudyOutcome:
     """Run the missing campaigns (see the module docstring); returns the outcome."""
     from calbench.bench.core.progress import sink
+
     t0 = time.perf_counter()
     study, store = pending.study, pending.store
     executor = executor or InProcess()
@@ -194,19 +220,31 @@ def run_study(pending: Pending, executor: Executor | None = None, progress=None)
         for i, reps in pending.missing.items():
             for r in reps:
                 groups[study.cells[i].inputs][r].append(study.cells[i])
-        models = {c.campaign.discover_without: discover_model_text(study.mjcf, c.campaign.discover_without)
-                  for c in study.cells if c.campaign.discover}
+        models = {
+            c.campaign.discover_without: discover_model_text(study.mjcf, c.campaign.discover_without)
+            for c in study.cells
+            if c.campaign.discover
+        }
         jobs, fanout = [], []
-        for inputs, by_rep in groups.items():
+        for by_rep in groups.values():
             cell = next(iter(by_rep.values()))[0]
             scn = replace(study.portable(replace(cell, doc=docs.get(cell.index, cell.doc))), mjcf="")
             reps = sorted(by_rep)
             k = per_task(cell)
             for a in range(0, len(reps), k):
-                chunk = reps[a:a + k]
-                jobs.append((CampaignJob(scn, cell.campaign.method, cell.campaign.discover,
-                                         cell.campaign.discover_without, cell.expected,
-                                         tuple((r, study.campaign_seed(r)) for r in chunk)),))
+                chunk = reps[a : a + k]
+                jobs.append(
+                    (
+                        CampaignJob(
+                            scn,
+                            cell.campaign.method,
+                            cell.campaign.discover,
+                            cell.campaign.discover_without,
+                            cell.expected,
+                            tuple((r, study.campaign_seed(r)) for r in chunk),
+                        ),
+                    )
+                )
                 fanout.append({r: by_rep[r] for r in chunk})
         bar.start(pending.campaigns, "campaigns")
         last, merge_s = time.perf_counter(), 0.0
@@ -216,8 +254,13 @@ def run_study(pending: Pending, executor: Executor | None = None, progress=None)
             rows = []
             for rec in records:
                 for cell in fanout[j][rec["replicate"]]:
-                    row = {**blank, **rec, "cell": cell.index, "cell_id": cell.cell_id,
-                           **{k: _axis_value(study, k, v) for k, v in cell.values.items()}}
+                    row = {
+                        **blank,
+                        **rec,
+                        "cell": cell.index,
+                        "cell_id": cell.cell_id,
+                        **{k: _axis_value(study, k, v) for k, v in cell.values.items()},
+                    }
                     rows.append(row)
             store.add(rows)
             outcome.ran += len(rows)
@@ -231,9 +274,10 @@ def run_study(pending: Pending, executor: Executor | None = None, progress=None)
         outcome.interrupted = True
     finally:
         if results is not None:
-            results.close()            # cancels whatever is still queued or running
-        table = store.consolidate(index, complete=not outcome.interrupted
-                                  and outcome.before + outcome.ran >= outcome.total)
+            results.close()  # cancels whatever is still queued or running
+        table = store.consolidate(
+            index, complete=not outcome.interrupted and outcome.before + outcome.ran >= outcome.total
+        )
         outcome.rows = table.num_rows
         outcome.failed = sum(1 for e in table.column("error").to_pylist() if e)
         outcome.seconds = time.perf_counter() - t0

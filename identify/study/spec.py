@@ -40,6 +40,7 @@ The campaign seeds are the study's: campaign r of every cell draws its noise fro
 derived from (study seed, r), so cells differ by what the axes change and not by their noise
 (common random numbers), and two cells with identical inputs are computed once.
 """
+
 from __future__ import annotations
 
 import copy
@@ -56,17 +57,16 @@ import numpy as np
 
 from calbench.bench.core.errors import InputError
 from calbench.bench.scenario.parse import Scenario, load_scenario
-
 from calbench.identify.design.criteria import CRITERIA
-from calbench.identify.runtime.portable import PortableScenario
 from calbench.identify.report.identification import METHODS
+from calbench.identify.runtime.portable import PortableScenario
 
 TOP_KEYS = ("name", "description", "scenario", "seeds", "seed", "campaign", "set", "axis")
 AXIS_KEYS = ("name", "key", "values", "cases", "scales")
 CASE_KEYS = ("label", "set")
 CAMPAIGN_KEYS = ("method", "discover", "discover_without")
 PLAN = "plan"
-FIXED_KEYS = ("robot", "seed")   # one robot per study; the seeds are the study's
+FIXED_KEYS = ("robot", "seed")  # one robot per study; the seeds are the study's
 _INDEX = re.compile(r"^([^\[\]]+)((?:\[\d+\])*)$")
 
 
@@ -84,10 +84,10 @@ class Axis:
     """One axis: its column name, the column value of each entry and what each entry sets."""
 
     name: str
-    column: tuple                   # the value shown in the results column, per entry
-    settings: tuple[dict, ...]      # per entry: dotted key -> value
-    scales: str | None = None       # the axis whose floats this one multiplies
-    where: str = ""                 # "axis[i]" for messages
+    column: tuple  # the value shown in the results column, per entry
+    settings: tuple[dict, ...]  # per entry: dotted key -> value
+    scales: str | None = None  # the axis whose floats this one multiplies
+    where: str = ""  # "axis[i]" for messages
 
 
 @dataclass(frozen=True)
@@ -95,13 +95,13 @@ class Cell:
     """One point of the grid: its axis values and everything a campaign there needs."""
 
     index: int
-    values: dict                    # axis name -> column value
-    doc: dict                       # scenario document (file units), poses from the plan
-    plan: str                       # "" (the base's poses), a plan file path, or design:<c>:<M>
+    values: dict  # axis name -> column value
+    doc: dict  # scenario document (file units), poses from the plan
+    plan: str  # "" (the base's poses), a plan file path, or design:<c>:<M>
     campaign: CampaignSettings
-    inputs: str                     # digest of what the campaigns depend on (not the axis labels)
-    cell_id: str                    # digest of inputs and axis values: the row identity
-    expected: str | None = None     # the effect discover should name first (see expected_effect)
+    inputs: str  # digest of what the campaigns depend on (not the axis labels)
+    cell_id: str  # digest of inputs and axis values: the row identity
+    expected: str | None = None  # the effect discover should name first (see expected_effect)
 
 
 @dataclass(frozen=True)
@@ -116,7 +116,7 @@ class Study:
     seed: int
     campaign: CampaignSettings
     axes: tuple[Axis, ...]
-    param_names: tuple[str, ...]          # the robot's parameters (its layout), in order
+    param_names: tuple[str, ...]  # the robot's parameters (its layout), in order
     cells: tuple[Cell, ...] = field(repr=False)
 
     def campaign_seed(self, replicate: int) -> int:
@@ -124,10 +124,13 @@ class Study:
         return int(np.random.SeedSequence([self.seed, replicate]).generate_state(1, np.uint32)[0])
 
     def portable(self, cell: Cell) -> PortableScenario:
-        return PortableScenario.from_doc(cell.doc, self.mjcf, self.robot_name, f"{self.path.stem}-cell{cell.index}.toml")
+        return PortableScenario.from_doc(
+            cell.doc, self.mjcf, self.robot_name, f"{self.path.stem}-cell{cell.index}.toml"
+        )
 
 
 # --------------------------------------------------------------------------- helpers
+
 
 def canonical(x: Any) -> str:
     """Compact JSON with sorted keys: the identity of a value (floats by repr)."""
@@ -145,7 +148,7 @@ def column_value(v: Any) -> Any:
 
 def _split(path: Path, where: str, key: str) -> list:
     if not isinstance(key, str) or not key:
-        raise InputError(path, f"{where}.key", "a dotted scenario key, e.g. \"tracker.sigma\"", key)
+        raise InputError(path, f"{where}.key", 'a dotted scenario key, e.g. "tracker.sigma"', key)
     out: list = []
     for part in key.split("."):
         m = _INDEX.match(part)
@@ -163,14 +166,18 @@ def set_key(doc: dict, parts: list, value: Any, path: Path, where: str, key: str
         last = i == len(parts) - 1
         if isinstance(p, int):
             if not isinstance(node, list) or p >= len(node):
-                raise InputError(path, f"{where}: {key}", "an index into an existing array of the scenario", p)
+                raise InputError(
+                    path, f"{where}: {key}", "an index into an existing array of the scenario", p
+                )
             if last:
                 node[p] = copy.deepcopy(value)
             else:
                 node = node[p]
             continue
         if not isinstance(node, dict):
-            raise InputError(path, f"{where}: {key}", "a key inside a table of the scenario", ".".join(map(str, parts[:i])))
+            raise InputError(
+                path, f"{where}: {key}", "a key inside a table of the scenario", ".".join(map(str, parts[:i]))
+            )
         if last:
             node[p] = copy.deepcopy(value)
         else:
@@ -198,13 +205,17 @@ def _number(path, key, v, lo=None, integer=False):
 
 # --------------------------------------------------------------------------- parsing
 
+
 def _campaign(path: Path, tab: Any) -> CampaignSettings:
     from .campaign import REMOVABLE
+
     if not isinstance(tab, dict):
         raise InputError(path, "campaign", "a table", tab)
     for k in tab:
         if k not in CAMPAIGN_KEYS:
-            raise InputError(path, f"campaign.{k}", "no such key; allowed keys here: " + ", ".join(CAMPAIGN_KEYS))
+            raise InputError(
+                path, f"campaign.{k}", "no such key; allowed keys here: " + ", ".join(CAMPAIGN_KEYS)
+            )
     method = tab.get("method", "one-step")
     if method not in METHODS:
         raise InputError(path, "campaign.method", "one of " + ", ".join(METHODS), method)
@@ -213,8 +224,12 @@ def _campaign(path: Path, tab: Any) -> CampaignSettings:
         raise InputError(path, "campaign.discover", "true or false", disc)
     without = tab.get("discover_without", [])
     if not isinstance(without, list) or any(w not in REMOVABLE for w in without):
-        raise InputError(path, "campaign.discover_without", "an array of effects discover's model can lack: "
-                         + ", ".join(REMOVABLE), without)
+        raise InputError(
+            path,
+            "campaign.discover_without",
+            "an array of effects discover's model can lack: " + ", ".join(REMOVABLE),
+            without,
+        )
     return CampaignSettings(method, disc, tuple(without))
 
 
@@ -238,10 +253,14 @@ def _axis(path: Path, i: int, tab: Any) -> Axis:
         for j, c in enumerate(cases):
             cw = f"{where}.cases[{j}]"
             if not isinstance(c, dict) or not isinstance(c.get("label"), str):
-                raise InputError(path, f"{cw}.label", "a string label", None if not isinstance(c, dict) else c.get("label"))
+                raise InputError(
+                    path, f"{cw}.label", "a string label", None if not isinstance(c, dict) else c.get("label")
+                )
             for k in c:
                 if k not in CASE_KEYS:
-                    raise InputError(path, f"{cw}.{k}", "no such key; allowed keys here: " + ", ".join(CASE_KEYS))
+                    raise InputError(
+                        path, f"{cw}.{k}", "no such key; allowed keys here: " + ", ".join(CASE_KEYS)
+                    )
             s = c.get("set", {})
             if not isinstance(s, dict):
                 raise InputError(path, f"{cw}.set", "a table of dotted scenario keys and values", s)
@@ -274,15 +293,23 @@ def _plan_poses(path: Path, where: str, value: Any) -> tuple[str, list | None]:
         parts = value.split(":")
         ok = len(parts) == 3 and parts[1] in CRITERIA and parts[2].isdigit() and int(parts[2]) >= 1
         if not ok:
-            raise InputError(path, where, "design:<criterion>:<M> with criterion " + "|".join(CRITERIA)
-                             + " and M >= 1", value)
+            raise InputError(
+                path,
+                where,
+                "design:<criterion>:<M> with criterion " + "|".join(CRITERIA) + " and M >= 1",
+                value,
+            )
         return value, None
     f = (path.parent / value).resolve()
     try:
         doc = tomllib.loads(f.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise InputError(path, where, "a readable scenario file (relative to the study) with [[pose]] tables",
-                         f"{value}: {exc}") from None
+        raise InputError(
+            path,
+            where,
+            "a readable scenario file (relative to the study) with [[pose]] tables",
+            f"{value}: {exc}",
+        ) from None
     if not isinstance(doc.get("pose"), list) or not doc["pose"]:
         raise InputError(path, where, "a scenario file with [[pose]] tables", value)
     return str(f), doc["pose"]
@@ -293,6 +320,7 @@ def expected_effect(scn: Scenario, campaign: CampaignSettings) -> str | None:
     truth, or removed from discover's model) as ``name[detail]``; "unexplained" when it is not a
     discovery candidate; "nothing" when nothing is missing; None when several are."""
     from calbench.bench.model.effects import DISCOVERY_OPTIONS, effect_from_truth
+
     missing = [(n, t) for n, t in scn.effects.items()] + [(n, None) for n in campaign.discover_without]
     if not missing:
         return "nothing"
@@ -313,12 +341,18 @@ def _apply(doc: dict, campaign: dict, plan: list, path: Path, where: str, key: s
     parts = _split(path, where, key)
     if parts[0] == "campaign":
         if len(parts) != 2 or parts[1] not in CAMPAIGN_KEYS:
-            raise InputError(path, f"{where}: {key}", "campaign.<key> with key one of " + ", ".join(CAMPAIGN_KEYS))
+            raise InputError(
+                path, f"{where}: {key}", "campaign.<key> with key one of " + ", ".join(CAMPAIGN_KEYS)
+            )
         campaign[parts[1]] = value
         return
     if parts[0] in FIXED_KEYS:
-        raise InputError(path, f"{where}: {key}", "a key other than robot and seed (one robot per study; the "
-                         "campaign seeds come from the study's seeds and seed)")
+        raise InputError(
+            path,
+            f"{where}: {key}",
+            "a key other than robot and seed (one robot per study; the "
+            "campaign seeds come from the study's seeds and seed)",
+        )
     set_key(doc, parts, value, path, where, key)
 
 
@@ -336,7 +370,9 @@ def load_study(path: str | Path) -> Study:
         if k not in TOP_KEYS:
             raise InputError(path, k, "no such key; allowed keys here: " + ", ".join(TOP_KEYS))
     if not isinstance(top.get("scenario"), str):
-        raise InputError(path, "scenario", "the base scenario file, relative to the study", top.get("scenario"))
+        raise InputError(
+            path, "scenario", "the base scenario file, relative to the study", top.get("scenario")
+        )
     try:
         base = load_scenario((path.parent / top["scenario"]).resolve())
     except InputError as exc:
@@ -353,37 +389,62 @@ def load_study(path: str | Path) -> Study:
     axes = tuple(_axis(path, i, a) for i, a in enumerate(axes_raw))
     names = [a.name for a in axes]
     from calbench.bench.model.robot import Robot
+
     from .campaign import result_columns
+
     try:
         param_names = tuple(Robot.from_file(base.robot).layout.names)
     except ValueError as exc:
-        raise InputError(path, "scenario", "a base scenario whose robot loads", f"{base.robot}: {exc}") from None
+        raise InputError(
+            path, "scenario", "a base scenario whose robot loads", f"{base.robot}: {exc}"
+        ) from None
     reserved = result_columns(param_names)
     for a in axes:
         if names.count(a.name) > 1 or a.name in reserved:
-            raise InputError(path, f"{a.where}.name", "a column name used once and by no result column", a.name)
+            raise InputError(
+                path, f"{a.where}.name", "a column name used once and by no result column", a.name
+            )
         if a.scales is not None and (a.scales not in names or a.scales == a.name):
             raise InputError(path, f"{a.where}.scales", "the name of another axis", a.scales)
         if a.scales is not None:
             target = axes[names.index(a.scales)]
             for col, st in zip(target.column, target.settings):
                 if st and scaled(st, 2.0) == st:
-                    raise InputError(path, f"{target.where} {target.name} = {col!r}", f"a float for {a.name} to "
-                                     "scale (it scales floats only: write 6.0e6, not 6000000)", st)
+                    raise InputError(
+                        path,
+                        f"{target.where} {target.name} = {col!r}",
+                        f"a float for {a.name} to scale (it scales floats only: write 6.0e6, not 6000000)",
+                        st,
+                    )
 
     robot = Path(base.robot)
     mjcf = robot.read_text(encoding="utf-8")
     base_doc = tomllib.loads(base.text)
     base_doc.pop("robot", None)
-    base_doc["seed"] = seed              # designs use it; each campaign replaces it by its own
-    study = Study(path, text, str(top.get("name", path.stem)), base, mjcf, robot.name, seeds, seed,
-                  campaign0, axes, param_names, ())
+    base_doc["seed"] = seed  # designs use it; each campaign replaces it by its own
+    study = Study(
+        path,
+        text,
+        str(top.get("name", path.stem)),
+        base,
+        mjcf,
+        robot.name,
+        seeds,
+        seed,
+        campaign0,
+        axes,
+        param_names,
+        (),
+    )
     cells = []
     plans: dict[str, tuple[str, list | None]] = {}
     for index, combo in enumerate(np.ndindex(*[len(a.column) for a in axes]) if axes else [()]):
         doc = copy.deepcopy(base_doc)
-        camp = {"method": campaign0.method, "discover": campaign0.discover,
-                "discover_without": list(campaign0.discover_without)}
+        camp = {
+            "method": campaign0.method,
+            "discover": campaign0.discover,
+            "discover_without": list(campaign0.discover_without),
+        }
         plan = [""]
         for k, v in fixed.items():
             _apply(doc, camp, plan, path, "set", k, v)
@@ -403,26 +464,57 @@ def load_study(path: str | Path) -> Study:
             spec = ""
         camp_settings = _campaign(path, camp)
         if spec.startswith("design:pose:") and "work" not in doc:
-            raise InputError(path, _culprit(axes, combo, fixed, "pose", where), "a [work] table in the scenario "
-                             "for a design:pose plan (the deflection variance at the work pose)", spec)
+            raise InputError(
+                path,
+                _culprit(axes, combo, fixed, "pose", where),
+                "a [work] table in the scenario "
+                "for a design:pose plan (the deflection variance at the work pose)",
+                spec,
+            )
         values = {a.name: a.column[j] for a, j in zip(axes, combo)}
         cell = Cell(index, values, doc, spec, camp_settings, "", "")
         try:
             scn = study.portable(cell).scenario()
         except InputError as exc:
-            raise InputError(path, _culprit(axes, combo, fixed, exc.key, where), exc.expected, exc.got) from None
+            raise InputError(
+                path, _culprit(axes, combo, fixed, exc.key, where), exc.expected, exc.got
+            ) from None
         inputs = digest(doc, spec, camp_settings.__dict__, hashlib.sha256(mjcf.encode()).hexdigest())
-        cells.append(Cell(index, values, doc, spec, camp_settings, inputs, digest(inputs, values),
-                          expected_effect(scn, camp_settings)))
-    return Study(path, text, study.name, base, mjcf, robot.name, seeds, seed, campaign0, axes, param_names,
-                 tuple(cells))
+        cells.append(
+            Cell(
+                index,
+                values,
+                doc,
+                spec,
+                camp_settings,
+                inputs,
+                digest(inputs, values),
+                expected_effect(scn, camp_settings),
+            )
+        )
+    return Study(
+        path,
+        text,
+        study.name,
+        base,
+        mjcf,
+        robot.name,
+        seeds,
+        seed,
+        campaign0,
+        axes,
+        param_names,
+        tuple(cells),
+    )
 
 
 def _culprit(axes, combo, fixed: dict, key: str, plan_where: str) -> str:
     """Which setting of the study a scenario error comes from: 'axis[i] NAME = V: KEY' or 'set: KEY'."""
+
     def related(k: str) -> bool:
         k = k.split("[")[0]
         return key == k or key.startswith(k + ".") or key.startswith(k + "[") or k.startswith(key + ".")
+
     for a, j in zip(axes, combo):
         for k in a.settings[j]:
             if k != PLAN and related(k):
@@ -435,4 +527,13 @@ def _culprit(axes, combo, fixed: dict, key: str, plan_where: str) -> str:
     return f"(base scenario) {key}"
 
 
-__all__ = ["Study", "Axis", "Cell", "CampaignSettings", "load_study", "expected_effect", "canonical", "digest"]
+__all__ = [
+    "Study",
+    "Axis",
+    "Cell",
+    "CampaignSettings",
+    "load_study",
+    "expected_effect",
+    "canonical",
+    "digest",
+]

@@ -12,6 +12,7 @@ Rows are kept sorted by (cell, replicate), so a study that was interrupted and r
 the same file as one run in one go (up to the timing and worker columns). The file's metadata
 holds the study text, the calbench version and the designed plans (design:<c>:<M> cells).
 """
+
 from __future__ import annotations
 
 import json
@@ -55,8 +56,12 @@ class ResultStore:
         if t.schema.remove_metadata() != self.schema.remove_metadata():
             mine, theirs = set(self.schema.names), set(t.schema.names)
             diff = sorted(mine ^ theirs) or ["column types"]
-            raise InputError(self.out, "--out", "results of this study (same columns) or a new file",
-                             "columns differ: " + ", ".join(diff[:6]))
+            raise InputError(
+                self.out,
+                "--out",
+                "results of this study (same columns) or a new file",
+                "columns differ: " + ", ".join(diff[:6]),
+            )
         meta = t.schema.metadata or {}
         if b"calbench.plans" in meta:
             self.plans.update(json.loads(meta[b"calbench.plans"]))
@@ -76,7 +81,7 @@ class ResultStore:
         t = pa.concat_tables(tables)
         last: dict = {}
         for i, key in enumerate(zip(t.column("cell_id").to_pylist(), t.column("replicate").to_pylist())):
-            last[key] = i                                    # a row merged twice counts once
+            last[key] = i  # a row merged twice counts once
         return t.take(sorted(last.values()))
 
     # -- writing ------------------------------------------------------------------------------
@@ -104,8 +109,11 @@ class ResultStore:
         cells = pa.array([cell_index[c] for c in t.column("cell_id").to_pylist()], pa.int64())
         t = t.set_column(t.schema.get_field_index("cell"), "cell", cells)
         t = t.sort_by([("cell", "ascending"), ("replicate", "ascending")])
-        meta = {"calbench.study": self.study_text, "calbench.version": _version(),
-                "calbench.plans": json.dumps(self.plans)}
+        meta = {
+            "calbench.study": self.study_text,
+            "calbench.version": _version(),
+            "calbench.plans": json.dumps(self.plans),
+        }
         t = t.replace_schema_metadata(meta)
         with atomic_path(self.out) as tmp:
             pq.write_table(t, tmp)

@@ -10,6 +10,7 @@ For each cell, over its campaigns that did not fail, and per identified paramete
 and pooled over the parameters: RMS z and coverage. With discover: the detection rate (the
 expected effect named first; spec.expected_effect) and how often each answer was given.
 """
+
 from __future__ import annotations
 
 from collections import Counter
@@ -36,7 +37,7 @@ def columns(table: pa.Table, names) -> dict[str, np.ndarray]:
 
 def _rms(x: np.ndarray) -> float | None:
     x = x[np.isfinite(x)]
-    return float(np.sqrt(np.mean(x ** 2))) if x.size else None
+    return float(np.sqrt(np.mean(x**2))) if x.size else None
 
 
 def _stats(c: dict, rows: np.ndarray, names) -> dict:
@@ -55,9 +56,13 @@ def _stats(c: dict, rows: np.ndarray, names) -> dict:
         zs.append(z[fin])
         rel = err[fin] / truth[fin]
         out["parameters"][p] = {
-            "identified": int(fin.sum()), "rms_error": _rms(err[fin]), "rms_relative_error": _rms(rel),
-            "rms_z": _rms(z[fin]), "mean_z": float(np.mean(z[fin])),
-            "coverage_2sigma": float(np.mean(np.abs(z[fin]) <= COVERAGE_K))}
+            "identified": int(fin.sum()),
+            "rms_error": _rms(err[fin]),
+            "rms_relative_error": _rms(rel),
+            "rms_z": _rms(z[fin]),
+            "mean_z": float(np.mean(z[fin])),
+            "coverage_2sigma": float(np.mean(np.abs(z[fin]) <= COVERAGE_K)),
+        }
     allz = np.concatenate(zs) if zs else np.zeros(0)
     out["rms_z"] = _rms(allz)
     out["coverage_2sigma"] = float(np.mean(np.abs(allz) <= COVERAGE_K)) if allz.size else None
@@ -70,15 +75,26 @@ def _stats(c: dict, rows: np.ndarray, names) -> dict:
 
 
 def _study_columns(study: Study, table: pa.Table) -> dict[str, np.ndarray]:
-    return columns(table, ["cell", "error", "detected", "named_first", "campaign_s"] + [
-        f"{p}_{f}" for p in study.param_names for f in ("z", "error", "truth")])
+    return columns(
+        table,
+        ["cell", "error", "detected", "named_first", "campaign_s"]
+        + [f"{p}_{f}" for p in study.param_names for f in ("z", "error", "truth")],
+    )
 
 
 def cell_summaries(study: Study, table: pa.Table) -> list[dict]:
     """One dict per cell: its axis values, expected effect and :func:`_stats`."""
     c = _study_columns(study, table)
-    return [{"cell": cell.index, "values": cell.values, "plan": cell.plan, "expected": cell.expected,
-             **_stats(c, c["cell"] == cell.index, study.param_names)} for cell in study.cells]
+    return [
+        {
+            "cell": cell.index,
+            "values": cell.values,
+            "plan": cell.plan,
+            "expected": cell.expected,
+            **_stats(c, c["cell"] == cell.index, study.param_names),
+        }
+        for cell in study.cells
+    ]
 
 
 def pooled_by_axis(study: Study, table: pa.Table) -> dict[str, list[dict]]:
@@ -104,19 +120,25 @@ def format_cells(study: Study, cells: list[dict]) -> str:
     widths = [max(len(h), *(len(str(c["values"][h])) for c in cells)) for h in heads]
     disc = any(c["named_first"] for c in cells)
     line = "  ".join(f"{h:<{w}}" for h, w in zip(heads, widths))
-    line += f"  {'n':>4} {'fail':>4} {'RMS z':>6} {'±2σ':>6}" + (f" {'detect':>7}  expected -> named first" if disc else "")
+    line += f"  {'n':>4} {'fail':>4} {'RMS z':>6} {'±2σ':>6}" + (
+        f" {'detect':>7}  expected -> named first" if disc else ""
+    )
     out = [f"study {study.name}: {len(cells)} cells x {study.seeds} seeds", line]
     for c in cells:
         s = "  ".join(f"{str(c['values'][h]):<{w}}" for h, w in zip(heads, widths))
-        s += (f"  {c['campaigns']:>4} {c['failed']:>4} {_fmt(c['rms_z'], '6.2f')} "
-              f"{_fmt(None if c['coverage_2sigma'] is None else 100 * c['coverage_2sigma'], '5.1f')}%")
+        s += (
+            f"  {c['campaigns']:>4} {c['failed']:>4} {_fmt(c['rms_z'], '6.2f')} "
+            f"{_fmt(None if c['coverage_2sigma'] is None else 100 * c['coverage_2sigma'], '5.1f')}%"
+        )
         if disc:
             named = ", ".join(f"{k} {v}" for k, v in sorted(c["named_first"].items(), key=lambda kv: -kv[1]))
             s += f" {_fmt(c['detection_rate'], '7.2f')}  {c['expected']} -> {named}"
         out.append(s)
-    out.append("RMS z: RMS of (estimate - truth) / reported std over the identified parameters (1 when the "
-               "std is honest); ±2σ: share of |z| <= 2 (95.4 % expected)"
-               + ("; detect: share of campaigns naming the expected effect first" if disc else ""))
+    out.append(
+        "RMS z: RMS of (estimate - truth) / reported std over the identified parameters (1 when the "
+        "std is honest); ±2σ: share of |z| <= 2 (95.4 % expected)"
+        + ("; detect: share of campaigns naming the expected effect first" if disc else "")
+    )
     return "\n".join(out)
 
 
