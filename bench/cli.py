@@ -14,16 +14,12 @@ import signal
 import sys
 from pathlib import Path
 
-from calbench.bench.campaign.run import run_campaign
-from calbench.bench.core.outputs import atomic_path, check_outputs, write_text
-from calbench.bench.core.progress import Progress
-from calbench.bench.log.idreport import IdentificationReport
-from calbench.bench.log.read import read_log
-from calbench.bench.log.recover import recover_log
-from calbench.bench.robots.check import DEFAULT_MASS, check_robot
-from calbench.bench.scenario.parse import load_scenario
-from calbench.bench.scenario.timeline import MAX_LOG_BYTES, MAX_SECONDS, duration, size
-from calbench.bench.view.recording import (
+from calbench.bench.campaign import run_campaign
+from calbench.bench.core import Progress, atomic_path, check_outputs, write_text
+from calbench.bench.log import IdentificationReport, read_log, recover_log
+from calbench.bench.robots import DEFAULT_MASS, check_robot
+from calbench.bench.scenario import MAX_LOG_BYTES, MAX_SECONDS, duration, load_scenario, size
+from calbench.bench.view import (
     DEFAULT_MAGNIFY,
     Summary,
     build_blueprint,
@@ -162,9 +158,9 @@ def _view_summary(s: Summary, magnify: float) -> str:
 
 
 def cmd_view(args: argparse.Namespace) -> int:
-    from calbench.bench.view.recording import _check_magnify
+    from calbench.bench.view import check_magnify
 
-    magnify = _check_magnify(args.magnify)
+    magnify = check_magnify(args.magnify)
     inputs = {"LOG": args.log, "--identified": args.identified}
     if args.rrd is not None:
         check_outputs({"--rrd": args.rrd}, inputs)
@@ -232,7 +228,7 @@ def add_check_robot(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_check_robot(args: argparse.Namespace) -> int:
-    from calbench.bench.core.errors import InputError
+    from calbench.bench.core import InputError
 
     if args.grid < 1:
         raise InputError("--grid", "grid", "an integer >= 1", args.grid)
@@ -261,8 +257,7 @@ def add_export(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from calbench.bench.shopfloor.logcsv import export_rows
-    from calbench.bench.shopfloor.readings import readings_csv
+    from calbench.bench.shopfloor import export_rows, readings_csv
 
     check_outputs({"--csv": args.csv}, {"LOG": args.log})
     log = read_log(args.log)
@@ -293,8 +288,7 @@ def add_from_urdf(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_from_urdf(args: argparse.Namespace) -> int:
-    from calbench.bench.robots.overlay import load_overlay
-    from calbench.bench.robots.urdf import PLACEHOLDER_STIFFNESS, convert
+    from calbench.bench.robots import PLACEHOLDER_STIFFNESS, convert, load_overlay
 
     check_outputs({"--out": args.out}, {"URDF": args.urdf, "--overlay": args.overlay})
     conv = convert(args.urdf, load_overlay(args.overlay))

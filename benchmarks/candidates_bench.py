@@ -38,7 +38,7 @@ from pathlib import Path
 
 from steps import say
 
-from calbench.identify.design.candidates import generate_candidates, load_design_scenario
+from calbench.identify.design import generate_candidates, load_design_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = ROOT / "scenarios" / "paper_table5.toml"

@@ -30,11 +30,15 @@ from pathlib import Path
 import numpy as np
 from steps import say
 
-from calbench.identify.design.candidate_file import read_candidates
-from calbench.identify.design.candidates import generate_candidates, load_design_scenario
-from calbench.identify.design.certificate import ALGORITHMS, approximate_design
-from calbench.identify.design.exchange import Exchanger
-from calbench.identify.design.selection import select_rows
+from calbench.identify.design import (
+    ALGORITHMS,
+    Exchanger,
+    approximate_design,
+    generate_candidates,
+    load_design_scenario,
+    read_candidates,
+    select_rows,
+)
 
 ROOT = Path(__file__).resolve().parent.parent
 M = 12

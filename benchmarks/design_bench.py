@@ -27,18 +27,21 @@ ROOT = Path(__file__).resolve().parent.parent
 
 from steps import say
 
-from calbench.bench.scenario.parse import load_scenario
-from calbench.identify.design.candidates import InfoEngine, generate_candidates, load_design_scenario
-from calbench.identify.design.criteria import information, measures
-from calbench.identify.design.exchange import Exchanger
-from calbench.identify.design.plan import (
+from calbench.bench.scenario import load_scenario
+from calbench.identify.design import (
+    Exchanger,
+    InfoEngine,
     design_plan,
+    generate_candidates,
+    information,
+    load_design_scenario,
+    measures,
     plan_measures,
     plan_scenario_text,
     scenario_plan_information,
     work_jacobian,
 )
-from calbench.identify.study.montecarlo import run_montecarlo
+from calbench.identify.study import run_montecarlo
 
 
 def work_scenario() -> Path:

@@ -32,9 +32,9 @@ ROOT = Path(__file__).resolve().parent.parent
 
 from steps import LineProgress, say
 
-from calbench.bench.campaign.run import plan_campaign, truth_robot
-from calbench.bench.scenario.parse import scenario_to_toml
-from calbench.identify.runtime.executor import choose, open_executor
+from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.scenario import scenario_to_toml
+from calbench.identify.runtime import choose, open_executor
 from calbench.identify.study import load_study, prepare, read_results, run_study
 
 STUDY = ROOT / "studies" / "discovery_power.toml"

@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from calbench.identify.runtime.executor import choose, open_executor
+from calbench.identify.runtime import choose, open_executor
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
@@ -55,8 +55,8 @@ def _setup(model: str) -> None:
     """Per process: the solved campaign of the paper scenario with the tracker model."""
     import tempfile
 
-    from calbench.bench.campaign.run import plan_campaign, truth_robot
-    from calbench.bench.scenario.parse import load_scenario, scenario_variant
+    from calbench.bench.campaign import plan_campaign, truth_robot
+    from calbench.bench.scenario import load_scenario, scenario_variant
 
     tmp = Path(tempfile.mkdtemp())
     path = scenario_variant(PAPER, tmp / "null.toml")
@@ -71,8 +71,8 @@ def one_seed(args: tuple[str, int]) -> dict:
     model, seed = args
     if _STATE.get("model") != model:
         _setup(model)
-    from calbench.identify.discover.workflow import discover_observations
-    from calbench.identify.study.montecarlo import campaign_observations
+    from calbench.identify.discover import discover_observations
+    from calbench.identify.study import campaign_observations
 
     scn, robot, plans = _STATE["scn"], _STATE["robot"], _STATE["plans"]
     obs = campaign_observations(scn, robot, plans, np.random.default_rng([20261, seed]))

@@ -40,7 +40,7 @@ CASES = {
 
 def time_case(log: Path, repeats: int) -> dict:
     """Discover ``log`` ``repeats`` times in this process (the code this interpreter imports)."""
-    from calbench.identify.discover.workflow import discover
+    from calbench.identify.discover import discover
 
     wall, cpu, named, evals = [], [], None, None
     for _ in range(repeats):
@@ -76,8 +76,8 @@ def main() -> int:
     if args.worker:
         print(json.dumps(time_case(args.worker, args.repeats)))
         return 0
-    from calbench.bench.campaign.run import run_campaign
-    from calbench.bench.scenario.parse import load_scenario, scenario_variant
+    from calbench.bench.campaign import run_campaign
+    from calbench.bench.scenario import load_scenario, scenario_variant
 
     out: dict = {
         "plan": "scenarios/paper_table5.toml",

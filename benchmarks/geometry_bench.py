@@ -31,15 +31,14 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 
-from calbench.bench.campaign.run import run_campaign
-from calbench.bench.log.writer import read_log
-from calbench.bench.scenario.parse import load_scenario
-from calbench.bench.shopfloor.logcsv import export_rows
-from calbench.bench.shopfloor.readings import readings_csv
-from calbench.identify.core.rigid import rotation_exp
-from calbench.identify.design.threads import blas_threads
-from calbench.identify.report.identification import run_identify
-from calbench.identify.shopfloor.importer import import_readings
+from calbench.bench.campaign import run_campaign
+from calbench.bench.log import read_log
+from calbench.bench.scenario import load_scenario
+from calbench.bench.shopfloor import export_rows, readings_csv
+from calbench.identify.core import rotation_exp
+from calbench.identify.report import run_identify
+from calbench.identify.runtime import blas_threads
+from calbench.identify.shopfloor import import_readings
 
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
 MJCF = ROOT / "mjcf" / "m900ib700.xml"

@@ -20,10 +20,10 @@ ROOT = Path(__file__).resolve().parent.parent
 
 from steps import LineProgress, say
 
-from calbench.bench.campaign.run import run_campaign
-from calbench.bench.scenario.parse import load_scenario
-from calbench.identify.report.identification import run_identify
-from calbench.identify.study.montecarlo import run_montecarlo
+from calbench.bench.campaign import run_campaign
+from calbench.bench.scenario import load_scenario
+from calbench.identify.report import run_identify
+from calbench.identify.study import run_montecarlo
 
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
 

@@ -25,13 +25,12 @@ import numpy as np
 import scipy.optimize
 from steps import say
 
-from calbench.bench.campaign.run import plan_campaign, truth_robot
-from calbench.bench.model.robot import Robot
-from calbench.bench.scenario.parse import load_scenario
-from calbench.identify.core.whitening import Whitener
-from calbench.identify.methods.onestep import OneStep, generic_start, sanitize_start, to_phi, to_theta
-from calbench.identify.methods.twostep import two_step
-from calbench.identify.study.montecarlo import campaign_observations
+from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.model import Robot
+from calbench.bench.scenario import load_scenario
+from calbench.identify.core import Whitener
+from calbench.identify.methods import OneStep, generic_start, sanitize_start, to_phi, to_theta, two_step
+from calbench.identify.study import campaign_observations
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
@@ -78,7 +77,7 @@ def library_runs(est: OneStep, obs, white, start, ours) -> dict:
         _, jw = fj(z)
         n_eval["n"] += model.stats["evaluations"] - n0
         # d theta / d phi for the compensator pair, then the scaling
-        from calbench.identify.methods.onestep import dtheta_dphi
+        from calbench.identify.methods import dtheta_dphi
 
         return jw @ dtheta_dphi(z * scale, lay) * scale if th is not None else None
 

@@ -51,9 +51,8 @@ ROOT = Path(__file__).resolve().parent.parent
 from steps import say
 
 from calbench.identify.runtime import executor as X
+from calbench.identify.study import TIMING_COLUMNS, load_study, prepare, run_study
 from calbench.identify.study import campaign as campaign_mod
-from calbench.identify.study import load_study, prepare, run_study
-from calbench.identify.study.campaign import TIMING_COLUMNS
 
 STUDY = """
 name = "scaling"

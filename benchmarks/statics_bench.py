@@ -35,11 +35,10 @@ ROOT = Path(__file__).resolve().parent.parent
 
 from steps import say
 
-from calbench.bench.campaign.run import run_campaign, truth_robot
-from calbench.bench.model.loop import loop_gap
-from calbench.bench.scenario.parse import load_scenario
-from calbench.bench.statics.batched import BatchStatics
-from calbench.bench.statics.equilibrium import Load, StaticsSolver
+from calbench.bench.campaign import run_campaign, truth_robot
+from calbench.bench.model import loop_gap
+from calbench.bench.scenario import load_scenario
+from calbench.bench.statics import BatchStatics, Load, StaticsSolver
 
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
 
@@ -63,7 +62,7 @@ def newton_times(scn, robot, repeats=5):
 
 
 def truth_load(robot, scn, pose):
-    from calbench.bench.campaign.run import pose_load
+    from calbench.bench.campaign import pose_load
 
     return pose_load(robot, scn, pose)[0]
 
@@ -191,8 +190,8 @@ def monte_carlo(scn, runs: int, repeats: int = 2) -> dict:
     """The estimator's forward model (identify/core/forward.py: 16 poses, 32 warm equilibria and their
     tangents per evaluation) stacked against its scalar loop, side by side: a Monte Carlo of the
     one-step estimator (one or two evaluations per run), alternating, best of ``repeats``."""
-    from calbench.identify.core.forward import ForwardModel
-    from calbench.identify.study.montecarlo import run_montecarlo
+    from calbench.identify.core import ForwardModel
+    from calbench.identify.study import run_montecarlo
 
     best: dict = {}
     for _ in range(repeats):

@@ -27,12 +27,11 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 
-from calbench.bench.campaign.run import plan_campaign, truth_robot
-from calbench.bench.scenario.parse import load_scenario, scenario_to_toml
+from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.scenario import load_scenario, scenario_to_toml
 from calbench.identify.cli import main as calbench
-from calbench.identify.design.threads import blas_threads
-from calbench.identify.study.accuracy import predicted_std
-from calbench.identify.study.montecarlo import campaign_observations
+from calbench.identify.runtime import blas_threads
+from calbench.identify.study import campaign_observations, predicted_std
 
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
 MODELS = {"isotropic": {"sigma": 20e-6}, "spec": {"model": "spec"}, "iso10360": {"model": "iso10360"}}

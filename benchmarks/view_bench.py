@@ -33,18 +33,17 @@ ROOT = Path(__file__).resolve().parent.parent
 
 from steps import say
 
-from calbench.bench.campaign.run import run_campaign
-from calbench.bench.log.idreport import IdentificationReport
-from calbench.bench.log.writer import read_log
-from calbench.bench.scenario.parse import load_scenario
-from calbench.bench.view.recording import (
+from calbench.bench.campaign import run_campaign
+from calbench.bench.log import IdentificationReport, read_log
+from calbench.bench.scenario import load_scenario
+from calbench.bench.view import (
     log_view,
     measured_deflections,
     plan_view,
     recording_stream,
     write_recording,
 )
-from calbench.identify.report.identification import run_identify
+from calbench.identify.report import run_identify
 
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
 REPEATS = 5

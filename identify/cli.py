@@ -23,10 +23,15 @@ from pathlib import Path
 import mujoco
 
 from calbench.bench.cli import add_check_robot, add_export, add_from_urdf, add_recover, add_simulate, add_view
-from calbench.bench.core.errors import CalbenchError, InputError
-from calbench.bench.core.outputs import atomic_path, check_outputs, write_text
-from calbench.bench.core.progress import terminal_progress
-from calbench.identify.core.identifiability import OUTLIER_SIGMA
+from calbench.bench.core import (
+    CalbenchError,
+    InputError,
+    atomic_path,
+    check_outputs,
+    terminal_progress,
+    write_text,
+)
+from calbench.identify.core import OUTLIER_SIGMA
 
 from . import demo
 
@@ -42,7 +47,7 @@ def _version() -> str:
 
 
 def add_identify(sub) -> None:
-    from calbench.identify.report.identification import METHODS, Z_CHECK
+    from calbench.identify.report import METHODS, Z_CHECK
 
     p = sub.add_parser("identify", help="estimate the elastostatic parameters from a campaign log")
     p.add_argument("log", type=Path, help="campaign MCAP log")
@@ -76,7 +81,7 @@ def add_identify(sub) -> None:
 
 
 def cmd_identify(args) -> int:
-    from calbench.identify.report.identification import Z_CHECK, check_failed, format_table, run_identify
+    from calbench.identify.report import Z_CHECK, check_failed, format_table, run_identify
 
     check_outputs({"--json": args.json}, {"LOG": args.log, "--model": args.model})
     rep = run_identify(args.log, args.model, args.method, args.drop_outliers)
@@ -125,7 +130,7 @@ def add_scheduler(p) -> None:
 
 def open_pieces(args, work_seconds: float, tasks: int):
     """The executor for this command (identify/runtime/executor.py), announced on stderr."""
-    from calbench.identify.runtime.executor import choose, open_executor
+    from calbench.identify.runtime import choose, open_executor
 
     ex = open_executor(choose(args.scheduler, work_seconds, tasks, args.workers))
     print(f"calbench {args.command}: {ex.choice.describe()}", file=sys.stderr)
@@ -163,11 +168,11 @@ def add_montecarlo(sub) -> None:
 
 
 def cmd_montecarlo(args) -> int:
-    from calbench.bench.model.robot import Robot
-    from calbench.bench.scenario.parse import load_scenario
-    from calbench.identify.methods.twostep import TwoStepError, two_step_applies
-    from calbench.identify.runtime.executor import Interrupted
-    from calbench.identify.study.montecarlo import (
+    from calbench.bench.model import Robot
+    from calbench.bench.scenario import load_scenario
+    from calbench.identify.methods import TwoStepError, two_step_applies
+    from calbench.identify.runtime import Interrupted
+    from calbench.identify.study import (
         METHODS,
         RUNS_PER_TASK,
         estimated_seconds,
@@ -180,8 +185,8 @@ def cmd_montecarlo(args) -> int:
     scn = load_scenario(args.scenario, seed=args.seed)
     check_outputs({"--json": args.json}, {"SCENARIO": args.scenario, "robot": scn.robot})
     if not args.force:
-        from calbench.bench.campaign.run import truth_robot
-        from calbench.bench.scenario.timeline import check_size, estimate, montecarlo_estimate, repeats_key
+        from calbench.bench.campaign import truth_robot
+        from calbench.bench.scenario import check_size, estimate, montecarlo_estimate, repeats_key
 
         repeats, n_refl = [p.repeats for p in scn.poses], len(truth_robot(scn).reflector_names)
         check_size(estimate(repeats, n_refl), scn.path, repeats_key(repeats))  # one campaign
@@ -232,7 +237,7 @@ def cmd_montecarlo(args) -> int:
 
 
 def add_design(sub) -> None:
-    from calbench.identify.design.criteria import CRITERIA
+    from calbench.identify.design import CRITERIA
 
     p = sub.add_parser("design", help="optimal measurement configurations (design of experiments)")
     p.add_argument(
@@ -318,15 +323,13 @@ def add_design(sub) -> None:
 
 
 def cmd_design(args) -> int:
-    from calbench.identify.design.candidates import (
+    from calbench.identify.design import (
         SECONDS_PER_CANDIDATE,
         InfoEngine,
-        generate_candidates,
-        load_design_scenario,
-    )
-    from calbench.identify.design.plan import (
         design_plan,
+        generate_candidates,
         input_plan_measures,
+        load_design_scenario,
         plan_comment,
         plan_scenario_text,
         result_json,
@@ -342,7 +345,7 @@ def cmd_design(args) -> int:
             "(command line)", "SCENARIO", "a scenario TOML (or --from-candidates CANDS.npz)", None
         )
     if args.study:
-        from calbench.identify.design.study import run_study
+        from calbench.identify.design import run_study
 
         res = run_study(args.scenario, args.out_dir)
         print(json.dumps({k: res[k] for k in ("table1", "table2", "table3_parameters")}, indent=1))
@@ -437,11 +440,18 @@ def _design_from_candidates(args) -> int:
     """`design --from-candidates CANDS.npz`: the exchange and its certificate on given blocks."""
     import numpy as np
 
-    from calbench.identify.design.candidate_file import read_candidates
-    from calbench.identify.design.candidates import LOAD_KINDS, InfoEngine, load_design_scenario
-    from calbench.identify.design.certificate import SingularCandidates
-    from calbench.identify.design.plan import merge_repeats, plan_scenario_text, poses_of_rows
-    from calbench.identify.design.selection import select_rows, selection_text
+    from calbench.identify.design import (
+        LOAD_KINDS,
+        InfoEngine,
+        SingularCandidates,
+        load_design_scenario,
+        merge_repeats,
+        plan_scenario_text,
+        poses_of_rows,
+        read_candidates,
+        select_rows,
+        selection_text,
+    )
 
     for flag, given in (("--study", args.study), ("--export-candidates", args.export_candidates)):
         if given:
@@ -583,7 +593,7 @@ def add_discover(sub) -> None:
 
 
 def cmd_discover(args) -> int:
-    from calbench.identify.discover.workflow import clean, discover, story
+    from calbench.identify.discover import clean, discover, story
 
     if not args.log.is_file():
         raise InputError(args.log, "LOG.mcap", "an existing campaign log", "no such file")
@@ -635,7 +645,7 @@ def add_report(sub) -> None:
 
 
 def cmd_report(args) -> int:
-    from calbench.identify.report.html import write_report
+    from calbench.identify.report import write_report
 
     out = write_report(args.log, args.out, args.identified, args.discover, args.design)
     given = [k for k in ("identified", "discover", "design") if getattr(args, k) is not None]
@@ -676,7 +686,7 @@ def add_import(sub) -> None:
 def cmd_import(args) -> int:
     import numpy as np
 
-    from calbench.identify.shopfloor.importer import import_readings
+    from calbench.identify.shopfloor import import_readings
 
     check_outputs(
         {"--out": args.out}, {"READINGS": args.readings, "--plan": args.plan, "--model": args.model}
@@ -735,9 +745,8 @@ def add_study(sub) -> None:
 
 
 def cmd_study(args) -> int:
-    from calbench.identify.runtime.executor import Interrupted
-    from calbench.identify.study.plots import accuracy_plots, power_plots
-    from calbench.identify.study.summary import pooled_by_axis
+    from calbench.identify.runtime import Interrupted
+    from calbench.identify.study import accuracy_plots, pooled_by_axis, power_plots
 
     from .study import cell_summaries, format_cells, load_study, prepare, read_results, run_study
 

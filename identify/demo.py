@@ -10,12 +10,11 @@ import json
 from collections.abc import Iterator
 from pathlib import Path
 
-from calbench.bench.campaign.run import run_campaign
-from calbench.bench.core.outputs import write_text
-from calbench.bench.core.resources import PAPER_SCENARIO, scenario_path
-from calbench.bench.model.robot import Robot
-from calbench.bench.scenario.parse import load_scenario, scenario_variant
-from calbench.bench.view.recording import write_recording
+from calbench.bench.campaign import run_campaign
+from calbench.bench.core import PAPER_SCENARIO, scenario_path, write_text
+from calbench.bench.model import Robot
+from calbench.bench.scenario import load_scenario, scenario_variant
+from calbench.bench.view import write_recording
 
 PAPER = scenario_path(PAPER_SCENARIO)  # package data: works outside a checkout
 HIDDEN = "paper_table5_hidden"  # the discovery step's campaign
@@ -62,7 +61,7 @@ def demo_files(logs: Path) -> dict[str, Path]:
 def run_demo(logs: Path) -> Iterator[str]:
     """Simulate the paper campaign, record its Rerun view, identify it against the truth, then
     run the discovery story; yields what to tell the user after each step."""
-    from calbench.identify.report.identification import format_table, run_identify
+    from calbench.identify.report import format_table, run_identify
 
     files = demo_files(logs)
     log, rrd = files["campaign log"], files["recording"]
@@ -80,7 +79,7 @@ def discover_step(logs: Path) -> Iterator[str]:
     """Last demo step: a campaign whose robot has a link compliance (the FANUC's forearm) the
     model lacks; `calbench discover` finds where they disagree, names it, adds it, shows the gap
     shrink."""
-    from calbench.identify.discover.workflow import clean, discover, story
+    from calbench.identify.discover import clean, discover, story
 
     files = demo_files(logs)
     files["hidden log"].parent.mkdir(parents=True, exist_ok=True)

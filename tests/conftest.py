@@ -38,7 +38,7 @@ TABLE5 = np.radians(
 
 def fanuc_params(compliance, stiffness: float, preload: float):
     """Params of the FANUC model (its one compensator tendon, named "compensator")."""
-    from calbench.bench.model.params import Params, Spring
+    from calbench.bench.model import Params, Spring
 
     return Params(
         np.asarray(compliance, dtype=float), {"compensator": Spring(float(stiffness), float(preload))}
@@ -47,8 +47,8 @@ def fanuc_params(compliance, stiffness: float, preload: float):
 
 def fanuc_truth(scn):
     """The scenario's truth as Params of the FANUC model (bench.campaign.scenario_params)."""
-    from calbench.bench.campaign.run import scenario_params
-    from calbench.bench.model.robot import Robot
+    from calbench.bench.campaign import scenario_params
+    from calbench.bench.model import Robot
 
     return scenario_params(scn, Robot.from_file(MJCF))
 

@@ -21,11 +21,11 @@ import numpy as np
 import pytest
 from conftest import MJCF, PAPER, ROOT
 
-from calbench.bench.campaign.run import run_campaign
-from calbench.bench.log.writer import read_log
-from calbench.bench.model.robot import Robot
-from calbench.bench.scenario.parse import load_scenario
-from calbench.identify.report.identification import run_identify
+from calbench.bench.campaign import run_campaign
+from calbench.bench.log import read_log
+from calbench.bench.model import Robot
+from calbench.bench.scenario import load_scenario
+from calbench.identify.report import run_identify
 
 NAMED = ("body", "joint", "geom", "site", "spatial", "connect")
 REFERENCES = ("site", "site1", "site2")
@@ -126,7 +126,7 @@ def test_the_renamed_copy_identifies_the_same_numbers(twins, method):
 
 
 def test_the_renamed_copy_designs_the_same_candidates(twins):
-    from calbench.identify.design.candidates import excluded_pairs, generate_candidates, load_design_scenario
+    from calbench.identify.design import excluded_pairs, generate_candidates, load_design_scenario
 
     cands = {}
     for key in ("fanuc", "renamed"):
@@ -148,7 +148,7 @@ def test_the_renamed_copy_designs_the_same_candidates(twins):
 
 
 def test_the_renamed_copy_discovers_the_same(twins, tmp_path):
-    from calbench.identify.discover.workflow import discover
+    from calbench.identify.discover import discover
 
     reps = {
         k: discover(twins[k]["log"], plot=tmp_path / f"{k}.png", view_rrd=tmp_path / f"{k}.rrd")

@@ -23,17 +23,16 @@ import pytest
 from conftest import K_TRUE, MJCF, TABLE5, fanuc_params
 from robots import serial_mjcf
 
-from calbench.bench.model.loop import constraint_basis, constraint_basis_stack, loop_gap
-from calbench.bench.model.params import Params
-from calbench.bench.model.robot import Robot
-from calbench.bench.statics.batched import BatchStatics, take_load
-from calbench.bench.statics.equilibrium import (
+from calbench.bench.model import Params, Robot, constraint_basis, constraint_basis_stack, loop_gap
+from calbench.bench.statics import (
+    BatchStatics,
     Load,
     StaticsError,
     StaticsSolver,
     ift_tangent,
     kkt_matrix,
     statics_options,
+    take_load,
 )
 
 PARAMS = fanuc_params(K_TRUE, 2.6e6, 0.83)

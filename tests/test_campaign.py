@@ -11,8 +11,8 @@ import pytest
 from conftest import MJCF, PAPER
 from rerun_cli import rerun_env, rerun_exe
 
-from calbench.bench.log.writer import read_log
-from calbench.bench.scenario.parse import load_scenario
+from calbench.bench.log import read_log
+from calbench.bench.scenario import load_scenario
 from calbench.identify.cli import main
 
 
@@ -54,7 +54,7 @@ def test_same_seed_same_bytes_other_seed_other_noise(tmp_path, paper_log):
 
 def test_noise_matches_truth_statistics(paper_log):
     """Measured minus true reflector positions: zero mean, sigma 20 um, within sampling error."""
-    from calbench.bench.tracker.instrument import to_world_frame
+    from calbench.bench.tracker import to_world_frame
 
     full = read_log(paper_log, include_truth=True)
     scn = load_scenario(PAPER)

@@ -10,8 +10,8 @@ import pytest
 from conftest import MJCF
 from robots import fourbar_mjcf, serial_mjcf
 
-from calbench.bench.model.robot import Robot
-from calbench.bench.robots.check import check_robot, default_tracker, grid
+from calbench.bench.model import Robot
+from calbench.bench.robots import check_robot, default_tracker, grid
 from calbench.identify.cli import main
 
 

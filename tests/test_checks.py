@@ -18,17 +18,17 @@ import numpy as np
 import pytest
 from conftest import PAPER
 
-from calbench.bench.log.idreport import IdentificationReport, ParameterEstimate
-from calbench.bench.model.params import ParamLayout
+from calbench.bench.log import IdentificationReport, ParameterEstimate
+from calbench.bench.model import ParamLayout
 from calbench.identify.cli import main
-from calbench.identify.core.identifiability import (
+from calbench.identify.core import (
     MAX_RELATIVE_STD,
     Identifiability,
     analyze,
     explain,
     resolve,
 )
-from calbench.identify.report.identification import check_failed
+from calbench.identify.report import check_failed
 
 TWO_POSES = [[0, 0, -30, 0, 0, 0], [0, 120, 30, 0, 0, 0]]
 

@@ -25,13 +25,11 @@ import pytest
 from conftest import PAPER
 from dask_cluster import LocalDaskCluster, self_signed, tls_env
 
-from calbench.bench.scenario.parse import load_scenario
+from calbench.bench.scenario import load_scenario
 from calbench.identify.cli import main
-from calbench.identify.design import candidates
-from calbench.identify.design.candidates import generate_candidates, load_design_scenario
-from calbench.identify.runtime.executor import choose, open_executor
-from calbench.identify.study import montecarlo
-from calbench.identify.study.campaign import TIMING_COLUMNS
+from calbench.identify.design import candidates, generate_candidates, load_design_scenario
+from calbench.identify.runtime import choose, open_executor
+from calbench.identify.study import TIMING_COLUMNS, montecarlo
 
 CALBENCH = str(Path(sys.executable).with_name("calbench"))
 TIMING_KEYS = {

@@ -14,12 +14,19 @@ import pytest
 from conftest import MJCF, PAPER
 from robots import fourbar_mjcf, serial_mjcf
 
-from calbench.bench.core.errors import InputError
-from calbench.bench.model.description import DescriptionError, read_description
-from calbench.bench.model.params import LEGACY_COMPENSATOR, ParamLayout, Params, Spring, springs_from_message
-from calbench.bench.model.robot import Robot
-from calbench.bench.scenario.parse import load_scenario, scenario_params
-from calbench.bench.statics.equilibrium import Load, StaticsSolver
+from calbench.bench.core import InputError
+from calbench.bench.model import (
+    LEGACY_COMPENSATOR,
+    DescriptionError,
+    ParamLayout,
+    Params,
+    Robot,
+    Spring,
+    read_description,
+    springs_from_message,
+)
+from calbench.bench.scenario import load_scenario, scenario_params
+from calbench.bench.statics import Load, StaticsSolver
 
 
 def test_the_fanuc_model_carries_its_description():

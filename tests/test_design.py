@@ -17,22 +17,24 @@ import numpy as np
 import pytest
 from conftest import MJCF, PAPER, ROOT
 
-from calbench.bench.campaign.run import plan_campaign, truth_robot
-from calbench.bench.model.robot import Robot
-from calbench.bench.scenario.parse import load_scenario
+from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.model import Robot
+from calbench.bench.scenario import load_scenario
 from calbench.identify.cli import main
-from calbench.identify.core.forward import ForwardModel, design_from_observations
-from calbench.identify.core.identifiability import whiten_factors
-from calbench.identify.design.candidates import (
+from calbench.identify.core import ForwardModel, design_from_observations, whiten_factors
+from calbench.identify.design import (
+    Exchanger,
     InfoEngine,
+    PlanPose,
+    criterion_value,
     generate_candidates,
+    information,
     load_design_scenario,
+    measures,
+    plan_scenario_text,
     read_design_settings,
 )
-from calbench.identify.design.criteria import criterion_value, information, measures
-from calbench.identify.design.exchange import Exchanger
-from calbench.identify.design.plan import PlanPose, plan_scenario_text
-from calbench.identify.study.montecarlo import campaign_observations, run_montecarlo
+from calbench.identify.study import campaign_observations, run_montecarlo
 
 WEIGHT = np.r_[Robot.from_file(MJCF).weight(700.0), 0, 0, 0.0]  # the model's own gravity
 
@@ -94,7 +96,7 @@ def test_min_height_is_a_scenario_setting(tmp_path, paper):
     assert "min_height" not in InfoEngine(*paper).pose(q, WEIGHT).violations
     bad = tmp_path / "bad.toml"
     bad.write_text(path.read_text() + "min_heigth = 2\n")
-    from calbench.bench.core.errors import InputError
+    from calbench.bench.core import InputError
 
     with pytest.raises(InputError, match="design.min_heigth"):
         read_design_settings(bad)

@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 from conftest import PAPER
 
-from calbench.bench.statics.equilibrium import Load
-from calbench.identify.design.batch_info import BatchInfo
-from calbench.identify.design.candidates import (
+from calbench.bench.statics import Load
+from calbench.identify.design import (
     EQUILIBRIUM_RULES,
+    BatchInfo,
     InfoEngine,
     generate_candidates,
     horizontal_clearance,

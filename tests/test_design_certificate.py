@@ -17,18 +17,19 @@ import tomllib
 import numpy as np
 import pytest
 
-from calbench.identify.design.certificate import (
+from calbench.identify.design import (
     ALGORITHMS,
+    Exchanger,
     a_bound,
     approximate_design,
     certify,
     column_scale,
+    criterion_value,
     d_bound,
+    information,
     normalise_blocks,
     plan_logdet,
 )
-from calbench.identify.design.criteria import criterion_value, information
-from calbench.identify.design.exchange import Exchanger
 
 ROUND = 1e-9
 

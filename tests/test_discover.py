@@ -29,14 +29,12 @@ import numpy as np
 import pytest
 from conftest import MJCF, PAPER
 
-from calbench.bench.campaign.run import run_campaign
-from calbench.bench.log.writer import read_log, strip_truth
-from calbench.bench.model.effects import REGISTRY, apply_effects, without_compensator
-from calbench.bench.model.robot import Robot
-from calbench.bench.scenario.parse import load_scenario, scenario_variant
+from calbench.bench.campaign import run_campaign
+from calbench.bench.log import read_log, strip_truth
+from calbench.bench.model import REGISTRY, Robot, apply_effects, without_compensator
+from calbench.bench.scenario import load_scenario, scenario_variant
 from calbench.identify.cli import main as cli_main
-from calbench.identify.discover.fit import DISCOVERY_EFFECTS, library
-from calbench.identify.discover.workflow import UNEXPLAINED, discover, story
+from calbench.identify.discover import DISCOVERY_EFFECTS, UNEXPLAINED, discover, library, story
 
 HIDDEN = {
     "forearm": (
@@ -210,7 +208,7 @@ def test_effect_outside_the_library_is_unexplained(logs):
     assert before >= 2.0 and after >= 2.0
     # no library candidate mimics it: the best removes less than the share the rule asks of a
     # named effect (decide.py's MIN_EXPLAINED) and leaves a fit the noise cannot explain
-    from calbench.identify.discover.decide import MIN_EXPLAINED
+    from calbench.identify.discover import MIN_EXPLAINED
 
     best = max((c for c in rep["candidates"] if c["score"] is not None), key=lambda c: c["explained"])
     assert best["explained"] < MIN_EXPLAINED and best["p_fit"] < 1e-3
@@ -354,7 +352,7 @@ def test_cli_json_plot_view(logs, tmp_path, capsys):
     assert rep["noise_sigma"] == pytest.approx(20e-6)
     assert rep["augmented_model"] == str(aug) and Robot.from_file(aug).model.nv > 0
     assert Path(rep["plot"]).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    from calbench.bench.log.idreport import IdentificationReport
+    from calbench.bench.log import IdentificationReport
 
     ident = IdentificationReport.read(rep["view_json"])
     assert len(ident.predictions()) == rep["n_poses"] and not ident.read_warnings
@@ -366,9 +364,9 @@ def test_cli_json_plot_view(logs, tmp_path, capsys):
 def test_augmented_jacobian_matches_finite_differences(logs):
     """d dp / d theta of the augmented forward model (implicit function theorem with the effect
     columns from the passive force) against central differences of the solved equilibria."""
-    from calbench.bench.model.effects import link_compliance
-    from calbench.identify.core.observations import from_log
-    from calbench.identify.discover.fit import build
+    from calbench.bench.model import link_compliance
+    from calbench.identify.core import from_log
+    from calbench.identify.discover import build
 
     obs = from_log(read_log(logs["none"]))
     obs = obs.subset(obs.labels[:9])
@@ -398,7 +396,7 @@ SPRING_FIELDS = (
 def test_effects_write_only_spring_values(effect):
     """bench/model/effects.py's rule that discovery's analytic stiffness matrix relies on: set_params
     changes nothing in the compiled model but joint and tendon spring values."""
-    from calbench.identify.discover.fit import effect_priors
+    from calbench.identify.discover import effect_priors
 
     start, _, _, size = effect_priors(effect)
     src = without_compensator(MJCF) if effect.name == "compensator" else MJCF
@@ -417,9 +415,9 @@ def test_effect_force_columns_match_finite_differences(logs, effect):
     """dg/dtheta of every effect through the spring values it writes (chain rule, analytic in q)
     equals central differences of MuJoCo's passive force (relative 1e-7: the differences' O(h^2)
     error is ~1e-12, their round-off ~1e-10), at a loaded equilibrium of the paper plan."""
-    from calbench.bench.statics.equilibrium import statics_options
-    from calbench.identify.core.observations import from_log
-    from calbench.identify.discover.fit import build, effect_priors
+    from calbench.bench.statics import statics_options
+    from calbench.identify.core import from_log
+    from calbench.identify.discover import build, effect_priors
 
     obs = from_log(read_log(logs["none"]))
     obs = obs.subset([lab for lab in obs.labels if lab[0] == 12])  # a lateral pull: every joint loaded
@@ -445,9 +443,9 @@ def test_a_split_the_data_do_not_fix_gets_no_dishonest_std(tmp_path):
     the chi2 profile only 2.4). Each named parameter's profile is checked at +-2 Fisher std
     (identify/discover/uncertainty.py): cx is reported not determined, with the profile's rise,
     and every parameter still reported with a std is within 4 of them of the truth."""
-    from calbench.bench.campaign.run import plan_campaign, truth_robot
-    from calbench.identify.discover.workflow import discover_observations
-    from calbench.identify.study.montecarlo import campaign_observations, true_theta
+    from calbench.bench.campaign import plan_campaign, truth_robot
+    from calbench.identify.discover import discover_observations
+    from calbench.identify.study import campaign_observations, true_theta
 
     extra = '[truth.effects.link_compliance]\nlink = "upper_arm"\ncompliance = [1.5e-8, 0.0, 1.5e-8]'
     scn = load_scenario(scenario(tmp_path, "xz", extra))

@@ -24,15 +24,24 @@ import numpy as np
 import pytest
 from conftest import MJCF, PAPER
 
-from calbench.bench.campaign.run import plan_campaign, truth_robot
-from calbench.bench.core.errors import InputError
-from calbench.bench.model.robot import Robot
-from calbench.bench.scenario.parse import load_scenario, scenario_variant
-from calbench.identify.core.whitening import Whitener
-from calbench.identify.discover.fit import build, effect_priors, fit, label, library, whitened
-from calbench.identify.discover.search import fit_candidate, polish, unabsorbed_norms
-from calbench.identify.discover.workflow import base_fit
-from calbench.identify.study.montecarlo import campaign_observations, true_theta
+from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.core import InputError
+from calbench.bench.model import Robot
+from calbench.bench.scenario import load_scenario, scenario_variant
+from calbench.identify.core import Whitener
+from calbench.identify.discover import (
+    base_fit,
+    build,
+    effect_priors,
+    fit_augmented,
+    fit_candidate,
+    label,
+    library,
+    polish,
+    unabsorbed_norms,
+    whitened,
+)
+from calbench.identify.study import campaign_observations, true_theta
 
 SIGNATURE = 15.0  # sigma: the truth's unabsorbed signature
 GLOBAL_TOL = 0.5  # chi2
@@ -116,7 +125,7 @@ def test_candidate_fit_reaches_the_global_minimum(plan, effect, sign, seed):
     start, lower, upper, _ = effect_priors(effect)
     at_truth = np.where(p != 0, p, start)
     _, fm = build(MJCF, [(effect, at_truth)], obs)
-    ref = fit(
+    ref = fit_augmented(
         fm,
         obs.dp,
         white,
@@ -137,7 +146,7 @@ def test_candidate_fit_reaches_the_global_minimum(plan, effect, sign, seed):
 def test_compensator_candidate_fit_reaches_the_global_minimum(tmp_path, k_c, seed):
     """The compensator candidate on a user model without one (bench/model/effects.py's
     without_compensator), the truth's spring at the shipped and at a stiffer rate."""
-    from calbench.bench.model.effects import compensator, without_compensator
+    from calbench.bench.model import compensator, without_compensator
 
     bare = tmp_path / "bare.xml"
     bare.write_text(without_compensator(MJCF))
@@ -155,7 +164,7 @@ def test_compensator_candidate_fit_reaches_the_global_minimum(tmp_path, k_c, see
     _, lower, upper, _ = effect_priors(effect)
     truth = np.r_[true_theta(scn, robot)[:nb], k_c, 0.83]
     _, fm = build(bare, [(effect, truth[nb:])], obs)
-    ref = fit(
+    ref = fit_augmented(
         fm,
         obs.dp,
         white,

@@ -11,17 +11,24 @@ import pytest
 from conftest import MJCF, PAPER
 from scipy import stats
 
-from calbench.bench.campaign.run import plan_campaign, truth_robot
-from calbench.bench.model.robot import Robot
-from calbench.bench.scenario.parse import parse_scenario
-from calbench.identify.core.leastsq import Fit
-from calbench.identify.core.whitening import Whitener
-from calbench.identify.discover.aliasing import aliasing_report
-from calbench.identify.discover.decide import ALPHA_EFFECT, compare, lr_spread, lr_threshold, near_ties
-from calbench.identify.discover.fit import library
-from calbench.identify.discover.uncertainty import MAX_RELATIVE_STD, determination
-from calbench.identify.discover.workflow import alias_columns, base_fit
-from calbench.identify.study.montecarlo import campaign_observations
+from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.model import Robot
+from calbench.bench.scenario import parse_scenario
+from calbench.identify.core import Fit, Whitener
+from calbench.identify.discover import (
+    ALPHA_EFFECT,
+    MAX_RELATIVE_STD,
+    alias_columns,
+    aliasing_report,
+    base_fit,
+    compare,
+    determination,
+    library,
+    lr_spread,
+    lr_threshold,
+    near_ties,
+)
+from calbench.identify.study import campaign_observations
 
 
 def fit_stats(chi2, dof, rank, n=132):
@@ -200,7 +207,7 @@ def test_the_payload_mass_line_says_what_the_record_says(exact_fits):
     misfit. The printed line must not call it invisible when the record says it is visible,
     and gives the same share and size; and a mass error of plausible size (a few per cent,
     up to 20 %) stays hidden on both plans. The README quotes these figures."""
-    from calbench.identify.discover.story import alias_lines
+    from calbench.identify.discover import alias_lines
 
     readme = " ".join((PAPER.parent.parent / "README.md").read_text().split())
     a16, a12 = (exact_fits[n][1][("load_scale", "hung weights", "scale")] for n in (16, 12))

@@ -17,23 +17,24 @@ import pytest
 import scipy.linalg
 from conftest import MJCF, PAPER, fanuc_params, fanuc_truth
 
-from calbench.bench.campaign.run import run_campaign, truth_robot
-from calbench.bench.log.writer import read_log
-from calbench.bench.model.effects import (
+from calbench.bench.campaign import run_campaign, truth_robot
+from calbench.bench.log import read_log
+from calbench.bench.model import (
     REGISTRY,
     Effect,
     EffectRobot,
+    Params,
+    Robot,
     apply_effects,
     base_compliance,
     compensator,
     effect_from_truth,
     joint_nonlinearity,
     link_compliance,
+    loop_jacobian,
 )
-from calbench.bench.model.loop import loop_jacobian
-from calbench.bench.model.robot import Params, Robot
-from calbench.bench.scenario.parse import load_scenario
-from calbench.bench.statics.equilibrium import Load, StaticsSolver
+from calbench.bench.scenario import load_scenario
+from calbench.bench.statics import Load, StaticsSolver
 
 K = np.array([0.25e-6, 0.12e-6, 0.07e-6, 0.35e-6, 0.40e-6, 0.60e-6])
 NO_COMP = fanuc_params(K, 0.0, 0.83)  # compensator off
@@ -405,7 +406,7 @@ def test_register_carries_discovery_options_and_priors():
     """Adding an effect is one decorated function: @register alone puts it (with its options
     and priors) into discovery's library; nothing in identify/ names it."""
     from calbench.bench.model import effects as fx
-    from calbench.identify.discover.fit import effect_priors, library
+    from calbench.identify.discover import effect_priors, library
 
     @fx.register(
         "toy_spring",
@@ -432,8 +433,8 @@ def test_tracker_drift_offsets_only_the_loaded_readings(tmp_path):
     """The measurement-side effect: same scenario and seed with and without the drift give the
     same unloaded readings and loaded readings shifted by exactly the offset (tracker frame,
     here yawed), the same truth; discovery's deflection term is R b on every row."""
-    from calbench.bench.model.effects import Readings, tracker_drift
-    from calbench.bench.tracker.instrument import tracker_rotation
+    from calbench.bench.model import Readings, tracker_drift
+    from calbench.bench.tracker import tracker_rotation
 
     text = PAPER.read_text().replace("position = [3.5, -3.5, 3.2]", "position = [3.5, -3.5, 3.2]\nyaw = 30.0")
     plain = tmp_path / "yawed.toml"

@@ -12,7 +12,7 @@ import psutil
 import pytest
 from conftest import PAPER
 
-from calbench.bench.core.errors import InputError
+from calbench.bench.core import InputError
 from calbench.identify.cli import main
 from calbench.identify.runtime import executor as X
 
@@ -102,7 +102,7 @@ class _InterruptedAfter(X.InProcess):
 
 
 def test_ctrl_c_during_montecarlo_keeps_the_runs_that_finished(monkeypatch):
-    from calbench.bench.scenario.parse import load_scenario
+    from calbench.bench.scenario import load_scenario
     from calbench.identify.study import montecarlo
 
     monkeypatch.setattr(montecarlo, "RUNS_PER_TASK", 2)

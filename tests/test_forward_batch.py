@@ -19,12 +19,12 @@ import numpy as np
 import pytest
 from conftest import PAPER
 
-from calbench.bench.campaign.run import plan_campaign, truth_robot
-from calbench.bench.model.robot import Robot
-from calbench.bench.scenario.parse import load_scenario
-from calbench.identify.core.forward import ForwardModel, design_from_observations
-from calbench.identify.discover.fit import AugmentedForward
-from calbench.identify.study.montecarlo import campaign_observations, true_theta
+from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.model import Robot
+from calbench.bench.scenario import load_scenario
+from calbench.identify.core import ForwardModel, design_from_observations
+from calbench.identify.discover import AugmentedForward
+from calbench.identify.study import campaign_observations, true_theta
 
 
 @pytest.fixture(scope="module")

@@ -21,12 +21,12 @@ from mcap.reader import make_reader
 from mcap.records import Channel, Message
 from mcap.stream_reader import StreamReader
 
-from calbench.bench.campaign.run import run_campaign
+from calbench.bench.campaign import run_campaign
+from calbench.bench.log import TRUTH_PREFIX, read_log, strip_truth
 from calbench.bench.log import foxglove as fx
-from calbench.bench.log.writer import TRUTH_PREFIX, read_log, strip_truth
-from calbench.bench.model.robot import Robot
-from calbench.bench.scenario.parse import load_scenario
-from calbench.bench.tracker.instrument import to_world_frame
+from calbench.bench.model import Robot
+from calbench.bench.scenario import load_scenario
+from calbench.bench.tracker import to_world_frame
 
 ROUNDING = 1e-7  # m: bench/log/foxglove.py rounds coordinates to 0.1 um
 
@@ -334,7 +334,7 @@ def test_layout_opens_the_3d_panel_on_these_topics(paper_log):
 def test_the_writer_hook_keeps_channels_and_times_honest(tmp_path):
     """LogWriter.add_channel/next_time/write: no re-registered topic, no message on an unknown
     channel, no time that goes back, no message its channel's schema rejects."""
-    from calbench.bench.log.writer import LogHeader, LogWriter
+    from calbench.bench.log import LogHeader, LogWriter
 
     header = LogHeader(
         "s",

@@ -34,10 +34,8 @@ from pathlib import Path
 import badcases as bc
 import pytest
 
-from calbench.bench.core.errors import InputError
-from calbench.bench.log.read import read_log
-from calbench.bench.log.recover import recover_log
-from calbench.bench.log.schema import SCHEMAS
+from calbench.bench.core import InputError
+from calbench.bench.log import SCHEMAS, read_log, recover_log
 from calbench.identify.cli import main
 
 SEED = 20251201

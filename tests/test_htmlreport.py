@@ -21,11 +21,10 @@ import pytest
 from chromium import chromium_exe, render
 from conftest import PAPER
 
-from calbench.bench.campaign.run import run_campaign
-from calbench.bench.scenario.parse import load_scenario
+from calbench.bench.campaign import run_campaign
+from calbench.bench.scenario import load_scenario
 from calbench.identify.cli import main
-from calbench.identify.report.html import Z95, build_report, write_report
-from calbench.identify.report.identification import run_identify
+from calbench.identify.report import Z95, html_report, run_identify, write_report
 
 SECTIONS = ["campaign", "parameters", "correlation", "residuals", "discovery", "design", "reproduce"]
 UNIDENTIFIABLE = "compensator_preload"
@@ -299,19 +298,19 @@ def test_the_numbers_on_the_page_are_those_of_the_inputs(inputs, report):
 
 
 def test_sections_say_which_command_fills_them_and_the_page_is_reproducible(inputs, report, tmp_path):
-    html = build_report(inputs["log"])
+    html = html_report(inputs["log"])
     for sid in SECTIONS:
         assert f'<section id="{sid}">' in html
     assert "No identification given: run <code>calbench identify" in html
     assert "No discovery given" in html and "No design given" in html
-    assert build_report(inputs["log"]) == html  # no clock in it
+    assert html_report(inputs["log"]) == html  # no clock in it
     first = report.read_bytes()
     assert full_report(inputs, report).read_bytes() == first  # rebuilt in place: same bytes
     # a log cut short by a crash: its lost poses are named
     cut = tmp_path / "cut.mcap"
     data = inputs["log"].read_bytes()
     cut.write_bytes(data[: len(data) // 2])
-    html = build_report(cut)
+    html = html_report(cut)
     m = re.search(r"<dt>lost poses</dt><dd><span class=\"flag\">([\d, ]+)</span>", html)
     assert m and "the campaign did not finish" in html
     lost = [int(x) for x in m.group(1).split(",")]
@@ -376,7 +375,7 @@ def test_bad_input_exits_2_naming_the_file(inputs, tmp_path, capsys, case):
 def test_a_certificate_of_a_criterion_to_minimise_is_labelled_a_lower_bound():
     """A, AD and pose certificates carry plan_value/bound_value (docs/contract.md): the page
     names them as the criterion and its certified lower bound, not as log dets."""
-    from calbench.identify.report.html import design_section
+    from calbench.identify.report import design_section
 
     cert = {
         "criterion": "A",

@@ -18,10 +18,9 @@ import numpy as np
 import pytest
 from conftest import K_TRUE, PAPER
 
-from calbench.bench.log.idreport import IdentificationReport
-from calbench.bench.log.writer import read_log, strip_truth
+from calbench.bench.log import IdentificationReport, read_log, strip_truth
 from calbench.identify.cli import main
-from calbench.identify.report.identification import run_identify
+from calbench.identify.report import run_identify
 
 NAMES = ["k1", "k2", "k3", "k4", "k5", "k6", "compensator_stiffness", "compensator_preload"]
 

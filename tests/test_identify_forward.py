@@ -17,12 +17,12 @@ import numpy as np
 import pytest
 from conftest import MJCF, PAPER, fanuc_params
 
-from calbench.bench.campaign.run import plan_campaign, truth_robot
-from calbench.bench.model.robot import Robot
-from calbench.bench.scenario.parse import load_scenario
-from calbench.identify.core.forward import ForwardModel, design_from_observations
-from calbench.identify.methods.twostep import step2_rows
-from calbench.identify.study.montecarlo import campaign_observations, true_theta
+from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.model import Robot
+from calbench.bench.scenario import load_scenario
+from calbench.identify.core import ForwardModel, design_from_observations
+from calbench.identify.methods import step2_rows
+from calbench.identify.study import campaign_observations, true_theta
 
 
 @pytest.fixture(scope="module")
@@ -104,8 +104,8 @@ def test_effect_columns_and_overridden_base_columns(paper):
     analytic ones. Both models solve the same statics to the same tolerance, so dp agrees to
     the solver's ~3e-11 m; the difference columns' round-off (eps x |qfrc_passive| / h, ~1e-10 of
     d g / d theta) grows through the KKT solve to ~1e-7 of a dp column: allowed 1e-6."""
-    from calbench.bench.model.effects import compensator
-    from calbench.identify.discover.fit import build
+    from calbench.bench.model import compensator
+    from calbench.identify.discover import build
 
     scn, _, obs = paper
     theta = true_theta(scn, Robot.from_file(scn.robot))

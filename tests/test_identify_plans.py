@@ -13,14 +13,12 @@ import numpy as np
 import pytest
 from conftest import MJCF, PAPER
 
-from calbench.bench.campaign.run import plan_campaign, truth_robot
-from calbench.bench.model.robot import Robot
-from calbench.bench.scenario.parse import parse_scenario
-from calbench.identify.core.forward import ForwardModel, design_from_observations
-from calbench.identify.core.identifiability import whiten_factors
-from calbench.identify.methods.onestep import one_step
-from calbench.identify.methods.twostep import linear_plan, two_step
-from calbench.identify.study.montecarlo import campaign_observations, true_theta
+from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.model import Robot
+from calbench.bench.scenario import parse_scenario
+from calbench.identify.core import ForwardModel, design_from_observations, whiten_factors
+from calbench.identify.methods import linear_plan, one_step, two_step
+from calbench.identify.study import campaign_observations, true_theta
 
 TEXT = PAPER.read_text()
 HEAD, *POSES = TEXT.split("[[pose]]")
@@ -123,7 +121,7 @@ def test_two_step_on_the_exact_statics_and_iterated_at_its_sagged_pose(paper):
     (identify/methods/twostep_iterated.py, the fixed point by Newton) brings K_C to +2.1 sigma, k2 to
     -0.7 sigma, s0 to -0.8 sigma; at the TRUE sag the linear model would give K_C +0.8 sigma:
     the rest is the linear model's own error (H00 of eq. 18) feeding the estimated sag."""
-    from calbench.identify.methods.twostep_iterated import two_step_iterated
+    from calbench.identify.methods import two_step_iterated
 
     scn, robot, obs = paper
     truth = true_theta(scn, Robot.from_file(scn.robot))
@@ -147,7 +145,7 @@ def test_iterated_covariance_carries_the_sags_share(paper):
     solve at the old sag, up to a second-order remainder -- which halves when the perturbation
     halves (a wrong A would leave a first-order error that does not). The sag's share is not
     small: k1's std grows by a third and s0's shrinks (the sag and s0 are anti-correlated)."""
-    from calbench.identify.methods.twostep_iterated import SagMap, sensitivity, two_step_iterated
+    from calbench.identify.methods import SagMap, sensitivity, two_step_iterated
 
     scn, robot, obs = paper
     it = two_step_iterated(robot, obs)

@@ -6,8 +6,8 @@ import json
 
 import pytest
 
-from calbench.bench.core.errors import InputError
-from calbench.bench.log.idreport import IdentificationReport, ObservationFit, Outlier, ParameterEstimate
+from calbench.bench.core import InputError
+from calbench.bench.log import IdentificationReport, ObservationFit, Outlier, ParameterEstimate
 
 # An `identify --json` report as calbench wrote it before the report had a type (trimmed to
 # two parameters and one observation; every key of that version is here, in its order).

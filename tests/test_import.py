@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 from conftest import MJCF, PAPER
 
-from calbench.bench.core.errors import InputError
-from calbench.bench.log.writer import read_log
-from calbench.bench.scenario.parse import load_plan, load_scenario
-from calbench.bench.shopfloor.readings import read_readings
+from calbench.bench.core import InputError
+from calbench.bench.log import read_log
+from calbench.bench.scenario import load_plan, load_scenario
+from calbench.bench.shopfloor import read_readings
 from calbench.identify.cli import main
 
 NAMES = ["refl_a", "refl_b", "refl_c"]
@@ -327,7 +327,7 @@ def test_read_readings_groups_repeats(tmp_path):
         + "\n"
     )
     t = read_readings(p, 16, NAMES)
-    from calbench.bench.shopfloor.readings import group
+    from calbench.bench.shopfloor import group
 
     g = group(t.of(0, "unloaded"), NAMES)
     assert len(g) == 2 and g[0].visible.tolist() == [True, True, False]
@@ -352,7 +352,7 @@ def test_times_travel_through_export_and_import(work):
     """The log's reading times (the campaign clock: bench/scenario/timeline.py) go out as ISO 8601 and
     come back as the imported log's times (to the microsecond the CSV keeps), and they are the
     simulator's schedule (bench.measuring.reading_times), which the iso10360 tracker drifts on."""
-    from calbench.bench.tracker.measuring import reading_times
+    from calbench.bench.tracker import reading_times
 
     out = work / "imported_times.mcap"
     assert (
@@ -371,7 +371,7 @@ def test_times_travel_through_export_and_import(work):
 def test_times_in_seconds_count_from_the_plans_start(work):
     from datetime import datetime
 
-    from calbench.bench.scenario.timeline import DEFAULT_START, start_ns
+    from calbench.bench.scenario import DEFAULT_START, start_ns
 
     rows = rows_of(work / "paper.csv")
     t = [datetime.fromisoformat(r["time"].replace("Z", "+00:00")) for r in rows]
@@ -391,7 +391,7 @@ def test_an_imported_log_carries_no_truth_and_the_report_says_measured(tmp_path)
     message on them the log has no truth (has_truth), so the report does not call it simulated."""
     from conftest import PAPER
 
-    from calbench.bench.log.writer import has_truth
+    from calbench.bench.log import has_truth
     from calbench.identify.cli import main as cli
 
     sim, csv, imp = tmp_path / "sim.mcap", tmp_path / "r.csv", tmp_path / "imp.mcap"

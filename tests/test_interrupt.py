@@ -23,7 +23,7 @@ from mcap.reader import make_reader
 from rerun_cli import rerun_env, rerun_exe
 
 import calbench.bench.scenario.timeline as timeline
-from calbench.bench.log.read import read_log
+from calbench.bench.log import read_log
 from calbench.identify.cli import main
 
 CALBENCH = str(Path(sys.executable).with_name("calbench"))
@@ -224,7 +224,7 @@ def test_a_signal_inside_the_writer_waits_for_it():
     message indexes behind: a damaged log in ~1 of 40 interrupted campaigns)."""
     import os
 
-    from calbench.bench.log.writer import SignalGuard
+    from calbench.bench.log import SignalGuard
 
     before = signal.getsignal(signal.SIGINT)
     g = SignalGuard()

@@ -15,18 +15,22 @@ import numpy as np
 import pytest
 from conftest import PAPER
 
-from calbench.bench.core.errors import InputError
-from calbench.bench.scenario.parse import TrackerSpec, parse_scenario
-from calbench.bench.tracker.instrument import Measurement, noise_covariance, spec_covariance, to_tracker_frame
-from calbench.bench.tracker.iso10360 import (
+from calbench.bench.core import InputError
+from calbench.bench.scenario import TrackerSpec, parse_scenario
+from calbench.bench.tracker import (
+    Measurement,
     correlated_covariance,
     deflection_covariance,
     draw_correlated,
     field_kernel,
     marginal_covariance,
+    measure_campaign,
+    noise_covariance,
+    reading_times,
+    spec_covariance,
+    to_tracker_frame,
 )
-from calbench.bench.tracker.measuring import measure_campaign, reading_times
-from calbench.identify.core.whitening import Whitener
+from calbench.identify.core import Whitener
 
 SPEC = TrackerSpec(
     np.array([3.5, -3.5, 3.2]),
@@ -176,7 +180,7 @@ def test_a_deflection_is_far_more_accurate_than_two_independent_readings():
 
 
 def _variant(tmp_path, tracker: str):
-    from calbench.bench.scenario.parse import load_scenario
+    from calbench.bench.scenario import load_scenario
 
     text = (
         PAPER.read_text()
@@ -204,8 +208,8 @@ def test_monte_carlo_is_honest_under_the_correlated_model(tmp_path):
     its variance at the Cramer-Rao bound. A weighting that ignored the correlation would report
     the spec model's sigma (the single-point covariance of each reading), which the last
     assertion shows is far off."""
-    from calbench.identify.design.threads import blas_threads
-    from calbench.identify.study.montecarlo import run_montecarlo
+    from calbench.identify.runtime import blas_threads
+    from calbench.identify.study import run_montecarlo
 
     runs = 300
     with blas_threads(1):
@@ -226,7 +230,7 @@ def test_design_whitens_a_candidate_by_the_same_covariance(tmp_path):
     """The design's candidates (one at a time and batched) use the estimator's covariance of a
     pose's deflections: block diagonal by reflector for the spec tracker, correlated for
     iso10360."""
-    from calbench.identify.design.candidates import InfoEngine, load_design_scenario
+    from calbench.identify.design import InfoEngine, load_design_scenario
 
     p0 = np.array([[1.2, 0.3, 1.9], [1.2, -0.3, 1.9], [1.3, 0.0, 1.3]])
     p1 = p0 + np.array([[0.0, 0.0, -0.002], [0.0, 0.0, -0.0021], [0.0005, 0.0, -0.0015]])

@@ -15,16 +15,14 @@ import pytest
 from conftest import ROOT
 from test_statics import deflection_twist, relaxed_flange, site_pose, small_load_response, tendon_torque_j2
 
-from calbench.bench.campaign.run import run_campaign, scenario_params
-from calbench.bench.model.params import Params, Spring
-from calbench.bench.model.robot import Robot
-from calbench.bench.scenario.parse import load_scenario, scenario_variant
-from calbench.bench.statics.equilibrium import Load, StaticsSolver
+from calbench.bench.campaign import run_campaign, scenario_params
+from calbench.bench.model import Params, Robot, Spring
+from calbench.bench.scenario import load_scenario, scenario_variant
+from calbench.bench.statics import Load, StaticsSolver
 from calbench.identify.cli import main
-from calbench.identify.design.candidates import InfoEngine, load_design_scenario
-from calbench.identify.design.plan import scenario_plan_information
-from calbench.identify.discover.workflow import discover
-from calbench.identify.study.montecarlo import run_montecarlo
+from calbench.identify.design import InfoEngine, load_design_scenario, scenario_plan_information
+from calbench.identify.discover import discover
+from calbench.identify.study import run_montecarlo
 
 KR270 = ROOT / "mjcf" / "kr270.xml"
 KR270_PAPER = ROOT / "scenarios" / "kr270_paper.toml"

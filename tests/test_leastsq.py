@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import scipy.optimize
 
-from calbench.identify.core.leastsq import covariance, levenberg_marquardt, svd_step
+from calbench.identify.core import covariance, levenberg_marquardt, svd_step
 
 
 def linear_problem(seed=0, n=40, p=4):

@@ -22,20 +22,21 @@ from mcap.writer import Writer
 from rerun_cli import rerun_env, rerun_exe
 
 import calbench.bench.log.writer as lf
-from calbench.bench.core.errors import InputError
-from calbench.bench.log.scan import Cut, Damage, scan
-from calbench.bench.log.writer import (
+from calbench.bench.core import InputError
+from calbench.bench.log import (
     TRUTH_PREFIX,
+    Cut,
+    Damage,
     LogHeader,
     LogWriter,
     has_truth,
     read_log,
     redact_truth,
+    scan,
     strip_truth,
 )
-from calbench.bench.model.params import Spring
-from calbench.bench.scenario.parse import TrackerSpec
-from calbench.bench.scenario.timeline import DEFAULT_START, start_ns
+from calbench.bench.model import Spring
+from calbench.bench.scenario import DEFAULT_START, TrackerSpec, start_ns
 
 REFLECTORS = ["R1", "R2", "R3"]
 K_TRUE = [1.1e-9, 1.2345e-09, 2.2e-9, 3.3e-8, 4.4e-8, 5.5e-8]  # distinctive values

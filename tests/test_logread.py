@@ -18,10 +18,8 @@ import numpy as np
 import pytest
 from conftest import PAPER
 
-from calbench.bench.core.errors import InputError
-from calbench.bench.log.read import CorruptLogError, read_log
-from calbench.bench.log.scan import Damage, scan
-from calbench.bench.log.writer import LogHeader, LogWriter
+from calbench.bench.core import InputError
+from calbench.bench.log import CorruptLogError, Damage, LogHeader, LogWriter, read_log, scan
 from calbench.identify.cli import main
 
 VERBS = {  # every verb that reads a log, with the output it would write

@@ -20,9 +20,9 @@ import numpy as np
 import pytest
 from conftest import PAPER
 
-from calbench.bench.scenario.parse import load_scenario
+from calbench.bench.scenario import load_scenario
 from calbench.identify.cli import main
-from calbench.identify.study.montecarlo import run_montecarlo
+from calbench.identify.study import run_montecarlo
 
 N = 200
 
@@ -53,11 +53,11 @@ def test_two_step_is_unbiased_where_its_linear_model_holds(tmp_path):
     an sd). A two-step that mis-builds a regressor or a step-2 row fails this."""
     from linear_case import linear_world
 
-    from calbench.bench.campaign.run import plan_campaign, truth_robot
-    from calbench.bench.model.robot import Robot
-    from calbench.bench.scenario.parse import parse_scenario
-    from calbench.identify.methods.twostep import linear_plan, two_step
-    from calbench.identify.study.montecarlo import campaign_observations, true_theta
+    from calbench.bench.campaign import plan_campaign, truth_robot
+    from calbench.bench.model import Robot
+    from calbench.bench.scenario import parse_scenario
+    from calbench.identify.methods import linear_plan, two_step
+    from calbench.identify.study import campaign_observations, true_theta
 
     path = linear_world(tmp_path)
     scn = parse_scenario(path.read_text(), path)
@@ -109,11 +109,11 @@ def test_campaign_observations_are_the_logs_readings(tmp_path, extra):
     measurement-side effects of the truth (a tracker drift added to the loaded readings)
     included. Exact data (no generator) differ from them by the noise alone: here by exactly
     the drift's offset where it is hidden, since the noise-free readings carry it too."""
-    from calbench.bench.campaign.run import plan_campaign, run_campaign, truth_robot
-    from calbench.bench.log.writer import read_log
-    from calbench.bench.scenario.parse import scenario_variant
-    from calbench.identify.core.observations import from_log
-    from calbench.identify.study.montecarlo import campaign_observations
+    from calbench.bench.campaign import plan_campaign, run_campaign, truth_robot
+    from calbench.bench.log import read_log
+    from calbench.bench.scenario import scenario_variant
+    from calbench.identify.core import from_log
+    from calbench.identify.study import campaign_observations
 
     scn = load_scenario(scenario_variant(PAPER, tmp_path / "s.toml", extra=extra))
     tr = truth_robot(scn)
@@ -126,7 +126,7 @@ def test_campaign_observations_are_the_logs_readings(tmp_path, extra):
         np.testing.assert_array_equal(a.dp, b.dp)
     # the noise-free campaign against the truth's own reflector motion, rotated into the tracker
     # frame (bench/tracker/instrument.py: world -> tracker is R^T x) and shifted by the drift, if any
-    from calbench.bench.tracker.instrument import tracker_rotation
+    from calbench.bench.tracker import tracker_rotation
 
     exact = campaign_observations(scn, tr, plan_campaign(scn, tr), None)
     offset = np.array([30e-6, -20e-6, 25e-6]) if extra else np.zeros(3)

@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 from conftest import PAPER
 
-from calbench.bench.core.errors import StaticsError
-from calbench.bench.scenario.parse import load_scenario
+from calbench.bench.core import StaticsError
+from calbench.bench.scenario import load_scenario
 from calbench.identify.study import montecarlo as M
 
 RUNS = 4

@@ -20,13 +20,12 @@ import numpy as np
 import pytest
 from conftest import ROOT
 
-from calbench.bench.campaign.run import plan_campaign, truth_robot
-from calbench.bench.model.robot import Robot
-from calbench.bench.scenario.parse import load_scenario
-from calbench.identify.core.whitening import Whitener
-from calbench.identify.methods.onestep import OneStep, generic_start, one_step, sanitize_start
-from calbench.identify.methods.twostep import two_step
-from calbench.identify.study.montecarlo import campaign_observations, true_theta
+from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.model import Robot
+from calbench.bench.scenario import load_scenario
+from calbench.identify.core import Whitener
+from calbench.identify.methods import OneStep, generic_start, one_step, sanitize_start, two_step
+from calbench.identify.study import campaign_observations, true_theta
 
 KR270_PAPER = ROOT / "scenarios" / "kr270_paper.toml"
 # (q in degrees, lateral wrench or None, repeats): the study's designed plan, to 1e-4 deg

@@ -10,8 +10,7 @@ from pathlib import Path
 import pytest
 from conftest import PAPER
 
-from calbench.bench.core.errors import InputError
-from calbench.bench.core.outputs import atomic_path, check_outputs, write_text
+from calbench.bench.core import InputError, atomic_path, check_outputs, write_text
 from calbench.identify.cli import main
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 from conftest import MJCF, PAPER
 
-from calbench.bench.scenario.parse import load_scenario
-from calbench.identify.runtime.portable import PortableScenario, with_robot
+from calbench.bench.scenario import load_scenario
+from calbench.identify.runtime import PortableScenario, with_robot
 
 
 def test_a_portable_scenario_rebuilds_the_same_scenario_without_the_users_files():

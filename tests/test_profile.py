@@ -16,12 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.campaign.run import plan_campaign, truth_robot
-from calbench.bench.model.robot import Robot
-from calbench.bench.scenario.parse import load_scenario
-from calbench.identify.core.profile import PROFILE_SIGMAS, profile_check
-from calbench.identify.methods.onestep import one_step
-from calbench.identify.study.montecarlo import campaign_observations, run_montecarlo
+from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.model import Robot
+from calbench.bench.scenario import load_scenario
+from calbench.identify.core import PROFILE_SIGMAS, profile_check
+from calbench.identify.methods import one_step
+from calbench.identify.study import campaign_observations, run_montecarlo
 
 WEAK = Path(__file__).resolve().parent / "kr270_weak7.toml"
 CAMPAIGNS = 12

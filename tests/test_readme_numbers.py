@@ -15,8 +15,7 @@ import pytest
 from conftest import K_TRUE, MJCF, ROOT, TABLE5, fanuc_params
 from scipy.optimize import least_squares
 
-from calbench.bench.model.loop import motor_forces, motor_jacobian
-from calbench.bench.model.robot import Robot
+from calbench.bench.model import Robot, motor_forces, motor_jacobian
 
 README = " ".join((ROOT / "README.md").read_text().split())  # line breaks as spaces
 SCENARIO = " ".join((ROOT / "scenarios" / "paper_table5.toml").read_text().split())

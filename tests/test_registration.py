@@ -21,9 +21,9 @@ import pytest
 from conftest import MJCF, PAPER
 from test_import import identify_json, plan_text, rows_of, simulate_and_export, write_rows
 
-from calbench.bench.log.writer import read_log
+from calbench.bench.log import read_log
 from calbench.identify.cli import main
-from calbench.identify.core.rigid import fit_rigid, rotation_exp
+from calbench.identify.core import fit_rigid, rotation_exp
 
 AXIS = np.array([0.3, -0.5, 0.81])
 R_EXTRA = rotation_exp(np.radians(40.0) * AXIS / np.linalg.norm(AXIS))  # tens of degrees, tilted
@@ -173,8 +173,8 @@ def test_the_imported_log_works_in_every_verb(work, capsys):
 
 
 def test_a_logged_rotation_must_be_a_rotation():
-    from calbench.bench.core.errors import InputError
-    from calbench.bench.scenario.parse import TrackerSpec
+    from calbench.bench.core import InputError
+    from calbench.bench.scenario import TrackerSpec
 
     good = TrackerSpec(np.zeros(3)).placed(TRACKER, R_EXTRA).to_dict()
     assert np.allclose(TrackerSpec.from_dict(good).rotation, R_EXTRA)
@@ -232,11 +232,11 @@ def test_unloaded_positions_are_the_same_stacked_or_scalar():
     """The forward model leaves the unloaded positions and their Jacobian for the registration
     on both of its paths; they agree like its deflections (tests/test_forward_batch.py: 1e-10 m,
     Jacobians to 1e-8 of a column's largest entry while the warm path converges)."""
-    from calbench.bench.campaign.run import plan_campaign, truth_robot
-    from calbench.bench.model.robot import Robot
-    from calbench.bench.scenario.parse import load_scenario
-    from calbench.identify.core.forward import ForwardModel, design_from_observations
-    from calbench.identify.study.montecarlo import campaign_observations, true_theta
+    from calbench.bench.campaign import plan_campaign, truth_robot
+    from calbench.bench.model import Robot
+    from calbench.bench.scenario import load_scenario
+    from calbench.identify.core import ForwardModel, design_from_observations
+    from calbench.identify.study import campaign_observations, true_theta
 
     scn = load_scenario(PAPER)
     tr = truth_robot(scn)

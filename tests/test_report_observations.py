@@ -7,10 +7,10 @@ import json
 import numpy as np
 from conftest import PAPER
 
-from calbench.bench.log.writer import read_log
-from calbench.bench.view.recording import measured_deflections
+from calbench.bench.log import read_log
+from calbench.bench.view import measured_deflections
 from calbench.identify.cli import main
-from calbench.identify.core.observations import from_log
+from calbench.identify.core import from_log
 
 
 def test_observations_are_measured_minus_residual_and_match_the_chi2(tmp_path):

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 from conftest import K_TRUE, MJCF, PAPER
 
-from calbench.bench.campaign.run import pose_load
-from calbench.bench.model.robot import LOOP_MARGIN, LOOP_MARGIN_ANGLE, Params, Robot, Spring
-from calbench.bench.scenario.parse import load_scenario
+from calbench.bench.campaign import pose_load
+from calbench.bench.model import LOOP_MARGIN, LOOP_MARGIN_ANGLE, Params, Robot, Spring
+from calbench.bench.scenario import load_scenario
 
 
 def make_robot() -> Robot:

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from conftest import PAPER
 
-from calbench.bench.core.errors import InputError
-from calbench.bench.model.params import Spring
-from calbench.bench.scenario.parse import (
+from calbench.bench.core import InputError
+from calbench.bench.model import Spring
+from calbench.bench.scenario import (
     DEFAULT_DISTANCE,
     DEFAULT_SIGMA,
     DEFAULT_TRANSVERSE,
@@ -26,7 +26,7 @@ from calbench.bench.scenario.parse import (
     scenario_as_dict,
     scenario_to_toml,
 )
-from calbench.bench.tracker.instrument import noise_covariance
+from calbench.bench.tracker import noise_covariance
 
 BASE = """\
 name = "unit"
@@ -388,14 +388,14 @@ def test_writer_orders_tables_escapes_strings_and_skips_none(tmp_path):
 
 def test_design_table_keys_match_the_design_module():
     """bench/scenario/parse.py accepts exactly the [design] keys identify/design_candidates.py reads."""
-    from calbench.bench.scenario.parse import DESIGN_KEYS as accepted
-    from calbench.identify.design.candidates import DESIGN_KEYS as read
+    from calbench.bench.scenario import DESIGN_KEYS as accepted
+    from calbench.identify.design import DESIGN_KEYS as read
 
     assert set(accepted) == set(read)
 
 
 def test_scenario_variant_overrides_and_validates(tmp_path):
-    from calbench.bench.scenario.parse import load_scenario, scenario_variant
+    from calbench.bench.scenario import load_scenario, scenario_variant
 
     paper = PAPER
     out = scenario_variant(

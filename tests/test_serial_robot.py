@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from robots import serial_mjcf
 
-from calbench.bench.log.writer import read_log
+from calbench.bench.log import read_log
 from calbench.identify.cli import main
 
 POSES = [
@@ -196,8 +196,8 @@ def test_candidates_of_one_robot_do_not_fit_another(arm, tmp_path, capsys):
 def test_the_wrist_centre_is_derived_or_named():
     """Design's wrist centre: the body of the last-but-one actuated joint, unless calbench:wrist
     names another body."""
-    from calbench.bench.model.robot import Robot
-    from calbench.identify.design.candidates import wrist_body
+    from calbench.bench.model import Robot
+    from calbench.identify.design import wrist_body
 
     plain = Robot.from_xml(serial_mjcf())
     assert plain.model.body(wrist_body(plain)).name == "lever"  # elbow_pitch's body

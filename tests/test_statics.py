@@ -12,9 +12,8 @@ import numpy as np
 import pytest
 from conftest import K_TRUE, MJCF, TABLE5, fanuc_params
 
-from calbench.bench.model.loop import loop_gap, motor_jacobian
-from calbench.bench.model.robot import Robot
-from calbench.bench.statics.equilibrium import (
+from calbench.bench.model import Robot, loop_gap, motor_jacobian
+from calbench.bench.statics import (
     LOOP_TOL,
     Load,
     NewtonPoint,
@@ -254,7 +253,7 @@ def test_apparent_j2_stiffness_varies_over_plan_q2_range():
     stiffness); over q2 in [0, 120] deg it varies by 16.3 % (README "Default truth values")."""
     from conftest import PAPER, fanuc_truth
 
-    from calbench.bench.scenario.parse import load_scenario
+    from calbench.bench.scenario import load_scenario
 
     robot = Robot.from_file(MJCF)
     truth = fanuc_truth(load_scenario(PAPER))

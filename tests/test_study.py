@@ -13,12 +13,9 @@ import pyarrow.parquet as pq
 import pytest
 from conftest import PAPER
 
-from calbench.bench.core.errors import InputError
+from calbench.bench.core import InputError
 from calbench.identify.cli import main
-from calbench.identify.study import load_study, prepare, run_study
-from calbench.identify.study.campaign import TIMING_COLUMNS
-from calbench.identify.study.run import design_key
-from calbench.identify.study.spec import scaled
+from calbench.identify.study import TIMING_COLUMNS, design_key, load_study, prepare, run_study, scaled
 
 BASE = f'scenario = "{PAPER.as_posix()}"\n'
 
@@ -166,12 +163,12 @@ values = ["design:A:8"]
 
 
 def test_plot_ticks_name_a_plan_file_by_its_name():
-    from calbench.identify.study.plots import _x
+    from calbench.identify.study import axis_ticks
 
-    x, labels = _x(["../scenarios/paper_table5.toml", "design:A:8", "/abs/plans/kr270_paper.toml"])
+    x, labels = axis_ticks(["../scenarios/paper_table5.toml", "design:A:8", "/abs/plans/kr270_paper.toml"])
     assert list(x) == [0.0, 1.0, 2.0]
     assert labels == ["paper_table5.toml", "design:A:8", "kr270_paper.toml"]
-    assert _x([1e-5, 2e-5])[1] is None  # numeric axes keep their values
+    assert axis_ticks([1e-5, 2e-5])[1] is None  # numeric axes keep their values
 
 
 def test_the_shipped_studies_are_valid():

@@ -18,15 +18,21 @@ import pyarrow.parquet as pq
 import pytest
 from conftest import PAPER
 
-from calbench.bench.campaign.run import run_campaign
-from calbench.bench.log.writer import read_log
-from calbench.bench.model.robot import Robot
-from calbench.bench.scenario.parse import load_scenario, scenario_variant
-from calbench.identify.core.observations import from_log
-from calbench.identify.report.identification import truth_vector
+from calbench.bench.campaign import run_campaign
+from calbench.bench.log import read_log
+from calbench.bench.model import Robot
+from calbench.bench.scenario import load_scenario, scenario_variant
+from calbench.identify.core import from_log
+from calbench.identify.report import truth_vector
+from calbench.identify.study import (
+    TIMING_COLUMNS,
+    load_study,
+    needs_log,
+    prepare,
+    run_study,
+    simulate_in_memory,
+)
 from calbench.identify.study import campaign as campaign_mod
-from calbench.identify.study import load_study, prepare, run_study
-from calbench.identify.study.campaign import TIMING_COLUMNS, needs_log, simulate_in_memory
 
 SPEC = 'model = "spec"\ndistance = [1.0e-5, 2.0e-6]\ntransverse = [2.0e-5, 3.0e-6]\n'
 DRIFT = "[truth.effects.tracker_drift]\noffset = [30e-6, -20e-6, 25e-6]\n"
@@ -83,7 +89,7 @@ def test_the_in_memory_campaign_is_what_a_reader_of_its_log_without_truth_gets(t
 def test_the_iso10360_tracker_goes_through_the_log():
     """Its covariances depend on the readings' times as the log stamps them (module docstring
     of identify/study/campaign.py): such a campaign is simulated into a log and read back."""
-    from calbench.bench.scenario.parse import TrackerSpec
+    from calbench.bench.scenario import TrackerSpec
 
     scn = load_scenario(PAPER)
     iso = dataclasses.replace(scn, tracker=TrackerSpec(scn.tracker.position, model="iso10360"))

@@ -12,9 +12,9 @@ import badcases as bc
 import pytest
 from mcap.records import Channel, Message
 
-from calbench.bench.log.scan import scan
+from calbench.bench.log import scan
+from calbench.bench.scenario import parse_scenario
 from calbench.bench.scenario import timeline as tl
-from calbench.bench.scenario.parse import parse_scenario
 from calbench.identify.cli import main
 
 NS = 10**9

@@ -8,8 +8,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from calbench.bench.scenario.parse import TrackerSpec
-from calbench.bench.tracker.instrument import (
+from calbench.bench.scenario import TrackerSpec
+from calbench.bench.tracker import (
     Measurement,
     mean_reading,
     measure,

@@ -23,8 +23,8 @@ import numpy as np
 import pytest
 from urdf_robots import ACTUATED, MOUNTS, TRUTH_K, arm_overlay, arm_urdf, joints, link_masses, scenario
 
-from calbench.bench.model.robot import Robot
-from calbench.bench.robots.urdf import CONTINUOUS_RANGE, PLACEHOLDER_STIFFNESS
+from calbench.bench.model import Robot
+from calbench.bench.robots import CONTINUOUS_RANGE, PLACEHOLDER_STIFFNESS
 from calbench.identify.cli import main
 
 VARIANTS = {"serial": (False, False), "compensator": (True, False), "loop": (False, True)}

@@ -23,25 +23,24 @@ from conftest import K_TRUE, MJCF, PAPER
 from rerun.chunk import RrdReader
 from rerun_cli import rerun_env, rerun_exe
 
-from calbench.bench.campaign.run import run_campaign
-from calbench.bench.core.errors import InputError
-from calbench.bench.log.idreport import IdentificationReport
-from calbench.bench.log.writer import read_log, strip_truth
-from calbench.bench.model.geoms import geom_shapes, reflector_posts
-from calbench.bench.model.robot import Robot
-from calbench.bench.scenario.parse import TrackerSpec, load_scenario
-from calbench.bench.tracker.instrument import to_world_frame
-from calbench.bench.view.params import WIDTH
-from calbench.bench.view.recording import (
+from calbench.bench.campaign import run_campaign
+from calbench.bench.core import InputError
+from calbench.bench.log import IdentificationReport, read_log, strip_truth
+from calbench.bench.model import Robot, geom_shapes, reflector_posts
+from calbench.bench.scenario import TrackerSpec, load_scenario
+from calbench.bench.tracker import to_world_frame
+from calbench.bench.view import (
+    HALF_FOV_TAN,
+    WIDTH,
     Discovery,
-    _geom_archetype,
     build_blueprint,
+    framing,
+    geom_archetype,
     measured_deflections,
     plan_view,
     write_discovery_recording,
     write_recording,
 )
-from calbench.bench.view.scene import HALF_FOV_TAN, framing
 from calbench.identify.cli import main as calbench_main
 
 F32 = 2e-6  # m: float32 resolution of world coordinates of a few metres, with margin
@@ -551,7 +550,7 @@ def test_the_tracker_stands_beyond_the_tool_and_apart_from_it(scenario, tmp_path
     FANUC's profile view already does that (the camera looks across the arm's plane: unchanged);
     on the KR 270 the profile put the tracker 0.05 half-widths behind the tool, and the camera
     turns by the least 5-degree step that sets them apart."""
-    from calbench.bench.view.scene import TRACKER_APART
+    from calbench.bench.view import TRACKER_APART
 
     log_path = tmp_path / "c.mcap"
     run_campaign(load_scenario(PAPER.parent / scenario), log_path)
@@ -711,7 +710,7 @@ def test_every_geom_type_is_drawn():
       </body></worldbody></mujoco>"""
     model = mujoco.MjModel.from_xml_string(xml)
     shapes = {s.name: s for s in geom_shapes(model)}
-    kinds = {name: type(_geom_archetype(rr, shape)).__name__ for name, shape in shapes.items()}
+    kinds = {name: type(geom_archetype(rr, shape)).__name__ for name, shape in shapes.items()}
     assert kinds == {
         "box": "Boxes3D",
         "cap": "Capsules3D",
@@ -720,10 +719,10 @@ def test_every_geom_type_is_drawn():
         "ell": "Ellipsoids3D",
         "msh": "Mesh3D",
     }
-    ghost = _geom_archetype(rr, shapes["box"], (1, 2, 3, 80))
+    ghost = geom_archetype(rr, shapes["box"], (1, 2, 3, 80))
     assert ghost.colors.as_arrow_array().to_pylist() == [0x01020350]
     # the capsule starts at one end of its segment (rerun capsules grow along +z)
-    cap = _geom_archetype(rr, shapes["cap"])
+    cap = geom_archetype(rr, shapes["cap"])
     start = np.asarray(cap.translations.as_arrow_array().to_pylist()[0])
     ends = [np.zeros(3), np.array([1.0, 0, 0])]
     assert min(np.linalg.norm(start - e) for e in ends) < 1e-6

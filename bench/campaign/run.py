@@ -15,18 +15,28 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from calbench.bench.core.errors import InputError
-from calbench.bench.core.progress import ProgressSink, sink
-from calbench.bench.log.foxglove import FoxgloveWriter
-from calbench.bench.log.writer import LogHeader, LogWriter
-from calbench.bench.model.effects import Readings, apply_effects, effect_from_truth
-from calbench.bench.model.robot import LOOP_MARGIN, LOOP_MARGIN_ANGLE, Params, Robot
-from calbench.bench.scenario.parse import Scenario, check_joint_limits
-from calbench.bench.scenario.parse import scenario_params as _scenario_params
-from calbench.bench.scenario.timeline import check_size, estimate, repeats_key
-from calbench.bench.statics.equilibrium import Equilibrium, Load, StaticsError, StaticsSolver
-from calbench.bench.tracker.instrument import Measurement, to_tracker_frame, tracker_rotation, visible_sites
-from calbench.bench.tracker.measuring import measure_campaign, reading_times
+from calbench.bench.core import InputError, ProgressSink, sink
+from calbench.bench.log import FoxgloveWriter, LogHeader, LogWriter
+from calbench.bench.model import (
+    LOOP_MARGIN,
+    LOOP_MARGIN_ANGLE,
+    Params,
+    Readings,
+    Robot,
+    apply_effects,
+    effect_from_truth,
+)
+from calbench.bench.scenario import Scenario, check_joint_limits, check_size, estimate, repeats_key
+from calbench.bench.scenario import scenario_params as _scenario_params
+from calbench.bench.statics import Equilibrium, Load, StaticsError, StaticsSolver
+from calbench.bench.tracker import (
+    Measurement,
+    measure_campaign,
+    reading_times,
+    to_tracker_frame,
+    tracker_rotation,
+    visible_sites,
+)
 
 STATES = ("unloaded", "loaded")
 

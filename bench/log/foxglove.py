@@ -44,9 +44,9 @@ from importlib.resources import files
 import mujoco
 import numpy as np
 
-from calbench.bench.model.geoms import GeomShape, geom_shapes, tendon_sites
-from calbench.bench.scenario.parse import TrackerSpec
-from calbench.bench.tracker.instrument import mean_reading, tracker_rotation
+from calbench.bench.model import GeomShape, geom_shapes, tendon_sites
+from calbench.bench.scenario import TrackerSpec
+from calbench.bench.tracker import mean_reading, tracker_rotation
 
 MAGNIFY = 200.0
 STATES = ("unloaded", "loaded")

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from calbench.bench.core.errors import InputError
+from calbench.bench.core import InputError
 
 Vec3 = tuple[float, float, float]
 

@@ -10,7 +10,7 @@ A log is input, and nothing it says is trusted blindly. The policy (docs/contrac
 * **Anything else wrong is a corrupt log, refused whole** (:class:`CorruptLogError`, an
   InputError: exit status 2, one line naming the topic, the pose and the field): a damaged
   record (a chunk or attachment whose CRC fails, a record that cannot be decoded:
-  bench/log/scan.py), a message that is not JSON or breaks its topic's schema (a wrong type, a
+  bench/log/mcapscan.py), a message that is not JSON or breaks its topic's schema (a wrong type, a
   5-element ``q``, a missing ``visible``, NaN or Infinity anywhere: bench/log/schema.py), a pose
   index outside the plan (``n_poses`` of ``/campaign/info``), a reading whose lists disagree
   in length or whose visibility and nulls disagree, a reading naming a reflector the header does
@@ -41,8 +41,9 @@ from typing import Any
 import numpy as np
 from mcap.records import Attachment, Channel, Footer, Message, Metadata
 
-from calbench.bench.core.errors import InputError
+from calbench.bench.core import InputError
 
+from .mcapscan import Cut, Damage, scan
 from .records import (
     CampaignLog,
     CampaignTruth,
@@ -53,7 +54,6 @@ from .records import (
     TruthReflectors,
     WrenchRecord,
 )
-from .scan import Cut, Damage, scan
 from .schema import (
     GROUND_TRUTH_METADATA,
     REQUIRED_TOPICS,

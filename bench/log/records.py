@@ -24,8 +24,8 @@ from typing import Any, Generic, TypeVar
 
 import numpy as np
 
-from calbench.bench.model.params import Params, Spring, springs_from_message
-from calbench.bench.scenario.parse import TrackerSpec
+from calbench.bench.model import Params, Spring, springs_from_message
+from calbench.bench.scenario import TrackerSpec
 
 STATES = ("unloaded", "loaded")
 T = TypeVar("T")

@@ -33,8 +33,9 @@ from typing import Any
 import numpy as np
 from mcap.records import Channel, Message, MessageIndex, Metadata
 
-from calbench.bench.core.errors import InputError
+from calbench.bench.core import InputError
 
+from .mcapscan import Cut, Damage, scan
 from .read import (
     COMMAND_TOL,
     DECODED,
@@ -46,7 +47,6 @@ from .read import (
     read_log,
 )
 from .records import pose_list
-from .scan import Cut, Damage, scan
 from .schema import REQUIRED_TOPICS
 from .writer import copy_log
 

@@ -19,7 +19,7 @@ Why this format
   saying how the campaign ended; Ctrl-C and SIGTERM are deferred while mcap's writer changes
   its state (:class:`SignalGuard`), so they land between two messages, never inside one.
 * Integrity: chunk and attachment CRCs (mcap's defaults) and the data section CRC, so a
-  damaged byte is found (bench/log/scan.py).
+  damaged byte is found (bench/log/mcapscan.py).
 * Time: messages are stamped by the campaign's clock from the scenario's ``start_time``, in
   causal order (bench/scenario/timeline.py); a message may also carry an explicit time (an imported log).
 * Determinism: the clock is synthetic, attachments carry the start time and the MCAP header
@@ -48,7 +48,7 @@ import numpy as np
 from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
 from mcap.writer import CompressionType, Writer
 
-from calbench.bench.scenario.timeline import (
+from calbench.bench.scenario import (
     DEFAULT_START,
     LOAD_S,
     MOVE_S,
@@ -58,6 +58,8 @@ from calbench.bench.scenario.timeline import (
     start_ns,
 )
 
+from .mcapscan import MAGIC as MCAP_MAGIC
+from .mcapscan import Cut, Damage, scan
 from .read import END_METADATA, CorruptLogError, has_truth, read_log
 from .records import (
     STATES,
@@ -70,8 +72,6 @@ from .records import (
     TruthReflectors,
     WrenchRecord,
 )
-from .scan import MAGIC as MCAP_MAGIC
-from .scan import Cut, Damage, scan
 from .schema import (
     GROUND_TRUTH_METADATA,
     REQUIRED_TOPICS,

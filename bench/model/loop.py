@@ -13,17 +13,25 @@ as MuJoCo's dofs). A motor-space Jacobian of any point is then J_site N.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import mujoco
 import numpy as np
 
-if TYPE_CHECKING:
-    from .robot import Robot
 
-LOOP_TOL = (
-    1e-12  # m, a closed loop's gap (bench/statics/equilibrium.py: the same ~1e-12 rad x a metre-long link)
-)
+class Looped(Protocol):
+    """What these functions need of a robot (bench.model.Robot has it): its model, its loops as
+    (site a, site b) id pairs, and which dofs the motors drive and which follow."""
+
+    model: mujoco.MjModel
+    loops: tuple[tuple[int, int], ...]
+    act_dof: np.ndarray
+    passive_dof: np.ndarray
+    n_act: int
+
+
+# m, a closed loop's gap (bench/statics/equilibrium.py: the same ~1e-12 rad x a metre-long link)
+LOOP_TOL = 1e-12
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -32,7 +40,7 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def loop_gap(
-    robot: Robot, data: mujoco.MjData, jac: np.ndarray | None = None, scratch: np.ndarray | None = None
+    robot: Looped, data: mujoco.MjData, jac: np.ndarray | None = None, scratch: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Gap c (3L,) and Jacobian J_c (3L, nv) of the robot's L loops, rows ordered loop by loop.
 
@@ -130,12 +138,12 @@ def constraint_basis_stack(jc: np.ndarray) -> np.ndarray:
     return out
 
 
-def loop_jacobian(robot: Robot, data: mujoco.MjData) -> np.ndarray:
+def loop_jacobian(robot: Looped, data: mujoco.MjData) -> np.ndarray:
     """J_c (3L, nv) alone (see :func:`loop_gap`)."""
     return loop_gap(robot, data)[1]
 
 
-def motor_map(robot: Robot, data: mujoco.MjData) -> np.ndarray:
+def motor_map(robot: Looped, data: mujoco.MjData) -> np.ndarray:
     """N (nv, n_act): joint velocities per unit motor velocity with the loops kept closed."""
     m = robot.model
     jc = loop_jacobian(robot, data)
@@ -147,7 +155,7 @@ def motor_map(robot: Robot, data: mujoco.MjData) -> np.ndarray:
     return n
 
 
-def motor_jacobian(robot: Robot, data: mujoco.MjData, site: int) -> np.ndarray:
+def motor_jacobian(robot: Looped, data: mujoco.MjData, site: int) -> np.ndarray:
     """(6, n_act) motor-space Jacobian [position; rotation] of a site, loops closed (paper J_p,
     eq. 12)."""
     m = robot.model
@@ -157,6 +165,6 @@ def motor_jacobian(robot: Robot, data: mujoco.MjData, site: int) -> np.ndarray:
     return np.vstack([jp @ n, jr @ n])
 
 
-def motor_forces(robot: Robot, data: mujoco.MjData, qfrc: np.ndarray) -> np.ndarray:
+def motor_forces(robot: Looped, data: mujoco.MjData, qfrc: np.ndarray) -> np.ndarray:
     """Generalized forces mapped to the motors by virtual work: N^T qfrc."""
     return motor_map(robot, data).T @ qfrc

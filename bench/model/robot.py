@@ -26,7 +26,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from calbench.bench.core.errors import StaticsError
+from calbench.bench.core import StaticsError
 
 from .description import Description, DescriptionError, read_description
 from .loop import LOOP_TOL, loop_gap

@@ -33,13 +33,11 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from calbench.bench.core.errors import InputError, StaticsError
-from calbench.bench.model.description import DescriptionError
-from calbench.bench.model.loop import LOOP_TOL, loop_gap
-from calbench.bench.model.robot import LOOP_MARGIN, LOOP_MARGIN_ANGLE, Robot
-from calbench.bench.scenario.parse import TrackerSpec
-from calbench.bench.statics.equilibrium import Load, StaticsSolver
-from calbench.bench.tracker.instrument import visible_sites
+from calbench.bench.core import InputError, StaticsError
+from calbench.bench.model import LOOP_MARGIN, LOOP_MARGIN_ANGLE, LOOP_TOL, DescriptionError, Robot, loop_gap
+from calbench.bench.scenario import TrackerSpec
+from calbench.bench.statics import Load, StaticsSolver
+from calbench.bench.tracker import visible_sites
 
 MIN_SPREAD = 0.01  # m, second singular value of the centred reflector positions
 TRACKER_DISTANCE = 5.0  # m from axis 1, at least twice the payload's reach

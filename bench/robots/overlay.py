@@ -28,8 +28,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from calbench.bench.core.errors import InputError
-from calbench.bench.scenario.parse import _Checker, _describe, _read, _toml
+from calbench.bench.core import InputError, Table, describe, parse_toml, read_text
 
 TOP_KEYS = (
     "actuated",
@@ -123,29 +122,27 @@ class Overlay:
         ]
 
 
-def _name(c: _Checker, name: str, what: str) -> str:
+def _name(c: Table, name: str, what: str) -> str:
     """A table key used as an MJCF name: the description texts are space-separated."""
     if not name or any(ch.isspace() for ch in name):
         raise c.fail(name, f"a {what} name without spaces", name)
     return name
 
 
-def _names(c: _Checker, key: str, what: str) -> tuple[str, ...]:
+def _names(c: Table, key: str, what: str) -> tuple[str, ...]:
     value = c.raw(key)
     expected = f"a non-empty array of {what} names (strings)"
     if not isinstance(value, list) or not value:
-        raise c.fail(key, expected, _describe(value))
+        raise c.fail(key, expected, describe(value))
     for i, v in enumerate(value):
         if not isinstance(v, str) or not v:
-            raise InputError(
-                c.file, f"{c.key(key)}[{i}]", f"a {what} name (a non-empty string)", _describe(v)
-            )
+            raise InputError(c.file, f"{c.key(key)}[{i}]", f"a {what} name (a non-empty string)", describe(v))
         if v in value[:i]:
             raise InputError(c.file, f"{c.key(key)}[{i}]", f"each {what} once", v)
     return tuple(value)
 
 
-def _attach(parent: _Checker, key: str, site: str) -> Attach:
+def _attach(parent: Table, key: str, site: str) -> Attach:
     c = parent.sub(key)
     c.only(("link", "pos"))
     link = c.string("link")
@@ -155,7 +152,7 @@ def _attach(parent: _Checker, key: str, site: str) -> Attach:
     return Attach(site, link, (float(pos[0]), float(pos[1]), float(pos[2])), c.prefix)
 
 
-def _compensator(tables: _Checker, name: str) -> CompensatorSpec:
+def _compensator(tables: Table, name: str) -> CompensatorSpec:
     c = tables.sub(name)
     c.only(("stiffness", "preload", "from", "to"))
     return CompensatorSpec(
@@ -168,7 +165,7 @@ def _compensator(tables: _Checker, name: str) -> CompensatorSpec:
     )
 
 
-def _loop(tables: _Checker, name: str) -> LoopSpec:
+def _loop(tables: Table, name: str) -> LoopSpec:
     c = tables.sub(name)
     c.only(("passive", "site1", "site2"))
     return LoopSpec(
@@ -181,7 +178,7 @@ def _loop(tables: _Checker, name: str) -> LoopSpec:
 
 
 def _mounts(
-    top: _Checker, compensators: tuple[CompensatorSpec, ...]
+    top: Table, compensators: tuple[CompensatorSpec, ...]
 ) -> tuple[tuple[str, str], tuple[Attach, ...]]:
     """``compensator_sites``: the name of an overlay compensator (its two sites) or a table
     {from, to} of two new sites (:data:`MOUNT_SITES`)."""
@@ -203,7 +200,7 @@ def _mounts(
     return MOUNT_SITES, mounts
 
 
-def _named_tables(top: _Checker, key: str, what: str) -> list[tuple[_Checker, str]]:
+def _named_tables(top: Table, key: str, what: str) -> list[tuple[Table, str]]:
     if not top.has(key):
         return []
     tables = top.sub(key)
@@ -214,7 +211,7 @@ def parse_overlay(text: str, path: str | Path) -> Overlay:
     """Validate overlay ``text`` read from ``path`` (used in messages and for ``[packages]``
     folders, which are relative to it)."""
     path = Path(path)
-    top = _toml(text, path)
+    top = parse_toml(text, path)
     top.only(TOP_KEYS)
     actuated = _names(top, "actuated", "joint")
     payload = _attach(top, "payload", PAYLOAD_SITE)
@@ -267,7 +264,7 @@ def parse_overlay(text: str, path: str | Path) -> Overlay:
 def load_overlay(path: str | Path) -> Overlay:
     """Read and validate the overlay file at ``path``."""
     path = Path(path)
-    return parse_overlay(_read(path, "overlay"), path)
+    return parse_overlay(read_text(path, "overlay"), path)
 
 
 __all__ = [

@@ -50,9 +50,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from calbench.bench.core.errors import CalbenchError, InputError
-from calbench.bench.model.description import set_spec_names
-from calbench.bench.model.robot import Robot
+from calbench.bench.core import CalbenchError, InputError
+from calbench.bench.model import Robot, set_spec_names
 
 from .overlay import Attach, Overlay
 

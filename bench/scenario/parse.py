@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from calbench.bench.core.errors import InputError
-from calbench.bench.model.params import LEGACY_COMPENSATOR, Params, Spring
+from calbench.bench.core import InputError, Table, describe, parse_toml, read_text
+from calbench.bench.model import LEGACY_COMPENSATOR, Params, Spring
 
 from .timeline import DEFAULT_START, parse_start_time
 
@@ -113,7 +113,7 @@ class TrackerSpec:
         in SI (yaw in rad). Missing optional keys take the scenario defaults; unknown keys are
         ignored (a log header may carry more). Bad values raise InputError naming ``file`` and
         ``key.<field>``."""
-        return _tracker_spec(_Checker(file, d, key), yaw_to_rad=float)
+        return _tracker_spec(Table(file, d, key), yaw_to_rad=float)
 
 
 @dataclass(frozen=True)
@@ -155,103 +155,6 @@ class Scenario:
 # --------------------------------------------------------------------------- field checks
 
 
-class _Checker:
-    """Typed access to one TOML table, raising InputError with the full key path."""
-
-    def __init__(self, file: Path, table: Any, prefix: str):
-        self.file = file
-        self.prefix = prefix
-        if not isinstance(table, dict):
-            raise InputError(file, prefix or "(top level)", "a table", _describe(table))
-        self.table = table
-
-    def key(self, name: str) -> str:
-        return f"{self.prefix}.{name}" if self.prefix else name
-
-    def fail(self, name: str, expected: str, got: Any = None) -> InputError:
-        return InputError(self.file, self.key(name), expected, got)
-
-    def only(self, allowed: tuple[str, ...]) -> None:
-        """Reject keys outside ``allowed`` (catches typos that would silently do nothing)."""
-        for name in self.table:
-            if name not in allowed:
-                raise self.fail(name, "no such key; allowed keys here: " + ", ".join(allowed))
-
-    def has(self, name: str) -> bool:
-        return name in self.table
-
-    def raw(self, name: str) -> Any:
-        if name not in self.table:
-            raise InputError(self.file, self.key(name), "this required key to be present")
-        return self.table[name]
-
-    def sub(self, name: str) -> _Checker:
-        value = self.raw(name)
-        if not isinstance(value, dict):
-            raise self.fail(name, "a table", _describe(value))
-        return _Checker(self.file, value, self.key(name))
-
-    def number(self, name: str, *, positive: bool = False, nonneg: bool = False) -> float:
-        return _number(self.file, self.key(name), self.raw(name), positive, nonneg)
-
-    def integer(self, name: str, lo: int | None = None, hi: int | None = None) -> int:
-        value = self.raw(name)
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise self.fail(name, _int_range(lo, hi), _describe(value))
-        if (lo is not None and value < lo) or (hi is not None and value > hi):
-            raise self.fail(name, _int_range(lo, hi), value)
-        return value
-
-    def string(self, name: str, choices: tuple[str, ...] | None = None) -> str:
-        value = self.raw(name)
-        if not isinstance(value, str):
-            raise self.fail(name, "a string", _describe(value))
-        if choices is not None and value not in choices:
-            raise self.fail(name, "one of " + ", ".join(f'"{c}"' for c in choices), value)
-        return value
-
-    def vector(self, name: str, n: int | None, *, positive: bool = False, nonneg: bool = False) -> np.ndarray:
-        """An array of n numbers (n None: any number >= 1)."""
-        value = self.raw(name)
-        what = f"an array of {n} numbers" if n is not None else "a non-empty array of numbers"
-        if not isinstance(value, list):
-            raise self.fail(name, what, _describe(value))
-        if (n is not None and len(value) != n) or not value:
-            raise self.fail(name, what, f"{len(value)} elements")
-        key = self.key(name)
-        return np.array([_number(self.file, f"{key}[{i}]", v, positive, nonneg) for i, v in enumerate(value)])
-
-
-def _describe(value: Any) -> str:
-    """Short name of a TOML value's type for error messages."""
-    if isinstance(value, bool):
-        return f"boolean {str(value).lower()}"
-    if isinstance(value, dict):
-        return "a table"
-    if isinstance(value, list):
-        return "an array"
-    return f"{type(value).__name__} {value!r}"
-
-
-def _int_range(lo: int | None, hi: int | None) -> str:
-    if lo is not None and hi is not None:
-        return f"an integer in {lo}..{hi}"
-    if lo is not None:
-        return f"an integer >= {lo}"
-    return "an integer"
-
-
-def _number(file: Path, key: str, value: Any, positive: bool, nonneg: bool) -> float:
-    """A finite real number (bool rejected), optionally > 0 or >= 0."""
-    what = "a finite number" + (" > 0" if positive else " >= 0" if nonneg else "")
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise InputError(file, key, what, _describe(value))
-    x = float(value)
-    if not math.isfinite(x) or (positive and x <= 0) or (nonneg and x < 0):
-        raise InputError(file, key, what, value)
-    return x
-
-
 # --------------------------------------------------------------------------- sections
 
 TOP_KEYS = (
@@ -281,7 +184,7 @@ DESIGN_KEYS = (
 EFFECT_KEYS = ("link_compliance", "base_compliance", "joint_nonlinearity", "tool_compliance", "tracker_drift")
 
 
-def _effects(c: _Checker) -> dict[str, dict]:
+def _effects(c: Table) -> dict[str, dict]:
     """Validate the optional hidden effects present only in the simulated truth."""
     c.only(EFFECT_KEYS)
     out: dict[str, dict] = {}
@@ -314,7 +217,7 @@ def _effects(c: _Checker) -> dict[str, dict]:
     return out
 
 
-def _pair(c: _Checker, name: str, default: tuple[float, float]) -> tuple[float, float]:
+def _pair(c: Table, name: str, default: tuple[float, float]) -> tuple[float, float]:
     """An ``[a, b]`` error law a + b*range: a > 0 keeps the covariance positive definite."""
     if not c.has(name):
         return default
@@ -324,7 +227,7 @@ def _pair(c: _Checker, name: str, default: tuple[float, float]) -> tuple[float, 
     return (float(a), float(b))
 
 
-def _tracker(c: _Checker) -> TrackerSpec:
+def _tracker(c: Table) -> TrackerSpec:
     """The scenario's ``[tracker]`` table (yaw and correlation_angle in degrees)."""
     c.only(("sigma", "position", "yaw", "model", "distance", "transverse") + ISO10360_KEYS)
     return _tracker_spec(c, yaw_to_rad=math.radians)
@@ -350,12 +253,12 @@ def _rotation_matrix(value: Any, file: object, key: str) -> np.ndarray:
             file,
             key,
             "a rotation matrix (3 rows of 3 numbers, orthonormal, det +1)",
-            _describe(value) if not isinstance(value, list) else value,
+            describe(value) if not isinstance(value, list) else value,
         )
     return _frozen(rot)
 
 
-def _tracker_spec(c: _Checker, yaw_to_rad: Callable[[float], float]) -> TrackerSpec:
+def _tracker_spec(c: Table, yaw_to_rad: Callable[[float], float]) -> TrackerSpec:
     """A TrackerSpec from a checked table; ``yaw_to_rad`` converts the table's yaw unit."""
     rotation = _rotation_matrix(c.raw("rotation"), c.file, c.key("rotation")) if c.has("rotation") else None
     model = c.string("model", TRACKER_MODELS) if c.has("model") else "isotropic"
@@ -389,7 +292,7 @@ def _tracker_spec(c: _Checker, yaw_to_rad: Callable[[float], float]) -> TrackerS
     )
 
 
-def _joint_vector(c: _Checker, name: str, n: int | None) -> np.ndarray:
+def _joint_vector(c: Table, name: str, n: int | None) -> np.ndarray:
     """Joint angles in degrees -> rad: one per actuated joint, as many as truth.compliance."""
     value = c.raw(name)
     if n is not None and isinstance(value, list) and len(value) != n:
@@ -416,12 +319,12 @@ def _joint_count(top: dict, truth: dict) -> int | None:
     return max(dict.fromkeys(lengths), key=lengths.count)  # first (compliance) wins ties
 
 
-def _spring(c: _Checker) -> Spring:
+def _spring(c: Table) -> Spring:
     c.only(("stiffness", "preload"))
     return Spring(stiffness=c.number("stiffness", nonneg=True), preload=c.number("preload", nonneg=True))
 
 
-def _compensators(truth: _Checker) -> dict[str, Spring]:
+def _compensators(truth: Table) -> dict[str, Spring]:
     """``[truth.compensator]`` (the tendon named "compensator") and ``[truth.compensators.T]``."""
     out: dict[str, Spring] = {}
     if truth.has("compensator"):
@@ -439,10 +342,10 @@ def _compensators(truth: _Checker) -> dict[str, Spring]:
 
 def _poses(file: Path, value: Any, n_joints: int | None) -> tuple[Pose, ...]:
     if not isinstance(value, list) or not value:
-        raise InputError(file, "pose", "at least one [[pose]] table", _describe(value))
+        raise InputError(file, "pose", "at least one [[pose]] table", describe(value))
     poses = []
     for i, entry in enumerate(value):
-        p = _Checker(file, entry, f"pose[{i}]")
+        p = Table(file, entry, f"pose[{i}]")
         p.only(("q", "wrench", "repeats"))
         poses.append(
             Pose(
@@ -456,22 +359,10 @@ def _poses(file: Path, value: Any, n_joints: int | None) -> tuple[Pose, ...]:
 
 # --------------------------------------------------------------------------- entry points
 
-_LINE = re.compile(r"line (\d+)")
 
-
-def _toml(text: str, path: Path) -> _Checker:
-    """A TOML document as a checked top-level table (syntax errors name the line)."""
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        m = _LINE.search(str(exc))
-        raise InputError(path, f"line {m.group(1)}" if m else "(syntax)", "valid TOML", str(exc)) from None
-    return _Checker(path, doc, "")
-
-
-def _document(text: str, path: Path) -> _Checker:
+def _document(text: str, path: Path) -> Table:
     """The scenario's top-level table: TOML, known keys, name and description strings."""
-    top = _toml(text, path)
+    top = parse_toml(text, path)
     top.only(TOP_KEYS)
     for name in ("name", "description"):
         if top.has(name):
@@ -479,7 +370,7 @@ def _document(text: str, path: Path) -> _Checker:
     return top
 
 
-def _robot(top: _Checker, path: Path) -> Path:
+def _robot(top: Table, path: Path) -> Path:
     robot_rel = top.string("robot")
     robot = (path.parent / robot_rel).resolve()
     if not robot.is_file():
@@ -487,7 +378,7 @@ def _robot(top: _Checker, path: Path) -> Path:
     return robot
 
 
-def _truth(top: _Checker) -> tuple[np.ndarray, dict[str, Spring], dict[str, dict]]:
+def _truth(top: Table) -> tuple[np.ndarray, dict[str, Spring], dict[str, dict]]:
     """The [truth] table: N compliances, the compensator springs by tendon, the effects."""
     truth = top.sub("truth")
     truth.only(("compliance", "compensator", "compensators", "effects"))
@@ -497,7 +388,7 @@ def _truth(top: _Checker) -> tuple[np.ndarray, dict[str, Spring], dict[str, dict
     return compliance, compensators, effects
 
 
-def _campaign(top: _Checker, path: Path, n_joints: int | None) -> dict[str, Any]:
+def _campaign(top: Table, path: Path, n_joints: int | None) -> dict[str, Any]:
     """What a scenario and a plan share: the load, the work pose, the poses, the name. Every q
     has ``n_joints`` angles (None: as many as the file's poses mostly have)."""
     if n_joints is None:
@@ -599,7 +490,7 @@ def parse_plan(text: str, path: str | Path) -> Plan:
             "import` registers the whole tracker pose)",
         )
     if not placed:
-        tr = _Checker(path, {**tr.table, "position": [0.0, 0.0, 0.0]}, tr.prefix)
+        tr = Table(path, {**tr.table, "position": [0.0, 0.0, 0.0]}, tr.prefix)
     return Plan(
         path=path,
         text=text,
@@ -614,20 +505,13 @@ def parse_plan(text: str, path: str | Path) -> Plan:
 def load_plan(path: str | Path) -> Plan:
     """Read and validate the plan file at ``path`` (see :func:`parse_plan`)."""
     path = Path(path)
-    return parse_plan(_read(path, "plan"), path)
+    return parse_plan(read_text(path, "plan"), path)
 
 
 def load_scenario(path: str | Path, seed: int | None = None) -> Scenario:
     """Read and validate the scenario file at ``path``; ``seed`` overrides the file's seed."""
     path = Path(path)
-    return parse_scenario(_read(path, "scenario"), path, seed)
-
-
-def _read(path: Path, what: str) -> str:
-    try:
-        return path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(path, "(file)", f"a readable UTF-8 {what} file", str(exc)) from None
+    return parse_scenario(read_text(path, "scenario"), path, seed)
 
 
 def scenario_variant(

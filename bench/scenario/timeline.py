@@ -46,7 +46,7 @@ from dataclasses import dataclass
 from datetime import UTC, date, datetime, timedelta
 from typing import Any
 
-from calbench.bench.core.errors import InputError
+from calbench.bench.core import InputError
 
 DEFAULT_START = datetime(2025, 1, 6, 8, 0, 0, tzinfo=UTC)  # a Monday, 08:00 UTC
 MOVE_S = 60.0

@@ -39,15 +39,12 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.campaign.run import pose_load
-from calbench.bench.core.errors import InputError
-from calbench.bench.log.records import CampaignLog
-from calbench.bench.log.writer import LogHeader, LogWriter
-from calbench.bench.model.robot import Robot
-from calbench.bench.scenario.parse import Plan, TrackerSpec
-from calbench.bench.scenario.timeline import NS
-from calbench.bench.tracker.instrument import noise_covariance
-from calbench.bench.tracker.measuring import schedule
+from calbench.bench.campaign import pose_load
+from calbench.bench.core import InputError
+from calbench.bench.log import CampaignLog, LogHeader, LogWriter
+from calbench.bench.model import Robot
+from calbench.bench.scenario import NS, Plan, TrackerSpec
+from calbench.bench.tracker import noise_covariance, schedule
 
 from .readings import ReadingsTable, Row, group, iso8601
 

@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.core.errors import InputError
+from calbench.bench.core import InputError
 
 REQUIRED = ("pose", "state", "point", "x", "y", "z")
 OPTIONAL = ("time", "sigma")

@@ -38,7 +38,7 @@ import mujoco
 import mujoco.batch
 import numpy as np
 
-from calbench.bench.model.loop import constraint_basis_stack
+from calbench.bench.model import constraint_basis_stack
 
 from .equilibrium import (
     CONTRACTION,

@@ -52,9 +52,8 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
-from calbench.bench.core.errors import StaticsError
-from calbench.bench.model.loop import LOOP_TOL, constraint_basis, loop_gap
-from calbench.bench.model.robot import Robot
+from calbench.bench.core import StaticsError
+from calbench.bench.model import LOOP_TOL, Robot, constraint_basis, loop_gap
 
 # The loop is closed by us; contacts and joint-range stops play no part in the statics (ranges
 # are controller limits, checked on the command).

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from calbench.bench.scenario.parse import TrackerSpec
+from calbench.bench.scenario import TrackerSpec
 
 OCCLUSION_TOL = 1e-6  # m: a hit closer than the site by more than this occludes it
 BLOCKING_GROUPS = np.array([1, 1, 1, 0, 0, 0], dtype=np.uint8)  # geom groups >= 3 never block

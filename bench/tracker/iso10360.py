@@ -68,7 +68,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from calbench.bench.scenario.parse import TrackerSpec
+from calbench.bench.scenario import TrackerSpec
 
 from .instrument import spec_covariance
 

@@ -20,8 +20,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from calbench.bench.scenario.parse import TrackerSpec
-from calbench.bench.scenario.timeline import LOAD_S, MOVE_S, UNLOAD_S, reading_seconds
+from calbench.bench.scenario import LOAD_S, MOVE_S, UNLOAD_S, TrackerSpec, reading_seconds
 
 from .instrument import Measurement, measure, to_tracker_frame
 from .iso10360 import draw_correlated

@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.core.units import unit_display
-from calbench.bench.log.idreport import IdentificationReport, ParameterEstimate
+from calbench.bench.core import unit_display
+from calbench.bench.log import IdentificationReport, ParameterEstimate
 
 # chart geometry, in the 2D view's units (the view fits them; about one unit per pixel)
 WIDTH = 400.0  # the axis, from its lowest to its highest tick

@@ -71,13 +71,9 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from calbench.bench.core.errors import InputError
-from calbench.bench.core.outputs import atomic_path, check_outputs
-from calbench.bench.log.idreport import IdentificationReport
-from calbench.bench.log.read import read_log
-from calbench.bench.log.records import STATES, CampaignLog
-from calbench.bench.model.geoms import GeomShape, ReflectorPost, geom_shapes, reflector_posts
-from calbench.bench.model.robot import Robot
+from calbench.bench.core import InputError, atomic_path, check_outputs
+from calbench.bench.log import STATES, CampaignLog, IdentificationReport, read_log
+from calbench.bench.model import GeomShape, ReflectorPost, Robot, geom_shapes, reflector_posts
 
 from . import params as viewparams
 from . import text as viewtext
@@ -294,7 +290,7 @@ def _rgba(rgba) -> tuple[int, int, int, int]:
     return tuple(int(round(255 * min(max(float(c), 0.0), 1.0))) for c in rgba)  # type: ignore
 
 
-def _geom_archetype(rr, shape: GeomShape, color=None):
+def geom_archetype(rr, shape: GeomShape, color=None):
     """The rerun archetype drawing one geom (bench/model/geoms.py) in its body's frame, solid, in its
     MJCF colour or ``color`` (RGBA 0..255; a ghost's is translucent)."""
     size, pos, quat = shape.size, shape.pos, shape.quat
@@ -538,7 +534,7 @@ class Summary:
 def _log_robot_geoms(rec, rr, shapes: list[GeomShape], bodies: list[str]) -> None:
     """The robot's geoms, static, each in its body's frame under ``robot/<body>``."""
     for shape in shapes:
-        arch = _geom_archetype(rr, shape)
+        arch = geom_archetype(rr, shape)
         if arch is not None:
             body = bodies[shape.body] if shape.body else "world"
             rec.log(f"robot/{body}/{_part(shape.name)}", arch, static=True)
@@ -563,7 +559,7 @@ class _Ghost:
         self.geoms: dict[int, list[tuple[str, object]]] = {}
         self.reach: dict[int, float] = {}
         for sh in shapes:
-            arch = _geom_archetype(rr, sh, color)
+            arch = geom_archetype(rr, sh, color)
             if arch is not None and sh.body > 0:
                 self.geoms.setdefault(sh.body, []).append((_part(sh.name), arch))
                 self.reach[sh.body] = max(
@@ -899,7 +895,7 @@ def log_campaign(
 # ---------------------------------------------------------------------------------------------
 
 
-def _check_magnify(magnify: float) -> float:
+def check_magnify(magnify: float) -> float:
     if not (isinstance(magnify, (int, float)) and math.isfinite(magnify) and magnify > 0):
         raise InputError("--magnify", "value", "a positive finite number", magnify)
     return float(magnify)
@@ -933,7 +929,7 @@ def write_recording(
 ) -> Summary:
     """Write the recording of a campaign log (and report) to ``rrd_path``, with its default
     blueprint. Raises InputError on bad input, before the output file is created."""
-    magnify = _check_magnify(magnify)
+    magnify = check_magnify(magnify)
     log = read_log(log_path, include_truth=True)
     ident = IdentificationReport.read(identified) if identified is not None else None
     rrd_path = Path(rrd_path)
@@ -952,7 +948,7 @@ def write_discovery_recording(
     """The view of `calbench discover`: where the user's model disagreed with the measurements
     and how much of it the named effects removed, on the robot (see the module doc)."""
     log = read_log(log_path, include_truth=True)
-    return _write(plan_view(log, None, _check_magnify(magnify), discovery), log_path, Path(rrd_path))
+    return _write(plan_view(log, None, check_magnify(magnify), discovery), log_path, Path(rrd_path))
 
 
 def has_display() -> bool:

@@ -29,13 +29,11 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from calbench.bench.core.errors import InputError
-from calbench.bench.log.idreport import IdentificationReport
-from calbench.bench.log.records import STATES, CampaignLog, PerState, WrenchRecord
-from calbench.bench.model.geoms import tendon_sites
-from calbench.bench.model.robot import Robot
-from calbench.bench.statics.equilibrium import Load, StaticsError, StaticsSolver
-from calbench.bench.tracker.instrument import MeanReading, mean_reading
+from calbench.bench.core import InputError
+from calbench.bench.log import STATES, CampaignLog, IdentificationReport, PerState, WrenchRecord
+from calbench.bench.model import Robot, tendon_sites
+from calbench.bench.statics import Load, StaticsError, StaticsSolver
+from calbench.bench.tracker import MeanReading, mean_reading
 
 HALF_FOV_TAN = 0.46  # tangent of the half field of view the framing allows (a margin inside
 # the viewer's own: the view is wider than tall, and labels need room)

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calbench.bench.log.records import WrenchRecord
+from calbench.bench.log import WrenchRecord
 
 
 @dataclass(frozen=True)

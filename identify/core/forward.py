@@ -55,9 +55,9 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from calbench.bench.model.robot import Robot
-from calbench.bench.statics.batched import BatchStatics
-from calbench.bench.statics.equilibrium import (
+from calbench.bench.model import Robot
+from calbench.bench.statics import (
+    BatchStatics,
     Load,
     NewtonPoint,
     NewtonResult,

@@ -51,7 +51,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calbench.bench.model.params import ParamLayout
+from calbench.bench.model import ParamLayout
 
 RANK_TOL = 1e-6
 ZERO_COLUMN_TOL = 1e-12

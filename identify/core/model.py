@@ -8,8 +8,8 @@ from pathlib import Path
 
 import mujoco
 
-from calbench.bench.core.errors import InputError
-from calbench.bench.model.robot import Robot
+from calbench.bench.core import InputError
+from calbench.bench.model import Robot
 
 from .observations import Observations
 

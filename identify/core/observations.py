@@ -26,11 +26,10 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from calbench.bench.core.errors import InputError
-from calbench.bench.log.writer import CampaignLog
-from calbench.bench.scenario.parse import TrackerSpec
-from calbench.bench.tracker.instrument import mean_reading, tracker_rotation
-from calbench.bench.tracker.iso10360 import deflection_covariance
+from calbench.bench.core import InputError
+from calbench.bench.log import CampaignLog
+from calbench.bench.scenario import TrackerSpec
+from calbench.bench.tracker import deflection_covariance, mean_reading, tracker_rotation
 
 
 @dataclass(frozen=True)

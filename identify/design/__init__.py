@@ -7,35 +7,6 @@ chosen and certified, on any blocks), plan (the whole pipeline and the runnable 
 (the paper's Tables 1-4 and Figs. 7-8), threads (BLAS pinning for the small algebra).
 """
 
-from .candidate_file import CandidateFile, read_candidates
-from .candidates import CandidateSet, DesignSettings, InfoEngine, generate_candidates, load_design_scenario
-from .certificate import ApproximateDesign, Certificate, approximate_design, certify
-from .criteria import CRITERIA, criterion_value, information, measures
-from .exchange import Exchanger
-from .plan import DesignResult, PlanPose, design_plan, plan_scenario_text
-from .selection import Selection, select_rows
+from calbench.bench.core import lazy_face
 
-__all__ = [
-    "CandidateSet",
-    "DesignSettings",
-    "InfoEngine",
-    "generate_candidates",
-    "load_design_scenario",
-    "CandidateFile",
-    "read_candidates",
-    "ApproximateDesign",
-    "Certificate",
-    "approximate_design",
-    "certify",
-    "CRITERIA",
-    "criterion_value",
-    "information",
-    "measures",
-    "Exchanger",
-    "DesignResult",
-    "PlanPose",
-    "design_plan",
-    "plan_scenario_text",
-    "Selection",
-    "select_rows",
-]
+__getattr__, __dir__, __all__ = lazy_face(__name__, __file__)

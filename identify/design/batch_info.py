@@ -29,12 +29,12 @@ import mujoco
 import mujoco.batch
 import numpy as np
 
-from calbench.bench.model.robot import LOOP_MARGIN
-from calbench.bench.statics.batched import BatchStatics, Equilibria
-from calbench.bench.statics.equilibrium import Load
-from calbench.bench.tracker.instrument import BLOCKING_GROUPS, sight_lines, unoccluded
+from calbench.bench.model import LOOP_MARGIN
+from calbench.bench.statics import BatchStatics, Equilibria, Load
+from calbench.bench.tracker import BLOCKING_GROUPS, sight_lines, unoccluded
 
-from .candidates import COMMAND_RULES, RULES, InfoEngine, horizontal_clearance, lateral_wrench
+from .engine import InfoEngine
+from .feasibility import COMMAND_RULES, RULES, horizontal_clearance, lateral_wrench
 
 _POS = int(mujoco.mjtStage.mjSTAGE_POS)
 

@@ -36,10 +36,10 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.core.errors import InputError
+from calbench.bench.core import InputError
 
-from .candidates import LOAD_KINDS
 from .certificate import normalise_blocks
+from .feasibility import LOAD_KINDS
 
 NOTE = (
     "blocks[i] = whitened regressor of candidate i (rows: reflector deflections divided by their "

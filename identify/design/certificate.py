@@ -73,9 +73,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from calbench.identify.runtime import blas_threads as pinned_blas
+
 from .criteria import AD_WEIGHTS, criterion_value, weight_matrix
 from .exchange import compress
-from .threads import blas_threads as pinned_blas
 
 ALGORITHMS = ("fw-away", "multiplicative")
 
@@ -347,7 +348,7 @@ def approximate_design(
     or after max_iter / max_seconds: the bounds (3), (4) hold at any w. ``start``: initial
     weights (fw-away; default: uniform, or the capped uniform when ``cap`` is set); a plan's
     counts n / M are a good one. Raises SingularCandidates when no design is nonsingular.
-    ``blas_threads``: BLAS threads meanwhile (identify/design/threads.py; None: as is)."""
+    ``blas_threads``: BLAS threads meanwhile (identify/runtime/threads.py; None: as is)."""
     with pinned_blas(blas_threads):
         return _approximate_design(blocks, criterion, W, algorithm, start, cap, tol, max_iter, max_seconds)
 

@@ -24,7 +24,7 @@ k1 without a lateral pull); final values are recomputed from scratch without it.
 
 Threads: the algebra is small (8 x 8 blocks, N x 64 products), where OpenBLAS threads only add
 synchronisation and, on a loaded machine, fight over the cores; ``optimise`` pins BLAS to
-``blas_threads`` (default 1) for its duration (identify/design/threads.py;
+``blas_threads`` (default 1) for its duration (identify/runtime/threads.py;
 benchmarks/certificate_bench.py measures both).
 """
 
@@ -34,8 +34,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from calbench.identify.runtime import blas_threads as pinned_blas
+
 from .criteria import combine, criterion_value, information, weight_matrix
-from .threads import blas_threads as pinned_blas
 
 
 def compress(blocks: np.ndarray) -> np.ndarray:

@@ -25,14 +25,16 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.core.errors import InputError
-from calbench.bench.core.progress import ProgressSink
-from calbench.bench.scenario.parse import Scenario, scenario_as_dict, scenario_to_toml
+from calbench.bench.core import InputError, ProgressSink
+from calbench.bench.scenario import Scenario, scenario_as_dict, scenario_to_toml
 
-from .candidates import LOAD_KINDS, CandidateSet, DesignSettings, InfoEngine, lateral_wrench
+from .candidates import CandidateSet
 from .certificate import SingularCandidates
 from .criteria import CRITERIA, criterion_value, information, measures
+from .engine import InfoEngine
+from .feasibility import LOAD_KINDS, lateral_wrench
 from .selection import Selection, select_rows, selection_text
+from .settings import DesignSettings
 
 REFINE_STEPS_DEG = (4.0, 2.0, 1.0)
 

@@ -28,10 +28,11 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.core.errors import InputError
+from calbench.bench.core import InputError
 
-from .candidates import InfoEngine, load_design_scenario
 from .criteria import measures
+from .engine import InfoEngine
+from .settings import load_design_scenario
 
 WRISTS = ((-45.0, 30.0, 135.0), (45.0, -30.0, 45.0))
 Q3 = (-30.0, 30.0)

@@ -7,17 +7,6 @@ near-ties), uncertainty (what a fit determines), aliasing (what a fit cannot see
 person reads), workflow (the whole `calbench discover`).
 """
 
-from .fit import DISCOVERY_EFFECTS, AugmentedForward, Fit, library
-from .workflow import AMBIGUOUS, UNEXPLAINED, discover, discover_observations, story
+from calbench.bench.core import lazy_face
 
-__all__ = [
-    "DISCOVERY_EFFECTS",
-    "AugmentedForward",
-    "Fit",
-    "library",
-    "AMBIGUOUS",
-    "UNEXPLAINED",
-    "discover",
-    "discover_observations",
-    "story",
-]
+__getattr__, __dir__, __all__ = lazy_face(__name__, __file__)

@@ -34,9 +34,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from calbench.bench.statics.equilibrium import Load
-from calbench.identify.core.forward import design_from_observations
-from calbench.identify.core.whitening import Whitener
+from calbench.bench.statics import Load
+from calbench.identify.core import Whitener, design_from_observations
 
 from .decide import lr_threshold
 from .fit import AugmentedForward, effect_priors

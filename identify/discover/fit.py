@@ -45,21 +45,28 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from calbench.bench.model.effects import (
+from calbench.bench.model import (
     DISCOVERY_OPTIONS,
     Effect,
+    ParamLayout,
     Readings,
+    Robot,
     apply_effects,
     discovery_library,
     priors,
 )
-from calbench.bench.model.params import ParamLayout
-from calbench.bench.model.robot import Robot
-from calbench.bench.tracker.instrument import tracker_rotation
-from calbench.identify.core.forward import ForwardModel, PoseDesign, design_from_observations
-from calbench.identify.core.identifiability import analyze
-from calbench.identify.core.leastsq import Fit, at_bounds, covariance, levenberg_marquardt
-from calbench.identify.core.whitening import Whitener
+from calbench.bench.tracker import tracker_rotation
+from calbench.identify.core import (
+    Fit,
+    ForwardModel,
+    PoseDesign,
+    Whitener,
+    analyze,
+    at_bounds,
+    covariance,
+    design_from_observations,
+    levenberg_marquardt,
+)
 
 # --------------------------------------------------------------------------- the library
 
@@ -400,7 +407,7 @@ def whitened(model: AugmentedForward, white: Whitener, theta: np.ndarray) -> tup
     return white.vec(f), white.mat(j)
 
 
-def fit(
+def fit_augmented(
     model: AugmentedForward,
     dp: np.ndarray,
     white: Whitener,
@@ -491,6 +498,6 @@ __all__ = [
     "AugmentedForward",
     "Fit",
     "build",
-    "fit",
+    "fit_augmented",
     "whitened",
 ]

@@ -42,11 +42,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calbench.bench.model.effects import Effect, priors
-from calbench.identify.core.leastsq import Fit
-from calbench.identify.core.whitening import Whitener
+from calbench.bench.model import Effect, priors
+from calbench.identify.core import Fit, Whitener
 
-from .fit import build, effect_priors, fit, whitened
+from .fit import build, effect_priors, fit_augmented, whitened
 
 MIN_SIGNATURE = 5.0  # sigma: the smallest unabsorbed signature of a spread start
 VISIBLE_SHARE = 0.05  # |projected column| / |column| below which spreading gains nothing
@@ -179,7 +178,7 @@ def fit_candidate(
                 if promise > best.chi2 - SCREEN_MARGIN:
                     record.append({"start": st.label, "promised_chi2": promise, "evaluations": 1})
                     continue
-            f = fit(
+            f = fit_augmented(
                 fm,
                 obs.dp,
                 white,
@@ -222,7 +221,7 @@ def polish(f: Fit, obs, white: Whitener) -> Fit:
     lo, hi, hold = f.extra["bounds"]
     t0 = time.perf_counter()
     try:
-        p = fit(f.model, obs.dp, white, f.values, lo, hi, hold)
+        p = fit_augmented(f.model, obs.dp, white, f.values, lo, hi, hold)
     except ERRORS:
         p = f
     best = p if p.chi2 <= f.chi2 else f

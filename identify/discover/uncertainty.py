@@ -31,10 +31,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calbench.bench.model.effects import priors
-from calbench.identify.core.leastsq import Fit
-from calbench.identify.core.profile import profile_check
-from calbench.identify.core.whitening import Whitener
+from calbench.bench.model import priors
+from calbench.identify.core import Fit, Whitener, profile_check
 
 MAX_RELATIVE_STD = 1.0  # a parameter whose std exceeds its own size is not determined
 NULL_TOL = 1e-3  # component in the null space that makes a parameter unidentifiable
@@ -123,7 +121,7 @@ def not_quadratic(f: Fit, obs, white: Whitener, det: Determination, indices) -> 
     refitted from there by identify/discover/fit.py). This is the x-z bending of a braced upper
     arm: the Fisher std says the truth is 5 sigma away, the profile 2.4 (benchmarks and
     tests/test_discover.py)."""
-    from .fit import fit as fit_model
+    from .fit import fit_augmented as fit_model
 
     lo, hi, hold = f.extra["bounds"]
 

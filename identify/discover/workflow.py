@@ -22,7 +22,7 @@
 5. SAY what the fit does not tell: honest std and the determined combinations where only a
    combination is seen (identify/discover/uncertainty.py), and the aliasing of every library
    effect not named plus ``load_scale`` (identify/discover/aliasing.py).
-6. SHOW the gap shrink (identify/discover/story.py): RMS before/after against what noise alone
+6. SHOW the gap shrink (identify/discover/narrative.py): RMS before/after against what noise alone
    leaves, a PNG of per-pose residuals, an identify-style JSON for `calbench view --identified`.
 
 Only what identify reads is read: the log without truth (no /truth/ topic, no ground_truth
@@ -39,16 +39,12 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.core.outputs import write_text
-from calbench.bench.log.read import read_log
-from calbench.bench.model.description import set_spec_names, spec_names
-from calbench.bench.model.effects import augmented_xml, load_spec
-from calbench.bench.model.robot import Robot
-from calbench.bench.view.recording import Discovery, write_discovery_recording
-from calbench.identify.core.model import check_sites, load_model
-from calbench.identify.core.observations import Observations, from_log
-from calbench.identify.core.whitening import Whitener
-from calbench.identify.methods.onestep import one_step
+from calbench.bench.core import write_text
+from calbench.bench.log import read_log
+from calbench.bench.model import Robot, augmented_xml, load_spec, set_spec_names, spec_names
+from calbench.bench.view import Discovery, write_discovery_recording
+from calbench.identify.core import Observations, Whitener, check_sites, from_log, load_model
+from calbench.identify.methods import one_step
 
 from .aliasing import aliasing_report
 from .decide import (
@@ -60,10 +56,10 @@ from .decide import (
     lr_threshold,
     near_ties,
 )
-from .fit import Fit, build, effect_priors, fit, label, library, whitened
+from .fit import Fit, build, effect_priors, fit_augmented, label, library, whitened
+from .narrative import clean, plot_residuals, story, view_report
 from .search import fit_candidate, polish
 from .stats import ALPHA_FIT, chi2_p, diagnose, expected_rms, rms
-from .story import clean, plot_residuals, story, view_report
 from .uncertainty import MAX_RELATIVE_STD, determination, not_quadratic
 
 MAX_ROUNDS = 3
@@ -94,7 +90,7 @@ def base_fit(src, obs: Observations, white: np.ndarray) -> Fit:
     r = one_step(robot, obs, step_tol=1e-3, max_iter=BASE_START_ITER)
     lo, hi = robot.layout.lower, robot.layout.upper
     start = np.clip(np.where(np.isfinite(r.theta), r.theta, r.start), lo, hi)
-    base = fit(fm, obs.dp, white, start, lo, hi, ~np.asarray(r.identifiable, bool))
+    base = fit_augmented(fm, obs.dp, white, start, lo, hi, ~np.asarray(r.identifiable, bool))
     base.extra["fresh_start"] = np.clip(r.start, lo, hi)
     return base
 

@@ -52,14 +52,22 @@ from __future__ import annotations
 
 import numpy as np
 
-from calbench.bench.model.params import ParamLayout
-from calbench.bench.model.robot import Robot
-from calbench.identify.core.forward import ForwardModel, design_from_observations
-from calbench.identify.core.identifiability import RANK_TOL, analyze, explain, resolve
-from calbench.identify.core.leastsq import Fit, covariance, levenberg_marquardt
-from calbench.identify.core.observations import Observations
-from calbench.identify.core.profile import Profile, profile_check
-from calbench.identify.core.whitening import Whitener
+from calbench.bench.model import ParamLayout, Robot
+from calbench.identify.core import (
+    RANK_TOL,
+    Fit,
+    ForwardModel,
+    Observations,
+    Profile,
+    Whitener,
+    analyze,
+    covariance,
+    design_from_observations,
+    explain,
+    levenberg_marquardt,
+    profile_check,
+    resolve,
+)
 
 from .twostep import TwoStepError, TwoStepResult, group_q2, plan_facts, two_step
 

@@ -46,11 +46,8 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from calbench.bench.model.loop import motor_jacobian
-from calbench.bench.model.robot import Robot
-from calbench.identify.core.identifiability import Identifiability, analyze, explain
-from calbench.identify.core.observations import Observations
-from calbench.identify.core.whitening import Whitener
+from calbench.bench.model import Robot, motor_jacobian
+from calbench.identify.core import Identifiability, Observations, Whitener, analyze, explain
 
 Q2_GROUP_TOL = 1e-6  # rad
 

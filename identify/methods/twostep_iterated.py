@@ -39,10 +39,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from calbench.bench.model.robot import Robot
-from calbench.bench.statics.equilibrium import StaticsError, StaticsSolver
-from calbench.identify.core.observations import Observations
-from calbench.identify.core.whitening import Whitener
+from calbench.bench.model import Robot
+from calbench.bench.statics import StaticsError, StaticsSolver
+from calbench.identify.core import Observations, Whitener
 
 from .onestep import generic_start
 from .twostep import TwoStepResult, group_q2, linear_plan, two_step, two_step_applies

@@ -39,13 +39,11 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
-from calbench.bench.core.errors import InputError
-from calbench.bench.core.outputs import check_outputs, write_text
-from calbench.bench.log.idreport import IdentificationReport
-from calbench.bench.log.writer import CampaignLog, has_truth, read_log
-from calbench.bench.view.recording import measured_deflections
-from calbench.identify.discover.stats import ALPHA_FIT as MISFIT_P  # chi2 p below which the model is rejected
-from calbench.identify.discover.story import alias_lines
+from calbench.bench.core import InputError, check_outputs, write_text
+from calbench.bench.log import CampaignLog, IdentificationReport, has_truth, read_log
+from calbench.bench.view import measured_deflections
+from calbench.identify.discover import ALPHA_FIT as MISFIT_P  # chi2 p below which the model is rejected
+from calbench.identify.discover import alias_lines
 
 from . import htmlplots
 from .identification import DISPLAY, noise_source
@@ -637,7 +635,7 @@ def render(context: dict) -> str:
     return env.get_template("report.html.j2").render(**context)
 
 
-def build_report(
+def html_report(
     log_path, identified=None, discover=None, design=None, out: str | os.PathLike = "REPORT.html"
 ) -> str:
     """The report's HTML text. ``out`` only names the report in its reproduce section."""
@@ -677,12 +675,12 @@ def write_report(log_path, out, identified=None, discover=None, design=None) -> 
         {"--out": out},
         {"LOG.mcap": log_path, "--identified": identified, "--discover": discover, "--design": design},
     )["--out"]
-    return write_text(out, build_report(log_path, identified, discover, design, out))
+    return write_text(out, html_report(log_path, identified, discover, design, out))
 
 
 __all__ = [
     "write_report",
-    "build_report",
+    "html_report",
     "read_json_report",
     "read_identified",
     "campaign_section",

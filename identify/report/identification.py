@@ -16,18 +16,27 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calbench.bench.core.errors import InputError
-from calbench.bench.core.units import DISPLAY
-from calbench.bench.log.idreport import IdentificationReport, ObservationFit, Outlier, ParameterEstimate
-from calbench.bench.log.writer import CampaignTruth, read_log
-from calbench.bench.model.robot import Robot
-from calbench.identify.core.identifiability import MAX_RELATIVE_STD, OUTLIER_SIGMA, outliers
-from calbench.identify.core.model import check_sites, load_model
-from calbench.identify.core.observations import Observations, from_log
-from calbench.identify.core.profile import Profile
-from calbench.identify.methods.onestep import one_step
-from calbench.identify.methods.twostep import TwoStepError, two_step, two_step_applies
-from calbench.identify.methods.twostep_iterated import two_step_iterated
+from calbench.bench.core import DISPLAY, InputError
+from calbench.bench.log import (
+    CampaignTruth,
+    IdentificationReport,
+    ObservationFit,
+    Outlier,
+    ParameterEstimate,
+    read_log,
+)
+from calbench.bench.model import Robot
+from calbench.identify.core import (
+    MAX_RELATIVE_STD,
+    OUTLIER_SIGMA,
+    Observations,
+    Profile,
+    check_sites,
+    from_log,
+    load_model,
+    outliers,
+)
+from calbench.identify.methods import TwoStepError, one_step, two_step, two_step_applies, two_step_iterated
 
 METHODS = ("one-step", "two-step", "two-step-iterated")
 Z_CHECK = 4.0
@@ -152,7 +161,7 @@ def _num(x) -> float | None:
     return None if x is None or not np.isfinite(x) else float(x)
 
 
-def build_report(
+def identification_report(
     res: Identified, truth: np.ndarray | None, log_path, model_name: str, seconds: float
 ) -> IdentificationReport:
     """The report of an identification; ``truth`` (from the log, after the estimate) fills the
@@ -295,7 +304,7 @@ def run_identify(
     seconds = time.perf_counter() - t0
     truth = truth_vector(read_log(log_path, include_truth=True).truth, robot)  # for the report only
     model_name = str(model) if model is not None else f"{log.header.get('robot', 'MJCF')} (from the log)"
-    return build_report(res, truth, log_path, model_name, seconds)
+    return identification_report(res, truth, log_path, model_name, seconds)
 
 
 def check_failed(rep: IdentificationReport, z_max: float = Z_CHECK) -> list[str]:
@@ -316,4 +325,12 @@ def check_failed(rep: IdentificationReport, z_max: float = Z_CHECK) -> list[str]
     return bad
 
 
-__all__ = ["run_identify", "identify", "format_table", "build_report", "check_failed", "METHODS", "Z_CHECK"]
+__all__ = [
+    "run_identify",
+    "identify",
+    "format_table",
+    "identification_report",
+    "check_failed",
+    "METHODS",
+    "Z_CHECK",
+]

@@ -50,7 +50,7 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from calbench.bench.core.errors import InputError
+from calbench.bench.core import InputError
 
 IN_PROCESS = "in-process"
 LOCAL = "local cluster"

@@ -23,8 +23,8 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-from calbench.bench.core.outputs import write_text
-from calbench.bench.scenario.parse import Scenario, parse_scenario, scenario_to_toml
+from calbench.bench.core import write_text
+from calbench.bench.scenario import Scenario, parse_scenario, scenario_to_toml
 
 _ROBOT_LINE = re.compile(r"""^(\s*robot\s*=\s*)(?:"[^"\n]*"|'[^'\n]*')""", re.MULTILINE)
 

@@ -18,13 +18,16 @@ import hashlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from calbench.bench.core.errors import InputError
-from calbench.bench.core.outputs import atomic_path
-from calbench.bench.model.robot import Robot
-from calbench.bench.scenario.parse import Plan, TrackerSpec, check_joint_limits, load_plan
-from calbench.bench.scenario.timeline import start_ns
-from calbench.bench.shopfloor.logcsv import ImportSummary, campaign_readings, write_imported_log
-from calbench.bench.shopfloor.readings import ReadingsTable, read_readings
+from calbench.bench.core import InputError, atomic_path
+from calbench.bench.model import Robot
+from calbench.bench.scenario import Plan, TrackerSpec, check_joint_limits, load_plan, start_ns
+from calbench.bench.shopfloor import (
+    ImportSummary,
+    ReadingsTable,
+    campaign_readings,
+    read_readings,
+    write_imported_log,
+)
 
 from .tracker_pose import Registration, check_placed, register
 

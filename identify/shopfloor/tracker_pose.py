@@ -54,20 +54,28 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from calbench.bench.campaign.run import pose_load
-from calbench.bench.core.errors import InputError
-from calbench.bench.model.robot import Robot
-from calbench.bench.scenario.parse import Plan, TrackerSpec
-from calbench.bench.shopfloor.logcsv import Readings
-from calbench.bench.shopfloor.readings import ReadingsTable
-from calbench.bench.tracker.instrument import mean_reading, tracker_rotation
-from calbench.bench.tracker.iso10360 import correlated_marginal
-from calbench.identify.core.forward import ForwardModel, design_from_observations
-from calbench.identify.core.identifiability import RANK_TOL, analyze
-from calbench.identify.core.leastsq import covariance, levenberg_marquardt
-from calbench.identify.core.observations import Observations, PoseObservation, pose_observation
-from calbench.identify.core.rigid import RigidFit, fit_rigid, non_collinear, rotation_exp
-from calbench.identify.methods.onestep import (
+from calbench.bench.campaign import pose_load
+from calbench.bench.core import InputError
+from calbench.bench.model import Robot
+from calbench.bench.scenario import Plan, TrackerSpec
+from calbench.bench.shopfloor import Readings, ReadingsTable
+from calbench.bench.tracker import correlated_marginal, mean_reading, tracker_rotation
+from calbench.identify.core import (
+    RANK_TOL,
+    ForwardModel,
+    Observations,
+    PoseObservation,
+    RigidFit,
+    analyze,
+    covariance,
+    design_from_observations,
+    fit_rigid,
+    levenberg_marquardt,
+    non_collinear,
+    pose_observation,
+    rotation_exp,
+)
+from calbench.identify.methods import (
     dtheta_dphi,
     generic_start,
     one_step,

@@ -5,19 +5,6 @@ one cell's campaigns), store (Parquet results with a crash-safe journal), run (p
 study on an executor), summary (per-cell statistics), plots (accuracy and power curves).
 """
 
-from .run import Pending, StudyOutcome, prepare, run_study
-from .spec import Study, load_study
-from .store import read_results
-from .summary import cell_summaries, format_cells
+from calbench.bench.core import lazy_face
 
-__all__ = [
-    "Study",
-    "load_study",
-    "prepare",
-    "run_study",
-    "Pending",
-    "StudyOutcome",
-    "read_results",
-    "cell_summaries",
-    "format_cells",
-]
+__getattr__, __dir__, __all__ = lazy_face(__name__, __file__)

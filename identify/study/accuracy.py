@@ -13,11 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from calbench.bench.campaign.run import plan_campaign, truth_robot
-from calbench.bench.model.robot import Robot
-from calbench.bench.scenario.parse import Scenario
-from calbench.identify.core.forward import ForwardModel, design_from_observations
-from calbench.identify.core.whitening import Whitener
+from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.model import Robot
+from calbench.bench.scenario import Scenario
+from calbench.identify.core import ForwardModel, Whitener, design_from_observations
 
 from .montecarlo import campaign_observations, true_theta
 

@@ -34,15 +34,12 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from calbench.bench.campaign.run import plan_campaign, run_campaign, scenario_params, truth_robot
-from calbench.bench.core.errors import InputError
-from calbench.bench.core.outputs import write_text
-from calbench.bench.model.effects import without_compensator
-from calbench.bench.model.robot import Robot
-from calbench.bench.scenario.parse import Scenario
-from calbench.bench.scenario.timeline import check_size, estimate, repeats_key
-from calbench.identify.core.observations import Observations
-from calbench.identify.runtime.portable import PortableScenario
+from calbench.bench.campaign import plan_campaign, run_campaign, scenario_params, truth_robot
+from calbench.bench.core import InputError, write_text
+from calbench.bench.model import Robot, without_compensator
+from calbench.bench.scenario import Scenario, check_size, estimate, repeats_key
+from calbench.identify.core import Observations
+from calbench.identify.runtime import PortableScenario
 
 # effects discover's starting model can lack (campaign.discover_without): MJCF text -> MJCF text
 REMOVABLE = {"compensator": without_compensator}
@@ -167,22 +164,22 @@ def simulate_in_memory(scn: Scenario) -> Simulated:
 def identify_in_memory(sim: Simulated, method: str):
     """report.run_identify on the in-memory campaign: the log's robot (its MJCF text), the sites
     checked, the estimate, then the truth for the report's error columns."""
-    from calbench.identify.core.model import check_sites
-    from calbench.identify.report.identification import build_report, identify
+    from calbench.identify.core import check_sites
+    from calbench.identify.report import identification_report, identify
 
     t0 = time.perf_counter()
     robot = Robot.from_xml(sim.mjcf)
     check_sites(robot, sim.obs, sim.obs.source)
     res = identify(robot, sim.obs, method)
-    return build_report(res, sim.truth, sim.obs.source, "MJCF (in memory)", time.perf_counter() - t0)
+    return identification_report(res, sim.truth, sim.obs.source, "MJCF (in memory)", time.perf_counter() - t0)
 
 
 def discover_in_memory(sim: Simulated, discover_model: str | None) -> dict:
     """discover.workflow.discover on the in-memory campaign: the user's model (the log's MJCF or
     the one without ``discover_without``'s effects), the search, and the augmented MJCF built
     and loaded (discover's check that it loads), not written."""
-    from calbench.identify.core.model import check_sites
-    from calbench.identify.discover.workflow import augmented_mjcf, discover_observations
+    from calbench.identify.core import check_sites
+    from calbench.identify.discover import augmented_mjcf, discover_observations
 
     src = sim.mjcf if discover_model is None else discover_model
     check_sites(Robot.from_xml(src), sim.obs, sim.obs.source)
@@ -199,7 +196,7 @@ def one_campaign(
     In memory unless :func:`needs_log` (module docstring). Discovery is imported only where a
     campaign runs it: its import (scipy.stats, ~0.9 s once per worker) was most of the per-task
     overhead of identify-only studies."""
-    from calbench.identify.report.identification import run_identify
+    from calbench.identify.report import run_identify
 
     rec: dict = {
         "replicate": replicate,
@@ -240,7 +237,7 @@ def one_campaign(
             if sim is not None:
                 d = discover_in_memory(sim, discover_model)
             else:
-                from calbench.identify.discover.workflow import discover
+                from calbench.identify.discover import discover
 
                 model = None
                 if discover_model is not None:

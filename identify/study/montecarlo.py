@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.campaign.run import (
+from calbench.bench.campaign import (
     PosePlan,
     drifted,
     plan_campaign,
@@ -45,20 +45,31 @@ from calbench.bench.campaign.run import (
     scenario_params,
     truth_robot,
 )
-from calbench.bench.core.progress import ProgressSink, sink
-from calbench.bench.model.robot import Robot
-from calbench.bench.scenario.parse import Scenario
-from calbench.bench.statics.batched import BatchStatics
-from calbench.bench.statics.equilibrium import StaticsSolver
-from calbench.bench.tracker.instrument import Measurement, noise_covariance, to_tracker_frame
-from calbench.bench.tracker.measuring import measure_campaign, reading_times
-from calbench.identify.core.observations import Observations, pose_observation
-from calbench.identify.core.whitening import Whitener
-from calbench.identify.methods.onestep import OneStep, fit_from, generic_start, sanitize_start, to_phi
-from calbench.identify.methods.twostep import TwoStepError, linear_plan, two_step, two_step_applies
-from calbench.identify.methods.twostep_iterated import two_step_iterated
-from calbench.identify.runtime.executor import Executor, InProcess, Interrupted
-from calbench.identify.runtime.portable import PortableScenario
+from calbench.bench.core import ProgressSink, sink
+from calbench.bench.model import Robot
+from calbench.bench.scenario import Scenario
+from calbench.bench.statics import BatchStatics, StaticsSolver
+from calbench.bench.tracker import (
+    Measurement,
+    measure_campaign,
+    noise_covariance,
+    reading_times,
+    to_tracker_frame,
+)
+from calbench.identify.core import Observations, Whitener, pose_observation
+from calbench.identify.methods import (
+    OneStep,
+    TwoStepError,
+    fit_from,
+    generic_start,
+    linear_plan,
+    sanitize_start,
+    to_phi,
+    two_step,
+    two_step_applies,
+    two_step_iterated,
+)
+from calbench.identify.runtime import Executor, InProcess, Interrupted, PortableScenario
 
 METHODS = ("one-step", "two-step", "two-step-weighted", "two-step-iterated")
 MC_STEP_TOL = 1e-2  # sigma: see identify/methods/onestep.py, stopping rule

@@ -23,7 +23,7 @@ def _numeric(values) -> bool:
     return all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
 
 
-def _x(values):
+def axis_ticks(values):
     """Positions and tick labels: the values themselves when numeric, else 0, 1, 2, ... labelled
     by the value, a plan file by its name (a path across the axis hid its neighbours' labels)."""
     if _numeric(values):
@@ -61,7 +61,7 @@ def accuracy_plots(study: Study, pooled: dict, folder: Path) -> list[Path]:
     out = []
     for a in study.axes:
         rows = pooled[a.name]
-        x, labels = _x([r["value"] for r in rows])
+        x, labels = axis_ticks([r["value"] for r in rows])
         fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
         for p in study.param_names:
             y = [r["parameters"][p].get("rms_relative_error") for r in rows]

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import pyarrow as pa
 
-from calbench.identify.runtime.executor import Executor, InProcess, Interrupted
+from calbench.identify.runtime import Executor, InProcess, Interrupted
 
 from .campaign import (
     LOG_TRACKER_MODELS,
@@ -146,7 +146,7 @@ def design_key(cell: Cell) -> str:
 
 def prepare(study: Study, out: str | Path) -> Pending:
     """Read what RESULTS.parquet (and its journal) hold; refuse results of another study."""
-    from calbench.bench.core.errors import InputError
+    from calbench.bench.core import InputError
 
     store = ResultStore(out, schema(study), study.text)
     have = store.load()
@@ -179,8 +179,12 @@ def prepare(study: Study, out: str | Path) -> Pending:
 
 def _design(study: Study, cell: Cell, executor: Executor, progress) -> list:
     """The [[pose]] entries of the plan design:<criterion>:<M> for the cell's scenario."""
-    from calbench.identify.design.candidates import generate_candidates, read_design_settings
-    from calbench.identify.design.plan import design_plan, plan_scenario_text
+    from calbench.identify.design import (
+        design_plan,
+        generate_candidates,
+        plan_scenario_text,
+        read_design_settings,
+    )
 
     _, criterion, m = cell.plan.split(":")
     scn = study.portable(cell).scenario(seed=study.seed)
@@ -193,7 +197,7 @@ def _design(study: Study, cell: Cell, executor: Executor, progress) -> list:
 
 def run_study(pending: Pending, executor: Executor | None = None, progress=None) -> StudyOutcome:
     """Run the missing campaigns (see the module docstring); returns the outcome."""
-    from calbench.bench.core.progress import sink
+    from calbench.bench.core import sink
 
     t0 = time.perf_counter()
     study, store = pending.study, pending.store

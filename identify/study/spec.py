@@ -55,11 +55,11 @@ from typing import Any
 
 import numpy as np
 
-from calbench.bench.core.errors import InputError
-from calbench.bench.scenario.parse import Scenario, load_scenario
-from calbench.identify.design.criteria import CRITERIA
-from calbench.identify.report.identification import METHODS
-from calbench.identify.runtime.portable import PortableScenario
+from calbench.bench.core import InputError
+from calbench.bench.scenario import Scenario, load_scenario
+from calbench.identify.design import CRITERIA
+from calbench.identify.report import METHODS
+from calbench.identify.runtime import PortableScenario
 
 TOP_KEYS = ("name", "description", "scenario", "seeds", "seed", "campaign", "set", "axis")
 AXIS_KEYS = ("name", "key", "values", "cases", "scales")
@@ -319,7 +319,7 @@ def expected_effect(scn: Scenario, campaign: CampaignSettings) -> str | None:
     """What discover should name first: the one effect the user's model lacks (hidden in the
     truth, or removed from discover's model) as ``name[detail]``; "unexplained" when it is not a
     discovery candidate; "nothing" when nothing is missing; None when several are."""
-    from calbench.bench.model.effects import DISCOVERY_OPTIONS, effect_from_truth
+    from calbench.bench.model import DISCOVERY_OPTIONS, effect_from_truth
 
     missing = [(n, t) for n, t in scn.effects.items()] + [(n, None) for n in campaign.discover_without]
     if not missing:
@@ -388,7 +388,7 @@ def load_study(path: str | Path) -> Study:
         raise InputError(path, "axis", "[[axis]] tables", axes_raw)
     axes = tuple(_axis(path, i, a) for i, a in enumerate(axes_raw))
     names = [a.name for a in axes]
-    from calbench.bench.model.robot import Robot
+    from calbench.bench.model import Robot
 
     from .campaign import result_columns
 

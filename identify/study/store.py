@@ -23,8 +23,7 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from calbench.bench.core.errors import InputError
-from calbench.bench.core.outputs import atomic_path, write_text
+from calbench.bench.core import InputError, atomic_path, write_text
 
 PARTS = ".parts"
 

@@ -57,7 +57,7 @@ from mcap.records import (
 )
 from mcap.stream_reader import breakup_chunk
 
-from calbench.bench.core.errors import InputError
+from calbench.bench.core import InputError
 
 MAGIC = b"\x89MCAP0\r\n"
 MAGIC_TEXT = "an MCAP file (magic bytes 89 4D 43 41 50 30 0D 0A)"

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.core.outputs import atomic_path
-from calbench.bench.log.idreport import IdentificationReport, ObservationFit, ParameterEstimate
+from calbench.bench.core import atomic_path
+from calbench.bench.log import IdentificationReport, ObservationFit, ParameterEstimate
 
 from .stats import rms
 

@@ -1,0 +1,17 @@
+# The public face of calbench.bench.robots: what code outside this room may import. At run time
+# calbench.bench.core.face reads these lines and loads each name on first use.
+
+from .check import DEFAULT_MASS, check_robot, default_tracker, grid
+from .overlay import load_overlay
+from .urdf import CONTINUOUS_RANGE, PLACEHOLDER_STIFFNESS, convert
+
+__all__ = [
+    "CONTINUOUS_RANGE",
+    "DEFAULT_MASS",
+    "PLACEHOLDER_STIFFNESS",
+    "check_robot",
+    "convert",
+    "default_tracker",
+    "grid",
+    "load_overlay",
+]

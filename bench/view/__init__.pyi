@@ -1,0 +1,42 @@
+# The public face of calbench.bench.view: what code outside this room may import. At run time
+# calbench.bench.core.face reads these lines and loads each name on first use.
+
+from .params import WIDTH
+from .recording import (
+    DEFAULT_MAGNIFY,
+    Discovery,
+    Summary,
+    build_blueprint,
+    check_magnify,
+    default_rrd_path,
+    geom_archetype,
+    has_display,
+    log_view,
+    measured_deflections,
+    plan_view,
+    recording_stream,
+    write_discovery_recording,
+    write_recording,
+)
+from .scene import HALF_FOV_TAN, TRACKER_APART, framing
+
+__all__ = [
+    "DEFAULT_MAGNIFY",
+    "Discovery",
+    "HALF_FOV_TAN",
+    "Summary",
+    "TRACKER_APART",
+    "WIDTH",
+    "build_blueprint",
+    "check_magnify",
+    "default_rrd_path",
+    "framing",
+    "geom_archetype",
+    "has_display",
+    "log_view",
+    "measured_deflections",
+    "plan_view",
+    "recording_stream",
+    "write_discovery_recording",
+    "write_recording",
+]

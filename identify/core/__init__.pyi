@@ -1,0 +1,55 @@
+# The public face of calbench.identify.core: what code outside this room may import. At run time
+# calbench.bench.core.face reads these lines and loads each name on first use.
+
+from .forward import ForwardModel, PoseDesign, design_from_observations
+from .identifiability import (
+    MAX_RELATIVE_STD,
+    OUTLIER_SIGMA,
+    RANK_TOL,
+    Identifiability,
+    analyze,
+    explain,
+    outliers,
+    resolve,
+    whiten_factors,
+)
+from .leastsq import Fit, at_bounds, covariance, levenberg_marquardt, svd_step
+from .model import check_sites, load_model
+from .observations import Observations, PoseObservation, from_log, pose_observation
+from .profile import PROFILE_SIGMAS, Profile, profile_check
+from .rigid import RigidFit, fit_rigid, non_collinear, rotation_exp
+from .whitening import Whitener
+
+__all__ = [
+    "Fit",
+    "ForwardModel",
+    "Identifiability",
+    "MAX_RELATIVE_STD",
+    "OUTLIER_SIGMA",
+    "Observations",
+    "PROFILE_SIGMAS",
+    "PoseDesign",
+    "PoseObservation",
+    "Profile",
+    "RANK_TOL",
+    "RigidFit",
+    "Whitener",
+    "analyze",
+    "at_bounds",
+    "check_sites",
+    "covariance",
+    "design_from_observations",
+    "explain",
+    "fit_rigid",
+    "from_log",
+    "levenberg_marquardt",
+    "load_model",
+    "non_collinear",
+    "outliers",
+    "pose_observation",
+    "profile_check",
+    "resolve",
+    "rotation_exp",
+    "svd_step",
+    "whiten_factors",
+]

@@ -1,0 +1,174 @@
+"""The exact Fisher information block of one candidate configuration (issue 4, §2).
+
+Information. For one candidate with reflectors r, the deflection dp_r = x_r(loaded) -
+x_r(unloaded) is the exact-statics one of identify/core/forward.py; its Jacobian with respect to u
+comes from the implicit function theorem at both equilibria (``StaticsSolver.tangent``, exact
+KKT matrix, d g / d theta from ``Robot.dforce_dtheta``), J_r = (J_site dq/dtheta)|loaded -
+(...)|unloaded, times theta0 column-wise. The deflections' covariance Sigma is
+bench.iso10360.deflection_covariance's (the estimator's: Cov(reading unloaded) + Cov(reading
+loaded) per reflector, 2 sigma^2 I for the isotropic tracker, one repeat; for the iso10360
+tracker also the field and drift shared by the pose's readings, on the campaign clock). The
+candidate's block is the whitened regressor R = L^-1 [J_r], L L^T = Sigma: rows = the 3
+coordinates of each reflector (9 rows for 3 reflectors), columns = the p normalised parameters,
+and the Fisher information of a plan is sum_i R_i^T R_i (with repeats n: n R_i^T R_i, exact
+for independent readings; for the iso10360 tracker repeats do not average its correlated part
+and this overstates what they add).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from calbench.bench.campaign import scenario_params
+from calbench.bench.scenario import Scenario
+from calbench.bench.statics import Equilibrium, Load, StaticsSolver
+from calbench.bench.tracker import (
+    Measurement,
+    deflection_covariance,
+    noise_covariance,
+    reading_times,
+    to_tracker_frame,
+    tracker_rotation,
+)
+
+from .feasibility import Feasibility
+from .settings import DesignSettings, nominal_robot
+
+# --------------------------------------------------------------------------- information
+
+
+@dataclass
+class PoseInfo:
+    q: np.ndarray
+    wrench: np.ndarray  # (6,) world: payload weight or the pull
+    kind: str
+    block: np.ndarray  # (3 n_visible, p) whitened, normalised regressor
+    visible: np.ndarray  # (n,) bool
+    violations: list[str]
+    dp: np.ndarray | None = None  # (n, 3) deflections (visible rows meaningful)
+
+
+class InfoEngine:
+    """Exact information of single poses on the design model (one per process)."""
+
+    def __init__(self, scn: Scenario, settings: DesignSettings):
+        self.scn = scn
+        self.settings = settings
+        self.robot = nominal_robot(scn)
+        self.params0 = scenario_params(scn, self.robot)
+        self.theta0 = self.robot.layout.theta(self.params0)
+        self.n_params = self.robot.layout.n
+        self.solver = StaticsSolver(self.robot, tol=1e-10)
+        self.feas = Feasibility(self.robot, scn, settings)
+        self.rot = tracker_rotation(scn.tracker)
+        self._js = np.zeros((3, self.robot.model.nv))
+        self._jr = np.zeros((3, self.robot.model.nv))
+
+    def load_for(self, wrench) -> Load:
+        return Load.wrench(self.robot, wrench)
+
+    def _dforce(self, e: Equilibrium) -> np.ndarray:
+        """dg/dtheta at fixed q (nv, p) at equilibrium e, for the prior guess theta0."""
+        rb = self.robot
+        rb.set_command(e.command)
+        rb.data.qpos[:] = e.qpos
+        mujoco.mj_fwdPosition(rb.model, rb.data)
+        return rb.dforce_dtheta(self.params0)
+
+    def _site_jac(self, e: Equilibrium, load: Load | None) -> tuple[np.ndarray, np.ndarray]:
+        """Reflector positions (n,3) and d position / d theta (n,3,p) at equilibrium e."""
+        rb = self.robot
+        tan = self.solver.tangent(e, load, self._dforce(e))
+        m, d = rb.model, rb.data
+        d.qpos[:] = e.qpos
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        pos = d.site_xpos[rb.reflector_sites].copy()
+        jac = np.empty((len(rb.reflector_sites), 3, self.n_params))
+        for i, s in enumerate(rb.reflector_sites):
+            mujoco.mj_jacSite(m, d, self._js, None, int(s))
+            jac[i] = self._js @ tan
+        return pos, jac
+
+    def sigma_dp_blocks(self, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
+        """(n, 3k, 3k): :meth:`sigma_dp` of n candidates at once (p0, p1: (n, k, 3), one reading
+        per state); block diagonal by reflector, vectorised, unless the tracker's error is
+        correlated (iso10360: one candidate at a time)."""
+        n, k = p0.shape[:2]
+        if self.scn.tracker.model == "iso10360":
+            return np.stack([self.sigma_dp(a, b) for a, b in zip(p0, p1)])
+        spec = self.scn.tracker
+        c = noise_covariance(spec, to_tracker_frame(spec, p0.reshape(-1, 3))) + noise_covariance(
+            spec, to_tracker_frame(spec, p1.reshape(-1, 3))
+        )
+        c = (self.rot @ c @ self.rot.T).reshape(n, k, 3, 3)
+        out = np.zeros((n, k, 3, k, 3))
+        for i in range(k):
+            out[:, i, :, i, :] = c[:, i]
+        return out.reshape(n, 3 * k, 3 * k)
+
+    def sigma_dp(self, p0: np.ndarray, p1: np.ndarray, repeats: int = 1) -> np.ndarray:
+        """(3n, 3n) world covariance of the n deflections of one pose read ``repeats`` times per
+        state on the campaign clock (bench.iso10360.deflection_covariance: block diagonal by
+        reflector unless the tracker's error is correlated)."""
+        spec = self.scn.tracker
+        n = len(p0)
+        reads, times = [], reading_times([repeats], n)
+        for p in (p0, p1):
+            y = to_tracker_frame(spec, p)
+            reads.append([Measurement(y, noise_covariance(spec, y), np.ones(n, bool))] * repeats)
+        when = tuple([times[(0, s, r)] for r in range(repeats)] for s in ("unloaded", "loaded"))
+        c = deflection_covariance(spec, reads[0], reads[1], np.arange(n), when)
+        return np.einsum("ia,ranb,jb->rinj", self.rot, c, self.rot).reshape(3 * n, 3 * n)
+
+    def pose(
+        self,
+        q,
+        wrench,
+        kind="vertical",
+        e0: Equilibrium | None = None,
+        require_all_visible=True,
+        check=True,
+        repeats: int = 1,
+    ) -> PoseInfo:
+        """Feasibility and the information block of one pose (the unloaded e0 may be reused)."""
+        q = np.asarray(q, float)
+        wrench = np.asarray(wrench, float)
+        bad = self.feas.check_command(q) if check else []
+        if check and any(r in bad for r in ("joint_limits", "degenerate_loop")):
+            return PoseInfo(q, wrench, kind, np.zeros((0, self.n_params)), np.zeros(0, bool), bad)
+        load = self.load_for(wrench)
+        if e0 is None:
+            e0 = self.solver.solve(q)
+        e1 = self.solver.solve(q, load, warm=e0)
+        if check:
+            bad2, vis = self.feas.check_equilibria(e0, e1, require_all_visible)
+            bad += [b for b in bad2 if b not in bad]
+        else:
+            vis = np.ones(len(self.robot.reflector_sites), bool)
+        p0, j0 = self._site_jac(e0, None)
+        p1, j1 = self._site_jac(e1, load)
+        jac = (j1 - j0)[vis] * self.theta0  # normalised columns
+        linv = np.linalg.inv(np.linalg.cholesky(self.sigma_dp(p0[vis], p1[vis], repeats)))
+        block = linv @ jac.reshape(-1, self.n_params)
+        return PoseInfo(q, wrench, kind, block, vis, bad, p1 - p0)
+
+    def work_jacobian(self, q, wrench) -> np.ndarray:
+        """G (3, p): d(payload-site deflection under the work wrench)/d(theta normalised)."""
+        rb = self.robot
+        load = self.load_for(wrench)
+        e0 = self.solver.solve(np.asarray(q, float))
+        e1 = self.solver.solve(np.asarray(q, float), load, warm=e0)
+        out = []
+        for e, ld in ((e0, None), (e1, load)):
+            tan = self.solver.tangent(e, ld, self._dforce(e))
+            m, d = rb.model, rb.data
+            d.qpos[:] = e.qpos
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_comPos(m, d)
+            mujoco.mj_jacSite(m, d, self._js, None, rb.payload_site)
+            out.append(self._js @ tan)
+        return (out[1] - out[0]) * self.theta0

@@ -1,0 +1,281 @@
+"""Which commanded configurations a plan may use: the named feasibility rules (issue 4, §2).
+
+Feasibility rules (each named; :func:`Feasibility.check` returns the violated ones):
+
+* ``joint_limits``: q inside the MJCF's controller ranges (q4, q6 sampled in [-180, 180]).
+* ``degenerate_loop``: every kinematic loop at least ``bench.robot.LOOP_MARGIN`` from degenerate
+  (``bench.robot.Robot.loop_ok``: the inverse condition number of its passive-joint Jacobian;
+  on the FANUC q3 - q2 at least 10 deg away from the degenerate -120 / 60 deg).
+* ``min_height`` / ``min_radius``: the WRIST CENTRE (the origin of the robot's calbench:wrist
+  body, by default of the body of the last-but-one actuated joint: on a six-axis arm the J5
+  axis, the point of the paper's Fig. 6; the FANUC's link5) at z >= min_height and at least
+  min_radius from axis 1 (distance from the first actuated joint's axis line), at the commanded
+  (rigid) pose. Paper: 0.5 m and 1 m.
+* ``self_collision``: MuJoCo collision detection on a copy of the MJCF with every geom made
+  collidable (contype = conaffinity = 1, margin = ``clearance``), at the rigid pose and at both
+  equilibria. Not counted (:func:`excluded_pairs`, derived from the model, no table): parent-
+  child pairs (MuJoCo's own filter, which includes bodies welded to their parent, e.g. the
+  FANUC's counterweight on the crank); the bodies of a kinematic loop among themselves (the
+  bodies on its path between its two sites and the bodies welded to them: they meet by design
+  at the loop's hinges; the FANUC's upper arm, crank, rod, forearm and the masses on them);
+  and the pairs that come within REFERENCE_GAP = 2 cm of each other in the model's reference
+  configuration (they touch by design, a housing across a bearing: the FANUC's coupler rod
+  foot beside the turret, the forearm's end around the wrist's pitch housing). Everything else
+  counts, e.g. the wrist or the tool against the upper arm, the turret or a counterweight.
+* ``compensator_discontinuity`` (paper §3.3): the vertical through a mass compensator's centre
+  (the robot's calbench:mass_compensators; the FANUC's m1, m2; none: the rule is void) must not
+  cross a passive joint of a loop (derived from the loops: the FANUC's elbow and rod): the
+  horizontal distance from the compensator's centre to each passive hinge's axis line is at
+  least ``compensator_margin`` (default 0.02 m) in both the unloaded and the loaded
+  equilibrium. The discontinuity needs the external load to carry the vertical across the hinge;
+  the load moves those points by < 1 mm (0.2 mm on Table 5 with 700 kg), so 2 cm is a wide
+  margin. (Gravity's sag of J2, up to 1.8 deg, moves them by centimetres: that is why the rule is
+  checked at the equilibria, not at the command.)
+* ``visibility``: every reflector seen by the tracker (``bench.tracker.visible_sites``) in both
+  the unloaded and the loaded equilibrium.
+* ``statics``: both equilibria converge (residual, loop gap) as in bench.campaign.plan_campaign.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from calbench.bench.model import Robot, ancestors
+from calbench.bench.scenario import Scenario
+from calbench.bench.statics import Equilibrium
+from calbench.bench.tracker import (
+    visible_sites,
+)
+
+from .settings import DesignSettings
+
+RULES = (
+    "joint_limits",
+    "degenerate_loop",
+    "min_height",
+    "min_radius",
+    "self_collision",
+    "compensator_discontinuity",
+    "statics",
+    "visibility",
+)
+COMMAND_RULES = ("joint_limits", "degenerate_loop", "min_height", "min_radius", "self_collision")
+EQUILIBRIUM_RULES = ("statics", "self_collision", "compensator_discontinuity", "visibility")
+REFERENCE_GAP = 0.02  # m: closer than this in the reference configuration = touching by design
+LOAD_KINDS = ("vertical", "lateral")
+
+
+def wrist_body(robot: Robot) -> int:
+    """The body whose origin is the wrist centre: calbench:wrist, else the body of the
+    last-but-one actuated joint (a six-axis arm's J5; the joint itself with fewer than two)."""
+    m = robot.model
+    if robot.description.wrist:
+        return mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, robot.description.wrist)
+    return int(m.jnt_bodyid[robot.act_joint[max(robot.n_act - 2, 0)]])
+
+
+def lateral_wrench(q1: float, sign: float, force: float) -> np.ndarray:
+    return np.array([-math.sin(q1) * sign * force, math.cos(q1) * sign * force, 0.0, 0.0, 0.0, 0.0])
+
+
+# --------------------------------------------------------------------------- feasibility
+
+
+def _collidable(robot_path: Path, margin: float) -> mujoco.MjSpec:
+    spec = mujoco.MjSpec.from_file(str(robot_path))
+    for g in spec.geoms:
+        g.contype = 1
+        g.conaffinity = 1
+        g.margin = margin
+        g.gap = 0.0
+    return spec
+
+
+def _welded(model: mujoco.MjModel, body: int) -> list[int]:
+    """The body and its descendants reached without crossing a joint."""
+    out = [body]
+    for b in range(model.nbody):
+        if model.body_parentid[b] == body and b != body and model.body_jntnum[b] == 0:
+            out += _welded(model, b)
+    return out
+
+
+def excluded_pairs(robot: Robot, robot_path: Path) -> tuple[tuple[str, str], ...]:
+    """Body pairs the self-collision rule does not count (module docstring), derived from the
+    model: the bodies of each loop among themselves, and the pairs within REFERENCE_GAP at the
+    reference configuration (the rigid pose at q = 0). Sorted name pairs."""
+    m = robot.model
+    pairs: set[tuple[str, str]] = set()
+    for a, b in robot.loops:
+        up_a, up_b = ancestors(m, m.site_bodyid[a]), ancestors(m, m.site_bodyid[b])
+        root = next(x for x in up_a if x in up_b)
+        path = up_a[: up_a.index(root)] + up_b[: up_b.index(root)]
+        bodies = sorted({w for x in path for w in _welded(m, x)})
+        pairs |= {(m.body(x).name, m.body(y).name) for x in bodies for y in bodies if x != y}
+    ref = _collidable(robot_path, REFERENCE_GAP).compile()
+    d = mujoco.MjData(ref)
+    d.qpos[:] = robot.rigid_qpos(np.zeros(robot.n_act))
+    mujoco.mj_kinematics(ref, d)
+    mujoco.mj_collision(ref, d)
+    for c in d.contact[: d.ncon]:
+        b1, b2 = int(ref.geom_bodyid[c.geom[0]]), int(ref.geom_bodyid[c.geom[1]])
+        if ref.body_parentid[b1] != b2 and ref.body_parentid[b2] != b1:  # MuJoCo filters those
+            pairs.add((ref.body(b1).name, ref.body(b2).name))
+    return tuple(sorted({tuple(sorted(p)) for p in pairs}))
+
+
+def collision_model(robot: Robot, robot_path: Path, clearance: float = 0.0) -> mujoco.MjModel:
+    """A copy of the MJCF where every geom collides (margin = clearance), the
+    :func:`excluded_pairs` off."""
+    spec = _collidable(robot_path, clearance)
+    for a, b in excluded_pairs(robot, robot_path):
+        ex = spec.add_exclude()
+        ex.bodyname1, ex.bodyname2 = a, b
+    return spec.compile()
+
+
+class Feasibility:
+    """The feasibility rules of the module docstring for one robot, tracker and settings."""
+
+    def __init__(self, robot: Robot, scn: Scenario, settings: DesignSettings):
+        self.robot = robot
+        self.scn = scn
+        self.settings = settings
+        self.limits = robot.limits()
+        m = robot.model
+        self.cmodel = collision_model(robot, Path(scn.robot), settings.clearance)
+        self.cdata = mujoco.MjData(self.cmodel)
+        self._kd = mujoco.MjData(m)
+        self.wrist = wrist_body(robot)
+        self.masses = [
+            mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, n) for n in robot.description.mass_compensators
+        ]
+        self.hinges = list(robot.passive_joint)
+        # axis 1: the first actuated joint's axis line, fixed in the world (its body hangs from
+        # the world: it does not move with the command)
+        self._kd.qpos[:] = robot.rigid_qpos(np.zeros(robot.n_act))
+        mujoco.mj_kinematics(m, self._kd)
+        self.axis1 = (self._kd.xanchor[robot.act_joint[0]].copy(), self._kd.xaxis[robot.act_joint[0]].copy())
+
+    # -- individual rules ---------------------------------------------------------------------
+    def loop(self, q) -> bool:
+        return self.robot.loop_ok(q)
+
+    def wrist_centre(self, qpos) -> np.ndarray:
+        d = self._kd
+        d.qpos[:] = qpos
+        mujoco.mj_kinematics(self.robot.model, d)
+        return d.xpos[self.wrist].copy()
+
+    def collides(self, qpos) -> list[tuple[str, str]]:
+        """Body pairs in contact (within the clearance) at qpos; empty when free."""
+        m, d = self.cmodel, self.cdata
+        d.qpos[:] = qpos
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_collision(m, d)
+        out = []
+        if d.ncon == 0:  # slicing d.contact costs ~120 us even when empty
+            return out
+        for c in d.contact[: d.ncon]:
+            b1, b2 = m.geom_bodyid[c.geom[0]], m.geom_bodyid[c.geom[1]]
+            out.append((m.body(b1).name, m.body(b2).name))
+        return out
+
+    def compensator_clearance(self, qpos) -> float:
+        """Smallest horizontal distance from a mass compensator's centre to a passive hinge's
+        axis line (m) at qpos (§3.3); infinite without mass compensators or passive hinges."""
+        m, d = self.robot.model, self._kd
+        d.qpos[:] = qpos
+        mujoco.mj_kinematics(m, d)
+        return float(
+            horizontal_clearance(
+                d.xipos[self.masses][None], d.xanchor[self.hinges][None], d.xaxis[self.hinges][None]
+            )[0]
+        )
+
+    def radius(self, points: np.ndarray) -> np.ndarray:
+        """(n,) distance of points (n, 3) from axis 1 (m)."""
+        p, a = self.axis1
+        v = np.asarray(points, float) - p
+        return np.linalg.norm(v - np.outer(v @ a, a), axis=1)
+
+    # -- the rules' decisions, stacked over configurations (also identify/design/batch_info.py) --
+    def command_violations(self, q: np.ndarray, wrist: np.ndarray, collides, loop_ok=None) -> np.ndarray:
+        """(n, len(COMMAND_RULES)) bool, True where a rule fails, for commands q (n, joints) whose
+        rigid poses have wrist centres ``wrist`` (n, 3) and collision flags ``collides`` (n,);
+        ``loop_ok`` (n,): Robot.loop_ok of each, if already known (else asked here)."""
+        lo, hi = self.limits[:, 0], self.limits[:, 1]
+        loop_ok = [self.loop(x) for x in q] if loop_ok is None else loop_ok
+        return np.column_stack(
+            [
+                ~np.all((q >= lo - 1e-9) & (q <= hi + 1e-9), axis=1),
+                ~np.asarray(loop_ok, bool),
+                wrist[:, 2] < self.settings.min_height,
+                self.radius(wrist) < self.settings.min_radius,
+                np.asarray(collides, bool),
+            ]
+        )
+
+    def equilibrium_violations(
+        self, acceptable, collides, clearance, visible, require_all_visible: bool = True
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(n, len(EQUILIBRIUM_RULES)) bool violations and the (n, k) reflectors seen in both
+        states, from per-state inputs with the states on axis 1: acceptable and collides (n, 2),
+        clearance (n, 2) m, visible (n, 2, k)."""
+        vis = np.asarray(visible, bool).all(axis=1)
+        seen = vis.all(axis=1) if require_all_visible else vis.any(axis=1)
+        return np.column_stack(
+            [
+                ~np.asarray(acceptable, bool).all(axis=1),
+                np.asarray(collides, bool).any(axis=1),
+                np.asarray(clearance).min(axis=1) < self.settings.compensator_margin,
+                ~seen,
+            ]
+        ), vis
+
+    # -- combined -----------------------------------------------------------------------------
+    def check_command(self, q) -> list[str]:
+        """Rules decided at the commanded (rigid) pose, cheapest first; all violations."""
+        q = np.asarray(q, float)
+        qpos = self.robot.rigid_qpos(q)
+        bad = self.command_violations(q[None], self.wrist_centre(qpos)[None], [bool(self.collides(qpos))])[0]
+        return [r for r, b in zip(COMMAND_RULES, bad) if b]
+
+    def check_equilibria(self, e0: Equilibrium, e1: Equilibrium, require_all_visible=True):
+        """Rules decided at the solved equilibria: (violations, visible mask (n,) both states)."""
+        m, d = self.robot.model, self._kd
+        vis = []
+        for e in (e0, e1):
+            d.qpos[:] = e.qpos
+            mujoco.mj_kinematics(m, d)
+            vis.append(visible_sites(m, d, self.scn.tracker, self.robot.reflector_sites))
+        states = (e0, e1)
+        bad, seen = self.equilibrium_violations(
+            [[e.acceptable for e in states]],
+            [[bool(self.collides(e.qpos)) for e in states]],
+            [[self.compensator_clearance(e.qpos) for e in states]],
+            [vis],
+            require_all_visible,
+        )
+        return [r for r, b in zip(EQUILIBRIUM_RULES, bad[0]) if b], seen[0]
+
+
+def horizontal_clearance(centres: np.ndarray, anchors: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """Smallest horizontal distance (n,) from k points (n, k, 3) to h axis lines through
+    ``anchors`` along ``axes`` (n, h, 3), in the horizontal plane (the §3.3 rule: a vertical
+    line through a mass compensator's centre must not cross a passive hinge's axis); a vertical
+    axis counts by its foot point. No points or no axes: infinitely far (the rule is void)."""
+    if centres.shape[1] == 0 or anchors.shape[1] == 0:
+        return np.full(len(centres), np.inf)
+    v = centres[:, :, None, :2] - anchors[:, None, :, :2]  # (n, k, h, 2)
+    axh = axes[:, None, :, :2]
+    n = np.sqrt(np.einsum("...i,...i->...", axh, axh))
+    vertical = n < 1e-9
+    u = axh / np.where(vertical, 1.0, n)[..., None]
+    along = np.where(vertical, 0.0, np.einsum("...i,...i->...", v, u))
+    w = v - u * along[..., None]
+    return np.sqrt(np.einsum("...i,...i->...", w, w)).min(axis=(1, 2))

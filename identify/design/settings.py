@@ -1,0 +1,128 @@
+"""A design's inputs: the scenario's ``[design]`` settings and the nominal model it starts from.
+
+Parameters and prior guess. theta = the robot's layout (bench/model/params.py; the FANUC's
+[k1..k6, K_C, s0]) normalised by a nominal value:
+u_i = theta_i / theta0_i. A design needs a prior guess of theta (the information of the nonlinear
+model depends on it); a design study uses the scenario's ``[truth]``, which is the natural
+nominal (in a real cell: the manufacturer's values or a previous identification).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from calbench.bench.campaign import scenario_params
+from calbench.bench.core import InputError
+from calbench.bench.model import Robot
+from calbench.bench.scenario import Scenario, parse_scenario
+
+# --------------------------------------------------------------------------- settings
+
+
+@dataclass(frozen=True)
+class DesignSettings:
+    """The scenario's optional ``[design]`` table (read here from the TOML text)."""
+
+    min_height: float = 0.5  # m, wrist centre z
+    min_radius: float = 1.0  # m, wrist centre from axis 1
+    candidates: int = 10000  # size of the candidate set
+    seed: int | None = None  # candidate sampling; default: the scenario's seed
+    clearance: float = 0.0  # m, collision margin
+    compensator_margin: float = 0.02  # m, §3.3 rule
+    lateral_force: float = 1200.0  # N, horizontal pull of the lateral candidates
+    lateral_fraction: float = 0.5  # share of lateral candidates in the set
+
+    def as_dict(self) -> dict:
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+
+DESIGN_KEYS = tuple(DesignSettings.__dataclass_fields__)
+
+
+def _design_number(path, key, v, lo=None, hi=None, integer=False):
+    what = (
+        ("an integer" if integer else "a finite number")
+        + (f" >= {lo}" if lo is not None else "")
+        + (f" and <= {hi}" if hi is not None else "")
+    )
+    ok = not isinstance(v, bool) and isinstance(v, int if integer else (int, float))
+    if not ok or not math.isfinite(float(v)) or (lo is not None and v < lo) or (hi is not None and v > hi):
+        raise InputError(path, f"design.{key}", what, v)
+    return int(v) if integer else float(v)
+
+
+def read_design_settings(path: str | Path, text: str | None = None) -> DesignSettings:
+    """Parse the optional ``[design]`` table of a scenario file (InputError naming the key)."""
+    path = Path(path)
+    text = Path(path).read_text(encoding="utf-8") if text is None else text
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(path, "(syntax)", "valid TOML", str(exc)) from None
+    tab = doc.get("design", {})
+    if not isinstance(tab, dict):
+        raise InputError(path, "design", "a table", type(tab).__name__)
+    for k in tab:
+        if k not in DESIGN_KEYS:
+            raise InputError(path, f"design.{k}", "no such key; allowed keys here: " + ", ".join(DESIGN_KEYS))
+    kw = {}
+    limits = {
+        "min_height": (None, None, False),
+        "min_radius": (0, None, False),
+        "candidates": (1, None, True),
+        "seed": (0, None, True),
+        "clearance": (0, None, False),
+        "compensator_margin": (0, None, False),
+        "lateral_force": (0, None, False),
+        "lateral_fraction": (0, 1, False),
+    }
+    for k, v in tab.items():
+        lo, hi, integer = limits[k]
+        kw[k] = _design_number(path, k, v, lo, hi, integer)
+    return DesignSettings(**kw)
+
+
+_DESIGN_TABLE = re.compile(r"^\[design\][^\n]*\n(?:(?!\s*\[)[^\n]*\n?)*", re.MULTILINE)
+
+
+def load_design_scenario(path: str | Path) -> tuple[Scenario, DesignSettings]:
+    """The scenario (bench.scenario.parse_scenario) and its ``[design]`` settings.
+
+    bench/scenario/parse.py does not (yet) accept a ``[design]`` table, so it is cut out of the text
+    before parsing; the Scenario's ``text`` is the file without it.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(path, "(file)", "a readable UTF-8 scenario file", str(exc)) from None
+    settings = read_design_settings(path, text)
+    stripped = _DESIGN_TABLE.sub("", text)
+    try:
+        if "design" in tomllib.loads(stripped):
+            raise InputError(path, "design", "a [design] table written as a table header")
+    except tomllib.TOMLDecodeError:
+        pass  # parse_scenario reports it
+    return parse_scenario(stripped, path), settings
+
+
+def nominal_theta(scn: Scenario, robot: Robot) -> np.ndarray:
+    """The prior guess theta0 = the scenario's [truth] (see the module docstring)."""
+    return robot.layout.theta(scenario_params(scn, robot))
+
+
+def nominal_robot(scn: Scenario) -> Robot:
+    """The design model: the scenario's MJCF with theta0 written in, WITHOUT the hidden
+    ``[truth.effects]`` (a design knows the model, not what the model lacks)."""
+    try:
+        robot = Robot.from_file(scn.robot)
+    except ValueError as exc:  # MuJoCo compile errors, the robot description
+        raise InputError(scn.path, "robot", "a loadable MJCF robot", f"{scn.robot}: {exc}") from None
+    robot.set_params(scenario_params(scn, robot))
+    return robot

@@ -1,0 +1,64 @@
+# The public face of calbench.identify.discover: what code outside this room may import. At run time
+# calbench.bench.core.face reads these lines and loads each name on first use.
+
+from .aliasing import aliasing_report
+from .decide import ALPHA_EFFECT, MIN_EXPLAINED, compare, lr_spread, lr_threshold, near_ties
+from .fit import (
+    DISCOVERY_EFFECTS,
+    AugmentedForward,
+    build,
+    effect_priors,
+    fit_augmented,
+    label,
+    library,
+    whitened,
+)
+from .narrative import alias_lines
+from .search import fit_candidate, polish, unabsorbed_norms
+from .stats import ALPHA_FIT
+from .uncertainty import MAX_RELATIVE_STD, determination
+from .workflow import (
+    AMBIGUOUS,
+    UNEXPLAINED,
+    alias_columns,
+    augmented_mjcf,
+    base_fit,
+    clean,
+    discover,
+    discover_observations,
+    story,
+)
+
+__all__ = [
+    "ALPHA_EFFECT",
+    "ALPHA_FIT",
+    "AMBIGUOUS",
+    "AugmentedForward",
+    "DISCOVERY_EFFECTS",
+    "MAX_RELATIVE_STD",
+    "MIN_EXPLAINED",
+    "UNEXPLAINED",
+    "alias_columns",
+    "alias_lines",
+    "aliasing_report",
+    "augmented_mjcf",
+    "base_fit",
+    "build",
+    "clean",
+    "compare",
+    "determination",
+    "discover",
+    "discover_observations",
+    "effect_priors",
+    "fit_augmented",
+    "fit_candidate",
+    "label",
+    "library",
+    "lr_spread",
+    "lr_threshold",
+    "near_ties",
+    "polish",
+    "story",
+    "unabsorbed_norms",
+    "whitened",
+]

@@ -1,0 +1,29 @@
+# The public face of calbench.identify.report: what code outside this room may import. At run time
+# calbench.bench.core.face reads these lines and loads each name on first use.
+
+from .html import Z95, design_section, html_report, write_report
+from .identification import (
+    METHODS,
+    Z_CHECK,
+    check_failed,
+    format_table,
+    identification_report,
+    identify,
+    run_identify,
+    truth_vector,
+)
+
+__all__ = [
+    "html_report",
+    "identification_report",
+    "METHODS",
+    "Z95",
+    "Z_CHECK",
+    "check_failed",
+    "design_section",
+    "format_table",
+    "identify",
+    "run_identify",
+    "truth_vector",
+    "write_report",
+]

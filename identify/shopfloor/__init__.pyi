@@ -1,0 +1,6 @@
+# The public face of calbench.identify.shopfloor: what code outside this room may import. At run time
+# calbench.bench.core.face reads these lines and loads each name on first use.
+
+from .importer import import_readings
+
+__all__ = ["import_readings"]

@@ -1,0 +1,48 @@
+# The public face of calbench.identify.study: what code outside this room may import. At run time
+# calbench.bench.core.face reads these lines and loads each name on first use.
+
+from .accuracy import predicted_std
+from .campaign import TIMING_COLUMNS, needs_log, simulate_in_memory
+from .montecarlo import (
+    METHODS,
+    RUNS_PER_TASK,
+    campaign_observations,
+    estimated_seconds,
+    format_summary,
+    run_montecarlo,
+    true_theta,
+)
+from .plots import accuracy_plots, axis_ticks, power_plots
+from .run import Pending, StudyOutcome, design_key, prepare, run_study
+from .spec import Study, load_study, scaled
+from .store import read_results
+from .summary import cell_summaries, format_cells, pooled_by_axis
+
+__all__ = [
+    "METHODS",
+    "Pending",
+    "RUNS_PER_TASK",
+    "Study",
+    "StudyOutcome",
+    "TIMING_COLUMNS",
+    "accuracy_plots",
+    "axis_ticks",
+    "campaign_observations",
+    "cell_summaries",
+    "design_key",
+    "estimated_seconds",
+    "format_cells",
+    "format_summary",
+    "load_study",
+    "needs_log",
+    "pooled_by_axis",
+    "power_plots",
+    "predicted_std",
+    "prepare",
+    "read_results",
+    "run_montecarlo",
+    "run_study",
+    "scaled",
+    "simulate_in_memory",
+    "true_theta",
+]

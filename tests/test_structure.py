@@ -1,0 +1,222 @@
+"""The layout holds (issue 20): rooms of at most a dozen modules, each with a face that names
+what others may import; no module imports another folder's private name; the packages import
+one way (identify builds on bench, never the reverse) with no circle between modules or rooms.
+
+Imports are read from the source (every ``import`` and ``from ... import``, at any depth:
+inside functions and under ``TYPE_CHECKING`` too, since a circle hidden in a function is still
+a circle). A name imported from a room's face counts as an import of the module that defines
+it, as the face's stub says.
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib
+from collections import defaultdict
+from pathlib import Path
+
+import pytest
+from conftest import ROOT
+
+from calbench.bench.core import face_exports
+
+PACKAGES = ("bench", "identify")
+MAX_MODULES = 12
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+MODULES: dict[str, Path] = {
+    _module_name(p): p for top in PACKAGES for p in (ROOT / top).rglob("*.py") if "__pycache__" not in p.parts
+}
+ROOMS = sorted(m for m, p in MODULES.items() if p.name == "__init__.py")
+
+
+def _room(module: str) -> str:
+    return module if module in ROOMS else module.rsplit(".", 1)[0]
+
+
+def _faces() -> dict[str, dict[str, str]]:
+    """room -> public name -> the module (absolute, without 'calbench.') that defines it."""
+    out = {}
+    for room in ROOMS:
+        stub = MODULES[room].with_suffix(".pyi")
+        if stub.exists():
+            out[room] = {n: f"{room}{mod}" for n, (mod, _a) in face_exports(stub).items()}
+    return out
+
+
+FACES = _faces()
+
+
+def _imports(module: str) -> list[tuple[str, str | None, int]]:
+    """(target module, imported name or None, line) for every import of calbench code."""
+    path = MODULES[module]
+    package = module if path.name == "__init__.py" else module.rsplit(".", 1)[0]
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            out += [(a.name[9:], None, node.lineno) for a in node.names if a.name.startswith("calbench.")]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                target = ".".join(base + ([node.module] if node.module else []))
+            elif (node.module or "").startswith("calbench."):
+                target = node.module[9:]
+            else:
+                continue
+            for a in node.names:
+                sub = f"{target}.{a.name}"
+                out.append((sub, None, node.lineno) if sub in MODULES else (target, a.name, node.lineno))
+    return out
+
+
+def _defining_module(target: str, name: str | None) -> str:
+    if name is not None and target in FACES and name in FACES[target]:
+        return FACES[target][name]
+    return target
+
+
+def _graph() -> dict[str, set[str]]:
+    g: dict[str, set[str]] = defaultdict(set)
+    for m in MODULES:
+        for target, name, _ in _imports(m):
+            d = _defining_module(target, name)
+            if d in MODULES and d != m and not (MODULES[m].name == "__init__.py" and d.startswith(m + ".")):
+                g[m].add(d)
+    return g
+
+
+def _cycles(g: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components with more than one member (Tarjan)."""
+    index, low, stack, on, out = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in g.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in list(g):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_no_module_import_circle():
+    assert _cycles(_graph()) == []
+
+
+def test_no_room_import_circle():
+    rooms: dict[str, set[str]] = defaultdict(set)
+    for m, targets in _graph().items():
+        for t in targets:
+            if _room(t) != _room(m) and not t.startswith(_room(m) + "."):
+                rooms[_room(m)].add(_room(t))
+    assert _cycles(rooms) == []
+
+
+def test_bench_never_imports_identify():
+    bad = [
+        (m, t) for m, ts in _graph().items() if m.startswith("bench") for t in ts if t.startswith("identify")
+    ]
+    assert bad == []
+
+
+def _all_sources() -> list[Path]:
+    return [p for top in (*PACKAGES, "tests", "benchmarks") for p in (ROOT / top).rglob("*.py")]
+
+
+def test_no_private_name_is_imported_from_another_folder():
+    bad = []
+    for path in _all_sources():
+        folder = path.parent
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if (
+                not isinstance(node, ast.ImportFrom)
+                or not (node.module or "").startswith("calbench.")
+                and not node.level
+            ):
+                continue
+            if node.level:  # relative: the same folder or a parent's
+                target_folder = folder.joinpath(
+                    *[".."] * (node.level - 1), *(node.module or "").split(".")
+                ).resolve()
+            else:
+                target_folder = ROOT.joinpath(*node.module[9:].split("."))
+                target_folder = target_folder if target_folder.is_dir() else target_folder.parent
+            for a in node.names:
+                if a.name.startswith("_") and not a.name.startswith("__") and target_folder != folder:
+                    bad.append(f"{path.relative_to(ROOT)}:{node.lineno} {a.name}")
+    assert bad == []
+
+
+@pytest.mark.parametrize("room", ROOMS)
+def test_a_room_holds_at_most_a_dozen_modules(room):
+    folder = MODULES[room].parent
+    assert len([p for p in folder.glob("*.py") if p.name != "__init__.py"]) <= MAX_MODULES
+
+
+@pytest.mark.parametrize("room", [r for r in ROOMS if "." in r])
+def test_every_room_has_a_face_whose_names_resolve(room):
+    stub = MODULES[room].with_suffix(".pyi")
+    assert stub.exists(), f"{room}: no __init__.pyi"
+    tree = ast.parse(stub.read_text(encoding="utf-8"))
+    declared = next(
+        ast.literal_eval(n.value)
+        for n in tree.body
+        if isinstance(n, ast.Assign) and n.targets[0].id == "__all__"
+    )
+    exports = face_exports(stub)
+    assert sorted(declared) == sorted(exports), f"{room}: __all__ and the imports of its stub differ"
+    package = importlib.import_module(f"calbench.{room}")
+    clashes = [n for n in exports if (MODULES[room].parent / f"{n}.py").exists()]
+    assert clashes == [], f"{room}: a public name is also a module's name"
+    for name in exports:
+        assert getattr(package, name) is not None
+
+
+def test_code_outside_a_room_imports_from_its_face():
+    """`from calbench.bench.model.robot import Robot` outside bench/model/ should read
+    `from calbench.bench.model import Robot`; importing a module itself (to monkeypatch it) is fine."""
+    bad = []
+    for path in _all_sources():
+        here = (
+            _module_name(path)
+            if path.is_relative_to(ROOT / "bench") or path.is_relative_to(ROOT / "identify")
+            else ""
+        )
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if (
+                isinstance(node, ast.ImportFrom)
+                and not node.level
+                and (node.module or "").startswith("calbench.")
+            ):
+                target = node.module[9:]
+                if target not in MODULES or target in ROOMS:
+                    continue
+                room = _room(target)
+                names = [a.name for a in node.names if f"{target}.{a.name}" not in MODULES]
+                if names and room in FACES and not (here == room or here.startswith(room + ".")):
+                    bad.append(f"{path.relative_to(ROOT)}:{node.lineno} from calbench.{target}")
+    assert bad == []
