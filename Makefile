@@ -4,20 +4,20 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench clean
+.PHONY: demo test bench clean constraints
 
 # `make bench QUICK=1`: every benchmark with --quick (fewer runs; to see that they work)
 QUICK ?=
 BENCH_FLAGS := $(if $(QUICK),--quick,)
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml constraints.txt
 	@echo "calbench: creating the virtual environment $(VENV) (once)"
 	$(PYTHON) -m venv $(VENV)
 	@echo "calbench: installing calbench and its dependencies (MuJoCo, Rerun, SciPy, ...) into $(VENV): about 90 s, once"
 	@echo "  (setuptools may warn 'Please be careful with folders in your working directory with the same"
 	@echo "  name as your package': harmless here, the package is calbench and no folder of the checkout has that name)"
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/python -m pip install --quiet -c constraints.txt -e '.[test]'
 	touch $(STAMP)
 	@echo "calbench: installed in $(VENV)"
 
@@ -37,3 +37,18 @@ bench: $(STAMP)
 
 clean:
 	rm -rf $(VENV) logs/*.mcap logs/*.rrd logs/*.json
+
+# `make constraints`: upgrade. Installs the newest versions pyproject.toml allows into a scratch
+# environment, runs the suite there, and only if it passes writes their pins to constraints.txt
+# (then commit it; the next `make test` reinstalls .venv with them).
+constraints:
+	rm -rf .venv-upgrade
+	$(PYTHON) -m venv .venv-upgrade
+	.venv-upgrade/bin/python -m pip install --quiet --upgrade pip
+	.venv-upgrade/bin/python -m pip install --quiet -e '.[test]'
+	.venv-upgrade/bin/ruff check . && .venv-upgrade/bin/ruff format --check .
+	.venv-upgrade/bin/python -m pytest
+	(head -n 3 constraints.txt; .venv-upgrade/bin/python -m pip freeze --exclude-editable | grep -v '^calbench') > constraints.new
+	mv constraints.new constraints.txt
+	rm -rf .venv-upgrade
+	@echo "calbench: constraints.txt upgraded; commit it"
