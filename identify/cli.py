@@ -47,19 +47,17 @@ def _version() -> str:
 
 
 def add_identify(sub) -> None:
-    from calbench.identify.report import METHODS, Z_CHECK
+    from calbench.identify.methods import identify_help, method_names
+    from calbench.identify.report import Z_CHECK
 
     p = sub.add_parser("identify", help="estimate the elastostatic parameters from a campaign log")
     p.add_argument("log", type=Path, help="campaign MCAP log")
     p.add_argument("--model", type=Path, default=None, help="robot MJCF (default: the one in the log)")
     p.add_argument(
         "--method",
-        choices=METHODS,
+        choices=method_names(offered_only=True),
         default="one-step",
-        help="one-step: all parameters at once on the exact statics; two-step: the paper's "
-        "§4, for robots with at most one compensator across one actuated hinge; "
-        "two-step-iterated: the same with its Jacobians re-taken at the pose sagged by "
-        "its own estimate (default: %(default)s)",
+        help=identify_help() + " (default: %(default)s)",
     )
     p.add_argument(
         "--json", type=Path, default=None, help="write the report as JSON (default: none, the table only)"
@@ -141,13 +139,15 @@ def open_pieces(args, work_seconds: float, tasks: int):
 
 
 def add_montecarlo(sub) -> None:
+    from calbench.identify.methods import BOTH, montecarlo_choices
+
     p = sub.add_parser("montecarlo", help="re-measure a campaign with N noise seeds: bias, spread, CRB")
     p.add_argument("scenario", type=Path, help="scenario TOML file")
     p.add_argument("--runs", type=int, required=True, help="number of noise seeds (required)")
     p.add_argument(
         "--method",
-        choices=("both", "one-step", "two-step", "two-step-iterated"),
-        default="both",
+        choices=tuple(montecarlo_choices()),
+        default=BOTH,
         help="estimators to run; two-step runs both step-2 variants, two-step-iterated the paper's "
         "method at its self-consistent sagged pose, both for robots with at most one "
         "compensator across one actuated hinge; both: all of them (one-step alone on other "
@@ -168,15 +168,14 @@ def add_montecarlo(sub) -> None:
 
 
 def cmd_montecarlo(args) -> int:
-    from calbench.bench.model import Robot
     from calbench.bench.scenario import load_scenario
-    from calbench.identify.methods import TwoStepError, two_step_applies
     from calbench.identify.runtime import Interrupted
     from calbench.identify.study import (
-        METHODS,
         RUNS_PER_TASK,
+        check_montecarlo_size,
         estimated_seconds,
         format_summary,
+        montecarlo_methods,
         run_montecarlo,
     )
 
@@ -185,31 +184,8 @@ def cmd_montecarlo(args) -> int:
     scn = load_scenario(args.scenario, seed=args.seed)
     check_outputs({"--json": args.json}, {"SCENARIO": args.scenario, "robot": scn.robot})
     if not args.force:
-        from calbench.bench.campaign import truth_robot
-        from calbench.bench.scenario import check_size, estimate, montecarlo_estimate, repeats_key
-
-        repeats, n_refl = [p.repeats for p in scn.poses], len(truth_robot(scn).reflector_names)
-        check_size(estimate(repeats, n_refl), scn.path, repeats_key(repeats))  # one campaign
-        check_size(montecarlo_estimate(repeats, n_refl, args.runs), "--runs", "runs")
-    methods = {
-        "both": METHODS,
-        "one-step": ("one-step",),
-        "two-step": ("two-step", "two-step-weighted"),
-        "two-step-iterated": ("two-step-iterated",),
-    }[args.method]
-    try:
-        two_step_applies(Robot.from_file(scn.robot))
-    except TwoStepError as exc:
-        if args.method.startswith("two-step"):
-            raise InputError(
-                scn.robot,
-                f"--method {args.method}",
-                "a robot with at most one compensator, across one actuated hinge (paper §4)",
-                str(exc),
-            ) from None
-        methods = ("one-step",)
-    except ValueError as exc:  # the MJCF itself: reported where the campaign loads it
-        raise InputError(scn.path, "robot", "a loadable MJCF robot", f"{scn.robot}: {exc}") from None
+        check_montecarlo_size(scn, args.runs)
+    methods = montecarlo_methods(args.method, scn)
     interrupted = None
     with open_pieces(args, estimated_seconds(args.runs, methods), -(-args.runs // RUNS_PER_TASK)) as ex:
         bar = terminal_progress()

@@ -4,11 +4,12 @@
 from .accuracy import predicted_std
 from .campaign import TIMING_COLUMNS, needs_log, simulate_in_memory
 from .montecarlo import (
-    METHODS,
     RUNS_PER_TASK,
     campaign_observations,
+    check_montecarlo_size,
     estimated_seconds,
     format_summary,
+    montecarlo_methods,
     run_montecarlo,
     true_theta,
 )
@@ -19,7 +20,6 @@ from .store import read_results
 from .summary import cell_summaries, format_cells, pooled_by_axis
 
 __all__ = [
-    "METHODS",
     "Pending",
     "RUNS_PER_TASK",
     "Study",
@@ -29,11 +29,13 @@ __all__ = [
     "axis_ticks",
     "campaign_observations",
     "cell_summaries",
+    "check_montecarlo_size",
     "design_key",
     "estimated_seconds",
     "format_cells",
     "format_summary",
     "load_study",
+    "montecarlo_methods",
     "needs_log",
     "pooled_by_axis",
     "power_plots",
