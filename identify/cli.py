@@ -16,7 +16,6 @@ import json
 import logging
 import os
 import sys
-import time
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
@@ -26,7 +25,6 @@ from calbench.bench.cli import add_check_robot, add_export, add_from_urdf, add_r
 from calbench.bench.core import (
     CalbenchError,
     InputError,
-    atomic_path,
     check_outputs,
     terminal_progress,
     write_text,
@@ -298,230 +296,69 @@ def add_design(sub) -> None:
     p.set_defaults(func=cmd_design)
 
 
+class _BarAndNotes:
+    """A progress bar on stderr (on a terminal only) and the lines printed between its phases:
+    a line first ends the bar's."""
+
+    def __init__(self):
+        self.bar = terminal_progress()
+        self.drawn = False
+
+    def start(self, total: int, label: str = "") -> None:
+        self.drawn = True
+        self.bar.start(total, label)
+
+    def update(self, label: str = "", step: int = 1) -> None:
+        self.drawn = True
+        self.bar.update(label, step)
+
+    def close(self) -> None:
+        if self.drawn:
+            self.bar.close()
+            self.drawn = False
+
+    def note(self, line: str) -> None:
+        self.close()
+        print(line, file=sys.stderr)
+
+
 def cmd_design(args) -> int:
-    from calbench.identify.design import (
-        SECONDS_PER_CANDIDATE,
-        InfoEngine,
-        design_plan,
-        generate_candidates,
-        input_plan_measures,
-        load_design_scenario,
-        plan_comment,
-        plan_scenario_text,
-        result_json,
-        summary_text,
-    )
+    from calbench.identify.design import DesignRequest, run_design
 
-    if args.normalise and args.export_candidates is None:
-        raise InputError("(command line)", "--normalise", "--export-candidates CANDS.npz with it", None)
-    if args.from_candidates is not None:
-        return _design_from_candidates(args)
-    if args.scenario is None:
-        raise InputError(
-            "(command line)", "SCENARIO", "a scenario TOML (or --from-candidates CANDS.npz)", None
-        )
-    if args.study:
-        from calbench.identify.design import run_study
-
-        res = run_study(args.scenario, args.out_dir)
-        print(json.dumps({k: res[k] for k in ("table1", "table2", "table3_parameters")}, indent=1))
-        return 0
-    if args.out is None and args.json is None and args.export_candidates is None:
-        raise InputError(
-            "(command line)",
-            "--out",
-            "--out PLAN.toml, --json OUT.json or --export-candidates CANDS.npz",
-            None,
-        )
-    if args.configs < 1:
-        raise InputError("--configs", "configs", "an integer >= 1", args.configs)
-    if args.candidates is not None and args.candidates < 1:
-        raise InputError("--candidates", "candidates", "an integer >= 1", args.candidates)
-    if args.starts < 0:
-        raise InputError("--starts", "starts", "an integer >= 0", args.starts)
-    if args.processes is not None and args.processes < 1:
-        raise InputError("--processes", "processes", "an integer >= 1", args.processes)
-    scn, settings = load_design_scenario(args.scenario)
-    check_outputs(
-        {"--out": args.out, "--json": args.json, "--export-candidates": args.export_candidates},
-        {"SCENARIO": args.scenario, "robot": scn.robot},
-    )
-    if args.criterion == "pose" and scn.work is None and (args.out or args.json):
-        raise InputError(
-            scn.path, "work", "a [work] table (q in degrees, wrench in N and N*m) for --criterion pose", None
-        )
-    n_cands = args.candidates if args.candidates is not None else settings.candidates
-    if (args.out or args.json) and args.configs > n_cands:  # before minutes of candidates
-        raise InputError(
-            "--configs",
-            "configs",
-            f"at most the {n_cands} candidates (more --candidates give more)",
-            args.configs,
-        )
-    t0 = time.perf_counter()
-    n = settings.candidates if args.candidates is None else args.candidates
-    with open_pieces(args, n * SECONDS_PER_CANDIDATE, -(-n // 300)) as ex:
-        bar = terminal_progress()
-        cands = generate_candidates(scn, settings, n=n, processes=args.processes, progress=bar, executor=ex)
-        bar.close()
-    t_c = time.perf_counter() - t0
-    print(
-        f"{len(cands)} feasible candidates ({int(cands.kind.sum())} lateral pulls) in {t_c:.1f} s "
-        f"from {cands.stats['raw_commands']} sampled commands",
-        file=sys.stderr,
-    )
-    if args.export_candidates:
-        with atomic_path(args.export_candidates, suffix=".npz") as tmp:  # savez adds .npz otherwise
-            cands.save_npz(tmp, normalise=args.normalise)
-        print(f"wrote {args.export_candidates}", file=sys.stderr)
-    if args.out is None and args.json is None:
-        return 0
-    if args.configs > len(cands):
-        raise InputError(
-            "--configs",
-            "configs",
-            f"at most the {len(cands)} feasible candidates "
-            "(more --candidates, or looser [design] settings, give more)",
-            args.configs,
-        )
-    bar = terminal_progress()
-    bar.start(1 + 3 * args.configs, "exchange")
-    engine = InfoEngine(scn, settings)
-    res = design_plan(
-        scn,
-        settings,
-        cands,
-        args.configs,
-        args.criterion,
-        n_random=args.starts,
-        do_refine=not args.no_refine,
-        engine=engine,
-        progress=bar,
+    request = DesignRequest(
+        scenario=args.scenario,
+        configs=args.configs,
+        criterion=args.criterion,
+        out=args.out,
+        json=args.json,
+        export_candidates=args.export_candidates,
+        normalise=args.normalise,
+        from_candidates=args.from_candidates,
         distinct=args.distinct,
+        candidates=args.candidates,
+        starts=args.starts,
+        refine=not args.no_refine,
+        processes=args.processes,
+        study=args.study,
+        out_dir=args.out_dir,
     )
-    bar.close()
-    res.timings["candidates_s"] = t_c
-    input_plan = input_plan_measures(engine, scn, cands.theta0)
-    print(summary_text(res, cands, input_plan))
-    if args.out:
-        text = plan_scenario_text(scn, res.poses, args.out, plan_comment(args.scenario, res))
-        write_text(args.out, text)
-        print(f"wrote {args.out}", file=sys.stderr)
-    if args.json:
-        write_text(args.json, json.dumps(result_json(res, scn, cands, {"input_plan": input_plan}), indent=2))
-    return 0
-
-
-def _design_from_candidates(args) -> int:
-    """`design --from-candidates CANDS.npz`: the exchange and its certificate on given blocks."""
-    import numpy as np
-
-    from calbench.identify.design import (
-        LOAD_KINDS,
-        InfoEngine,
-        SingularCandidates,
-        load_design_scenario,
-        merge_repeats,
-        plan_scenario_text,
-        poses_of_rows,
-        read_candidates,
-        select_rows,
-        selection_text,
-    )
-
-    for flag, given in (("--study", args.study), ("--export-candidates", args.export_candidates)):
-        if given:
-            raise InputError("(command line)", flag, "no " + flag + " with --from-candidates", None)
-    if args.configs < 1:
-        raise InputError("--configs", "configs", "an integer >= 1", args.configs)
-    check_outputs(
-        {"--out": args.out, "--json": args.json},
-        {"--from-candidates": args.from_candidates, "SCENARIO": args.scenario},
-    )
-    cf = read_candidates(args.from_candidates)
-    if args.distinct and args.configs > len(cf):
-        raise InputError(
-            cf.path, "q", f"at least --configs {args.configs} candidates with --distinct", len(cf)
-        )
-    scn = G = None
-    if args.scenario is not None:
-        scn, settings = load_design_scenario(args.scenario)
-        if cf.q.shape[1] != len(scn.compliance):
-            raise InputError(
-                cf.path,
-                "q",
-                f"N x {len(scn.compliance)} joint angles (one per actuated joint of {scn.robot.name})",
-                f"N x {cf.q.shape[1]}",
-            )
-    if args.out is not None and (scn is None or cf.wrench is None or cf.kind is None):
-        raise InputError(
-            cf.path if scn is not None else "(command line)",
-            "wrench" if scn is not None else "SCENARIO",
-            "the scenario and the arrays wrench and load_kind in the candidate file for --out",
-            None,
-        )
-    if args.criterion == "pose":
-        if scn is None or scn.work is None:
-            raise InputError(
-                args.scenario or "(command line)",
-                "work",
-                "a scenario with a [work] table for --criterion pose (the work-pose Jacobian)",
-                None,
-            )
-        engine = InfoEngine(scn, settings)
-        if cf.blocks.shape[2] != len(engine.theta0) or (
-            cf.theta0 is not None and not np.allclose(cf.theta0, engine.theta0, rtol=1e-9)
-        ):
-            raise InputError(
-                cf.path,
-                "theta0",
-                f"the prior of {scn.path} ({len(engine.theta0)} parameters)",
-                None if cf.theta0 is None else cf.theta0.tolist(),
-            )
-        G = engine.work_jacobian(scn.work.q, scn.work.wrench)
+    shown = _BarAndNotes()
     try:
-        sel = select_rows(
-            cf.blocks, args.configs, args.criterion, G, distinct=args.distinct, n_random=args.starts
+        outcome = run_design(
+            request,
+            pieces=lambda seconds, tasks: open_pieces(args, seconds, tasks),
+            progress=shown,
+            notes=shown.note,
         )
-    except SingularCandidates as exc:
-        raise InputError(
-            cf.path, "blocks", "candidates that together identify every parameter", str(exc)
-        ) from None
-    load = None if cf.kind is None else [LOAD_KINDS[k] for k in cf.kind]
-    print(
-        f"design: {args.criterion}-optimal plan of {args.configs} rows from {len(cf)} candidates "
-        f"({cf.path})\n" + selection_text(sel, len(cf), cf.q, load)
-    )
-    if args.out:
-        poses = merge_repeats(poses_of_rows(cf.q, cf.wrench, cf.kind, cf.blocks, sel.rows))
-        text = plan_scenario_text(
-            scn,
-            poses,
-            args.out,
-            f"Measurement plan by `calbench design --from-candidates "
-            f"{cf.path.name} --configs {args.configs} --criterion {args.criterion}`",
-        )
-        write_text(args.out, text)
+    finally:
+        shown.close()
+    if outcome.summary is not None:
+        print(outcome.summary)
+    if outcome.plan_text is not None:
+        write_text(args.out, outcome.plan_text)
         print(f"wrote {args.out}", file=sys.stderr)
-    if args.json:
-        r = sel.exchange
-        out = {
-            "candidates_file": str(cf.path),
-            "candidates": len(cf),
-            "criterion": args.criterion,
-            "configs": args.configs,
-            **sel.as_json(cf.q, load),
-            "exchange": {
-                "value": r.value,
-                "start_values": r.start_values,
-                "start_results": r.start_results,
-                "passes": r.passes,
-                "swaps": r.swaps,
-                **sel.exchanger_stats,
-            },
-            "timings": sel.seconds,
-        }
-        write_text(args.json, json.dumps(out, indent=2))
+    if outcome.json_text is not None:
+        write_text(args.json, outcome.json_text)
     return 0
 
 
