@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import os
 import sys
 from importlib.metadata import PackageNotFoundError, version
@@ -497,8 +498,6 @@ def add_import(sub) -> None:
 
 
 def cmd_import(args) -> int:
-    import numpy as np
-
     from calbench.identify.shopfloor import import_readings
 
     check_outputs(
@@ -520,7 +519,7 @@ def cmd_import(args) -> int:
         f = res.registration.fit
         print(
             f"tracker registered at ({', '.join(f'{v:.4f}' for v in f.position)}) m "
-            f"± {max(f.position_std) * 1e6:.1f} um, turned {np.degrees(np.arccos(np.clip((np.trace(f.rotation) - 1) / 2, -1, 1))):.3f} deg "
+            f"± {max(f.position_std) * 1e6:.1f} um, turned {math.degrees(f.angle):.3f} deg "
             f"± {max(f.rotation_std) * 1e6:.1f} urad; residual {f.rms * 1e6:.1f} um RMS per axis "
             f"(the tracker alone: {f.expected_rms * 1e6:.1f} um)"
         )
@@ -559,9 +558,7 @@ def add_study(sub) -> None:
 
 def cmd_study(args) -> int:
     from calbench.identify.runtime import Interrupted
-    from calbench.identify.study import accuracy_plots, pooled_by_axis, power_plots
-
-    from .study import cell_summaries, format_cells, load_study, prepare, read_results, run_study
+    from calbench.identify.study import load_study, prepare, report_study, run_study
 
     study = load_study(args.study)  # every cell validated: nothing sent yet
     plots = args.plots or args.out.with_name(args.out.stem + "_plots")
@@ -594,27 +591,12 @@ def cmd_study(args) -> int:
             + (f" ({outcome.failed} failed)" if outcome.failed else ""),
             file=sys.stderr,
         )
-    table, _ = read_results(args.out)
-    cells = cell_summaries(study, table)
-    print(format_cells(study, cells))
-    if table.num_rows:
-        plots.mkdir(parents=True, exist_ok=True)
-        made = accuracy_plots(study, pooled_by_axis(study, table), plots) + power_plots(study, cells, plots)
-        print(f"plots: {', '.join(str(p) for p in made)}", file=sys.stderr)
+    rep = report_study(study, args.out, plots)
+    print(rep.text)
+    if rep.rows:
+        print(f"plots: {', '.join(str(p) for p in rep.plots)}", file=sys.stderr)
     if args.json:
-        write_text(
-            args.json,
-            json.dumps(
-                {
-                    "study": study.name,
-                    "file": str(args.study),
-                    "results": str(args.out),
-                    "seeds": study.seeds,
-                    "cells": cells,
-                },
-                indent=2,
-            ),
-        )
+        write_text(args.json, rep.to_json())
     if interrupted is not None:
         print(
             f"calbench study: interrupted; {interrupted.done} of {interrupted.total} campaigns kept in "

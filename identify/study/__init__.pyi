@@ -14,7 +14,7 @@ from .montecarlo import (
     true_theta,
 )
 from .plots import accuracy_plots, axis_ticks, power_plots
-from .run import Pending, StudyOutcome, design_key, prepare, run_study
+from .run import Pending, StudyOutcome, StudyReport, design_key, prepare, report_study, run_study
 from .spec import Study, load_study, scaled
 from .store import read_results
 from .summary import cell_summaries, format_cells, pooled_by_axis
@@ -24,6 +24,7 @@ __all__ = [
     "RUNS_PER_TASK",
     "Study",
     "StudyOutcome",
+    "StudyReport",
     "TIMING_COLUMNS",
     "accuracy_plots",
     "axis_ticks",
@@ -42,6 +43,7 @@ __all__ = [
     "predicted_std",
     "prepare",
     "read_results",
+    "report_study",
     "run_montecarlo",
     "run_study",
     "scaled",
