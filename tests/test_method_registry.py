@@ -145,3 +145,22 @@ def test_a_short_monte_carlo_runs_a_registered_method_on_the_same_noise(toys):
     np.testing.assert_allclose(mc.noise_free["toy"][:6], mc.noise_free["two-step"][:6], rtol=1e-12)
     rows = {p["name"]: p for p in mc.summary()["methods"]["toy"]["parameters"]}
     assert rows["k1"]["identified_runs"] == 3 and rows["compensator_stiffness"]["identified_runs"] == 0
+
+
+def test_a_result_of_the_wrong_shape_is_refused_naming_the_method_and_the_shape(campaign):
+    _, sim, robot = campaign
+    r = toy_estimate(robot, sim.obs, None)
+    with pytest.raises(ValueError, match=r"toy: cov has shape \(8, 7\), expected \(8, 8\)"):
+        MethodResult(
+            "toy",
+            r.names,
+            r.units,
+            r.theta,
+            r.cov[:, :7],
+            r.identifiable,
+            {},
+            r.residual,
+            r.residual_w,
+            0.0,
+            1,
+        )
