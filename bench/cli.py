@@ -14,20 +14,18 @@ import signal
 import sys
 from pathlib import Path
 
-from calbench.bench.campaign import run_campaign
+from calbench.bench.campaign import CampaignInterrupted, simulate
 from calbench.bench.core import Progress, atomic_path, check_outputs, write_text
-from calbench.bench.log import IdentificationReport, read_log, recover_log
+from calbench.bench.log import read_log, recover_log
 from calbench.bench.robots import DEFAULT_MASS, check_robot
 from calbench.bench.scenario import MAX_LOG_BYTES, MAX_SECONDS, duration, load_scenario, size
 from calbench.bench.view import (
     DEFAULT_MAGNIFY,
     Summary,
-    build_blueprint,
+    ViewerUnavailable,
     default_rrd_path,
     has_display,
-    log_view,
-    plan_view,
-    recording_stream,
+    spawn_recording,
     write_recording,
 )
 
@@ -72,34 +70,24 @@ def _sigterm_as_interrupt():
         signal.signal(signal.SIGTERM, old)
 
 
-def _stamp(path: Path) -> tuple | None:
-    try:
-        st = path.stat()
-    except OSError:
-        return None
-    return (st.st_ino, st.st_mtime_ns, st.st_size)
-
-
 def cmd_simulate(args: argparse.Namespace) -> int:
     scn = load_scenario(args.scenario, seed=args.seed)
     check_outputs({"--out": args.out}, {"SCENARIO": args.scenario, "robot": scn.robot})
     bar = Progress(total=2 * len(scn.poses), enabled=sys.stderr.isatty())
-    before = _stamp(args.out)
     try:
         with _sigterm_as_interrupt():
-            plans = run_campaign(scn, args.out, progress=bar, force=args.force)
-    except KeyboardInterrupt:
+            plans = simulate(scn, args.out, progress=bar, force=args.force)
+    except CampaignInterrupted as stop:
         bar.close()
-        if _stamp(args.out) == before:
+        if not stop.written:
             print(
                 f"calbench simulate: interrupted before the log was started; {args.out} untouched",
                 file=sys.stderr,
             )
             return 130
-        log = read_log(args.out)
         print(
             f"calbench simulate: interrupted: {args.out} is a finished MCAP log with "
-            f"{len(log.complete_poses)} of {log.n_poses_planned} poses",
+            f"{stop.complete} of {stop.planned} poses",
             file=sys.stderr,
         )
         return 130
@@ -166,18 +154,12 @@ def cmd_view(args: argparse.Namespace) -> int:
         check_outputs({"--rrd": args.rrd}, inputs)
     why = " (no display, so no viewer was spawned)"
     if args.rrd is None and has_display():
-        log = read_log(args.log, include_truth=True)
-        ident = IdentificationReport.read(args.identified) if args.identified is not None else None
-        plan = plan_view(log, ident, magnify)
-        rec = recording_stream(args.log)
         try:
-            rec.spawn(default_blueprint=build_blueprint(plan))
-        except Exception as e:  # noqa: BLE001  no viewer binary, cannot start: fall back to a file
+            s = spawn_recording(args.log, args.identified, magnify)
+        except ViewerUnavailable as e:  # no viewer binary, cannot start: fall back to a file
             print(f"calbench view: could not spawn the viewer ({e}); writing a file instead", file=sys.stderr)
             why = " (the viewer could not be spawned)"
         else:
-            s = log_view(rec, plan)
-            rec.flush()
             print(f"sent to the Rerun viewer: {_view_summary(s, magnify)}")
             if s.completeness:
                 print(f"  campaign: {s.completeness}")

@@ -14,9 +14,9 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import os
 import sys
-import time
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
@@ -26,7 +26,6 @@ from calbench.bench.cli import add_check_robot, add_export, add_from_urdf, add_r
 from calbench.bench.core import (
     CalbenchError,
     InputError,
-    atomic_path,
     check_outputs,
     terminal_progress,
     write_text,
@@ -47,19 +46,17 @@ def _version() -> str:
 
 
 def add_identify(sub) -> None:
-    from calbench.identify.report import METHODS, Z_CHECK
+    from calbench.identify.methods import identify_help, method_names
+    from calbench.identify.report import Z_CHECK
 
     p = sub.add_parser("identify", help="estimate the elastostatic parameters from a campaign log")
     p.add_argument("log", type=Path, help="campaign MCAP log")
     p.add_argument("--model", type=Path, default=None, help="robot MJCF (default: the one in the log)")
     p.add_argument(
         "--method",
-        choices=METHODS,
+        choices=method_names(offered_only=True),
         default="one-step",
-        help="one-step: all parameters at once on the exact statics; two-step: the paper's "
-        "§4, for robots with at most one compensator across one actuated hinge; "
-        "two-step-iterated: the same with its Jacobians re-taken at the pose sagged by "
-        "its own estimate (default: %(default)s)",
+        help=identify_help() + " (default: %(default)s)",
     )
     p.add_argument(
         "--json", type=Path, default=None, help="write the report as JSON (default: none, the table only)"
@@ -141,13 +138,15 @@ def open_pieces(args, work_seconds: float, tasks: int):
 
 
 def add_montecarlo(sub) -> None:
+    from calbench.identify.methods import BOTH, montecarlo_choices
+
     p = sub.add_parser("montecarlo", help="re-measure a campaign with N noise seeds: bias, spread, CRB")
     p.add_argument("scenario", type=Path, help="scenario TOML file")
     p.add_argument("--runs", type=int, required=True, help="number of noise seeds (required)")
     p.add_argument(
         "--method",
-        choices=("both", "one-step", "two-step", "two-step-iterated"),
-        default="both",
+        choices=tuple(montecarlo_choices()),
+        default=BOTH,
         help="estimators to run; two-step runs both step-2 variants, two-step-iterated the paper's "
         "method at its self-consistent sagged pose, both for robots with at most one "
         "compensator across one actuated hinge; both: all of them (one-step alone on other "
@@ -168,15 +167,14 @@ def add_montecarlo(sub) -> None:
 
 
 def cmd_montecarlo(args) -> int:
-    from calbench.bench.model import Robot
     from calbench.bench.scenario import load_scenario
-    from calbench.identify.methods import TwoStepError, two_step_applies
     from calbench.identify.runtime import Interrupted
     from calbench.identify.study import (
-        METHODS,
         RUNS_PER_TASK,
+        check_montecarlo_size,
         estimated_seconds,
         format_summary,
+        montecarlo_methods,
         run_montecarlo,
     )
 
@@ -185,31 +183,8 @@ def cmd_montecarlo(args) -> int:
     scn = load_scenario(args.scenario, seed=args.seed)
     check_outputs({"--json": args.json}, {"SCENARIO": args.scenario, "robot": scn.robot})
     if not args.force:
-        from calbench.bench.campaign import truth_robot
-        from calbench.bench.scenario import check_size, estimate, montecarlo_estimate, repeats_key
-
-        repeats, n_refl = [p.repeats for p in scn.poses], len(truth_robot(scn).reflector_names)
-        check_size(estimate(repeats, n_refl), scn.path, repeats_key(repeats))  # one campaign
-        check_size(montecarlo_estimate(repeats, n_refl, args.runs), "--runs", "runs")
-    methods = {
-        "both": METHODS,
-        "one-step": ("one-step",),
-        "two-step": ("two-step", "two-step-weighted"),
-        "two-step-iterated": ("two-step-iterated",),
-    }[args.method]
-    try:
-        two_step_applies(Robot.from_file(scn.robot))
-    except TwoStepError as exc:
-        if args.method.startswith("two-step"):
-            raise InputError(
-                scn.robot,
-                f"--method {args.method}",
-                "a robot with at most one compensator, across one actuated hinge (paper §4)",
-                str(exc),
-            ) from None
-        methods = ("one-step",)
-    except ValueError as exc:  # the MJCF itself: reported where the campaign loads it
-        raise InputError(scn.path, "robot", "a loadable MJCF robot", f"{scn.robot}: {exc}") from None
+        check_montecarlo_size(scn, args.runs)
+    methods = montecarlo_methods(args.method, scn)
     interrupted = None
     with open_pieces(args, estimated_seconds(args.runs, methods), -(-args.runs // RUNS_PER_TASK)) as ex:
         bar = terminal_progress()
@@ -322,230 +297,69 @@ def add_design(sub) -> None:
     p.set_defaults(func=cmd_design)
 
 
+class _BarAndNotes:
+    """A progress bar on stderr (on a terminal only) and the lines printed between its phases:
+    a line first ends the bar's."""
+
+    def __init__(self):
+        self.bar = terminal_progress()
+        self.drawn = False
+
+    def start(self, total: int, label: str = "") -> None:
+        self.drawn = True
+        self.bar.start(total, label)
+
+    def update(self, label: str = "", step: int = 1) -> None:
+        self.drawn = True
+        self.bar.update(label, step)
+
+    def close(self) -> None:
+        if self.drawn:
+            self.bar.close()
+            self.drawn = False
+
+    def note(self, line: str) -> None:
+        self.close()
+        print(line, file=sys.stderr)
+
+
 def cmd_design(args) -> int:
-    from calbench.identify.design import (
-        SECONDS_PER_CANDIDATE,
-        InfoEngine,
-        design_plan,
-        generate_candidates,
-        input_plan_measures,
-        load_design_scenario,
-        plan_comment,
-        plan_scenario_text,
-        result_json,
-        summary_text,
-    )
+    from calbench.identify.design import DesignRequest, run_design
 
-    if args.normalise and args.export_candidates is None:
-        raise InputError("(command line)", "--normalise", "--export-candidates CANDS.npz with it", None)
-    if args.from_candidates is not None:
-        return _design_from_candidates(args)
-    if args.scenario is None:
-        raise InputError(
-            "(command line)", "SCENARIO", "a scenario TOML (or --from-candidates CANDS.npz)", None
-        )
-    if args.study:
-        from calbench.identify.design import run_study
-
-        res = run_study(args.scenario, args.out_dir)
-        print(json.dumps({k: res[k] for k in ("table1", "table2", "table3_parameters")}, indent=1))
-        return 0
-    if args.out is None and args.json is None and args.export_candidates is None:
-        raise InputError(
-            "(command line)",
-            "--out",
-            "--out PLAN.toml, --json OUT.json or --export-candidates CANDS.npz",
-            None,
-        )
-    if args.configs < 1:
-        raise InputError("--configs", "configs", "an integer >= 1", args.configs)
-    if args.candidates is not None and args.candidates < 1:
-        raise InputError("--candidates", "candidates", "an integer >= 1", args.candidates)
-    if args.starts < 0:
-        raise InputError("--starts", "starts", "an integer >= 0", args.starts)
-    if args.processes is not None and args.processes < 1:
-        raise InputError("--processes", "processes", "an integer >= 1", args.processes)
-    scn, settings = load_design_scenario(args.scenario)
-    check_outputs(
-        {"--out": args.out, "--json": args.json, "--export-candidates": args.export_candidates},
-        {"SCENARIO": args.scenario, "robot": scn.robot},
-    )
-    if args.criterion == "pose" and scn.work is None and (args.out or args.json):
-        raise InputError(
-            scn.path, "work", "a [work] table (q in degrees, wrench in N and N*m) for --criterion pose", None
-        )
-    n_cands = args.candidates if args.candidates is not None else settings.candidates
-    if (args.out or args.json) and args.configs > n_cands:  # before minutes of candidates
-        raise InputError(
-            "--configs",
-            "configs",
-            f"at most the {n_cands} candidates (more --candidates give more)",
-            args.configs,
-        )
-    t0 = time.perf_counter()
-    n = settings.candidates if args.candidates is None else args.candidates
-    with open_pieces(args, n * SECONDS_PER_CANDIDATE, -(-n // 300)) as ex:
-        bar = terminal_progress()
-        cands = generate_candidates(scn, settings, n=n, processes=args.processes, progress=bar, executor=ex)
-        bar.close()
-    t_c = time.perf_counter() - t0
-    print(
-        f"{len(cands)} feasible candidates ({int(cands.kind.sum())} lateral pulls) in {t_c:.1f} s "
-        f"from {cands.stats['raw_commands']} sampled commands",
-        file=sys.stderr,
-    )
-    if args.export_candidates:
-        with atomic_path(args.export_candidates, suffix=".npz") as tmp:  # savez adds .npz otherwise
-            cands.save_npz(tmp, normalise=args.normalise)
-        print(f"wrote {args.export_candidates}", file=sys.stderr)
-    if args.out is None and args.json is None:
-        return 0
-    if args.configs > len(cands):
-        raise InputError(
-            "--configs",
-            "configs",
-            f"at most the {len(cands)} feasible candidates "
-            "(more --candidates, or looser [design] settings, give more)",
-            args.configs,
-        )
-    bar = terminal_progress()
-    bar.start(1 + 3 * args.configs, "exchange")
-    engine = InfoEngine(scn, settings)
-    res = design_plan(
-        scn,
-        settings,
-        cands,
-        args.configs,
-        args.criterion,
-        n_random=args.starts,
-        do_refine=not args.no_refine,
-        engine=engine,
-        progress=bar,
+    request = DesignRequest(
+        scenario=args.scenario,
+        configs=args.configs,
+        criterion=args.criterion,
+        out=args.out,
+        json=args.json,
+        export_candidates=args.export_candidates,
+        normalise=args.normalise,
+        from_candidates=args.from_candidates,
         distinct=args.distinct,
+        candidates=args.candidates,
+        starts=args.starts,
+        refine=not args.no_refine,
+        processes=args.processes,
+        study=args.study,
+        out_dir=args.out_dir,
     )
-    bar.close()
-    res.timings["candidates_s"] = t_c
-    input_plan = input_plan_measures(engine, scn, cands.theta0)
-    print(summary_text(res, cands, input_plan))
-    if args.out:
-        text = plan_scenario_text(scn, res.poses, args.out, plan_comment(args.scenario, res))
-        write_text(args.out, text)
-        print(f"wrote {args.out}", file=sys.stderr)
-    if args.json:
-        write_text(args.json, json.dumps(result_json(res, scn, cands, {"input_plan": input_plan}), indent=2))
-    return 0
-
-
-def _design_from_candidates(args) -> int:
-    """`design --from-candidates CANDS.npz`: the exchange and its certificate on given blocks."""
-    import numpy as np
-
-    from calbench.identify.design import (
-        LOAD_KINDS,
-        InfoEngine,
-        SingularCandidates,
-        load_design_scenario,
-        merge_repeats,
-        plan_scenario_text,
-        poses_of_rows,
-        read_candidates,
-        select_rows,
-        selection_text,
-    )
-
-    for flag, given in (("--study", args.study), ("--export-candidates", args.export_candidates)):
-        if given:
-            raise InputError("(command line)", flag, "no " + flag + " with --from-candidates", None)
-    if args.configs < 1:
-        raise InputError("--configs", "configs", "an integer >= 1", args.configs)
-    check_outputs(
-        {"--out": args.out, "--json": args.json},
-        {"--from-candidates": args.from_candidates, "SCENARIO": args.scenario},
-    )
-    cf = read_candidates(args.from_candidates)
-    if args.distinct and args.configs > len(cf):
-        raise InputError(
-            cf.path, "q", f"at least --configs {args.configs} candidates with --distinct", len(cf)
-        )
-    scn = G = None
-    if args.scenario is not None:
-        scn, settings = load_design_scenario(args.scenario)
-        if cf.q.shape[1] != len(scn.compliance):
-            raise InputError(
-                cf.path,
-                "q",
-                f"N x {len(scn.compliance)} joint angles (one per actuated joint of {scn.robot.name})",
-                f"N x {cf.q.shape[1]}",
-            )
-    if args.out is not None and (scn is None or cf.wrench is None or cf.kind is None):
-        raise InputError(
-            cf.path if scn is not None else "(command line)",
-            "wrench" if scn is not None else "SCENARIO",
-            "the scenario and the arrays wrench and load_kind in the candidate file for --out",
-            None,
-        )
-    if args.criterion == "pose":
-        if scn is None or scn.work is None:
-            raise InputError(
-                args.scenario or "(command line)",
-                "work",
-                "a scenario with a [work] table for --criterion pose (the work-pose Jacobian)",
-                None,
-            )
-        engine = InfoEngine(scn, settings)
-        if cf.blocks.shape[2] != len(engine.theta0) or (
-            cf.theta0 is not None and not np.allclose(cf.theta0, engine.theta0, rtol=1e-9)
-        ):
-            raise InputError(
-                cf.path,
-                "theta0",
-                f"the prior of {scn.path} ({len(engine.theta0)} parameters)",
-                None if cf.theta0 is None else cf.theta0.tolist(),
-            )
-        G = engine.work_jacobian(scn.work.q, scn.work.wrench)
+    shown = _BarAndNotes()
     try:
-        sel = select_rows(
-            cf.blocks, args.configs, args.criterion, G, distinct=args.distinct, n_random=args.starts
+        outcome = run_design(
+            request,
+            pieces=lambda seconds, tasks: open_pieces(args, seconds, tasks),
+            progress=shown,
+            notes=shown.note,
         )
-    except SingularCandidates as exc:
-        raise InputError(
-            cf.path, "blocks", "candidates that together identify every parameter", str(exc)
-        ) from None
-    load = None if cf.kind is None else [LOAD_KINDS[k] for k in cf.kind]
-    print(
-        f"design: {args.criterion}-optimal plan of {args.configs} rows from {len(cf)} candidates "
-        f"({cf.path})\n" + selection_text(sel, len(cf), cf.q, load)
-    )
-    if args.out:
-        poses = merge_repeats(poses_of_rows(cf.q, cf.wrench, cf.kind, cf.blocks, sel.rows))
-        text = plan_scenario_text(
-            scn,
-            poses,
-            args.out,
-            f"Measurement plan by `calbench design --from-candidates "
-            f"{cf.path.name} --configs {args.configs} --criterion {args.criterion}`",
-        )
-        write_text(args.out, text)
+    finally:
+        shown.close()
+    if outcome.summary is not None:
+        print(outcome.summary)
+    if outcome.plan_text is not None:
+        write_text(args.out, outcome.plan_text)
         print(f"wrote {args.out}", file=sys.stderr)
-    if args.json:
-        r = sel.exchange
-        out = {
-            "candidates_file": str(cf.path),
-            "candidates": len(cf),
-            "criterion": args.criterion,
-            "configs": args.configs,
-            **sel.as_json(cf.q, load),
-            "exchange": {
-                "value": r.value,
-                "start_values": r.start_values,
-                "start_results": r.start_results,
-                "passes": r.passes,
-                "swaps": r.swaps,
-                **sel.exchanger_stats,
-            },
-            "timings": sel.seconds,
-        }
-        write_text(args.json, json.dumps(out, indent=2))
+    if outcome.json_text is not None:
+        write_text(args.json, outcome.json_text)
     return 0
 
 
@@ -684,8 +498,6 @@ def add_import(sub) -> None:
 
 
 def cmd_import(args) -> int:
-    import numpy as np
-
     from calbench.identify.shopfloor import import_readings
 
     check_outputs(
@@ -707,7 +519,7 @@ def cmd_import(args) -> int:
         f = res.registration.fit
         print(
             f"tracker registered at ({', '.join(f'{v:.4f}' for v in f.position)}) m "
-            f"± {max(f.position_std) * 1e6:.1f} um, turned {np.degrees(np.arccos(np.clip((np.trace(f.rotation) - 1) / 2, -1, 1))):.3f} deg "
+            f"± {max(f.position_std) * 1e6:.1f} um, turned {math.degrees(f.angle):.3f} deg "
             f"± {max(f.rotation_std) * 1e6:.1f} urad; residual {f.rms * 1e6:.1f} um RMS per axis "
             f"(the tracker alone: {f.expected_rms * 1e6:.1f} um)"
         )
@@ -746,9 +558,7 @@ def add_study(sub) -> None:
 
 def cmd_study(args) -> int:
     from calbench.identify.runtime import Interrupted
-    from calbench.identify.study import accuracy_plots, pooled_by_axis, power_plots
-
-    from .study import cell_summaries, format_cells, load_study, prepare, read_results, run_study
+    from calbench.identify.study import load_study, prepare, report_study, run_study
 
     study = load_study(args.study)  # every cell validated: nothing sent yet
     plots = args.plots or args.out.with_name(args.out.stem + "_plots")
@@ -781,27 +591,12 @@ def cmd_study(args) -> int:
             + (f" ({outcome.failed} failed)" if outcome.failed else ""),
             file=sys.stderr,
         )
-    table, _ = read_results(args.out)
-    cells = cell_summaries(study, table)
-    print(format_cells(study, cells))
-    if table.num_rows:
-        plots.mkdir(parents=True, exist_ok=True)
-        made = accuracy_plots(study, pooled_by_axis(study, table), plots) + power_plots(study, cells, plots)
-        print(f"plots: {', '.join(str(p) for p in made)}", file=sys.stderr)
+    rep = report_study(study, args.out, plots)
+    print(rep.text)
+    if rep.rows:
+        print(f"plots: {', '.join(str(p) for p in rep.plots)}", file=sys.stderr)
     if args.json:
-        write_text(
-            args.json,
-            json.dumps(
-                {
-                    "study": study.name,
-                    "file": str(args.study),
-                    "results": str(args.out),
-                    "seeds": study.seeds,
-                    "cells": cells,
-                },
-                indent=2,
-            ),
-        )
+        write_text(args.json, rep.to_json())
     if interrupted is not None:
         print(
             f"calbench study: interrupted; {interrupted.done} of {interrupted.total} campaigns kept in "

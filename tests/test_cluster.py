@@ -28,6 +28,7 @@ from dask_cluster import LocalDaskCluster, self_signed, tls_env
 from calbench.bench.scenario import load_scenario
 from calbench.identify.cli import main
 from calbench.identify.design import candidates, generate_candidates, load_design_scenario
+from calbench.identify.methods import method_names
 from calbench.identify.runtime import choose, open_executor
 from calbench.identify.study import TIMING_COLUMNS, montecarlo
 
@@ -72,12 +73,12 @@ def _strip(x):
 def test_montecarlo_on_the_cluster_gives_the_local_numbers(cluster, monkeypatch, tmp_path):
     c, _ = cluster
     scn = load_scenario(PAPER)
-    local = montecarlo.run_montecarlo(scn, 8, methods=montecarlo.METHODS, progress=False)  # one task
+    local = montecarlo.run_montecarlo(scn, 8, methods=method_names(), progress=False)  # one task
     monkeypatch.setattr(montecarlo, "RUNS_PER_TASK", 3)  # three
     with open_executor(choose(c.address, 0.0)) as ex:
         assert ex.choice.workers == 2
-        remote = montecarlo.run_montecarlo(scn, 8, methods=montecarlo.METHODS, progress=False, executor=ex)
-    for m in montecarlo.METHODS:
+        remote = montecarlo.run_montecarlo(scn, 8, methods=method_names(), progress=False, executor=ex)
+    for m in method_names():
         assert np.array_equal(local.estimates[m], remote.estimates[m], equal_nan=True), m
         assert np.array_equal(local.stds[m], remote.stds[m], equal_nan=True), m
     assert _strip(local.summary()) == _strip(remote.summary())

@@ -2,6 +2,7 @@
 # calbench.bench.core.face reads these lines and loads each name on first use.
 
 from .run import (
+    CampaignInterrupted,
     PosePlan,
     drifted,
     plan_campaign,
@@ -9,10 +10,12 @@ from .run import (
     reading_drift,
     run_campaign,
     scenario_params,
+    simulate,
     truth_robot,
 )
 
 __all__ = [
+    "CampaignInterrupted",
     "PosePlan",
     "drifted",
     "plan_campaign",
@@ -20,5 +23,6 @@ __all__ = [
     "reading_drift",
     "run_campaign",
     "scenario_params",
+    "simulate",
     "truth_robot",
 ]

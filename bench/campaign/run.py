@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 
 from calbench.bench.core import InputError, ProgressSink, sink
-from calbench.bench.log import FoxgloveWriter, LogHeader, LogWriter
+from calbench.bench.log import FoxgloveWriter, LogHeader, LogWriter, read_log
 from calbench.bench.model import (
     LOOP_MARGIN,
     LOOP_MARGIN_ANGLE,
@@ -240,7 +240,43 @@ def run_campaign(
     return plans
 
 
+class CampaignInterrupted(KeyboardInterrupt):
+    """Ctrl-C (or a SIGTERM made one) during :func:`simulate`: ``written`` False when no log
+    was started (OUT is untouched), else OUT is a finished MCAP log with ``complete`` of
+    ``planned`` poses."""
+
+    def __init__(self, written: bool, complete: int = 0, planned: int = 0):
+        super().__init__("campaign interrupted")
+        self.written, self.complete, self.planned = written, complete, planned
+
+
+def _stamp(path: Path) -> tuple | None:
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return (st.st_ino, st.st_mtime_ns, st.st_size)
+
+
+def simulate(
+    scn: Scenario, out: str | Path, progress: ProgressSink | None = None, force: bool = False
+) -> list[PosePlan]:
+    """`calbench simulate`: :func:`run_campaign`, and on Ctrl-C a :class:`CampaignInterrupted`
+    saying what is on disk (the writer finishes the log with the poses done so far)."""
+    out = Path(out)
+    before = _stamp(out)
+    try:
+        return run_campaign(scn, out, progress=progress, force=force)
+    except KeyboardInterrupt:
+        if _stamp(out) == before:
+            raise CampaignInterrupted(False) from None
+        log = read_log(out)
+        raise CampaignInterrupted(True, len(log.complete_poses), log.n_poses_planned) from None
+
+
 __all__ = [
+    "CampaignInterrupted",
+    "simulate",
     "PosePlan",
     "plan_campaign",
     "reading_drift",

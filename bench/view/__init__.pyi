@@ -6,6 +6,7 @@ from .recording import (
     DEFAULT_MAGNIFY,
     Discovery,
     Summary,
+    ViewerUnavailable,
     build_blueprint,
     check_magnify,
     default_rrd_path,
@@ -15,6 +16,7 @@ from .recording import (
     measured_deflections,
     plan_view,
     recording_stream,
+    spawn_recording,
     write_discovery_recording,
     write_recording,
 )
@@ -36,7 +38,9 @@ __all__ = [
     "log_view",
     "measured_deflections",
     "plan_view",
+    "ViewerUnavailable",
     "recording_stream",
+    "spawn_recording",
     "write_discovery_recording",
     "write_recording",
 ]

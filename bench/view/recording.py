@@ -939,6 +939,32 @@ def write_recording(
     return summary
 
 
+class ViewerUnavailable(RuntimeError):
+    """The Rerun viewer could not be spawned (no viewer binary, it could not start)."""
+
+
+def spawn_recording(
+    log_path: str | os.PathLike,
+    identified: str | os.PathLike | None = None,
+    magnify: float = DEFAULT_MAGNIFY,
+) -> Summary:
+    """Send the recording of a campaign log (and report) to a Rerun viewer it spawns, with its
+    default blueprint. ViewerUnavailable (saying why) when the viewer cannot be spawned: nothing
+    has been sent then, and the caller may write a file instead (:func:`write_recording`)."""
+    magnify = check_magnify(magnify)
+    log = read_log(log_path, include_truth=True)
+    ident = IdentificationReport.read(identified) if identified is not None else None
+    plan = plan_view(log, ident, magnify)
+    rec = recording_stream(log_path)
+    try:
+        rec.spawn(default_blueprint=build_blueprint(plan))
+    except Exception as e:  # noqa: BLE001  no viewer binary, cannot start
+        raise ViewerUnavailable(str(e)) from None
+    summary = log_view(rec, plan)
+    rec.flush()
+    return summary
+
+
 def write_discovery_recording(
     log_path: str | os.PathLike,
     rrd_path: str | os.PathLike,

@@ -63,6 +63,11 @@ class RigidFit:
         return float(np.sqrt(np.mean(self.residual**2))) if self.residual.size else 0.0
 
     @property
+    def angle(self) -> float:
+        """The rotation's angle about its own axis, rad (0 to pi)."""
+        return float(np.arccos(np.clip((np.trace(self.rotation) - 1) / 2, -1, 1)))
+
+    @property
     def rotation_std(self) -> np.ndarray:
         """(3,) rad about world x, y, z, scaled by the misfit."""
         return np.sqrt(np.diag(self.cov)[:3]) * self.scale

@@ -2,8 +2,13 @@
 # calbench.bench.core.face reads these lines and loads each name on first use.
 
 from .batch_info import BatchInfo
-from .candidate_file import CandidateFile, read_candidates
-from .candidates import SECONDS_PER_CANDIDATE, CandidateSet, generate_candidates
+from .candidates import (
+    SECONDS_PER_CANDIDATE,
+    CandidateFile,
+    CandidateSet,
+    generate_candidates,
+    read_candidates,
+)
 from .certificate import (
     ALGORITHMS,
     ApproximateDesign,
@@ -43,6 +48,7 @@ from .plan import (
     summary_text,
     work_jacobian,
 )
+from .run import DesignOutcome, DesignRequest, run_design
 from .selection import Selection, select_rows, selection_text
 from .settings import DESIGN_KEYS, DesignSettings, load_design_scenario, read_design_settings
 from .study import run_study
@@ -56,6 +62,8 @@ __all__ = [
     "CandidateSet",
     "Certificate",
     "DESIGN_KEYS",
+    "DesignOutcome",
+    "DesignRequest",
     "DesignResult",
     "DesignSettings",
     "EQUILIBRIUM_RULES",
@@ -91,6 +99,7 @@ __all__ = [
     "read_candidates",
     "read_design_settings",
     "result_json",
+    "run_design",
     "run_study",
     "scenario_plan_information",
     "select_rows",

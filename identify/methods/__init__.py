@@ -1,4 +1,5 @@
-"""calbench.identify.methods: the estimators: one-step, two-step, two-step iterated."""
+"""calbench.identify.methods: the estimator family (base), its one list (registry) and the estimators:
+one-step, two-step (plain and weighted), two-step iterated."""
 
 from calbench.bench.core import lazy_face
 

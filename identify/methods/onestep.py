@@ -50,9 +50,12 @@ paper solves eq. (20) once, we iterate because the model is nonlinear in theta.
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
 from calbench.bench.model import ParamLayout, Robot
+from calbench.bench.statics import BatchStatics, StaticsSolver
 from calbench.identify.core import (
     RANK_TOL,
     Fit,
@@ -69,7 +72,10 @@ from calbench.identify.core import (
     resolve,
 )
 
+from .base import IdentifyOptions, Method, MethodResult, Repeats
 from .twostep import TwoStepError, TwoStepResult, group_q2, plan_facts, two_step
+
+MC_STEP_TOL = 1e-2  # sigma: the Monte Carlo's stopping rule (module docstring)
 
 
 def generic_start(robot: Robot, obs: Observations) -> np.ndarray:
@@ -281,6 +287,21 @@ def valid_phi(phi: np.ndarray) -> bool:
     return bool(np.all(np.isfinite(phi)) and np.all(phi > 0))
 
 
+def two_step_start(
+    robot: Robot, obs: Observations, generic: np.ndarray, two: TwoStepResult | None = None
+) -> tuple[np.ndarray, str, list[str]]:
+    """The one-step's start (module docstring): the two-step estimate (``two`` if given), its
+    invalid entries replaced by ``generic``; ``generic`` itself where the two-step does not
+    apply or fails. Returns the start, how it was made, and the replaced parameters' names."""
+    try:
+        two = two or two_step(robot, obs)
+    except (np.linalg.LinAlgError, ValueError, TwoStepError):
+        return generic, "generic", []
+    start, replaced = sanitize_start(two.theta, generic, robot.layout)
+    method = "two-step" if not replaced else "two-step (generic: " + ", ".join(replaced) + ")"
+    return start, method, replaced
+
+
 def one_step(
     robot: Robot,
     obs: Observations,
@@ -297,12 +318,7 @@ def one_step(
     method = "given"
     replaced: list[str] = []
     if start is None:
-        try:
-            two = two or two_step(robot, obs)
-            start, replaced = sanitize_start(two.theta, generic, robot.layout)
-            method = "two-step" if not replaced else "two-step (generic: " + ", ".join(replaced) + ")"
-        except (np.linalg.LinAlgError, ValueError, TwoStepError):
-            start, method = generic, "generic"
+        start, method, replaced = two_step_start(robot, obs, generic, two)
     res = fit_from(est, obs.dp, white, start, generic, method, **kw)
     res.extra["start_replaced"] = replaced
     if check_profile:
@@ -325,4 +341,128 @@ def fit_from(
     return alt if (alt.converged, -alt.chi2) > (res.converged, -res.chi2) else res
 
 
-__all__ = ["Fit", "OneStep", "one_step", "fit_from", "generic_start", "sanitize_start", "profile"]
+# --------------------------------------------------------------------------- the family's face
+
+
+def _num(x) -> float | None:
+    return None if x is None or not np.isfinite(x) else float(x)
+
+
+def profile_report(pr: Profile, names) -> dict:
+    """The profile check per checked parameter (identify/core/profile.py), as the report's JSON
+    carries it: chi2's rise at +-2 Fisher std (None: past a bound, or no fit there) and whether
+    it is the quadratic's (4, within a factor 2); a parameter that fails keeps its Fisher std
+    (module docstring)."""
+    return {
+        names[i]: {"rise_plus": _num(r[0]), "rise_minus": _num(r[1]), "quadratic": not bool(pr.bad[i])}
+        for i, r in sorted(pr.rises.items())
+    }
+
+
+def one_step_result(fit: Fit, details: dict | None = None) -> MethodResult:
+    """The family's result of a one-step fit; ``details`` default: how it started, its
+    iterations, evaluations and convergence (and the profile check when it ran)."""
+    if details is None:
+        details = {
+            "start": fit.start_method,
+            "iterations": fit.iterations,
+            "evaluations": fit.evaluations,
+            "converged": bool(fit.converged),
+        }
+        if "profile" in fit.extra:
+            details["profile"] = profile_report(fit.extra["profile"], fit.names)
+    return MethodResult(
+        "one-step",
+        fit.names,
+        fit.units,
+        fit.theta,
+        fit.cov,
+        fit.identifiable,
+        dict(fit.reasons),
+        fit.residual,
+        fit.residual_w,
+        float(fit.chi2),
+        int(fit.dof),
+        bool(fit.converged),
+        fit.iterations,
+        fit.evaluations,
+        details,
+    )
+
+
+def estimate_one_step(robot: Robot, obs: Observations, options: IdentifyOptions) -> MethodResult:
+    """`calbench identify --method one-step`: :func:`one_step` (with its profile check when
+    ``options`` asks)."""
+    return one_step_result(one_step(robot, obs, check_profile=options.check_profile))
+
+
+def fresh_copy(est: OneStep) -> OneStep:
+    """A copy of the estimator in the state it was left in (its forward model warm-starts from
+    its last solution, so a run's last bits would depend on the runs before it). Its workspaces
+    are shared, not copied: the robot and the statics solvers (bench/statics/equilibrium.py,
+    bench/statics/batched.py), whose MuJoCo model parameters, state and buffers every evaluation
+    rewrites, and the observations (read-only); what is copied is the warm-start cache."""
+    shared = [est.robot, est.obs] + [
+        v for v in vars(est.model).values() if isinstance(v, (StaticsSolver, BatchStatics))
+    ]
+    return copy.deepcopy(est, {id(o): o for o in shared})
+
+
+def repeat_one_step(robot: Robot, obs0: Observations, white0: Whitener) -> Repeats:
+    """The Monte Carlo's one-step (identify/study/montecarlo.py). The noise-free estimate is the
+    one-step's on the exact readings, from their two-step start (:func:`two_step_start`: no
+    truth involved). Every run starts there, from a copy of the estimator in the same state
+    (:func:`fresh_copy`), with the model value and Jacobian at the start evaluated once and
+    reused, the noise-free scale, no final evaluation and the stopping rule at MC_STEP_TOL sigma:
+    a run usually costs one evaluation of the exact model and its IFT Jacobian."""
+    est = OneStep(robot, obs0)
+    generic = generic_start(robot, obs0)
+    start, method, _ = two_step_start(robot, obs0, generic)
+    nf = fit_from(est, obs0.dp, white0, start, generic, method)
+    theta0 = np.where(np.isfinite(nf.theta), nf.theta, start)
+    scale = np.abs(to_phi(theta0, robot.layout))
+    f0, j0 = est.model.evaluate(theta0)
+
+    def run(obs: Observations, white: Whitener) -> MethodResult:
+        res = fresh_copy(est).fit(
+            obs.dp,
+            white,
+            theta0,
+            scale=scale,
+            start_eval=(f0, j0),
+            final_eval=False,
+            step_tol=MC_STEP_TOL,
+            start_method="noise-free estimate",
+        )
+        return one_step_result(res, {})
+
+    return Repeats(one_step_result(nf), run)
+
+
+ONE_STEP = Method(
+    "one-step",
+    estimate_one_step,
+    summary="all parameters at once on the exact statics",
+    repeat=repeat_one_step,
+    seconds_per_run=0.007,  # in-process, per Monte Carlo run on the paper campaign (measured)
+    noise_free_always=True,
+)
+
+
+__all__ = [
+    "Fit",
+    "OneStep",
+    "one_step",
+    "fit_from",
+    "generic_start",
+    "sanitize_start",
+    "profile",
+    "two_step_start",
+    "profile_report",
+    "one_step_result",
+    "estimate_one_step",
+    "fresh_copy",
+    "repeat_one_step",
+    "ONE_STEP",
+    "MC_STEP_TOL",
+]

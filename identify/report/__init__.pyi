@@ -3,7 +3,6 @@
 
 from .html import Z95, design_section, html_report, write_report
 from .identification import (
-    METHODS,
     Z_CHECK,
     check_failed,
     format_table,
@@ -16,7 +15,6 @@ from .identification import (
 __all__ = [
     "html_report",
     "identification_report",
-    "METHODS",
     "Z95",
     "Z_CHECK",
     "check_failed",

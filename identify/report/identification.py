@@ -30,69 +30,29 @@ from calbench.identify.core import (
     MAX_RELATIVE_STD,
     OUTLIER_SIGMA,
     Observations,
-    Profile,
     check_sites,
     from_log,
     load_model,
     outliers,
 )
-from calbench.identify.methods import TwoStepError, one_step, two_step, two_step_applies, two_step_iterated
+from calbench.identify.methods import IdentifyOptions, MethodResult, check_method, method_named, method_names
 
-METHODS = ("one-step", "two-step", "two-step-iterated")
 Z_CHECK = 4.0
 
 
 @dataclass
 class Identified:
-    method: str
+    """An identification: the method's result on the observations it used, the readings off by
+    more than OUTLIER_SIGMA, and those dropped before the refit (``drop_outliers``)."""
+
+    result: MethodResult
     obs: Observations
-    theta: np.ndarray
-    cov: np.ndarray
-    identifiable: np.ndarray
-    reasons: dict
-    residual: np.ndarray
-    residual_w: np.ndarray
-    chi2: float
-    dof: int
     outliers: list
     dropped: list
-    extra: dict
-    names: tuple[str, ...] = ()  # the parameters (the robot's layout) and their units
-    units: tuple[str, ...] = ()
 
-
-def _estimate(robot: Robot, obs: Observations, method: str, check_profile: bool = False):
-    if method in ("two-step", "two-step-iterated"):
-        r = two_step(robot, obs) if method == "two-step" else two_step_iterated(robot, obs)
-        extra = {
-            "step1": {
-                "names": r.step1_names,
-                "estimate": [None if not np.isfinite(x) else float(x) for x in r.step1_k],
-                "std": [None if not np.isfinite(x) else float(math.sqrt(x)) for x in np.diag(r.step1_cov)],
-            },
-            "step2": r.step2,
-        }
-        return r, extra
-    r = one_step(robot, obs, check_profile=check_profile)
-    extra = {
-        "start": r.start_method,
-        "iterations": r.iterations,
-        "evaluations": r.evaluations,
-        "converged": bool(r.converged),
-    }
-    if check_profile:
-        extra["profile"] = profile_report(r.extra["profile"], r.names)
-    return r, extra
-
-
-def profile_report(pr: Profile, names) -> dict:
-    """The profile check per checked parameter (identify/core/profile.py): chi2's rise at +-2 Fisher
-    std (None: past a bound, or no fit there) and whether it is the quadratic's (4, within a
-    factor 2); a parameter that fails keeps its Fisher std (identify/methods/onestep.py says why)."""
-    return {
-        names[i]: {"rise_plus": _num(r[0]), "rise_minus": _num(r[1]), "quadratic": not bool(pr.bad[i])}
-        for i, r in sorted(pr.rises.items())
-    }
+    @property
+    def method(self) -> str:
+        return self.result.method
 
 
 def identify(
@@ -102,22 +62,17 @@ def identify(
     drop_outliers: bool = False,
     check_profile: bool = False,
 ) -> Identified:
-    """Estimate, flag outliers (> 5 sigma), optionally refit without them; ``check_profile``:
-    the one-step's profile check too (identify/methods/onestep.py; ~0.1-0.25 s, which the studies'
-    ~0.1 s campaigns do not pay)."""
-    if method not in METHODS:
-        raise InputError("--method", "method", " or ".join(METHODS), method)
-    if method != "one-step":
-        try:
-            two_step_applies(robot)
-        except TwoStepError as exc:
-            raise InputError(
-                robot.source or "robot model",
-                f"--method {method}",
-                "a robot with at most one compensator, across one actuated hinge (paper §4)",
-                str(exc),
-            ) from None
-    r, extra = _estimate(robot, obs, method, check_profile)
+    """Estimate with the method named ``method`` (one that `calbench identify --method` offers:
+    identify/methods/registry.py), flag outliers (> 5 sigma), optionally refit without them;
+    ``check_profile``: the one-step's profile check too (identify/methods/onestep.py; ~0.1-0.25
+    s, which the studies' ~0.1 s campaigns do not pay)."""
+    offered = method_names(offered_only=True)
+    if method not in offered:
+        raise InputError("--method", "method", " or ".join(offered), method)
+    m = method_named(method)
+    check_method(m, robot, robot.source or "robot model", f"--method {method}")
+    options = IdentifyOptions(check_profile=check_profile)
+    r = m.estimate(robot, obs, options)
     found = outliers(r.residual_w, obs.labels, OUTLIER_SIGMA)
     dropped: list = []
     if drop_outliers and found:
@@ -125,25 +80,9 @@ def identify(
         keep = [lab for lab in obs.labels if lab not in bad]
         obs = obs.subset(keep)
         dropped = found
-        r, extra = _estimate(robot, obs, method, check_profile)
+        r = m.estimate(robot, obs, options)
         found = outliers(r.residual_w, obs.labels, OUTLIER_SIGMA)
-    return Identified(
-        method,
-        obs,
-        r.theta,
-        r.cov,
-        r.identifiable,
-        dict(r.reasons),
-        r.residual,
-        r.residual_w,
-        float(r.chi2),
-        int(r.dof),
-        found,
-        dropped,
-        extra,
-        robot.layout.names,
-        robot.layout.units,
-    )
+    return Identified(r, obs, found, dropped)
 
 
 def truth_vector(truth: CampaignTruth | None, robot: Robot) -> np.ndarray | None:
@@ -166,34 +105,34 @@ def identification_report(
 ) -> IdentificationReport:
     """The report of an identification; ``truth`` (from the log, after the estimate) fills the
     truth, error and z columns."""
-    obs = res.obs
-    sd = np.sqrt(np.where(np.isfinite(np.diag(res.cov)), np.diag(res.cov), np.nan))
+    obs, r = res.obs, res.result
+    sd = np.sqrt(np.where(np.isfinite(np.diag(r.cov)), np.diag(r.cov), np.nan))
     params = []
-    names, units = res.names, res.units
+    names, units = r.names, r.units
     for i, name in enumerate(names):
-        est = _num(res.theta[i]) if res.identifiable[i] else None
-        std = _num(sd[i]) if res.identifiable[i] else None
+        est = _num(r.theta[i]) if r.identifiable[i] else None
+        std = _num(sd[i]) if r.identifiable[i] else None
         t = None if truth is None else float(truth[i])
         err = None if (est is None or t is None) else est - t
         z = None if (err is None or not std) else err / std
         params.append(
             ParameterEstimate(
-                name, units[i], est, std, t, err, z, bool(res.identifiable[i]), res.reasons.get(name)
+                name, units[i], est, std, t, err, z, bool(r.identifiable[i]), r.reasons.get(name)
             )
         )
-    n = res.residual.size
+    n = r.residual.size
     cov_diag = np.concatenate([np.diagonal(c) for c in obs.cov]) if obs.poses else np.zeros(0)
     return IdentificationReport(
-        method=res.method,
+        method=r.method,
         parameters=tuple(params),
-        residual_rms=float(np.sqrt(np.mean(res.residual**2))) if n else None,
+        residual_rms=float(np.sqrt(np.mean(r.residual**2))) if n else None,
         noise_sigma=float(obs.noise_sigma),
-        chi2_per_dof=res.chi2 / res.dof if res.dof > 0 else None,
-        chi2=res.chi2,
-        dof=res.dof,
-        expected_residual_rms=float(np.sqrt(np.mean(cov_diag) * res.dof / max(n, 1))) if n else None,
-        whitened_residual_rms=float(np.sqrt(np.mean(res.residual_w**2))) if n else None,
-        covariance=tuple(tuple(_num(res.cov[i, j]) for j in range(len(names))) for i in range(len(names))),
+        chi2_per_dof=r.chi2 / r.dof if r.dof > 0 else None,
+        chi2=r.chi2,
+        dof=r.dof,
+        expected_residual_rms=float(np.sqrt(np.mean(cov_diag) * r.dof / max(n, 1))) if n else None,
+        whitened_residual_rms=float(np.sqrt(np.mean(r.residual_w**2))) if n else None,
+        covariance=tuple(tuple(_num(r.cov[i, j]) for j in range(len(names))) for i in range(len(names))),
         log=str(log_path),
         model=model_name,
         n_poses_planned=obs.n_planned,
@@ -210,13 +149,13 @@ def identification_report(
             ObservationFit(
                 int(pose),
                 refl,
-                predicted=tuple(float(x) for x in dp - r),
+                predicted=tuple(float(x) for x in dp - e),
                 measured=tuple(float(x) for x in dp),
-                residual=tuple(float(x) for x in r),
+                residual=tuple(float(x) for x in e),
             )
-            for (pose, refl), dp, r in zip(obs.labels, obs.dp, res.residual.reshape(-1, 3))
+            for (pose, refl), dp, e in zip(obs.labels, obs.dp, r.residual.reshape(-1, 3))
         ),
-        details={**res.extra, "tracker_noise_model": obs.tracker.model},
+        details={**r.details, "tracker_noise_model": obs.tracker.model},
     )
 
 
@@ -326,11 +265,11 @@ def check_failed(rep: IdentificationReport, z_max: float = Z_CHECK) -> list[str]
 
 
 __all__ = [
+    "Identified",
     "run_identify",
     "identify",
     "format_table",
     "identification_report",
     "check_failed",
-    "METHODS",
     "Z_CHECK",
 ]

@@ -4,42 +4,46 @@
 from .accuracy import predicted_std
 from .campaign import TIMING_COLUMNS, needs_log, simulate_in_memory
 from .montecarlo import (
-    METHODS,
     RUNS_PER_TASK,
     campaign_observations,
+    check_montecarlo_size,
     estimated_seconds,
     format_summary,
+    montecarlo_methods,
     run_montecarlo,
     true_theta,
 )
 from .plots import accuracy_plots, axis_ticks, power_plots
-from .run import Pending, StudyOutcome, design_key, prepare, run_study
+from .run import Pending, StudyOutcome, StudyReport, design_key, prepare, report_study, run_study
 from .spec import Study, load_study, scaled
 from .store import read_results
 from .summary import cell_summaries, format_cells, pooled_by_axis
 
 __all__ = [
-    "METHODS",
     "Pending",
     "RUNS_PER_TASK",
     "Study",
     "StudyOutcome",
+    "StudyReport",
     "TIMING_COLUMNS",
     "accuracy_plots",
     "axis_ticks",
     "campaign_observations",
     "cell_summaries",
+    "check_montecarlo_size",
     "design_key",
     "estimated_seconds",
     "format_cells",
     "format_summary",
     "load_study",
+    "montecarlo_methods",
     "needs_log",
     "pooled_by_axis",
     "power_plots",
     "predicted_std",
     "prepare",
     "read_results",
+    "report_study",
     "run_montecarlo",
     "run_study",
     "scaled",

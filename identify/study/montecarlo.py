@@ -3,21 +3,28 @@
 The campaign's physics is solved once (bench.campaign.plan_campaign: true reflector positions
 and visibility of every pose); each run redraws the tracker noise with bench.tracker.measure
 (generator seeded by (scenario seed, run)), builds the observations exactly as from a log
-(identify/core/observations.py) and runs the full estimators on them: the one-step estimator and the
-paper's two-step method, unweighted step 2 (eq. 21) and step-1-covariance-weighted, and the
-two-step at its self-consistent sagged pose (identify/methods/twostep_iterated.py; every run starts
-at the noise-free sag, with the noise-free Newton Jacobian as its chord).
+(identify/core/observations.py) and runs the full estimators on them: every method of the
+family's one list (identify/methods/registry.py): the one-step estimator and the paper's
+two-step method, unweighted step 2 (eq. 21) and step-1-covariance-weighted, and the two-step at
+its self-consistent sagged pose (identify/methods/twostep_iterated.py; every run starts at the
+noise-free sag, with the noise-free Newton Jacobian as its chord). Each method sets itself up
+once on the exact readings (its ``repeats``: the noise-free estimate and a run function that
+may reuse what it found) and the runs call that function; the noise-free estimates of the cheap
+methods (``noise_free_always``) are reported even when they are not run.
 
 Per parameter and method it reports: bias / empirical std (with its sampling error 1/sqrt(N)),
 empirical std / mean reported std, and empirical variance / Cramer-Rao bound, the CRB being the
-inverse Fisher information J^T Sigma^-1 J at the TRUE parameters on the exact model. The
-sampling error of a variance ratio is about sqrt(2/(N-1)).
+inverse Fisher information J^T Sigma^-1 J at the TRUE parameters on the exact model (a forward
+model of its own, its first evaluation solved at the truth: its CRB std agree with central
+differences of the model to 1e-7 on the paper campaign, where the one-step's model warm from the
+noise-free fit, used before, was off by 2e-6). The sampling error of a variance ratio is about
+sqrt(2/(N-1)).
 
 Speed: every one-step run starts at the noise-free estimate (the one-step estimate of the
 noise-free observations, itself started from their two-step estimate: no truth involved) whose
 model value and Jacobian are evaluated once and reused, so a run costs one evaluation of the
-exact model and its IFT Jacobian when the stopping rule (step < 1e-3 sigma) is met at the second
-step. The truth enters only the CRB and the statistics.
+exact model and its IFT Jacobian when the stopping rule (identify/methods/onestep.py's
+MC_STEP_TOL) is met at the second step. The truth enters only the CRB and the statistics.
 
 Execution: the runs go out in blocks of RUNS_PER_TASK as tasks (identify/runtime/executor.py: this
 process, a local Dask cluster or the user's). A task carries the scenario's and the MJCF's texts
@@ -29,9 +36,9 @@ from a copy of the same estimator state, and run r's noise comes from the genera
 from __future__ import annotations
 
 import contextlib
-import copy
 import functools
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -45,10 +52,9 @@ from calbench.bench.campaign import (
     scenario_params,
     truth_robot,
 )
-from calbench.bench.core import ProgressSink, sink
+from calbench.bench.core import InputError, ProgressSink, sink
 from calbench.bench.model import Robot
-from calbench.bench.scenario import Scenario
-from calbench.bench.statics import BatchStatics, StaticsSolver
+from calbench.bench.scenario import Scenario, check_size, estimate, montecarlo_estimate, repeats_key
 from calbench.bench.tracker import (
     Measurement,
     measure_campaign,
@@ -56,33 +62,30 @@ from calbench.bench.tracker import (
     reading_times,
     to_tracker_frame,
 )
-from calbench.identify.core import Observations, Whitener, pose_observation
+from calbench.identify.core import (
+    ForwardModel,
+    Observations,
+    Whitener,
+    design_from_observations,
+    pose_observation,
+)
 from calbench.identify.methods import (
-    OneStep,
-    TwoStepError,
-    fit_from,
-    generic_start,
+    MethodResult,
+    NotApplicable,
+    all_methods,
     linear_plan,
-    sanitize_start,
-    to_phi,
+    method_named,
+    method_names,
+    select_methods,
     two_step,
     two_step_applies,
-    two_step_iterated,
 )
 from calbench.identify.runtime import Executor, InProcess, Interrupted, PortableScenario
 
-METHODS = ("one-step", "two-step", "two-step-weighted", "two-step-iterated")
-MC_STEP_TOL = 1e-2  # sigma: see identify/methods/onestep.py, stopping rule
 RUNS_PER_TASK = 50  # a task of ~0.5-1 s: Dask's ~5 ms of scheduling per task stays < 1 %
-# in-process seconds per run on the paper campaign (measured here: noise and observations, then
-# each estimator), for the choice of executor only
-SECONDS_PER_RUN = {
-    "observations": 0.004,
-    "one-step": 0.007,
-    "two-step": 0.002,
-    "two-step-weighted": 0.002,
-    "two-step-iterated": 0.26,
-}
+# in-process seconds per run on the paper campaign (measured here) for the noise and the
+# observations; each method states its own (Method.seconds_per_run): the executor's choice only
+OBSERVATION_SECONDS_PER_RUN = 0.004
 
 
 def true_theta(scn: Scenario, robot: Robot) -> np.ndarray:
@@ -93,7 +96,7 @@ def two_step_ok(robot: Robot) -> bool:
     """Whether the paper's two-step method applies to the robot (identify/methods/twostep.py)."""
     try:
         two_step_applies(robot)
-    except TwoStepError:
+    except NotApplicable:
         return False
     return True
 
@@ -168,6 +171,8 @@ class MonteCarlo:
     executor: str = "in this process"  # where the runs ran (identify/runtime/executor.py)
     wall_seconds: float = float("nan")
     failed: dict[str, int] = field(default_factory=dict)  # method -> runs it failed on (an error)
+    # method -> (runs, 2): its solver's iterations and model evaluations per run
+    iterations: dict[str, np.ndarray] = field(default_factory=dict)
 
     def summary(self) -> dict:
         n = self.runs
@@ -262,17 +267,11 @@ class _Setup:
     plans: list[PosePlan]
     robot: Robot
     obs0: Observations
-    lp: object  # the two-step's linear plan (None when it does not apply)
-    est: OneStep  # after the noise-free fit: every run starts from a copy of it
-    theta0: np.ndarray
-    scale: np.ndarray
-    f0: np.ndarray
-    j0: np.ndarray
+    runs: dict[str, Callable[[Observations, Whitener], MethodResult]]  # method -> one run
     theta_true: np.ndarray
     crb: np.ndarray
     noise_free: dict[str, np.ndarray]
     seconds: float
-    sag0: tuple | None = None  # the iterated two-step's noise-free sag and Newton Jacobian
 
 
 @functools.lru_cache(maxsize=4)
@@ -282,90 +281,54 @@ def _setup(job: MonteCarloJob) -> _Setup:
     truth_rb = truth_robot(scn)
     plans = plan_campaign(scn, truth_rb)
     robot = Robot.from_file(scn.robot)  # the estimator's own model: geometry only
-    lay = robot.layout
-    if any(m != "one-step" for m in job.methods):
-        two_step_applies(robot)
+    for name in job.methods:
+        method_named(name).check(robot)  # NotApplicable when the robot is outside a method
     obs0 = campaign_observations(scn, truth_rb, plans, None)
     white0 = Whitener.from_observations(obs0)
-    est = OneStep(robot, obs0)
     theta_true = true_theta(scn, robot)
 
     noise_free: dict[str, np.ndarray] = {}
-    sag0 = None
-    generic = generic_start(robot, obs0)
-    start, method0, lp = generic, "generic", None
+    runs = {}
+    for m in all_methods():
+        if m.name not in job.methods:
+            if not m.noise_free_always:
+                continue
+            try:
+                m.check(robot)
+            except NotApplicable:
+                continue
+        rep = m.repeats(robot, obs0, white0)
+        noise_free[m.name] = rep.noise_free.theta
+        if m.name in job.methods:
+            runs[m.name] = rep.run
     if two_step_ok(robot):
-        lp = linear_plan(robot, obs0)
-        two0 = two_step(robot, obs0, False, lp=lp, white=white0)
-        noise_free["two-step"] = two0.theta
-        noise_free["two-step-weighted"] = two_step(robot, obs0, True, lp=lp, white=white0).theta
         # diagnostic: the linear model at the true (sagged) unloaded configuration -- what is left
         # of the two-step's model error is H00 (eq. 18) and the nonlinearity over the deflection
         lp_true = linear_plan(robot, obs0, {p.index: p.equilibria[0].qpos for p in plans})
         noise_free["two-step at the true sagged configuration"] = two_step(
             robot, obs0, False, lp=lp_true, white=white0
         ).theta
-        if "two-step-iterated" in job.methods:
-            # the iterated method's self-consistent sag on exact data: every run starts there,
-            # with its Newton Jacobian as the chord (identify/methods/twostep_iterated.py)
-            it0 = two_step_iterated(robot, obs0)
-            noise_free["two-step-iterated"] = it0.theta
-            sag0 = (it0.step2["sag_rad"], it0.step2["jacobian"])
-        start, _ = sanitize_start(two0.theta, generic, lay)
-        method0 = "two-step"
-    nf = fit_from(est, obs0.dp, white0, start, generic, method0)
-    noise_free["one-step"] = nf.theta
-    theta0 = np.where(np.isfinite(nf.theta), nf.theta, start)
-    scale = np.abs(to_phi(theta0, lay))
-    f0, j0 = est.model.evaluate(theta0)
-    # Cramer-Rao bound at the truth (exact model), on a copy: the runs' start state stays f0's
-    _, jt = _fresh(est).model.evaluate(theta_true)
+    # Cramer-Rao bound at the truth, on the exact model (a forward model of its own)
+    _, jt = ForwardModel(robot, design_from_observations(robot, obs0)).evaluate(theta_true)
     jtw = white0.mat(jt) * theta_true  # scaled columns
     crb = np.linalg.pinv(jtw.T @ jtw) * np.outer(theta_true, theta_true)
     return _Setup(
-        scn,
-        truth_rb,
-        plans,
-        robot,
-        obs0,
-        lp,
-        est,
-        theta0,
-        scale,
-        f0,
-        j0,
-        theta_true,
-        crb,
-        noise_free,
-        time.perf_counter() - t0,
-        sag0,
+        scn, truth_rb, plans, robot, obs0, runs, theta_true, crb, noise_free, time.perf_counter() - t0
     )
-
-
-def _fresh(est: OneStep) -> OneStep:
-    """A copy of the estimator in the state it was left in (its forward model warm-starts from
-    its last solution, so a run's last bits would depend on the runs before it). Its workspaces
-    are shared, not copied: the robot and the statics solvers (bench/statics/equilibrium.py,
-    bench/statics/batched.py), whose MuJoCo model parameters, state and buffers every evaluation
-    rewrites, and the observations (read-only); what is copied is the warm-start cache."""
-    shared = [est.robot, est.obs] + [
-        v for v in vars(est.model).values() if isinstance(v, (StaticsSolver, BatchStatics))
-    ]
-    return copy.deepcopy(est, {id(o): o for o in shared})
 
 
 def run_block(job: MonteCarloJob, first: int, stop: int) -> dict:
     """Runs first..stop-1 of the job: the task function, the same in-process and on a worker.
 
-    Run r draws its noise from the generator seeded by (job.seed, r) and starts from the same
-    estimator state, so its result depends on nothing but (job, r)."""
+    Run r draws its noise from the generator seeded by (job.seed, r) and every method starts
+    from the same state (its ``repeats``), so its result depends on nothing but (job, r)."""
     s = _setup(job)
     n, p = stop - first, s.robot.layout.n
     est_out = {m: np.full((n, p), np.nan) for m in job.methods}
     std_out = {m: np.full((n, p), np.nan) for m in job.methods}
+    iters = {m: np.zeros((n, 2), dtype=int) for m in job.methods}
     times = {m: 0.0 for m in job.methods}
     failed = {m: 0 for m in job.methods}
-    iters = []
     for k, r in enumerate(range(first, stop)):
         rng = np.random.default_rng([job.seed, r])
         obs = campaign_observations(s.scn, s.truth_rb, s.plans, rng)
@@ -375,25 +338,8 @@ def run_block(job: MonteCarloJob, first: int, stop: int) -> dict:
         for meth in job.methods:
             t = time.perf_counter()
             try:
-                if meth == "one-step":
-                    est = _fresh(s.est)
-                    n_eval = est.model.stats["evaluations"]
-                    res = est.fit(
-                        obs.dp,
-                        white,
-                        s.theta0,
-                        scale=s.scale,
-                        start_eval=(s.f0, s.j0),
-                        final_eval=False,
-                        step_tol=MC_STEP_TOL,
-                        start_method="noise-free estimate",
-                    )
-                    iters.append((res.iterations, est.model.stats["evaluations"] - n_eval))
-                elif meth == "two-step-iterated":
-                    res = two_step_iterated(s.robot, obs, start=s.sag0[0], jacobian=s.sag0[1])
-                else:
-                    res = two_step(s.robot, obs, meth == "two-step-weighted", lp=s.lp, white=white)
-            except (np.linalg.LinAlgError, TwoStepError):
+                res = s.runs[meth](obs, white)
+            except (np.linalg.LinAlgError, NotApplicable):
                 # this run's estimate left the robot's statics (e.g. the iterated two-step's sag at a
                 # spring that makes the stiffness singular): the method failed on this run, the
                 # other runs and methods stand (NaN: counted as not identified, and as failed)
@@ -402,31 +348,54 @@ def run_block(job: MonteCarloJob, first: int, stop: int) -> dict:
                 continue
             times[meth] += time.perf_counter() - t
             est_out[meth][k] = res.theta
-            std_out[meth][k] = np.sqrt(np.diag(res.cov))
+            std_out[meth][k] = res.std
+            iters[meth][k] = (res.iterations, res.evaluations)
     return {"estimates": est_out, "stds": std_out, "times": times, "iterations": iters, "failed": failed}
 
 
-def estimated_seconds(runs: int, methods=METHODS) -> float:
-    """In-process time of ``runs`` runs (SECONDS_PER_RUN, measured), for the executor choice."""
-    return runs * (SECONDS_PER_RUN["observations"] + sum(SECONDS_PER_RUN[m] for m in methods))
+def check_montecarlo_size(scn: Scenario, runs: int) -> None:
+    """InputError when one campaign of the scenario, or ``runs`` of them, is estimated to be too
+    large (bench/scenario/timeline.py's limits, as `simulate`'s)."""
+    repeats, n_refl = [p.repeats for p in scn.poses], len(truth_robot(scn).reflector_names)
+    check_size(estimate(repeats, n_refl), scn.path, repeats_key(repeats))  # one campaign
+    check_size(montecarlo_estimate(repeats, n_refl, runs), "--runs", "runs")
+
+
+def montecarlo_methods(choice: str, scn: Scenario) -> tuple[str, ...]:
+    """The methods `calbench montecarlo --method choice` runs on the scenario's robot
+    (identify/methods/registry.py: ``both`` those that apply to it); InputError when its MJCF
+    does not load or a method chosen by name does not apply."""
+    try:
+        robot = Robot.from_file(scn.robot)
+    except ValueError as exc:  # the MJCF itself: reported where the campaign loads it
+        raise InputError(scn.path, "robot", "a loadable MJCF robot", f"{scn.robot}: {exc}") from None
+    return select_methods(choice, robot, scn.robot)
+
+
+def estimated_seconds(runs: int, methods=None) -> float:
+    """In-process time of ``runs`` runs of ``methods`` (default: all of them; each method's
+    seconds_per_run, measured), for the executor choice."""
+    methods = method_names() if methods is None else methods
+    return runs * (OBSERVATION_SECONDS_PER_RUN + sum(method_named(m).seconds_per_run for m in methods))
 
 
 def run_montecarlo(
     scn: Scenario,
     runs: int,
-    methods=METHODS,
+    methods=None,
     progress: ProgressSink | None = None,
     seed: int | None = None,
     executor: Executor | None = None,
 ) -> MonteCarlo:
-    """N runs of the estimators on the scenario's campaign; see the module docstring. The
-    two-step methods need a robot the two-step applies to (TwoStepError otherwise).
+    """N runs of the estimators on the scenario's campaign (``methods``: names, default all of
+    them); see the module docstring. Every method must apply to the robot (NotApplicable
+    otherwise: e.g. the two-step's TwoStepError).
 
     The runs go to ``executor`` (identify/runtime/executor.py; default: this process) in blocks of
     RUNS_PER_TASK. Ctrl-C raises :class:`Interrupted` carrying the Monte Carlo of the runs that
     finished."""
     t_wall = time.perf_counter()
-    methods = tuple(methods)
+    methods = method_names() if methods is None else tuple(methods)
     job = MonteCarloJob(PortableScenario.from_scenario(scn), methods, scn.seed if seed is None else int(seed))
     s = _setup(job)
     lay = s.robot.layout
@@ -436,13 +405,13 @@ def run_montecarlo(
     stds = {m: np.full((runs, lay.n), np.nan) for m in methods}
     times = {m: 0.0 for m in methods}
     failed = {m: 0 for m in methods}
-    iters: dict[int, list] = {}
+    iters = {m: np.zeros((runs, 2), dtype=int) for m in methods}
     done = np.zeros(runs, bool)
     bar = sink(progress)
     bar.start(runs, "Monte Carlo")
 
     def result(keep: np.ndarray) -> MonteCarlo:
-        mc = MonteCarlo(
+        return MonteCarlo(
             str(scn.path),
             int(keep.sum()),
             s.theta_true,
@@ -457,9 +426,8 @@ def run_montecarlo(
             executor.choice.describe(),
             time.perf_counter() - t_wall,
             dict(failed),
+            {m: v[keep] for m, v in iters.items()},
         )
-        mc.iterations = np.array([it for i in sorted(iters) for it in iters[i]])
-        return mc
 
     try:
         with contextlib.closing(executor.run(run_block, blocks)) as results:  # closed: nothing left running
@@ -470,7 +438,7 @@ def run_montecarlo(
                     stds[m][a:b] = out["stds"][m]
                     times[m] += out["times"][m]
                     failed[m] += out["failed"][m]
-                iters[i] = out["iterations"]
+                    iters[m][a:b] = out["iterations"][m]
                 done[a:b] = True
                 bar.update(f"runs {int(done.sum())}/{runs}", step=b - a)
     except KeyboardInterrupt:
@@ -506,6 +474,9 @@ def format_summary(s: dict) -> str:
 
 
 __all__ = [
+    "OBSERVATION_SECONDS_PER_RUN",
+    "check_montecarlo_size",
+    "montecarlo_methods",
     "campaign_observations",
     "run_montecarlo",
     "run_block",

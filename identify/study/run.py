@@ -9,11 +9,14 @@
    journaled as each task finishes; cells with identical inputs are computed once.
    Ctrl-C cancels what is running and raises executor.Interrupted with the outcome; what finished
    is in RESULTS.parquet.
+3. :func:`report_study`: what RESULTS.parquet says, per cell (summary.py), and the accuracy and
+   power plots (plots.py); the command line prints its text and writes its JSON.
 """
 
 from __future__ import annotations
 
 import copy
+import json
 import math
 import time
 import tomllib
@@ -34,7 +37,8 @@ from .campaign import (
     run_campaigns,
 )
 from .spec import Cell, Study, digest
-from .store import ResultStore
+from .store import ResultStore, read_results
+from .summary import cell_summaries, format_cells, pooled_by_axis
 
 CONSOLIDATE_S = 30.0  # journal -> RESULTS.parquet at most this often (and at the end), and
 # never more than 10 % of the time: a merge rewrites the whole file
@@ -290,4 +294,51 @@ def run_study(pending: Pending, executor: Executor | None = None, progress=None)
     return outcome
 
 
-__all__ = ["prepare", "run_study", "Pending", "StudyOutcome", "schema", "campaign_seconds"]
+@dataclass
+class StudyReport:
+    """What a study's results say: the per-cell summaries, their table as text, the plots made
+    and the rows they rest on."""
+
+    study: Study
+    results: Path
+    cells: list
+    text: str
+    plots: list[Path]
+    rows: int
+
+    def to_json(self) -> str:
+        """The summary `calbench study --json` writes."""
+        doc = {
+            "study": self.study.name,
+            "file": str(self.study.path),
+            "results": str(self.results),
+            "seeds": self.study.seeds,
+            "cells": self.cells,
+        }
+        return json.dumps(doc, indent=2)
+
+
+def report_study(study: Study, out: str | Path, plots: Path) -> StudyReport:
+    """Step 3 (module docstring): the cells' summaries of the results in ``out`` and, when it
+    holds any row, the accuracy and power plots written into the folder ``plots``."""
+    from .plots import accuracy_plots, power_plots  # matplotlib: only where a study is reported
+
+    table, _ = read_results(out)
+    cells = cell_summaries(study, table)
+    made: list[Path] = []
+    if table.num_rows:
+        plots.mkdir(parents=True, exist_ok=True)
+        made = accuracy_plots(study, pooled_by_axis(study, table), plots) + power_plots(study, cells, plots)
+    return StudyReport(study, Path(out), cells, format_cells(study, cells), made, table.num_rows)
+
+
+__all__ = [
+    "prepare",
+    "run_study",
+    "report_study",
+    "Pending",
+    "StudyOutcome",
+    "StudyReport",
+    "schema",
+    "campaign_seconds",
+]

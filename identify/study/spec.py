@@ -7,7 +7,7 @@
     seed = 1                                       # optional: the study's seed (default: the scenario's)
 
     [campaign]                                     # optional: what each campaign runs
-    method = "one-step"                            # identify --method (one-step | two-step)
+    method = "one-step"                            # identify --method (one-step | two-step | two-step-iterated)
     discover = false                               # also run discover on every campaign
     discover_without = []                          # effects removed from the model discover starts
                                                    # from (its user's model lacks them)
@@ -58,7 +58,7 @@ import numpy as np
 from calbench.bench.core import InputError
 from calbench.bench.scenario import Scenario, load_scenario
 from calbench.identify.design import CRITERIA
-from calbench.identify.report import METHODS
+from calbench.identify.methods import method_names
 from calbench.identify.runtime import PortableScenario
 
 TOP_KEYS = ("name", "description", "scenario", "seeds", "seed", "campaign", "set", "axis")
@@ -217,8 +217,9 @@ def _campaign(path: Path, tab: Any) -> CampaignSettings:
                 path, f"campaign.{k}", "no such key; allowed keys here: " + ", ".join(CAMPAIGN_KEYS)
             )
     method = tab.get("method", "one-step")
-    if method not in METHODS:
-        raise InputError(path, "campaign.method", "one of " + ", ".join(METHODS), method)
+    offered = method_names(offered_only=True)  # those `calbench identify --method` offers
+    if method not in offered:
+        raise InputError(path, "campaign.method", "one of " + ", ".join(offered), method)
     disc = tab.get("discover", False)
     if not isinstance(disc, bool):
         raise InputError(path, "campaign.discover", "true or false", disc)
