@@ -4,12 +4,12 @@
 # inside calbench imports from the rooms' faces instead.
 #
 # `discover` is a room here, so its entry is re-exported as `run_discover` (the name of every
-# other log-path entry: run_identify, run_montecarlo, run_study): a public name equal to a room's
+# other entry: run_identify, run_montecarlo, run_design, run_study): a public name equal to a room's
 # would be replaced by the room itself once it is imported.
 
 from .core import Observations, from_log, load_model
 from .demo import run_demo
-from .design import design_plan, generate_candidates, load_design_scenario
+from .design import DesignOutcome, DesignRequest, run_design
 from .discover import discover as run_discover
 from .discover import story
 from .methods import one_step, two_step, two_step_iterated
@@ -18,22 +18,22 @@ from .shopfloor import import_readings
 from .study import format_summary, load_study, prepare, read_results, run_montecarlo, run_study
 
 __all__ = [
+    "DesignOutcome",
+    "DesignRequest",
     "Observations",
     "check_failed",
-    "design_plan",
     "format_summary",
     "format_table",
     "from_log",
-    "generate_candidates",
     "identify",
     "import_readings",
-    "load_design_scenario",
     "load_model",
     "load_study",
     "one_step",
     "prepare",
     "read_results",
     "run_demo",
+    "run_design",
     "run_discover",
     "run_identify",
     "run_montecarlo",
