@@ -1,4 +1,4 @@
-"""How much a real robot's geometric errors matter (README, "Real measurements").
+"""How much a real robot's geometric errors matter (docs/performance.md, "A real robot's geometry").
 
 Deflections are differences of two readings of one reflector, so an error of the robot's
 geometry cancels from them to first order; what is left, and what the registration of the

@@ -1,4 +1,4 @@
-"""Predicted parameter accuracy under the three tracker models (README, "Real measurements").
+"""Predicted parameter accuracy under the three tracker models (docs/performance.md, "Tracker models").
 
 For the paper's 16-pose plan and a 12-pose A-optimal plan (``calbench design``, designed under the
 default isotropic tracker), the Cramer-Rao standard deviation of every parameter

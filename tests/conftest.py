@@ -15,7 +15,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = ROOT / "scenarios" / "paper_table5.toml"  # Table 5 + four lateral pulls, 700 kg
 MJCF = ROOT / "mjcf" / "m900ib700.xml"
-# the default truth of the shipped scenarios (README "Default truth values"), rad/(N*m)
+# the default truth of the shipped scenarios (docs/model.md, "Default truth values"), rad/(N*m)
 K_TRUE = np.array([0.25, 0.12, 0.07, 0.35, 0.40, 0.60]) * 1e-6
 # the paper's Table 5 (q1..q6, degrees, the controller's convention: q3 = crank), in rad
 TABLE5 = np.radians(

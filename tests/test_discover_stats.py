@@ -206,16 +206,16 @@ def test_the_payload_mass_line_says_what_the_record_says(exact_fits):
     and the compensator's nonlinearity are not scaled), so a large enough error leaves a
     misfit. The printed line must not call it invisible when the record says it is visible,
     and gives the same share and size; and a mass error of plausible size (a few per cent,
-    up to 20 %) stays hidden on both plans. The README quotes these figures."""
+    up to 20 %) stays hidden on both plans. docs/discovery.md quotes these figures."""
     from calbench.identify.discover import alias_lines
 
-    readme = " ".join((PAPER.parent.parent / "README.md").read_text().split())
+    page = " ".join((PAPER.parent.parent / "docs" / "discovery.md").read_text().split())
     a16, a12 = (exact_fits[n][1][("load_scale", "hung weights", "scale")] for n in (16, 12))
     assert (
-        f"only {100 * a16['visible_share']:.2g} % of its signature escapes" in readme
+        f"only {100 * a16['visible_share']:.2g} % of its signature escapes" in page
         and f"once the mass is ~{100 * a16['detectable_magnitude']:.2g} % off "
         f"(Table 5 alone: {100 * a12['detectable_magnitude']:.2g} %)"
-        in readme
+        in page
     )
     for n in (12, 16):
         _, al = exact_fits[n]

@@ -114,7 +114,7 @@ def test_two_step_is_unbiased_where_its_linear_model_holds(tmp_path):
 
 
 def test_two_step_on_the_exact_statics_and_iterated_at_its_sagged_pose(paper):
-    """The paper's two-step on exact data of the paper campaign (README "Identification"): a
+    """The paper's two-step on exact data of the paper campaign (docs/performance.md, "Identification"): a
     NEGATIVE spring, K_C = -3.16e6 N/m against +2.6e6 (the stiff compensator sags J2 by
     1.0-1.8 deg; its Jacobians are taken at the commanded pose), k2 +6.8 sigma, k1 and k4 about
     -0.2 sigma (CRB sigma). Re-taking its Jacobians at the pose its own estimate sags to

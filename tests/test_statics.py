@@ -123,7 +123,7 @@ def test_printed_eq11_is_a_misprint():
     """Eq. (11) as printed (sin psi where the derivative of eq. 9 has sin^2 psi) against MuJoCo's
     own tendon, over the bench's q2 range [0, 120] deg (psi = q2 + 10 deg): off by up to 89 % of
     the term's largest value and of the WRONG SIGN between q2 = 3.4 and 18.1 deg (a relative
-    error of -198 % at q2 = 10 deg; README "Statics"). The sin^2 form matches to 1e-6 over the
+    error of -198 % at q2 = 10 deg; docs/model.md, "Statics"). The sin^2 form matches to 1e-6 over the
     same range (test_compensator_eqs_9_to_11)."""
     robot = make_robot()
     q2 = np.radians(np.linspace(0.0, 120.0, 1201))
@@ -250,7 +250,7 @@ def test_apparent_j2_stiffness_varies_over_plan_q2_range():
     small moment about the J2 axis meets at the unloaded equilibrium (gravity off: the
     compensator's and the drive's springs only) equals eq. (10) with sin^2,
     K2 + K_C l_c l_2 eta(psi) at the equilibrium's q2, to 1e-4 (the moment's own geometric
-    stiffness); over q2 in [0, 120] deg it varies by 16.3 % (README "Default truth values")."""
+    stiffness); over q2 in [0, 120] deg it varies by 16.3 % (docs/model.md, "Default truth values")."""
     from conftest import PAPER, fanuc_truth
 
     from calbench.bench.scenario import load_scenario

@@ -177,8 +177,11 @@ def test_a_room_holds_at_most_a_dozen_modules(room):
     assert len([p for p in folder.glob("*.py") if p.name != "__init__.py"]) <= MAX_MODULES
 
 
-@pytest.mark.parametrize("room", [r for r in ROOMS if "." in r])
+@pytest.mark.parametrize("room", ROOMS)
 def test_every_room_has_a_face_whose_names_resolve(room):
+    """Every room, and the two packages themselves (calbench.bench, calbench.identify: what a
+    notebook calls), has a stub whose names resolve and equal no module's or room's name beside
+    it (a name equal to a room's would be replaced by the room once it is imported)."""
     stub = MODULES[room].with_suffix(".pyi")
     assert stub.exists(), f"{room}: no __init__.pyi"
     tree = ast.parse(stub.read_text(encoding="utf-8"))
@@ -190,8 +193,9 @@ def test_every_room_has_a_face_whose_names_resolve(room):
     exports = face_exports(stub)
     assert sorted(declared) == sorted(exports), f"{room}: __all__ and the imports of its stub differ"
     package = importlib.import_module(f"calbench.{room}")
-    clashes = [n for n in exports if (MODULES[room].parent / f"{n}.py").exists()]
-    assert clashes == [], f"{room}: a public name is also a module's name"
+    folder = MODULES[room].parent
+    clashes = [n for n in exports if (folder / f"{n}.py").exists() or (folder / n / "__init__.py").exists()]
+    assert clashes == [], f"{room}: a public name is also a module's or a room's name"
     for name in exports:
         assert getattr(package, name) is not None
 
@@ -217,6 +221,73 @@ def test_code_outside_a_room_imports_from_its_face():
                     continue
                 room = _room(target)
                 names = [a.name for a in node.names if f"{target}.{a.name}" not in MODULES]
+                if room in PACKAGES:  # bench/cli.py, identify/cli.py, identify/demo.py: by their paths
+                    continue
                 if names and room in FACES and not (here == room or here.startswith(room + ".")):
                     bad.append(f"{path.relative_to(ROOT)}:{node.lineno} from calbench.{target}")
+    assert bad == []
+
+
+@pytest.mark.parametrize("package", PACKAGES)
+def test_a_package_face_re_exports_from_its_rooms_faces(package):
+    """calbench.bench's and calbench.identify's faces are made of their rooms' faces: each name
+    comes from a room's face (or a module that sits at the package's top, as identify/demo.py),
+    never from a module inside a room, so the rooms stay free to move their modules."""
+    bad = []
+    for name, (mod, attr) in face_exports(ROOT / package / "__init__.pyi").items():
+        target = f"{package}{mod}"
+        inside_a_room = target not in ROOMS and MODULES.get(target, ROOT).parent != ROOT / package
+        if inside_a_room or target not in MODULES:
+            bad.append(f"{name} from {mod}")
+        elif target in FACES and attr not in FACES[target]:
+            bad.append(f"{name}: {attr} is not on the face of {mod}")
+    assert bad == []
+
+
+def test_code_inside_the_packages_does_not_import_the_package_faces():
+    """The package faces are for users (notebooks, tests, benchmarks, docs); calbench's own modules
+    import from the rooms' faces, which say what they depend on."""
+    bad = []
+    for m, path in MODULES.items():
+        if path.name == "__init__.py":
+            continue
+        for target, name, line in _imports(m):
+            if target in PACKAGES and name is not None:
+                bad.append(f"{path.relative_to(ROOT)}:{line} from calbench.{target} import {name}")
+    assert bad == []
+
+
+def _unit(module: str) -> str | None:
+    """What docs/architecture.md's Layers picture names a module by: its room's folder
+    ("bench/model/"), or its own path when it sits at a package's top ("bench/cli.py"); None for
+    the packages' own faces."""
+    if module in PACKAGES:
+        return None
+    room = _room(module)
+    return MODULES[module].relative_to(ROOT).as_posix() if room in PACKAGES else room.replace(".", "/") + "/"
+
+
+def _layers() -> dict[str, int]:
+    """Unit -> its height in the Layers picture (the first text block under "## Layers"; the top
+    line is the highest)."""
+    text = (ROOT / "docs" / "architecture.md").read_text(encoding="utf-8")
+    section = text[text.index("\n## Layers\n") :]
+    block = section[section.index("```text\n") + 8 : section.index("```", section.index("```text\n") + 8)]
+    lines = [line.split() for line in block.splitlines() if line.strip()]
+    return {unit: len(lines) - i for i, units in enumerate(lines) for unit in units}
+
+
+def test_rooms_import_only_the_layers_below_them():
+    """docs/architecture.md's Layers picture, held to the imports: it names every room and
+    top-level module and nothing else, and each imports only from lines below its own."""
+    layers = _layers()
+    units = {u for u in map(_unit, MODULES) if u is not None}
+    assert units - set(layers) == set(), "add these to docs/architecture.md's Layers picture"
+    assert set(layers) - units == set(), "docs/architecture.md's Layers picture names what does not exist"
+    bad = sorted(
+        f"{a} imports {b}"
+        for m, targets in _graph().items()
+        for t in targets
+        if (a := _unit(m)) is not None and (b := _unit(t)) is not None and a != b and layers[b] >= layers[a]
+    )
     assert bad == []

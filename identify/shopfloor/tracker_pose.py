@@ -31,7 +31,7 @@ the deflections in the log, as for any log.
 
 The residual then says how well the nominal GEOMETRY fits. Real robots have mm-level geometric
 errors; a pose's error is the same in its two states, so it cancels from the deflection (to
-first order: the README quantifies what remains) but not from the positions, where, weighted by
+first order: docs/performance.md quantifies what remains) but not from the positions, where, weighted by
 the tracker's micrometres, it would drag the elastic parameters (and through them the sag and
 the pose) to wherever they best hide millimetres. So the misfit is estimated as a variance
 component: after a fit, the common mode of each point's two residuals, beyond what the readings
@@ -449,7 +449,7 @@ def _judged(reg: Registration) -> Registration:
             f"registration residual {fit.rms * 1e6:.0f} um RMS per axis where the tracker alone "
             f"gives {fit.expected_rms * 1e6:.0f} um (chi2/dof {per_dof:.1f}): the nominal geometry "
             f"is off by ~{model_rms * 1e3:.2f} mm RMS per axis; deflections cancel that to first "
-            "order (README, Real measurements), the tracker's registered rotation does not (its "
+            "order (docs/shop-floor.md), the tracker's registered rotation does not (its "
             "uncertainty includes the misfit)"
         )
     return reg

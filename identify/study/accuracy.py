@@ -6,7 +6,7 @@ scenario's tracker model, one block per pose (identify/core/whitening.py; for th
 the field and the drift on the campaign's timeline, bench/tracker/iso10360.py). It is what the one-step
 estimator's spread reaches (identify/study/montecarlo.py measures it), so it predicts a campaign's
 accuracy before anyone measures: the same plan under isotropic, spec and iso10360 noise
-(README, "Real measurements") differs only here.
+(docs/performance.md, "Tracker models") differs only here.
 """
 
 from __future__ import annotations

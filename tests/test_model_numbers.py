@@ -1,9 +1,9 @@
-"""The README's physical numbers, recomputed from the model (and the README checked to say them).
+"""The physical numbers of docs/model.md, recomputed from the model (and the page checked to say them).
 
 Each figure is computed independently of the code that uses it: gravity torques from MuJoCo's
 bias forces mapped to the motors by virtual work (bench/model/loop.py's motor_forces), the
 compensator's torque from eq. (9) (itself held to MuJoCo's tendon in tests/test_statics.py),
-the best balancer by least squares over the bench's q2 range. The tolerances are the README's
+the best balancer by least squares over the bench's q2 range. The tolerances are the page's
 own rounding.
 """
 
@@ -17,7 +17,7 @@ from scipy.optimize import least_squares
 
 from calbench.bench.model import Robot, motor_forces, motor_jacobian
 
-README = " ".join((ROOT / "README.md").read_text().split())  # line breaks as spaces
+MODEL_PAGE = " ".join((ROOT / "docs" / "model.md").read_text().split())  # line breaks as spaces
 SCENARIO = " ".join((ROOT / "scenarios" / "paper_table5.toml").read_text().split())
 Q2 = np.radians(np.linspace(0.0, 120.0, 121))  # the bench's (the paper's) q2 range
 
@@ -64,7 +64,7 @@ def test_motor2_gravity_torque_amplitude(robot):
             a, phi, rel = amplitude(robot, np.delete(q, 1), payload)
             assert a == pytest.approx(a_readme, abs=0.05e3) and phi == pytest.approx(-30.0, abs=0.01)
             assert rel < 1e-9  # exactly a sinusoid
-    assert "A = 10.1 kN·m" in README and "17.8 kN·m with the 700 kg payload" in README
+    assert "A = 10.1 kN·m" in MODEL_PAGE and "17.8 kN·m with the 700 kg payload" in MODEL_PAGE
 
 
 def compensator_torque(robot: Robot, q2, k_c: float, s0: float):
@@ -85,8 +85,8 @@ def test_default_spring_is_not_a_gravity_compensator(robot):
     a0 = amplitude(robot, np.delete(TABLE5[2], 1), 0.0)[0]
     a1 = amplitude(robot, np.delete(TABLE5[2], 1), 700.0)[0]
     assert t120 / a0 == pytest.approx(26.3, abs=0.1) and t120 / a1 == pytest.approx(14.9, abs=0.1)
-    assert "2.7e5 N·m at q2 = 120°" in README and "15–26×" in README
-    assert "not a gravity compensator" in README and "not a gravity compensator" in SCENARIO
+    assert "2.7e5 N·m at q2 = 120°" in MODEL_PAGE and "15–26×" in MODEL_PAGE
+    assert "not a gravity compensator" in MODEL_PAGE and "not a gravity compensator" in SCENARIO
 
 
 def test_best_balancer_cancels_87_percent(robot):
@@ -109,7 +109,7 @@ def test_best_balancer_cancels_87_percent(robot):
     cancelled = 1 - np.sqrt(np.mean(rest(best.x) ** 2)) / np.sqrt(np.mean(tg**2))
     assert cancelled == pytest.approx(0.868, abs=0.002)
     assert best.x[0] * 1e5 == pytest.approx(6.0e4, rel=0.02) and best.x[1] == pytest.approx(0.66, abs=0.01)
-    assert "cancels 87 %" in README
+    assert "cancels 87 %" in MODEL_PAGE
 
 
 def test_q2_mapping_is_an_assumption(robot):
@@ -122,4 +122,4 @@ def test_q2_mapping_is_an_assumption(robot):
         image = sorted(to_j2(np.array([0.0, 120.0])))
         assert image == [pytest.approx(-30.0), pytest.approx(90.0)]
         assert j2_lo <= image[0] and image[1] <= j2_hi + 1e-6
-    assert "an assumption" in README and "J2 = 90° − q2" in README
+    assert "an assumption" in MODEL_PAGE and "J2 = 90° − q2" in MODEL_PAGE
