@@ -306,36 +306,40 @@ class TrackerModel(ABC):
 # --------------------------------------------------------------------------- the registry
 
 _MODELS: dict[str, TrackerModel] = {}
-_FOUND: list[bool] = []  # one entry once bench/tracker/models/ has been read
+_found = False  # bench/tracker/models/ has been read
 _LOCK = threading.RLock()
 
 
-def _find_models() -> None:
-    """Load every module of bench/tracker/models/ (the default model first, then by name) and
-    register its ``MODEL``, whose name must be the module's."""
+def _find_models() -> dict[str, TrackerModel]:
+    """The registry, after loading every module of bench/tracker/models/ once (the default model
+    first, then by name) and registering its ``MODEL``, whose name must be the module's."""
+    global _found
+    if _found:  # the common case, without the lock: every reading asks
+        return _MODELS
     with _LOCK:
-        if _FOUND:
-            return
-        package = importlib.import_module(MODELS_PACKAGE)
-        found = sorted(m.name for m in pkgutil.iter_modules(package.__path__) if not m.name.startswith("_"))
-        for name in sorted(found, key=lambda n: n != DEFAULT_MODEL):
-            model = getattr(importlib.import_module(f"{MODELS_PACKAGE}.{name}"), "MODEL", None)
-            if not isinstance(model, TrackerModel) or model.name != name:
-                raise TypeError(f"{MODELS_PACKAGE}.{name}: MODEL must be a TrackerModel named {name!r}")
-            _MODELS.setdefault(name, model)
-        _FOUND.append(True)
+        if not _found:
+            package = importlib.import_module(MODELS_PACKAGE)
+            names = sorted(
+                m.name for m in pkgutil.iter_modules(package.__path__) if not m.name.startswith("_")
+            )
+            for name in sorted(names, key=lambda n: n != DEFAULT_MODEL):
+                model = getattr(importlib.import_module(f"{MODELS_PACKAGE}.{name}"), "MODEL", None)
+                if not isinstance(model, TrackerModel) or model.name != name:
+                    raise TypeError(f"{MODELS_PACKAGE}.{name}: MODEL must be a TrackerModel named {name!r}")
+                _MODELS.setdefault(name, model)
+            _found = True
+    return _MODELS
 
 
 def tracker_models() -> dict[str, TrackerModel]:
     """Every registered model by name: bench/tracker/models/'s (the default first), then those
     registered from outside, in order. A copy."""
-    _find_models()
-    return dict(_MODELS)
+    return dict(_find_models())
 
 
 def tracker_model(name: str) -> TrackerModel:
     """The model registered as ``name`` (ValueError naming the registered ones otherwise)."""
-    models = tracker_models()
+    models = _find_models()
     if name not in models:
         raise ValueError(f"unknown tracker noise model {name!r} (registered: {', '.join(models)})")
     return models[name]
