@@ -149,6 +149,26 @@ def test_the_shipped_models_are_the_files_of_their_folder():
         assert tracker_model(name).name == name
 
 
+@pytest.mark.parametrize("name", ["isotropic", "spec", "iso10360"])
+def test_a_shipped_model_keeps_its_own_promises(name):
+    """Its single-reading share of the correlated error is the diagonal of K (the protocol's
+    default from correlated_covariance, computed here for iso10360's own version), zero for
+    independent readings; its description is one line."""
+    model = tracker_model(name)
+    spec = TrackerSpec(np.array([3.5, -3.5, 3.2]), model=name)
+    y = np.array([[2.0, 3.0, -0.5], [4.0, -1.0, 1.0], [-1.0, 2.5, 0.3]])
+    t = np.array([0.0, 600.0, 5400.0])
+    marginal = model.correlated_marginal(spec, y, t)
+    if model.correlated:
+        k = model.correlated_covariance(spec, y, t, y, t)
+        np.testing.assert_allclose(marginal, k[np.arange(3), :, np.arange(3), :], rtol=1e-12, atol=0)
+        assert np.all(np.linalg.eigvalsh(marginal) > 0)
+    else:
+        assert np.array_equal(marginal, np.zeros((3, 3, 3)))
+    words = model.describe(spec)
+    assert words and "\n" not in words and words.startswith(name)
+
+
 def test_a_registered_name_is_unique_and_a_shipped_model_stays(toy):
     with pytest.raises(ValueError, match="registered already"):
         register_tracker_model(RandomWalkTracker())
