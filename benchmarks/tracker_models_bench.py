@@ -7,7 +7,7 @@ default isotropic tracker), the Cramer-Rao standard deviation of every parameter
 * spec: 1-sigma (10 um + 0.3 um/m) along the beam, (15 um + 6 um/m) across it, independent
   readings (the MPE figures read as 1 sigma),
 * iso10360: the same single-point error, mostly a smooth systematic field, plus independent noise
-  and drift (bench/tracker/iso10360.py, its defaults),
+  and drift (bench/tracker/models/iso10360.py, its defaults),
 and the deflection's own sigma per axis at one reflector of the first pose. Prints JSON.
 
 Usage: python benchmarks/tracker_models_bench.py [--plan PLAN.toml] [--candidates N] [--quick]

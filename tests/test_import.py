@@ -18,7 +18,7 @@ from conftest import MJCF, PAPER
 
 from calbench.bench.core import InputError
 from calbench.bench.log import read_log
-from calbench.bench.scenario import load_plan, load_scenario
+from calbench.bench.scenario import load_plan, load_scenario, reading_times
 from calbench.bench.shopfloor import read_readings
 from calbench.identify.cli import main
 
@@ -351,8 +351,7 @@ def test_a_wrong_tracker_pose_in_the_plan_is_refused(work, capsys):
 def test_times_travel_through_export_and_import(work):
     """The log's reading times (the campaign clock: bench/scenario/timeline.py) go out as ISO 8601 and
     come back as the imported log's times (to the microsecond the CSV keeps), and they are the
-    simulator's schedule (bench.measuring.reading_times), which the iso10360 tracker drifts on."""
-    from calbench.bench.tracker import reading_times
+    simulator's schedule (bench.scenario.reading_times), which the iso10360 tracker drifts on."""
 
     out = work / "imported_times.mcap"
     assert (

@@ -16,19 +16,21 @@ import pytest
 from conftest import PAPER
 
 from calbench.bench.core import InputError
-from calbench.bench.scenario import TrackerSpec, parse_scenario
+from calbench.bench.scenario import parse_scenario, reading_times
 from calbench.bench.tracker import (
     Measurement,
-    correlated_covariance,
+    TrackerSpec,
     deflection_covariance,
+    measure_campaign,
+    noise_covariance,
+    to_tracker_frame,
+)
+from calbench.bench.tracker.models import (
+    correlated_covariance,
     draw_correlated,
     field_kernel,
     marginal_covariance,
-    measure_campaign,
-    noise_covariance,
-    reading_times,
     spec_covariance,
-    to_tracker_frame,
 )
 from calbench.identify.core import Whitener
 

@@ -36,7 +36,8 @@ from calbench.bench.log import (
     strip_truth,
 )
 from calbench.bench.model import Spring
-from calbench.bench.scenario import DEFAULT_START, TrackerSpec, start_ns
+from calbench.bench.scenario import DEFAULT_START, start_ns
+from calbench.bench.tracker import TrackerSpec
 
 REFLECTORS = ["R1", "R2", "R3"]
 K_TRUE = [1.1e-9, 1.2345e-09, 2.2e-9, 3.3e-8, 4.4e-8, 5.5e-8]  # distinctive values

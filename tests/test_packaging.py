@@ -39,6 +39,20 @@ def test_wheel_installs_one_namespace_with_the_models_and_scenarios(wheel):
     assert "calbench/identify/report/templates/report.html.j2" in names
 
 
+def test_the_wheel_holds_every_room_and_its_face(wheel):
+    """Every package folder of bench/ and identify/ (a room; pyproject.toml lists them one by one)
+    ships with its modules and its face: a room left out installs nothing and fails only at its
+    first import (the tracker models' room found by bench/tracker/base.py at run time, say)."""
+    names = set(zipfile.ZipFile(wheel).namelist())
+    for top in ("bench", "identify"):
+        for init in (ROOT / top).rglob("__init__.py"):
+            folder = init.parent.relative_to(ROOT).as_posix()
+            for module in init.parent.glob("*.py"):
+                assert f"calbench/{folder}/{module.name}" in names, folder
+            if init.with_suffix(".pyi").exists():
+                assert f"calbench/{folder}/__init__.pyi" in names, folder
+
+
 def test_demo_runs_from_a_plain_install_outside_the_checkout(wheel, tmp_path):
     site = tmp_path / "site"
     subprocess.run(

@@ -174,7 +174,7 @@ def test_the_imported_log_works_in_every_verb(work, capsys):
 
 def test_a_logged_rotation_must_be_a_rotation():
     from calbench.bench.core import InputError
-    from calbench.bench.scenario import TrackerSpec
+    from calbench.bench.tracker import TrackerSpec
 
     good = TrackerSpec(np.zeros(3)).placed(TRACKER, R_EXTRA).to_dict()
     assert np.allclose(TrackerSpec.from_dict(good).rotation, R_EXTRA)

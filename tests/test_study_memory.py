@@ -22,6 +22,7 @@ from calbench.bench.campaign import run_campaign
 from calbench.bench.log import read_log
 from calbench.bench.model import Robot
 from calbench.bench.scenario import load_scenario, scenario_variant
+from calbench.bench.tracker import TrackerSpec
 from calbench.identify.core import from_log
 from calbench.identify.report import truth_vector
 from calbench.identify.study import (
@@ -89,7 +90,6 @@ def test_the_in_memory_campaign_is_what_a_reader_of_its_log_without_truth_gets(t
 def test_the_iso10360_tracker_goes_through_the_log():
     """Its covariances depend on the readings' times as the log stamps them (module docstring
     of identify/study/campaign.py): such a campaign is simulated into a log and read back."""
-    from calbench.bench.scenario import TrackerSpec
 
     scn = load_scenario(PAPER)
     iso = dataclasses.replace(scn, tracker=TrackerSpec(scn.tracker.position, model="iso10360"))

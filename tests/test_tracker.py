@@ -8,9 +8,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from calbench.bench.scenario import TrackerSpec
 from calbench.bench.tracker import (
     Measurement,
+    TrackerSpec,
     mean_reading,
     measure,
     noise_covariance,

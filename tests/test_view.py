@@ -27,8 +27,8 @@ from calbench.bench.campaign import run_campaign
 from calbench.bench.core import InputError
 from calbench.bench.log import IdentificationReport, read_log, strip_truth
 from calbench.bench.model import Robot, geom_shapes, reflector_posts
-from calbench.bench.scenario import TrackerSpec, load_scenario
-from calbench.bench.tracker import to_world_frame
+from calbench.bench.scenario import load_scenario
+from calbench.bench.tracker import TrackerSpec, to_world_frame
 from calbench.bench.view import (
     HALF_FOV_TAN,
     WIDTH,

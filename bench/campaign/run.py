@@ -26,13 +26,19 @@ from calbench.bench.model import (
     apply_effects,
     effect_from_truth,
 )
-from calbench.bench.scenario import Scenario, check_joint_limits, check_size, estimate, repeats_key
+from calbench.bench.scenario import (
+    Scenario,
+    check_joint_limits,
+    check_size,
+    estimate,
+    reading_times,
+    repeats_key,
+)
 from calbench.bench.scenario import scenario_params as _scenario_params
 from calbench.bench.statics import Equilibrium, Load, StaticsError, StaticsSolver
 from calbench.bench.tracker import (
     Measurement,
     measure_campaign,
-    reading_times,
     to_tracker_frame,
     tracker_rotation,
     visible_sites,

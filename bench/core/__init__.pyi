@@ -6,7 +6,7 @@ from .face import face_exports, lazy_face
 from .outputs import atomic_path, check_outputs, write_text
 from .progress import Progress, ProgressSink, sink, terminal_progress
 from .resources import PAPER_SCENARIO, mjcf_path, scenario_path
-from .tables import Table, describe, parse_toml, read_text
+from .tables import Table, describe, frozen_array, parse_toml, read_text
 from .units import DISPLAY, unit_display
 
 __all__ = [
@@ -23,6 +23,7 @@ __all__ = [
     "atomic_path",
     "check_outputs",
     "describe",
+    "frozen_array",
     "mjcf_path",
     "parse_toml",
     "read_text",

@@ -117,6 +117,14 @@ def number(file: Path, key: str, value: Any, positive: bool, nonneg: bool) -> fl
     return x
 
 
+def frozen_array(a: Any) -> np.ndarray:
+    """A float copy that cannot be modified (of a value read from a table, say), so that frozen
+    dataclasses holding it stay frozen."""
+    arr = np.array(a, dtype=float)
+    arr.setflags(write=False)
+    return arr
+
+
 _LINE = re.compile(r"line (\d+)")
 
 

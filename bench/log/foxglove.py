@@ -45,8 +45,7 @@ import mujoco
 import numpy as np
 
 from calbench.bench.model import GeomShape, geom_shapes, tendon_sites
-from calbench.bench.scenario import TrackerSpec
-from calbench.bench.tracker import mean_reading, tracker_rotation
+from calbench.bench.tracker import TrackerSpec, mean_reading, tracker_rotation
 
 MAGNIFY = 200.0
 STATES = ("unloaded", "loaded")

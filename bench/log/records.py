@@ -25,7 +25,7 @@ from typing import Any, Generic, TypeVar
 import numpy as np
 
 from calbench.bench.model import Params, Spring, springs_from_message
-from calbench.bench.scenario import TrackerSpec
+from calbench.bench.tracker import TrackerSpec
 
 STATES = ("unloaded", "loaded")
 T = TypeVar("T")

@@ -35,9 +35,8 @@ import numpy as np
 
 from calbench.bench.core import InputError, StaticsError
 from calbench.bench.model import LOOP_MARGIN, LOOP_MARGIN_ANGLE, LOOP_TOL, DescriptionError, Robot, loop_gap
-from calbench.bench.scenario import TrackerSpec
 from calbench.bench.statics import Load, StaticsSolver
-from calbench.bench.tracker import visible_sites
+from calbench.bench.tracker import TrackerSpec, visible_sites
 
 MIN_SPREAD = 0.01  # m, second singular value of the centred reflector positions
 TRACKER_DISTANCE = 5.0  # m from axis 1, at least twice the payload's reach

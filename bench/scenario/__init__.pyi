@@ -2,14 +2,9 @@
 # calbench.bench.core.face reads these lines and loads each name on first use.
 
 from .parse import (
-    DEFAULT_DISTANCE,
-    DEFAULT_SIGMA,
-    DEFAULT_TRANSVERSE,
     DESIGN_KEYS,
-    TRACKER_MODELS,
     Plan,
     Scenario,
-    TrackerSpec,
     check_joint_limits,
     load_plan,
     load_scenario,
@@ -33,17 +28,16 @@ from .timeline import (
     estimate,
     montecarlo_estimate,
     reading_seconds,
+    reading_times,
     repeats_key,
+    schedule,
     size,
     start_ns,
 )
 
 __all__ = [
     "CampaignClock",
-    "DEFAULT_DISTANCE",
-    "DEFAULT_SIGMA",
     "DEFAULT_START",
-    "DEFAULT_TRANSVERSE",
     "DESIGN_KEYS",
     "LOAD_S",
     "MAX_LOG_BYTES",
@@ -52,8 +46,6 @@ __all__ = [
     "NS",
     "Plan",
     "Scenario",
-    "TRACKER_MODELS",
-    "TrackerSpec",
     "UNLOAD_S",
     "check_joint_limits",
     "check_size",
@@ -64,7 +56,9 @@ __all__ = [
     "montecarlo_estimate",
     "parse_scenario",
     "reading_seconds",
+    "reading_times",
     "repeats_key",
+    "schedule",
     "scenario_as_dict",
     "scenario_params",
     "scenario_to_toml",

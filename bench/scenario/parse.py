@@ -3,7 +3,8 @@
 The file speaks degrees for joint angles and the tracker yaw; everything returned here is SI
 (radians, metres). Every bad input raises :class:`bench.errors.InputError` naming the file, the
 key path (0-based for ``[[pose]]`` entries and vector elements, e.g. ``pose[3].q[1]``) and what
-was expected, so the CLI can report it and exit with status 2.
+was expected, so the CLI can report it and exit with status 2. The ``[tracker]`` table is the
+tracker family's to read (bench/tracker/base.py: TrackerSpec.from_table, each model its own keys).
 """
 
 from __future__ import annotations
@@ -12,108 +13,23 @@ import math
 import os
 import re
 import tomllib
-from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from datetime import date, datetime
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from calbench.bench.core import InputError, Table, describe, parse_toml, read_text
+from calbench.bench.core import InputError, Table, describe, frozen_array, parse_toml, read_text
 from calbench.bench.model import LEGACY_COMPENSATOR, Params, Spring
+from calbench.bench.tracker import TrackerSpec
 
 from .timeline import DEFAULT_START, parse_start_time
 
-TRACKER_MODELS = ("isotropic", "spec", "iso10360")
-DEFAULT_SIGMA = 20e-6
-DEFAULT_DISTANCE = (10e-6, 0.3e-6)  # Leica AT500 ADM: 10 um + 0.3 um/m
-DEFAULT_TRANSVERSE = (15e-6, 6e-6)  # Leica AT500 angular: 15 um + 6 um/m
-# model = "iso10360" (bench/tracker/iso10360.py, where each default is argued): the share of a reading's
-# 1-sigma that is independent noise, the systematic field's correlation lengths, the drift.
-DEFAULT_RANDOM = 0.25
-DEFAULT_CORRELATION_ANGLE = math.radians(10.0)
-DEFAULT_CORRELATION_RANGE = 1.0  # m
-DEFAULT_DRIFT = (5e-6, 1e-6)  # m and m/m per sqrt(hour)
-ISO10360_KEYS = ("random", "correlation_angle", "correlation_range", "drift")
 JOINT_LIMIT_TOL = 1e-9  # rad, absorbs degree->radian round-off at a limit
 
 
 # --------------------------------------------------------------------------- data
-
-
-def _frozen(a: Any) -> np.ndarray:
-    """A float copy that cannot be modified, so frozen dataclasses stay frozen."""
-    arr = np.array(a, dtype=float)
-    arr.setflags(write=False)
-    return arr
-
-
-@dataclass(frozen=True)
-class TrackerSpec:
-    """Laser tracker placement (world frame) and noise model.
-
-    ``model == "isotropic"`` uses ``sigma`` per axis; ``"spec"`` uses the 1-sigma distance and
-    transverse errors ``a + b * range`` of an ISO 10360-10 style specification; ``"iso10360"``
-    splits that single-point error into a smooth systematic field, independent noise (the share
-    ``random`` of the 1-sigma) and a drift in time (bench/tracker/iso10360.py; ``correlation_angle``
-    rad, ``correlation_range`` m, ``drift`` [a m, b m/m] per sqrt(hour)).
-
-    The tracker frame is rotated by ``yaw`` about world z, or, when ``rotation`` is given (a
-    registered tracker, identify/shopfloor/tracker_pose.py: any orientation), by that world-from-tracker
-    matrix; ``yaw`` is then the rotation's heading, for readers that know only yaw.
-    """
-
-    position: np.ndarray
-    yaw: float = 0.0
-    model: str = "isotropic"
-    sigma: float = DEFAULT_SIGMA
-    distance: tuple[float, float] = DEFAULT_DISTANCE
-    transverse: tuple[float, float] = DEFAULT_TRANSVERSE
-    rotation: np.ndarray | None = None
-    random: float = DEFAULT_RANDOM
-    correlation_angle: float = DEFAULT_CORRELATION_ANGLE
-    correlation_range: float = DEFAULT_CORRELATION_RANGE
-    drift: tuple[float, float] = DEFAULT_DRIFT
-
-    def to_dict(self) -> dict[str, Any]:
-        """The JSON form of the log header's ``tracker`` (CONTRACT.md, ``/campaign/info``):
-        SI throughout (position m, yaw rad, sigma m, ``[a m, b m/m]`` error laws; ``rotation``,
-        3 rows of 3, only when set)."""
-        d = {
-            "position": [float(x) for x in self.position],
-            "yaw": float(self.yaw),
-            "model": self.model,
-            "sigma": float(self.sigma),
-            "distance": [float(x) for x in self.distance],
-            "transverse": [float(x) for x in self.transverse],
-        }
-        if self.rotation is not None:
-            d["rotation"] = np.asarray(self.rotation, dtype=float).tolist()
-        if self.model == "iso10360":
-            d.update(
-                random=float(self.random),
-                correlation_angle=float(self.correlation_angle),
-                correlation_range=float(self.correlation_range),
-                drift=[float(x) for x in self.drift],
-            )
-        return d
-
-    def placed(self, position: np.ndarray, rotation: np.ndarray) -> TrackerSpec:
-        """This tracker (same noise model) at ``position`` (m) with world-from-tracker
-        ``rotation``."""
-        rot = _rotation_matrix(rotation, "<rotation>", "rotation")
-        return replace(
-            self, position=_frozen(position), rotation=rot, yaw=float(math.atan2(rot[1, 0], rot[0, 0]))
-        )
-
-    @classmethod
-    def from_dict(cls, d: Any, file: object = "<tracker>", key: str = "tracker") -> TrackerSpec:
-        """The inverse of :meth:`to_dict`, validated like the scenario's ``[tracker]`` table but
-        in SI (yaw in rad). Missing optional keys take the scenario defaults; unknown keys are
-        ignored (a log header may carry more). Bad values raise InputError naming ``file`` and
-        ``key.<field>``."""
-        return _tracker_spec(Table(file, d, key), yaw_to_rad=float)
 
 
 @dataclass(frozen=True)
@@ -193,16 +109,16 @@ def _effects(c: Table) -> dict[str, dict]:
         e.only(("link", "compliance"))
         out["link_compliance"] = {
             "link": e.string("link"),  # a body of the robot (its MJCF decides)
-            "compliance": _frozen(e.vector("compliance", 3, nonneg=True)),
+            "compliance": frozen_array(e.vector("compliance", 3, nonneg=True)),
         }
     if c.has("base_compliance"):
         e = c.sub("base_compliance")
         e.only(("compliance",))
-        out["base_compliance"] = {"compliance": _frozen(e.vector("compliance", 2, nonneg=True))}
+        out["base_compliance"] = {"compliance": frozen_array(e.vector("compliance", 2, nonneg=True))}
     if c.has("tool_compliance"):  # truth-only: not a discovery candidate (bench/model/effects.py)
         e = c.sub("tool_compliance")
         e.only(("compliance",))
-        out["tool_compliance"] = {"compliance": _frozen(e.vector("compliance", 2, nonneg=True))}
+        out["tool_compliance"] = {"compliance": frozen_array(e.vector("compliance", 2, nonneg=True))}
     if c.has("joint_nonlinearity"):
         e = c.sub("joint_nonlinearity")
         e.only(("joint", "cubic"))
@@ -213,83 +129,13 @@ def _effects(c: Table) -> dict[str, dict]:
     if c.has("tracker_drift"):  # measurement side: an offset of the loaded readings
         e = c.sub("tracker_drift")
         e.only(("offset",))
-        out["tracker_drift"] = {"offset": _frozen(e.vector("offset", 3))}
+        out["tracker_drift"] = {"offset": frozen_array(e.vector("offset", 3))}
     return out
 
 
-def _pair(c: Table, name: str, default: tuple[float, float]) -> tuple[float, float]:
-    """An ``[a, b]`` error law a + b*range: a > 0 keeps the covariance positive definite."""
-    if not c.has(name):
-        return default
-    a, b = c.vector(name, 2, nonneg=True)
-    if a <= 0:
-        raise c.fail(name, "[a, b] with a > 0 (m) and b >= 0 (m/m)", [a, b])
-    return (float(a), float(b))
-
-
 def _tracker(c: Table) -> TrackerSpec:
-    """The scenario's ``[tracker]`` table (yaw and correlation_angle in degrees)."""
-    c.only(("sigma", "position", "yaw", "model", "distance", "transverse") + ISO10360_KEYS)
-    return _tracker_spec(c, yaw_to_rad=math.radians)
-
-
-ROTATION_TOL = 1e-9  # |R^T R - I| and |det R - 1| of a rotation read back from JSON
-
-
-def _rotation_matrix(value: Any, file: object, key: str) -> np.ndarray:
-    """A proper rotation matrix (3 rows of 3 finite numbers, orthonormal, det +1), frozen."""
-    try:
-        rot = np.array(value, dtype=float)
-    except (TypeError, ValueError):
-        rot = np.zeros(0)
-    ok = rot.shape == (3, 3) and bool(np.all(np.isfinite(rot)))
-    if ok:
-        ok = (
-            np.abs(rot.T @ rot - np.eye(3)).max() < ROTATION_TOL
-            and abs(np.linalg.det(rot) - 1) < ROTATION_TOL
-        )
-    if not ok:
-        raise InputError(
-            file,
-            key,
-            "a rotation matrix (3 rows of 3 numbers, orthonormal, det +1)",
-            describe(value) if not isinstance(value, list) else value,
-        )
-    return _frozen(rot)
-
-
-def _tracker_spec(c: Table, yaw_to_rad: Callable[[float], float]) -> TrackerSpec:
-    """A TrackerSpec from a checked table; ``yaw_to_rad`` converts the table's yaw unit."""
-    rotation = _rotation_matrix(c.raw("rotation"), c.file, c.key("rotation")) if c.has("rotation") else None
-    model = c.string("model", TRACKER_MODELS) if c.has("model") else "isotropic"
-    iso = {}
-    if model != "iso10360":
-        for name in ISO10360_KEYS:
-            if c.has(name):
-                raise c.fail(name, 'model = "iso10360" for this key (a correlated error model)')
-    else:
-        if c.has("random"):
-            iso["random"] = c.number("random", positive=True)
-            if iso["random"] > 1:
-                raise c.fail(
-                    "random", "the share of the 1-sigma that is independent noise, in (0, 1]", iso["random"]
-                )
-        if c.has("correlation_angle"):
-            iso["correlation_angle"] = yaw_to_rad(c.number("correlation_angle", positive=True))
-        if c.has("correlation_range"):
-            iso["correlation_range"] = c.number("correlation_range", positive=True)
-        if c.has("drift"):
-            iso["drift"] = tuple(float(x) for x in c.vector("drift", 2, nonneg=True))
-    return TrackerSpec(
-        **iso,
-        position=_frozen(c.vector("position", 3)),
-        yaw=yaw_to_rad(c.number("yaw")) if c.has("yaw") else 0.0,
-        model=model,
-        sigma=c.number("sigma", positive=True) if c.has("sigma") else DEFAULT_SIGMA,
-        distance=_pair(c, "distance", DEFAULT_DISTANCE),
-        transverse=_pair(c, "transverse", DEFAULT_TRANSVERSE),
-        rotation=rotation,
-    )
+    """The scenario's ``[tracker]`` table (yaw and the model's angles in degrees)."""
+    return TrackerSpec.from_table(c)
 
 
 def _joint_vector(c: Table, name: str, n: int | None) -> np.ndarray:
@@ -301,7 +147,7 @@ def _joint_vector(c: Table, name: str, n: int | None) -> np.ndarray:
             f"an array of {n} numbers (one per actuated joint, as in truth.compliance)",
             f"{len(value)} elements",
         )
-    return _frozen(np.radians(c.vector(name, n)))
+    return frozen_array(np.radians(c.vector(name, n)))
 
 
 def _joint_count(top: dict, truth: dict) -> int | None:
@@ -350,7 +196,7 @@ def _poses(file: Path, value: Any, n_joints: int | None) -> tuple[Pose, ...]:
         poses.append(
             Pose(
                 q=_joint_vector(p, "q", n_joints),
-                wrench=_frozen(p.vector("wrench", 6)) if p.has("wrench") else None,
+                wrench=frozen_array(p.vector("wrench", 6)) if p.has("wrench") else None,
                 repeats=p.integer("repeats", lo=1) if p.has("repeats") else 1,
             )
         )
@@ -382,7 +228,7 @@ def _truth(top: Table) -> tuple[np.ndarray, dict[str, Spring], dict[str, dict]]:
     """The [truth] table: N compliances, the compensator springs by tendon, the effects."""
     truth = top.sub("truth")
     truth.only(("compliance", "compensator", "compensators", "effects"))
-    compliance = _frozen(truth.vector("compliance", _joint_count(top.table, truth.table), positive=True))
+    compliance = frozen_array(truth.vector("compliance", _joint_count(top.table, truth.table), positive=True))
     compensators = _compensators(truth)
     effects = _effects(truth.sub("effects")) if truth.has("effects") else {}
     return compliance, compensators, effects
@@ -401,7 +247,7 @@ def _campaign(top: Table, path: Path, n_joints: int | None) -> dict[str, Any]:
     if top.has("work"):
         w = top.sub("work")
         w.only(("q", "wrench"))
-        work = Work(q=_joint_vector(w, "q", n_joints), wrench=_frozen(w.vector("wrench", 6)))
+        work = Work(q=_joint_vector(w, "q", n_joints), wrench=frozen_array(w.vector("wrench", 6)))
     return {
         "load_mass": load.number("mass", positive=True),
         "work": work,
@@ -642,24 +488,7 @@ def scenario_as_dict(scn: Scenario, relative_to: str | Path) -> dict:
         "robot": Path(os.path.relpath(scn.robot, Path(relative_to).resolve())).as_posix(),
         "seed": scn.seed,
         "truth": Params(scn.compliance, scn.compensators).as_dict(),
-        "tracker": {
-            "sigma": tr.sigma,
-            "position": tr.position.tolist(),
-            "yaw": round(math.degrees(tr.yaw), 10),
-            "model": tr.model,
-            "distance": list(tr.distance),
-            "transverse": list(tr.transverse),
-            **(
-                {
-                    "random": tr.random,
-                    "correlation_angle": round(math.degrees(tr.correlation_angle), 10),
-                    "correlation_range": tr.correlation_range,
-                    "drift": list(tr.drift),
-                }
-                if tr.model == "iso10360"
-                else {}
-            ),
-        },
+        "tracker": tr.to_table(),
         "load": {"mass": scn.load_mass},
     }
     if scn.effects:

@@ -24,6 +24,9 @@ step                       what happens                                         
 A message is stamped when its step ends (a reading when it is complete); the truth of a state
 right after its last reading. With three reflectors and one repeat a pose takes 10 min, the
 paper's 16-pose plan 2 h 40 min. Times are integers in ns since 1970 (UTC), as MCAP wants.
+:func:`reading_times` (:func:`schedule` for poses in any order) gives the same clock's reading
+times in s since the campaign's first reading: what a tracker whose error drifts in time is
+simulated on (bench/tracker/measuring.py).
 
 The size
 --------
@@ -115,6 +118,38 @@ class CampaignClock:
 
 def reading_seconds(n_reflectors: int) -> float:
     return READING_PER_REFLECTOR_S * max(int(n_reflectors), 1)
+
+
+STATES = ("unloaded", "loaded")
+Key = tuple[int, str, int]  # (pose, state, repeat)
+
+
+def schedule(poses: Sequence[tuple[int, int, int]], n_reflectors: int) -> dict[Key, float]:
+    """Time of every reading of a campaign that measures ``poses`` = (pose, unloaded readings,
+    loaded readings) in this order, in s since its first reading: per pose, move (MOVE_S), the
+    unloaded readings (reading_seconds each, stamped when complete), hang the load (LOAD_S), the
+    loaded readings, take the load off (UNLOAD_S): the clock above, on which a tracker whose error
+    drifts (bench/tracker/models/iso10360.py) is simulated and identified."""
+    per = reading_seconds(n_reflectors)
+    out: dict[Key, float] = {}
+    t = 0.0
+    for pose, *counts in poses:
+        t += MOVE_S
+        for state, n in zip(STATES, counts):
+            if state == "loaded":
+                t += LOAD_S
+            for r in range(int(n)):
+                t += per
+                out[(pose, state, r)] = t
+        t += UNLOAD_S
+    first = min(out.values(), default=0.0)
+    return {k: v - first for k, v in out.items()}
+
+
+def reading_times(repeats: Sequence[int], n_reflectors: int) -> dict[Key, float]:
+    """:func:`schedule` of a simulated campaign: every pose of the plan, ``repeats[j]`` readings
+    per state."""
+    return schedule([(j, n, n) for j, n in enumerate(repeats)], n_reflectors)
 
 
 @dataclass(frozen=True)
@@ -238,6 +273,8 @@ __all__ = [
     "parse_start_time",
     "start_ns",
     "reading_seconds",
+    "schedule",
+    "reading_times",
     "duration",
     "size",
     "iso",

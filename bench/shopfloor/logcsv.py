@@ -21,8 +21,8 @@ breaks this.
 Times. A reading is stamped with its own time when the CSV has a time column (ISO 8601 as it
 is, seconds counted from the plan's ``start_time``), and each pose's command, load and end a
 few milliseconds around its readings; without times the log's campaign clock stamps them
-(bench/scenario/timeline.py), the same schedule the readings are given here (bench.measuring.schedule),
-so that a drifting tracker's covariance (bench/tracker/iso10360.py) sees the same timeline in the
+(bench/scenario/timeline.py), the same schedule the readings are given here (bench.scenario.schedule),
+so that a drifting tracker's covariance (bench/tracker/models/iso10360.py) sees the same timeline in the
 registration and in identification.
 
 Export (:func:`export_rows`) writes every visible reflector of every reading of a log's complete
@@ -43,8 +43,8 @@ from calbench.bench.campaign import pose_load
 from calbench.bench.core import InputError
 from calbench.bench.log import CampaignLog, LogHeader, LogWriter
 from calbench.bench.model import Robot
-from calbench.bench.scenario import NS, Plan, TrackerSpec
-from calbench.bench.tracker import noise_covariance, schedule
+from calbench.bench.scenario import NS, Plan, schedule
+from calbench.bench.tracker import TrackerSpec, noise_covariance
 
 from .readings import ReadingsTable, Row, group, iso8601
 
@@ -140,7 +140,7 @@ def campaign_readings(table: ReadingsTable, names: list[str], tracker: TrackerSp
     """The table's rows as log readings per (pose, state), reflectors in ``names`` order, with
     their covariances (:func:`reading_covariance`); poses in measured order. Every reading has a
     time: the table's, or, without a time column, the campaign clock's for these poses and
-    readings (bench.measuring.schedule, s since the first reading)."""
+    readings (bench.scenario.schedule, s since the first reading)."""
     order = measured_order(table)
     grouped = {(p, s): group(table.of(p, s), names) for p in order for s in STATES}
     clock = (
@@ -183,7 +183,7 @@ def write_imported_log(
     0 for ISO 8601 times, the plan's ``start_time`` for seconds) every reading is stamped at its
     own time and each pose's command, load and end a millisecond around its readings (TICK);
     without, the log's campaign clock stamps them (bench/scenario/timeline.py), which is the schedule the
-    readings were given (bench.measuring.schedule)."""
+    readings were given (bench.scenario.schedule)."""
     robot = Robot.from_file(model)
     names = list(robot.reflector_names)
     for i, pose in enumerate(plan.poses):

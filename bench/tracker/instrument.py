@@ -1,18 +1,21 @@
-"""The simulated laser tracker: frames, noise model, line-of-sight visibility, measurement.
+"""The simulated laser tracker: frames, line-of-sight visibility, measurement, deflections.
 
 The tracker frame has its origin at ``TrackerSpec.position`` and is rotated by ``yaw`` about
-world z (or by ``TrackerSpec.rotation``, a registered tracker's full orientation). Measurements are reported in that frame, as a real tracker would report them; the
-noise model lives there too (it only depends on the line of sight from the tracker origin).
+world z (or by ``TrackerSpec.rotation``, a registered tracker's full orientation). Measurements
+are reported in that frame, as a real tracker would report them; the error model lives there too
+(it only depends on the line of sight from the tracker origin): whatever it is, this module asks
+the spec's model (bench/tracker/base.py) for it.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
-from calbench.bench.scenario import TrackerSpec
+from .base import TrackerSpec
 
 OCCLUSION_TOL = 1e-6  # m: a hit closer than the site by more than this occludes it
 BLOCKING_GROUPS = np.array([1, 1, 1, 0, 0, 0], dtype=np.uint8)  # geom groups >= 3 never block
@@ -60,38 +63,14 @@ def to_world_frame(spec: TrackerSpec, points_tracker: np.ndarray) -> np.ndarray:
 
 def noise_covariance(spec: TrackerSpec, points_tracker: np.ndarray) -> np.ndarray:
     """Covariance (n, 3, 3) of a reading's independent error at tracker-frame points: what a
-    ``/tracker/measurement`` carries.
+    ``/tracker/measurement`` carries; the spec's model's (C of bench/tracker/base.py's eq. 1).
 
     Isotropic: sigma^2 I. Spec: sd^2 u u^T + st^2 (I - u u^T), with u the unit line of sight,
     sd = a_d + b_d*range along it (distance meter) and st = a_t + b_t*range across it (angles).
     iso10360: random^2 times the spec form, the rest of its error being correlated between
-    readings (bench/tracker/iso10360.py).
+    readings (bench/tracker/models/iso10360.py).
     """
-    p = _points(points_tracker)
-    n = len(p)
-    eye = np.broadcast_to(np.eye(3), (n, 3, 3))
-    if spec.model == "isotropic":
-        return spec.sigma**2 * eye.copy()
-    if spec.model == "iso10360":
-        return spec.random**2 * spec_covariance(spec, p)
-    if spec.model != "spec":
-        raise ValueError(f"unknown tracker noise model {spec.model!r}")
-    return spec_covariance(spec, p)
-
-
-def spec_covariance(spec: TrackerSpec, points_tracker: np.ndarray) -> np.ndarray:
-    """The single-point covariance (n, 3, 3) of the distance and transverse laws
-    (``spec.distance``, ``spec.transverse``): sd^2 u u^T + st^2 (I - u u^T)."""
-    p = _points(points_tracker)
-    eye = np.broadcast_to(np.eye(3), (len(p), 3, 3))
-    rng = np.linalg.norm(p, axis=1)
-    if np.any(rng == 0):
-        raise ValueError("a point at the tracker origin has no line of sight")
-    u = p / rng[:, None]
-    uu = u[:, :, None] * u[:, None, :]
-    sd = spec.distance[0] + spec.distance[1] * rng
-    st = spec.transverse[0] + spec.transverse[1] * rng
-    return sd[:, None, None] ** 2 * uu + st[:, None, None] ** 2 * (eye - uu)
+    return spec.error_model.covariance(spec, _points(points_tracker))
 
 
 @dataclass(frozen=True)
@@ -142,6 +121,56 @@ def mean_reading(spec: TrackerSpec, readings) -> MeanReading:
     return MeanReading(mean, cov, seen, cnt.astype(int))
 
 
+def deflection_covariance(
+    spec: TrackerSpec,
+    unloaded: Sequence,
+    loaded: Sequence,
+    rows: np.ndarray,
+    times: tuple[Sequence[float], Sequence[float]] | None,
+) -> np.ndarray:
+    """(m, 3, m, 3): covariance of one pose's deflections dp_r = mean(loaded readings of r) -
+    mean(unloaded readings of r) for the reflector rows ``rows`` (seen in both states), tracker
+    frame: bench/tracker/base.py's eq. (3). ``unloaded`` and ``loaded`` are the readings
+    (``position`` (n, 3), ``covariance`` (n, 3, 3) of the independent error, ``visible`` (n,));
+    ``times`` their times (s since the campaign's first reading), needed by a model whose
+    correlated part depends on them (TrackerModel.uses_times: iso10360's drift).
+
+    Every model: the readings' own covariances, sum C / N^2 per state (paper eq. 2, as
+    :func:`mean_reading`). A correlated model adds sum_kl c_k c_l K_kl of its correlated part
+    over every pair of the pose's readings (c = +-1/N_sr, the weight of reading k in dp_r)."""
+    rows = np.asarray(rows, dtype=int)
+    m = len(rows)
+    out = np.zeros((m, 3, m, 3))
+    pts, tms, coef, row_of = [], [], [], []
+    for sign, reads, tt in (
+        (-1.0, unloaded, None if times is None else times[0]),
+        (1.0, loaded, None if times is None else times[1]),
+    ):
+        seen = [
+            np.asarray(r.visible, bool) & np.all(np.isfinite(np.asarray(r.position, float)), axis=1)
+            for r in reads
+        ]
+        count = np.sum([s[rows] for s in seen], axis=0) if reads else np.zeros(m)
+        for k, (r, s) in enumerate(zip(reads, seen)):
+            for j, i in enumerate(rows):
+                if s[i]:
+                    out[j, :, j, :] += np.asarray(r.covariance, float)[i] / count[j] ** 2
+                    pts.append(np.asarray(r.position, float)[i])
+                    tms.append(np.nan if tt is None else float(tt[k]))
+                    coef.append(sign / count[j])
+                    row_of.append(j)
+    model = spec.error_model
+    if not model.correlated or not pts:
+        return out
+    if times is None and model.uses_times:
+        raise ValueError(f"the {model.name} tracker model needs the readings' times")
+    pts, tms = np.array(pts), np.array(tms)
+    w = np.zeros((m, len(pts)))
+    w[np.array(row_of), np.arange(len(pts))] = coef
+    c = model.correlated_covariance(spec, pts, tms, pts, tms)
+    return out + np.einsum("rk,kilj,sl->risj", w, c, w)
+
+
 def visible_sites(model: mujoco.MjModel, data: mujoco.MjData, spec: TrackerSpec, site_ids) -> np.ndarray:
     """Line-of-sight test (n,) bool from the tracker to each site at the pose held in ``data``.
 
@@ -183,10 +212,11 @@ def measure(
 ) -> Measurement:
     """Noisy tracker-frame readings of the true ``points_world``.
 
-    Noise is drawn only for visible points, one standard-normal (m, 3) block for the m visible
-    points in order, coloured by the Cholesky factor of :func:`noise_covariance`. So the
-    generator's consumption depends on how many points are visible, and the same generator
-    state gives identical output. Invisible rows are NaN in position and covariance.
+    Noise is drawn only for visible points, by the spec's model (TrackerModel.draw: one
+    standard-normal (m, 3) block for the m visible points in order, coloured by the Cholesky
+    factor of :func:`noise_covariance`). So the generator's consumption depends on how many
+    points are visible, and the same generator state gives identical output. Invisible rows are
+    NaN in position and covariance.
     """
     p = to_tracker_frame(spec, points_world)
     vis = np.asarray(visible)
@@ -195,10 +225,8 @@ def measure(
     position = np.full_like(p, np.nan)
     covariance = np.full((len(p), 3, 3), np.nan)
     if vis.any():
-        cov = noise_covariance(spec, p[vis])
-        chol = np.linalg.cholesky(cov)
-        z = rng.standard_normal((int(vis.sum()), 3))
-        position[vis] = p[vis] + np.einsum("nij,nj->ni", chol, z)
+        err, cov = spec.error_model.draw(spec, p[vis], rng)
+        position[vis] = p[vis] + err
         covariance[vis] = cov
     vis = vis.copy()
     for a in (position, covariance, vis):

@@ -6,11 +6,12 @@ the deflection
     dp_jr = mean(loaded readings of r) - mean(unloaded readings of r)     (world frame, m)
 
 The means are :func:`bench.tracker.mean_reading`'s, the viewer's too. Their covariance is
-bench.iso10360.deflection_covariance's, one block per pose over all its reflectors: for an
-isotropic or spec tracker Cov(mean loaded) + Cov(mean unloaded) per reflector (readings are
-independent, each used in exactly one dp); for the iso10360 tracker also the field and drift
-that the pose's readings share, which correlates its loaded and unloaded readings and its
-reflectors (the readings' times, from the log, give the drift). Poses are independent
+bench.tracker.deflection_covariance's (bench/tracker/base.py, eq. 3), one block per pose over
+all its reflectors: for a tracker whose readings are independent (isotropic, spec)
+Cov(mean loaded) + Cov(mean unloaded) per reflector (each reading is used in exactly one dp);
+for a correlated one (TrackerModel.correlated: iso10360) also the error that the pose's readings
+share, which correlates its loaded and unloaded readings and its reflectors (the readings'
+times, from the log, give iso10360's drift). Poses are independent
 (identify/core/whitening.py). A reflector counts only when it is visible in both states of the pose.
 The known inputs are the commanded angles q, the applied wrench (force, moment, site) and the
 tracker pose from the log header.
@@ -28,8 +29,7 @@ import numpy as np
 
 from calbench.bench.core import InputError
 from calbench.bench.log import CampaignLog
-from calbench.bench.scenario import TrackerSpec
-from calbench.bench.tracker import deflection_covariance, mean_reading, tracker_rotation
+from calbench.bench.tracker import TrackerSpec, deflection_covariance, mean_reading, tracker_rotation
 
 
 @dataclass(frozen=True)
@@ -129,7 +129,7 @@ def pose_observation(
 ) -> PoseObservation:
     """dp and its covariance for one pose from its readings in both states (eq. 2); the
     readings' rows are in ``names`` order; ``times`` (s since the campaign's first reading, per
-    reading) are needed by the iso10360 tracker only."""
+    reading) are needed by a tracker whose error depends on them (TrackerModel.uses_times)."""
     m0 = mean_reading(spec, unloaded)
     m1 = mean_reading(spec, loaded)
     rows = np.flatnonzero(m0.seen & m1.seen)
@@ -147,7 +147,7 @@ def pose_observation(
         reflectors=tuple(names[i] for i in rows),
         dp=m1.position[rows] - m0.position[rows],
         cov=block[np.arange(n), :, np.arange(n), :],
-        cov_block=block if spec.model == "iso10360" else None,
+        cov_block=block if spec.error_model.correlated else None,
     )
 
 

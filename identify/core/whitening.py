@@ -2,9 +2,9 @@
 
 Every estimator minimises |L^-1 (dp - f(theta))|^2 with L L^T = Cov(dp) (maximum likelihood for
 Gaussian errors). Cov(dp) is block diagonal by pose: a pose's deflections (all its reflectors,
-3 rows each) are correlated when the tracker's error is (bench/tracker/iso10360.py: the drift between
+3 rows each) are correlated when the tracker's error is (bench/tracker/models/iso10360.py: the drift between
 the unloaded and loaded readings is common to every reflector; its systematic field is shared by
-nearby readings), different poses are independent (bench/tracker/iso10360.py says why and what that
+nearby readings), different poses are independent (bench/tracker/models/iso10360.py says why and what that
 neglects). For an isotropic or spec tracker each block is itself block diagonal by reflector, and
 its Cholesky factor is exactly the per-reflector one, so estimates are those of a per-reflector
 whitening.

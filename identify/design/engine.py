@@ -5,13 +5,13 @@ x_r(unloaded) is the exact-statics one of identify/core/forward.py; its Jacobian
 comes from the implicit function theorem at both equilibria (``StaticsSolver.tangent``, exact
 KKT matrix, d g / d theta from ``Robot.dforce_dtheta``), J_r = (J_site dq/dtheta)|loaded -
 (...)|unloaded, times theta0 column-wise. The deflections' covariance Sigma is
-bench.iso10360.deflection_covariance's (the estimator's: Cov(reading unloaded) + Cov(reading
-loaded) per reflector, 2 sigma^2 I for the isotropic tracker, one repeat; for the iso10360
-tracker also the field and drift shared by the pose's readings, on the campaign clock). The
+bench.tracker.deflection_covariance's (the estimator's: Cov(reading unloaded) + Cov(reading
+loaded) per reflector, 2 sigma^2 I for the isotropic tracker, one repeat; for a correlated
+tracker, iso10360, also the error shared by the pose's readings, on the campaign clock). The
 candidate's block is the whitened regressor R = L^-1 [J_r], L L^T = Sigma: rows = the 3
 coordinates of each reflector (9 rows for 3 reflectors), columns = the p normalised parameters,
 and the Fisher information of a plan is sum_i R_i^T R_i (with repeats n: n R_i^T R_i, exact
-for independent readings; for the iso10360 tracker repeats do not average its correlated part
+for independent readings; for a correlated tracker repeats do not average its correlated part
 and this overstates what they add).
 """
 
@@ -23,13 +23,12 @@ import mujoco
 import numpy as np
 
 from calbench.bench.campaign import scenario_params
-from calbench.bench.scenario import Scenario
+from calbench.bench.scenario import Scenario, reading_times
 from calbench.bench.statics import Equilibrium, Load, StaticsSolver
 from calbench.bench.tracker import (
     Measurement,
     deflection_covariance,
     noise_covariance,
-    reading_times,
     to_tracker_frame,
     tracker_rotation,
 )
@@ -96,9 +95,9 @@ class InfoEngine:
     def sigma_dp_blocks(self, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
         """(n, 3k, 3k): :meth:`sigma_dp` of n candidates at once (p0, p1: (n, k, 3), one reading
         per state); block diagonal by reflector, vectorised, unless the tracker's error is
-        correlated (iso10360: one candidate at a time)."""
+        correlated (TrackerModel.correlated, iso10360: one candidate at a time)."""
         n, k = p0.shape[:2]
-        if self.scn.tracker.model == "iso10360":
+        if self.scn.tracker.error_model.correlated:
             return np.stack([self.sigma_dp(a, b) for a, b in zip(p0, p1)])
         spec = self.scn.tracker
         c = noise_covariance(spec, to_tracker_frame(spec, p0.reshape(-1, 3))) + noise_covariance(
@@ -112,7 +111,7 @@ class InfoEngine:
 
     def sigma_dp(self, p0: np.ndarray, p1: np.ndarray, repeats: int = 1) -> np.ndarray:
         """(3n, 3n) world covariance of the n deflections of one pose read ``repeats`` times per
-        state on the campaign clock (bench.iso10360.deflection_covariance: block diagonal by
+        state on the campaign clock (bench.tracker.deflection_covariance: block diagonal by
         reflector unless the tracker's error is correlated)."""
         spec = self.scn.tracker
         n = len(p0)

@@ -168,11 +168,7 @@ def campaign_section(log: CampaignLog, simulated: bool) -> dict:
                 ],
             }
         )
-    noise = (
-        f"isotropic, σ = {tr.sigma * 1e6:.3g} µm per axis"
-        if tr.model == "isotropic"
-        else f"{tr.model}: distance {list(tr.distance)}, transverse {list(tr.transverse)} (a m + b m/m)"
-    )
+    noise = tr.error_model.describe(tr)
     return {
         "scenario": h.get("scenario_name", "?"),
         "robot": h.get("robot", "?"),

@@ -26,6 +26,7 @@ from calbench.bench.log import (
     read_log,
 )
 from calbench.bench.model import Robot
+from calbench.bench.tracker import DEFAULT_MODEL, tracker_models
 from calbench.identify.core import (
     MAX_RELATIVE_STD,
     OUTLIER_SIGMA,
@@ -160,12 +161,14 @@ def identification_report(
 
 
 def noise_source(rep: IdentificationReport) -> str:
-    """Where the expected residual comes from, in words: an isotropic tracker's sigma, or the
-    name of a range-dependent error model (whose ``noise_sigma`` is not used)."""
-    noise = rep.details.get("tracker_noise_model", "isotropic")
-    if noise == "isotropic" and rep.noise_sigma is not None:
+    """Where the expected residual comes from, in words: the tracker's sigma when its model
+    gives every reading that sigma per axis (TrackerModel.sigma_per_axis: isotropic), else the
+    model's name and summary (its ``noise_sigma`` is not used)."""
+    noise = rep.details.get("tracker_noise_model", DEFAULT_MODEL)
+    model = tracker_models().get(noise)  # None: a model this installation does not know
+    if model is not None and model.sigma_per_axis and rep.noise_sigma is not None:
         return f"σ = {rep.noise_sigma * 1e6:.3g} µm per reading"
-    return f"its {noise} error model, σ growing with range"
+    return f"its {noise} error model" + (f", {model.summary}" if model is not None else "")
 
 
 def format_table(rep: IdentificationReport) -> str:

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from calbench.bench.core import InputError, atomic_path
 from calbench.bench.model import Robot
-from calbench.bench.scenario import Plan, TrackerSpec, check_joint_limits, load_plan, start_ns
+from calbench.bench.scenario import Plan, check_joint_limits, load_plan, start_ns
 from calbench.bench.shopfloor import (
     ImportSummary,
     ReadingsTable,
@@ -28,6 +28,7 @@ from calbench.bench.shopfloor import (
     read_readings,
     write_imported_log,
 )
+from calbench.bench.tracker import TrackerSpec
 
 from .tracker_pose import Registration, check_placed, register
 

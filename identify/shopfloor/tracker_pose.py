@@ -57,9 +57,9 @@ import numpy as np
 from calbench.bench.campaign import pose_load
 from calbench.bench.core import InputError
 from calbench.bench.model import Robot
-from calbench.bench.scenario import Plan, TrackerSpec
+from calbench.bench.scenario import Plan
 from calbench.bench.shopfloor import Readings, ReadingsTable
-from calbench.bench.tracker import correlated_marginal, mean_reading, tracker_rotation
+from calbench.bench.tracker import TrackerSpec, mean_reading, tracker_rotation
 from calbench.identify.core import (
     RANK_TOL,
     ForwardModel,
@@ -149,19 +149,22 @@ def point_data(
 ) -> PointData:
     """Mean readings per state in the tracker frame (bench.tracker.mean_reading with the
     tracker at the origin, unrotated). Their covariance is that of the readings' independent
-    error, plus, for the iso10360 tracker, the field and the drift at the readings' mean time
-    (bench.iso10360.correlated_marginal): the fit treats the points as independent, so each is
-    weighted by all of its error (a systematic field is, for a fit of absolute positions, error
-    like any other)."""
+    error, plus, for a correlated tracker, its shared error's at the readings' mean time
+    (TrackerModel.correlated_marginal: iso10360's field and drift): the fit treats the points as
+    independent, so each is weighted by all of its error (a systematic field is, for a fit of
+    absolute positions, error like any other)."""
     at_origin = tracker.placed(np.zeros(3), np.eye(3))
+    error_model = tracker.error_model
     t_first = min((r.time for reps in readings.values() for r in reps), default=0.0)
 
     def mean(reps):
         m = mean_reading(at_origin, reps)
-        if tracker.model == "iso10360" and m.seen.any():
+        if error_model.correlated and m.seen.any():
             t = np.mean([r.time for r in reps]) - t_first
             c = m.covariance.copy()
-            c[m.seen] += correlated_marginal(tracker, m.position[m.seen], np.full(int(m.seen.sum()), t))
+            c[m.seen] += error_model.correlated_marginal(
+                tracker, m.position[m.seen], np.full(int(m.seen.sum()), t)
+            )
             m = replace(m, covariance=c)
         return m
 

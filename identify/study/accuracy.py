@@ -3,7 +3,7 @@
 The bound is the inverse Fisher information (J^T Sigma^-1 J)^-1 at the scenario's true
 parameters on the exact model (identify/core/forward.py), Sigma the deflections' covariance under the
 scenario's tracker model, one block per pose (identify/core/whitening.py; for the iso10360 tracker
-the field and the drift on the campaign's timeline, bench/tracker/iso10360.py). It is what the one-step
+the field and the drift on the campaign's timeline, bench/tracker/models/iso10360.py). It is what the one-step
 estimator's spread reaches (identify/study/montecarlo.py measures it), so it predicts a campaign's
 accuracy before anyone measures: the same plan under isotropic, spec and iso10360 noise
 (docs/performance.md, "Tracker models") differs only here.

@@ -12,10 +12,10 @@ measured in memory (bench.campaign.plan_campaign, then identify/study/montecarlo
 ``campaign_observations`` with the campaign's own generator), which gives identify and discover
 the same Observations, to the last bit, that ``from_log`` reads from the log without its truth
 (the robot from the same MJCF text, the truth afterwards for the error columns): the same rows,
-without writing the log and reading it back twice. The iso10360 tracker still goes through the
-log: its covariance depends on the readings' times as the log stamps them (whole nanoseconds,
-kept strictly increasing over every message written, Foxglove's too), which only the log writer
-knows. tests/test_study_memory.py runs studies both ways and compares their rows.
+without writing the log and reading it back twice. A tracker whose covariance depends on the
+readings' times (TrackerModel.uses_times: iso10360) still goes through the log: identify takes
+the times as the log stamps them (whole nanoseconds, kept strictly increasing over every message
+written, Foxglove's too), which only the log writer knows. tests/test_study_memory.py runs studies both ways and compares their rows.
 
 The function depends on nothing but its arguments (texts, seeds): it runs the same in-process
 and on any Dask worker that has calbench installed.
@@ -38,6 +38,7 @@ from calbench.bench.campaign import plan_campaign, run_campaign, scenario_params
 from calbench.bench.core import InputError, write_text
 from calbench.bench.model import Robot, without_compensator
 from calbench.bench.scenario import Scenario, check_size, estimate, repeats_key
+from calbench.bench.tracker import tracker_models
 from calbench.identify.core import Observations
 from calbench.identify.runtime import PortableScenario
 
@@ -113,13 +114,18 @@ def _named_first(rep: dict) -> str:
     return f"{s['effect']}[{s['detail']}]"
 
 
-LOG_TRACKER_MODELS = ("iso10360",)  # tracker models whose covariances use the log's stamps
+def tracker_needs_log(model: str) -> bool:
+    """Whether a campaign with the tracker model named ``model`` must go through its log to give
+    identify exactly what a log gives (module docstring): when the model's covariances depend on
+    the readings' times (TrackerModel.uses_times, iso10360's drift), which identify takes from
+    the log's stamps. False for a name no model has (the scenario's check refuses it)."""
+    found = tracker_models().get(model)
+    return found is not None and found.uses_times
 
 
 def needs_log(scn: Scenario) -> bool:
-    """Whether the campaign must go through its log to give identify exactly what a log gives
-    (module docstring): only with the iso10360 tracker, whose covariances use the log's stamps."""
-    return scn.tracker.model in LOG_TRACKER_MODELS
+    """:func:`tracker_needs_log` of the scenario's tracker."""
+    return tracker_needs_log(scn.tracker.model)
 
 
 @dataclass(frozen=True)
@@ -291,7 +297,7 @@ __all__ = [
     "run_campaigns",
     "one_campaign",
     "needs_log",
-    "LOG_TRACKER_MODELS",
+    "tracker_needs_log",
     "simulate_in_memory",
     "Simulated",
     "identify_in_memory",

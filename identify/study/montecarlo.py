@@ -54,14 +54,15 @@ from calbench.bench.campaign import (
 )
 from calbench.bench.core import InputError, ProgressSink, sink
 from calbench.bench.model import Robot
-from calbench.bench.scenario import Scenario, check_size, estimate, montecarlo_estimate, repeats_key
-from calbench.bench.tracker import (
-    Measurement,
-    measure_campaign,
-    noise_covariance,
+from calbench.bench.scenario import (
+    Scenario,
+    check_size,
+    estimate,
+    montecarlo_estimate,
     reading_times,
-    to_tracker_frame,
+    repeats_key,
 )
+from calbench.bench.tracker import Measurement, measure_campaign, noise_covariance, to_tracker_frame
 from calbench.identify.core import (
     ForwardModel,
     Observations,
@@ -104,7 +105,7 @@ def two_step_ok(robot: Robot) -> bool:
 def campaign_observations(
     scn: Scenario, robot: Robot, plans: list[PosePlan], rng: np.random.Generator | None
 ) -> Observations:
-    """Observations of a solved campaign: noisy readings (rng; bench.measuring.measure_campaign,
+    """Observations of a solved campaign: noisy readings (rng; bench.tracker.measure_campaign,
     the generator consumed as by bench.campaign.run_campaign) or exact ones (rng None, with the
     tracker's covariances still attached as weights), on the campaign's timeline. The truth's
     measurement-side effects (a tracker drift) shift the loaded readings as in the log."""

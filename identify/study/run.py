@@ -26,15 +26,16 @@ from pathlib import Path
 
 import pyarrow as pa
 
+from calbench.bench.tracker import DEFAULT_MODEL
 from calbench.identify.runtime import Executor, InProcess, Interrupted
 
 from .campaign import (
-    LOG_TRACKER_MODELS,
     CampaignJob,
     discover_model_text,
     empty_record,
     result_columns,
     run_campaigns,
+    tracker_needs_log,
 )
 from .spec import Cell, Study, digest
 from .store import ResultStore, read_results
@@ -53,7 +54,8 @@ SECONDS_PER_DESIGN = 10.0  # 2000 candidates (batched), exchange and refinement
 
 def campaign_seconds(cell: Cell) -> float:
     tracker = cell.doc.get("tracker") or {}
-    ident = SECONDS_PER_CAMPAIGN["identify_log" if tracker.get("model") in LOG_TRACKER_MODELS else "identify"]
+    through_log = tracker_needs_log(tracker.get("model", DEFAULT_MODEL))
+    ident = SECONDS_PER_CAMPAIGN["identify_log" if through_log else "identify"]
     return ident + (SECONDS_PER_CAMPAIGN["discover"] if cell.campaign.discover else 0)
 
 

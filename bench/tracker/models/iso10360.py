@@ -48,10 +48,10 @@ Defaults, and where each comes from:
   steel tripod's head (1.2 m, 12e-6/K) by ~4 um; 1 K moves the refractive index of air by ~1 ppm
   (Edlen), which the tracker's weather station compensates to a fraction, and an angular drift
   of ~1 urad per hour adds as much across the beam. Over the ~6 min between a pose's unloaded and
-  loaded readings (bench.timeline) that is ~3 um per axis.
+  loaded readings (bench/scenario/timeline.py) that is ~3 um per axis.
 
 What is neglected, and why: the estimator weights each pose's deflections by their exact
-covariance under this model (:func:`deflection_covariance`: loaded and unloaded readings, every
+covariance under this model (bench.tracker.deflection_covariance: loaded and unloaded readings, every
 reflector of the pose, repeats, the drift between them) but treats different poses as
 independent. For the drift that is exact when each pose is measured in one stretch of time
 (a Wiener process has independent increments; bench/shopfloor/logcsv.py insists on it for imported
@@ -64,13 +64,15 @@ Units: SI (m, s); the Wiener process's unit time is one hour.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import math
+from typing import Any
 
 import numpy as np
 
-from calbench.bench.scenario import TrackerSpec
+from calbench.bench.core import Table
+from calbench.bench.tracker import TrackerModel, TrackerSpec
 
-from .instrument import spec_covariance
+from .spec import describe_laws, spec_covariance
 
 HOUR = 3600.0
 DRIFT_DIM = 7
@@ -166,52 +168,64 @@ def draw_correlated(spec: TrackerSpec, y: np.ndarray, t: np.ndarray, rng: np.ran
     return field + np.einsum("kia,ka->ki", drift_factors(spec, y), w)
 
 
-def deflection_covariance(
-    spec: TrackerSpec,
-    unloaded: Sequence,
-    loaded: Sequence,
-    rows: np.ndarray,
-    times: tuple[Sequence[float], Sequence[float]] | None,
-) -> np.ndarray:
-    """(m, 3, m, 3): covariance of one pose's deflections dp_r = mean(loaded readings of r) -
-    mean(unloaded readings of r) for the reflector rows ``rows`` (seen in both states), tracker
-    frame. ``unloaded`` and ``loaded`` are the readings (``position`` (n, 3), ``covariance``
-    (n, 3, 3) of the independent error, ``visible`` (n,)); ``times`` their times (s since the
-    campaign's first reading), needed for model "iso10360" only.
+class Iso10360Tracker(TrackerModel):
+    """The model of this module's docstring: K of bench/tracker/base.py's eq. (2) is the field's
+    and the drift's :func:`correlated_covariance`, C of eq. (1) ``random^2`` times the spec form."""
 
-    Every model: the readings' own covariances, sum C / N^2 per state (paper eq. 2, as
-    bench.tracker.mean_reading). iso10360 adds sum_kl c_k c_l C_kl of the correlated part over
-    every pair of the pose's readings (c = +-1/N_sr, the weight of reading k in dp_r)."""
-    rows = np.asarray(rows, dtype=int)
-    m = len(rows)
-    out = np.zeros((m, 3, m, 3))
-    pts, tms, coef, row_of = [], [], [], []
-    for sign, reads, tt in (
-        (-1.0, unloaded, None if times is None else times[0]),
-        (1.0, loaded, None if times is None else times[1]),
-    ):
-        seen = [
-            np.asarray(r.visible, bool) & np.all(np.isfinite(np.asarray(r.position, float)), axis=1)
-            for r in reads
-        ]
-        count = np.sum([s[rows] for s in seen], axis=0) if reads else np.zeros(m)
-        for k, (r, s) in enumerate(zip(reads, seen)):
-            for j, i in enumerate(rows):
-                if s[i]:
-                    out[j, :, j, :] += np.asarray(r.covariance, float)[i] / count[j] ** 2
-                    pts.append(np.asarray(r.position, float)[i])
-                    tms.append(np.nan if tt is None else float(tt[k]))
-                    coef.append(sign / count[j])
-                    row_of.append(j)
-    if spec.model != "iso10360" or not pts:
+    name = "iso10360"
+    summary = "σ growing with range, correlated between nearby readings"
+    keys = ("random", "correlation_angle", "correlation_range", "drift")
+    correlated = True
+    uses_times = True  # the drift
+
+    def parse(self, c: Table, degrees: bool) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        if c.has("random"):
+            out["random"] = c.number("random", positive=True)
+            if out["random"] > 1:
+                raise c.fail(
+                    "random", "the share of the 1-sigma that is independent noise, in (0, 1]", out["random"]
+                )
+        if c.has("correlation_angle"):
+            angle = c.number("correlation_angle", positive=True)
+            out["correlation_angle"] = math.radians(angle) if degrees else float(angle)
+        if c.has("correlation_range"):
+            out["correlation_range"] = c.number("correlation_range", positive=True)
+        if c.has("drift"):
+            out["drift"] = tuple(float(x) for x in c.vector("drift", 2, nonneg=True))
         return out
-    if times is None:
-        raise ValueError("the iso10360 tracker model needs the readings' times")
-    pts, tms = np.array(pts), np.array(tms)
-    w = np.zeros((m, len(pts)))
-    w[np.array(row_of), np.arange(len(pts))] = coef
-    c = correlated_covariance(spec, pts, tms, pts, tms)
-    return out + np.einsum("rk,kilj,sl->risj", w, c, w)
+
+    def header(self, spec: TrackerSpec, degrees: bool) -> dict[str, Any]:
+        angle = spec.correlation_angle
+        return {
+            "random": float(spec.random),
+            "correlation_angle": round(math.degrees(angle), 10) if degrees else float(angle),
+            "correlation_range": float(spec.correlation_range),
+            "drift": [float(x) for x in spec.drift],
+        }
+
+    def covariance(self, spec: TrackerSpec, y: np.ndarray) -> np.ndarray:
+        return spec.random**2 * spec_covariance(spec, y)
+
+    def correlated_covariance(self, spec, ya, ta, yb, tb) -> np.ndarray:
+        return correlated_covariance(spec, ya, ta, yb, tb)
+
+    def correlated_marginal(self, spec: TrackerSpec, y: np.ndarray, t: np.ndarray) -> np.ndarray:
+        return correlated_marginal(spec, y, t)
+
+    def draw_correlated(self, spec, y, t, rng) -> np.ndarray:
+        return draw_correlated(spec, y, t, rng)
+
+    def describe(self, spec: TrackerSpec) -> str:
+        a, b = spec.drift
+        return (
+            f"iso10360, 1σ {describe_laws(spec)} of range, {spec.random:.3g} of it independent noise, "
+            f"the rest a field correlated over {math.degrees(spec.correlation_angle):.3g}° and "
+            f"{spec.correlation_range:.3g} m, and a drift of {a * 1e6:.3g} µm + {b * 1e6:.3g} µm/m per √h"
+        )
+
+
+MODEL = Iso10360Tracker()
 
 
 __all__ = [
@@ -223,5 +237,6 @@ __all__ = [
     "correlated_marginal",
     "marginal_covariance",
     "draw_correlated",
-    "deflection_covariance",
+    "Iso10360Tracker",
+    "MODEL",
 ]
