@@ -23,9 +23,10 @@ from .log import (
 )
 from .model import Params, Robot, Spring
 from .robots import check_robot, convert, load_overlay
-from .scenario import Scenario, TrackerSpec, load_scenario, parse_scenario, scenario_variant
+from .scenario import Scenario, load_scenario, parse_scenario, scenario_variant
 from .shopfloor import export_rows, read_readings, readings_csv
 from .statics import BatchStatics, Equilibrium, Load, StaticsSolver
+from .tracker import TrackerSpec
 from .view import write_recording
 
 __all__ = [
