@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench clean constraints
+.PHONY: demo test typecheck bench clean constraints
 
 # `make bench QUICK=1`: every benchmark with --quick (fewer runs; to see that they work)
 QUICK ?=
@@ -25,10 +25,22 @@ demo: $(STAMP)
 	@echo "calbench: the demo (simulate, view, identify, discover; about a minute)"
 	$(BIN)/calbench demo
 
-test: $(STAMP)
+test: $(STAMP) typecheck
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/python -m pytest
+
+# mypy over the public faces (every room's __init__.pyi) and the code that only uses them (the CLI,
+# the demo): a face naming a function that moved or a CLI calling one with the wrong arguments fails
+# here. The folders are bench/ and identify/ but the import name is calbench.*, so mypy reads them
+# through a tree of two links under .venv (settings: [tool.mypy] in pyproject.toml).
+TYPES := $(VENV)/typecheck
+typecheck: $(STAMP)
+	@mkdir -p $(TYPES)/calbench
+	@ln -sfn $(CURDIR)/bench $(TYPES)/calbench/bench
+	@ln -sfn $(CURDIR)/identify $(TYPES)/calbench/identify
+	cd $(TYPES) && MYPYPATH=. $(CURDIR)/$(BIN)/mypy --config-file $(CURDIR)/pyproject.toml \
+	  $$(find -L calbench -name __init__.pyi | sort) calbench/identify/cli.py calbench/identify/demo.py
 
 bench: $(STAMP)
 	@n=$$(ls benchmarks/*_bench.py | wc -l); i=0; for b in benchmarks/*_bench.py; do i=$$((i+1)); \
