@@ -27,6 +27,7 @@ from calbench.bench.core import (
     CalbenchError,
     InputError,
     check_outputs,
+    refused_write,
     terminal_progress,
     write_text,
 )
@@ -689,6 +690,13 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # `calbench ... | head`: the reader left, nothing to say
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
+    except OSError as exc:  # a write the machine refused outside the atomic writers: one line
+        cause = refused_write(exc)
+        if cause is None:
+            raise
+        where = f"cannot write {exc.filename}" if exc.filename else "cannot write its output"
+        print(f"calbench {args.command}: error: {where}: {cause}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -3,7 +3,7 @@
 
 from .errors import CalbenchError, InputError, StaticsError
 from .face import face_exports, lazy_face
-from .outputs import atomic_path, check_outputs, write_text
+from .outputs import WriteError, atomic_path, check_outputs, refused_write, write_bytes, write_text
 from .progress import Progress, ProgressSink, sink, terminal_progress
 from .resources import PAPER_SCENARIO, mjcf_path, scenario_path
 from .tables import Table, describe, frozen_array, parse_toml, read_text
@@ -20,6 +20,7 @@ __all__ = [
     "ProgressSink",
     "StaticsError",
     "Table",
+    "WriteError",
     "atomic_path",
     "check_outputs",
     "describe",
@@ -27,9 +28,11 @@ __all__ = [
     "mjcf_path",
     "parse_toml",
     "read_text",
+    "refused_write",
     "scenario_path",
     "sink",
     "terminal_progress",
     "unit_display",
+    "write_bytes",
     "write_text",
 ]

@@ -48,6 +48,7 @@ import numpy as np
 from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
 from mcap.writer import CompressionType, Writer
 
+from calbench.bench.core import WriteError, refused_write
 from calbench.bench.scenario import (
     DEFAULT_START,
     LOAD_S,
@@ -378,7 +379,14 @@ class LogWriter:
 
     def __exit__(self, exc_type, exc, tb) -> None:
         if exc_type is None:
-            self.close()
+            try:
+                self.close()
+            except OSError as err:  # the footer did not fit: the finished poses are on disk
+                self._abandon()
+                cause = refused_write(err)
+                if cause is None:
+                    raise
+                raise WriteError(self.path, cause, f"the log keeps its {self._done} finished poses") from None
             return
         # Ctrl-C or an error: finish the file anyway, so that every MCAP reader opens it; the
         # pose in progress has no pose_done marker and stays out of every campaign read.
@@ -390,6 +398,13 @@ class LogWriter:
             self.close(status, f"{reason} after {self._done} complete poses")
         except Exception:  # noqa: BLE001  e.g. the disk is full: keep what is on disk
             self._abandon()
+        cause = refused_write(exc)
+        if cause is not None:  # the disk filled (or went read-only) mid-campaign: say what is kept
+            kept = (
+                f"the log keeps its {self._done} finished poses "
+                f"(read it as it is, or `calbench recover {self.path} --out FIXED.mcap`)"
+            )
+            raise WriteError(self.path, cause, kept) from None
 
     # -- messages ----------------------------------------------------------------------------
     def _write(self, topic: str, msg: dict, nominal_time: int) -> None:

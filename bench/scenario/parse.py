@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from calbench.bench.core import InputError, Table, describe, frozen_array, parse_toml, read_text
+from calbench.bench.core import InputError, Table, describe, frozen_array, parse_toml, read_text, write_text
 from calbench.bench.model import LEGACY_COMPENSATOR, Params, Spring
 from calbench.bench.tracker import TrackerSpec
 
@@ -401,7 +401,7 @@ def scenario_variant(
     if extra:
         sub(r"^()(?=\[tracker\])", extra.strip() + "\n\n")
     parse_scenario(text, out)  # raises InputError on a bad variant, before writing it
-    out.write_text(text, encoding="utf-8")
+    write_text(out, text)
     return out
 
 

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.core import InputError
+from calbench.bench.core import InputError, write_text
 
 from .criteria import measures
 from .engine import InfoEngine
@@ -153,7 +153,7 @@ def run_study(scenario: Path, out_dir: Path, progress=None, step: float = 5.0) -
             "relative_std": {n: stds[:, j].tolist() for j, n in enumerate(names)},
         },
     }
-    (out_dir / "study.json").write_text(json.dumps(res, indent=1))
+    write_text(out_dir / "study.json", json.dumps(res, indent=1))
     return res
 
 
