@@ -27,6 +27,7 @@ from calbench.bench.core import (
     CalbenchError,
     InputError,
     check_outputs,
+    holding_outputs,
     refused_write,
     terminal_progress,
     write_text,
@@ -680,7 +681,8 @@ def main(argv: list[str] | None = None) -> int:
         # MuJoCo's own handler writes MUJOCO_LOG.TXT into the user's folder: say it on stderr
         mujoco.set_mju_user_warning(_mujoco_warning)
     try:
-        return int(args.func(args) or 0)
+        with holding_outputs():  # two runs on one output: the second is refused (bench/core/outputs)
+            return int(args.func(args) or 0)
     except CalbenchError as exc:
         print(f"calbench {args.command}: error: {exc}", file=sys.stderr)
         return 2

@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import errno
 import hashlib
+import json
 import os
 import re
 import resource
 import shutil
 import subprocess
 import sys
+import time
 import uuid
 from pathlib import Path
 
@@ -223,3 +225,35 @@ def test_a_read_only_folder_is_refused_before_any_work(work, tmp_path, capsys):
     finally:
         _umount(disk)
     shutil.rmtree(disk, ignore_errors=True)
+
+
+def test_a_second_run_on_the_same_output_is_refused_while_the_first_writes(work, tmp_path):
+    """Two `calbench montecarlo --json` on one file: the one that starts second is refused with
+    one line naming the first, and the file is the first run's, whole."""
+    out = tmp_path / "mc.json"
+    argv = [
+        sys.executable,
+        "-m",
+        "calbench.identify.cli",
+        "montecarlo",
+        str(work / "s.toml"),
+        "--json",
+        str(out),
+    ]
+    first = subprocess.Popen([*argv, "--runs", "60"], stderr=subprocess.PIPE, text=True)
+    lock = tmp_path / ".mc.json.lock"
+    for _ in range(600):  # the first has taken its lock once the file exists with its PID
+        if lock.exists() and lock.read_text().strip() == str(first.pid):
+            break
+        time.sleep(0.05)
+    else:
+        first.kill()
+        pytest.fail("the first run never took its lock")
+    second = subprocess.run([*argv, "--runs", "2"], capture_output=True, text=True)
+    assert first.wait(timeout=300) == 0, first.stderr.read()
+    assert second.returncode == 2
+    err = error_line(second.stderr)
+    assert f"calbench pid {first.pid} is writing it" in err and str(out) in err, err
+    report = json.loads(out.read_text())
+    assert report["runs"] == 60
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mc.json"]  # the lock is gone

@@ -3,7 +3,15 @@
 
 from .errors import CalbenchError, InputError, StaticsError
 from .face import face_exports, lazy_face
-from .outputs import WriteError, atomic_path, check_outputs, refused_write, write_bytes, write_text
+from .outputs import (
+    WriteError,
+    atomic_path,
+    check_outputs,
+    holding_outputs,
+    refused_write,
+    write_bytes,
+    write_text,
+)
 from .progress import Progress, ProgressSink, sink, terminal_progress
 from .resources import PAPER_SCENARIO, mjcf_path, scenario_path
 from .tables import Table, describe, frozen_array, parse_toml, read_text
@@ -25,6 +33,7 @@ __all__ = [
     "check_outputs",
     "describe",
     "frozen_array",
+    "holding_outputs",
     "mjcf_path",
     "parse_toml",
     "read_text",

@@ -15,6 +15,11 @@ leaves either the old file or the new one, never half of one. (The campaign's MC
 exception by design: it is written in place, pose by pose, so that a crash leaves a log readable
 up to its last finished pose; see bench/log/writer.py.)
 
+Two runs writing one file: inside :func:`holding_outputs` (every verb of the command line runs
+in one), :func:`check_outputs` also takes an exclusive lock on each output, a ``.NAME.lock``
+file beside it holding the owner's PID; a second run asking for the same output is refused
+with one line naming the running one, so the file is never a mix of two runs.
+
 A write that the machine refuses (a full disk, a quota, a file-size limit, a read-only remount,
 an I/O error) becomes a :class:`WriteError` naming the output and the cause: the temporary file
 is removed and the earlier file of that name is left as it was.
@@ -23,7 +28,9 @@ is removed and the earlier file of that name is left as it was.
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import errno
+import fcntl
 import os
 import re
 import tempfile
@@ -83,11 +90,78 @@ def _same(a: Path, b: Path) -> bool:
         return False
 
 
+# The locks of the command running in this context: resolved output path -> open lock file.
+_LOCKS: contextvars.ContextVar[dict[Path, int] | None] = contextvars.ContextVar(
+    "calbench_locks", default=None
+)
+
+
+@contextlib.contextmanager
+def holding_outputs() -> Iterator[None]:
+    """Run a command whose :func:`check_outputs` lock their outputs until it ends."""
+    held: dict[Path, int] = {}
+    token = _LOCKS.set(held)
+    try:
+        yield
+    finally:
+        _LOCKS.reset(token)
+        for path, fd in held.items():
+            with contextlib.suppress(OSError):
+                _lock_path(path).unlink()  # unlinked while still held: see _lock
+            os.close(fd)
+
+
+def _lock_path(out: Path) -> Path:
+    return out.with_name(f".{out.name}.lock")
+
+
+def _lock(flag: str, out: Path, held: dict[Path, int]) -> None:
+    """Take ``out``'s lock for this command, or raise InputError naming the run that holds it.
+    The lock file is unlinked by its holder before release, so a run that opened it just
+    before checks that the file it locked is still the one at the path, and retries if not."""
+    key = out.resolve()
+    if key in held or (key.exists() and not key.is_file()):  # /dev/null, a FIFO: nothing to mix
+        return
+    lock = _lock_path(key)
+    for _ in range(100):
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            cause = refused_write(exc)
+            if cause is None:
+                raise
+            raise WriteError(lock, cause, "nothing was written") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            owner = os.read(fd, 64).decode(errors="replace").strip() or "?"
+            os.close(fd)
+            raise InputError(
+                out,
+                flag,
+                "an output no other calbench run is writing",
+                f"calbench pid {owner} is writing it ({lock})",
+            ) from None
+        try:
+            same = os.fstat(fd).st_ino == os.stat(lock).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            with contextlib.suppress(OSError):  # the PID is for the message; a full disk has no room
+                os.ftruncate(fd, 0)
+                os.write(fd, f"{os.getpid()}\n".encode())
+            held[key] = fd
+            return
+        os.close(fd)  # its holder finished and removed it between our open and our lock
+    raise InputError(out, flag, "an output whose lock can be taken", str(lock))
+
+
 def check_outputs(
     outputs: Mapping[str, str | os.PathLike | None], inputs: Mapping[str, str | os.PathLike | None] = ()
 ) -> dict[str, Path]:
     """Validate output paths (flag -> path; None entries are skipped) against the inputs
-    (name -> path) and each other; create missing parent folders. Returns flag -> Path."""
+    (name -> path) and each other; create missing parent folders. Returns flag -> Path.
+    Inside :func:`holding_outputs`, each output is also locked until the command ends."""
     outs = {k: Path(v) for k, v in outputs.items() if v is not None}
     ins = {k: Path(v) for k, v in dict(inputs).items() if v is not None}
     for flag, out in outs.items():
@@ -100,6 +174,10 @@ def check_outputs(
         if out.is_dir():
             raise InputError(out, flag, "a file path, not a directory", "an existing directory")
         _check_folder(flag, out)
+    held = _LOCKS.get()
+    if held is not None:
+        for flag, out in outs.items():
+            _lock(flag, out, held)
     return outs
 
 
@@ -175,6 +253,7 @@ __all__ = [
     "WriteError",
     "atomic_path",
     "check_outputs",
+    "holding_outputs",
     "refused_write",
     "write_bytes",
     "write_text",
