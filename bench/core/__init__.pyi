@@ -16,6 +16,7 @@ from .progress import Progress, ProgressSink, sink, terminal_progress
 from .resources import PAPER_SCENARIO, mjcf_path, scenario_path
 from .tables import Table, describe, frozen_array, parse_toml, read_text
 from .units import DISPLAY, unit_display
+from .xmlsafe import check_mjcf_text, check_model_file, file_references, parse_xml
 
 __all__ = [
     "face_exports",
@@ -30,12 +31,16 @@ __all__ = [
     "Table",
     "WriteError",
     "atomic_path",
+    "check_mjcf_text",
+    "check_model_file",
     "check_outputs",
     "describe",
+    "file_references",
     "frozen_array",
     "holding_outputs",
     "mjcf_path",
     "parse_toml",
+    "parse_xml",
     "read_text",
     "refused_write",
     "scenario_path",

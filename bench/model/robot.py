@@ -26,7 +26,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from calbench.bench.core import StaticsError
+from calbench.bench.core import StaticsError, check_mjcf_text, check_model_file
 
 from .description import Description, DescriptionError, read_description
 from .loop import LOOP_TOL, loop_gap
@@ -231,11 +231,16 @@ class Robot:
     # -- construction -------------------------------------------------------------------
     @classmethod
     def from_file(cls, path: str | Path) -> Robot:
+        """A robot from the user's MJCF file: safe XML, whose files stay in its folder."""
         path = Path(path)
+        if path.suffix.lower() != ".urdf":
+            check_model_file(path)
         return cls(mujoco.MjModel.from_xml_path(str(path)), source=path)
 
     @classmethod
-    def from_xml(cls, text: str) -> Robot:
+    def from_xml(cls, text: str, where: object = "MJCF text") -> Robot:
+        """A robot from MJCF text (a log's attachment): safe XML that reads no file."""
+        check_mjcf_text(text, where)
         return cls(mujoco.MjModel.from_xml_string(text))
 
     # -- parameters ---------------------------------------------------------------------

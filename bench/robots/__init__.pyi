@@ -3,7 +3,7 @@
 
 from .check import DEFAULT_MASS, check_robot, default_tracker, grid
 from .overlay import load_overlay
-from .urdf import CONTINUOUS_RANGE, PLACEHOLDER_STIFFNESS, convert
+from .urdf import CONTINUOUS_RANGE, PLACEHOLDER_STIFFNESS, convert, read_urdf
 
 __all__ = [
     "CONTINUOUS_RANGE",
@@ -14,4 +14,5 @@ __all__ = [
     "default_tracker",
     "grid",
     "load_overlay",
+    "read_urdf",
 ]

@@ -43,14 +43,13 @@ each loop's unsprung joints between its two sites must be exactly the overlay's 
 from __future__ import annotations
 
 import math
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
 import mujoco
 import numpy as np
 
-from calbench.bench.core import CalbenchError, InputError
+from calbench.bench.core import CalbenchError, InputError, parse_xml
 from calbench.bench.model import Robot, set_spec_names
 
 from .overlay import Attach, Overlay
@@ -147,9 +146,11 @@ def read_urdf(path: str | Path) -> UrdfTree:
     """The URDF's links and joints; InputError when it is not a URDF."""
     path = Path(path)
     try:
-        root = ET.parse(path).getroot()
-    except (OSError, ET.ParseError) as exc:
-        raise InputError(path, "(file)", "a readable URDF (XML)", str(exc)) from None
+        root = parse_xml(path, path)  # defusedxml: no entity bombs, no external entities
+    except InputError as exc:
+        raise InputError(
+            path, "(file)", "a readable URDF (XML without entity declarations)", exc.got
+        ) from None
     if root.tag != "robot":
         raise InputError(path, "(root element)", "<robot>", f"<{root.tag}>")
     links = {}

@@ -37,6 +37,13 @@ stay bit-identical whichever executor ran them.
 Ctrl-C (KeyboardInterrupt) while results are awaited cancels every task not yet finished
 (``Client.cancel``) before it propagates; what finished has already been handed to the caller,
 who keeps it (:class:`Interrupted` carries a partial result up to the command line).
+
+Faults (tests/test_cluster_faults.py): a worker that dies mid-task (SIGKILL, out of memory) is
+Dask's to handle: the scheduler gives its tasks to the other workers, and since tasks are pure
+the numbers do not change. Shared inputs are therefore scattered to every worker
+(``broadcast=True``), so that no single worker holds the only copy. A scheduler that is lost,
+or a task that killed several workers, ends the run with :class:`ClusterLost`: one line, the
+results already handed over are kept (a study resumes from its journal).
 """
 
 from __future__ import annotations
@@ -50,7 +57,7 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from calbench.bench.core import InputError
+from calbench.bench.core import CalbenchError, InputError
 
 IN_PROCESS = "in-process"
 LOCAL = "local cluster"
@@ -63,6 +70,11 @@ LOCAL_STARTUP_S = 4.0  # import distributed, LocalCluster + Client, first task i
 LOCAL_SHUTDOWN_S = 1.0  # Client.close + LocalCluster.close (nannies stop their workers)
 TASK_OVERHEAD_S = 5e-3  # scheduling per task and worker (1000 trivial tasks on 2 workers)
 CONNECT_TIMEOUT_S = 10.0  # how long to keep trying a --scheduler address
+
+
+class ClusterLost(CalbenchError):
+    """The Dask cluster can no longer run the work: the scheduler is gone, or a task's workers
+    kept dying (Dask's KilledWorker). The pieces already returned are the caller's to keep."""
 
 
 class Interrupted(KeyboardInterrupt):
@@ -275,9 +287,20 @@ class DaskExecutor(Executor):
                     "--scheduler", "scheduler", "a reachable Dask scheduler", f"{choice.address}: {exc}"
                 ) from None
             self._check_workers()
+            self._quiet()
             n = len(self.client.scheduler_info().get("workers", {}))
             choice = ExecutorChoice(REMOTE, choice.address, n, choice.reason)
         self.choice = choice
+
+    def _quiet(self) -> None:
+        """Dask's client logs its own tracebacks when the scheduler goes away (reconnect
+        attempts); calbench says it in one line (ClusterLost). Kept with -v."""
+        if logging.getLogger("calbench").isEnabledFor(logging.INFO):
+            return
+        names = ["distributed", *(n for n in logging.root.manager.loggerDict if n.startswith("distributed."))]
+        self._log_levels = {n: logging.getLogger(n).level for n in names}
+        for n in names:  # Dask's config gives some (distributed.client) levels of their own
+            logging.getLogger(n).setLevel(logging.CRITICAL)
 
     def _check_workers(self) -> None:
         """Every worker must have this calbench version installed (tasks are its functions)."""
@@ -300,18 +323,37 @@ class DaskExecutor(Executor):
     def _cancel(self, futures) -> None:
         pending = [f for f in futures if not f.done()]
         if pending:
-            self.client.cancel(pending)
+            try:
+                self.client.cancel(pending)
+            except Exception:  # noqa: BLE001  the scheduler is gone: nothing is left to cancel
+                pass
+
+    def _result(self, fut):
+        """``fut.result()``, with the cluster's own failures said in one line (ClusterLost);
+        an exception raised by the task itself (a bug, a bad input) passes through as it is."""
+        from distributed import KilledWorker
+
+        try:
+            return fut.result()
+        except KilledWorker as exc:
+            raise ClusterLost(f"a task kept killing the Dask workers it ran on ({exc})") from None
+        except Exception as exc:
+            if self.client is not None and self.client.status == "running" and not _is_comm(exc):
+                raise
+            where = self.choice.address or "the local cluster"
+            raise ClusterLost(f"lost the Dask scheduler at {where} ({type(exc).__name__})") from None
 
     def run(self, fn, arglist, shared=()):
         from distributed import as_completed
 
         tag = uuid.uuid4().hex[:12]
-        held = [self.client.scatter([x], hash=False)[0] for x in shared]  # each as one object
+        # each as one object, on every worker: a worker that dies takes no input with it
+        held = [self.client.scatter([x], hash=False, broadcast=True)[0] for x in shared]
         futures = [self._submit(fn, (*held, *a), tag, i) for i, a in enumerate(arglist)]
         index = {f.key: i for i, f in enumerate(futures)}
         try:
             for fut in as_completed(futures):
-                res = fut.result()
+                res = self._result(fut)
                 fut.release()
                 yield index[fut.key], res
         finally:  # done, failed, interrupted or abandoned: nothing left running
@@ -329,7 +371,7 @@ class DaskExecutor(Executor):
                 inflight.append(self._submit(fn, a, tag, next(counter)))
             while inflight:
                 fut = inflight.popleft()
-                res = fut.result()
+                res = self._result(fut)
                 fut.release()
                 for a in itertools.islice(it, 1):
                     inflight.append(self._submit(fn, a, tag, next(counter)))
@@ -341,9 +383,26 @@ class DaskExecutor(Executor):
         client, cluster = getattr(self, "client", None), getattr(self, "cluster", None)
         self.client = self.cluster = None
         if client is not None:
-            client.close()
+            try:
+                client.close()
+            except Exception:  # noqa: BLE001  a lost scheduler: there is nothing left to close
+                pass
+        for n, level in getattr(self, "_log_levels", {}).items():
+            logging.getLogger(n).setLevel(level)
         if cluster is not None:
             cluster.close()
+
+
+def _is_comm(exc: BaseException) -> bool:
+    """A failure of the connection to the scheduler rather than of the task."""
+    import asyncio
+
+    from distributed.client import FutureCancelledError
+    from distributed.comm.core import CommClosedError
+
+    return isinstance(
+        exc, (CommClosedError, FutureCancelledError, asyncio.CancelledError, OSError, TimeoutError)
+    )
 
 
 def open_executor(choice: ExecutorChoice) -> Executor:
@@ -357,6 +416,7 @@ __all__ = [
     "InProcess",
     "DaskExecutor",
     "Interrupted",
+    "ClusterLost",
     "choose",
     "open_executor",
     "break_even_seconds",

@@ -27,7 +27,7 @@ from pathlib import Path
 import pyarrow as pa
 
 from calbench.bench.tracker import DEFAULT_MODEL
-from calbench.identify.runtime import Executor, InProcess, Interrupted
+from calbench.identify.runtime import ClusterLost, Executor, InProcess, Interrupted
 
 from .campaign import (
     CampaignJob,
@@ -212,6 +212,7 @@ def run_study(pending: Pending, executor: Executor | None = None, progress=None)
     outcome = StudyOutcome(Path(store.out), len(study.cells) * study.seeds, pending.before)
     index = {c.cell_id: c.index for c in study.cells}
     results = None
+    lost: ClusterLost | None = None
     try:
         # 1. designed plans
         docs: dict[int, dict] = {}
@@ -282,6 +283,8 @@ def run_study(pending: Pending, executor: Executor | None = None, progress=None)
                 merge_s = last - t_merge
     except KeyboardInterrupt:
         outcome.interrupted = True
+    except ClusterLost as exc:  # the scheduler went away: keep what finished, as for Ctrl-C
+        outcome.interrupted, lost = True, exc
     finally:
         if results is not None:
             results.close()  # cancels whatever is still queued or running
@@ -291,6 +294,11 @@ def run_study(pending: Pending, executor: Executor | None = None, progress=None)
         outcome.rows = table.num_rows
         outcome.failed = sum(1 for e in table.column("error").to_pylist() if e)
         outcome.seconds = time.perf_counter() - t0
+    if lost is not None:
+        raise ClusterLost(
+            f"{lost}; {outcome.before + outcome.ran} of {outcome.total} campaigns kept in {store.out}; "
+            "run the same command again to resume"
+        )
     if outcome.interrupted:
         raise Interrupted(outcome, outcome.before + outcome.ran, outcome.total)
     return outcome

@@ -1,0 +1,173 @@
+"""Cluster faults (issue 24): a Dask worker killed (SIGKILL) in the middle of a study or a Monte
+Carlo, and the scheduler lost mid-study.
+
+A killed worker's tasks are rescheduled by Dask on the others; calbench's tasks are idempotent
+and derive their random streams from (seed, key) alone (identify/runtime/executor.py), so the
+run finishes with the numbers of an in-process run, bit for bit. A lost scheduler ends the command
+with one line (no traceback), and a rerun resumes to the same file from the journal.
+
+Each test has its own cluster (a killed worker or scheduler does not come back)."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+from conftest import PAPER
+from dask_cluster import LocalDaskCluster
+
+from calbench.identify.cli import main
+from calbench.identify.study import TIMING_COLUMNS
+
+CALBENCH = str(Path(sys.executable).with_name("calbench"))
+STUDY = """
+name = "faults"
+scenario = "{paper}"
+seeds = 24
+[[axis]]
+key = "tracker.sigma"
+values = [10e-6, 30e-6]
+"""
+N_CAMPAIGNS = 48
+TIMING_KEYS = {"seconds", "seconds_per_run", "setup_seconds", "wall_seconds", "executor", "timings"}
+
+
+def _strip(x):
+    if isinstance(x, dict):
+        return {k: _strip(v) for k, v in x.items() if k not in TIMING_KEYS}
+    if isinstance(x, list):
+        return [_strip(v) for v in x]
+    return x
+
+
+def _same_table(a: Path, b: Path) -> None:
+    ta, tb = pq.read_table(a), pq.read_table(b)
+    assert ta.schema == tb.schema and ta.num_rows == tb.num_rows
+    for name in ta.column_names:
+        if name not in TIMING_COLUMNS:
+            x, y = ta.column(name).to_pylist(), tb.column(name).to_pylist()
+            assert [v if v == v else "nan" for v in x] == [v if v == v else "nan" for v in y], name
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory):
+    d = tmp_path_factory.mktemp("faults")
+    s = d / "study.toml"
+    s.write_text(STUDY.format(paper=PAPER.as_posix()))
+    ref = d / "reference.parquet"
+    assert main(["study", str(s), "--out", str(ref), "--scheduler", "in-process"]) == 0
+    return s, ref
+
+
+def _busy_worker(client, proc, timeout: float = 120.0) -> str:
+    """The address of a worker that is running a task of ``proc``'s run."""
+    t0 = time.monotonic()
+    while True:
+        assert proc.poll() is None, proc.communicate()
+        busy = [w for w, keys in client.processing().items() if keys]
+        if busy:
+            return busy[0]
+        assert time.monotonic() - t0 < timeout, "no task started"
+        time.sleep(0.05)
+
+
+def _kill_worker(cluster: LocalDaskCluster, client, address: str) -> None:
+    pid = client.run(lambda: __import__("os").getpid(), workers=[address])[address]
+    assert pid in cluster.worker_pids
+    __import__("os").kill(pid, signal.SIGKILL)
+
+
+def test_a_worker_killed_mid_study_changes_nothing(study, tmp_path):
+    from distributed import Client
+
+    s, ref = study
+    c = LocalDaskCluster(tmp_path / "dask", workers=2)
+    try:
+        with Client(c.address, timeout=30) as client:
+            client.wait_for_workers(2, timeout=60)
+            out = tmp_path / "results.parquet"
+            proc = subprocess.Popen(
+                [CALBENCH, "study", str(s), "--out", str(out), "--scheduler", c.address],
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+                cwd=tmp_path,
+            )
+            _kill_worker(c, client, _busy_worker(client, proc))  # its task in flight is lost
+            _, err = proc.communicate(timeout=300)
+        assert proc.returncode == 0, err
+        _same_table(ref, out)
+    finally:
+        c.stop()
+
+
+def test_a_worker_killed_mid_montecarlo_changes_nothing(tmp_path):
+    from distributed import Client
+
+    ref = tmp_path / "ref.json"
+    assert (
+        main(["montecarlo", str(PAPER), "--runs", "40", "--scheduler", "in-process", "--json", str(ref)]) == 0
+    )
+    c = LocalDaskCluster(tmp_path / "dask", workers=2)
+    try:
+        with Client(c.address, timeout=30) as client:
+            client.wait_for_workers(2, timeout=60)
+            out = tmp_path / "mc.json"
+            proc = subprocess.Popen(
+                [
+                    CALBENCH,
+                    "montecarlo",
+                    str(PAPER),
+                    "--runs",
+                    "40",
+                    "--scheduler",
+                    c.address,
+                    "--json",
+                    str(out),
+                ],
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
+            _kill_worker(c, client, _busy_worker(client, proc))
+            _, err = proc.communicate(timeout=300)
+        assert proc.returncode == 0, err
+        assert _strip(json.loads(out.read_text())) == _strip(json.loads(ref.read_text()))
+    finally:
+        c.stop()
+
+
+def test_a_lost_scheduler_ends_the_study_with_one_line_and_a_rerun_resumes(study, tmp_path):
+    s, ref = study
+    c = LocalDaskCluster(tmp_path / "dask", workers=2)
+    out = tmp_path / "results.parquet"
+    try:
+        proc = subprocess.Popen(
+            [CALBENCH, "study", str(s), "--out", str(out), "--scheduler", c.address],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            cwd=tmp_path,
+        )
+        parts = out.with_name(out.name + ".parts")
+        t0 = time.monotonic()
+        while not (parts.is_dir() and any(parts.glob("part-*.parquet"))):
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() - t0 < 120, "no task finished"
+            time.sleep(0.05)
+        c.procs[0].send_signal(signal.SIGKILL)  # the scheduler
+        _, err = proc.communicate(timeout=180)
+    finally:
+        c.stop()
+    assert proc.returncode == 2, err
+    assert "Traceback" not in err
+    last = err.strip().splitlines()[-1]
+    assert "scheduler" in last and "resume" in last, err
+    assert main(["study", str(s), "--out", str(out), "--scheduler", "in-process"]) == 0
+    _same_table(ref, out)
