@@ -175,3 +175,25 @@ class LocalDaskCluster:
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait()
+
+
+def strip_timing(x, keys):
+    """A JSON report without the keys (``keys``) that depend on the clock or on where it ran."""
+    if isinstance(x, dict):
+        return {k: strip_timing(v, keys) for k, v in x.items() if k not in keys}
+    if isinstance(x, list):
+        return [strip_timing(v, keys) for v in x]
+    return x
+
+
+def same_table(a: Path, b: Path, timing_columns) -> None:
+    """Two study Parquet files hold the same rows, bit for bit, but for their timing columns."""
+    import pyarrow.parquet as pq
+
+    ta, tb = pq.read_table(a), pq.read_table(b)
+    assert ta.schema == tb.schema and ta.num_rows == tb.num_rows
+    for name in ta.column_names:
+        if name in timing_columns:
+            continue
+        x, y = ta.column(name).to_pylist(), tb.column(name).to_pylist()
+        assert [v if v == v else "nan" for v in x] == [v if v == v else "nan" for v in y], name

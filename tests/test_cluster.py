@@ -23,7 +23,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 from conftest import PAPER
-from dask_cluster import LocalDaskCluster, self_signed, tls_env
+from dask_cluster import LocalDaskCluster, same_table, self_signed, strip_timing, tls_env
 
 from calbench.bench.scenario import load_scenario
 from calbench.identify.cli import main
@@ -63,11 +63,7 @@ def cluster(tmp_path_factory):
 
 def _strip(x):
     """A JSON report without what depends on the clock or on where it ran."""
-    if isinstance(x, dict):
-        return {k: _strip(v) for k, v in x.items() if k not in TIMING_KEYS}
-    if isinstance(x, list):
-        return [_strip(v) for v in x]
-    return x
+    return strip_timing(x, TIMING_KEYS)
 
 
 def test_montecarlo_on_the_cluster_gives_the_local_numbers(cluster, monkeypatch, tmp_path):
@@ -145,13 +141,7 @@ def _wait_for_a_part(proc, out: Path, timeout: float = 120.0) -> None:
 
 
 def _same_table(a: Path, b: Path) -> None:
-    ta, tb = pq.read_table(a), pq.read_table(b)
-    assert ta.schema == tb.schema and ta.num_rows == tb.num_rows
-    for name in ta.column_names:
-        if name in TIMING_COLUMNS:
-            continue
-        x, y = ta.column(name).to_pylist(), tb.column(name).to_pylist()
-        assert [v if v == v else "nan" for v in x] == [v if v == v else "nan" for v in y], name
+    same_table(a, b, TIMING_COLUMNS)
 
 
 @pytest.fixture(scope="module")

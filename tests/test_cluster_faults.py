@@ -17,10 +17,9 @@ import sys
 import time
 from pathlib import Path
 
-import pyarrow.parquet as pq
 import pytest
 from conftest import PAPER
-from dask_cluster import LocalDaskCluster
+from dask_cluster import LocalDaskCluster, same_table, strip_timing
 
 from calbench.identify.cli import main
 from calbench.identify.study import TIMING_COLUMNS
@@ -39,20 +38,11 @@ TIMING_KEYS = {"seconds", "seconds_per_run", "setup_seconds", "wall_seconds", "e
 
 
 def _strip(x):
-    if isinstance(x, dict):
-        return {k: _strip(v) for k, v in x.items() if k not in TIMING_KEYS}
-    if isinstance(x, list):
-        return [_strip(v) for v in x]
-    return x
+    return strip_timing(x, TIMING_KEYS)
 
 
 def _same_table(a: Path, b: Path) -> None:
-    ta, tb = pq.read_table(a), pq.read_table(b)
-    assert ta.schema == tb.schema and ta.num_rows == tb.num_rows
-    for name in ta.column_names:
-        if name not in TIMING_COLUMNS:
-            x, y = ta.column(name).to_pylist(), tb.column(name).to_pylist()
-            assert [v if v == v else "nan" for v in x] == [v if v == v else "nan" for v in y], name
+    same_table(a, b, TIMING_COLUMNS)
 
 
 @pytest.fixture(scope="module")
@@ -83,17 +73,17 @@ def _kill_worker(cluster: LocalDaskCluster, client, address: str) -> None:
     __import__("os").kill(pid, signal.SIGKILL)
 
 
-def test_a_worker_killed_mid_study_changes_nothing(study, tmp_path):
+def _run_killing_a_worker(argv: list[str], tmp_path: Path) -> None:
+    """Run ``calbench ARGV --scheduler ADDR`` on a fresh 2-worker cluster, SIGKILL a worker
+    while it runs one of the command's tasks, and expect the command to finish."""
     from distributed import Client
 
-    s, ref = study
     c = LocalDaskCluster(tmp_path / "dask", workers=2)
     try:
         with Client(c.address, timeout=30) as client:
             client.wait_for_workers(2, timeout=60)
-            out = tmp_path / "results.parquet"
             proc = subprocess.Popen(
-                [CALBENCH, "study", str(s), "--out", str(out), "--scheduler", c.address],
+                [CALBENCH, *argv, "--scheduler", c.address],
                 stdout=subprocess.PIPE,
                 stderr=subprocess.PIPE,
                 text=True,
@@ -102,45 +92,23 @@ def test_a_worker_killed_mid_study_changes_nothing(study, tmp_path):
             _kill_worker(c, client, _busy_worker(client, proc))  # its task in flight is lost
             _, err = proc.communicate(timeout=300)
         assert proc.returncode == 0, err
-        _same_table(ref, out)
     finally:
         c.stop()
+
+
+def test_a_worker_killed_mid_study_changes_nothing(study, tmp_path):
+    s, ref = study
+    out = tmp_path / "results.parquet"
+    _run_killing_a_worker(["study", str(s), "--out", str(out)], tmp_path)
+    _same_table(ref, out)
 
 
 def test_a_worker_killed_mid_montecarlo_changes_nothing(tmp_path):
-    from distributed import Client
-
-    ref = tmp_path / "ref.json"
-    assert (
-        main(["montecarlo", str(PAPER), "--runs", "40", "--scheduler", "in-process", "--json", str(ref)]) == 0
-    )
-    c = LocalDaskCluster(tmp_path / "dask", workers=2)
-    try:
-        with Client(c.address, timeout=30) as client:
-            client.wait_for_workers(2, timeout=60)
-            out = tmp_path / "mc.json"
-            proc = subprocess.Popen(
-                [
-                    CALBENCH,
-                    "montecarlo",
-                    str(PAPER),
-                    "--runs",
-                    "40",
-                    "--scheduler",
-                    c.address,
-                    "--json",
-                    str(out),
-                ],
-                stdout=subprocess.PIPE,
-                stderr=subprocess.PIPE,
-                text=True,
-            )
-            _kill_worker(c, client, _busy_worker(client, proc))
-            _, err = proc.communicate(timeout=300)
-        assert proc.returncode == 0, err
-        assert _strip(json.loads(out.read_text())) == _strip(json.loads(ref.read_text()))
-    finally:
-        c.stop()
+    ref, out = tmp_path / "ref.json", tmp_path / "mc.json"
+    args = ["montecarlo", str(PAPER), "--runs", "40"]
+    assert main([*args, "--scheduler", "in-process", "--json", str(ref)]) == 0
+    _run_killing_a_worker([*args, "--json", str(out)], tmp_path)
+    assert _strip(json.loads(out.read_text())) == _strip(json.loads(ref.read_text()))
 
 
 def test_a_lost_scheduler_ends_the_study_with_one_line_and_a_rerun_resumes(study, tmp_path):
