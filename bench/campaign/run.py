@@ -17,15 +17,8 @@ import numpy as np
 
 from calbench.bench.core import InputError, ProgressSink, sink
 from calbench.bench.log import FoxgloveWriter, LogHeader, LogWriter, read_log
-from calbench.bench.model import (
-    LOOP_MARGIN,
-    LOOP_MARGIN_ANGLE,
-    Params,
-    Readings,
-    Robot,
-    apply_effects,
-    effect_from_truth,
-)
+from calbench.bench.model import LOOP_MARGIN, LOOP_MARGIN_ANGLE, Params, Robot
+from calbench.bench.model.effects import Readings, apply_effects, effect_from_truth
 from calbench.bench.scenario import (
     Scenario,
     check_joint_limits,

@@ -45,12 +45,11 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from calbench.bench.model import (
+from calbench.bench.model import ParamLayout, Robot
+from calbench.bench.model.effects import (
     DISCOVERY_OPTIONS,
     Effect,
-    ParamLayout,
     Readings,
-    Robot,
     apply_effects,
     discovery_library,
     priors,

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calbench.bench.model import Effect, priors
+from calbench.bench.model.effects import Effect, priors
 from calbench.identify.core import Fit, Whitener
 
 from .fit import build, effect_priors, fit_augmented, whitened

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calbench.bench.model import priors
+from calbench.bench.model.effects import priors
 from calbench.identify.core import Fit, Whitener, profile_check
 
 MAX_RELATIVE_STD = 1.0  # a parameter whose std exceeds its own size is not determined

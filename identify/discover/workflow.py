@@ -41,7 +41,8 @@ import numpy as np
 
 from calbench.bench.core import write_text
 from calbench.bench.log import read_log
-from calbench.bench.model import Robot, augmented_xml, load_spec, set_spec_names, spec_names
+from calbench.bench.model import Robot, set_spec_names, spec_names
+from calbench.bench.model.effects import augmented_xml, load_spec
 from calbench.bench.view import Discovery, write_discovery_recording
 from calbench.identify.core import Observations, Whitener, check_sites, from_log, load_model
 from calbench.identify.methods import one_step
