@@ -1,6 +1,6 @@
 """A toy robot importer in one file: everything adding a robot format takes (docs/architecture.md,
 "How to add a robot importer"). Importing this module registers nothing; the test registers
-:data:`IMPORTER` (bench.robots.register_importer) and removes it afterwards.
+:data:`IMPORTER` (bench.robots.IMPORTERS.register) and removes it afterwards.
 
 The format: a URDF compressed with gzip (``.urdf.gz``). The toy unpacks it into a temporary folder
 and hands it to the URDF importer, so the MJCF is the one the plain URDF gives (a toy: meshes
@@ -13,7 +13,7 @@ import gzip
 import tempfile
 from pathlib import Path
 
-from calbench.bench.robots import Conversion, RobotImporter, robot_importers
+from calbench.bench.robots import IMPORTERS, Conversion, RobotImporter
 
 
 class GzipUrdfImporter(RobotImporter):
@@ -25,7 +25,7 @@ class GzipUrdfImporter(RobotImporter):
         with tempfile.TemporaryDirectory() as tmp:
             plain = Path(tmp) / path.name[: -len(".gz")]
             plain.write_bytes(gzip.decompress(path.read_bytes()))
-            return robot_importers()["urdf"].convert(plain, overlay)
+            return IMPORTERS.members()["urdf"].convert(plain, overlay)
 
 
 IMPORTER = GzipUrdfImporter()

@@ -3,6 +3,7 @@
 
 from .errors import CalbenchError, InputError, StaticsError
 from .face import face_exports, lazy_face
+from .family import Family, FileFormat
 from .outputs import atomic_path, check_outputs, write_text
 from .progress import Progress, ProgressSink, sink, terminal_progress
 from .resources import PAPER_SCENARIO, mjcf_path, scenario_path
@@ -14,6 +15,8 @@ __all__ = [
     "lazy_face",
     "CalbenchError",
     "DISPLAY",
+    "Family",
+    "FileFormat",
     "InputError",
     "PAPER_SCENARIO",
     "Progress",
