@@ -15,7 +15,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from calbench.bench.core import InputError, ProgressSink, sink
+from calbench.bench.core import STATES, InputError, ProgressSink, sink
 from calbench.bench.log import FoxgloveWriter, LogHeader, LogWriter, read_log
 from calbench.bench.model import LOOP_MARGIN, LOOP_MARGIN_ANGLE, Params, Robot
 from calbench.bench.model.effects import Readings, apply_effects, effect_from_truth
@@ -36,8 +36,6 @@ from calbench.bench.tracker import (
     tracker_rotation,
     visible_sites,
 )
-
-STATES = ("unloaded", "loaded")
 
 
 @dataclass(frozen=True)

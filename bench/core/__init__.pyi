@@ -7,6 +7,7 @@ from .family import Family, FileFormat
 from .outputs import atomic_path, check_outputs, write_text
 from .progress import Progress, ProgressSink, sink, terminal_progress
 from .resources import PAPER_SCENARIO, mjcf_path, scenario_path
+from .states import STATES
 from .tables import Table, describe, frozen_array, parse_toml, read_text
 from .units import DISPLAY, unit_display
 
@@ -19,6 +20,7 @@ __all__ = [
     "FileFormat",
     "InputError",
     "PAPER_SCENARIO",
+    "STATES",
     "Progress",
     "ProgressSink",
     "StaticsError",

@@ -37,13 +37,12 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.core import InputError
+from calbench.bench.core import STATES, InputError
 
 from .formats import Reading, ReadingsFormat, ReadingsTable
 
 REQUIRED = ("pose", "state", "point", "x", "y", "z")
 OPTIONAL = ("time", "sigma")
-STATES = ("unloaded", "loaded")
 UNITS = {"mm": 1e-3, "m": 1.0}
 # A laser tracker's measuring range: from the closest a reflector can be tracked (the Leica AT960
 # and FARO Vantage data sheets start at 0.8 m and 0.6 m; 0.3 m leaves room) to 100 m (the AT960's
