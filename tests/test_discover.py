@@ -395,7 +395,7 @@ SPRING_FIELDS = (
 
 @pytest.mark.parametrize("effect", library(Robot.from_file(MJCF)), ids=lambda e: e.name + e.detail)
 def test_effects_write_only_spring_values(effect):
-    """bench/model/effects.py's rule that discovery's analytic stiffness matrix relies on: set_params
+    """bench/model/effects/'s rule that discovery's analytic stiffness matrix relies on: set_params
     changes nothing in the compiled model but joint and tendon spring values."""
     from calbench.identify.discover import effect_priors
 

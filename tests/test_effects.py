@@ -1,4 +1,4 @@
-"""Hidden physical effects (bench/model/effects.py), each held to an independent computation.
+"""Hidden physical effects (bench/model/effects/), each held to an independent computation.
 
 The reference for the compliances is the linear VJM with the loop closed (paper eq. 1 extended
 to the new hinges and eq. 16's loop handling): at the rigid pose with gravity off,

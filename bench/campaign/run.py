@@ -58,7 +58,7 @@ def scenario_params(scn: Scenario, robot: Robot) -> Params:
 
 def truth_robot(scn: Scenario) -> Robot:
     """The simulated (true) robot: the scenario's MJCF with the scenario's truth written in,
-    including the hidden `[truth.effects.*]` (bench/model/effects.py edits of the MJCF)."""
+    including the hidden `[truth.effects.*]` (bench/model/effects/ edits of the MJCF)."""
     try:
         robot = Robot.from_file(scn.robot)  # the user's model itself must load
     except ValueError as exc:  # MuJoCo compile errors
@@ -76,7 +76,7 @@ def truth_robot(scn: Scenario) -> Robot:
 
 
 def reading_drift(scn: Scenario, index: int, reflectors: list[str]) -> np.ndarray | None:
-    """(n, 3) m, tracker frame: what the truth's measurement-side effects (bench/model/effects.py,
+    """(n, 3) m, tracker frame: what the truth's measurement-side effects (bench/model/effects/,
     e.g. `tracker_drift`) add to pose ``index``'s loaded readings of ``reflectors``; None when
     the truth has none. The robot and the noise are untouched."""
     rot = tracker_rotation(scn.tracker)
