@@ -15,7 +15,7 @@ import mujoco
 import numpy as np
 import pytest
 import scipy.linalg
-from conftest import MJCF, PAPER, fanuc_params, fanuc_truth
+from conftest import MJCF, PAPER, ROOT, fanuc_params, fanuc_truth
 
 from calbench.bench.campaign import run_campaign, truth_robot
 from calbench.bench.core import InputError
@@ -545,3 +545,23 @@ def test_tracker_drift_offsets_only_the_loaded_readings(tmp_path):
     term = tracker_drift().deflection_term(offset, Readings(((0, "refl_a"), (1, "refl_b")), rot))
     np.testing.assert_allclose(term, np.tile(rot @ offset, (2, 1)), rtol=1e-15)
     assert tracker_drift().measurement_side and not link_compliance("forearm").measurement_side
+
+
+def test_the_contract_shows_each_effect_table_with_the_keys_and_units_its_registration_declares():
+    """docs/contract.md's `[truth.effects.NAME]` examples held to the registry: each shows exactly
+    the keys the effect's @register_effect declares, in that order, each unit in its comment
+    (tool_compliance, truth only, is the one the contract does not show)."""
+    from calbench.bench.model.effects import TRUTH_SCHEMAS
+
+    text = (ROOT / "docs" / "contract.md").read_text(encoding="utf-8")
+    shown = {}
+    for block in text.split("\n[truth.effects.")[1:]:
+        name, body = block.split("]", 1)
+        lines = [ln for ln in body.split("\n[", 1)[0].splitlines()[1:] if ln.strip() and "=" in ln]
+        shown[name] = [(ln.split("=")[0].strip(), ln.partition("#")[2]) for ln in lines]
+    assert set(shown) == set(TRUTH_SCHEMAS) - {"tool_compliance"}
+    for name, keys in shown.items():
+        schema = TRUTH_SCHEMAS[name]
+        assert [k for k, _ in keys] == [f.key for f in schema], name
+        for (_, comment), f in zip(keys, schema):
+            assert f.unit in comment, f"{name}.{f.key}: the contract's comment lacks {f.unit}"
