@@ -270,10 +270,10 @@ def add_from_urdf(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_from_urdf(args: argparse.Namespace) -> int:
-    from calbench.bench.robots import PLACEHOLDER_STIFFNESS, convert, load_overlay
+    from calbench.bench.robots import PLACEHOLDER_STIFFNESS, import_robot, load_overlay
 
     check_outputs({"--out": args.out}, {"URDF": args.urdf, "--overlay": args.overlay})
-    conv = convert(args.urdf, load_overlay(args.overlay))
+    conv = import_robot(args.urdf, load_overlay(args.overlay))  # the importer that accepts the file
     write_text(args.out, conv.xml)
     for w in conv.warnings:
         print(f"calbench from-urdf: warning: {w}", file=sys.stderr)

@@ -31,7 +31,8 @@ from conftest import MJCF, PAPER
 
 from calbench.bench.campaign import run_campaign
 from calbench.bench.log import read_log, strip_truth
-from calbench.bench.model import REGISTRY, Robot, apply_effects, without_compensator
+from calbench.bench.model import Robot
+from calbench.bench.model.effects import REGISTRY, apply_effects, without_compensator
 from calbench.bench.scenario import load_scenario, scenario_variant
 from calbench.identify.cli import main as cli_main
 from calbench.identify.discover import DISCOVERY_EFFECTS, UNEXPLAINED, discover, library, story
@@ -364,7 +365,7 @@ def test_cli_json_plot_view(logs, tmp_path, capsys):
 def test_augmented_jacobian_matches_finite_differences(logs):
     """d dp / d theta of the augmented forward model (implicit function theorem with the effect
     columns from the passive force) against central differences of the solved equilibria."""
-    from calbench.bench.model import link_compliance
+    from calbench.bench.model.effects import link_compliance
     from calbench.identify.core import from_log
     from calbench.identify.discover import build
 
@@ -394,7 +395,7 @@ SPRING_FIELDS = (
 
 @pytest.mark.parametrize("effect", library(Robot.from_file(MJCF)), ids=lambda e: e.name + e.detail)
 def test_effects_write_only_spring_values(effect):
-    """bench/model/effects.py's rule that discovery's analytic stiffness matrix relies on: set_params
+    """bench/model/effects/'s rule that discovery's analytic stiffness matrix relies on: set_params
     changes nothing in the compiled model but joint and tendon spring values."""
     from calbench.identify.discover import effect_priors
 

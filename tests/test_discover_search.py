@@ -144,9 +144,9 @@ def test_candidate_fit_reaches_the_global_minimum(plan, effect, sign, seed):
 @pytest.mark.parametrize("seed", [None, 3], ids=["exact", "noisy"])
 @pytest.mark.parametrize("k_c", [2.6e6, 6e6])
 def test_compensator_candidate_fit_reaches_the_global_minimum(tmp_path, k_c, seed):
-    """The compensator candidate on a user model without one (bench/model/effects.py's
+    """The compensator candidate on a user model without one (bench/model/effects/'s
     without_compensator), the truth's spring at the shipped and at a stiffer rate."""
-    from calbench.bench.model import compensator, without_compensator
+    from calbench.bench.model.effects import compensator, without_compensator
 
     bare = tmp_path / "bare.xml"
     bare.write_text(without_compensator(MJCF))

@@ -177,7 +177,7 @@ def test_cubic_on_j1_under_equal_pulls_is_invisible_and_biases_k1(exact_fits):
 
 def test_forearm_inplane_bending_is_a_k3(exact_fits):
     """The forearm's y spring at its root turns the forearm about the elbow like motor 3 does
-    through the parallelogram (bench/model/effects.py): invisible, absorbed by k3 alone."""
+    through the parallelogram (bench/model/effects/): invisible, absorbed by k3 alone."""
     _, al = exact_fits[16]
     a = al[("link_compliance", "forearm", "cy")]
     assert not a["visible"]

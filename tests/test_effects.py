@@ -1,4 +1,4 @@
-"""Hidden physical effects (bench/model/effects.py), each held to an independent computation.
+"""Hidden physical effects (bench/model/effects/), each held to an independent computation.
 
 The reference for the compliances is the linear VJM with the loop closed (paper eq. 1 extended
 to the new hinges and eq. 16's loop handling): at the rigid pose with gravity off,
@@ -15,23 +15,22 @@ import mujoco
 import numpy as np
 import pytest
 import scipy.linalg
-from conftest import MJCF, PAPER, fanuc_params, fanuc_truth
+from conftest import MJCF, PAPER, ROOT, fanuc_params, fanuc_truth
 
 from calbench.bench.campaign import run_campaign, truth_robot
+from calbench.bench.core import InputError
 from calbench.bench.log import read_log
-from calbench.bench.model import (
+from calbench.bench.model import Params, Robot, loop_jacobian
+from calbench.bench.model.effects import (
     REGISTRY,
     Effect,
     EffectRobot,
-    Params,
-    Robot,
     apply_effects,
     base_compliance,
     compensator,
     effect_from_truth,
     joint_nonlinearity,
     link_compliance,
-    loop_jacobian,
 )
 from calbench.bench.scenario import load_scenario
 from calbench.bench.statics import Load, StaticsSolver
@@ -403,15 +402,15 @@ def test_campaign_with_hidden_effect(tmp_path):
 
 
 def test_register_carries_discovery_options_and_priors():
-    """Adding an effect is one decorated function: @register alone puts it (with its options
-    and priors) into discovery's library; nothing in identify/ names it."""
-    from calbench.bench.model import effects as fx
+    """Adding an effect is one decorated function: @register_effect alone puts it (with its
+    options and priors) into discovery's library; nothing in identify/ names it."""
+    from calbench.bench.model.effects import UNIT_PRIORS, Prior, register_effect, unregister_effect
     from calbench.identify.discover import effect_priors, library
 
-    @fx.register(
+    @register_effect(
         "toy_spring",
         discover=[{"axis": "x"}, {"axis": "y"}],
-        priors={"c": fx.Prior(start=2e-9, lower=0.0, upper=1e-7, size=1e-9)},
+        priors={"c": Prior(start=2e-9, lower=0.0, upper=1e-7, size=1e-9)},
     )
     def toy_spring(axis: str = "x") -> Effect:
         return Effect("toy_spring", ("c", "k"), {"axis": axis}, ("rad/(N*m)", "N/m"))
@@ -420,20 +419,106 @@ def test_register_carries_discovery_options_and_priors():
         toys = [e for e in library(Robot.from_file(MJCF)) if e.name == "toy_spring"]
         assert [e.options["axis"] for e in toys] == ["x", "y"]
         start, lower, upper, size = effect_priors(toys[0])
-        assert start.tolist() == [2e-9, fx.UNIT_PRIORS["N/m"].start]  # own prior, then the unit's
-        assert upper.tolist() == [1e-7, fx.UNIT_PRIORS["N/m"].upper]
+        assert start.tolist() == [2e-9, UNIT_PRIORS["N/m"].start]  # own prior, then the unit's
+        assert upper.tolist() == [1e-7, UNIT_PRIORS["N/m"].upper]
+        with pytest.raises(ValueError, match="already registered"):
+            register_effect("toy_spring")(toy_spring)
     finally:
-        fx.REGISTRY.pop("toy_spring")
-        fx.DISCOVERY_OPTIONS.pop("toy_spring")
-        fx._PRIORS.pop("toy_spring")
+        unregister_effect("toy_spring")
     assert all(e.name != "toy_spring" for e in library(Robot.from_file(MJCF)))
+    assert "toy_spring" not in REGISTRY
+
+
+@pytest.fixture
+def toy_effect():
+    """tests/toy_effect.py registered (its import does it), and gone afterwards."""
+    import importlib
+
+    import toy_effect as toy
+
+    from calbench.bench.model.effects import unregister_effect
+
+    if toy.NAME not in REGISTRY:  # registered by an earlier test, then removed
+        importlib.reload(toy)
+    yield toy
+    unregister_effect(toy.NAME)
+
+
+# m: two Newton equilibria of the same statics agree to the solver's tolerance (residual < 1e-9 N*m
+# times compliances <= 1e-6 rad/(N*m) and a 4 m reach: ~1e-14 m); 1e-10 m leaves the loop's share
+EQUAL_STATICS = 1e-10
+
+
+def first_poses(text: str, n: int) -> str:
+    head, *poses = text.split("[[pose]]")
+    return head + "".join("[[pose]]" + p for p in poses[:n])
+
+
+def test_a_toy_effect_in_one_file_is_parsed_checked_and_simulated(tmp_path, toy_effect):
+    """tests/toy_effect.py alone (a factory and its table's keys in @register_effect) makes
+    [truth.effects.toy_hung_mass] a scenario table: checked key by key, applied to the truth,
+    simulated and logged. Its physics held to an independent computation: hung at the payload
+    site, the toy's mass makes the unloaded robot exactly the plain robot loaded by that mass
+    (bench.statics.Load.mass), so the toy's unloaded reflectors are the plain campaign's loaded
+    ones with load.mass = 50 kg."""
+    text = first_poses(PAPER.read_text(), 3)
+    toy_path = scenario_with_effect(tmp_path, "[truth.effects.toy_hung_mass]\nmass = 50.0")
+    toy_path.write_text(first_poses(toy_path.read_text(), 3))
+    scn = load_scenario(toy_path)
+    assert scn.effects == {"toy_hung_mass": {"mass": 50.0}}  # the optional offset stays absent
+    # the schema's checks, with the file, the key and what was expected
+    bad = tmp_path / "bad.toml"
+    for table, key, expected in (
+        ("mass = -1.0", "mass", "a finite number > 0"),
+        ('mass = "heavy"', "mass", "a finite number > 0"),
+        ("offset = [0.0, 0.1, 0.0]", "mass", "this required key to be present"),
+        ("mass = 5.0\noffset = [0.0, 0.1]", "offset", "an array of 3 numbers"),
+        ("mass = 5.0\nmas = 5.0", "mas", "no such key; allowed keys here: mass, offset"),
+    ):
+        bad.write_text(toy_path.read_text().replace("mass = 50.0", table))
+        with pytest.raises(InputError) as err:
+            load_scenario(bad)
+        assert err.value.file == str(bad) and err.value.key == f"truth.effects.toy_hung_mass.{key}"
+        assert expected in err.value.expected
+    with pytest.raises(InputError, match="allowed keys here: link_compliance, .*toy_hung_mass"):
+        bad.write_text(toy_path.read_text().replace("toy_hung_mass]", "toy_hung_mas]"))
+        load_scenario(bad)
+
+    run_campaign(scn, tmp_path / "toy.mcap")
+    plain = tmp_path / "plain50.toml"
+    plain.write_text(
+        text.replace('robot = "../mjcf/m900ib700.xml"', f'robot = "{MJCF}"').replace(
+            "mass = 700.0", "mass = 50.0"
+        )
+    )
+    run_campaign(load_scenario(plain), tmp_path / "plain50.mcap")
+    toy_log = read_log(tmp_path / "toy.mcap", include_truth=True)
+    plain_log = read_log(tmp_path / "plain50.mcap", include_truth=True)
+    assert toy_log.truth.parameters.effects == {"toy_hung_mass": {"mass": 50.0}}
+    for i in range(3):
+        a = toy_log.truth.reflectors[i].unloaded.position_world
+        b = plain_log.truth.reflectors[i].loaded.position_world
+        assert np.linalg.norm(a - b, axis=-1).max() < EQUAL_STATICS
+        # and the toy does something: 50 kg sag the arm by 0.1-0.2 mm (measured 0.12-0.21 mm)
+        unloaded = plain_log.truth.reflectors[i].unloaded.position_world
+        assert np.linalg.norm(a - unloaded, axis=-1).max() > 5e-5
+    # set_params writes the mass into the compiled model: same statics as building it so
+    eff, _ = effect_from_truth("toy_hung_mass", {"mass": 50.0})
+    heavier = apply_effects(MJCF, [(eff, [80.0])])
+    lighter = apply_effects(MJCF, [(eff, [50.0])])
+    eff.set_params(lighter, [80.0])
+    for r in (heavier, lighter):
+        r.set_params(fanuc_truth(scn))
+    q = scn.poses[0].q
+    sag = [StaticsSolver(r).solve(q, None).qpos for r in (heavier, lighter)]
+    np.testing.assert_allclose(sag[0], sag[1], rtol=0, atol=1e-12)
 
 
 def test_tracker_drift_offsets_only_the_loaded_readings(tmp_path):
     """The measurement-side effect: same scenario and seed with and without the drift give the
     same unloaded readings and loaded readings shifted by exactly the offset (tracker frame,
     here yawed), the same truth; discovery's deflection term is R b on every row."""
-    from calbench.bench.model import Readings, tracker_drift
+    from calbench.bench.model.effects import Readings, tracker_drift
     from calbench.bench.tracker import tracker_rotation
 
     text = PAPER.read_text().replace("position = [3.5, -3.5, 3.2]", "position = [3.5, -3.5, 3.2]\nyaw = 30.0")
@@ -460,3 +545,23 @@ def test_tracker_drift_offsets_only_the_loaded_readings(tmp_path):
     term = tracker_drift().deflection_term(offset, Readings(((0, "refl_a"), (1, "refl_b")), rot))
     np.testing.assert_allclose(term, np.tile(rot @ offset, (2, 1)), rtol=1e-15)
     assert tracker_drift().measurement_side and not link_compliance("forearm").measurement_side
+
+
+def test_the_contract_shows_each_effect_table_with_the_keys_and_units_its_registration_declares():
+    """docs/contract.md's `[truth.effects.NAME]` examples held to the registry: each shows exactly
+    the keys the effect's @register_effect declares, in that order, each unit in its comment
+    (tool_compliance, truth only, is the one the contract does not show)."""
+    from calbench.bench.model.effects import TRUTH_SCHEMAS
+
+    text = (ROOT / "docs" / "contract.md").read_text(encoding="utf-8")
+    shown = {}
+    for block in text.split("\n[truth.effects.")[1:]:
+        name, body = block.split("]", 1)
+        lines = [ln for ln in body.split("\n[", 1)[0].splitlines()[1:] if ln.strip() and "=" in ln]
+        shown[name] = [(ln.split("=")[0].strip(), ln.partition("#")[2]) for ln in lines]
+    assert set(shown) == set(TRUTH_SCHEMAS) - {"tool_compliance"}
+    for name, keys in shown.items():
+        schema = TRUTH_SCHEMAS[name]
+        assert [k for k, _ in keys] == [f.key for f in schema], name
+        for (_, comment), f in zip(keys, schema):
+            assert f.unit in comment, f"{name}.{f.key}: the contract's comment lacks {f.unit}"

@@ -104,7 +104,7 @@ def test_effect_columns_and_overridden_base_columns(paper):
     analytic ones. Both models solve the same statics to the same tolerance, so dp agrees to
     the solver's ~3e-11 m; the difference columns' round-off (eps x |qfrc_passive| / h, ~1e-10 of
     d g / d theta) grows through the KKT solve to ~1e-7 of a dp column: allowed 1e-6."""
-    from calbench.bench.model import compensator
+    from calbench.bench.model.effects import compensator
     from calbench.identify.discover import build
 
     scn, _, obs = paper

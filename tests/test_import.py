@@ -404,3 +404,47 @@ def test_an_imported_log_carries_no_truth_and_the_report_says_measured(tmp_path)
     html = tmp_path / "r.html"
     assert cli(["report", str(imp), "--out", str(html)]) == 0
     assert "the log carries ground truth" not in html.read_text()
+
+
+# --------------------------------------------------------------------------- readings formats
+
+
+def test_import_dispatches_to_a_toy_readings_format_registered_in_one_file(work, tmp_path, capsys):
+    """tests/toy_readings.py (JSON lines, in one file), once registered, reads a .jsonl file for
+    `calbench import`: the same readings as the CSV they were written from give the same
+    measurements in the log. Unregistered, the file is read as CSV and refused (exit 2, nothing
+    written)."""
+    from toy_readings import COLUMNS, FORMAT
+
+    from calbench.bench.shopfloor import FORMATS
+
+    lines = [
+        json.dumps(
+            {
+                c: r[c] if c in ("state", "point") else float(r[c]) if c in "xyz" else int(r[c])
+                for c in COLUMNS
+            }
+        )
+        for r in rows_of(work / "paper.csv")
+    ]
+    (tmp_path / "paper.jsonl").write_text("\n".join(lines) + "\n")
+    common = ["--plan", str(work / "plan.toml"), "--out"]
+    assert main(["import", str(work / "paper.csv"), *common, str(tmp_path / "csv.mcap")]) == 0
+    assert FORMATS.for_path(tmp_path / "paper.jsonl").name == "csv"
+    assert main(["import", str(tmp_path / "paper.jsonl"), *common, str(tmp_path / "refused.mcap")]) == 2
+    assert "line 1" in capsys.readouterr().err and not (tmp_path / "refused.mcap").exists()
+    FORMATS.register(FORMAT)
+    try:
+        with pytest.raises(ValueError, match="already registered"):
+            FORMATS.register(FORMAT)
+        assert FORMATS.for_path(tmp_path / "paper.jsonl") is FORMAT
+        assert FORMATS.for_path(work / "paper.csv").name == "csv"
+        assert main(["import", str(tmp_path / "paper.jsonl"), *common, str(tmp_path / "jsonl.mcap")]) == 0
+    finally:
+        FORMATS.unregister(FORMAT.name)
+    a, b = read_log(tmp_path / "csv.mcap"), read_log(tmp_path / "jsonl.mcap")
+    assert len(a.measurements) == len(b.measurements) > 0
+    for ma, mb in zip(a.measurements, b.measurements):
+        assert (ma.pose, ma.state, ma.reflectors) == (mb.pose, mb.state, mb.reflectors)
+        np.testing.assert_array_equal(ma.position, mb.position)  # same numbers, same rounding
+        np.testing.assert_array_equal(ma.covariance, mb.covariance)

@@ -474,3 +474,43 @@ def test_meshes_found_are_written_inline_and_missing_ones_left_out_with_a_warnin
         got = world[np.lexsort(np.round(world, 5).T)]
         # vertices rounded to 1e-6 m per coordinate: <= 0.5e-6 each, <= 0.87e-6 once rotated
         np.testing.assert_allclose(got, expected[np.lexsort(np.round(expected, 5).T)], rtol=0, atol=0.87e-6)
+
+
+# --------------------------------------------------------------------------- importers
+
+
+def test_from_urdf_dispatches_to_a_toy_importer_registered_in_one_file(tmp_path, capsys):
+    """tests/toy_importer.py (a .urdf.gz format in one file), once registered, is what
+    `from-urdf` and the library (IMPORTERS.for_path) pick for such a file: the MJCF is byte for byte the plain URDF's.
+    Unregistered, the file goes to the URDF importer, which says it is no URDF (exit 2, nothing
+    written)."""
+    import gzip
+
+    from toy_importer import IMPORTER
+
+    from calbench.bench.robots import IMPORTERS
+
+    rc, plain = build(tmp_path)
+    assert rc == 0
+    packed = tmp_path / "arm.urdf.gz"
+    packed.write_bytes(gzip.compress((tmp_path / "arm.urdf").read_bytes()))
+    args = ["from-urdf", str(packed), "--overlay", str(tmp_path / "arm.toml"), "--out"]
+    assert (
+        IMPORTERS.for_path(packed).name == "urdf" and IMPORTERS.for_path(tmp_path / "arm.urdf").name == "urdf"
+    )
+    assert main([*args, str(tmp_path / "refused.xml")]) == 2
+    assert "a readable URDF (XML)" in capsys.readouterr().err
+    assert not (tmp_path / "refused.xml").exists()
+    IMPORTERS.register(IMPORTER)
+    try:
+        with pytest.raises(ValueError, match="already registered"):
+            IMPORTERS.register(IMPORTER)
+        assert (
+            IMPORTERS.for_path(packed) is IMPORTER
+            and IMPORTERS.for_path(tmp_path / "arm.urdf").name == "urdf"
+        )
+        assert main([*args, str(tmp_path / "unpacked.xml")]) == 0
+    finally:
+        IMPORTERS.unregister(IMPORTER.name)
+    assert (tmp_path / "unpacked.xml").read_bytes() == plain.read_bytes()
+    assert IMPORTERS.for_path(packed).name == "urdf"

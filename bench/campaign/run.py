@@ -15,17 +15,10 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from calbench.bench.core import InputError, ProgressSink, sink
+from calbench.bench.core import STATES, InputError, ProgressSink, sink
 from calbench.bench.log import FoxgloveWriter, LogHeader, LogWriter, read_log
-from calbench.bench.model import (
-    LOOP_MARGIN,
-    LOOP_MARGIN_ANGLE,
-    Params,
-    Readings,
-    Robot,
-    apply_effects,
-    effect_from_truth,
-)
+from calbench.bench.model import LOOP_MARGIN, LOOP_MARGIN_ANGLE, Params, Robot
+from calbench.bench.model.effects import Readings, apply_effects, effect_from_truth
 from calbench.bench.scenario import (
     Scenario,
     check_joint_limits,
@@ -43,8 +36,6 @@ from calbench.bench.tracker import (
     tracker_rotation,
     visible_sites,
 )
-
-STATES = ("unloaded", "loaded")
 
 
 @dataclass(frozen=True)
@@ -67,7 +58,7 @@ def scenario_params(scn: Scenario, robot: Robot) -> Params:
 
 def truth_robot(scn: Scenario) -> Robot:
     """The simulated (true) robot: the scenario's MJCF with the scenario's truth written in,
-    including the hidden `[truth.effects.*]` (bench/model/effects.py edits of the MJCF)."""
+    including the hidden `[truth.effects.*]` (bench/model/effects/ edits of the MJCF)."""
     try:
         robot = Robot.from_file(scn.robot)  # the user's model itself must load
     except ValueError as exc:  # MuJoCo compile errors
@@ -85,7 +76,7 @@ def truth_robot(scn: Scenario) -> Robot:
 
 
 def reading_drift(scn: Scenario, index: int, reflectors: list[str]) -> np.ndarray | None:
-    """(n, 3) m, tracker frame: what the truth's measurement-side effects (bench/model/effects.py,
+    """(n, 3) m, tracker frame: what the truth's measurement-side effects (bench/model/effects/,
     e.g. `tracker_drift`) add to pose ``index``'s loaded readings of ``reflectors``; None when
     the truth has none. The robot and the noise are untouched."""
     rot = tracker_rotation(scn.tracker)

@@ -3,6 +3,7 @@
 
 from .errors import CalbenchError, InputError, StaticsError
 from .face import face_exports, lazy_face
+from .family import Family, FileFormat
 from .outputs import (
     WriteError,
     atomic_path,
@@ -14,6 +15,7 @@ from .outputs import (
 )
 from .progress import Progress, ProgressSink, sink, terminal_progress
 from .resources import PAPER_SCENARIO, mjcf_path, scenario_path
+from .states import STATES
 from .tables import Table, describe, frozen_array, parse_toml, read_text
 from .units import DISPLAY, unit_display
 from .xmlsafe import check_mjcf_text, check_model_file, file_references, parse_xml
@@ -23,8 +25,11 @@ __all__ = [
     "lazy_face",
     "CalbenchError",
     "DISPLAY",
+    "Family",
+    "FileFormat",
     "InputError",
     "PAPER_SCENARIO",
+    "STATES",
     "Progress",
     "ProgressSink",
     "StaticsError",

@@ -44,11 +44,11 @@ from importlib.resources import files
 import mujoco
 import numpy as np
 
+from calbench.bench.core import STATES
 from calbench.bench.model import GeomShape, geom_shapes, tendon_sites
 from calbench.bench.tracker import TrackerSpec, mean_reading, tracker_rotation
 
 MAGNIFY = 200.0
-STATES = ("unloaded", "loaded")
 WORLD, TRACKER = "world", "tracker"
 TF, ROBOT, SCENE, LOG = "/foxglove/tf", "/foxglove/robot", "/foxglove/scene", "/foxglove/log"
 TRUTH_TF, TRUTH_ROBOT, TRUTH_SCENE = "/truth/foxglove/tf", "/truth/foxglove/robot", "/truth/foxglove/scene"

@@ -24,10 +24,10 @@ from typing import Any, Generic, TypeVar
 
 import numpy as np
 
+from calbench.bench.core import STATES
 from calbench.bench.model import Params, Spring, springs_from_message
 from calbench.bench.tracker import TrackerSpec
 
-STATES = ("unloaded", "loaded")
 T = TypeVar("T")
 
 

@@ -1,4 +1,5 @@
-"""calbench.bench.model: the robot model: its description, parameters, MjModel wrapper, loop kinematics, shapes, effects."""
+"""calbench.bench.model: the robot model: its description, parameters, MjModel wrapper, loop kinematics
+and shapes; its hidden effects are the room bench/model/effects/."""
 
 from calbench.bench.core import lazy_face
 

@@ -2,25 +2,6 @@
 # calbench.bench.core.face reads these lines and loads each name on first use.
 
 from .description import DescriptionError, read_description, set_spec_names, spec_names
-from .effects import (
-    DISCOVERY_OPTIONS,
-    REGISTRY,
-    Effect,
-    EffectRobot,
-    Readings,
-    apply_effects,
-    augmented_xml,
-    base_compliance,
-    compensator,
-    discovery_library,
-    effect_from_truth,
-    joint_nonlinearity,
-    link_compliance,
-    load_spec,
-    priors,
-    tracker_drift,
-    without_compensator,
-)
 from .geoms import GeomShape, ReflectorPost, geom_shapes, reflector_posts, tendon_sites
 from .loop import (
     LOOP_TOL,
@@ -35,10 +16,7 @@ from .params import LEGACY_COMPENSATOR, ParamLayout, Params, Spring, springs_fro
 from .robot import LOOP_MARGIN, LOOP_MARGIN_ANGLE, Robot, ancestors
 
 __all__ = [
-    "DISCOVERY_OPTIONS",
     "DescriptionError",
-    "Effect",
-    "EffectRobot",
     "GeomShape",
     "LEGACY_COMPENSATOR",
     "LOOP_MARGIN",
@@ -46,35 +24,21 @@ __all__ = [
     "LOOP_TOL",
     "ParamLayout",
     "Params",
-    "REGISTRY",
-    "Readings",
     "ReflectorPost",
     "Robot",
     "Spring",
     "ancestors",
-    "apply_effects",
-    "augmented_xml",
-    "base_compliance",
-    "compensator",
     "constraint_basis",
     "constraint_basis_stack",
-    "discovery_library",
-    "effect_from_truth",
     "geom_shapes",
-    "joint_nonlinearity",
-    "link_compliance",
-    "load_spec",
     "loop_gap",
     "loop_jacobian",
     "motor_forces",
     "motor_jacobian",
-    "priors",
     "read_description",
     "reflector_posts",
     "set_spec_names",
     "spec_names",
     "springs_from_message",
     "tendon_sites",
-    "tracker_drift",
-    "without_compensator",
 ]

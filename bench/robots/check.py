@@ -33,7 +33,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from calbench.bench.core import InputError, StaticsError
+from calbench.bench.core import InputError, StaticsError, check_model_file
 from calbench.bench.model import LOOP_MARGIN, LOOP_MARGIN_ANGLE, LOOP_TOL, DescriptionError, Robot, loop_gap
 from calbench.bench.statics import Load, StaticsSolver
 from calbench.bench.tracker import TrackerSpec, visible_sites
@@ -139,6 +139,7 @@ def check_robot(
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "ROBOT.xml", "an existing MJCF file", "no such file")
+    check_model_file(path)  # safe XML whose files stay in its folder (bench/core/xmlsafe.py)
     try:
         model = mujoco.MjModel.from_xml_path(str(path))
     except ValueError as exc:

@@ -52,6 +52,7 @@ import numpy as np
 from calbench.bench.core import CalbenchError, InputError, parse_xml
 from calbench.bench.model import Robot, set_spec_names
 
+from .importer import Conversion, RobotImporter
 from .overlay import Attach, Overlay
 
 PLACEHOLDER_STIFFNESS = 1.0e6  # N*m/rad on every actuated hinge until a scenario sets it
@@ -124,19 +125,6 @@ class UrdfTree:
                 if joint is not None and self.joints[joint].type != "fixed":
                     out.append(joint)
         return out
-
-
-@dataclass(frozen=True)
-class Conversion:
-    """What ``from-urdf`` made: the MJCF text, the warnings to show, and a summary."""
-
-    xml: str
-    warnings: tuple[str, ...]
-    actuated: tuple[str, ...]
-    passive: tuple[str, ...]
-    moving_mass: float  # kg, every body that moves
-    geoms: int
-    meshes: int
 
 
 # --------------------------------------------------------------------------- the URDF
@@ -493,13 +481,27 @@ def convert(urdf: str | Path, ov: Overlay) -> Conversion:
     )
 
 
+class UrdfImporter(RobotImporter):
+    """The URDF importer (this module): :func:`convert` behind the importer interface."""
+
+    name = "urdf"
+    summary = "a URDF (run xacro first if it is a .xacro) and an overlay"
+    suffixes = (".urdf",)
+
+    def convert(self, path: Path, overlay: Overlay) -> Conversion:
+        return convert(path, overlay)
+
+
+IMPORTER = UrdfImporter()
+
 __all__ = [
     "PLACEHOLDER_STIFFNESS",
     "CONTINUOUS_RANGE",
     "UrdfTree",
     "UrdfLink",
     "UrdfJoint",
-    "Conversion",
+    "UrdfImporter",
+    "IMPORTER",
     "read_urdf",
     "check_urdf",
     "check_overlay",

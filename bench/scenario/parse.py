@@ -22,6 +22,7 @@ import numpy as np
 
 from calbench.bench.core import InputError, Table, describe, frozen_array, parse_toml, read_text, write_text
 from calbench.bench.model import LEGACY_COMPENSATOR, Params, Spring
+from calbench.bench.model.effects import TRUTH_SCHEMAS, read_table
 from calbench.bench.tracker import TrackerSpec
 
 from .timeline import DEFAULT_START, parse_start_time
@@ -97,40 +98,15 @@ DESIGN_KEYS = (
     "lateral_force",
     "lateral_fraction",
 )
-EFFECT_KEYS = ("link_compliance", "base_compliance", "joint_nonlinearity", "tool_compliance", "tracker_drift")
 
 
 def _effects(c: Table) -> dict[str, dict]:
-    """Validate the optional hidden effects present only in the simulated truth."""
-    c.only(EFFECT_KEYS)
-    out: dict[str, dict] = {}
-    if c.has("link_compliance"):
-        e = c.sub("link_compliance")
-        e.only(("link", "compliance"))
-        out["link_compliance"] = {
-            "link": e.string("link"),  # a body of the robot (its MJCF decides)
-            "compliance": frozen_array(e.vector("compliance", 3, nonneg=True)),
-        }
-    if c.has("base_compliance"):
-        e = c.sub("base_compliance")
-        e.only(("compliance",))
-        out["base_compliance"] = {"compliance": frozen_array(e.vector("compliance", 2, nonneg=True))}
-    if c.has("tool_compliance"):  # truth-only: not a discovery candidate (bench/model/effects.py)
-        e = c.sub("tool_compliance")
-        e.only(("compliance",))
-        out["tool_compliance"] = {"compliance": frozen_array(e.vector("compliance", 2, nonneg=True))}
-    if c.has("joint_nonlinearity"):
-        e = c.sub("joint_nonlinearity")
-        e.only(("joint", "cubic"))
-        out["joint_nonlinearity"] = {
-            "joint": e.integer("joint", 1),  # 1..N: the robot decides
-            "cubic": e.number("cubic"),
-        }
-    if c.has("tracker_drift"):  # measurement side: an offset of the loaded readings
-        e = c.sub("tracker_drift")
-        e.only(("offset",))
-        out["tracker_drift"] = {"offset": frozen_array(e.vector("offset", 3))}
-    return out
+    """The optional hidden effects, present only in the simulated truth: one table per
+    registered effect that declares one (bench/model/effects/registry.py), each checked against
+    the keys its registration declares. In the registry's order (the order the bench applies
+    them), whatever the file's."""
+    c.only(tuple(TRUTH_SCHEMAS))
+    return {name: read_table(schema, c.sub(name)) for name, schema in TRUTH_SCHEMAS.items() if c.has(name)}
 
 
 def _tracker(c: Table) -> TrackerSpec:

@@ -49,7 +49,7 @@ from dataclasses import dataclass
 from datetime import UTC, date, datetime, timedelta
 from typing import Any
 
-from calbench.bench.core import InputError
+from calbench.bench.core import STATES, InputError
 
 DEFAULT_START = datetime(2025, 1, 6, 8, 0, 0, tzinfo=UTC)  # a Monday, 08:00 UTC
 MOVE_S = 60.0
@@ -120,7 +120,6 @@ def reading_seconds(n_reflectors: int) -> float:
     return READING_PER_REFLECTOR_S * max(int(n_reflectors), 1)
 
 
-STATES = ("unloaded", "loaded")
 Key = tuple[int, str, int]  # (pose, state, repeat)
 
 

@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from calbench.bench.campaign import pose_load
-from calbench.bench.core import InputError
+from calbench.bench.core import STATES, InputError
 from calbench.bench.log import CampaignLog, LogHeader, LogWriter
 from calbench.bench.model import Robot
 from calbench.bench.scenario import NS, Plan, schedule
@@ -48,7 +48,6 @@ from calbench.bench.tracker import TrackerSpec, noise_covariance
 
 from .readings import ReadingsTable, Row, group, iso8601
 
-STATES = ("unloaded", "loaded")
 TICK = 1_000_000  # ns: a pose's command, load and end stamped 1-3 ms around its readings
 
 

@@ -1,4 +1,4 @@
-"""Tracker readings as CSV: the one form `calbench import` reads and `calbench export` writes.
+"""Tracker readings as CSV: the form `calbench export` writes, and `calbench import`'s default.
 
 The form (docs/contract.md, "Tracker readings"), what tracker software (SpatialAnalyzer,
 PolyWorks, Tracker Pilot, ...) exports, reduced to one table:
@@ -37,11 +37,12 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.core import InputError
+from calbench.bench.core import STATES, InputError
+
+from .formats import Reading, ReadingsFormat, ReadingsTable
 
 REQUIRED = ("pose", "state", "point", "x", "y", "z")
 OPTIONAL = ("time", "sigma")
-STATES = ("unloaded", "loaded")
 UNITS = {"mm": 1e-3, "m": 1.0}
 # A laser tracker's measuring range: from the closest a reflector can be tracked (the Leica AT960
 # and FARO Vantage data sheets start at 0.8 m and 0.6 m; 0.3 m leaves room) to 100 m (the AT960's
@@ -53,49 +54,6 @@ MAX_RANGE = 100.0  # m
 # is that poor; a sigma in um read as mm lands here).
 SIGMA_RANGE = (1e-7, 1e-3)  # m
 EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
-
-
-@dataclass(frozen=True)
-class Reading:
-    """One row: a reflector seen once in one state of one pose (SI, tracker frame)."""
-
-    line: int  # 1-based line in the file (the header is line 1)
-    pose: int
-    state: str
-    point: str
-    position: np.ndarray  # (3,) m, tracker frame
-    time: float | None = None  # s: since the campaign's start, or since 1970 (UTC) when ``absolute``
-    sigma: float | None = None  # m, per axis
-
-
-@dataclass(frozen=True)
-class ReadingsTable:
-    """A validated readings file."""
-
-    path: Path
-    units: str
-    columns: tuple[str, ...]
-    readings: tuple[Reading, ...]
-    absolute_time: bool = False  # times are ISO 8601 (s since 1970) rather than campaign seconds
-
-    @property
-    def has_time(self) -> bool:
-        return "time" in self.columns
-
-    @property
-    def has_sigma(self) -> bool:
-        return "sigma" in self.columns
-
-    def poses(self) -> list[int]:
-        """The poses with at least one reading, in plan order."""
-        return sorted({r.pose for r in self.readings})
-
-    def of(self, pose: int, state: str) -> list[Reading]:
-        """The rows of one pose and state, in time order when timed, else in file order."""
-        rows = [r for r in self.readings if r.pose == pose and r.state == state]
-        if self.has_time:
-            rows.sort(key=lambda r: (r.time, r.line))
-        return rows
 
 
 @dataclass(frozen=True)
@@ -372,6 +330,25 @@ def readings_csv(rows: Iterable[Row], units: str = "mm") -> str:
     return buf.getvalue()
 
 
+class CsvReadings(ReadingsFormat):
+    """The CSV form (this module): :func:`read_readings` behind the readings format interface."""
+
+    name = "csv"
+    summary = "pose,state,point,x,y,z[,time][,sigma] (docs/contract.md, 'Tracker readings')"
+    suffixes = (".csv",)
+
+    def read(
+        self, path: Path, data: bytes, n_poses: int, points: Sequence[str], units: str = "mm"
+    ) -> ReadingsTable:
+        try:
+            text = data.decode("utf-8-sig")
+        except UnicodeDecodeError as exc:
+            raise InputError(path, "(file)", "a UTF-8 CSV file", str(exc)) from None
+        return read_readings(path, n_poses, points, units, text=text)
+
+
+FORMAT = CsvReadings()
+
 __all__ = [
     "REQUIRED",
     "OPTIONAL",
@@ -385,6 +362,8 @@ __all__ = [
     "group",
     "read_readings",
     "Row",
+    "CsvReadings",
+    "FORMAT",
     "readings_csv",
     "iso8601",
 ]

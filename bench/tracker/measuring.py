@@ -19,10 +19,11 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from calbench.bench.core import STATES
+
 from .base import TrackerSpec
 from .instrument import Measurement, measure, to_tracker_frame
 
-STATES = ("unloaded", "loaded")
 Key = tuple[int, str, int]  # (pose, state, repeat)
 
 

@@ -6,7 +6,7 @@ J1 with the same torque (a k1 change), a payload mass error (on the paper plan e
 scale of k2..k6), an in-plane upper-arm bending (~95 % a k2). For every library effect that is
 not named, and for ``load_scale``, at the final model:
 
-* J_e, the effect parameter's whitened Jacobian column at its prior start (bench/model/effects.py),
+* J_e, the effect parameter's whitened Jacobian column at its prior start (bench/model/effects/),
   is regressed on the estimated parameters' columns J_b (base and named effects):
   J_e = J_b B + J_perp. B is the BIAS PER UNIT of the effect parameter: how far the fit moves
   each estimated parameter to absorb it.

@@ -1,13 +1,13 @@
 """Discovery, part 1: the candidate library and fitting a model with effects in the loop.
 
-The LIBRARY is every effect that bench/model/effects.py's ``@register`` puts in discovery, with the
+The LIBRARY is every effect that bench/model/effects/'s ``@register_effect`` puts in discovery, with the
 structural options it declares there for the robot: `link_compliance` on the robot's
 calbench:links (the FANUC's upper arm and forearm), `joint_nonlinearity` on every actuated
 joint, `base_compliance`, `compensator` where calbench:compensator_sites names its mounts,
 `tracker_drift` (measurement side), with their priors. These are the same effects the bench puts
 in the simulated truth. Nothing here chooses between them: identify/discover/workflow.py does
 (search.py, decide.py) and knows nothing about any single effect. Adding a candidate =
-registering an effect in bench/model/effects.py.
+registering an effect in bench/model/effects/.
 
 FITTING. A candidate model is the user's MJCF with the effects applied (`apply_effects`); its
 parameters are the robot's theta (bench/model/params.py; the FANUC's [k1..k6, K_C, s0]) followed by
@@ -18,7 +18,7 @@ these generalisations:
 * parameters are written by ``Robot.set_params`` and then each effect's ``Effect.set_params``
   (no recompilation); an effect that owns a base quantity (the compensator added to a model
   without one) overrides it, and the overridden base columns come out exactly zero;
-* an effect writes only spring values (bench/model/effects.py's rule, tests/test_discover.py), so the
+* an effect writes only spring values (bench/model/effects/'s rule, tests/test_discover.py), so the
   springs' part of the KKT stiffness matrix is analytic for every spring of the model and the
   rest (A_base: gravity's and the load's geometric stiffness, the loop's curvature) never
   depends on a parameter: it is not re-taken when an effect's parameters change;
@@ -45,12 +45,11 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from calbench.bench.model import (
+from calbench.bench.model import ParamLayout, Robot
+from calbench.bench.model.effects import (
     DISCOVERY_OPTIONS,
     Effect,
-    ParamLayout,
     Readings,
-    Robot,
     apply_effects,
     discovery_library,
     priors,
@@ -80,7 +79,7 @@ DISCOVERY_EFFECTS = tuple(DISCOVERY_OPTIONS)  # the effects @register puts in di
 
 
 def library(robot: Robot) -> list[Effect]:
-    """Every candidate effect with its structural options on this robot (bench/model/effects.py's
+    """Every candidate effect with its structural options on this robot (bench/model/effects/'s
     registry)."""
     return discovery_library(robot)
 
@@ -90,7 +89,7 @@ def label(effect: Effect) -> str:
 
 
 def effect_priors(effect: Effect) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(start, lower bound, upper bound, size) of an effect's parameters (bench/model/effects.py)."""
+    """(start, lower bound, upper bound, size) of an effect's parameters (bench/model/effects/)."""
     pri = priors(effect)
     return tuple(np.array([getattr(p, k) for p in pri], float) for k in ("start", "lower", "upper", "size"))
 
@@ -114,7 +113,7 @@ class AugmentedForward(ForwardModel):
     * the springs' part S of the KKT stiffness matrix is taken from the model as written (every
       joint spring's polynomial a + 2 b x + 3 c x^2 on its dof; every tendon's
       (K + 2 b x + 3 c x^2) t t^T + F H_L, the compensators and a tendon an effect added): the
-      effects may write only spring values (bench/model/effects.py's rule), so A_base = A_fd - S never
+      effects may write only spring values (bench/model/effects/'s rule), so A_base = A_fd - S never
       depends on any parameter and is not re-taken when an effect's parameters change (the base
       model re-takes it);
     * measurement-side effects add their deflection term and its Jacobian (central
@@ -228,7 +227,7 @@ class AugmentedForward(ForwardModel):
 
     def _spring_jacobian(self, theta) -> np.ndarray:
         """d(spring values)/d(effect parameters) (n_springs, n_effect_params), at theta: the
-        effects write only spring values (bench/model/effects.py), and how they do does not depend on
+        effects write only spring values (bench/model/effects/), and how they do does not depend on
         the configuration, so it is taken once per theta (central differences of set_params)."""
         key = theta.tobytes()
         if self._dsprings is not None and self._dsprings[0] == key:

@@ -7,7 +7,7 @@ finds (on the paper plan, J2's cubic: LR 19 from the warm start, 39 from the spr
 each candidate is fitted from several starts and the lowest chi2 wins:
 
 * WARM: the current model's values (base and already named effects) with the new effect at its
-  prior start (bench/model/effects.py: its "absent" value or a small size);
+  prior start (bench/model/effects/: its "absent" value or a small size);
 * SPREAD over the effect's range and sign: the effect's parameters at the magnitude whose
   signature the base parameters cannot absorb would explain the current model's whole excess
   chi2 (sqrt(chi2 - dof) standard deviations of the tracker, at least MIN_SIGNATURE = 5; the
@@ -42,7 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calbench.bench.model import Effect, priors
+from calbench.bench.model.effects import Effect, priors
 from calbench.identify.core import Fit, Whitener
 
 from .fit import build, effect_priors, fit_augmented, whitened

@@ -16,7 +16,7 @@ profile of each at +-2 Fisher stds must rise within a factor 2 of the quadratic'
 that fails is "not determined" too.
 
 So, in relative coordinates u_i = theta_i / size_i (size: |theta_i|, not below the parameter's
-prior size, bench/model/effects.py), a parameter is DETERMINED when its marginal standard deviation is
+prior size, bench/model/effects/), a parameter is DETERMINED when its marginal standard deviation is
 at most MAX_RELATIVE_STD (1: the data fix its order of magnitude) and it has no component in the
 Fisher information's numerical null space; otherwise it is reported "not determined" (no std),
 and what IS determined among the undetermined ones is reported instead: the eigenvectors of
@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calbench.bench.model import priors
+from calbench.bench.model.effects import priors
 from calbench.identify.core import Fit, Whitener, profile_check
 
 MAX_RELATIVE_STD = 1.0  # a parameter whose std exceeds its own size is not determined

@@ -9,7 +9,7 @@
    direction, and the correlation of each pose's misfit with what varies over the plan
    (identify/discover/stats.py), in words and numbers.
 3. NAME the missing effect: every candidate of the library (identify/discover/fit.py: the
-   effects bench/model/effects.py registers for discovery, with their structural options) is added to
+   effects bench/model/effects/ registers for discovery, with their structural options) is added to
    the model and fitted jointly with the base parameters on the exact statics, from several
    starts (identify/discover/search.py), and tested by its likelihood ratio at the family-wise
    level on every run (identify/discover/decide.py: no global chi2 gate). The best accepted
@@ -41,7 +41,8 @@ import numpy as np
 
 from calbench.bench.core import write_text
 from calbench.bench.log import read_log
-from calbench.bench.model import Robot, augmented_xml, load_spec, set_spec_names, spec_names
+from calbench.bench.model import Robot, set_spec_names, spec_names
+from calbench.bench.model.effects import augmented_xml, load_spec
 from calbench.bench.view import Discovery, write_discovery_recording
 from calbench.identify.core import Observations, Whitener, check_sites, from_log, load_model
 from calbench.identify.methods import one_step

@@ -2,7 +2,8 @@
 
 Steps, each validated before any output exists:
 1. the plan (bench.scenario.load_plan: a scenario without ``[truth]``), the robot's MJCF (the
-   plan's, or ``--model``) and the readings (bench/shopfloor/readings.py: bad rows name line and column);
+   plan's, or ``--model``) and the readings, in the format that accepts the file's name (CSV by
+   default, bench/shopfloor/readings.py; bench/shopfloor/formats.py): bad rows name line and column;
 2. the tracker's pose: the plan's ``[tracker] position``/``yaw`` when given, else registered
    from the readings (identify/shopfloor/tracker_pose.py);
 3. the log (bench/shopfloor/logcsv.py), written atomically: an ordinary log without truth that
@@ -22,10 +23,10 @@ from calbench.bench.core import InputError, atomic_path
 from calbench.bench.model import Robot
 from calbench.bench.scenario import Plan, check_joint_limits, load_plan, start_ns
 from calbench.bench.shopfloor import (
+    FORMATS,
     ImportSummary,
     ReadingsTable,
     campaign_readings,
-    read_readings,
     write_imported_log,
 )
 from calbench.bench.tracker import TrackerSpec
@@ -74,16 +75,13 @@ def import_readings(
     csv_path, out = Path(csv_path), Path(out)
     plan = load_plan(plan_path)
     robot, model_path = load_robot(plan, None if model is None else Path(model))
+    fmt = FORMATS.for_path(csv_path)  # by the file's name; CSV unless a format claims it
     try:
         raw = csv_path.read_bytes()
     except OSError as exc:
-        raise InputError(csv_path, "(file)", "a readable CSV file", exc.strerror) from None
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise InputError(csv_path, "(file)", "a UTF-8 CSV file", str(exc)) from None
+        raise InputError(csv_path, "(file)", f"a readable {fmt.name.upper()} file", exc.strerror) from None
     names = list(robot.reflector_names)
-    table = read_readings(csv_path, len(plan.poses), names, units, text=text)
+    table = fmt.read(csv_path, raw, len(plan.poses), names, units)
     readings = campaign_readings(table, names, plan.tracker)
     registration = None
     if plan.tracker_placed:

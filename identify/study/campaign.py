@@ -36,7 +36,8 @@ import pyarrow as pa
 
 from calbench.bench.campaign import plan_campaign, run_campaign, scenario_params, truth_robot
 from calbench.bench.core import InputError, write_text
-from calbench.bench.model import Robot, without_compensator
+from calbench.bench.model import Robot
+from calbench.bench.model.effects import without_compensator
 from calbench.bench.scenario import Scenario, check_size, estimate, repeats_key
 from calbench.bench.tracker import tracker_models
 from calbench.identify.core import Observations

@@ -320,7 +320,7 @@ def expected_effect(scn: Scenario, campaign: CampaignSettings) -> str | None:
     """What discover should name first: the one effect the user's model lacks (hidden in the
     truth, or removed from discover's model) as ``name[detail]``; "unexplained" when it is not a
     discovery candidate; "nothing" when nothing is missing; None when several are."""
-    from calbench.bench.model import DISCOVERY_OPTIONS, effect_from_truth
+    from calbench.bench.model.effects import DISCOVERY_OPTIONS, effect_from_truth
 
     missing = [(n, t) for n, t in scn.effects.items()] + [(n, None) for n in campaign.discover_without]
     if not missing:
