@@ -139,3 +139,51 @@ def test_a_lost_scheduler_ends_the_study_with_one_line_and_a_rerun_resumes(study
     assert "scheduler" in last and "resume" in last, err
     assert main(["study", str(s), "--out", str(out), "--scheduler", "in-process"]) == 0
     _same_table(ref, out)
+
+
+def _installed_elsewhere(folder: Path, dist: str, version: str) -> Path:
+    """A folder that, first on a worker's PYTHONPATH, makes ``dist`` look installed at ``version``
+    there (importlib.metadata reads the first dist-info on the path)."""
+    info = folder / f"{dist.replace('-', '_')}-{version}.dist-info"
+    info.mkdir(parents=True)
+    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {dist}\nVersion: {version}\n")
+    return folder
+
+
+def _wait_for_workers(c: LocalDaskCluster, n: int) -> None:
+    from distributed import Client
+
+    with Client(c.address, timeout=30) as client:
+        client.wait_for_workers(n, timeout=60)
+
+
+def test_a_worker_with_another_calbench_is_refused(tmp_path, monkeypatch):
+    from calbench.bench.core import InputError
+    from calbench.identify.runtime import choose, open_executor
+
+    monkeypatch.setenv("PYTHONPATH", str(_installed_elsewhere(tmp_path / "other", "calbench", "0.0.1")))
+    c = LocalDaskCluster(tmp_path / "dask", workers=1)
+    monkeypatch.delenv("PYTHONPATH")
+    try:
+        _wait_for_workers(c, 1)
+        with pytest.raises(InputError, match=r"installed on every worker.*: 0\.0\.1"):
+            open_executor(choose(c.address, 0.0))
+    finally:
+        c.stop()
+
+
+def test_a_worker_with_another_mujoco_build_is_named(tmp_path, monkeypatch, capsys):
+    from calbench.identify.runtime import choose, open_executor
+
+    monkeypatch.setenv("PYTHONPATH", str(_installed_elsewhere(tmp_path / "other", "mujoco-core", "0.0.1")))
+    c = LocalDaskCluster(tmp_path / "dask", workers=1)
+    monkeypatch.delenv("PYTHONPATH")
+    try:
+        _wait_for_workers(c, 1)
+        capsys.readouterr()
+        with open_executor(choose(c.address, 0.0)):
+            pass
+        err = capsys.readouterr().err
+        assert "has MuJoCo 0.0.1, this machine" in err and "NumPy" not in err, err
+    finally:
+        c.stop()

@@ -51,6 +51,7 @@ from __future__ import annotations
 import itertools
 import logging
 import os
+import sys
 import uuid
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -244,6 +245,22 @@ def _calbench_version() -> str | None:
         return None
 
 
+def _builds() -> dict[str, str]:
+    """Runs on each worker: the installed builds whose arithmetic the results depend on, bit
+    for bit (the distributions' versions, as pip installed them)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    found = {}
+    for lib, dists in (("MuJoCo", ("mujoco-core", "mujoco")), ("NumPy", ("numpy",))):
+        for d in dists:
+            try:
+                found[lib] = version(d)
+                break
+            except PackageNotFoundError:
+                continue
+    return found
+
+
 class DaskExecutor(Executor):
     """The pieces as Dask tasks (a local cluster we own, or the user's scheduler)."""
 
@@ -314,6 +331,15 @@ class DaskExecutor(Executor):
                     f"calbench {mine} installed on every worker (pip install calbench there)",
                     f"{addr}: {theirs or 'not installed'}",
                 )
+        mine_b = _builds()
+        for addr, theirs_b in self.client.run(_builds).items():
+            for lib, v in theirs_b.items():
+                if v != mine_b.get(lib):  # named, not refused: the numbers agree to rounding, not bit for bit
+                    print(
+                        f"calbench: warning: Dask worker {addr} has {lib} {v}, this machine {mine_b[lib]}: "
+                        "its results may differ from a local run in the last bits",
+                        file=sys.stderr,
+                    )
 
     def _submit(self, fn, args, tag: str, i: int):
         return self.client.submit(
