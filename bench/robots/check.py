@@ -139,11 +139,11 @@ def check_robot(
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "ROBOT.xml", "an existing MJCF file", "no such file")
-    check_model_file(path)  # safe XML whose files stay in its folder (bench/core/xmlsafe.py)
     try:
         model = mujoco.MjModel.from_xml_path(str(path))
     except ValueError as exc:
         raise InputError(path, "MJCF", "a model MuJoCo compiles", str(exc).splitlines()[0]) from None
+    check_model_file(path)  # and safe XML whose files stay in its folder (bench/core/xmlsafe.py)
     try:
         robot = Robot(model, path)
     except DescriptionError as exc:
