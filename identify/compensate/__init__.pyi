@@ -1,0 +1,32 @@
+# The public face of calbench.identify.compensate: what code outside this room may import. At run
+# time calbench.bench.core.face reads these lines and loads each name on first use.
+
+from .fingerprint import robot_sha256
+from .identified import Identified, identified_from_report, read_identified
+from .job import Job, JobPoint, Tool, check_job, load_job, parse_job
+from .run import Compensation, CompensationRequest, run_compensate
+from .solve import TARGETS, Compensator, PointResult
+from .toolpoint import with_tool
+from .truth import TruePoint, apply_to_truth
+
+__all__ = [
+    "Compensation",
+    "CompensationRequest",
+    "Compensator",
+    "Identified",
+    "Job",
+    "JobPoint",
+    "PointResult",
+    "TARGETS",
+    "Tool",
+    "TruePoint",
+    "apply_to_truth",
+    "check_job",
+    "identified_from_report",
+    "load_job",
+    "parse_job",
+    "read_identified",
+    "robot_sha256",
+    "run_compensate",
+    "with_tool",
+]
