@@ -48,7 +48,10 @@ class Compensation:
         nominal command; the JSON and the exit status name it)."""
         n = self.robot.n_act
         rows = ["point," + ",".join(f"q{j + 1}" for j in range(n))]
-        rows += [f"{p.index}," + ",".join(f"{x:.9f}" for x in np.degrees(p.command)) for p in self.points]
+        rows += [
+            f"{p.index}," + ",".join(f"{x:.9f}" for x in np.round(np.degrees(p.command), 9) + 0.0)
+            for p in self.points
+        ]
         return "\n".join(rows) + "\n"
 
     def summary(self) -> dict:
