@@ -37,6 +37,8 @@ from calbench.identify.compensate import (
     load_job,
     read_identified,
     run_compensate,
+    tool_jacobian,
+    tool_pose,
     with_tool,
 )
 
@@ -121,16 +123,12 @@ def test_relaxation_puts_the_compensated_loaded_tool_on_target(ident_json):
 
 
 def tool_at(comp: Compensator, u, load) -> np.ndarray:
-    from calbench.identify.compensate.toolpoint import tool_pose
-
     eq = comp.equilibrium(np.asarray(u, dtype=float), load)
     return tool_pose(comp.robot, comp.site, eq.qpos)[0]
 
 
 def test_command_tangent_matches_finite_differences(ident_json):
     job, robot, ident, comp = model_and_job(ident_json)
-    from calbench.identify.compensate.toolpoint import tool_jacobian
-
     p = job.points[10]
     load = comp.load(p)
     u = np.asarray(p.q, dtype=float)
@@ -146,8 +144,6 @@ def test_command_tangent_matches_finite_differences(ident_json):
 
 def test_parameter_tangent_matches_finite_differences(ident_json):
     job, robot, ident, comp = model_and_job(ident_json)
-    from calbench.identify.compensate.toolpoint import tool_jacobian
-
     p = job.points[3]
     load = comp.load(p)
     u = np.asarray(p.q, dtype=float)

@@ -6,7 +6,7 @@ from .identified import Identified, identified_from_report, read_identified
 from .job import Job, JobPoint, Tool, check_job, load_job, parse_job
 from .run import Compensation, CompensationRequest, run_compensate
 from .solve import TARGETS, Compensator, PointResult
-from .toolpoint import with_tool
+from .toolpoint import tool_jacobian, tool_pose, with_tool
 from .truth import TruePoint, apply_to_truth
 
 __all__ = [
@@ -28,5 +28,7 @@ __all__ = [
     "read_identified",
     "robot_sha256",
     "run_compensate",
+    "tool_jacobian",
+    "tool_pose",
     "with_tool",
 ]
