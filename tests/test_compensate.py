@@ -127,14 +127,19 @@ def tool_at(comp: Compensator, u, load) -> np.ndarray:
     return tool_pose(comp.robot, comp.site, eq.qpos)[0]
 
 
-def test_command_tangent_matches_finite_differences(ident_json):
+def tool_tangents(ident_json, index: int):
+    """The model, the point's load and command, and the tool position's d/du and d/dtheta there."""
     job, robot, ident, comp = model_and_job(ident_json)
-    p = job.points[10]
-    load = comp.load(p)
-    u = np.asarray(p.q, dtype=float)
+    p = job.points[index]
+    load, u = comp.load(p), np.asarray(p.q, dtype=float)
     eq = comp.equilibrium(u, load)
-    du, _ = comp.tangents(eq, load)
-    analytic = tool_jacobian(comp.robot, comp.site, eq.qpos)[:3] @ du
+    jac = tool_jacobian(comp.robot, comp.site, eq.qpos)[:3]
+    du, dth = comp.tangents(eq, load)
+    return robot, ident, comp, load, u, jac @ du, jac @ dth
+
+
+def test_command_tangent_matches_finite_differences(ident_json):
+    _, _, comp, load, u, analytic, _ = tool_tangents(ident_json, 10)
     h = 1e-5  # rad: truncation ~h^2 * curvature ~1e-10 m, statics noise ~3e-11 m / h ~ 3e-6 relative
     fd = np.column_stack(
         [(tool_at(comp, u + h * e, load) - tool_at(comp, u - h * e, load)) / (2 * h) for e in np.eye(len(u))]
@@ -143,13 +148,7 @@ def test_command_tangent_matches_finite_differences(ident_json):
 
 
 def test_parameter_tangent_matches_finite_differences(ident_json):
-    job, robot, ident, comp = model_and_job(ident_json)
-    p = job.points[3]
-    load = comp.load(p)
-    u = np.asarray(p.q, dtype=float)
-    eq = comp.equilibrium(u, load)
-    _, dth = comp.tangents(eq, load)
-    analytic = tool_jacobian(comp.robot, comp.site, eq.qpos)[:3] @ dth
+    robot, ident, comp, load, u, _, analytic = tool_tangents(ident_json, 3)
     theta = ident.theta
     cols = []
     for i in range(len(theta)):
