@@ -1,0 +1,180 @@
+"""Compensation on the bench (issue 26). Prints JSON.
+
+For each robot (the FANUC M-900iB/700 on the paper plan, scenarios/paper_table5.toml; the
+KR 270 on its paper plan, scenarios/kr270_paper.toml) and each campaign seed: simulate the
+campaign (20 um tracker), identify (one-step), compensate the robot's milling job
+(scenarios/jobs/*_milling.toml, 24 points, 1.5-4.5 kN, default target `unloaded`) and apply
+the commands to the true robot. Reported: the true RMS tool position error before and after,
+over all seeds and points together and per seed, the fraction removed per seed, the largest
+error after, the predicted error (RMS of predicted_error_std_m) and z = |true after| /
+predicted std (its RMS over seeds and points; the seeds are the independent samples, the
+points of one seed move together, so its sampling error is about 1/sqrt(2 x seeds)).
+
+Then the rigid target on the FANUC (seed 1): predicted and true error, and the speed of the
+scalar loop: seconds per point on a long job (a path sweeping the FANUC's front).
+
+    .venv/bin/python benchmarks/compensate_bench.py [--seeds 10] [--points 2000] [--quick]
+
+(--quick: 3 seeds, 200 points.)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from steps import say
+
+from calbench.bench.campaign import run_campaign
+from calbench.bench.model import Robot
+from calbench.bench.scenario import load_scenario
+from calbench.identify.compensate import (
+    CompensationRequest,
+    Compensator,
+    JobPoint,
+    check_job,
+    load_job,
+    read_identified,
+    run_compensate,
+    with_tool,
+)
+from calbench.identify.report import run_identify
+
+ROOT = Path(__file__).resolve().parent.parent
+CASES = {
+    "fanuc_m900ib700": (
+        ROOT / "scenarios" / "paper_table5.toml",
+        ROOT / "scenarios" / "jobs" / "fanuc_milling.toml",
+    ),
+    "kr270": (ROOT / "scenarios" / "kr270_paper.toml", ROOT / "scenarios" / "jobs" / "kr270_milling.toml"),
+}
+
+
+def rms(x) -> float:
+    x = np.asarray(x, dtype=float)
+    return float(np.sqrt(np.mean(x * x)))
+
+
+def identified(scenario: Path, seed: int, work: Path) -> Path:
+    log, js = work / f"{scenario.stem}_{seed}.mcap", work / f"{scenario.stem}_{seed}.json"
+    run_campaign(load_scenario(scenario, seed=seed), log)
+    js.write_text(run_identify(log).to_json())
+    return js
+
+
+def case(name: str, seeds: list[int], work: Path) -> dict:
+    scenario, job = CASES[name]
+    per_seed, before, after, z, pred = [], [], [], [], []
+    for s in seeds:
+        say("compensate", f"{name} seed {s}")
+        res = run_compensate(CompensationRequest(job, identified(scenario, s, work), truth=scenario))
+        b = [t.error_before_m for t in res.truth]
+        a = [t.error_after_m for t in res.truth]
+        before += b
+        after += a
+        z += [t.z for t in res.truth]
+        pred += [p.predicted_error_std_m for p in res.points]
+        per_seed.append(
+            {
+                "seed": s,
+                "before_rms_um": rms(b) * 1e6,
+                "after_rms_um": rms(a) * 1e6,
+                "after_max_um": max(a) * 1e6,
+                "removed": 1.0 - rms(a) / rms(b),
+                "predicted_rms_um": rms([p.predicted_error_std_m for p in res.points]) * 1e6,
+                "z_rms": rms([t.z for t in res.truth]),
+                "unreached": len(res.unreached),
+            }
+        )
+    return {
+        "scenario": str(scenario.relative_to(ROOT)),
+        "job": str(job.relative_to(ROOT)),
+        "points": len(load_job(job).points),
+        "seeds": seeds,
+        "before_rms_mm": rms(before) * 1e3,
+        "after_rms_um": rms(after) * 1e6,
+        "after_max_um": max(after) * 1e6,
+        "removed_min": min(p["removed"] for p in per_seed),
+        "predicted_rms_um": rms(pred) * 1e6,
+        "z_rms": rms(z),
+        "z_rms_sampling_error": 1.0 / math.sqrt(2 * len(seeds)),
+        "per_seed": per_seed,
+    }
+
+
+def rigid(work: Path) -> dict:
+    scenario, job = CASES["fanuc_m900ib700"]
+    res = run_compensate(
+        CompensationRequest(job, work / f"{scenario.stem}_1.json", target="rigid", truth=scenario)
+    )
+    s = res.summary()
+    return {
+        "seed": 1,
+        "predicted_rms_mm": s["predicted_error_rms_m"] * 1e3,
+        "true_after_rms_mm": s["true_error_after_rms_m"] * 1e3,
+        "true_before_rms_mm": s["true_error_before_rms_m"] * 1e3,
+        "z_rms": s["z_rms"],
+    }
+
+
+def speed(n: int, work: Path) -> dict:
+    scenario, job_path = CASES["fanuc_m900ib700"]
+    job = load_job(job_path)
+    robot = Robot.from_file(job.robot)
+    check_job(job, robot)
+    ident = read_identified(work / f"{scenario.stem}_1.json", robot)
+    s = np.linspace(0.0, 1.0, n)
+    q = np.radians(
+        np.column_stack(
+            [
+                -40 + 80 * s,
+                55 + 10 * np.sin(3 * np.pi * s),
+                -5 + 8 * s,
+                0 * s,
+                -60 + 6 * np.sin(8 * np.pi * s),
+                0 * s,
+            ]
+        )
+    )
+    w = np.array([-1800.0, 600.0, 2400.0, 150.0, -200.0, -200.0])
+    points = tuple(JobPoint(row, wrench=w) for row in q)
+    comp = Compensator(with_tool(robot, job.tool), ident.params(robot), ident.covariance)
+    say("compensate", f"speed: {n} points, scalar loop")
+    t0, c0 = time.perf_counter(), time.process_time()
+    res = comp.path(points)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    return {
+        "points": n,
+        "converged": sum(r.converged for r in res),
+        "wall_s": wall,
+        "cpu_s": cpu,
+        "ms_per_point": 1e3 * wall / n,
+        "newton_steps_mean": float(np.mean([r.iterations for r in res])),
+        "projected_1e4_points_s": wall / n * 1e4,
+        "load_average": round(os.getloadavg()[0], 2),
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seeds", type=int, default=10)
+    ap.add_argument("--points", type=int, default=2000)
+    ap.add_argument("--quick", action="store_true")
+    args = ap.parse_args()
+    seeds = list(range(1, (3 if args.quick else args.seeds) + 1))
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        out = {name: case(name, seeds, work) for name in CASES}
+        out["fanuc_rigid_target"] = rigid(work)
+        out["speed"] = speed(200 if args.quick else args.points, work)
+    print(json.dumps(out, indent=2))
+
+
+if __name__ == "__main__":
+    main()
