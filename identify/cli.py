@@ -566,7 +566,7 @@ def _um(x) -> str:
 
 
 def cmd_compensate(args) -> int:
-    from calbench.identify.compensate import CompensationRequest, run_compensate
+    from calbench.identify.compensate import Z_EXCEEDED, CompensationRequest, run_compensate
 
     inputs = {"JOB": args.job, "--identified": args.identified, "--model": args.model, "--truth": args.truth}
     check_outputs({"--out": args.out, "--json": args.json}, inputs)
@@ -594,8 +594,9 @@ def cmd_compensate(args) -> int:
             f"true: {_um(s['true_error_before_rms_m'])} um RMS before, {_um(s['true_error_after_rms_m'])} um "
             f"RMS after (max {_um(s['true_error_after_max_m'])} um); z RMS {s['z_rms']:.2f}"
             + (
-                "  (> 2: the identified model misses an effect of the true robot)"
-                if s["z_rms"] is not None and s["z_rms"] > 2
+                f"\n  the true error is more than {Z_EXCEEDED:g} x the predicted one: the identified model "
+                "lacks an effect of the true robot (calbench discover names it)"
+                if s["prediction_exceeded"]
                 else ""
             )
         )

@@ -31,6 +31,7 @@ from calbench.bench.scenario import load_scenario
 from calbench.bench.statics import Load, StaticsSolver
 from calbench.identify.cli import main
 from calbench.identify.compensate import (
+    Z_EXCEEDED,
     CompensationRequest,
     Compensator,
     check_job,
@@ -212,6 +213,28 @@ def test_the_rigid_target_predicts_its_millimetres(ident_json):
     assert s["true_error_after_rms_m"] <= 4 * s["predicted_error_rms_m"]
 
 
+def test_a_hidden_effect_shows_as_an_error_larger_than_predicted(tmp_path, capsys):
+    """A forearm compliance the identified model lacks (tests/test_discover.py's case): the true
+    error after compensation exceeds the prediction by more than Z_EXCEEDED, and the output says
+    so (a right model exceeds it with probability < 0.3 %)."""
+    text = PAPER.read_text().replace(
+        "[tracker]",
+        '[truth.effects.link_compliance]\nlink = "forearm"\ncompliance = [1.8e-7, 0.0, 1.8e-7]\n\n[tracker]',
+        1,
+    )
+    scn = tmp_path / "hidden.toml"
+    scn.write_text(text.replace('robot = "../mjcf/m900ib700.xml"', f'robot = "{MJCF}"'))
+    log, js = tmp_path / "hidden.mcap", tmp_path / "id.json"
+    assert main(["simulate", str(scn), "--out", str(log)]) == 0
+    assert main(["identify", str(log), "--json", str(js)]) == 0
+    capsys.readouterr()
+    args = ["compensate", str(JOB), "--identified", str(js), "--out", str(tmp_path / "c.csv")]
+    assert main([*args, "--truth", str(scn)]) == 0
+    assert "lacks an effect of the true robot" in capsys.readouterr().out
+    s = run_compensate(CompensationRequest(JOB, js, truth=scn)).summary()
+    assert s["prediction_exceeded"] and s["z_rms"] > Z_EXCEEDED
+
+
 # --------------------------------------------------------------------------- the command line
 
 
@@ -219,6 +242,7 @@ def test_cli_writes_commands_and_json(ident_json, tmp_path, capsys):
     out, js = tmp_path / "c.csv", tmp_path / "c.json"
     args = ["compensate", str(JOB), "--identified", str(ident_json), "--out", str(out), "--json", str(js)]
     assert main([*args, "--truth", str(PAPER)]) == 0
+    assert "lacks an effect" not in capsys.readouterr().out
     rows = out.read_text().splitlines()
     assert rows[0] == "point,q1,q2,q3,q4,q5,q6" and len(rows) == 1 + len(load_job(JOB).points)
     doc = json.loads(js.read_text())
@@ -329,3 +353,14 @@ def test_identify_writes_the_robot_fingerprint(ident_json):
 def test_the_output_may_not_be_an_input(ident_json, capsys):
     assert main(["compensate", str(JOB), "--identified", str(ident_json), "--out", str(ident_json)]) == 2
     assert json.loads(ident_json.read_text())["parameters"]
+
+
+def test_the_truth_of_another_robot_exits_2(ident_json, tmp_path, capsys):
+    kr = ROOT / "scenarios" / "kr270_paper.toml"
+    out = tmp_path / "c.csv"
+    assert (
+        main(["compensate", str(JOB), "--identified", str(ident_json), "--out", str(out), "--truth", str(kr)])
+        == 2
+    )
+    assert f"{kr}: robot: expected the job's robot" in capsys.readouterr().err
+    assert not out.exists()

@@ -4,7 +4,7 @@
 from .fingerprint import robot_sha256
 from .identified import Identified, identified_from_report, read_identified
 from .job import Job, JobPoint, Tool, check_job, load_job, parse_job
-from .run import Compensation, CompensationRequest, run_compensate
+from .run import Z_EXCEEDED, Compensation, CompensationRequest, run_compensate
 from .solve import TARGETS, Compensator, PointResult
 from .toolpoint import tool_jacobian, tool_pose, with_tool
 from .truth import TruePoint, apply_to_truth
@@ -20,6 +20,7 @@ __all__ = [
     "TARGETS",
     "Tool",
     "TruePoint",
+    "Z_EXCEEDED",
     "apply_to_truth",
     "check_job",
     "identified_from_report",

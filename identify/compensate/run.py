@@ -20,6 +20,11 @@ from .solve import TARGETS, Compensator, PointResult
 from .toolpoint import with_tool
 from .truth import TruePoint, apply_to_truth
 
+# The points of one job move together (one parameter error moves them all), so a job's RMS z is
+# about one chi variable of a few degrees of freedom: above 3 by chance with probability < 0.3 %
+# when the model is right. Above it, the true robot has something the identified model lacks.
+Z_EXCEEDED = 3.0
+
 
 @dataclass(frozen=True)
 class CompensationRequest:
@@ -79,6 +84,7 @@ class Compensation:
                 / _rms([t.error_before_m for t in self.truth if math.isfinite(t.error_after_m)]),
                 "z_rms": _rms([t.z for t in self.truth if math.isfinite(t.z)]),
             }
+            out["prediction_exceeded"] = out["z_rms"] is not None and out["z_rms"] > Z_EXCEEDED
         return out
 
     def to_dict(self) -> dict:
@@ -165,4 +171,4 @@ def run_compensate(req: CompensationRequest) -> Compensation:
     return Compensation(job, robot, ident, req.target, points, truth)
 
 
-__all__ = ["CompensationRequest", "Compensation", "run_compensate"]
+__all__ = ["Z_EXCEEDED", "CompensationRequest", "Compensation", "run_compensate"]

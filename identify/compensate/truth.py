@@ -21,7 +21,6 @@ from calbench.bench.model import Robot
 from calbench.bench.scenario import Scenario
 from calbench.bench.statics import Load, StaticsSolver
 
-from .fingerprint import robot_sha256
 from .job import Job, JobPoint
 from .solve import PointResult
 from .toolpoint import ToolRobot, rotation_error, tool_pose, with_tool
@@ -40,13 +39,23 @@ class TruePoint:
 
 
 def true_robot(scn: Scenario, job: Job, user_robot: Robot) -> ToolRobot:
-    """The scenario's true robot with the job's tool; InputError when it is not the job's robot."""
-    base = Robot.from_file(scn.robot)
-    if robot_sha256(base) != robot_sha256(user_robot):
+    """The scenario's true robot with the job's tool; InputError when it is not the job's robot
+    (other actuated joints or reflectors: the user's model may be an augmented one, with more
+    joints, so the geometry's fingerprint is not asked to match)."""
+    truth = truth_robot(scn)
+    same = (
+        truth.description.actuated == user_robot.description.actuated
+        and truth.reflector_names == user_robot.reflector_names
+    )
+    label = user_robot.source.name if user_robot.source else "the job's robot"
+    if not same:
         raise InputError(
-            scn.path, "robot", f"the job's robot ({job.robot.name}, same geometry)", str(scn.robot.name)
+            scn.path, "robot", f"the job's robot ({label}: same joints and reflectors)", scn.robot.name
         )
-    return with_tool(truth_robot(scn), job.tool)
+    try:
+        return with_tool(truth, job.tool)
+    except (KeyError, ValueError) as exc:
+        raise InputError(scn.path, "robot", f"a robot with the job's tool ({job.tool})", str(exc)) from None
 
 
 class TruthBench:
