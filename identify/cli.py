@@ -539,9 +539,15 @@ def add_compensate(sub) -> None:
         "(named; its row keeps the nominal command).",
     )
     p.add_argument("job", type=Path, help="JOB.toml")
-    p.add_argument("--identified", type=Path, required=True, help="the identification (identify --json)")
-    p.add_argument("--out", type=Path, required=True, help="COMMANDS.csv: point,q1,...,qN in degrees")
-    p.add_argument("--json", type=Path, default=None, help="per-point predictions (and truth) as JSON")
+    p.add_argument(
+        "--identified", type=Path, required=True, help="the identification (identify --json; required)"
+    )
+    p.add_argument(
+        "--out", type=Path, required=True, help="COMMANDS.csv: point,q1,...,qN in degrees (required)"
+    )
+    p.add_argument(
+        "--json", type=Path, default=None, help="per-point predictions (and truth) as JSON (default: none)"
+    )
     p.add_argument("--model", type=Path, default=None, help="robot MJCF (default: the job's `robot`)")
     p.add_argument(
         "--target",
