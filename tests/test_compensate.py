@@ -268,6 +268,7 @@ def test_an_unreachable_point_is_named_and_kept(ident_json, tmp_path, capsys):
         f'robot = "{MJCF}"\n'
         "[[point]]\nq = [0, 60, 0, 0, 122, 0]\nwrench = [2000, 0, -2000, 0, 0, 0]\n"
         "[[point]]\nq = [0, 60, 0, 0, 0, 0]\npayload = 700\n"
+        "[[point]]\nq = [0, 90, -30, 0, 0, 0]\npayload = 700\n"  # crank along the upper arm
     )
     out, js = tmp_path / "c.csv", tmp_path / "c.json"
     assert (
@@ -281,8 +282,10 @@ def test_an_unreachable_point_is_named_and_kept(ident_json, tmp_path, capsys):
         and rows[1] == "0,0.000000000,60.000000000,0.000000000,0.000000000,122.000000000,0.000000000"
     )
     doc = json.loads(js.read_text())
-    assert [p["converged"] for p in doc["points"]] == [False, True]
+    assert [p["converged"] for p in doc["points"]] == [False, True, False]
     assert "joint limit" in doc["points"][0]["reason"]
+    assert "loop degeneracy" in doc["points"][2]["reason"]
+    assert rows[3].startswith("2,0.000000000,90.000000000,-30.000000000,")
 
 
 BAD_JOBS = {

@@ -55,7 +55,11 @@ def identified_from_report(rep: IdentificationReport, robot: Robot, source: obje
     for i, p in enumerate(rep.parameters):
         if p.estimate is None:
             raise InputError(
-                source, f"parameters[{i}].estimate", f"an identified value of {p.name}", p.reason or "null"
+                source,
+                f"parameters[{i}].estimate",
+                f"an identified value of {p.name} (the compensation needs every parameter: a plan "
+                "that determines it, e.g. from calbench design)",
+                p.reason or "null",
             )
     if rep.covariance is None:
         raise InputError(source, "covariance", f"the {len(want)}x{len(want)} covariance of the estimates")

@@ -155,6 +155,9 @@ class Compensator:
         q = np.asarray(p.q, dtype=float)
         load = self.load(p)
         nan3 = np.full((3, 3), np.nan)
+        if not self.robot.loop_ok(q):
+            why = "loop degeneracy: the nominal command is too close to a degenerate loop (bench.model.LOOP_MARGIN)"
+            return self._unreached(index, q, why, 0, nan3), None
         try:
             tgt = self.target(q)
             dev = self.error(self.equilibrium(q, load, sag), tgt)
@@ -214,7 +217,7 @@ class Compensator:
                     f"[{math.degrees(lo):.3f}, {math.degrees(hi):.3f}] deg"
                 )
         if not rb.loop_ok(u):
-            return "loop degeneracy: the compensated command is within 10 deg of a degenerate loop"
+            return "loop degeneracy: the compensated command is too close to a degenerate loop (bench.model.LOOP_MARGIN)"
         return None
 
     def _unreached(self, index, q, reason, it, cov, dev=None, tgt=None) -> PointResult:
