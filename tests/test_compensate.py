@@ -278,7 +278,7 @@ def test_an_unreachable_point_is_named_and_kept(ident_json, tmp_path, capsys):
     assert "q5" in capsys.readouterr().out
     rows = out.read_text().splitlines()
     assert (
-        len(rows) == 3
+        len(rows) == 4
         and rows[1] == "0,0.000000000,60.000000000,0.000000000,0.000000000,122.000000000,0.000000000"
     )
     doc = json.loads(js.read_text())
