@@ -10,12 +10,14 @@ error after, the predicted error (RMS of predicted_error_std_m) and z = |true af
 predicted std (its RMS over seeds and points; the seeds are the independent samples, the
 points of one seed move together, so its sampling error is about 1/sqrt(2 x seeds)).
 
-Then the rigid target on the FANUC (seed 1): predicted and true error, and the speed of the
-scalar loop: seconds per point on a long job (a path sweeping the FANUC's front).
+Then the rigid target on the FANUC (seed 1): predicted and true error, and the speed on a long
+job (a path sweeping the FANUC's front): the batched compensation (identify/compensate/batch.py)
+on --points points, the scalar loop on 2000 of them, seconds per point side by side (each with
+the load average at its start: other work on the 2 cores slows wall time).
 
-    .venv/bin/python benchmarks/compensate_bench.py [--seeds 10] [--points 2000] [--quick]
+    .venv/bin/python benchmarks/compensate_bench.py [--seeds 10] [--points 10000] [--quick]
 
-(--quick: 3 seeds, 200 points.)
+(--quick: 3 seeds, 500 points batched, 200 scalar.)
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ from calbench.identify.compensate import (
     Compensator,
     JobPoint,
     check_job,
+    compensate_batch,
     load_job,
     read_identified,
     run_compensate,
@@ -123,7 +126,7 @@ def rigid(work: Path) -> dict:
     }
 
 
-def speed(n: int, work: Path) -> dict:
+def speed(n: int, scalar: int, work: Path) -> dict:
     scenario, job_path = CASES["fanuc_m900ib700"]
     job = load_job(job_path)
     robot = Robot.from_file(job.robot)
@@ -145,26 +148,33 @@ def speed(n: int, work: Path) -> dict:
     w = np.array([-1800.0, 600.0, 2400.0, 150.0, -200.0, -200.0])
     points = tuple(JobPoint(row, wrench=w) for row in q)
     comp = Compensator(with_tool(robot, job.tool), ident.params(robot), ident.covariance)
-    say("compensate", f"speed: {n} points, scalar loop")
-    t0, c0 = time.perf_counter(), time.process_time()
-    res = comp.path(points)
-    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    return {
-        "points": n,
-        "converged": sum(r.converged for r in res),
-        "wall_s": wall,
-        "cpu_s": cpu,
-        "ms_per_point": 1e3 * wall / n,
-        "newton_steps_mean": float(np.mean([r.iterations for r in res])),
-        "projected_1e4_points_s": wall / n * 1e4,
-        "load_average": round(os.getloadavg()[0], 2),
-    }
+    out = {}
+    for name, run, m in (
+        ("scalar", comp.path, min(n, scalar)),
+        ("batched", lambda pts: compensate_batch(comp, pts), n),
+    ):
+        say("compensate", f"speed: {m} points, {name}")
+        load = round(os.getloadavg()[0], 2)
+        t0, c0 = time.perf_counter(), time.process_time()
+        res = run(points[:m])
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        out[name] = {
+            "points": m,
+            "converged": sum(r.converged for r in res),
+            "wall_s": wall,
+            "cpu_s": cpu,
+            "ms_per_point": 1e3 * wall / m,
+            "newton_steps_mean": float(np.mean([r.iterations for r in res])),
+            "load_average": load,
+        }
+    out["batched_over_scalar_per_point"] = out["batched"]["ms_per_point"] / out["scalar"]["ms_per_point"]
+    return out
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=10)
-    ap.add_argument("--points", type=int, default=2000)
+    ap.add_argument("--points", type=int, default=10000, help="the long job's points (batched)")
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args()
     seeds = list(range(1, (3 if args.quick else args.seeds) + 1))
@@ -172,7 +182,7 @@ def main() -> None:
         work = Path(tmp)
         out = {name: case(name, seeds, work) for name in CASES}
         out["fanuc_rigid_target"] = rigid(work)
-        out["speed"] = speed(200 if args.quick else args.points, work)
+        out["speed"] = speed(500 if args.quick else args.points, 200 if args.quick else 2000, work)
     print(json.dumps(out, indent=2))
 
 

@@ -35,6 +35,7 @@ from calbench.identify.compensate import (
     CompensationRequest,
     Compensator,
     check_job,
+    compensate_batch,
     load_job,
     read_identified,
     run_compensate,
@@ -233,6 +234,41 @@ def test_a_hidden_effect_shows_as_an_error_larger_than_predicted(tmp_path, capsy
     assert "lacks an effect of the true robot" in capsys.readouterr().out
     s = run_compensate(CompensationRequest(JOB, js, truth=scn)).summary()
     assert s["prediction_exceeded"] and s["z_rms"] > Z_EXCEEDED
+
+
+@pytest.mark.parametrize("target", ["unloaded", "rigid"])
+def test_the_batched_compensation_is_the_scalar_one(ident_json, target):
+    """Both converge to 1e-8 m and 1e-8 rad at lever arms of metres, so their commands agree to
+    ~1e-8 rad; the predictions rest on forward-difference matrices of step 1e-7 (relative
+    errors ~1e-6)."""
+    job, robot, ident, _ = model_and_job(ident_json)
+    comp = Compensator(with_tool(robot, job.tool), ident.params(robot), ident.covariance, target)
+    scalar, batched = comp.path(job.points), compensate_batch(comp, job.points, chunk=10)
+    for a, b in zip(scalar, batched, strict=True):
+        assert a.index == b.index and a.converged and b.converged
+        assert np.abs(a.command - b.command).max() <= 1e-7
+        assert b.position_error_m <= 1e-8 and b.orientation_error_rad <= 1e-8
+        assert math.isclose(a.predicted_error_std_m, b.predicted_error_std_m, rel_tol=1e-4)
+        assert math.isclose(a.predicted_deviation_m, b.predicted_deviation_m, rel_tol=1e-6)
+
+
+def test_the_batched_compensation_names_the_same_unreachable_points(ident_json, tmp_path):
+    job = tmp_path / "lim.toml"
+    job.write_text(
+        f'robot = "{MJCF}"\n'
+        "[[point]]\nq = [0, 60, 0, 0, 122, 0]\nwrench = [2000, 0, -2000, 0, 0, 0]\n"
+        "[[point]]\nq = [0, 60, 0, 0, 0, 0]\npayload = 700\n"
+        "[[point]]\nq = [0, 90, -30, 0, 0, 0]\npayload = 700\n"
+    )
+    scalar = run_compensate(CompensationRequest(job, ident_json, batched=False))
+    batched = run_compensate(CompensationRequest(job, ident_json, batched=True))
+    assert [p.reason.split(":")[0] if p.reason else None for p in batched.points] == [
+        "joint limit",
+        None,
+        "loop degeneracy",
+    ]
+    assert [p.reason for p in batched.points] == [p.reason for p in scalar.points]
+    assert np.abs(batched.points[1].command - scalar.points[1].command).max() <= 1e-7
 
 
 # --------------------------------------------------------------------------- the command line

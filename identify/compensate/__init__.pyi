@@ -1,6 +1,7 @@
 # The public face of calbench.identify.compensate: what code outside this room may import. At run
 # time calbench.bench.core.face reads these lines and loads each name on first use.
 
+from .batch import compensate_batch
 from .fingerprint import robot_sha256
 from .identified import Identified, identified_from_report, read_identified
 from .job import Job, JobPoint, Tool, check_job, load_job, parse_job
@@ -23,6 +24,7 @@ __all__ = [
     "Z_EXCEEDED",
     "apply_to_truth",
     "check_job",
+    "compensate_batch",
     "identified_from_report",
     "load_job",
     "parse_job",

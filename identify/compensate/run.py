@@ -14,6 +14,7 @@ from calbench.bench.core import InputError
 from calbench.bench.model import Robot
 from calbench.bench.scenario import load_scenario
 
+from .batch import compensate_batch
 from .identified import Identified, read_identified
 from .job import Job, check_job, load_job
 from .solve import TARGETS, Compensator, PointResult
@@ -24,6 +25,9 @@ from .truth import TruePoint, apply_to_truth
 # about one chi variable of a few degrees of freedom: above 3 by chance with probability < 0.3 %
 # when the model is right. Above it, the true robot has something the identified model lacks.
 Z_EXCEEDED = 3.0
+# From this many points a job is compensated on mujoco.batch (about 3 x faster per point than the
+# scalar loop; the two agree to 1e-8 rad, tests/test_compensate.py)
+BATCH_MIN = 100
 
 
 @dataclass(frozen=True)
@@ -33,6 +37,9 @@ class CompensationRequest:
     target: str = "unloaded"
     model: str | Path | None = None  # default: the job's robot
     truth: str | Path | None = None  # a scenario whose true robot the commands are applied to
+    batched: bool | None = (
+        None  # stacked on mujoco.batch (identify/compensate/batch.py); None: from BATCH_MIN points
+    )
 
 
 @dataclass(frozen=True)
@@ -164,7 +171,8 @@ def run_compensate(req: CompensationRequest) -> Compensation:
     ident = read_identified(req.identified, robot)
     scn = load_scenario(req.truth) if req.truth is not None else None
     comp = Compensator(with_tool(robot, job.tool), ident.params(robot), ident.covariance, req.target)
-    points = tuple(comp.path(job.points))
+    batched = len(job.points) >= BATCH_MIN if req.batched is None else req.batched
+    points = tuple(compensate_batch(comp, job.points) if batched else comp.path(job.points))
     truth = None
     if scn is not None:
         truth = tuple(apply_to_truth(scn, job, robot, list(points), req.target))

@@ -207,8 +207,9 @@ class Compensator:
         )
         return res, eq if reason is None else None
 
-    def _unreachable(self, u: np.ndarray) -> str | None:
-        """Why command u cannot be sent (a joint limit, a degenerate loop), or None."""
+    def _unreachable(self, u: np.ndarray, loop_ok: bool | None = None) -> str | None:
+        """Why command u cannot be sent (a joint limit, a degenerate loop), or None; ``loop_ok``
+        if already known (bench.model.Robot.loop_ok of u)."""
         rb = self.robot
         for j, (lo, hi) in enumerate(rb.limits()):
             if not lo - JOINT_LIMIT_TOL <= u[j] <= hi + JOINT_LIMIT_TOL:
@@ -216,7 +217,7 @@ class Compensator:
                     f"joint limit: the compensated q{j + 1} = {math.degrees(u[j]):.4f} deg is outside "
                     f"[{math.degrees(lo):.3f}, {math.degrees(hi):.3f}] deg"
                 )
-        if not rb.loop_ok(u):
+        if not (rb.loop_ok(u) if loop_ok is None else loop_ok):
             return "loop degeneracy: the compensated command is too close to a degenerate loop (bench.model.LOOP_MARGIN)"
         return None
 
