@@ -564,6 +564,19 @@ def add_compensate(sub) -> None:
         help="on the bench: apply the commands to the true robot of SCENARIO.toml and report the "
         "true error before and after (default: none)",
     )
+    p.add_argument(
+        "--rrd",
+        type=Path,
+        default=None,
+        help="write a Rerun recording of the path: targets, the loaded tool uncompensated and compensated "
+        "(the truth's with --truth), errors magnified (default: none)",
+    )
+    p.add_argument(
+        "--magnify",
+        type=float,
+        default=200.0,
+        help="error magnification in the recording (default: %(default)s)",
+    )
     p.set_defaults(func=cmd_compensate)
 
 
@@ -575,7 +588,9 @@ def cmd_compensate(args) -> int:
     from calbench.identify.compensate import Z_EXCEEDED, CompensationRequest, run_compensate
 
     inputs = {"JOB": args.job, "--identified": args.identified, "--model": args.model, "--truth": args.truth}
-    check_outputs({"--out": args.out, "--json": args.json}, inputs)
+    check_outputs({"--out": args.out, "--json": args.json, "--rrd": args.rrd}, inputs)
+    if args.rrd is not None and not (math.isfinite(args.magnify) and args.magnify > 0):
+        raise InputError("--magnify", "value", "a positive finite number", args.magnify)
     res = run_compensate(CompensationRequest(args.job, args.identified, args.target, args.model, args.truth))
     truth = {t.index: t for t in res.truth or ()}
     head = f"{'point':>5} {'dev um':>9} {'std um':>7}" + (
@@ -609,6 +624,11 @@ def cmd_compensate(args) -> int:
     write_text(args.out, res.commands_csv())
     if args.json:
         write_text(args.json, json.dumps(res.to_dict(), indent=2, allow_nan=False))
+    if args.rrd:
+        from calbench.identify.compensate import write_path_recording
+
+        write_path_recording(res, args.rrd, args.magnify)
+        print(f"wrote {args.rrd} (Rerun; errors x{args.magnify:g}): rerun {args.rrd}")
     if res.unreached:
         print(f"{len(res.unreached)} point(s) cannot be reached: {[p.index for p in res.unreached]}")
         return 1

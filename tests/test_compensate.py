@@ -271,6 +271,35 @@ def test_the_batched_compensation_names_the_same_unreachable_points(ident_json, 
     assert np.abs(batched.points[1].command - scalar.points[1].command).max() <= 1e-7
 
 
+def test_the_path_recording_draws_the_json_s_errors(compensated, tmp_path):
+    """The recording's positions are the true robot's: their distances to the targets are the
+    true errors the JSON reports, and the file is a valid Rerun recording."""
+    import subprocess
+
+    from rerun_cli import rerun_env, rerun_exe
+
+    from calbench.identify.compensate import path_positions, write_path_recording
+
+    pos = path_positions(compensated)
+    before = np.linalg.norm(pos["before"] - pos["target"], axis=1)
+    after = np.linalg.norm(pos["after"] - pos["target"], axis=1)
+    assert np.allclose(before, [t.error_before_m for t in compensated.truth], rtol=1e-9, atol=1e-12)
+    assert np.allclose(after, [t.error_after_m for t in compensated.truth], rtol=1e-6, atol=1e-10)
+    rrd = write_path_recording(compensated, tmp_path / "path.rrd")
+    exe = rerun_exe()
+    r = subprocess.run(
+        [exe, "rrd", "print", str(rrd)], env=rerun_env(tmp_path), capture_output=True, text=True, timeout=120
+    )
+    assert r.returncode == 0, r.stderr
+    for e in (
+        "/path/target",
+        "/path/truth_uncompensated_x200",
+        "/path/truth_compensated_x200",
+        "/robot/link6",
+    ):
+        assert f"- {e} -" in r.stdout, e
+
+
 # --------------------------------------------------------------------------- the command line
 
 

@@ -9,6 +9,7 @@ from .run import Z_EXCEEDED, Compensation, CompensationRequest, run_compensate
 from .solve import TARGETS, Compensator, PointResult
 from .toolpoint import tool_jacobian, tool_pose, with_tool
 from .truth import TruePoint, apply_to_truth
+from .view import path_positions, write_path_recording
 
 __all__ = [
     "Compensation",
@@ -28,10 +29,12 @@ __all__ = [
     "identified_from_report",
     "load_job",
     "parse_job",
+    "path_positions",
     "read_identified",
     "robot_sha256",
     "run_compensate",
     "tool_jacobian",
     "tool_pose",
     "with_tool",
+    "write_path_recording",
 ]

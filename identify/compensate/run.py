@@ -12,7 +12,7 @@ import numpy as np
 
 from calbench.bench.core import InputError
 from calbench.bench.model import Robot
-from calbench.bench.scenario import load_scenario
+from calbench.bench.scenario import Scenario, load_scenario
 
 from .batch import compensate_batch
 from .identified import Identified, read_identified
@@ -50,6 +50,7 @@ class Compensation:
     target: str
     points: tuple[PointResult, ...]
     truth: tuple[TruePoint, ...] | None = None
+    scenario: Scenario | None = None  # the true robot's, when the commands were applied to one
 
     @property
     def unreached(self) -> list[PointResult]:
@@ -176,7 +177,7 @@ def run_compensate(req: CompensationRequest) -> Compensation:
     truth = None
     if scn is not None:
         truth = tuple(apply_to_truth(scn, job, robot, list(points), req.target))
-    return Compensation(job, robot, ident, req.target, points, truth)
+    return Compensation(job, robot, ident, req.target, points, truth, scn)
 
 
 __all__ = ["Z_EXCEEDED", "CompensationRequest", "Compensation", "run_compensate"]
