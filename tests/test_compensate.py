@@ -238,6 +238,34 @@ def test_the_rigid_target_is_reached_where_the_campaign_determines_the_sag(tmp_p
     assert rigid["true_error_after_rms_m"] <= 4 * rigid["predicted_error_rms_m"]
 
 
+def test_a_four_axis_robot_is_compensated_in_position(tmp_path):
+    """tests/robots.py's serial robot (four axes, no loop): the tool position alone is held (a
+    four-axis robot cannot hold the orientation too), the smallest correction is found whatever
+    the start (scalar path and batch agree), and the true error falls to the prediction."""
+    from robots import serial_mjcf
+    from test_serial_robot import scenario
+
+    scn = scenario(tmp_path, "serial", serial_mjcf())
+    log, js = tmp_path / "s.mcap", tmp_path / "s.json"
+    assert main(["simulate", str(scn), "--out", str(log)]) == 0
+    assert main(["identify", str(log), "--json", str(js)]) == 0
+    job = tmp_path / "job.toml"
+    job.write_text(
+        'robot = "serial.xml"\n[tool]\nsite = "hook"\n'
+        "[[point]]\nq = [0, 30, -40, 0]\nwrench = [-800, 300, 500, 0, 0, 0]\n"
+        "[[point]]\nq = [10, 32, -42, 0]\nwrench = [-800, 300, 500, 0, 0, 50]\n"
+        "[[point]]\nq = [20, 34, -44, 10]\npayload = 150\n"
+    )
+    scalar = run_compensate(CompensationRequest(job, js, batched=False, truth=scn))
+    batched = run_compensate(CompensationRequest(job, js, batched=True))
+    for a, b in zip(scalar.points, batched.points, strict=True):
+        assert a.converged and b.converged and a.position_error_m <= 1e-8
+        assert np.abs(a.command - b.command).max() <= 1e-7
+    s = scalar.summary()
+    assert s["true_error_before_rms_m"] > 1e-4
+    assert s["true_error_after_rms_m"] <= 4 * s["predicted_error_rms_m"]
+
+
 def test_a_hidden_effect_shows_as_an_error_larger_than_predicted(tmp_path, capsys):
     """A forearm compliance the identified model lacks (tests/test_discover.py's case): the true
     error after compensation exceeds the prediction by more than Z_EXCEEDED, and the output says

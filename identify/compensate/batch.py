@@ -20,7 +20,7 @@ from calbench.bench.model import LOOP_MARGIN
 from calbench.bench.statics import BatchStatics, Equilibria, Load, kkt_matrix, take_load
 
 from .job import JobPoint
-from .solve import MAX_STEPS, POSITION_TOL, ROTATION_TOL, Compensator, PointResult
+from .solve import MAX_STEPS, POSITION_TOL, ROTATION_TOL, Compensator, PointResult, command_step
 
 CHUNK = 2048  # points solved together (memory: a few MB per 1000 points)
 
@@ -162,7 +162,7 @@ def _chunk(
         du, dth, a = st.tangents(eq, take_load(st.load, act))
         err[act], g[act], its[act] = e, jac @ dth - g_t[act], it
         done = (np.linalg.norm(e[:, :3], axis=1) <= POSITION_TOL) & (
-            np.linalg.norm(e[:, 3:], axis=1) <= ROTATION_TOL
+            (np.linalg.norm(e[:, 3:], axis=1) <= ROTATION_TOL) | (not comp.orient)
         )
         keep = ~(done | bad)
         if it == MAX_STEPS:
@@ -171,9 +171,9 @@ def _chunk(
                     f"Newton did not converge in {MAX_STEPS} steps (|error| {np.linalg.norm(err[i, :3]):.3g} m)"
                 )
             break
-        jk, ek = (jac @ du)[keep], e[keep]
+        jk, ek = (jac @ du)[keep][:, comp.rows], e[keep][:, comp.rows]
         eq, a, act = eq.take(keep), a[keep], act[keep]
-        u[act] -= np.einsum("nij,nj->ni", np.linalg.pinv(jk), ek)
+        u[act] += command_step(jk, ek, u[act] - q[act])
     results = []
     loops = _loops_ok(batch, u)
     for i in range(n):

@@ -15,7 +15,8 @@ static equilibrium (bench.statics: the loop closed exactly, the compensator, gra
 the tool point). Its Jacobian is the tool Jacobian times the implicit-function tangent of the
 equilibrium (bench.statics.ift_tangent): the command enters the force balance only through the
 drive springs, d g / d u_i = K_i on motor i's dof (paper eq. 1, the spring rests at the
-command). Newton converges quadratically; it stops at 1e-8 m and 1e-8 rad (the contract's
+command). A robot of fewer than six axes cannot hold the orientation as well: it is solved
+for the position alone (least squares; the orientation error is reported). Newton converges quadratically; it stops at 1e-8 m and 1e-8 rad (the contract's
 1 um and 1 urad with two orders to spare; the statics themselves are exact to ~3e-11 m).
 
 The predicted error after compensation is first order in the parameter error: the true robot
@@ -78,6 +79,17 @@ class PointResult:
         return float(math.sqrt(max(np.trace(self.position_covariance), 0.0)))
 
 
+def command_step(jac: np.ndarray, err: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """Newton steps (n, N) on the commands, stacked: J du = -e (J (n, m, N) from the tangent,
+    e (n, m)), and, where J has more columns than rank (a redundant robot, or one of fewer than
+    six axes solved for the position only), the correction u - q (``shift``) pulled towards zero
+    in J's null space, so that the command found is the smallest correction: unique, whatever
+    the start (the path's warm start, or the nominal command)."""
+    pinv = np.linalg.pinv(jac)
+    null = np.eye(jac.shape[2]) - pinv @ jac
+    return -np.einsum("nij,nj->ni", pinv, err) - np.einsum("nij,nj->ni", null, shift)
+
+
 class Compensator:
     """The identified model (``params``, covariance ``cov``) on a robot with its tool site."""
 
@@ -93,6 +105,9 @@ class Compensator:
         m = self.robot.model
         self._a = m.jnt_stiffness[self.robot.act_joint].copy()
         self._c = m.jnt_stiffnesspoly[self.robot.act_joint, 1].copy()
+        # a robot of fewer than six axes cannot hold the orientation too: the position only
+        self.orient = self.robot.n_act >= 6
+        self.rows = slice(0, 6 if self.orient else 3)
 
     # -- pieces ----------------------------------------------------------------------------
     def load(self, p: JobPoint) -> Load:
@@ -172,10 +187,12 @@ class Compensator:
                 e = self.error(eq, tgt)
                 du, dth = self.tangents(eq, load)
                 jac = tool_jacobian(self.robot, self.site, eq.qpos)
-                done = np.linalg.norm(e[:3]) <= POSITION_TOL and np.linalg.norm(e[3:]) <= ROTATION_TOL
+                done = np.linalg.norm(e[:3]) <= POSITION_TOL and (
+                    np.linalg.norm(e[3:]) <= ROTATION_TOL or not self.orient
+                )
                 if done or it == MAX_STEPS:
                     break
-                u = u - np.linalg.lstsq(jac @ du, e, rcond=None)[0]
+                u = u + command_step((jac @ du)[None, self.rows], e[None, self.rows], (u - q)[None])[0]
                 it += 1
         except (StaticsError, np.linalg.LinAlgError) as exc:
             return self._unreached(index, q, f"no equilibrium on the way: {exc}", it, nan3, dev, tgt), None
@@ -255,4 +272,4 @@ class Compensator:
         return out
 
 
-__all__ = ["TARGETS", "POSITION_TOL", "ROTATION_TOL", "Compensator", "PointResult", "Target"]
+__all__ = ["command_step", "TARGETS", "POSITION_TOL", "ROTATION_TOL", "Compensator", "PointResult", "Target"]
