@@ -528,6 +528,115 @@ def cmd_import(args) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- compensate
+
+
+def add_compensate(sub) -> None:
+    p = sub.add_parser(
+        "compensate",
+        help="compliance-error compensation: joint commands at which the identified model's loaded tool "
+        "lands on target",
+        description="JOB.toml: a path of nominal commands with their process loads (docs/contract.md, "
+        "'Job file'); ID.json: `calbench identify --json`. Exit 1 when a point cannot be reached "
+        "(named; its row keeps the nominal command).",
+    )
+    p.add_argument("job", type=Path, help="JOB.toml")
+    p.add_argument(
+        "--identified", type=Path, required=True, help="the identification (identify --json; required)"
+    )
+    p.add_argument(
+        "--out", type=Path, required=True, help="COMMANDS.csv: point,q1,...,qN in degrees (required)"
+    )
+    p.add_argument(
+        "--json", type=Path, default=None, help="per-point predictions (and truth) as JSON (default: none)"
+    )
+    p.add_argument("--model", type=Path, default=None, help="robot MJCF (default: the job's `robot`)")
+    p.add_argument(
+        "--target",
+        choices=("unloaded", "rigid"),
+        default="unloaded",
+        help="unloaded: where the same robot puts the tool without the job's load (removes the "
+        "process deflection); rigid: the rigid nominal pose (removes the self-weight sag too, "
+        "which a deflection campaign hardly determines) (default: %(default)s)",
+    )
+    p.add_argument(
+        "--truth",
+        type=Path,
+        default=None,
+        help="on the bench: apply the commands to the true robot of SCENARIO.toml and report the "
+        "true error before and after (default: none)",
+    )
+    p.add_argument(
+        "--rrd",
+        type=Path,
+        default=None,
+        help="write a Rerun recording of the path: targets, the loaded tool uncompensated and compensated "
+        "(the truth's with --truth), errors magnified (default: none)",
+    )
+    p.add_argument(
+        "--magnify",
+        type=float,
+        default=200.0,
+        help="error magnification in the recording (default: %(default)s)",
+    )
+    p.set_defaults(func=cmd_compensate)
+
+
+def _um(x) -> str:
+    return "-" if x is None or not math.isfinite(x) else f"{x * 1e6:.1f}"
+
+
+def cmd_compensate(args) -> int:
+    from calbench.identify.compensate import Z_EXCEEDED, CompensationRequest, run_compensate
+
+    inputs = {"JOB": args.job, "--identified": args.identified, "--model": args.model, "--truth": args.truth}
+    check_outputs({"--out": args.out, "--json": args.json, "--rrd": args.rrd}, inputs)
+    if args.rrd is not None and not (math.isfinite(args.magnify) and args.magnify > 0):
+        raise InputError("--magnify", "value", "a positive finite number", args.magnify)
+    res = run_compensate(CompensationRequest(args.job, args.identified, args.target, args.model, args.truth))
+    truth = {t.index: t for t in res.truth or ()}
+    head = f"{'point':>5} {'dev um':>9} {'std um':>7}" + (
+        f" {'true before um':>14} {'true after um':>13} {'z':>5}" if truth else ""
+    )
+    print(f"calbench compensate: {args.job} ({len(res.points)} points, target {res.target})")
+    print(head)
+    for p in res.points:
+        line = f"{p.index:>5} {_um(p.predicted_deviation_m):>9} {_um(p.predicted_error_std_m):>7}"
+        if p.index in truth:
+            t = truth[p.index]
+            z = "-" if not math.isfinite(t.z) else f"{t.z:.2f}"
+            line += f" {_um(t.error_before_m):>14} {_um(t.error_after_m):>13} {z:>5}"
+        print(line + ("" if p.converged else f"  NOT REACHED: {p.reason}"))
+    s = res.summary()
+    print(
+        f"predicted: {_um(s['predicted_deviation_rms_m'])} um RMS uncompensated, "
+        f"{_um(s['predicted_error_rms_m'])} um RMS (1 sigma) left after compensation"
+    )
+    if truth:
+        print(
+            f"true: {_um(s['true_error_before_rms_m'])} um RMS before, {_um(s['true_error_after_rms_m'])} um "
+            f"RMS after (max {_um(s['true_error_after_max_m'])} um); z RMS {s['z_rms']:.2f}"
+            + (
+                f"\n  the true error is more than {Z_EXCEEDED:g} x the predicted one: the identified model "
+                "lacks an effect of the true robot (calbench discover names it)"
+                if s["prediction_exceeded"]
+                else ""
+            )
+        )
+    write_text(args.out, res.commands_csv())
+    if args.json:
+        write_text(args.json, json.dumps(res.to_dict(), indent=2, allow_nan=False))
+    if args.rrd:
+        from calbench.identify.compensate import write_path_recording
+
+        write_path_recording(res, args.rrd, args.magnify)
+        print(f"wrote {args.rrd} (Rerun; errors x{args.magnify:g}): rerun {args.rrd}")
+    if res.unreached:
+        print(f"{len(res.unreached)} point(s) cannot be reached: {[p.index for p in res.unreached]}")
+        return 1
+    return 0
+
+
 # --------------------------------------------------------------------------- study
 
 
@@ -661,6 +770,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_from_urdf(sub)
     add_recover(sub)
     add_study(sub)
+    add_compensate(sub)
     return parser
 
 

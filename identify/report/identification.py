@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -27,6 +27,7 @@ from calbench.bench.log import (
 )
 from calbench.bench.model import Robot
 from calbench.bench.tracker import DEFAULT_MODEL, tracker_models
+from calbench.identify.compensate import robot_sha256
 from calbench.identify.core import (
     MAX_RELATIVE_STD,
     OUTLIER_SIGMA,
@@ -246,7 +247,9 @@ def run_identify(
     seconds = time.perf_counter() - t0
     truth = truth_vector(read_log(log_path, include_truth=True).truth, robot)  # for the report only
     model_name = str(model) if model is not None else f"{log.header.get('robot', 'MJCF')} (from the log)"
-    return identification_report(res, truth, log_path, model_name, seconds)
+    rep = identification_report(res, truth, log_path, model_name, seconds)
+    # which robot this is (compensate refuses an identification of another one)
+    return replace(rep, details={**rep.details, "robot_sha256": robot_sha256(robot)})
 
 
 def check_failed(rep: IdentificationReport, z_max: float = Z_CHECK) -> list[str]:
