@@ -28,9 +28,11 @@ from .exchange import Exchanger
 from .feasibility import (
     EQUILIBRIUM_RULES,
     LOAD_KINDS,
+    collision_model,
     excluded_pairs,
     horizontal_clearance,
     lateral_wrench,
+    world_parent_pairs,
     wrist_body,
 )
 from .plan import (
@@ -78,6 +80,7 @@ __all__ = [
     "approximate_design",
     "certify",
     "column_scale",
+    "collision_model",
     "criterion_value",
     "d_bound",
     "design_plan",
@@ -106,5 +109,6 @@ __all__ = [
     "selection_text",
     "summary_text",
     "work_jacobian",
+    "world_parent_pairs",
     "wrist_body",
 ]

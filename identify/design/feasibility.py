@@ -15,7 +15,9 @@ Feasibility rules (each named; :func:`Feasibility.check` returns the violated on
   collidable (contype = conaffinity = 1, margin = ``clearance``), at the rigid pose and at both
   equilibria. Not counted (:func:`excluded_pairs`, derived from the model, no table): parent-
   child pairs (MuJoCo's own filter, which includes bodies welded to their parent, e.g. the
-  FANUC's counterweight on the crank); the bodies of a kinematic loop among themselves (the
+  FANUC's counterweight on the crank, but never filters a child of the world's weld group: we
+  exclude those pairs ourselves, a URDF's ``base_link`` against ``link_1``, the FANUC's base
+  against the turret; :func:`world_parent_pairs`); the bodies of a kinematic loop among themselves (the
   bodies on its path between its two sites and the bodies welded to them: they meet by design
   at the loop's hinges; the FANUC's upper arm, crank, rod, forearm and the masses on them);
   and the pairs that come within REFERENCE_GAP = 2 cm of each other in the model's reference
@@ -104,12 +106,41 @@ def _welded(model: mujoco.MjModel, body: int) -> list[int]:
     return out
 
 
+def mujoco_filters(model: mujoco.MjModel, b1: int, b2: int) -> bool:
+    """Whether MuJoCo's own contact filter drops every contact between bodies b1 and b2: the
+    same weld group (bodies welded together), or parent and child weld groups, where neither is
+    the world's (MuJoCo never filters a pair whose parent is welded to the world: a URDF's
+    ``base_link`` against ``link_1``). The rule of mj_collision's body filter (filterparent on)."""
+    w1, w2 = int(model.body_weldid[b1]), int(model.body_weldid[b2])
+    if w1 == w2:
+        return True
+    p1, p2 = (int(model.body_weldid[model.body_parentid[w]]) for w in (w1, w2))
+    return w1 != 0 and w2 != 0 and (w1 == p2 or w2 == p1)
+
+
+def world_parent_pairs(model: mujoco.MjModel) -> set[tuple[str, str]]:
+    """Parent-child pairs MuJoCo does not filter: each body of a weld group hanging by a joint
+    from the world's weld group (the world and the bodies welded to it, e.g. ``base_link``)
+    against each body of the world's group, bodies with geoms only. MuJoCo filters the same pair
+    for a jointed parent; across joint 1 the meshes of every ROS-Industrial robot touch."""
+    geoms = [b for b in range(model.nbody) if model.body_geomnum[b] > 0]
+    world = [b for b in geoms if model.body_weldid[b] == 0]
+    out = set()
+    for b in geoms:
+        w = int(model.body_weldid[b])
+        if w != 0 and model.body_weldid[model.body_parentid[w]] == 0:
+            out |= {(model.body(a).name, model.body(b).name) for a in world}
+    return out
+
+
 def excluded_pairs(robot: Robot, robot_path: Path) -> tuple[tuple[str, str], ...]:
     """Body pairs the self-collision rule does not count (module docstring), derived from the
-    model: the bodies of each loop among themselves, and the pairs within REFERENCE_GAP at the
-    reference configuration (the rigid pose at q = 0). Sorted name pairs."""
+    model: the parent-child pairs MuJoCo does not filter (:func:`world_parent_pairs`), the bodies
+    of each loop among themselves, and the pairs within REFERENCE_GAP at the reference
+    configuration (the rigid pose at q = 0; every contact MuJoCo reports there, since MuJoCo
+    has filtered its own pairs already). Sorted name pairs."""
     m = robot.model
-    pairs: set[tuple[str, str]] = set()
+    pairs = world_parent_pairs(m)
     for a, b in robot.loops:
         up_a, up_b = ancestors(m, m.site_bodyid[a]), ancestors(m, m.site_bodyid[b])
         root = next(x for x in up_a if x in up_b)
@@ -123,8 +154,7 @@ def excluded_pairs(robot: Robot, robot_path: Path) -> tuple[tuple[str, str], ...
     mujoco.mj_collision(ref, d)
     for c in d.contact[: d.ncon]:
         b1, b2 = int(ref.geom_bodyid[c.geom[0]]), int(ref.geom_bodyid[c.geom[1]])
-        if ref.body_parentid[b1] != b2 and ref.body_parentid[b2] != b1:  # MuJoCo filters those
-            pairs.add((ref.body(b1).name, ref.body(b2).name))
+        pairs.add((ref.body(b1).name, ref.body(b2).name))
     return tuple(sorted({tuple(sorted(p)) for p in pairs}))
 
 
