@@ -22,7 +22,15 @@ from pathlib import Path
 
 import mujoco
 
-from calbench.bench.cli import add_check_robot, add_export, add_from_urdf, add_recover, add_simulate, add_view
+from calbench.bench.cli import (
+    add_check_robot,
+    add_export,
+    add_from_urdf,
+    add_recover,
+    add_simulate,
+    add_view,
+    cmd_check_robot,
+)
 from calbench.bench.core import (
     CalbenchError,
     InputError,
@@ -607,6 +615,40 @@ def cmd_study(args) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- check-robot
+
+
+def add_check_robot_design(sub) -> None:
+    """bench's check-robot, followed by design's feasibility rules on a sample of commands."""
+    add_check_robot(sub)
+    p = sub.choices["check-robot"]
+    p.add_argument(
+        "--sample",
+        type=int,
+        default=256,
+        help="commands sampled as `design` samples them, for the share that passes each of its "
+        "feasibility rules (0: skip; default: %(default)s)",
+    )
+    p.set_defaults(func=lambda args: cmd_check_robot(args, _design_lines))
+
+
+def _design_lines(args, res) -> list[str]:
+    from calbench.identify.design import robot_tally
+
+    if args.sample < 0:
+        raise InputError("--sample", "sample", "an integer >= 0", args.sample)
+    if args.sample == 0:
+        return []
+    t = robot_tally(args.robot, res.tracker, args.mass, args.sample)
+    share = t.passed_command / t.sampled * (t.feasible / t.solved if t.solved else 0.0)
+    return [
+        f"  design's feasibility rules on {t.sampled} sampled commands (default [design] settings, "
+        f"{args.mass:g} kg; equilibria checked on {t.solved} that pass the command rules): "
+        f"{100 * share:.1f} % feasible",
+        *t.lines(),
+    ]
+
+
 # --------------------------------------------------------------------------- demo
 
 
@@ -653,7 +695,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_view(sub)
     add_discover(sub)
     add_report(sub)
-    add_check_robot(sub)
+    add_check_robot_design(sub)
     add_import(sub)
     add_export(sub)
     add_from_urdf(sub)
