@@ -17,6 +17,7 @@ import logging
 import math
 import os
 import sys
+import warnings
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
@@ -38,6 +39,7 @@ from calbench.bench.core import (
     terminal_progress,
     write_text,
 )
+from calbench.bench.scenario import PlausibilityWarning
 from calbench.identify.core import OUTLIER_SIGMA
 
 from . import demo
@@ -704,6 +706,20 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _one_line_warning(command: str):
+    """Warnings as one line on stderr: ``calbench VERB: warning: FILE: KEY: what``; a
+    PlausibilityWarning's origin in the code means nothing to its reader."""
+    original = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, PlausibilityWarning):
+            print(f"calbench {command}: warning: {message}", file=sys.stderr, flush=True)
+        else:
+            original(message, category, filename, lineno, file, line)
+
+    return show
+
+
 def _mujoco_warning(message: str) -> None:
     logging.getLogger("calbench.mujoco").warning("MuJoCo: %s", message)
 
@@ -721,7 +737,10 @@ def main(argv: list[str] | None = None) -> int:
         # MuJoCo's own handler writes MUJOCO_LOG.TXT into the user's folder: say it on stderr
         mujoco.set_mju_user_warning(_mujoco_warning)
     try:
-        return int(args.func(args) or 0)
+        with warnings.catch_warnings():
+            warnings.simplefilter("default", PlausibilityWarning)
+            warnings.showwarning = _one_line_warning(args.command)
+            return int(args.func(args) or 0)
     except CalbenchError as exc:
         print(f"calbench {args.command}: error: {exc}", file=sys.stderr)
         return 2

@@ -52,6 +52,7 @@ import numpy as np
 
 from calbench.bench.core import CalbenchError, InputError
 from calbench.bench.model import Robot, set_spec_names
+from calbench.bench.scenario import check_length, robot_scale
 
 from .overlay import Attach, Overlay
 
@@ -479,6 +480,13 @@ def convert(urdf: str | Path, ov: Overlay) -> Conversion:
             tree.path, "(compile)", "a URDF that MuJoCo compiles", str(exc).replace("\n", " ")
         ) from None
     robot = _check_built(model, ov)
+    scale = robot_scale(robot)
+    for a in ov.sites():  # a position in mm: a reflector 300 m from its flange
+        check_length(
+            ov.path, f"{a.key}.pos", float(np.linalg.norm(a.pos)), scale, "offset from the link's frame"
+        )
+    for c in ov.compensators:
+        check_length(ov.path, f"{c.key}.preload", c.preload, scale, "spring length")
     xml = spec.to_xml()
     moving = model.body_weldid != 0  # bodies not welded to the world
     return Conversion(
