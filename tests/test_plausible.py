@@ -96,20 +96,17 @@ def test_an_odd_but_possible_value_warns_once_and_runs(tmp_path, capsys, old, ne
     assert len(warned) == 1 and "calbench simulate: warning: " in warned[0] and f": {key}: " in warned[0]
 
 
-def test_an_overlay_position_in_mm_exits_2(tmp_path, capsys):
+def _from_urdf(tmp_path: Path, overlay: str, out: str) -> int:
+    """from-urdf of the test arm with this overlay text."""
     (tmp_path / "arm.urdf").write_text(arm_urdf())
-    (tmp_path / "arm.toml").write_text(
-        arm_overlay().replace("pos = [0.25, 0.3, 0.25]", "pos = [250, 300, 250]")
-    )
-    rc = main(
-        [
-            "from-urdf",
-            str(tmp_path / "arm.urdf"),
-            "--overlay",
-            str(tmp_path / "arm.toml"),
-            "--out",
-            str(tmp_path / "a.xml"),
-        ]
+    (tmp_path / "arm.toml").write_text(overlay)
+    args = [str(tmp_path / "arm.urdf"), "--overlay", str(tmp_path / "arm.toml"), "--out", str(tmp_path / out)]
+    return main(["from-urdf", *args])
+
+
+def test_an_overlay_position_in_mm_exits_2(tmp_path, capsys):
+    rc = _from_urdf(
+        tmp_path, arm_overlay().replace("pos = [0.25, 0.3, 0.25]", "pos = [250, 300, 250]"), "a.xml"
     )
     err = capsys.readouterr().err
     assert rc == 2 and "arm.toml: reflectors.r1.pos: expected an offset" in err and "(0.464 m)" in err
@@ -183,22 +180,11 @@ def test_fuzz_unit_factors_end_in_exit_0_or_2(tmp_path, capsys):
             err = capsys.readouterr().err
             assert rc in (0, 2), (key, f, err)
         seen[rc] += 1
-    (tmp_path / "arm.urdf").write_text(arm_urdf())
     for key in OVERLAY_KEYS:
         for f in (1e3, 1e-3):
             text = _scale_attach(arm_overlay(), key, f)
             assert text != arm_overlay()
-            (tmp_path / "arm.toml").write_text(text)
-            rc = main(
-                [
-                    "from-urdf",
-                    str(tmp_path / "arm.urdf"),
-                    "--overlay",
-                    str(tmp_path / "arm.toml"),
-                    "--out",
-                    str(tmp_path / f"a{key}{f}.xml"),
-                ]
-            )
+            rc = _from_urdf(tmp_path, text, f"a{key}{f}.xml")
             assert rc in (0, 2), (key, f, capsys.readouterr().err)
             seen[rc] += 1
     assert seen[0] and seen[2]  # both outcomes met: the fuzz reaches past the checks
