@@ -172,3 +172,25 @@ def test_kukas_xacro_from_ros_industrial_converts(tmp_path):
     m = mujoco.MjModel.from_xml_path(str(out))
     assert m.nmesh >= 6 and 800 < m.body_mass.sum() < 2000  # the macro's inertials, a KR 210's links
     ET.parse(out)
+
+
+def test_the_view_legend_names_the_colour_it_draws(tmp_path):
+    from calbench.bench.model import geom_shapes
+    from calbench.bench.view import Legend, colour_name, legend
+
+    rc, out = _convert(tmp_path, arm_urdf(), arm_overlay())  # no <material>: MuJoCo's grey
+    assert rc == 0
+    for path, colour in ((out, "grey"), (MJCF, "yellow")):
+        shapes = geom_shapes(mujoco.MjModel.from_xml_path(str(path)))
+        name = colour_name(np.array([g.rgba for g in shapes]))
+        assert name == colour
+        assert legend(Legend(1.0, 1.0, robot_colour=name)).startswith(f"- **{colour} robot**")
+
+
+def test_check_robot_on_a_urdf_says_run_from_urdf_first(tmp_path, capsys):
+    (tmp_path / "arm.urdf").write_text(arm_urdf())
+    (tmp_path / "arm.txt").write_text(arm_urdf())  # a URDF by its <robot> root, whatever its name
+    for name in ("arm.urdf", "arm.txt"):
+        assert main(["check-robot", str(tmp_path / name)]) == 2
+        err = capsys.readouterr().err
+        assert "convert a URDF first, calbench from-urdf" in err and "got 'a URDF'" in err

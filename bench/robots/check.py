@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -193,6 +194,18 @@ def _deg(q) -> list[float]:
     return [round(float(math.degrees(x)), 3) for x in q]
 
 
+def _is_urdf(path: Path) -> bool:
+    """A ``.urdf`` / ``.xacro`` file, or XML whose root element is ``<robot>``."""
+    if path.name.endswith((".urdf", ".xacro")):
+        return True
+    try:
+        for _, el in ET.iterparse(path, events=("start",)):
+            return el.tag == "robot"
+    except (ET.ParseError, OSError):
+        return False
+    return False
+
+
 def check_robot(
     path: str | Path, tracker: np.ndarray | None = None, mass: float = DEFAULT_MASS, per_joint: int = 3
 ) -> RobotCheck:
@@ -201,6 +214,14 @@ def check_robot(
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "ROBOT.xml", "an existing MJCF file", "no such file")
+    if _is_urdf(path):
+        raise InputError(
+            path,
+            "ROBOT.xml",
+            "a calbench MJCF: convert a URDF first, calbench from-urdf ROBOT.urdf --overlay "
+            "OVERLAY.toml --out ROBOT.xml (docs/your-robot.md)",
+            "a URDF" + (" (xacro)" if path.name.endswith(".xacro") else ""),
+        )
     try:
         model = mujoco.MjModel.from_xml_path(str(path))
     except ValueError as exc:
