@@ -209,7 +209,9 @@ def add_check_robot(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_check_robot)
 
 
-def cmd_check_robot(args: argparse.Namespace) -> int:
+def cmd_check_robot(args: argparse.Namespace, more=None) -> int:
+    """``more(args, result)``: further lines after the checks (identify/cli.py adds design's
+    feasibility rules; bench knows nothing of design)."""
     from calbench.bench.core import InputError
 
     if args.grid < 1:
@@ -217,7 +219,9 @@ def cmd_check_robot(args: argparse.Namespace) -> int:
     if not args.mass > 0:
         raise InputError("--mass", "mass", "a mass > 0 (kg)", args.mass)
     res = check_robot(args.robot, args.tracker, args.mass, args.grid)
-    print("\n".join(res.lines()))
+    print("\n".join(res.lines()), flush=True)
+    for line in more(args, res) if more is not None else ():
+        print(line, flush=True)
     return 0
 
 

@@ -17,12 +17,21 @@ import logging
 import math
 import os
 import sys
+import warnings
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 import mujoco
 
-from calbench.bench.cli import add_check_robot, add_export, add_from_urdf, add_recover, add_simulate, add_view
+from calbench.bench.cli import (
+    add_check_robot,
+    add_export,
+    add_from_urdf,
+    add_recover,
+    add_simulate,
+    add_view,
+    cmd_check_robot,
+)
 from calbench.bench.core import (
     CalbenchError,
     InputError,
@@ -32,6 +41,7 @@ from calbench.bench.core import (
     terminal_progress,
     write_text,
 )
+from calbench.bench.scenario import PlausibilityWarning
 from calbench.identify.core import OUTLIER_SIGMA
 
 from . import demo
@@ -718,6 +728,40 @@ def cmd_study(args) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- check-robot
+
+
+def add_check_robot_design(sub) -> None:
+    """bench's check-robot, followed by design's feasibility rules on a sample of commands."""
+    add_check_robot(sub)
+    p = sub.choices["check-robot"]
+    p.add_argument(
+        "--sample",
+        type=int,
+        default=256,
+        help="commands sampled as `design` samples them, for the share that passes each of its "
+        "feasibility rules (0: skip; default: %(default)s)",
+    )
+    p.set_defaults(func=lambda args: cmd_check_robot(args, _design_lines))
+
+
+def _design_lines(args, res) -> list[str]:
+    from calbench.identify.design import robot_tally
+
+    if args.sample < 0:
+        raise InputError("--sample", "sample", "an integer >= 0", args.sample)
+    if args.sample == 0:
+        return []
+    t = robot_tally(args.robot, res.tracker, args.mass, args.sample)
+    share = t.passed_command / t.sampled * (t.feasible / t.solved if t.solved else 0.0)
+    return [
+        f"  design's feasibility rules on {t.sampled} sampled commands (default [design] settings, "
+        f"{args.mass:g} kg; equilibria checked on {t.solved} that pass the command rules): "
+        f"{100 * share:.1f} % feasible",
+        *t.lines(),
+    ]
+
+
 # --------------------------------------------------------------------------- demo
 
 
@@ -764,7 +808,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_view(sub)
     add_discover(sub)
     add_report(sub)
-    add_check_robot(sub)
+    add_check_robot_design(sub)
     add_import(sub)
     add_export(sub)
     add_from_urdf(sub)
@@ -772,6 +816,20 @@ def build_parser() -> argparse.ArgumentParser:
     add_study(sub)
     add_compensate(sub)
     return parser
+
+
+def _one_line_warning(command: str):
+    """Warnings as one line on stderr: ``calbench VERB: warning: FILE: KEY: what``; a
+    PlausibilityWarning's origin in the code means nothing to its reader."""
+    original = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, PlausibilityWarning):
+            print(f"calbench {command}: warning: {message}", file=sys.stderr, flush=True)
+        else:
+            original(message, category, filename, lineno, file, line)
+
+    return show
 
 
 def _mujoco_warning(message: str) -> None:
@@ -791,7 +849,9 @@ def main(argv: list[str] | None = None) -> int:
         # MuJoCo's own handler writes MUJOCO_LOG.TXT into the user's folder: say it on stderr
         mujoco.set_mju_user_warning(_mujoco_warning)
     try:
-        with holding_outputs():  # two runs on one output: the second is refused (bench/core/outputs)
+        with holding_outputs(), warnings.catch_warnings():  # a second run on one output is refused
+            warnings.simplefilter("default", PlausibilityWarning)
+            warnings.showwarning = _one_line_warning(args.command)
             return int(args.func(args) or 0)
     except CalbenchError as exc:
         print(f"calbench {args.command}: error: {exc}", file=sys.stderr)

@@ -135,15 +135,18 @@ def test_the_renamed_copy_designs_the_same_candidates(twins):
     np.testing.assert_array_equal(cands["fanuc"].q, cands["renamed"].q)
     np.testing.assert_array_equal(cands["fanuc"].blocks, cands["renamed"].blocks)
     assert cands["fanuc"].stats["rejected_first_rule"] == cands["renamed"].stats["rejected_first_rule"]
-    # the self-collision exclusions, derived from the model, are the FANUC's old table
+    # the self-collision exclusions, derived from the model, are the FANUC's old table and the
+    # turret against the world's weld group (the base and the floor), which MuJoCo never filters
     loop = ("upper_arm", "crank", "m1", "rod", "forearm", "m2")
     table = {tuple(sorted((a, b))) for a in loop for b in loop if a != b} | {
         ("rod", "turret"),
         ("forearm", "link5"),
+        ("base", "turret"),
+        ("turret", "world"),
     }
     assert set(excluded_pairs(Robot.from_file(MJCF), MJCF)) == table
     xml = twins["renamed"]["scenario"].with_suffix(".xml")
-    m = twins["mapping"]
+    m = {**twins["mapping"], "world": "world"}
     assert set(excluded_pairs(Robot.from_file(xml), xml)) == {tuple(sorted((m[a], m[b]))) for a, b in table}
 
 

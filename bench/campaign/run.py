@@ -22,6 +22,7 @@ from calbench.bench.model.effects import Readings, apply_effects, effect_from_tr
 from calbench.bench.scenario import (
     Scenario,
     check_joint_limits,
+    check_scenario,
     check_size,
     estimate,
     reading_times,
@@ -106,6 +107,7 @@ def plan_campaign(
     """Solve and check every pose; raise InputError naming the first bad one."""
     robot = robot or truth_robot(scn)
     check_joint_limits(scn, robot.limits())
+    check_scenario(scn, robot)  # a slipped unit: InputError, or a PlausibilityWarning
     solver = StaticsSolver(robot)
     plans = []
     for i, pose in enumerate(scn.poses):

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -63,6 +64,7 @@ class RobotCheck:
     skipped: int = 0  # grid poses within the loop margin
     max_gap: float = 0.0  # m, largest loop gap at an equilibrium
     optional: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    frames: list[LinkFrame] = field(default_factory=list)
 
     def lines(self) -> list[str]:
         """The summary, for people."""
@@ -95,12 +97,73 @@ class RobotCheck:
         out.append(f"  payload site: {self.payload}" + (f"; flange: {self.flange}" if self.flange else ""))
         for key, names in self.optional.items():
             out.append(f"  {key}: {' '.join(names)}")
+        if self.frames:
+            out.append(
+                "  links at the reference pose (q = 0), for placing reflectors and the payload: frame "
+                "origin (world, m), the frame's x y z axes in the world, geometry's box in the link frame (m)"
+            )
+            out += ["    " + f.line() for f in self.frames]
         out.append(
             f"  statics converge at {self.poses} grid poses, unloaded and loaded"
             + (f" ({self.skipped} skipped: within the loop margin)" if self.skipped else "")
             + f"; largest loop gap {self.max_gap:.1e} m"
         )
         return out
+
+
+@dataclass(frozen=True)
+class LinkFrame:
+    """A body at the reference pose: its frame (origin, axes in the world) and the box its geoms
+    fill in its own frame (a mesh's vertices, a primitive's geom_aabb corners; None without
+    geometry)."""
+
+    name: str
+    origin: np.ndarray  # (3,) world, m
+    axes: np.ndarray  # (3, 3) rows: the frame's x, y, z in the world
+    box: tuple[np.ndarray, np.ndarray] | None  # (lo, hi) in the body frame, m
+
+    def line(self) -> str:
+        def v(x) -> str:
+            return "[" + ", ".join(f"{c:.3f}" for c in x) + "]"
+
+        names = ("x", "y", "z")
+        axes = " ".join(f"{n}{_axis(a)}" for n, a in zip(names, self.axes))
+        box = f"box {v(self.box[0])} .. {v(self.box[1])}" if self.box is not None else "no geometry"
+        return f"{self.name}: origin {v(self.origin)}, axes {axes}, {box}"
+
+
+def _axis(a: np.ndarray) -> str:
+    """A world direction as +X / -Z when it is one, else its components."""
+    k = int(np.argmax(np.abs(a)))
+    if abs(abs(a[k]) - 1.0) < 1e-6:
+        return ("+" if a[k] > 0 else "-") + "XYZ"[k]
+    return "(" + " ".join(f"{c:.2f}" for c in a) + ")"
+
+
+def link_frames(robot: Robot) -> list[LinkFrame]:
+    """Every body but the world at the reference pose (q = 0), as :class:`LinkFrame`."""
+    m = robot.model
+    d = mujoco.MjData(m)
+    d.qpos[:] = robot.rigid_qpos(np.zeros(robot.n_act))
+    mujoco.mj_kinematics(m, d)
+    signs = np.array(list(itertools.product((-1.0, 1.0), repeat=3)))
+    out = []
+    for b in range(1, m.nbody):
+        rot = d.xmat[b].reshape(3, 3)
+        pts = []
+        for g in np.flatnonzero(m.geom_bodyid == b):
+            if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE:
+                continue
+            if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH:  # its vertices: an exact box
+                k = m.geom_dataid[g]
+                local = m.mesh_vert[m.mesh_vertadr[k] : m.mesh_vertadr[k] + m.mesh_vertnum[k]]
+            else:  # a primitive's box in its own frame
+                local = m.geom_aabb[g, :3] + signs * m.geom_aabb[g, 3:]
+            world = d.geom_xpos[g] + local @ d.geom_xmat[g].reshape(3, 3).T
+            pts.append((world - d.xpos[b]) @ rot)
+        box = (np.min(np.vstack(pts), axis=0), np.max(np.vstack(pts), axis=0)) if pts else None
+        out.append(LinkFrame(m.body(b).name, d.xpos[b].copy(), rot.T.copy(), box))
+    return out
 
 
 def default_tracker(robot: Robot) -> np.ndarray:
@@ -131,6 +194,18 @@ def _deg(q) -> list[float]:
     return [round(float(math.degrees(x)), 3) for x in q]
 
 
+def _is_urdf(path: Path) -> bool:
+    """A ``.urdf`` / ``.xacro`` file, or XML whose root element is ``<robot>``."""
+    if path.name.endswith((".urdf", ".xacro")):
+        return True
+    try:
+        for _, el in ET.iterparse(path, events=("start",)):
+            return el.tag == "robot"
+    except (ET.ParseError, OSError):
+        return False
+    return False
+
+
 def check_robot(
     path: str | Path, tracker: np.ndarray | None = None, mass: float = DEFAULT_MASS, per_joint: int = 3
 ) -> RobotCheck:
@@ -139,6 +214,14 @@ def check_robot(
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "ROBOT.xml", "an existing MJCF file", "no such file")
+    if _is_urdf(path):
+        raise InputError(
+            path,
+            "ROBOT.xml",
+            "a calbench MJCF: convert a URDF first, calbench from-urdf ROBOT.urdf --overlay "
+            "OVERLAY.toml --out ROBOT.xml (docs/your-robot.md)",
+            "a URDF" + (" (xacro)" if path.name.endswith(".xacro") else ""),
+        )
     try:
         model = mujoco.MjModel.from_xml_path(str(path))
     except ValueError as exc:
@@ -229,6 +312,7 @@ def check_robot(
             k: v for k in ("mass_compensators", "links", "compensator_sites") if (v := getattr(desc, k))
         }
         | ({"wrist": (desc.wrist,)} if desc.wrist else {}),
+        frames=link_frames(robot),
     )
     for q in grid(robot, per_joint):
         try:
@@ -274,4 +358,13 @@ def check_robot(
     return out
 
 
-__all__ = ["RobotCheck", "check_robot", "default_tracker", "grid", "MIN_SPREAD", "DEFAULT_MASS"]
+__all__ = [
+    "RobotCheck",
+    "LinkFrame",
+    "link_frames",
+    "check_robot",
+    "default_tracker",
+    "grid",
+    "MIN_SPREAD",
+    "DEFAULT_MASS",
+]

@@ -12,7 +12,9 @@ overlay says so (docs/contract.md, "From a URDF")::
     [reflectors.NAME]     link, pos             # three or more, in this order
     [compensators.NAME]   stiffness, preload, from = {link, pos}, to = {link, pos}   # optional
     [loops.NAME]          passive = [...], site1 = {link, pos}, site2 = {link, pos}  # optional
-    [packages]            NAME = "folder"       # optional: where package://NAME/ points
+    [packages]            NAME = "folder"       # optional: where package://NAME/ and $(find NAME) point
+    [inertials.LINK]      mass, com = [x, y, z], inertia = [ixx, iyy, izz(, ixy, ixz, iyz)]
+                                                # optional: ASSUMED masses for a URDF without them
     wrist = "link_5"                            # optional hints for design and discovery:
     links = ["link_2", "link_3"]                #   calbench:wrist, :links, :mass_compensators
     mass_compensators = ["counterweight"]       #   (links of the URDF)
@@ -28,6 +30,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from calbench.bench.core import InputError, Table, describe, parse_toml, read_text
 
 TOP_KEYS = (
@@ -42,6 +46,7 @@ TOP_KEYS = (
     "links",
     "mass_compensators",
     "compensator_sites",
+    "inertials",
 )
 PAYLOAD_SITE = "payload"
 FLANGE_SITE = "flange"
@@ -85,6 +90,23 @@ class LoopSpec:
 
 
 @dataclass(frozen=True)
+class InertialSpec:
+    """A link's mass (kg), centre of mass (m, link frame) and inertia (kg*m^2 about the centre
+    of mass, link axes: ixx, iyy, izz, ixy, ixz, iyz), given in the overlay because the URDF has
+    none: ASSUMED values (the header of the MJCF and from-urdf's summary say so). Without an
+    inertia, ASSUMED_GYRATION: the statics use only the mass and its centre, never the inertia."""
+
+    link: str
+    mass: float
+    com: tuple[float, float, float]
+    inertia: tuple[float, float, float, float, float, float] | None
+    key: str
+
+
+ASSUMED_GYRATION = 0.1  # m: radius of gyration of an overlay inertial given without an inertia
+
+
+@dataclass(frozen=True)
 class Overlay:
     """A validated overlay (see the module docstring)."""
 
@@ -103,6 +125,7 @@ class Overlay:
     mass_compensators: tuple[str, ...] = ()
     compensator_sites: tuple[str, str] | None = None
     mounts: tuple[Attach, ...] = ()
+    inertials: tuple[InertialSpec, ...] = ()
 
     def sites(self) -> list[Attach]:
         """Every site the overlay adds, in the order they are added to the MJCF."""
@@ -200,6 +223,26 @@ def _mounts(
     return MOUNT_SITES, mounts
 
 
+def _inertial(tables: Table, link: str) -> InertialSpec:
+    c = tables.sub(link)
+    c.only(("mass", "com", "inertia"))
+    com = c.vector("com", 3)
+    inertia = None
+    if c.has("inertia"):
+        raw = c.raw("inertia")
+        v = c.vector("inertia", 6 if isinstance(raw, list) and len(raw) == 6 else 3)
+        if np.any(v[:3] <= 0):
+            raise c.fail("inertia", "ixx, iyy, izz > 0 (kg*m^2), optionally ixy, ixz, iyz", list(v))
+        inertia = tuple(float(x) for x in np.concatenate([v, np.zeros(6 - len(v))]))
+    return InertialSpec(
+        link,
+        c.number("mass", positive=True),
+        (float(com[0]), float(com[1]), float(com[2])),
+        inertia,
+        c.prefix,
+    )
+
+
 def _named_tables(top: Table, key: str, what: str) -> list[tuple[Table, str]]:
     if not top.has(key):
         return []
@@ -246,6 +289,7 @@ def parse_overlay(text: str, path: str | Path) -> Overlay:
         mass_compensators=_names(top, "mass_compensators", "link") if top.has("mass_compensators") else (),
         compensator_sites=sites,
         mounts=mounts,
+        inertials=tuple(_inertial(t, n) for t, n in _named_tables(top, "inertials", "link")),
     )
     seen: dict[str, str] = {}
     for s in ov.sites():
@@ -272,6 +316,8 @@ __all__ = [
     "CompensatorSpec",
     "LoopSpec",
     "Overlay",
+    "InertialSpec",
+    "ASSUMED_GYRATION",
     "parse_overlay",
     "load_overlay",
     "PAYLOAD_SITE",

@@ -51,7 +51,9 @@ import numpy as np
 
 from calbench.bench.core import CalbenchError, InputError, parse_xml
 from calbench.bench.model import Robot, set_spec_names
+from calbench.bench.scenario import check_length, robot_scale
 
+from .expand import urdf_text
 from .importer import Conversion, RobotImporter
 from .overlay import Attach, Overlay
 
@@ -88,6 +90,8 @@ class UrdfTree:
     name: str
     links: dict[str, UrdfLink]
     joints: dict[str, UrdfJoint]
+    xml: str = ""  # the text converted (a .xacro's expansion, the overlay's inertials in)
+    expanded: bool = False  # from a .xacro
 
     def moving_links(self) -> set[str]:
         """Links below at least one non-fixed joint (they move with some joint)."""
@@ -130,11 +134,13 @@ class UrdfTree:
 # --------------------------------------------------------------------------- the URDF
 
 
-def read_urdf(path: str | Path) -> UrdfTree:
-    """The URDF's links and joints; InputError when it is not a URDF."""
+def read_urdf(path: str | Path, ov: Overlay | None = None) -> UrdfTree:
+    """The URDF's links and joints; InputError when it is not a URDF. A ``.xacro`` is expanded,
+    the overlay's inertials written in, geom names made unique (bench/robots/expand.py)."""
     path = Path(path)
+    text, expanded = urdf_text(path, ov)
     try:
-        root = parse_xml(path, path)  # defusedxml: no entity bombs, no external entities
+        root = parse_xml(path, path, text=text)  # defusedxml: no entity bombs, no external entities
     except InputError as exc:
         raise InputError(
             path, "(file)", "a readable URDF (XML without entity declarations)", exc.got
@@ -160,7 +166,7 @@ def read_urdf(path: str | Path) -> UrdfTree:
             child.get("link", "") if child is not None else "",
             mimic.get("joint") if mimic is not None else None,
         )
-    return UrdfTree(path, root.get("name", path.stem), links, joints)
+    return UrdfTree(path, root.get("name", path.stem), links, joints, text, expanded)
 
 
 def check_urdf(tree: UrdfTree) -> None:
@@ -426,10 +432,32 @@ def _check_built(model: mujoco.MjModel, ov: Overlay) -> Robot:
     return robot
 
 
+def header_comment(tree: UrdfTree, ov: Overlay) -> str:
+    """The MJCF's header: how it was made, where masses come from. Well-formed XML: no ``--``
+    inside a comment (ElementTree and lxml refuse one; MuJoCo does not mind)."""
+    source = f"{tree.path.name} (expanded by xacro)" if tree.expanded else tree.path.name
+    assumed = [i.link for i in ov.inertials]
+    masses = "the URDF's <inertial> elements (nothing inferred from geometry)"
+    if assumed:
+        masses += (
+            f"; ASSUMED in the overlay's [inertials] for {', '.join(assumed)} (mass and centre of mass; "
+            "an inertia not given is mass * (0.1 m)^2, which the statics never use)"
+        )
+    text = (
+        f" calbench robot built by calbench from-urdf from {source} with the overlay {ov.path.name}.\n"
+        f"  Masses and inertias: {masses}.\n  Stiffness of the actuated hinges: a placeholder "
+        f"{PLACEHOLDER_STIFFNESS:g} N*m/rad; a scenario's [truth] replaces it.\n  Meshes are "
+        "written inline; see bench/robots/urdf.py for the conventions. "
+    )
+    while "--" in text:  # a file name with dashes
+        text = text.replace("--", "- -")
+    return text.rstrip("- ") + " "
+
+
 def build_spec(tree: UrdfTree, ov: Overlay) -> tuple[mujoco.MjSpec, list[str]]:
     """The calbench MjSpec of a checked URDF and overlay, with the mesh warnings."""
     try:
-        spec = mujoco.MjSpec.from_file(str(tree.path))
+        spec = mujoco.MjSpec.from_string(tree.xml)
     except ValueError as exc:
         raise InputError(
             tree.path, "(file)", "a URDF that MuJoCo reads", str(exc).replace("\n", " ")
@@ -438,13 +466,7 @@ def build_spec(tree: UrdfTree, ov: Overlay) -> tuple[mujoco.MjSpec, list[str]]:
     spec.compiler.fusestatic = False
     spec.compiler.discardvisual = False
     spec.compiler.savecompiled = False  # every number saved exactly
-    spec.comment = (
-        f" calbench robot built by `calbench from-urdf {tree.path.name} --overlay "
-        f"{ov.path.name}`.\n  Masses and inertias: the URDF's <inertial> elements (nothing "
-        "inferred from geometry).\n  Stiffness of the actuated hinges: a placeholder "
-        f"{PLACEHOLDER_STIFFNESS:g} N*m/rad; a scenario's [truth] replaces it.\n  Meshes are "
-        "written inline; see bench/robots/urdf.py for the conventions. "
-    )
+    spec.comment = header_comment(tree, ov)
     for g in spec.geoms:
         g.contype = 0
         g.conaffinity = 0
@@ -457,7 +479,7 @@ def build_spec(tree: UrdfTree, ov: Overlay) -> tuple[mujoco.MjSpec, list[str]]:
 
 def convert(urdf: str | Path, ov: Overlay) -> Conversion:
     """Build and check the calbench MJCF of ``urdf`` with overlay ``ov`` (module docstring)."""
-    tree = read_urdf(urdf)
+    tree = read_urdf(urdf, ov)
     check_urdf(tree)
     check_overlay(tree, ov)
     spec, warnings = build_spec(tree, ov)
@@ -468,6 +490,13 @@ def convert(urdf: str | Path, ov: Overlay) -> Conversion:
             tree.path, "(compile)", "a URDF that MuJoCo compiles", str(exc).replace("\n", " ")
         ) from None
     robot = _check_built(model, ov)
+    scale = robot_scale(robot)
+    for a in ov.sites():  # a position in mm: a reflector 300 m from its flange
+        check_length(
+            ov.path, f"{a.key}.pos", float(np.linalg.norm(a.pos)), scale, "offset from the link's frame"
+        )
+    for c in ov.compensators:
+        check_length(ov.path, f"{c.key}.preload", c.preload, scale, "spring length")
     xml = spec.to_xml()
     moving = model.body_weldid != 0  # bodies not welded to the world
     return Conversion(
@@ -506,5 +535,6 @@ __all__ = [
     "check_urdf",
     "check_overlay",
     "build_spec",
+    "header_comment",
     "convert",
 ]

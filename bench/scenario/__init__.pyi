@@ -14,6 +14,14 @@ from .parse import (
     scenario_to_toml,
     scenario_variant,
 )
+from .plausible import (
+    PlausibilityWarning,
+    Scale,
+    check_length,
+    check_plan,
+    check_scenario,
+    robot_scale,
+)
 from .timeline import (
     DEFAULT_START,
     LOAD_S,
@@ -45,9 +53,14 @@ __all__ = [
     "MOVE_S",
     "NS",
     "Plan",
+    "PlausibilityWarning",
+    "Scale",
     "Scenario",
     "UNLOAD_S",
     "check_joint_limits",
+    "check_length",
+    "check_plan",
+    "check_scenario",
     "check_size",
     "duration",
     "estimate",
@@ -56,6 +69,7 @@ __all__ = [
     "montecarlo_estimate",
     "parse_scenario",
     "reading_seconds",
+    "robot_scale",
     "reading_times",
     "repeats_key",
     "schedule",

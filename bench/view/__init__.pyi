@@ -21,20 +21,24 @@ from .recording import (
     write_recording,
 )
 from .scene import HALF_FOV_TAN, TRACKER_APART, framing
+from .text import Legend, colour_name, legend
 
 __all__ = [
     "DEFAULT_MAGNIFY",
     "Discovery",
     "HALF_FOV_TAN",
+    "Legend",
     "Summary",
     "TRACKER_APART",
     "WIDTH",
     "build_blueprint",
     "check_magnify",
+    "colour_name",
     "default_rrd_path",
     "framing",
     "geom_archetype",
     "has_display",
+    "legend",
     "log_view",
     "measured_deflections",
     "plan_view",

@@ -219,6 +219,9 @@ class ViewPlan:
                 self.has_truth,
                 bool(self.predicted) and self.discovery is None,
                 self.discovery is not None,
+                viewtext.colour_name(
+                    np.array([g.rgba for g in geom_shapes(self.robot.model)]).reshape(-1, 4)
+                ),
             )
         )
 

@@ -25,13 +25,39 @@ class Legend:
     truth: bool = False
     predicted: bool = False  # model arrows and residuals (identify)
     discovery: bool = False  # residuals before/after (discover)
+    robot_colour: str = "yellow"  # the colour most of the robot's geoms are drawn in (colour_name)
+
+
+PALETTE = {
+    "yellow": (0.95, 0.8, 0.1),
+    "orange": (1.0, 0.5, 0.0),
+    "red": (0.8, 0.1, 0.1),
+    "green": (0.2, 0.7, 0.2),
+    "blue": (0.2, 0.3, 0.8),
+    "white": (0.95, 0.95, 0.95),
+    "grey": (0.6, 0.6, 0.6),
+    "dark grey": (0.3, 0.3, 0.3),
+    "black": (0.05, 0.05, 0.05),
+}
+
+
+def colour_name(rgba: np.ndarray) -> str:
+    """The palette name nearest (RGB distance) to most of the colours ``rgba`` (n, 4); "grey"
+    when there are none (MuJoCo's default geom colour)."""
+    rgb = np.asarray(rgba, float).reshape(-1, 4)[:, :3]
+    if not len(rgb):
+        return "grey"
+    names = list(PALETTE)
+    ref = np.array([PALETTE[n] for n in names])
+    nearest = np.argmin(np.linalg.norm(rgb[:, None, :] - ref[None], axis=2), axis=1)
+    return names[int(np.bincount(nearest, minlength=len(names)).argmax())]
 
 
 def legend(g: Legend) -> str:
     """Markdown bullet list: each colour of the 3D view and what it is."""
     f, fr = f"×{g.magnify:g}", f"×{g.residual_magnify:g}"
     lines = [
-        "**yellow robot**: at the commanded angles (all a real campaign knows of its pose); "
+        f"**{g.robot_colour} robot**: at the commanded angles (all a real campaign knows of its pose); "
         "grey dots on the posts: the reflectors as measured unloaded"
     ]
     if g.truth_ghost:

@@ -1,7 +1,7 @@
 # The public face of calbench.identify.core: what code outside this room may import. At run time
 # calbench.bench.core.face reads these lines and loads each name on first use.
 
-from .forward import ForwardModel, PoseDesign, design_from_observations
+from .forward import ForwardModel, NoEquilibrium, PoseDesign, design_from_observations
 from .identifiability import (
     MAX_RELATIVE_STD,
     OUTLIER_SIGMA,
@@ -25,6 +25,7 @@ __all__ = [
     "ForwardModel",
     "Identifiability",
     "MAX_RELATIVE_STD",
+    "NoEquilibrium",
     "OUTLIER_SIGMA",
     "Observations",
     "PROFILE_SIGMAS",

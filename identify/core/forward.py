@@ -55,6 +55,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from calbench.bench.core import CalbenchError
 from calbench.bench.model import Robot
 from calbench.bench.statics import (
     BatchStatics,
@@ -71,6 +72,36 @@ from calbench.bench.statics import (
 from .observations import Observations
 
 KKT_QTOL = 1e-3  # rad: A_base is re-taken at a solution that moved more than this from where it was taken
+
+
+class NoEquilibrium(CalbenchError, RuntimeError):
+    """A pose of the fit has no static equilibrium at the parameters tried: the pose, its command
+    and the likely cause in one line (exit status 2). Also a RuntimeError, so an estimator's
+    trial step that meets it is rejected as before; at the fit's start it reaches the user."""
+
+    FAR = 1e-4  # rad/(N*m): beyond a heavy robot's joints (bench/scenario/plausible.py)
+
+    def __init__(self, robot: Robot, des: PoseDesign, theta):
+        theta = np.asarray(theta, float)
+        n = robot.n_act
+        names = robot.layout.names
+        soft = [f"{names[i]} = {theta[i] * 1e6:.3g} urad/(N*m)" for i in range(n) if theta[i] > self.FAR]
+        if soft:
+            cause = (
+                f"the fit reached compliances no robot has ({', '.join(soft)}): the measured deflections "
+                "are far larger than the loads can make; likely a unit slip in what was measured or "
+                "typed (readings, reflector positions, the payload, a tracker sigma in m for um) or "
+                "readings of another robot"
+            )
+        else:
+            cause = (
+                "the command may be near a singular configuration, or the compensator spring "
+                "(stiffness, preload) cannot hold the arm at these parameters"
+            )
+        values = ", ".join(f"{k} = {v:.3g}" for k, v in zip(names, theta))
+        q = [round(float(np.degrees(x)), 2) for x in des.q]
+        super().__init__(f"pose {des.index} (q = {q} deg): no static equilibrium at {values}: {cause}")
+        self.pose = des.index
 
 
 @dataclass(frozen=True)
@@ -243,6 +274,8 @@ class ForwardModel:
         for d in self.design:
             e0 = self.statics.solve(d.q)
             e1 = self.statics.solve(d.q, d.load, warm=e0)
+            if not (e0.acceptable and e1.acceptable):  # e.g. a loop gone degenerate under theta
+                raise NoEquilibrium(self.robot, d, theta)
             self.robot.set_command(d.q)
             cache.append((self._adopt(e0.qpos, None, theta), self._adopt(e1.qpos, d.load, theta)))
         self._cache = cache
@@ -299,7 +332,7 @@ class ForwardModel:
             eq.tangent = None
             sol = self._newton(eq, load, theta)
             if sol is None:
-                raise RuntimeError(f"pose {des.index}: no static equilibrium at theta={theta}")
+                raise NoEquilibrium(self.robot, des, theta)
         return sol
 
     def evaluate(self, theta, jacobian: bool = True):

@@ -3,10 +3,12 @@
 
 from .batch_info import BatchInfo
 from .candidates import (
+    BATCH,
     SECONDS_PER_CANDIDATE,
     CandidateFile,
     CandidateSet,
     generate_candidates,
+    hopeless,
     read_candidates,
 )
 from .certificate import (
@@ -28,9 +30,14 @@ from .exchange import Exchanger
 from .feasibility import (
     EQUILIBRIUM_RULES,
     LOAD_KINDS,
+    RuleTally,
+    collision_model,
     excluded_pairs,
     horizontal_clearance,
     lateral_wrench,
+    robot_tally,
+    tally_rules,
+    world_parent_pairs,
     wrist_body,
 )
 from .plan import (
@@ -55,6 +62,7 @@ from .study import run_study
 
 __all__ = [
     "ALGORITHMS",
+    "BATCH",
     "ApproximateDesign",
     "BatchInfo",
     "CRITERIA",
@@ -72,17 +80,20 @@ __all__ = [
     "LOAD_KINDS",
     "PlanPose",
     "SECONDS_PER_CANDIDATE",
+    "RuleTally",
     "Selection",
     "SingularCandidates",
     "a_bound",
     "approximate_design",
     "certify",
     "column_scale",
+    "collision_model",
     "criterion_value",
     "d_bound",
     "design_plan",
     "excluded_pairs",
     "generate_candidates",
+    "hopeless",
     "horizontal_clearance",
     "information",
     "input_plan_measures",
@@ -99,12 +110,15 @@ __all__ = [
     "read_candidates",
     "read_design_settings",
     "result_json",
+    "robot_tally",
     "run_design",
     "run_study",
     "scenario_plan_information",
     "select_rows",
     "selection_text",
     "summary_text",
+    "tally_rules",
     "work_jacobian",
+    "world_parent_pairs",
     "wrist_body",
 ]

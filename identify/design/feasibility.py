@@ -15,7 +15,9 @@ Feasibility rules (each named; :func:`Feasibility.check` returns the violated on
   collidable (contype = conaffinity = 1, margin = ``clearance``), at the rigid pose and at both
   equilibria. Not counted (:func:`excluded_pairs`, derived from the model, no table): parent-
   child pairs (MuJoCo's own filter, which includes bodies welded to their parent, e.g. the
-  FANUC's counterweight on the crank); the bodies of a kinematic loop among themselves (the
+  FANUC's counterweight on the crank, but never filters a child of the world's weld group: we
+  exclude those pairs ourselves, a URDF's ``base_link`` against ``link_1``, the FANUC's base
+  against the turret; :func:`world_parent_pairs`); the bodies of a kinematic loop among themselves (the
   bodies on its path between its two sites and the bodies welded to them: they meet by design
   at the loop's hinges; the FANUC's upper arm, crank, rod, forearm and the masses on them);
   and the pairs that come within REFERENCE_GAP = 2 cm of each other in the model's reference
@@ -39,19 +41,22 @@ Feasibility rules (each named; :func:`Feasibility.check` returns the violated on
 from __future__ import annotations
 
 import math
+from collections import Counter
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import mujoco
 import numpy as np
 
-from calbench.bench.model import Robot, ancestors
-from calbench.bench.scenario import Scenario
-from calbench.bench.statics import Equilibrium
+from calbench.bench.core import StaticsError
+from calbench.bench.model import LOOP_MARGIN, Robot, ancestors
+from calbench.bench.scenario import Scenario, parse_scenario
+from calbench.bench.statics import Equilibrium, Load, StaticsSolver
 from calbench.bench.tracker import (
     visible_sites,
 )
 
-from .settings import DesignSettings
+from .settings import DesignSettings, nominal_robot
 
 RULES = (
     "joint_limits",
@@ -82,6 +87,13 @@ def lateral_wrench(q1: float, sign: float, force: float) -> np.ndarray:
     return np.array([-math.sin(q1) * sign * force, math.cos(q1) * sign * force, 0.0, 0.0, 0.0, 0.0])
 
 
+def sample_commands(rng: np.random.Generator, limits: np.ndarray, n: int) -> np.ndarray:
+    """n commands uniform in the joint ranges, each clipped to [-180, 180] deg (a hinge's
+    statics is periodic: the FANUC's q4, q6 range over +-360)."""
+    lo, hi = np.maximum(limits[:, 0], -np.pi), np.minimum(limits[:, 1], np.pi)
+    return lo + (hi - lo) * rng.random((n, len(limits)))
+
+
 # --------------------------------------------------------------------------- feasibility
 
 
@@ -104,12 +116,41 @@ def _welded(model: mujoco.MjModel, body: int) -> list[int]:
     return out
 
 
+def mujoco_filters(model: mujoco.MjModel, b1: int, b2: int) -> bool:
+    """Whether MuJoCo's own contact filter drops every contact between bodies b1 and b2: the
+    same weld group (bodies welded together), or parent and child weld groups, where neither is
+    the world's (MuJoCo never filters a pair whose parent is welded to the world: a URDF's
+    ``base_link`` against ``link_1``). The rule of mj_collision's body filter (filterparent on)."""
+    w1, w2 = int(model.body_weldid[b1]), int(model.body_weldid[b2])
+    if w1 == w2:
+        return True
+    p1, p2 = (int(model.body_weldid[model.body_parentid[w]]) for w in (w1, w2))
+    return w1 != 0 and w2 != 0 and (w1 == p2 or w2 == p1)
+
+
+def world_parent_pairs(model: mujoco.MjModel) -> set[tuple[str, str]]:
+    """Parent-child pairs MuJoCo does not filter: each body of a weld group hanging by a joint
+    from the world's weld group (the world and the bodies welded to it, e.g. ``base_link``)
+    against each body of the world's group, bodies with geoms only. MuJoCo filters the same pair
+    for a jointed parent; across joint 1 the meshes of every ROS-Industrial robot touch."""
+    geoms = [b for b in range(model.nbody) if model.body_geomnum[b] > 0]
+    world = [b for b in geoms if model.body_weldid[b] == 0]
+    out = set()
+    for b in geoms:
+        w = int(model.body_weldid[b])
+        if w != 0 and model.body_weldid[model.body_parentid[w]] == 0:
+            out |= {(model.body(a).name, model.body(b).name) for a in world}
+    return out
+
+
 def excluded_pairs(robot: Robot, robot_path: Path) -> tuple[tuple[str, str], ...]:
     """Body pairs the self-collision rule does not count (module docstring), derived from the
-    model: the bodies of each loop among themselves, and the pairs within REFERENCE_GAP at the
-    reference configuration (the rigid pose at q = 0). Sorted name pairs."""
+    model: the parent-child pairs MuJoCo does not filter (:func:`world_parent_pairs`), the bodies
+    of each loop among themselves, and the pairs within REFERENCE_GAP at the reference
+    configuration (the rigid pose at q = 0; every contact MuJoCo reports there, since MuJoCo
+    has filtered its own pairs already). Sorted name pairs."""
     m = robot.model
-    pairs: set[tuple[str, str]] = set()
+    pairs = world_parent_pairs(m)
     for a, b in robot.loops:
         up_a, up_b = ancestors(m, m.site_bodyid[a]), ancestors(m, m.site_bodyid[b])
         root = next(x for x in up_a if x in up_b)
@@ -123,8 +164,7 @@ def excluded_pairs(robot: Robot, robot_path: Path) -> tuple[tuple[str, str], ...
     mujoco.mj_collision(ref, d)
     for c in d.contact[: d.ncon]:
         b1, b2 = int(ref.geom_bodyid[c.geom[0]]), int(ref.geom_bodyid[c.geom[1]])
-        if ref.body_parentid[b1] != b2 and ref.body_parentid[b2] != b1:  # MuJoCo filters those
-            pairs.add((ref.body(b1).name, ref.body(b2).name))
+        pairs.add((ref.body(b1).name, ref.body(b2).name))
     return tuple(sorted({tuple(sorted(p)) for p in pairs}))
 
 
@@ -262,6 +302,157 @@ class Feasibility:
             require_all_visible,
         )
         return [r for r, b in zip(EQUILIBRIUM_RULES, bad[0]) if b], seen[0]
+
+
+# --------------------------------------------------------------------------- why commands fail
+
+
+@dataclass
+class RuleTally:
+    """Each rule on its own over a sample of commands (not the first failing rule): how many it
+    rejected and the pair, limit or value that did it. The equilibrium rules are tallied on the
+    commands that pass every command rule (at most ``equilibria`` of them), with the scenario's
+    payload hung at the payload site."""
+
+    sampled: int
+    failed: dict[str, int] = field(default_factory=dict)
+    culprit: dict[str, str] = field(default_factory=dict)
+    passed_command: int = 0  # commands that pass every command rule
+    solved: int = 0  # of those, how many had their equilibria checked
+    feasible: int = 0  # of those, how many pass every rule
+
+    def tried(self, rule: str) -> int:
+        return self.solved if rule in EQUILIBRIUM_RULES and rule not in COMMAND_RULES else self.sampled
+
+    def summary(self) -> str:
+        """One line: the rules that reject, each with its count and culprit."""
+        bad = [r for r in RULES if self.failed.get(r)]
+        parts = [
+            f"{r} rejects {self.failed[r]} of {self.tried(r)}"
+            + (f" ({self.culprit[r]})" if self.culprit.get(r) else "")
+            for r in bad
+        ]
+        return "; ".join(parts) or "no rule rejects any"
+
+    def lines(self) -> list[str]:
+        """Per rule, the share of the sample it lets pass, for people."""
+        out = []
+        for r in RULES:
+            n = self.tried(r)
+            if n == 0:
+                out.append(f"    {r:<26} not tried (no command passed the command rules)")
+                continue
+            share = 100.0 * (n - self.failed.get(r, 0)) / n
+            extra = f"  ({self.culprit[r]})" if self.failed.get(r) and self.culprit.get(r) else ""
+            out.append(f"    {r:<26} {share:5.1f} % of {n} pass{extra}")
+        return out
+
+
+def _top(counter: Counter, n: int) -> str:
+    (what, k), *_ = counter.most_common(1)
+    return f"{what} in {k} of {n}"
+
+
+def tally_rules(feas: Feasibility, solver: StaticsSolver, mass: float, q: np.ndarray, equilibria: int = 24):
+    """The :class:`RuleTally` of commands q (n, joints) rad, on the feasibility rules ``feas``
+    (its robot's statics ``solver``, a payload ``mass`` kg for the loaded state)."""
+    rb, st = feas.robot, feas.settings
+    q = np.atleast_2d(np.asarray(q, float))
+    n = len(q)
+    t = RuleTally(n)
+    qpos, wrist, loops, pairs = [], [], [], Counter()
+    collides = np.zeros(n, bool)
+    for i, qi in enumerate(q):
+        try:
+            x = rb.rigid_qpos(qi)
+            ok = rb.loop_ok(qi, x)
+        except StaticsError:  # a loop that does not close: degenerate
+            x, ok = rb.rigid_qpos(np.zeros(rb.n_act)), False
+        qpos.append(x)
+        wrist.append(feas.wrist_centre(x))
+        loops.append(ok)
+        hit = {tuple(sorted(p)) for p in feas.collides(x)}
+        collides[i] = bool(hit)
+        pairs.update("-".join(p) for p in hit)
+    wrist = np.array(wrist)
+    bad = feas.command_violations(q, wrist, collides, loops)
+    lim = feas.limits
+    names = rb.description.actuated
+    for k, r in enumerate(COMMAND_RULES):
+        t.failed[r] = int(bad[:, k].sum())
+    out_of = Counter(
+        f"{names[j]} outside [{math.degrees(lim[j, 0]):.0f}, {math.degrees(lim[j, 1]):.0f}] deg"
+        for qi in q
+        for j in np.flatnonzero((qi < lim[:, 0] - 1e-9) | (qi > lim[:, 1] + 1e-9))
+    )
+    if out_of:
+        t.culprit["joint_limits"] = _top(out_of, n)
+    if rb.loops:
+        t.culprit["degenerate_loop"] = (
+            f"loop {', '.join(rb.description.loops)} conditioning below {LOOP_MARGIN:.3f}: near degenerate"
+        )
+    wname = rb.model.body(feas.wrist).name
+    t.culprit["min_height"] = (
+        f"wrist centre {wname} below {st.min_height:g} m; highest {wrist[:, 2].max():.2f} m"
+    )
+    t.culprit["min_radius"] = (
+        f"wrist centre {wname} within {st.min_radius:g} m of axis 1; farthest {feas.radius(wrist).max():.2f} m"
+    )
+    if pairs:
+        t.culprit["self_collision"] = _top(pairs, n)
+    good = np.flatnonzero(~bad.any(axis=1))
+    t.passed_command = len(good)
+    load = Load.mass(rb, mass)
+    hidden, eq_pairs = Counter(), Counter()
+    for i in good[:equilibria]:
+        t.solved += 1
+        try:
+            e0 = solver.solve(q[i])
+            e1 = solver.solve(q[i], load, warm=e0)
+        except (StaticsError, np.linalg.LinAlgError, RuntimeError):
+            t.failed["statics"] = t.failed.get("statics", 0) + 1
+            continue
+        viol, seen = feas.check_equilibria(e0, e1)
+        for r in viol:
+            if r != "self_collision":
+                t.failed[r] = t.failed.get(r, 0) + 1
+        if "self_collision" in viol:
+            eq_pairs.update({"-".join(sorted(p)) for e in (e0, e1) for p in feas.collides(e.qpos)})
+            t.failed["self_collision"] += 1
+        hidden.update(rb.description.reflectors[j] for j in np.flatnonzero(~seen))
+        t.feasible += not viol
+    if hidden:
+        t.culprit["visibility"] = _top(Counter({f"{k} hidden": v for k, v in hidden.items()}), t.solved)
+    if eq_pairs and not pairs:
+        t.culprit["self_collision"] = "at the equilibria: " + _top(eq_pairs, t.solved)
+    t.culprit["statics"] = "no converged equilibrium (unloaded or loaded)"
+    t.culprit["compensator_discontinuity"] = (
+        f"a mass compensator's vertical within {st.compensator_margin:g} m of a passive hinge"
+    )
+    return t
+
+
+def robot_tally(path: Path, tracker, mass: float, n: int = 256, seed: int = 0) -> RuleTally:
+    """`check-robot`'s look at design: :func:`tally_rules` on n commands sampled as design
+    samples them, with design's default settings, the tracker at ``tracker`` (m), a payload
+    ``mass`` (kg) and the MJCF's own stiffness values as the prior."""
+    robot = Robot.from_file(path)
+    p = robot.params()
+    springs = "".join(
+        f"[truth.compensators.{k}]\nstiffness = {v.stiffness!r}\npreload = {v.preload!r}\n"
+        for k, v in p.springs.items()
+    )
+    text = (
+        f'robot = "{Path(path).resolve().as_posix()}"\nseed = {seed}\n'
+        f"[truth]\ncompliance = {[float(c) for c in p.compliance]}\n{springs}"
+        f"[tracker]\nsigma = 2e-5\nposition = {[float(x) for x in tracker]}\n"
+        f"[load]\nmass = {float(mass)!r}\n[[pose]]\nq = {[0.0] * robot.n_act}\n"
+    )
+    scn = parse_scenario(text, Path(path).with_name("(check-robot)"))
+    rb = nominal_robot(scn)
+    feas = Feasibility(rb, scn, DesignSettings())
+    q = sample_commands(np.random.default_rng([seed, 5]), rb.limits(), n)
+    return tally_rules(feas, StaticsSolver(rb, tol=1e-10), mass, q)
 
 
 def horizontal_clearance(centres: np.ndarray, anchors: np.ndarray, axes: np.ndarray) -> np.ndarray:

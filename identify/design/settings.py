@@ -20,7 +20,7 @@ import numpy as np
 from calbench.bench.campaign import scenario_params
 from calbench.bench.core import InputError
 from calbench.bench.model import Robot
-from calbench.bench.scenario import Scenario, parse_scenario
+from calbench.bench.scenario import Scenario, check_scenario, parse_scenario
 
 # --------------------------------------------------------------------------- settings
 
@@ -125,4 +125,5 @@ def nominal_robot(scn: Scenario) -> Robot:
     except ValueError as exc:  # MuJoCo compile errors, the robot description
         raise InputError(scn.path, "robot", "a loadable MJCF robot", f"{scn.robot}: {exc}") from None
     robot.set_params(scenario_params(scn, robot))
+    check_scenario(scn, robot)  # a slipped unit: InputError, or a PlausibilityWarning
     return robot

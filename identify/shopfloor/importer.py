@@ -21,7 +21,7 @@ from pathlib import Path
 
 from calbench.bench.core import InputError, atomic_path
 from calbench.bench.model import Robot
-from calbench.bench.scenario import Plan, check_joint_limits, load_plan, start_ns
+from calbench.bench.scenario import Plan, check_joint_limits, check_plan, load_plan, start_ns
 from calbench.bench.shopfloor import (
     FORMATS,
     ImportSummary,
@@ -61,6 +61,7 @@ def load_robot(plan: Plan, model: Path | None) -> tuple[Robot, Path]:
     except ValueError as exc:
         raise InputError(src, key, "a loadable MJCF robot", f"{path}: {exc}") from None
     check_joint_limits(plan, robot.limits())
+    check_plan(plan, robot)
     return robot, path
 
 

@@ -1,0 +1,196 @@
+"""The URDF path of a robot nobody here wrote (issue 21): a well-formed MJCF header, ``.xacro``
+through the xacro package with ``$(find PKG)`` from the overlay, an overlay ``[inertials]``
+table, unique geom names (no MuJoCo warnings), and check-robot's link frames.
+
+Held to independent computations: the xacro's conversion equals the plain URDF's, number for
+number; overlay inertials give exactly the masses and centres typed; the frames check-robot
+prints are MuJoCo's kinematics of the MJCF. The ROS-Industrial packages of ``../shared/data``
+(KUKA's xacro) are skipped where absent.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import mujoco
+import numpy as np
+from conftest import MJCF
+from shared_data import shared_data
+from urdf_robots import LINKS, arm_overlay, arm_urdf, link_masses
+
+from calbench.bench.model import Robot
+from calbench.identify.cli import main
+
+
+def _convert(
+    folder: Path, urdf: str, overlay: str, name: str = "arm", suffix: str = ".urdf"
+) -> tuple[int, Path]:
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / f"{name}{suffix}").write_text(urdf, encoding="utf-8")
+    (folder / f"{name}.toml").write_text(overlay, encoding="utf-8")
+    out = folder / f"{name}.xml"
+    args = [str(folder / f"{name}{suffix}"), "--overlay", str(folder / f"{name}.toml"), "--out", str(out)]
+    return main(["from-urdf", *args]), out
+
+
+def _numbers(path: Path) -> dict[str, np.ndarray]:
+    m = mujoco.MjModel.from_xml_path(str(path))
+    return {
+        k: getattr(m, k).copy()
+        for k in ("body_pos", "body_quat", "body_mass", "body_ipos", "body_inertia", "jnt_axis", "jnt_range")
+    } | {"geom_size": m.geom_size.copy(), "site_pos": m.site_pos.copy()}
+
+
+def test_the_header_is_a_well_formed_xml_comment_even_for_dashed_names(tmp_path):
+    rc, out = _convert(tmp_path, arm_urdf(), arm_overlay(), name="my--arm")
+    assert rc == 0
+    text = out.read_text(encoding="utf-8")
+    ET.fromstring(text)  # ElementTree refuses '--' inside a comment
+    comment = text[text.index("<!--") + 4 : text.index("-->")]
+    assert "--" not in comment and "from-urdf from my- -arm.urdf with the overlay my- -arm.toml" in comment
+
+
+def test_a_xacro_with_find_converts_to_the_same_robot_as_its_urdf(tmp_path):
+    urdf = arm_urdf()
+    rc, plain = _convert(tmp_path / "plain", urdf, arm_overlay())
+    assert rc == 0
+    # the same arm as a xacro: the links in a macro file of package 'arm_macros' (a folder the
+    # overlay's [packages] names), a property for the base height
+    links = urdf[urdf.index("  <link") : urdf.index("  <joint")]
+    joints = urdf[urdf.index("  <joint") : urdf.index("</robot>")].replace(
+        'xyz="0.0 0.0 0.45"', 'xyz="0 0 ${h}"', 1
+    )
+    assert "${h}" in joints
+    pkg = tmp_path / "elsewhere" / "arm_macros"
+    pkg.mkdir(parents=True)
+    (pkg / "links.xacro").write_text(
+        f'<robot xmlns:xacro="http://www.ros.org/wiki/xacro"><xacro:macro name="arm_links">\n{links}'
+        "</xacro:macro></robot>\n",
+        encoding="utf-8",
+    )
+    xacro = (
+        '<?xml version="1.0"?>\n<robot name="arm6" xmlns:xacro="http://www.ros.org/wiki/xacro">\n'
+        '  <xacro:property name="h" value="0.45"/>\n'
+        '  <xacro:include filename="$(find arm_macros)/links.xacro"/>\n  <xacro:arm_links/>\n'
+        f"{joints}</robot>\n"
+    )
+    overlay = arm_overlay() + '\n[packages]\narm_macros = "../elsewhere/arm_macros"\n'
+    rc, made = _convert(tmp_path / "x", xacro, overlay, suffix=".urdf.xacro")
+    assert rc == 0
+    a, b = _numbers(plain), _numbers(made)
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+    assert "from arm.urdf.xacro (expanded by xacro)" in made.read_text(encoding="utf-8")
+
+
+def test_a_missing_find_package_exits_2_naming_it(tmp_path, capsys):
+    xacro = (
+        '<robot name="x" xmlns:xacro="http://www.ros.org/wiki/xacro">'
+        '<xacro:include filename="$(find no_such_pkg)/a.xacro"/></robot>\n'
+    )
+    rc, out = _convert(tmp_path, xacro, arm_overlay(), suffix=".xacro")
+    err = capsys.readouterr().err
+    assert rc == 2 and "arm.xacro: $(find no_such_pkg): expected a [packages] no_such_pkg" in err
+    assert not out.exists()
+
+
+def test_overlay_inertials_give_the_masses_typed_and_are_marked_assumed(tmp_path, capsys):
+    urdf = re.sub(r"    <inertial>.*?</inertial>\n", "", arm_urdf(), flags=re.S)
+    assert "<inertial>" not in urdf
+    rc, _ = _convert(tmp_path / "none", urdf, arm_overlay())
+    assert rc == 2 and "an <inertial> on every moving link" in capsys.readouterr().err
+    serial = {n: LINKS[n] for n in link_masses()}  # the moving links of the serial arm
+    tables = "".join(
+        f"\n[inertials.{name}]\nmass = {mass!r}\ncom = [{', '.join(repr(float(c)) for c in com)}]\n"
+        + (f"inertia = [{', '.join(repr(float(i)) for i in inertia)}]\n" if name != "link_6" else "")
+        for name, (mass, com, inertia, *_) in serial.items()
+    )
+    rc, out = _convert(tmp_path / "typed", urdf, arm_overlay() + tables)
+    assert rc == 0
+    text = out.read_text(encoding="utf-8")
+    assert "ASSUMED in the overlay's [inertials] for link_1, " in text
+    m = mujoco.MjModel.from_xml_path(str(out))
+    for name, (mass, com, inertia, *_) in serial.items():
+        b = m.body(name)
+        assert b.mass[0] == mass, name
+        # the centre of mass in the link frame, as typed (MuJoCo may rotate the inertial frame)
+        np.testing.assert_allclose(b.ipos, com, atol=1e-12, err_msg=name)
+        expected = np.sort(inertia) if name != "link_6" else np.full(3, mass * 0.1**2)
+        np.testing.assert_allclose(np.sort(b.inertia), expected, rtol=1e-12, err_msg=name)
+
+
+def test_duplicate_geom_names_are_renamed_without_mujoco_warnings(tmp_path, caplog):
+    urdf = (
+        arm_urdf()
+        .replace("<collision>", '<collision name="collision">')
+        .replace("<visual>", '<visual name="visual">')
+    )
+    assert urdf.count('name="collision"') == 7
+    with caplog.at_level(logging.WARNING, logger="calbench.mujoco"):
+        rc, out = _convert(tmp_path, urdf, arm_overlay())
+    assert rc == 0 and not [r for r in caplog.records if "duplicate name" in r.getMessage()]
+    m = mujoco.MjModel.from_xml_path(str(out))
+    names = [m.geom(g).name for g in range(m.ngeom)]
+    assert "link_2_collision" in names and len(set(names)) == len(names)
+
+
+def test_check_robot_prints_each_links_frame_as_mujoco_computes_it(capsys):
+    assert main(["check-robot", str(MJCF), "--grid", "1", "--sample", "0"]) == 0
+    out = capsys.readouterr().out
+    robot = Robot.from_file(MJCF)
+    m = robot.model
+    d = mujoco.MjData(m)
+    d.qpos[:] = robot.rigid_qpos(np.zeros(robot.n_act))
+    mujoco.mj_kinematics(m, d)
+    for b in range(1, m.nbody):
+        got = re.search(rf"^    {m.body(b).name}: origin \[([^\]]*)\]", out, flags=re.M)
+        assert got, m.body(b).name
+        np.testing.assert_allclose([float(x) for x in got[1].split(",")], d.xpos[b], atol=5e-4)
+    # link5's cylinder (radius 0.13, along y from -0.14 to 0.14) and neck capsule (to x = 0.32)
+    box = re.search(r"^    link5: .*box \[(.*)\] \.\. \[(.*)\]$", out, flags=re.M)
+    lo, hi = (np.array([float(x) for x in g.split(",")]) for g in box.groups())
+    np.testing.assert_allclose(lo, [-0.13, -0.14, -0.13], atol=5e-4)
+    np.testing.assert_allclose(hi, [0.32, 0.14, 0.13], atol=5e-4)
+
+
+def test_kukas_xacro_from_ros_industrial_converts(tmp_path):
+    xacro = shared_data("robots", "kuka_quantec_support", "urdf", "kr210_r2700_2.urdf.xacro")
+    overlay = "\n".join(
+        ['actuated = ["joint_1", "joint_2", "joint_3", "joint_4", "joint_5", "joint_6"]']
+        + [f'[{t}]\nlink = "link_6"\npos = {p}' for t, p in (("payload", "[0.0, 0.0, 0.2]"),)]
+        + [
+            f'[reflectors.{n}]\nlink = "link_6"\npos = {p}'
+            for n, p in (("r1", "[0.2, 0.0, 0.1]"), ("r2", "[-0.1, 0.2, 0.1]"), ("r3", "[-0.1, -0.2, 0.1]"))
+        ]
+    )
+    (tmp_path / "kuka.toml").write_text(overlay + "\n", encoding="utf-8")
+    out = tmp_path / "kuka.xml"
+    assert main(["from-urdf", str(xacro), "--overlay", str(tmp_path / "kuka.toml"), "--out", str(out)]) == 0
+    m = mujoco.MjModel.from_xml_path(str(out))
+    assert m.nmesh >= 6 and 800 < m.body_mass.sum() < 2000  # the macro's inertials, a KR 210's links
+    ET.parse(out)
+
+
+def test_the_view_legend_names_the_colour_it_draws(tmp_path):
+    from calbench.bench.model import geom_shapes
+    from calbench.bench.view import Legend, colour_name, legend
+
+    rc, out = _convert(tmp_path, arm_urdf(), arm_overlay())  # no <material>: MuJoCo's grey
+    assert rc == 0
+    for path, colour in ((out, "grey"), (MJCF, "yellow")):
+        shapes = geom_shapes(mujoco.MjModel.from_xml_path(str(path)))
+        name = colour_name(np.array([g.rgba for g in shapes]))
+        assert name == colour
+        assert legend(Legend(1.0, 1.0, robot_colour=name)).startswith(f"- **{colour} robot**")
+
+
+def test_check_robot_on_a_urdf_says_run_from_urdf_first(tmp_path, capsys):
+    (tmp_path / "arm.urdf").write_text(arm_urdf())
+    (tmp_path / "arm.txt").write_text(arm_urdf())  # a URDF by its <robot> root, whatever its name
+    for name in ("arm.urdf", "arm.txt"):
+        assert main(["check-robot", str(tmp_path / name)]) == 2
+        err = capsys.readouterr().err
+        assert "convert a URDF first, calbench from-urdf" in err and "got 'a URDF'" in err
