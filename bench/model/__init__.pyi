@@ -30,6 +30,7 @@ from .loop import (
     loop_jacobian,
     motor_forces,
     motor_jacobian,
+    motor_jacobians,
 )
 from .params import LEGACY_COMPENSATOR, ParamLayout, Params, Spring, springs_from_message
 from .robot import LOOP_MARGIN, LOOP_MARGIN_ANGLE, Robot, ancestors
@@ -68,6 +69,7 @@ __all__ = [
     "loop_jacobian",
     "motor_forces",
     "motor_jacobian",
+    "motor_jacobians",
     "priors",
     "read_description",
     "reflector_posts",
