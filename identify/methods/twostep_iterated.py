@@ -20,9 +20,11 @@ theta(d*) with D(d*) = d*. Re-taking the Jacobians at the sag of the previous es
 (d <- D(d)) is the plain way to that point, but on this robot it diverges: D's slope along the
 120 deg group is ~3.6 (measured along the line from the commanded to the true sag), so the
 iteration oscillates away, and from the paper's own estimate it wanders between spurious fixed
-points. So the fixed point is solved by Newton's method on R(d) = D(d) - d (Jacobian by forward
-differences, STEP rad; the step halved while |R| does not decrease), from d = 0 (the plain
-method's pose), to |R| < TOL rad. An estimate the statics cannot use (a non-positive
+points. So the fixed point is solved by Newton's method on R(d) = D(d) - d (Jacobian S G - I, the
+derivatives below, updated by Broyden's rank-one rule after each step and re-taken when its step
+fails; the step halved while |R| does not decrease, down to MIN_ALPHA), from d = 0 (the plain
+method's pose), to |R| < TOL rad. A run whose |R| stops falling (SLOW_STEPS steps gaining less
+than SLOW) sits at a minimum of |R| that is no root: it ends unconverged. An estimate the statics cannot use (a non-positive
 compliance, a parameter step 2 did not give) takes identify/methods/onestep.py's generic value for that
 equilibrium only. Nothing but the observations and the MJCF's geometry is read, as in the plain
 method.
@@ -31,8 +33,18 @@ Uncertainty. The sag d* moves with the readings, so the linear solve's covarianc
 held fixed) is too small (k1's std by ~2x in a Monte Carlo). The reported covariance carries
 d*'s share by the implicit function theorem: with L = dtheta/dy at fixed d (the linear solve's
 delta method, C = L Sigma L^T), G = dtheta/dd, S = dD/dtheta and R(d) = D(theta(d)) - d,
-dtheta*/dy = A L with A = I - G (S G - I)^-1 S, so cov = A C A^T (:func:`sensitivity`, G and S
-by central differences).
+dtheta*/dy = A L with A = I - G (S G - I)^-1 S, so cov = A C A^T (:func:`sensitivity`).
+S comes from the statics' implicit-function tangent at each pose's unloaded equilibrium
+(dq/dtheta = -K^-1 dg/dtheta, bench.statics; the compensator joint's row, averaged per q2 group),
+G from central differences (STEP) of the linear solve, only the moved group's poses re-evaluated.
+Until issue 23, S was central differences of re-solved equilibria (2 P solves of every pose, 90 %
+of a Monte Carlo run's 0.28 s); :func:`sensitivity_fd` keeps that way as the reference the tangent
+is tested against (tests/test_identify_plans.py: stds equal to 5e-5).
+
+Speed. The equilibria of every pose are solved at once (bench.statics.BatchStatics), from the
+last evaluation's poses with a chord matrix (the exact one at a reference, plus the springs'
+change); the step-1 regressors of all poses are stacked on the same batch. On the paper
+campaign a converged Monte Carlo run costs ~8 map evaluations (docs/performance.md).
 """
 
 from __future__ import annotations
