@@ -49,6 +49,8 @@ campaign a converged Monte Carlo run costs ~8 map evaluations (docs/performance.
 
 from __future__ import annotations
 
+import threading
+
 import mujoco
 import numpy as np
 
@@ -85,13 +87,27 @@ MAX_NEWTON = 20
 # minimum of |R| of 0.2-0.7 deg and used to spend the 20 iterations' line searches on it)
 SLOW, SLOW_STEPS = 0.9, 3
 MIN_ALPHA = 0.03  # the line search halves the Newton step down to this fraction
+# Jacobians taken per solve: converged Monte Carlo runs of the paper plan take at most two (their
+# chord from the exact readings' solve, Broyden-updated, rarely fails); runs whose map has no
+# fixed point near the start fail chord after chord, wandering to sags of tens of degrees
+MAX_JACOBIANS = 4
 
 
 class SagMap:
     """d -> (theta(d), D(d)) for one robot and plan (module docstring). ``white``: the
-    observations' whitener when the caller has it (the Monte Carlo's runs do)."""
+    observations' whitener when the caller has it (the Monte Carlo's runs do); ``warm``: a map of
+    the same robot and plan (other readings) whose pose rows, equilibria and chord reference
+    this one starts from (they depend on the readings only through the sags and parameters they
+    were taken at, which every use checks)."""
 
-    def __init__(self, robot: Robot, obs: Observations, weighted: bool, white: Whitener | None = None):
+    def __init__(
+        self,
+        robot: Robot,
+        obs: Observations,
+        weighted: bool,
+        white: Whitener | None = None,
+        warm: SagMap | None = None,
+    ):
         self.robot, self.obs, self.weighted = robot, obs, weighted
         self.joint = two_step_applies(robot)
         self.white = Whitener.from_observations(obs) if white is None else white
@@ -102,13 +118,18 @@ class SagMap:
         self.col = robot.act_qpos[self.joint]
         self.dof = robot.act_dof[self.joint]
         self.q = np.array([p.q for p in obs.poses], dtype=float)
-        self._batch: BatchStatics | None = None
-        self._ref = None  # (params, A, tendon moments) at equilibria where A was taken exactly
         self.evaluations = 0
         site = lambda n: mujoco.mj_name2id(robot.model, mujoco.mjtObj.mjOBJ_SITE, n)  # noqa: E731
         self.sites = [[site(p.site)] + [site(r) for r in p.reflectors] for p in obs.poses]
         self._rows: tuple[np.ndarray, list[PoseRows]] | None = None  # the last d's pose rows
         self._equilibria: tuple[np.ndarray, list] | None = None  # the last sag's (theta, equilibria)
+        self._batch: BatchStatics | None = None
+        self._ref = None  # (params, A, tendon moments) at equilibria where A was taken exactly
+        self._thread = threading.get_ident()
+        if warm is not None:  # the same plan's caches (read only): a Monte Carlo run from the exact one
+            self._rows, self._equilibria, self._ref = warm._rows, warm._equilibria, warm._ref
+            if warm._thread == self._thread:  # a batch is not thread-safe
+                self._batch = warm._batch
 
     def configuration(self, pose, sag: float) -> np.ndarray:
         """The rigid closed-loop configuration of a pose with the compensator joint turned by sag."""
@@ -314,6 +335,14 @@ def linear_sensitivity(sm: SagMap, d: np.ndarray, ok: np.ndarray) -> np.ndarray:
     return g
 
 
+def newton_jacobian(sm: SagMap, d: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """dR/dd = S G - I (n, n) at sags d with the linear solve's theta (module docstring)."""
+    ok = np.isfinite(theta)
+    s = sm.sag_tangent(theta)
+    s[:, ~ok] = 0.0
+    return s @ linear_sensitivity(sm, d, ok) - np.eye(sm.n)
+
+
 def sensitivity(sm: SagMap, d: np.ndarray, theta: np.ndarray) -> np.ndarray:
     """A = dtheta*/dtheta at fixed d (module docstring, Uncertainty): (P,P), identity on the
     parameters the linear solve did not give. G by :func:`linear_sensitivity`, S = dD/dtheta
@@ -358,31 +387,36 @@ def two_step_iterated(
     jacobian: np.ndarray | None = None,
     uncertainty: bool = True,
     white: Whitener | None = None,
+    warm: SagMap | None = None,
+    sag_map: SagMap | None = None,
 ) -> TwoStepResult:
     """The two-step estimate at the self-consistent sagged pose (module docstring). ``start``:
     initial sags per q2 group (default 0: the commanded pose); ``jacobian``: dR/dd to reuse
     (chord steps, e.g. the Monte Carlo's noise-free one; re-taken when a chord step does not
     lower |R|); ``uncertainty``: carry the sag's share into the covariance (module docstring;
-    False keeps the pose-held-fixed covariance). ``step2`` records the sags, the Newton iterations, map evaluations, the last
-    Jacobian and whether |R| < tol."""
-    sm = SagMap(robot, obs, weighted, white)
+    False keeps the pose-held-fixed covariance); ``white``, ``warm``: :class:`SagMap`'s;
+    ``sag_map``: the map to use (left as the solve leaves it, e.g. to warm others). ``step2``
+    records the sags, the Newton iterations, map evaluations, the last Jacobian and whether
+    |R| < tol."""
+    sm = SagMap(robot, obs, weighted, white, warm) if sag_map is None else sag_map
     d = np.zeros(sm.n) if start is None else np.array(start, dtype=float)
     r, est = sm.residual(d)
     history = [{"sag_deg": np.degrees(d).tolist(), "residual_deg": np.degrees(r).tolist()}]
     converged = bool(np.abs(r).max() < tol)
     jac = None if jacobian is None else np.asarray(jacobian, dtype=float)
-    it, slow, stalled = 0, 0, False
+    it, slow, stalled, fresh = 0, 0, False, 0
     while not converged and it < max_newton:
         it += 1
         chord = jac is not None
         if not chord:
-            ok = np.isfinite(est.theta)
-            s_ = sm.sag_tangent(est.theta)
-            s_[:, ~ok] = 0
-            jac = s_ @ linear_sensitivity(sm, d, ok) - np.eye(sm.n)
+            if fresh == MAX_JACOBIANS:  # every chord fails here: no root the Newton can reach
+                stalled = True
+                break
+            jac, fresh = newton_jacobian(sm, d, est.theta), fresh + 1
         step = -np.linalg.lstsq(jac, r, rcond=None)[0]
         alpha = 1.0
-        while alpha > MIN_ALPHA:
+        # a chord's full step that does not lower |R|: re-take the Jacobian rather than search
+        while alpha > (0.5 if chord else MIN_ALPHA):
             try:
                 r_new, est_new = sm.residual(d + alpha * step)
             except StaticsError:
@@ -457,14 +491,15 @@ def estimate_two_step_iterated(robot: Robot, obs: Observations, options: Identif
 
 def repeat_two_step_iterated(robot: Robot, obs0: Observations, white0: Whitener) -> Repeats:
     """The Monte Carlo's iterated two-step: every run starts at the exact readings' sag, with
-    their Newton Jacobian as its chord (:func:`two_step_iterated`'s ``start`` and ``jacobian``)."""
-    it0 = two_step_iterated(robot, obs0)
+    their Newton Jacobian as its chord (:func:`two_step_iterated`'s ``start`` and ``jacobian``)
+    and their map's pose rows and equilibria (``warm``)."""
+    sm0 = SagMap(robot, obs0, False, white0)
+    it0 = two_step_iterated(robot, obs0, sag_map=sm0)
     sag, jac = it0.step2["sag_rad"], it0.step2["jacobian"]
 
     def run(obs: Observations, white: Whitener) -> MethodResult:
-        return two_step_result(
-            two_step_iterated(robot, obs, start=sag, jacobian=jac, white=white), "two-step-iterated", robot
-        )
+        est = two_step_iterated(robot, obs, start=sag, jacobian=jac, white=white, warm=sm0)
+        return two_step_result(est, "two-step-iterated", robot)
 
     return Repeats(two_step_result(it0, "two-step-iterated", robot), run)
 
