@@ -148,9 +148,10 @@ def add_montecarlo(sub) -> None:
         choices=tuple(montecarlo_choices()),
         default=BOTH,
         help="estimators to run; two-step runs both step-2 variants, two-step-iterated the paper's "
-        "method at its self-consistent sagged pose, both for robots with at most one "
-        "compensator across one actuated hinge; both: all of them (one-step alone on other "
-        "robots) (default: %(default)s)",
+        "method at its self-consistent sagged pose (~5x the one-step's time per run), both for "
+        "robots with at most one compensator across one actuated hinge; both: one-step and "
+        "two-step (one-step alone on other robots); all: every method that applies "
+        "(default: %(default)s)",
     )
     p.add_argument("--seed", type=int, default=None, help="base noise seed (default: the scenario's)")
     p.add_argument(

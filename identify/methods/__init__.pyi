@@ -14,6 +14,7 @@ from .onestep import (
     valid_phi,
 )
 from .registry import (
+    ALL,
     BOTH,
     all_methods,
     check_method,
@@ -30,6 +31,7 @@ from .twostep_iterated import REL_STEP, SagMap, sensitivity, sensitivity_fd, two
 
 __all__ = [
     "REL_STEP",
+    "ALL",
     "BOTH",
     "IdentifyOptions",
     "Method",
