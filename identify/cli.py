@@ -188,7 +188,7 @@ def cmd_montecarlo(args) -> int:
     methods = montecarlo_methods(args.method, scn)
     interrupted = None
     with open_pieces(args, estimated_seconds(args.runs, methods), -(-args.runs // RUNS_PER_TASK)) as ex:
-        bar = terminal_progress()
+        bar = terminal_progress("calbench montecarlo", "runs")
         try:
             mc = run_montecarlo(scn, args.runs, methods, progress=bar, executor=ex)
         except Interrupted as exc:
@@ -303,7 +303,7 @@ class _BarAndNotes:
     a line first ends the bar's."""
 
     def __init__(self):
-        self.bar = terminal_progress()
+        self.bar = terminal_progress("calbench design", "pieces")
         self.drawn = False
 
     def start(self, total: int, label: str = "") -> None:
@@ -579,7 +579,7 @@ def cmd_study(args) -> int:
             file=sys.stderr,
         )
         with open_pieces(args, pending.estimated_seconds(), pending.tasks()) as ex:
-            bar = terminal_progress()
+            bar = terminal_progress("calbench study", "campaigns")
             try:
                 outcome = run_study(pending, ex, progress=bar)
             except Interrupted as exc:

@@ -4,7 +4,7 @@
 from .errors import CalbenchError, InputError, StaticsError
 from .face import face_exports, lazy_face
 from .outputs import atomic_path, check_outputs, write_text
-from .progress import Progress, ProgressSink, sink, terminal_progress
+from .progress import Progress, ProgressSink, duration, sink, terminal_progress
 from .resources import PAPER_SCENARIO, mjcf_path, scenario_path
 from .tables import Table, describe, frozen_array, parse_toml, read_text
 from .units import DISPLAY, unit_display
@@ -29,6 +29,7 @@ __all__ = [
     "read_text",
     "scenario_path",
     "sink",
+    "duration",
     "terminal_progress",
     "unit_display",
     "write_text",
