@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 
 from calbench.bench.campaign import CampaignInterrupted, simulate
-from calbench.bench.core import Progress, atomic_path, check_outputs, write_text
+from calbench.bench.core import atomic_path, check_outputs, terminal_progress, write_text
 from calbench.bench.log import read_log, recover_log
 from calbench.bench.robots import DEFAULT_MASS, check_robot
 from calbench.bench.scenario import MAX_LOG_BYTES, MAX_SECONDS, duration, load_scenario, size
@@ -73,7 +73,7 @@ def _sigterm_as_interrupt():
 def cmd_simulate(args: argparse.Namespace) -> int:
     scn = load_scenario(args.scenario, seed=args.seed)
     check_outputs({"--out": args.out}, {"SCENARIO": args.scenario, "robot": scn.robot})
-    bar = Progress(total=2 * len(scn.poses), enabled=sys.stderr.isatty())
+    bar = terminal_progress("calbench simulate", "equilibria")
     try:
         with _sigterm_as_interrupt():
             plans = simulate(scn, args.out, progress=bar, force=args.force)

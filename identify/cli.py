@@ -160,9 +160,10 @@ def add_montecarlo(sub) -> None:
         choices=tuple(montecarlo_choices()),
         default=BOTH,
         help="estimators to run; two-step runs both step-2 variants, two-step-iterated the paper's "
-        "method at its self-consistent sagged pose, both for robots with at most one "
-        "compensator across one actuated hinge; both: all of them (one-step alone on other "
-        "robots) (default: %(default)s)",
+        "method at its self-consistent sagged pose (~5x the one-step's time per run), both for "
+        "robots with at most one compensator across one actuated hinge; both: one-step and "
+        "two-step (one-step alone on other robots); all: every method that applies "
+        "(default: %(default)s)",
     )
     p.add_argument("--seed", type=int, default=None, help="base noise seed (default: the scenario's)")
     p.add_argument(
@@ -199,7 +200,7 @@ def cmd_montecarlo(args) -> int:
     methods = montecarlo_methods(args.method, scn)
     interrupted = None
     with open_pieces(args, estimated_seconds(args.runs, methods), -(-args.runs // RUNS_PER_TASK)) as ex:
-        bar = terminal_progress()
+        bar = terminal_progress("calbench montecarlo", "runs")
         try:
             mc = run_montecarlo(scn, args.runs, methods, progress=bar, executor=ex)
         except Interrupted as exc:
@@ -314,7 +315,7 @@ class _BarAndNotes:
     a line first ends the bar's."""
 
     def __init__(self):
-        self.bar = terminal_progress()
+        self.bar = terminal_progress("calbench design", "pieces")
         self.drawn = False
 
     def start(self, total: int, label: str = "") -> None:
@@ -699,7 +700,7 @@ def cmd_study(args) -> int:
             file=sys.stderr,
         )
         with open_pieces(args, pending.estimated_seconds(), pending.tasks()) as ex:
-            bar = terminal_progress()
+            bar = terminal_progress("calbench study", "campaigns")
             try:
                 outcome = run_study(pending, ex, progress=bar)
             except Interrupted as exc:

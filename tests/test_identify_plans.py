@@ -176,6 +176,42 @@ def test_iterated_covariance_carries_the_sags_share(paper):
     assert errors[0] / errors[1] == pytest.approx(2.0, abs=0.3), errors
 
 
+def test_iterated_sag_tangent_matches_finite_differences(paper):
+    """S = dD/dtheta of the iterated two-step (identify/methods/twostep_iterated.py) comes from
+    the statics' implicit-function tangent at each pose's unloaded equilibrium; checked against
+    central differences of re-solved equilibria (REL_STEP = 1e-5 of each parameter), the way it
+    was computed before. The differences' own error bounds the tolerance: the equilibria are
+    solved to ~1e-11 rad, over a sag change of REL_STEP x (the sag's share, ~0.02 rad) ~ 2e-7 rad,
+    i.e. ~5e-5 relative (their truncation error, ~REL_STEP^2, is far below). Columns are compared
+    as S_j theta_j (the sag's response to a relative change), scaled by the largest; the
+    covariance A C A^T it gives, with G shared, agrees with the finite-difference one as closely."""
+    from calbench.identify.methods import REL_STEP, SagMap, sensitivity, sensitivity_fd, two_step_iterated
+
+    scn, robot, obs = paper
+    it = two_step_iterated(robot, obs)
+    fixed = two_step_iterated(robot, obs, uncertainty=False)
+    d, th = np.array(it.step2["sag_rad"]), it.theta
+    sm = SagMap(robot, obs, False)
+    s = sm.sag_tangent(th)
+    fd = np.zeros_like(s)
+    for j in range(len(th)):
+        h = REL_STEP * abs(th[j])
+        up, down = th.copy(), th.copy()
+        up[j] += h
+        down[j] -= h
+        fd[:, j] = (sm.sag(up) - sm.sag(down)) / (2 * h)
+    scaled = np.abs(fd * th)
+    assert scaled[:, [1, 6, 7]].min(axis=0).max() > 0.1 * scaled.max()  # k2, K_C, s0 move the sag
+    np.testing.assert_allclose(s * th, fd * th, rtol=0, atol=5e-5 * scaled.max())
+    c = fixed.cov
+    a, a_fd = sensitivity(sm, d, th), sensitivity_fd(SagMap(robot, obs, False), d, th)
+    sd, sd_fd = np.sqrt(np.diag(a @ c @ a.T)), np.sqrt(np.diag(a_fd @ c @ a_fd.T))
+    np.testing.assert_allclose(sd, sd_fd, rtol=5e-5)
+    # what two_step_iterated reports: the same A, its equilibria warm-started (equal to the
+    # statics' tolerance, 1e-10 of the forces, not bit for bit)
+    np.testing.assert_allclose(np.sqrt(np.diag(it.cov)), sd, rtol=1e-8)
+
+
 def test_vertical_loads_only_name_k1(paper):
     scn, robot, obs = observations(range(12))  # Table 5 without the lateral pulls
     for res in (one_step(robot, obs), two_step(robot, obs)):

@@ -97,6 +97,9 @@ def test_a_registered_method_is_in_every_list_and_leaves_with_its_registration(t
     # `both` runs what applies; a method asked for by name that does not apply is bad input
     assert select_methods("both", robot, scn.robot)[-1] == "toy"
     assert "picky-toy" not in select_methods("both", robot, scn.robot)
+    # the default leaves out the iterated two-step (~5x the one-step per run); all runs it
+    assert "two-step-iterated" not in select_methods("both", robot, scn.robot)
+    assert select_methods("all", robot, scn.robot) == method_names()[:4] + ("toy",)
     with pytest.raises(InputError, match="a toy robot"):
         select_methods("picky-toy", robot, scn.robot)
     sub = next(a for a in build_parser()._actions if a.dest == "command").choices

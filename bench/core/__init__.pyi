@@ -13,7 +13,7 @@ from .outputs import (
     write_bytes,
     write_text,
 )
-from .progress import Progress, ProgressSink, sink, terminal_progress
+from .progress import Progress, ProgressSink, duration, sink, terminal_progress
 from .resources import PAPER_SCENARIO, mjcf_path, scenario_path
 from .states import STATES
 from .tables import Table, describe, frozen_array, parse_toml, read_text
@@ -50,6 +50,7 @@ __all__ = [
     "refused_write",
     "scenario_path",
     "sink",
+    "duration",
     "terminal_progress",
     "unit_display",
     "write_bytes",

@@ -11,6 +11,7 @@ from .loop import (
     loop_jacobian,
     motor_forces,
     motor_jacobian,
+    motor_jacobians,
 )
 from .params import LEGACY_COMPENSATOR, ParamLayout, Params, Spring, springs_from_message
 from .robot import LOOP_MARGIN, LOOP_MARGIN_ANGLE, Robot, ancestors
@@ -35,6 +36,7 @@ __all__ = [
     "loop_jacobian",
     "motor_forces",
     "motor_jacobian",
+    "motor_jacobians",
     "read_description",
     "reflector_posts",
     "set_spec_names",

@@ -165,6 +165,19 @@ def motor_jacobian(robot: Looped, data: mujoco.MjData, site: int) -> np.ndarray:
     return np.vstack([jp @ n, jr @ n])
 
 
+def motor_jacobians(robot: Looped, data: mujoco.MjData, sites) -> list[np.ndarray]:
+    """:func:`motor_jacobian` of several sites at one configuration, the motor map taken once
+    (the same numbers: only the repeated loop-closure solve is saved)."""
+    m = robot.model
+    n = motor_map(robot, data)
+    out = []
+    for site in sites:
+        jp, jr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
+        mujoco.mj_jacSite(m, data, jp, jr, site)
+        out.append(np.vstack([jp @ n, jr @ n]))
+    return out
+
+
 def motor_forces(robot: Looped, data: mujoco.MjData, qfrc: np.ndarray) -> np.ndarray:
     """Generalized forces mapped to the motors by virtual work: N^T qfrc."""
     return motor_map(robot, data).T @ qfrc

@@ -440,7 +440,14 @@ class Robot:
 
     def compensator_geometry(self, which: int = 0) -> CompensatorGeometry:
         """Measure l_c, l_2 and the angle offset of compensator ``which`` from the MJCF sites at
-        q = 0 (geometry only); ValueError as :meth:`compensator_joint`."""
+        q = 0 (geometry only: measured once per compensator, the two-step methods ask per
+        solve); ValueError as :meth:`compensator_joint`."""
+        cache = self.__dict__.setdefault("_geometry", {})
+        if which not in cache:
+            cache[which] = self._measure_compensator(which)
+        return cache[which]
+
+    def _measure_compensator(self, which: int) -> CompensatorGeometry:
         m = self.model
         i = self.compensator_joint(which)
         t = self.tendons[which]

@@ -221,6 +221,10 @@ class BatchStatics:
         jr[:, :, dofs] = (axis * hinge[None, :, None]).transpose(0, 2, 1)
         return jp, jr
 
+    def joint_axes(self, ids: np.ndarray, joints) -> np.ndarray:
+        """World axes (n, k, 3) of the joints at the poses in the batch (position stage current)."""
+        return self._xaxis[ids][:, joints]
+
     def loop_gap(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """bench.loop.loop_gap stacked: c (n, 3L) and J_c (n, 3L, nv), loop by loop."""
         xs = self.site_xpos[ids]

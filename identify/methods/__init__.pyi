@@ -14,6 +14,7 @@ from .onestep import (
     valid_phi,
 )
 from .registry import (
+    ALL,
     BOTH,
     all_methods,
     check_method,
@@ -26,9 +27,11 @@ from .registry import (
     unregister_method,
 )
 from .twostep import TwoStepError, linear_plan, step2_rows, two_step, two_step_applies
-from .twostep_iterated import SagMap, sensitivity, two_step_iterated
+from .twostep_iterated import REL_STEP, SagMap, sensitivity, sensitivity_fd, two_step_iterated
 
 __all__ = [
+    "REL_STEP",
+    "ALL",
     "BOTH",
     "IdentifyOptions",
     "Method",
@@ -53,6 +56,7 @@ __all__ = [
     "sanitize_start",
     "select_methods",
     "sensitivity",
+    "sensitivity_fd",
     "step2_rows",
     "to_phi",
     "to_theta",

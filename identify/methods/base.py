@@ -125,7 +125,8 @@ class Method:
     `calbench identify --method` and a study's ``campaign.method`` offer it;
     ``seconds_per_run``: its in-process time per Monte Carlo run (the executor's choice only);
     ``noise_free_always``: the Monte Carlo reports its noise-free model error even when it is
-    not run (a cheap method).
+    not run (a cheap method); ``in_both``: `montecarlo --method both` (the default) runs it
+    when it applies (`all` runs every method that applies).
     """
 
     name: str
@@ -138,6 +139,7 @@ class Method:
     offered: bool = True
     seconds_per_run: float = 0.01
     noise_free_always: bool = False
+    in_both: bool = True
 
     @property
     def choice(self) -> str:

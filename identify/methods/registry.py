@@ -2,8 +2,10 @@
 
 Every verb reads it and nothing else: `calbench identify --method` offers the methods marked
 ``offered`` (so does a study's ``campaign.method``), `calbench montecarlo --method` offers
-``both`` (every method that applies to the robot) and each method's ``choice`` (its own name,
-or the group it runs in: ``two-step`` runs both step-2 variants), and the report's and the
+``both`` (the default: the methods marked ``in_both`` that apply to the robot: the one-step and
+the paper's two-step, not the 5x slower iterated two-step), ``all`` (every method that applies)
+and each method's ``choice`` (its own name, or the group it runs in: ``two-step`` runs both
+step-2 variants), and the report's and the
 Monte Carlo's loops over methods are loops over :func:`all_methods`. The table's order is the
 order the Monte Carlo runs and reports them.
 
@@ -23,15 +25,16 @@ from .twostep import TWO_STEP, TWO_STEP_WEIGHTED
 from .twostep_iterated import TWO_STEP_ITERATED
 
 BUILTIN: tuple[Method, ...] = (ONE_STEP, TWO_STEP, TWO_STEP_WEIGHTED, TWO_STEP_ITERATED)
-BOTH = "both"  # `montecarlo --method both`: every method that applies to the robot
+BOTH = "both"  # `montecarlo --method both` (default): the in_both methods that apply to the robot
+ALL = "all"  # `montecarlo --method all`: every method that applies to the robot
 
 _registered: dict[str, Method] = {}
 
 
 def register_method(method: Method) -> Method:
     """Add ``method`` after the built-in ones; returns it. ValueError when its name (or
-    ``both``) is taken."""
-    if method.name == BOTH or any(m.name == method.name for m in all_methods()):
+    ``both``, ``all``) is taken."""
+    if method.name in (BOTH, ALL) or any(m.name == method.name for m in all_methods()):
         raise ValueError(f"an identification method named {method.name!r} exists already")
     _registered[method.name] = method
     return method
@@ -61,9 +64,12 @@ def method_named(name: str) -> Method:
 
 
 def montecarlo_choices() -> dict[str, tuple[str, ...]]:
-    """`montecarlo --method` value -> the methods it runs: ``both`` (all of them), then each
-    method's ``choice`` in table order."""
-    out: dict[str, tuple[str, ...]] = {BOTH: method_names()}
+    """`montecarlo --method` value -> the methods it runs: ``both`` (those marked in_both),
+    ``all`` (all of them), then each method's ``choice`` in table order."""
+    out: dict[str, tuple[str, ...]] = {
+        BOTH: tuple(m.name for m in all_methods() if m.in_both),
+        ALL: method_names(),
+    }
     for m in all_methods():
         out[m.choice] = out.get(m.choice, ()) + (m.name,)
     return out
@@ -84,13 +90,13 @@ def check_method(method: Method, robot: Robot, source, flag: str) -> None:
 
 
 def select_methods(choice: str, robot: Robot, source) -> tuple[str, ...]:
-    """The methods `montecarlo --method choice` runs on ``robot``: for ``both`` those that apply
-    to it; for any other choice all of its methods, InputError (naming ``source``) when one does
+    """The methods `montecarlo --method choice` runs on ``robot``: for ``both`` and ``all``
+    those of theirs that apply to it; for any other choice all of its methods, InputError (naming ``source``) when one does
     not apply."""
     out = []
     for name in montecarlo_choices()[choice]:
         m = method_named(name)
-        if choice == BOTH:
+        if choice in (BOTH, ALL):
             try:
                 m.check(robot)
             except NotApplicable:
@@ -104,6 +110,7 @@ def select_methods(choice: str, robot: Robot, source) -> tuple[str, ...]:
 __all__ = [
     "BUILTIN",
     "BOTH",
+    "ALL",
     "register_method",
     "unregister_method",
     "all_methods",

@@ -47,7 +47,7 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from calbench.bench.model import Robot, motor_jacobian
+from calbench.bench.model import Robot, motor_jacobians
 from calbench.identify.core import Identifiability, Observations, Whitener, analyze, explain
 
 from .base import IdentifyOptions, Method, MethodResult, NotApplicable, Repeats
@@ -109,6 +109,59 @@ class LinearPlan:
     vertical: np.ndarray | None = None  # (N,) motor axis along gravity at every pose
 
 
+@dataclass
+class PoseRows:
+    """One pose's share of a LinearPlan: its reflectors' motor columns and its load's torques."""
+
+    cols: np.ndarray  # (n_refl, 3, N)
+    tau: np.ndarray  # (N,)
+    vertical: np.ndarray  # (N,) bool: the motor axis along gravity at this pose
+
+
+def pose_rows(robot: Robot, data: mujoco.MjData, pose, qpos: np.ndarray) -> PoseRows:
+    """Step 1's regressors of one pose (eq. 19) at the configuration ``qpos``."""
+    m = robot.model
+    site = lambda n: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, n)  # noqa: E731
+    g = m.opt.gravity / max(np.linalg.norm(m.opt.gravity), 1e-300)
+    data.qpos[:] = qpos
+    mujoco.mj_fwdPosition(m, data)
+    vertical = np.abs(data.xaxis[robot.act_joint] @ g) > 1 - 1e-9
+    jl, *jrs = motor_jacobians(robot, data, [site(pose.site)] + [site(r) for r in pose.reflectors])
+    tau = jl.T @ np.concatenate([pose.force, pose.moment])
+    cols = np.array([jr[:3] * tau[None, :] for jr in jrs]).reshape(-1, 3, robot.n_act)
+    return PoseRows(cols, tau, vertical)
+
+
+def plan_from_rows(
+    robot: Robot, obs: Observations, rows: list[PoseRows], q2_at: np.ndarray | None = None
+) -> LinearPlan:
+    """The LinearPlan of the poses' rows (in obs.poses order). ``q2_at`` (n_poses,): the
+    compensator angle of each pose's configuration, when it is not the command (group means)."""
+    try:
+        joint = two_step_applies(robot)
+    except TwoStepError:  # step 1's regressors hold for any robot; no k is split then
+        joint = None
+    n_act = robot.n_act
+    vertical = np.ones(n_act, bool)
+    for r in rows:
+        vertical &= r.vertical
+    if joint is None:
+        labels, values = np.zeros(len(obs.poses), dtype=int), np.zeros(0)
+    else:
+        labels, values = group_q2(np.array([p.q[joint] for p in obs.poses]))
+        if q2_at is not None:  # the compensator angle at the given configurations (group means)
+            values = np.array([q2_at[labels == g].mean() for g in range(len(values))])
+    return LinearPlan(
+        np.concatenate([r.cols for r in rows]) if rows else np.zeros((0, 3, n_act)),
+        np.array([r.tau for r in rows]).reshape(-1, n_act),
+        labels,
+        values,
+        np.array([k for k, r in enumerate(rows) for _ in range(len(r.cols))], dtype=int),
+        joint,
+        vertical,
+    )
+
+
 def linear_plan(robot: Robot, obs: Observations, qpos: dict | None = None) -> LinearPlan:
     """Motor torques and reflector motor Jacobians at each pose's rigid configuration.
 
@@ -117,44 +170,18 @@ def linear_plan(robot: Robot, obs: Observations, qpos: dict | None = None) -> Li
     with the compensator angle at the true q2 of each group, to separate the cost of the sag
     from the cost of H00); identification never passes it.
     """
-    m = robot.model
-    d = mujoco.MjData(m)
-    site = lambda n: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, n)  # noqa: E731
-    try:
-        joint = two_step_applies(robot)
-    except TwoStepError:  # step 1's regressors hold for any robot; no k is split then
-        joint = None
-    n_act = robot.n_act
-    g = m.opt.gravity / max(np.linalg.norm(m.opt.gravity), 1e-300)
-    vertical = np.ones(n_act, bool)
-    cols, taus, rows = [], [], []
-    for k, p in enumerate(obs.poses):
-        d.qpos[:] = robot.rigid_qpos(p.q) if qpos is None else qpos[p.index]
-        mujoco.mj_fwdPosition(m, d)
-        vertical &= np.abs(d.xaxis[robot.act_joint] @ g) > 1 - 1e-9
-        jl = motor_jacobian(robot, d, site(p.site))
-        tau = jl.T @ np.concatenate([p.force, p.moment])
-        taus.append(tau)
-        for r in p.reflectors:
-            jr = motor_jacobian(robot, d, site(r))
-            cols.append(jr[:3] * tau[None, :])
-            rows.append(k)
-    if joint is None:
-        labels, values = np.zeros(len(obs.poses), dtype=int), np.zeros(0)
-    else:
-        labels, values = group_q2(np.array([p.q[joint] for p in obs.poses]))
-        if qpos is not None:  # the compensator angle at the given configurations (group means)
-            q2 = np.array([qpos[p.index][robot.act_qpos[joint]] for p in obs.poses])
-            values = np.array([q2[labels == g].mean() for g in range(len(values))])
-    return LinearPlan(
-        np.array(cols).reshape(-1, 3, n_act),
-        np.array(taus).reshape(-1, n_act),
-        labels,
-        values,
-        np.array(rows, dtype=int),
-        joint,
-        vertical,
-    )
+    d = mujoco.MjData(robot.model)
+    at = {p.index: robot.rigid_qpos(p.q) for p in obs.poses} if qpos is None else qpos
+    rows = [pose_rows(robot, d, p, at[p.index]) for p in obs.poses]
+    q2_at = None
+    if qpos is not None and rows:
+        try:
+            joint = two_step_applies(robot)
+        except TwoStepError:
+            joint = None
+        if joint is not None:
+            q2_at = np.array([qpos[p.index][robot.act_qpos[joint]] for p in obs.poses])
+    return plan_from_rows(robot, obs, rows, q2_at)
 
 
 def plan_facts(robot: Robot, obs: Observations, lp: LinearPlan | None = None) -> dict:
@@ -429,6 +456,9 @@ __all__ = [
     "group_q2",
     "LinearPlan",
     "linear_plan",
+    "PoseRows",
+    "pose_rows",
+    "plan_from_rows",
     "plan_facts",
     "TwoStepResult",
     "TwoStepError",

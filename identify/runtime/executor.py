@@ -197,6 +197,18 @@ class Executor:
         (any order). ``shared``: large arguments common to every call, sent to a cluster once."""
         raise NotImplementedError
 
+    def worker_counts(self) -> dict[str, int]:
+        """Pieces finished per worker so far (a cluster's; empty in this process)."""
+        return {}
+
+    def progress_label(self, text: str) -> str:
+        """``text``, with the per-worker counts of a cluster after `` | `` (bench.core.Progress
+        shows them)."""
+        counts = self.worker_counts()
+        if len(counts) < 2:
+            return text
+        return f"{text} | per worker: " + ", ".join(f"{w} {n}" for w, n in sorted(counts.items()))
+
     def ordered(self, fn: Callable, args: Iterable[tuple], window: int | None = None) -> Iterator[Any]:
         """Results in the order of ``args``, at most ``window`` calls in flight; ``args`` is drawn
         lazily, so a consumer that stops early (closing the iterator) costs no more pieces."""
@@ -268,6 +280,8 @@ class DaskExecutor(Executor):
         from distributed import Client, LocalCluster, Security
 
         self.cluster = None
+        self._names: dict[str, str] = {}  # worker address -> w1, w2, ... (first finished first)
+        self._counts: dict[str, int] = {}
         if choice.kind == LOCAL:
             # dashboard_address=None turns the dashboard off, yet the scheduler still serves its
             # HTTP routes (health, metrics) on Dask's default port 8787: pinned to a free port on
@@ -346,6 +360,19 @@ class DaskExecutor(Executor):
             single_threaded, fn, *args, key=f"calbench-{fn.__name__}-{tag}-{i}", retries=0
         )
 
+    def _count(self, fut) -> None:
+        """Count a finished piece for the worker that holds its result (the one that ran it)."""
+        try:
+            where = self.client.who_has(fut).get(fut.key, ())
+        except Exception:  # noqa: BLE001 - a count for the progress line only
+            return
+        for w in where[:1]:
+            name = self._names.setdefault(w, f"w{len(self._names) + 1}")
+            self._counts[name] = self._counts.get(name, 0) + 1
+
+    def worker_counts(self) -> dict[str, int]:
+        return dict(self._counts)
+
     def _cancel(self, futures) -> None:
         pending = [f for f in futures if not f.done()]
         if pending:
@@ -380,6 +407,7 @@ class DaskExecutor(Executor):
         try:
             for fut in as_completed(futures):
                 res = self._result(fut)
+                self._count(fut)
                 fut.release()
                 yield index[fut.key], res
         finally:  # done, failed, interrupted or abandoned: nothing left running

@@ -441,7 +441,7 @@ def run_montecarlo(
                     failed[m] += out["failed"][m]
                     iters[m][a:b] = out["iterations"][m]
                 done[a:b] = True
-                bar.update(f"runs {int(done.sum())}/{runs}", step=b - a)
+                bar.update(executor.progress_label(f"runs {int(done.sum())}/{runs}"), step=b - a)
     except KeyboardInterrupt:
         raise Interrupted(result(done), int(done.sum()), runs) from None
     return result(done)

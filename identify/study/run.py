@@ -275,7 +275,9 @@ def run_study(pending: Pending, executor: Executor | None = None, progress=None)
                     rows.append(row)
             store.add(rows)
             outcome.ran += len(rows)
-            bar.update(f"cell {fanout[j][records[0]['replicate']][0].index}", step=len(rows))
+            bar.update(
+                executor.progress_label(f"cell {fanout[j][records[0]['replicate']][0].index}"), step=len(rows)
+            )
             if time.perf_counter() - last > max(CONSOLIDATE_S, 10 * merge_s):
                 t_merge = time.perf_counter()
                 store.consolidate(index, complete=False)
