@@ -3,7 +3,8 @@
     calbench discover LOG.mcap --model ROBOT.xml [--json OUT.json] [--out-model AUGMENTED.xml]
                                [--plot RESIDUALS.png]
 
-1. FIT the user's model as it is (the one-step estimator, identify/methods/onestep.py) and take the
+1. FIT the user's model as it is, exactly as `calbench identify` fits it (identify/discover/basefit.py:
+   the one-step estimator, its parameter set and weighting; the same chi2 and RMS), and take the
    residuals (measured minus predicted deflections).
 2. WHERE they disagree: chi2 against the tracker's own noise, per pose, per reflector, per world
    direction, and the correlation of each pose's misfit with what varies over the plan
@@ -44,9 +45,9 @@ from calbench.bench.log import read_log
 from calbench.bench.model import Robot, augmented_xml, load_spec, set_spec_names, spec_names
 from calbench.bench.view import Discovery, write_discovery_recording
 from calbench.identify.core import Observations, Whitener, check_sites, from_log, load_model
-from calbench.identify.methods import one_step
 
 from .aliasing import aliasing_report
+from .basefit import base_fit, base_record, hold_mask
 from .decide import (
     ALPHA_EFFECT,
     AMBIGUOUS_BIC,
@@ -56,7 +57,7 @@ from .decide import (
     lr_threshold,
     near_ties,
 )
-from .fit import Fit, build, effect_priors, fit_augmented, label, library, whitened
+from .fit import Fit, build, effect_priors, label, library, whitened
 from .narrative import clean, plot_residuals, story, view_report
 from .search import fit_candidate, polish
 from .stats import ALPHA_FIT, chi2_p, diagnose, expected_rms, rms
@@ -66,7 +67,6 @@ MAX_ROUNDS = 3
 UNEXPLAINED = "unexplained"
 AMBIGUOUS = "ambiguous"
 HINT_P = 0.01  # a candidate below the family-wise level but at this nominal p is a hint
-BASE_START_ITER = 10  # the one-step estimate only starts the base fit: it need not converge
 POLISH_SHARE = 0.5  # a candidate whose LR reaches this share of its threshold is fitted to convergence
 
 
@@ -81,18 +81,6 @@ class Candidate:
     @property
     def label(self) -> str:
         return self.record["effect"] + (f"[{self.record['detail']}]" if self.record["detail"] else "")
-
-
-def base_fit(src, obs: Observations, white: np.ndarray) -> Fit:
-    """The user's model as it is (identify/methods/onestep.py's estimate, refined by :func:`fit` on the
-    discovery bounds); ``extra["fresh_start"]``: the one-step's data-derived start."""
-    robot, fm = build(src, [], obs)
-    r = one_step(robot, obs, step_tol=1e-3, max_iter=BASE_START_ITER)
-    lo, hi = robot.layout.lower, robot.layout.upper
-    start = np.clip(np.where(np.isfinite(r.theta), r.theta, r.start), lo, hi)
-    base = fit_augmented(fm, obs.dp, white, start, lo, hi, ~np.asarray(r.identifiable, bool))
-    base.extra["fresh_start"] = np.clip(r.start, lo, hi)
-    return base
 
 
 def run_round(
@@ -212,8 +200,7 @@ def discover_observations(obs: Observations, src, *, max_rounds: int = MAX_ROUND
     sigma = float(obs.noise_sigma)
     base = base_fit(src, obs, white)
     lib = library(base.robot)
-    nb = base.robot.layout.n
-    hold_base = ~base.free[:nb] & ~base.at_bound[:nb]
+    hold_base = hold_mask(base)
     fresh = base.extra["fresh_start"]
     current = base
     named, steps, rounds, hints, ambiguous = [], [], [], [], []
@@ -300,6 +287,7 @@ def discover_observations(obs: Observations, src, *, max_rounds: int = MAX_ROUND
     rep = {
         "named_effects": named,
         "steps": steps,
+        "base_fit": base_record(base),
         "rms_before": rms(base.residual),
         "rms_after": rms(final.residual),
         "noise_sigma": sigma,

@@ -1,0 +1,102 @@
+"""Never confidently wrong (issue 22): discovery's base fit is identify's, and what a named model
+does not determine is never reported as a number with a tight std.
+
+The IRB 6640 case (tests/irb6640/: the converted ABB robot, a Table 5-style plan, a hidden link_2
+bending [0, 3e-7, 3e-7] rad/(N*m) that k2 nearly absorbs) at noise seeds 2-4. On main before the
+fix, discover's "user's model" left 263.6 um RMS (chi2 11729) where identify left 31.3 um, and the
+named models reported k2 34 std and balancer_stiffness 16 std off the truth, as determined.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import MJCF, PAPER, ROOT
+from robots import serial_mjcf
+
+from calbench.bench.campaign import run_campaign
+from calbench.bench.log import read_log
+from calbench.bench.scenario import load_scenario
+from calbench.identify.core import Whitener, from_log
+from calbench.identify.discover import base_fit, discover
+from calbench.identify.report import run_identify
+
+CASE = Path(__file__).resolve().parent / "irb6640"
+KR270 = ROOT / "scenarios" / "kr270_paper.toml"
+Z_DETERMINED = 4.5  # the issue's bound: no parameter reported as determined further from the truth
+
+
+def irb_scenario(tmp: Path, seed: int) -> Path:
+    text = (CASE / "irb6640_hidden.toml").read_text().replace("seed = 2", f"seed = {seed}")
+    text = text.replace('robot = "irb6640.xml"', f'robot = "{CASE / "irb6640.xml"}"')
+    path = tmp / f"irb{seed}.toml"
+    path.write_text(text)
+    return path
+
+
+def serial_scenario(tmp: Path) -> Path:
+    """tests/robots.py's serial arm with a balancer, on a ten-pose plan (tests/test_serial_robot.py's)."""
+    from test_serial_robot import scenario
+
+    return scenario(
+        tmp,
+        "bal",
+        serial_mjcf(balancer=True),
+        "[truth.compensators.balancer]\nstiffness = 3e6\npreload = 0.68",
+    )
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("honest")
+    scenarios = {
+        "fanuc": PAPER,
+        "kr270": KR270,
+        "serial": serial_scenario(tmp),
+        **{f"irb{s}": irb_scenario(tmp, s) for s in (2, 3, 4)},
+    }
+    out = {}
+    for name, scn in scenarios.items():
+        out[name] = tmp / f"{name}.mcap"
+        run_campaign(load_scenario(scn), out[name])
+    out["tmp"] = tmp
+    return out
+
+
+MODELS = {"fanuc": MJCF, "kr270": ROOT / "mjcf" / "kr270.xml", "irb2": CASE / "irb6640.xml"}
+
+
+@pytest.mark.parametrize("case", ["fanuc", "kr270", "serial", "irb2"])
+def test_discover_fits_the_users_model_as_identify_does(logs, case):
+    """The same estimator, parameter set and weighting: the same chi2, dof and residual RMS (to
+    the statics solver's precision: both evaluate the same equilibria at the same estimate)."""
+    model = MODELS.get(case)
+    rep = run_identify(logs[case], model, check_profile=False)
+    obs = from_log(read_log(logs[case]))
+    src = Path(model) if model is not None else read_log(logs[case]).mjcf_text
+    base = base_fit(src, obs, Whitener.from_observations(obs))
+    assert base.chi2 == pytest.approx(rep.chi2, rel=1e-7)
+    assert base.dof == rep.dof
+    assert np.sqrt(np.mean(base.residual**2)) == pytest.approx(rep.residual_rms, rel=1e-7)
+    ident = {p.name: p for p in rep.parameters}
+    for name, v, est in zip(base.names, base.values, base.free | base.at_bound):
+        if ident[name].estimate is not None:  # what identify reports, discovery starts from
+            assert v == pytest.approx(ident[name].estimate, rel=1e-12)
+            assert est
+
+
+def test_irb6640_base_fit_and_what_it_holds_are_said(logs):
+    """The issue's case: discover's user's model now leaves identify's 31.3 um (not 263.6), and
+    its report names the parameters identify could not determine, with identify's reasons."""
+    rep = discover(logs["irb2"], CASE / "irb6640.xml", out_model=logs["tmp"] / "irb2.xml")
+    ident = run_identify(logs["irb2"], CASE / "irb6640.xml", check_profile=False)
+    assert rep["chi2_before"] == pytest.approx(ident.chi2, rel=1e-7)
+    assert rep["rms_before"] == pytest.approx(ident.residual_rms, rel=1e-7)
+    assert rep["rms_before"] < 2 * rep["noise_rms_before"]  # not 263.6 um against 27 um
+    bf = rep["base_fit"]
+    assert bf["chi2"] == pytest.approx(ident.chi2) and bf["dof"] == ident.dof
+    undetermined = {p.name for p in ident.parameters if p.estimate is None}
+    assert set(bf["not_determined"]) | set(bf["held"]) == undetermined
+    assert all(bf["not_determined"][n] == ident.unidentifiable[n] for n in bf["not_determined"])
