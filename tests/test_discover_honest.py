@@ -100,3 +100,83 @@ def test_irb6640_base_fit_and_what_it_holds_are_said(logs):
     undetermined = {p.name for p in ident.parameters if p.estimate is None}
     assert set(bf["not_determined"]) | set(bf["held"]) == undetermined
     assert all(bf["not_determined"][n] == ident.unidentifiable[n] for n in bf["not_determined"])
+
+
+def irb_truth() -> dict:
+    """The hidden plan's truth by parameter name (read by the test only, never by discover)."""
+    import tomllib
+
+    t = tomllib.loads((CASE / "irb6640_hidden.toml").read_text())["truth"]
+    out = {f"k{i + 1}": v for i, v in enumerate(t["compliance"])}
+    out["balancer_stiffness"] = t["compensators"]["balancer"]["stiffness"]
+    out["balancer_preload"] = t["compensators"]["balancer"]["preload"]
+    out.update(
+        {
+            f"link_compliance[link_2].c{a}": v
+            for a, v in zip("xyz", t["effects"]["link_compliance"]["compliance"])
+        }
+    )
+    return out  # any other effect parameter: 0 in the truth
+
+
+HIDDEN = "link_compliance[link_2]"
+_RUNS: dict = {}
+
+
+def run_irb(logs, seed: int) -> dict:
+    if seed not in _RUNS:
+        _RUNS[seed] = discover(
+            logs[f"irb{seed}"], CASE / "irb6640.xml", out_model=logs["tmp"] / f"irb{seed}.xml"
+        )
+    return _RUNS[seed]
+
+
+@pytest.mark.parametrize("seed", [2, 3, 4])
+def test_irb6640_nothing_determined_is_confidently_wrong(logs, seed):
+    """Seeds 2-4 of the issue: every parameter reported as determined is within Z_DETERMINED std of
+    the truth, or, where the hidden effect was not named, within that plus the bias the exposure
+    report predicts for it (identify/discover/exposure.py: the largest bias a link_2 bending
+    this plan would not name can cause). Every determined combination is within Z_DETERMINED std."""
+    rep = run_irb(logs, seed)
+    truth = irb_truth()
+    named = HIDDEN in {s["effect"] + f"[{s['detail']}]" for s in rep["steps"]}
+    for p in rep["parameters"]:
+        if not p["determined"]:
+            assert p["std"] is None
+            continue
+        allowed = Z_DETERMINED * p["std"]
+        if not named:
+            allowed += p["exposure"]["by_effect"][HIDDEN]
+        assert abs(p["estimate"] - truth.get(p["name"], 0.0)) <= allowed, (seed, p)
+    for c in rep["combinations"]:
+        t = sum(v * truth.get(n, 0.0) for n, v in c["combination"].items())
+        assert abs(c["estimate"] - t) <= Z_DETERMINED * c["std"], (seed, c)
+
+
+def test_irb6640_seed2_k2_is_not_determined_once_the_bending_is_named(logs):
+    """The issue's seed 2: link_2 is named; k2, which the bending makes undetermined, is reported
+    not determined (not 0.0167 +- 0.0042 against 0.16), and so are the splits k2 / cy."""
+    rep = run_irb(logs, 2)
+    assert rep["named_effects"] == ["link_compliance"] and rep["steps"][0]["detail"] == "link_2"
+    pars = {p["name"]: p for p in rep["parameters"]}
+    assert not pars["k2"]["determined"] and not pars[f"{HIDDEN}.cy"]["determined"]
+
+
+def test_irb6640_seed3_ambiguous_values_are_shown_not_determined(logs):
+    """Seed 3 is `ambiguous` (joint_nonlinearity[j4] or link_compliance[link_2]); every parameter on
+    which the tied candidates disagree beyond their std is reported not determined with every
+    model's value (k2: 0.46 under j4, undetermined under link_2)."""
+    rep = run_irb(logs, 3)
+    assert rep["named_effects"] == ["ambiguous"]
+    tied = {t["candidate"] for t in rep["ambiguous"][0]["candidates"]}
+    assert HIDDEN in tied and len(tied) >= 2
+    pars = {p["name"]: p for p in rep["parameters"]}
+    assert "under_tied_candidates" in pars["k2"]
+    for p in rep["parameters"]:
+        under = p.get("under_tied_candidates")
+        if under:
+            assert not p["determined"] and p["std"] is None
+            assert set(under) == tied | {"current model"}
+            vals = [u["estimate"] for u in under.values()]
+            stds = [u["std"] for u in under.values()]
+            assert None in stds or max(vals) - min(vals) > max(stds)

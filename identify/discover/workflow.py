@@ -57,11 +57,12 @@ from .decide import (
     lr_threshold,
     near_ties,
 )
+from .exposure import exposure_report, with_exposure
 from .fit import Fit, build, effect_priors, label, library, whitened
 from .narrative import clean, plot_residuals, story, view_report
 from .search import fit_candidate, polish
 from .stats import ALPHA_FIT, chi2_p, diagnose, expected_rms, rms
-from .uncertainty import MAX_RELATIVE_STD, determination, not_quadratic
+from .uncertainty import MAX_RELATIVE_STD, checked, determination, split_by_ties
 
 MAX_ROUNDS = 3
 UNEXPLAINED = "unexplained"
@@ -124,8 +125,10 @@ def run_round(
     return out
 
 
-def _params(f: Fit, det=None, lo: int = 0, hi: int | None = None) -> list[dict]:
-    """Parameter records of f[lo:hi] with the honest std of ``det`` (uncertainty.py)."""
+def _params(f: Fit, det=None, lo: int = 0, hi: int | None = None, split: dict | None = None) -> list[dict]:
+    """Parameter records of f[lo:hi] with the honest std of ``det`` (uncertainty.py); ``split``:
+    the values under each tied candidate where an `ambiguous` verdict leaves one undetermined."""
+    split = split or {}
     det = determination(f, f.extra["jw"]) if det is None else det
     hi = f.values.size if hi is None else hi
     profile = getattr(det, "profile", {})
@@ -137,6 +140,7 @@ def _params(f: Fit, det=None, lo: int = 0, hi: int | None = None) -> list[dict]:
             "std": float(det.std[i]) if det.determined[i] else None,
             "determined": bool(det.determined[i]),
             **({"chi2_rise_at_2_fisher_std": profile[i]} if i in profile else {}),
+            **({"under_tied_candidates": split[i]} if i in split else {}),
         }
         for i in range(lo, hi)
     ]
@@ -204,6 +208,7 @@ def discover_observations(obs: Observations, src, *, max_rounds: int = MAX_ROUND
     fresh = base.extra["fresh_start"]
     current = base
     named, steps, rounds, hints, ambiguous = [], [], [], [], []
+    tie_fits: list[tuple[str, Fit]] = []
     last: list[Candidate] = []
     for rnd in range(max_rounds):
         cands = run_round(src, obs, white, current, hold_base, fresh, lib)
@@ -245,6 +250,8 @@ def discover_observations(obs: Observations, src, *, max_rounds: int = MAX_ROUND
         if ties:
             ties = _ties_resolved(src, obs, white, best.fit, hold_base, fresh, ties, cands, len(cands))
         if ties:
+            by_label = {c.label: c.fit for c in cands}
+            tie_fits = [(t["candidate"], by_label[t["candidate"]]) for t in ties]
             ambiguous.append({"round": rnd + 1, "candidates": ties})
             named.append(AMBIGUOUS)
             steps.append(
@@ -263,13 +270,10 @@ def discover_observations(obs: Observations, src, *, max_rounds: int = MAX_ROUND
         rounds[-1]["named"] = best.label
         current = best.fit
     final = current
-    det = determination(final, final.extra["jw"])
-    rises: dict = {}
-    if final.effects:  # the named effects' stds, checked
-        bad, rises = not_quadratic(final, obs, white, det, range(final.model.n_base, final.values.size))
-        if bad.any():
-            det = determination(final, final.extra["jw"], bad)
-    det.profile = rises
+    det = checked(final, obs, white)  # base and effect parameters together
+    split = {}
+    if tie_fits:  # ambiguous: what the tied candidates disagree on is not determined under either
+        split = split_by_ties(final, det, [(lab, f, determination(f, f.extra["jw"])) for lab, f in tie_fits])
     for s, (e, _) in zip(
         [s for s in steps if s["effect"] not in (UNEXPLAINED, AMBIGUOUS)], final.effect_params()
     ):
@@ -282,6 +286,14 @@ def discover_observations(obs: Observations, src, *, max_rounds: int = MAX_ROUND
     if len(fresh_cols) < sum(1 for c in last if c.fit is not None):
         fresh_cols = alias_columns(src, obs, white, final, lib)
     aliasing = aliasing_report(final, final.extra["jw"], det.std, fresh_cols, obs, white, max(len(last), 1))
+    own = {label(c.fit.effects[-1]) for c in last if c.fit is not None and owns_base(c.fit)}
+    exposure = exposure_report(
+        final,
+        final.extra["jw"],
+        det.std,
+        [(e, b) for e, b in fresh_cols if label(e) not in own],
+        len(last) or 1,
+    )
     diag_before = diagnose(base, obs, sigma)
     diag_after = diagnose(final, obs, sigma) if final is not base else diag_before
     rep = {
@@ -317,8 +329,9 @@ def discover_observations(obs: Observations, src, *, max_rounds: int = MAX_ROUND
         "where_after": diag_after,
         "rounds": rounds,
         "hints": hints,
-        "parameters": _params(final, det),
+        "parameters": with_exposure(_params(final, det, split=split), exposure),
         "combinations": det.combinations,
+        "combinations_not_quadratic": det.rejected,
         "n_observations": obs.n_obs(),
         "n_poses": len(obs.poses),
         "per_pose": [
@@ -331,6 +344,12 @@ def discover_observations(obs: Observations, src, *, max_rounds: int = MAX_ROUND
         "seconds": time.perf_counter() - t0,
     }
     return (rep, final, base) if with_base else (rep, final)
+
+
+def owns_base(f: Fit) -> bool:
+    """Whether the last effect of a candidate fit writes over a base quantity (the compensator
+    candidate on a model that has one): it is the base parameters again, not an effect they absorb."""
+    return bool(f.model._base_overridden(f.values).any())
 
 
 def alias_columns(src, obs, white, final: Fit, lib) -> list[tuple]:

@@ -188,14 +188,46 @@ def campaign_section(log: CampaignLog, simulated: bool) -> dict:
     }
 
 
+CHI2_95 = Z95**2  # chi2(1) 95 % quantile: the profile interval's rise
+
+
+def profile_interval(
+    est: float, std: float, prof: dict, lower: float | None
+) -> tuple[float | None, float | None]:
+    """The 95 % interval a chi2 profile that is not quadratic gives (identify/core/profile.py's
+    check: its rise r at +-2 Fisher std on each side): on each side, the quadratic through that
+    rise, est +- 2 std sqrt(3.84 / r); a side without a rise (past its bound, or no fit) or with
+    none reaches the bound (``lower``, None: unbounded). Clipped to ``lower`` (a spring's
+    stiffness is not negative). Two points per side: an approximation, flagged as such."""
+    out = []
+    for sign, key in ((-1.0, "rise_minus"), (1.0, "rise_plus")):
+        r = prof.get(key)
+        if r is None or not r > 0:
+            out.append(lower if sign < 0 else None)
+            continue
+        v = est + sign * 2.0 * std * math.sqrt(CHI2_95 / r)
+        out.append(max(v, lower) if (sign < 0 and lower is not None) else v)
+    return out[0], out[1]
+
+
 def parameters_section(ident: IdentificationReport) -> dict:
     rows, rel_names, rel = [], [], []
+    profiles = ident.details.get("profile") or {}
     for p in ident.parameters:
         label, f = unit_display(p.unit)
         est, std, truth = p.estimate, p.std, p.truth
         ok = est is not None and p.identifiable
         d = decimals(std * f if std else None)
         z = p.z if p.z is not None else ((est - truth) / std if ok and std and truth is not None else None)
+        prof = profiles.get(p.name)
+        bent = bool(ok and std is not None and prof and not prof.get("quadratic", True))
+        if bent:  # every elastic parameter of the model is positive (bench/model/params.py)
+            lo, hi = profile_interval(est, std, prof, 0.0)
+            ci = f"[{num(lo * f, d)}, {num(hi * f, d) if hi is not None else '∞'}] (profile)"
+        elif ok and std is not None:
+            ci = f"[{num((est - Z95 * std) * f, d)}, {num((est + Z95 * std) * f, d)}]"
+        else:
+            ci = "–"
         rows.append(
             {
                 "name": p.name,
@@ -204,10 +236,15 @@ def parameters_section(ident: IdentificationReport) -> dict:
                 "reason": p.reason or "",
                 "estimate": num(est * f, d) if ok else "",
                 "std": num(std * f, d) if ok and std is not None else "–",
-                "ci": (
-                    f"[{num((est - Z95 * std) * f, d)}, {num((est + Z95 * std) * f, d)}]"
-                    if ok and std is not None
-                    else "–"
+                "ci": ci,
+                "not_quadratic": bent,
+                "rises": (
+                    ", ".join(
+                        "none" if prof.get(k) is None else f"{prof[k]:.2f}"
+                        for k in ("rise_plus", "rise_minus")
+                    )
+                    if bent
+                    else ""
                 ),
                 "rel": f"{abs(std / est) * 100:.2g}" if ok and std is not None and est else "–",
                 "truth": num(truth * f, d) if truth is not None else "–",
@@ -227,6 +264,8 @@ def parameters_section(ident: IdentificationReport) -> dict:
         "chi2": f"{chi2:.1f}" if chi2 is not None else "–",
         "p": f"{p_fit:.2g}" if p_fit is not None else "–",
         "unidentifiable": [r for r in rows if not r["identifiable"]],
+        "not_quadratic": [r for r in rows if r["not_quadratic"]],
+        "profile_checked": bool(profiles),
         "chi2_per_dof": (f"{ident.chi2_per_dof:.3f}" if ident.chi2_per_dof is not None else "–"),
         "dof": dof,
         "residual_rms": um(ident.residual_rms),
