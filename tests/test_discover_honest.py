@@ -180,3 +180,71 @@ def test_irb6640_seed3_ambiguous_values_are_shown_not_determined(logs):
             vals = [u["estimate"] for u in under.values()]
             stds = [u["std"] for u in under.values()]
             assert None in stds or max(vals) - min(vals) > max(stds)
+
+
+def test_profile_interval_is_the_gaussian_one_where_chi2_is_quadratic():
+    """The report's profile interval (identify/report/html.py): a quadratic profile (rise 4 at
+    2 std) gives est +- 1.96 std exactly; a rise of 16 halves that side; no rise reaches the bound."""
+    from calbench.identify.report import Z95, profile_interval
+
+    lo, hi = profile_interval(10.0, 1.0, {"rise_plus": 4.0, "rise_minus": 4.0}, None)
+    assert (lo, hi) == pytest.approx((10.0 - Z95, 10.0 + Z95), rel=1e-12)
+    lo, hi = profile_interval(10.0, 1.0, {"rise_plus": 16.0, "rise_minus": None}, 0.0)
+    assert hi == pytest.approx(10.0 + Z95 / 2) and lo == 0.0
+    assert profile_interval(1.0, 1.0, {"rise_plus": None, "rise_minus": 1.0}, 0.0) == (0.0, None)
+
+
+def test_report_shows_profile_failures_and_no_false_all_clear(logs, tmp_path):
+    """IRB 6640 seed 4: identify flags both balancer parameters as chi2 not quadratic. The report
+    prints their profile interval (never a negative spring) and the flag, and does not say that
+    every parameter is identifiable."""
+    import re
+
+    from calbench.identify.cli import main
+    from calbench.identify.report import html_report
+
+    js = tmp_path / "id.json"
+    assert main(["identify", str(logs["irb4"]), "--model", str(CASE / "irb6640.xml"), "--json", str(js)]) == 0
+    prof = __import__("json").loads(js.read_text())["profile"]
+    bent = [n for n, p in prof.items() if not p["quadratic"]]
+    assert "balancer_stiffness" in bent
+    page = html_report(logs["irb4"], identified=js, out=tmp_path / "r.html")
+    text = re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", page))
+    assert "Every parameter is identifiable" not in text
+    assert "χ² not quadratic over the std" in text
+    row = re.search(r"balancer_stiffness kN/m \S+ \S+ \[(\S+), (\S+)\] \(profile\)", text)
+    assert row and float(row.group(1)) >= 0.0
+
+
+def test_report_refuses_inputs_of_another_campaign_or_robot(logs, tmp_path, capsys):
+    """identify JSON of another log: exit 2 naming the JSON and its log key; a design whose
+    scenario's robot is another MJCF: exit 2 naming ``scenario``; a design whose scenario is not
+    here: accepted and named in the report. Nothing is written when refused."""
+    import json
+
+    from calbench.identify.cli import main
+
+    js = tmp_path / "id.json"
+    assert main(["identify", str(logs["irb2"]), "--model", str(CASE / "irb6640.xml"), "--json", str(js)]) == 0
+    out = tmp_path / "r.html"
+    capsys.readouterr()
+    assert main(["report", str(logs["irb3"]), "--identified", str(js), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert str(js) in err and "log" in err and not out.exists()
+    assert main(["report", str(logs["irb2"]), "--identified", str(js), "--out", str(out)]) == 0
+    plan = {
+        "criterion": "D",
+        "poses": [{"q_deg": [0] * 6, "load": "weight", "wrench": [0] * 6, "repeats": 1}],
+    }
+    design = tmp_path / "design.json"
+    design.write_text(json.dumps({**plan, "scenario": str(KR270)}))
+    out.unlink()
+    capsys.readouterr()
+    assert main(["report", str(logs["fanuc"]), "--design", str(design), "--out", str(out)]) == 2
+    assert "scenario" in capsys.readouterr().err and not out.exists()
+    design.write_text(json.dumps({**plan, "scenario": str(PAPER)}))
+    assert main(["report", str(logs["fanuc"]), "--design", str(design), "--out", str(out)]) == 0
+    assert "Inputs not checked" not in out.read_text()
+    design.write_text(json.dumps({**plan, "scenario": "gone.toml"}))
+    assert main(["report", str(logs["fanuc"]), "--design", str(design), "--out", str(out)]) == 0
+    assert "gone.toml" in out.read_text() and "Inputs not checked" in out.read_text()

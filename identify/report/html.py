@@ -47,6 +47,7 @@ from calbench.identify.discover import alias_lines
 
 from . import htmlplots
 from .identification import DISPLAY, noise_source
+from .provenance import provenance
 
 Z95 = 1.959963984540054  # two-sided 95 % quantile of the standard normal
 KINDS = {
@@ -684,6 +685,7 @@ def html_report(
                 Path(path),
                 read_identified(path) if kind == "identify" else read_json_report(path, kind),
             )
+    notes = provenance(log_path, log, inputs)  # refuses inputs that do not belong together
     ident = inputs.get("identify", (None, None))[1]
     disc = inputs.get("discover", (None, None))[1]
     plan = inputs.get("design", (None, None))[1]
@@ -699,6 +701,7 @@ def html_report(
         "design": design_section(plan) if plan else None,
         "reproduce": reproduce_section(log_path, log, simulated, inputs, Path(out)),
         "log_path": str(log_path),
+        "provenance": notes,
     }
     return render(ctx)
 
@@ -715,6 +718,7 @@ def write_report(log_path, out, identified=None, discover=None, design=None) -> 
 
 __all__ = [
     "write_report",
+    "profile_interval",
     "html_report",
     "read_json_report",
     "read_identified",
