@@ -248,3 +248,56 @@ def test_report_refuses_inputs_of_another_campaign_or_robot(logs, tmp_path, caps
     design.write_text(json.dumps({**plan, "scenario": "gone.toml"}))
     assert main(["report", str(logs["fanuc"]), "--design", str(design), "--out", str(out)]) == 0
     assert "gone.toml" in out.read_text() and "Inputs not checked" in out.read_text()
+
+
+@pytest.mark.parametrize(
+    "effect,param", [("link_compliance[link_2]", "k2"), ("link_compliance[link_2]", "k1")]
+)
+def test_exposure_is_the_shift_of_a_refit_to_the_worst_undetected_effect(logs, effect, param):
+    """The exposure (identify/discover/exposure.py, first order) against an independent computation:
+    the readings the user's model plus the effect at its worst-case size predict (the exact
+    statics), refitted with the user's model (the nonlinear fit, identify/discover/fit.py), move
+    the parameter by the exposure (differenced against the effect at its prior start, the size the
+    columns were taken at). The statics are linear in a compliance up to terms of the deflection
+    angles (~1e-3 rad) and the fit's stopping rule (1e-6 chi2): measured 0.07 % (k1), 0.4 % (k2);
+    allowed 3 %. Where the worst direction is one the plan sees cleanly (k1), the effect at that
+    size leaves the likelihood ratio its test needs (within a factor 1.5); k2's is absorbed beyond
+    first order (LR ~0.02), so there the exposure is a lower bound (docs/discovery.md)."""
+    from calbench.identify.discover import (
+        build,
+        effect_exposure,
+        effect_priors,
+        fit_augmented,
+        label,
+        library,
+        lr_threshold,
+        whitened,
+        worst_case,
+    )
+
+    obs = from_log(read_log(logs["irb4"]))
+    white = Whitener.from_observations(obs)
+    src = CASE / "irb6640.xml"
+    base = base_fit(src, obs, white)
+    lib = library(base.robot)
+    eff = next(e for e in lib if label(e) == effect)
+    start, _, _, size = effect_priors(eff)
+    _, fm = build(src, [(eff, start)], obs)
+    _, jw = whitened(fm, white, np.r_[base.values, start])
+    k = start.size
+    est = base.free | base.at_bound
+    thr = lr_threshold(k, len(lib))
+    row = list(np.flatnonzero(est)).index(base.names.index(param))
+    exposure = effect_exposure(jw[:, :-k], est, jw[:, -k:], size, thr, np.full(est.sum(), np.inf))[0][row]
+    d = worst_case(jw[:, :-k], est, jw[:, -k:], size, thr, row)
+    lo, hi, hold = base.extra["bounds"]
+    refits = []
+    for p in (start, start + d):
+        dp, _ = fm.evaluate(np.r_[base.values, p], jacobian=False)
+        refits.append(
+            fit_augmented(base.model, dp, white, base.values, lo, hi, hold, max_iter=40, cost_tol=1e-6)
+        )
+    j = base.names.index(param)
+    assert refits[1].values[j] - refits[0].values[j] == pytest.approx(exposure, rel=0.03)
+    if param == "k1":
+        assert thr / 1.5 < refits[1].chi2 - refits[0].chi2 < 1.5 * thr

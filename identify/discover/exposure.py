@@ -38,6 +38,22 @@ UNBOUNDED_SIGMA = 0.5  # an exactly absorbed effect that moves a parameter this 
 # reference size is named as one that could bias it by any amount unseen
 
 
+def _decompose(jw: np.ndarray, est: np.ndarray, block: np.ndarray, size: np.ndarray):
+    """(excited (k,), |J_e| (k,), B (n_est, k'), eigenvalues w and vectors V of P^T P, seen (k',)):
+    the effect's excited columns made unit (d in units of |J_e| per parameter), regressed on the
+    estimated parameters' columns. None when nothing is excited or nothing is estimated."""
+    full = np.linalg.norm(block, axis=0)
+    excited = full * size > UNEXCITED
+    if not excited.any() or not est.any():
+        return None
+    jb = jw[:, est]
+    cols = block[:, excited] / full[excited]
+    b = np.linalg.lstsq(jb, cols, rcond=None)[0]
+    perp = cols - jb @ b
+    w, v = np.linalg.eigh(perp.T @ perp)
+    return excited, full, b, w, v, w > VISIBLE_SHARE_MIN**2
+
+
 def effect_exposure(
     jw: np.ndarray, est: np.ndarray, block: np.ndarray, size: np.ndarray, thr: float, floor: np.ndarray
 ):
@@ -46,21 +62,28 @@ def effect_exposure(
     column whose signature at that size is below UNEXCITED sigma is not excited: left out).
     Unbounded: a direction the estimated parameters absorb exactly biases the parameter by more
     than ``floor`` (n_est,) at the size a plan would name if nothing absorbed it (signature sqrt(T))."""
-    jb = jw[:, est]
-    full = np.linalg.norm(block, axis=0)
-    excited = full * size > UNEXCITED
     n = int(est.sum())
-    if not excited.any() or n == 0:
+    parts = _decompose(jw, est, block, size)
+    if parts is None:
         return np.zeros(n), np.zeros(n, bool)
-    cols = block[:, excited] / full[excited]  # unit columns: d in units of |J_e| per parameter
-    b = np.linalg.lstsq(jb, cols, rcond=None)[0]  # (n, k)
-    perp = cols - jb @ b
-    w, v = np.linalg.eigh(perp.T @ perp)
-    seen = w > VISIBLE_SHARE_MIN**2
+    _, _, b, w, v, seen = parts
     bv = b @ v  # b_j in the eigenbasis
     bounded = np.sqrt(np.sum(bv[:, seen] ** 2 / w[seen], axis=1)) * math.sqrt(thr)
     unbounded = np.any(np.abs(bv[:, ~seen]) * math.sqrt(thr) > floor[:, None], axis=1)
     return bounded, unbounded
+
+
+def worst_case(jw: np.ndarray, est: np.ndarray, block: np.ndarray, size: np.ndarray, thr: float, row: int):
+    """The effect's size (k,), SI, that biases the ``row``-th estimated parameter most while its
+    likelihood ratio stays at the threshold ``thr`` (to first order): the maximiser of b . d on
+    the ellipsoid |P d|^2 = thr, along the directions the plan sees (module docstring)."""
+    excited, full, b, w, v, seen = _decompose(jw, est, block, size)
+    bv = (b @ v)[row]
+    d_eig = np.where(seen, bv / np.where(seen, w, 1.0), 0.0)
+    d_eig *= math.sqrt(thr) / math.sqrt(np.sum(bv[seen] ** 2 / w[seen]))
+    out = np.zeros(block.shape[1])
+    out[excited] = (v @ d_eig) / full[excited]
+    return out
 
 
 def exposure_report(
@@ -114,4 +137,4 @@ def with_exposure(params: list[dict], exposure: list[dict]) -> list[dict]:
     return [dict(p, exposure=by[p["name"]]) if p["name"] in by else p for p in params]
 
 
-__all__ = ["effect_exposure", "exposure_report", "with_exposure"]
+__all__ = ["effect_exposure", "worst_case", "exposure_report", "with_exposure"]

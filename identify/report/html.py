@@ -43,7 +43,7 @@ from calbench.bench.core import InputError, check_outputs, write_text
 from calbench.bench.log import CampaignLog, IdentificationReport, has_truth, read_log
 from calbench.bench.view import measured_deflections
 from calbench.identify.discover import ALPHA_FIT as MISFIT_P  # chi2 p below which the model is rejected
-from calbench.identify.discover import alias_lines
+from calbench.identify.discover import alias_lines, base_lines, exposure_lines, tie_lines
 
 from . import htmlplots
 from .identification import DISPLAY, noise_source
@@ -409,6 +409,32 @@ def ambiguous_rows(ambiguous: list[dict]) -> list[dict]:
     ]
 
 
+def honesty_lines(disc: dict, path) -> list[str]:
+    """Discovery's own statements of what it does not know (identify/discover/narrative.py's
+    words): the base fit's held and undetermined parameters, what tied candidates disagree on,
+    combinations whose profile is not quadratic, each determined parameter's exposure."""
+    try:
+        params = disc.get("parameters") or []
+        lines = base_lines(disc.get("base_fit")) + tie_lines(params) + exposure_lines(params)
+        undetermined = [p["name"] for p in params if not p["determined"]]
+        if undetermined:
+            lines.append(
+                "not determined by the final model (no std is given for them): " + ", ".join(undetermined)
+            )
+        lines += [
+            f"not determined, not even in combination: {' + '.join(c['combination'])}"
+            for c in disc.get("combinations_not_quadratic") or []
+        ]
+    except (KeyError, TypeError, ValueError) as e:
+        raise InputError(
+            path,
+            "parameters",
+            "records as `calbench discover --json` writes them",
+            f"{type(e).__name__}: {e}",
+        ) from None
+    return [ln.strip() for ln in lines]
+
+
 def discovery_section(disc: dict, path: str | os.PathLike = "--discover") -> dict:
     named = [n for n in disc["named_effects"]]
     steps = disc.get("steps") or []
@@ -517,6 +543,7 @@ def discovery_section(disc: dict, path: str | os.PathLike = "--discover") -> dic
         "candidates": cands,
         "ambiguous": ambiguous,
         "aliasing": aliasing,
+        "honesty": honesty_lines(disc, path),
         "hints": _generic_rows(disc["hints"]) if disc.get("hints") else [],
         "augmented_model": disc.get("augmented_model"),
     }
