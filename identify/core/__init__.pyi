@@ -16,7 +16,7 @@ from .identifiability import (
 from .leastsq import Fit, at_bounds, covariance, levenberg_marquardt, svd_step
 from .model import check_sites, load_model
 from .observations import Observations, PoseObservation, from_log, pose_observation
-from .profile import PROFILE_SIGMAS, Profile, profile_check
+from .profile import PROFILE_SIGMAS, Profile, profile_check, quadratic
 from .rigid import RigidFit, fit_rigid, non_collinear, rotation_exp
 from .whitening import Whitener
 
@@ -49,6 +49,7 @@ __all__ = [
     "outliers",
     "pose_observation",
     "profile_check",
+    "quadratic",
     "resolve",
     "rotation_exp",
     "svd_step",

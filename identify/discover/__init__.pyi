@@ -3,6 +3,7 @@
 
 from .aliasing import aliasing_report
 from .decide import ALPHA_EFFECT, MIN_EXPLAINED, compare, lr_spread, lr_threshold, near_ties
+from .exposure import effect_exposure, exposure_report, worst_case
 from .fit import (
     DISCOVERY_EFFECTS,
     AugmentedForward,
@@ -13,7 +14,7 @@ from .fit import (
     library,
     whitened,
 )
-from .narrative import alias_lines
+from .narrative import alias_lines, base_lines, exposure_lines, tie_lines
 from .search import fit_candidate, polish, unabsorbed_norms
 from .stats import ALPHA_FIT
 from .uncertainty import MAX_RELATIVE_STD, determination
@@ -40,6 +41,9 @@ __all__ = [
     "UNEXPLAINED",
     "alias_columns",
     "alias_lines",
+    "base_lines",
+    "exposure_lines",
+    "tie_lines",
     "aliasing_report",
     "augmented_mjcf",
     "base_fit",
@@ -49,7 +53,10 @@ __all__ = [
     "determination",
     "discover",
     "discover_observations",
+    "effect_exposure",
     "effect_priors",
+    "exposure_report",
+    "worst_case",
     "fit_augmented",
     "fit_candidate",
     "label",

@@ -126,10 +126,12 @@ def _value(p: dict) -> str:
 
 
 def _combination(c: dict) -> str:
+    # a term is shown when it matters at the parameter's own size (SI coefficients mix units)
+    w = {n: abs(v) * c.get("sizes", {}).get(n, 1.0) for n, v in c["combination"].items()}
     terms = " + ".join(
         (f"{v:.3g}·" if abs(v - 1) > 1e-12 else "") + n
         for n, v in c["combination"].items()
-        if abs(v) > 1e-3 * max(abs(x) for x in c["combination"].values())
+        if w[n] > 1e-3 * max(w.values())
     )
     return f"{terms} = {c['estimate']:.4g} ± {c['std']:.2g}"
 
@@ -190,6 +192,68 @@ def alias_lines(aliasing: list[dict]) -> list[str]:
     return out
 
 
+def base_lines(bf: dict | None) -> list[str]:
+    """The user's model's fit, as identify's (identify/discover/basefit.py), and what it held."""
+    if not bf:
+        return []
+    out = [
+        f"  The user's model is fitted as `calbench identify` fits it ({bf['estimator'].split(' ')[0]}, "
+        f"start {bf['start']}): chi2 {bf['chi2']:.1f} for {bf['dof']} dof, RMS {bf['rms'] * UM:.1f} um."
+    ]
+    out += [f"  Held where identify holds it: {n}: {why}" for n, why in bf["held"].items()]
+    out += [
+        f"  Estimated, not determined (as identify says): {n}: {why}"
+        for n, why in bf["not_determined"].items()
+    ]
+    return out
+
+
+def tie_lines(params: list[dict]) -> list[str]:
+    """An `ambiguous` verdict: each parameter the tied candidates disagree on, every value."""
+    out = []
+    for p in params:
+        under = p.get("under_tied_candidates")
+        if not under:
+            continue
+        vals = "; ".join(
+            f"{lab}: {u['estimate']:.4g}"
+            + (f" ± {u['std']:.2g}" if u["std"] is not None else " (not determined)")
+            for lab, u in under.items()
+        )
+        out.append(f"  {p['name']} not determined under either candidate ({p['unit']}): {vals}")
+    if out:
+        out.insert(
+            0, "The tied candidates disagree beyond their std (so neither value is reported as determined):"
+        )
+    return out
+
+
+def exposure_lines(params: list[dict]) -> list[str]:
+    """Each determined parameter's exposure: the largest bias an effect of the library that this
+    plan would not name could cause (identify/discover/exposure.py)."""
+    out = []
+    for p in params:
+        e = p.get("exposure")
+        if not p["determined"] or not e:
+            continue
+        row = f"  {p['name']} = {p['estimate']:.4g} ± {p['std']:.2g} {p['unit']}"
+        if e["effect"] and e["bias"] > 0:
+            row += f"; an undetected {e['effect']} could move it by up to {e['bias']:.2g}"
+            if e["sigma"] is not None:
+                row += f" ({e['sigma']:.2g} std"
+                row += f", {e['percent']:.2g} %)" if e["percent"] is not None else ")"
+        if e["unbounded_by"]:
+            row += "; by any amount, never seen: " + ", ".join(e["unbounded_by"])
+        out.append(row)
+    if out:
+        out.insert(
+            0,
+            "Exposure of each determined parameter to the library's effects not named (the largest "
+            "bias one could cause while its test stays silent, first order):",
+        )
+    return out
+
+
 def story(rep: dict) -> str:
     lines = [
         f"calbench discover: {rep['log']} (model: {rep['model']}; {rep['n_poses']} poses, "
@@ -197,6 +261,7 @@ def story(rep: dict) -> str:
         *([f"  campaign: {rep['completeness']}"] if rep.get("completeness") else []),
         "Where the model and the measurements disagree:",
     ]
+    lines += base_lines(rep.get("base_fit"))
     lines += ["  " + w for w in rep["where_before"]["words"]]
     if rep["rounds"]:
         lines.append(
@@ -238,6 +303,14 @@ def story(rep: dict) -> str:
     if rep.get("combinations"):
         lines.append("Determined only in combination (the split is not):")
         lines += ["  " + _combination(c) for c in rep["combinations"]]
+    for c in rep.get("combinations_not_quadratic", []):
+        lines.append(
+            f"Not determined, not even in combination: {' + '.join(c['combination'])} (chi2 rises "
+            + ", ".join("none" if r is None else f"{r:.2g}" for r in c["chi2_rise_at_2_std"])
+            + " at +-2 std of its linear combination, 4 if quadratic: its std would be dishonest)"
+        )
+    lines += tie_lines(rep["parameters"])
+    lines += exposure_lines(rep["parameters"])
     if not rep["named_effects"]:
         lines.append(
             "Named: nothing. No candidate passes its likelihood-ratio test; the user's model explains "
@@ -291,4 +364,13 @@ def clean(x):
     return x
 
 
-__all__ = ["story", "alias_lines", "plot_residuals", "view_report", "clean"]
+__all__ = [
+    "story",
+    "base_lines",
+    "tie_lines",
+    "exposure_lines",
+    "alias_lines",
+    "plot_residuals",
+    "view_report",
+    "clean",
+]

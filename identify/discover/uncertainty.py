@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calbench.bench.model.effects import priors
-from calbench.identify.core import Fit, Whitener, profile_check
+from calbench.identify.core import Fit, Whitener, profile_check, quadratic
 
 MAX_RELATIVE_STD = 1.0  # a parameter whose std exceeds its own size is not determined
 NULL_TOL = 1e-3  # component in the null space that makes a parameter unidentifiable
@@ -49,6 +49,7 @@ class Determination:
     estimated: np.ndarray
     combinations: list[dict] = field(default_factory=list)
     profile: dict = field(default_factory=dict)  # index -> chi2 rise at +-2 Fisher std
+    rejected: list[dict] = field(default_factory=list)  # combinations whose profile is not quadratic
 
 
 def sizes(f: Fit) -> np.ndarray:
@@ -108,6 +109,7 @@ def determination(f: Fit, jw: np.ndarray, undetermined: np.ndarray | None = None
                 {
                     "combination": {f.names[idx[j]]: float(c) for j, c in zip(und, coef)},
                     "estimate": float(coef @ f.values[idx[und]]),
+                    "sizes": {f.names[idx[j]]: float(size[j]) for j in und},
                     "std": sd / abs(norm),
                 }
             )
@@ -136,4 +138,97 @@ def not_quadratic(f: Fit, obs, white: Whitener, det: Determination, indices) -> 
     return out.bad, out.rises
 
 
-__all__ = ["MAX_RELATIVE_STD", "Determination", "sizes", "determination", "not_quadratic"]
+def combination_rises(f: Fit, obs, white: Whitener, combo: dict) -> list[float | None]:
+    """chi2's rise when the determined combination sum_i c_i theta_i is held at its estimate
+    +- PROFILE_SIGMAS std and every other estimated parameter refitted (the profile check of
+    identify/core/profile.py along a combination): the refit moves in the plane c . theta = const,
+    in relative coordinates (an orthonormal basis of it). None: no fit there."""
+    from calbench.identify.core import PROFILE_SIGMAS, levenberg_marquardt
+
+    from .fit import whitened
+
+    lo, hi, hold = f.extra["bounds"]
+    size = sizes(f)
+    idx = [f.names.index(n) for n in combo["combination"]]
+    c_u = np.zeros(f.values.size)
+    c_u[idx] = np.array(list(combo["combination"].values())) * size[idx]
+    est = np.flatnonzero(~np.asarray(hold, bool))
+    # an orthonormal basis of {d : d_held = 0, c_u . d = 0} over the estimated parameters
+    basis = np.linalg.svd(c_u[est][None, :], full_matrices=True)[2][1:].T
+    a = np.zeros((f.values.size, basis.shape[1]))
+    a[est] = basis
+    yw = white.vec(obs.dp)
+    out: list[float | None] = []
+    for sign in (1.0, -1.0):
+        shift = sign * PROFILE_SIGMAS * combo["std"] / float(c_u @ c_u)
+        theta0 = f.values + size * c_u * shift
+
+        def evaluate(x, theta0=theta0):
+            th = theta0 + size * (a @ x)
+            if np.any(th[est] < lo[est]) or np.any(th[est] > hi[est]):
+                raise ValueError("past a bound")
+            fw, jw = whitened(f.model, white, th)
+            return fw, (jw * size) @ a
+
+        try:
+            sol = levenberg_marquardt(
+                evaluate, yw, np.zeros(a.shape[1]), np.ones(a.shape[1]), cost_tol=0.01, max_iter=12
+            )
+            out.append(float(sol.cost - f.chi2))
+        except (ValueError, RuntimeError, np.linalg.LinAlgError):
+            out.append(None)
+    f.model.evaluate(f.values, jacobian=False)  # the model back at the estimate
+    return out
+
+
+def checked(f: Fit, obs, white: Whitener) -> Determination:
+    """What ``f`` determines, checked (issue 22: base and effect parameters together): the SVD of
+    their Fisher information (:func:`determination`), then the profile check of every parameter
+    it determines (:func:`not_quadratic`: one that fails is not determined) and of every
+    determined combination (:func:`combination_rises`: one that fails is moved to
+    ``rejected``, with its rises, and reported as not determined)."""
+    det = determination(f, f.extra["jw"])
+    bad, rises = not_quadratic(f, obs, white, det, np.flatnonzero(det.determined))
+    if bad.any():
+        det = determination(f, f.extra["jw"], bad)
+    det.profile = rises
+    keep = []
+    for c in det.combinations:
+        r = combination_rises(f, obs, white, c)
+        c["chi2_rise_at_2_std"] = r
+        (keep if all(quadratic(x) for x in r) else det.rejected).append(c)
+    det.combinations = keep
+    return det
+
+
+def split_by_ties(f: Fit, det: Determination, alternatives: list[tuple[str, Fit, Determination]]) -> dict:
+    """An `ambiguous` verdict (issue 22): every parameter of ``f`` (the current model) on which
+    ``f`` and the tied candidates' fits (label, fit, its determination) disagree by more than the
+    largest of their stds, or that one of them does not determine, is made not determined in
+    ``det``. Returns {index: {model label: {"estimate", "std"}}} for those, every value shown."""
+    out = {}
+    for i, name in enumerate(f.names):
+        rows = [("current model", float(f.values[i]), det.std[i] if det.determined[i] else np.nan)]
+        for lab, g, d in alternatives:
+            j = g.names.index(name)
+            rows.append((lab, float(g.values[j]), d.std[j] if d.determined[j] else np.nan))
+        stds = np.array([r[2] for r in rows], float)
+        vals = np.array([r[1] for r in rows])
+        if np.all(np.isfinite(stds)) and np.ptp(vals) <= stds.max():
+            continue
+        det.determined[i] = False
+        det.std[i] = np.nan
+        out[i] = {lab: {"estimate": v, "std": float(sd) if np.isfinite(sd) else None} for lab, v, sd in rows}
+    return out
+
+
+__all__ = [
+    "split_by_ties",
+    "MAX_RELATIVE_STD",
+    "Determination",
+    "sizes",
+    "determination",
+    "not_quadratic",
+    "combination_rises",
+    "checked",
+]

@@ -3,7 +3,8 @@
     calbench discover LOG.mcap --model ROBOT.xml [--json OUT.json] [--out-model AUGMENTED.xml]
                                [--plot RESIDUALS.png]
 
-1. FIT the user's model as it is (the one-step estimator, identify/methods/onestep.py) and take the
+1. FIT the user's model as it is, exactly as `calbench identify` fits it (identify/discover/basefit.py:
+   the one-step estimator, its parameter set and weighting; the same chi2 and RMS), and take the
    residuals (measured minus predicted deflections).
 2. WHERE they disagree: chi2 against the tracker's own noise, per pose, per reflector, per world
    direction, and the correlation of each pose's misfit with what varies over the plan
@@ -45,9 +46,9 @@ from calbench.bench.model import Robot, set_spec_names, spec_names
 from calbench.bench.model.effects import augmented_xml, load_spec
 from calbench.bench.view import Discovery, write_discovery_recording
 from calbench.identify.core import Observations, Whitener, check_sites, from_log, load_model
-from calbench.identify.methods import one_step
 
 from .aliasing import aliasing_report
+from .basefit import base_fit, base_record, hold_mask
 from .decide import (
     ALPHA_EFFECT,
     AMBIGUOUS_BIC,
@@ -57,17 +58,17 @@ from .decide import (
     lr_threshold,
     near_ties,
 )
-from .fit import Fit, build, effect_priors, fit_augmented, label, library, whitened
+from .exposure import exposure_report, with_exposure
+from .fit import Fit, build, effect_priors, label, library, whitened
 from .narrative import clean, plot_residuals, story, view_report
 from .search import fit_candidate, polish
 from .stats import ALPHA_FIT, chi2_p, diagnose, expected_rms, rms
-from .uncertainty import MAX_RELATIVE_STD, determination, not_quadratic
+from .uncertainty import MAX_RELATIVE_STD, checked, determination, split_by_ties
 
 MAX_ROUNDS = 3
 UNEXPLAINED = "unexplained"
 AMBIGUOUS = "ambiguous"
 HINT_P = 0.01  # a candidate below the family-wise level but at this nominal p is a hint
-BASE_START_ITER = 10  # the one-step estimate only starts the base fit: it need not converge
 POLISH_SHARE = 0.5  # a candidate whose LR reaches this share of its threshold is fitted to convergence
 
 
@@ -82,18 +83,6 @@ class Candidate:
     @property
     def label(self) -> str:
         return self.record["effect"] + (f"[{self.record['detail']}]" if self.record["detail"] else "")
-
-
-def base_fit(src, obs: Observations, white: np.ndarray) -> Fit:
-    """The user's model as it is (identify/methods/onestep.py's estimate, refined by :func:`fit` on the
-    discovery bounds); ``extra["fresh_start"]``: the one-step's data-derived start."""
-    robot, fm = build(src, [], obs)
-    r = one_step(robot, obs, step_tol=1e-3, max_iter=BASE_START_ITER)
-    lo, hi = robot.layout.lower, robot.layout.upper
-    start = np.clip(np.where(np.isfinite(r.theta), r.theta, r.start), lo, hi)
-    base = fit_augmented(fm, obs.dp, white, start, lo, hi, ~np.asarray(r.identifiable, bool))
-    base.extra["fresh_start"] = np.clip(r.start, lo, hi)
-    return base
 
 
 def run_round(
@@ -137,8 +126,10 @@ def run_round(
     return out
 
 
-def _params(f: Fit, det=None, lo: int = 0, hi: int | None = None) -> list[dict]:
-    """Parameter records of f[lo:hi] with the honest std of ``det`` (uncertainty.py)."""
+def _params(f: Fit, det=None, lo: int = 0, hi: int | None = None, split: dict | None = None) -> list[dict]:
+    """Parameter records of f[lo:hi] with the honest std of ``det`` (uncertainty.py); ``split``:
+    the values under each tied candidate where an `ambiguous` verdict leaves one undetermined."""
+    split = split or {}
     det = determination(f, f.extra["jw"]) if det is None else det
     hi = f.values.size if hi is None else hi
     profile = getattr(det, "profile", {})
@@ -150,6 +141,7 @@ def _params(f: Fit, det=None, lo: int = 0, hi: int | None = None) -> list[dict]:
             "std": float(det.std[i]) if det.determined[i] else None,
             "determined": bool(det.determined[i]),
             **({"chi2_rise_at_2_fisher_std": profile[i]} if i in profile else {}),
+            **({"under_tied_candidates": split[i]} if i in split else {}),
         }
         for i in range(lo, hi)
     ]
@@ -213,11 +205,11 @@ def discover_observations(obs: Observations, src, *, max_rounds: int = MAX_ROUND
     sigma = float(obs.noise_sigma)
     base = base_fit(src, obs, white)
     lib = library(base.robot)
-    nb = base.robot.layout.n
-    hold_base = ~base.free[:nb] & ~base.at_bound[:nb]
+    hold_base = hold_mask(base)
     fresh = base.extra["fresh_start"]
     current = base
     named, steps, rounds, hints, ambiguous = [], [], [], [], []
+    tie_fits: list[tuple[str, Fit]] = []
     last: list[Candidate] = []
     for rnd in range(max_rounds):
         cands = run_round(src, obs, white, current, hold_base, fresh, lib)
@@ -259,6 +251,8 @@ def discover_observations(obs: Observations, src, *, max_rounds: int = MAX_ROUND
         if ties:
             ties = _ties_resolved(src, obs, white, best.fit, hold_base, fresh, ties, cands, len(cands))
         if ties:
+            by_label = {c.label: c.fit for c in cands}
+            tie_fits = [(t["candidate"], by_label[t["candidate"]]) for t in ties]
             ambiguous.append({"round": rnd + 1, "candidates": ties})
             named.append(AMBIGUOUS)
             steps.append(
@@ -277,13 +271,10 @@ def discover_observations(obs: Observations, src, *, max_rounds: int = MAX_ROUND
         rounds[-1]["named"] = best.label
         current = best.fit
     final = current
-    det = determination(final, final.extra["jw"])
-    rises: dict = {}
-    if final.effects:  # the named effects' stds, checked
-        bad, rises = not_quadratic(final, obs, white, det, range(final.model.n_base, final.values.size))
-        if bad.any():
-            det = determination(final, final.extra["jw"], bad)
-    det.profile = rises
+    det = checked(final, obs, white)  # base and effect parameters together
+    split = {}
+    if tie_fits:  # ambiguous: what the tied candidates disagree on is not determined under either
+        split = split_by_ties(final, det, [(lab, f, determination(f, f.extra["jw"])) for lab, f in tie_fits])
     for s, (e, _) in zip(
         [s for s in steps if s["effect"] not in (UNEXPLAINED, AMBIGUOUS)], final.effect_params()
     ):
@@ -296,11 +287,20 @@ def discover_observations(obs: Observations, src, *, max_rounds: int = MAX_ROUND
     if len(fresh_cols) < sum(1 for c in last if c.fit is not None):
         fresh_cols = alias_columns(src, obs, white, final, lib)
     aliasing = aliasing_report(final, final.extra["jw"], det.std, fresh_cols, obs, white, max(len(last), 1))
+    own = {label(c.fit.effects[-1]) for c in last if c.fit is not None and owns_base(c.fit)}
+    exposure = exposure_report(
+        final,
+        final.extra["jw"],
+        det.std,
+        [(e, b) for e, b in fresh_cols if label(e) not in own],
+        len(last) or 1,
+    )
     diag_before = diagnose(base, obs, sigma)
     diag_after = diagnose(final, obs, sigma) if final is not base else diag_before
     rep = {
         "named_effects": named,
         "steps": steps,
+        "base_fit": base_record(base),
         "rms_before": rms(base.residual),
         "rms_after": rms(final.residual),
         "noise_sigma": sigma,
@@ -330,8 +330,9 @@ def discover_observations(obs: Observations, src, *, max_rounds: int = MAX_ROUND
         "where_after": diag_after,
         "rounds": rounds,
         "hints": hints,
-        "parameters": _params(final, det),
+        "parameters": with_exposure(_params(final, det, split=split), exposure),
         "combinations": det.combinations,
+        "combinations_not_quadratic": det.rejected,
         "n_observations": obs.n_obs(),
         "n_poses": len(obs.poses),
         "per_pose": [
@@ -344,6 +345,12 @@ def discover_observations(obs: Observations, src, *, max_rounds: int = MAX_ROUND
         "seconds": time.perf_counter() - t0,
     }
     return (rep, final, base) if with_base else (rep, final)
+
+
+def owns_base(f: Fit) -> bool:
+    """Whether the last effect of a candidate fit writes over a base quantity (the compensator
+    candidate on a model that has one): it is the base parameters again, not an effect they absorb."""
+    return bool(f.model._base_overridden(f.values).any())
 
 
 def alias_columns(src, obs, white, final: Fit, lib) -> list[tuple]:

@@ -43,10 +43,11 @@ from calbench.bench.core import InputError, check_outputs, write_text
 from calbench.bench.log import CampaignLog, IdentificationReport, has_truth, read_log
 from calbench.bench.view import measured_deflections
 from calbench.identify.discover import ALPHA_FIT as MISFIT_P  # chi2 p below which the model is rejected
-from calbench.identify.discover import alias_lines
+from calbench.identify.discover import alias_lines, base_lines, exposure_lines, tie_lines
 
 from . import htmlplots
 from .identification import DISPLAY, noise_source
+from .provenance import provenance
 
 Z95 = 1.959963984540054  # two-sided 95 % quantile of the standard normal
 KINDS = {
@@ -188,14 +189,46 @@ def campaign_section(log: CampaignLog, simulated: bool) -> dict:
     }
 
 
+CHI2_95 = Z95**2  # chi2(1) 95 % quantile: the profile interval's rise
+
+
+def profile_interval(
+    est: float, std: float, prof: dict, lower: float | None
+) -> tuple[float | None, float | None]:
+    """The 95 % interval a chi2 profile that is not quadratic gives (identify/core/profile.py's
+    check: its rise r at +-2 Fisher std on each side): on each side, the quadratic through that
+    rise, est +- 2 std sqrt(3.84 / r); a side without a rise (past its bound, or no fit) or with
+    none reaches the bound (``lower``, None: unbounded). Clipped to ``lower`` (a spring's
+    stiffness is not negative). Two points per side: an approximation, flagged as such."""
+    out = []
+    for sign, key in ((-1.0, "rise_minus"), (1.0, "rise_plus")):
+        r = prof.get(key)
+        if r is None or not r > 0:
+            out.append(lower if sign < 0 else None)
+            continue
+        v = est + sign * 2.0 * std * math.sqrt(CHI2_95 / r)
+        out.append(max(v, lower) if (sign < 0 and lower is not None) else v)
+    return out[0], out[1]
+
+
 def parameters_section(ident: IdentificationReport) -> dict:
     rows, rel_names, rel = [], [], []
+    profiles = ident.details.get("profile") or {}
     for p in ident.parameters:
         label, f = unit_display(p.unit)
         est, std, truth = p.estimate, p.std, p.truth
         ok = est is not None and p.identifiable
         d = decimals(std * f if std else None)
         z = p.z if p.z is not None else ((est - truth) / std if ok and std and truth is not None else None)
+        prof = profiles.get(p.name)
+        bent = bool(ok and std is not None and prof and not prof.get("quadratic", True))
+        if bent:  # every elastic parameter of the model is positive (bench/model/params.py)
+            lo, hi = profile_interval(est, std, prof, 0.0)
+            ci = f"[{num(lo * f, d)}, {num(hi * f, d) if hi is not None else '∞'}] (profile)"
+        elif ok and std is not None:
+            ci = f"[{num((est - Z95 * std) * f, d)}, {num((est + Z95 * std) * f, d)}]"
+        else:
+            ci = "–"
         rows.append(
             {
                 "name": p.name,
@@ -204,10 +237,15 @@ def parameters_section(ident: IdentificationReport) -> dict:
                 "reason": p.reason or "",
                 "estimate": num(est * f, d) if ok else "",
                 "std": num(std * f, d) if ok and std is not None else "–",
-                "ci": (
-                    f"[{num((est - Z95 * std) * f, d)}, {num((est + Z95 * std) * f, d)}]"
-                    if ok and std is not None
-                    else "–"
+                "ci": ci,
+                "not_quadratic": bent,
+                "rises": (
+                    ", ".join(
+                        "none" if prof.get(k) is None else f"{prof[k]:.2f}"
+                        for k in ("rise_plus", "rise_minus")
+                    )
+                    if bent
+                    else ""
                 ),
                 "rel": f"{abs(std / est) * 100:.2g}" if ok and std is not None and est else "–",
                 "truth": num(truth * f, d) if truth is not None else "–",
@@ -227,6 +265,8 @@ def parameters_section(ident: IdentificationReport) -> dict:
         "chi2": f"{chi2:.1f}" if chi2 is not None else "–",
         "p": f"{p_fit:.2g}" if p_fit is not None else "–",
         "unidentifiable": [r for r in rows if not r["identifiable"]],
+        "not_quadratic": [r for r in rows if r["not_quadratic"]],
+        "profile_checked": bool(profiles),
         "chi2_per_dof": (f"{ident.chi2_per_dof:.3f}" if ident.chi2_per_dof is not None else "–"),
         "dof": dof,
         "residual_rms": um(ident.residual_rms),
@@ -369,6 +409,32 @@ def ambiguous_rows(ambiguous: list[dict]) -> list[dict]:
     ]
 
 
+def honesty_lines(disc: dict, path) -> list[str]:
+    """Discovery's own statements of what it does not know (identify/discover/narrative.py's
+    words): the base fit's held and undetermined parameters, what tied candidates disagree on,
+    combinations whose profile is not quadratic, each determined parameter's exposure."""
+    try:
+        params = disc.get("parameters") or []
+        lines = base_lines(disc.get("base_fit")) + tie_lines(params) + exposure_lines(params)
+        undetermined = [p["name"] for p in params if not p["determined"]]
+        if undetermined:
+            lines.append(
+                "not determined by the final model (no std is given for them): " + ", ".join(undetermined)
+            )
+        lines += [
+            f"not determined, not even in combination: {' + '.join(c['combination'])}"
+            for c in disc.get("combinations_not_quadratic") or []
+        ]
+    except (KeyError, TypeError, ValueError) as e:
+        raise InputError(
+            path,
+            "parameters",
+            "records as `calbench discover --json` writes them",
+            f"{type(e).__name__}: {e}",
+        ) from None
+    return [ln.strip() for ln in lines]
+
+
 def discovery_section(disc: dict, path: str | os.PathLike = "--discover") -> dict:
     named = [n for n in disc["named_effects"]]
     steps = disc.get("steps") or []
@@ -477,6 +543,7 @@ def discovery_section(disc: dict, path: str | os.PathLike = "--discover") -> dic
         "candidates": cands,
         "ambiguous": ambiguous,
         "aliasing": aliasing,
+        "honesty": honesty_lines(disc, path),
         "hints": _generic_rows(disc["hints"]) if disc.get("hints") else [],
         "augmented_model": disc.get("augmented_model"),
     }
@@ -645,6 +712,7 @@ def html_report(
                 Path(path),
                 read_identified(path) if kind == "identify" else read_json_report(path, kind),
             )
+    notes = provenance(log_path, log, inputs)  # refuses inputs that do not belong together
     ident = inputs.get("identify", (None, None))[1]
     disc = inputs.get("discover", (None, None))[1]
     plan = inputs.get("design", (None, None))[1]
@@ -660,6 +728,7 @@ def html_report(
         "design": design_section(plan) if plan else None,
         "reproduce": reproduce_section(log_path, log, simulated, inputs, Path(out)),
         "log_path": str(log_path),
+        "provenance": notes,
     }
     return render(ctx)
 
@@ -676,6 +745,7 @@ def write_report(log_path, out, identified=None, discover=None, design=None) -> 
 
 __all__ = [
     "write_report",
+    "profile_interval",
     "html_report",
     "read_json_report",
     "read_identified",

@@ -1,0 +1,140 @@
+"""Discovery, part 5b: each estimate's exposure to what was not named (issue 22).
+
+A model that fits is a statement about the effects that were tested, not about the robot: an
+effect of the library that this plan would not name can still be there, absorbed by the
+estimated parameters, and move them far beyond their std (the IRB 6640 case: a link_2 bending
+below its detection threshold moves k2 by 190 %, 250 of its std). The aliasing report
+(identify/discover/aliasing.py) has the pieces; this turns them into the answer per parameter:
+
+For a library effect not in the model, with whitened columns J_e (3M, k) at the final estimate,
+regressed on the estimated parameters' columns J_b: J_e = J_b B + P (B: the bias per unit of
+each effect parameter, P: what no estimated parameter absorbs). An effect of size d biases the
+estimate by B d, and its likelihood-ratio test sees |P d|^2 (the chi2 it leaves, to first
+order). It goes UNDETECTED while |P d|^2 < T, T its threshold at the family-wise level
+(identify/discover/decide.py's lr_threshold with its k), so the largest bias it can cause on
+parameter j unseen is
+
+    exposure_j = sqrt(T) * sqrt(b_j^T (P^T P)^-1 b_j),     b_j = row j of B,
+
+the maximum of b_j . d over that ellipsoid. Where P^T P is singular along a direction b_j has a
+component on (the effect absorbed exactly there: VISIBLE_SHARE_MIN of its signature or less),
+the exposure is unbounded: no size of it would be seen; it is reported as such, with the effect.
+The exposure of a parameter is the largest over the library's effects not named, in the
+parameter's unit, in its std and in per cent of its value. Linear theory at the estimate: a
+first-order statement, as the aliasing report's.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .aliasing import UNEXCITED, VISIBLE_SHARE_MIN
+from .decide import lr_threshold
+from .fit import effect_priors, label
+
+UNBOUNDED_SIGMA = 0.5  # an exactly absorbed effect that moves a parameter this much (std) at its
+# reference size is named as one that could bias it by any amount unseen
+
+
+def _decompose(jw: np.ndarray, est: np.ndarray, block: np.ndarray, size: np.ndarray):
+    """(excited (k,), |J_e| (k,), B (n_est, k'), eigenvalues w and vectors V of P^T P, seen (k',)):
+    the effect's excited columns made unit (d in units of |J_e| per parameter), regressed on the
+    estimated parameters' columns. None when nothing is excited or nothing is estimated."""
+    full = np.linalg.norm(block, axis=0)
+    excited = full * size > UNEXCITED
+    if not excited.any() or not est.any():
+        return None
+    jb = jw[:, est]
+    cols = block[:, excited] / full[excited]
+    b = np.linalg.lstsq(jb, cols, rcond=None)[0]
+    perp = cols - jb @ b
+    w, v = np.linalg.eigh(perp.T @ perp)
+    return excited, full, b, w, v, w > VISIBLE_SHARE_MIN**2
+
+
+def effect_exposure(
+    jw: np.ndarray, est: np.ndarray, block: np.ndarray, size: np.ndarray, thr: float, floor: np.ndarray
+):
+    """(bounded exposure (n_est,), unbounded (n_est,) bool) of the estimated parameters to one
+    effect with whitened columns ``block`` (3M, k); ``size``: its parameters' typical sizes (a
+    column whose signature at that size is below UNEXCITED sigma is not excited: left out).
+    Unbounded: a direction the estimated parameters absorb exactly biases the parameter by more
+    than ``floor`` (n_est,) at the size a plan would name if nothing absorbed it (signature sqrt(T))."""
+    n = int(est.sum())
+    parts = _decompose(jw, est, block, size)
+    if parts is None:
+        return np.zeros(n), np.zeros(n, bool)
+    _, _, b, w, v, seen = parts
+    bv = b @ v  # b_j in the eigenbasis
+    bounded = np.sqrt(np.sum(bv[:, seen] ** 2 / w[seen], axis=1)) * math.sqrt(thr)
+    unbounded = np.any(np.abs(bv[:, ~seen]) * math.sqrt(thr) > floor[:, None], axis=1)
+    return bounded, unbounded
+
+
+def worst_case(jw: np.ndarray, est: np.ndarray, block: np.ndarray, size: np.ndarray, thr: float, row: int):
+    """The effect's size (k,), SI, that biases the ``row``-th estimated parameter most while its
+    likelihood ratio stays at the threshold ``thr`` (to first order): the maximiser of b . d on
+    the ellipsoid |P d|^2 = thr, along the directions the plan sees (module docstring)."""
+    excited, full, b, w, v, seen = _decompose(jw, est, block, size)
+    bv = (b @ v)[row]
+    d_eig = np.where(seen, bv / np.where(seen, w, 1.0), 0.0)
+    d_eig *= math.sqrt(thr) / math.sqrt(np.sum(bv[seen] ** 2 / w[seen]))
+    out = np.zeros(block.shape[1])
+    out[excited] = (v @ d_eig) / full[excited]
+    return out
+
+
+def exposure_report(
+    final, jw: np.ndarray, std: np.ndarray, columns: list[tuple], n_candidates: int
+) -> list[dict]:
+    """Per estimated parameter of ``final``: the largest bias an effect of ``columns`` ((effect,
+    its whitened columns at the final estimate), the library's effects not named that own no base
+    quantity) could cause
+    while its test does not fire (module docstring), the effect that causes it, and the effects
+    that could bias it by any amount unseen. std: the final parameters' std (NaN: not determined)."""
+    est = np.asarray(final.free, bool) | np.asarray(final.at_bound, bool)
+    idx = np.flatnonzero(est)
+    best = np.zeros(idx.size)
+    by = [None] * idx.size
+    absorbed: list[list[str]] = [[] for _ in idx]
+    each: list[dict] = [{} for _ in idx]
+    sd = np.asarray(std, float)[idx]
+    # "unbounded" from a bias of half a std at the reference size (1 % of the value: no std)
+    floor = np.where(np.isfinite(sd) & (sd > 0), UNBOUNDED_SIGMA * sd, 0.01 * np.abs(final.values[idx]))
+    for effect, block in columns:
+        size = effect_priors(effect)[3]
+        thr = lr_threshold(len(effect.param_names), n_candidates)
+        bounded, unbounded = effect_exposure(jw, est, block, size, thr, floor)
+        for k in range(idx.size):
+            if unbounded[k]:
+                absorbed[k].append(label(effect))
+            each[k][label(effect)] = float(bounded[k])
+            if bounded[k] > best[k]:
+                best[k], by[k] = bounded[k], label(effect)
+    out = []
+    for k, i in enumerate(idx):
+        v, sd = float(final.values[i]), float(std[i])
+        out.append(
+            {
+                "parameter": final.names[i],
+                "unit": final.units[i],
+                "bias": float(best[k]),
+                "sigma": float(best[k] / sd) if np.isfinite(sd) and sd > 0 else None,
+                "percent": float(100 * best[k] / abs(v)) if v else None,
+                "effect": by[k],
+                "unbounded_by": absorbed[k],
+                "by_effect": each[k],
+            }
+        )
+    return out
+
+
+def with_exposure(params: list[dict], exposure: list[dict]) -> list[dict]:
+    """The parameter records with their exposure (``exposure``: :func:`exposure_report`'s)."""
+    by = {e["parameter"]: e for e in exposure}
+    return [dict(p, exposure=by[p["name"]]) if p["name"] in by else p for p in params]
+
+
+__all__ = ["effect_exposure", "worst_case", "exposure_report", "with_exposure"]

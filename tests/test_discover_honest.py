@@ -1,0 +1,330 @@
+"""Never confidently wrong (issue 22): discovery's base fit is identify's, and what a named model
+does not determine is never reported as a number with a tight std.
+
+The IRB 6640 case (tests/irb6640/: the converted ABB robot, a Table 5-style plan, a hidden link_2
+bending [0, 3e-7, 3e-7] rad/(N*m) that k2 nearly absorbs) at noise seeds 2-4. On main before the
+fix, discover's "user's model" left 263.6 um RMS (chi2 11729) where identify left 31.3 um, and the
+named models reported k2 34 std and balancer_stiffness 16 std off the truth, as determined.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import MJCF, PAPER, ROOT
+from robots import serial_mjcf
+from shared_data import shared_data, shared_root
+
+from calbench.bench.campaign import run_campaign
+from calbench.bench.log import read_log
+from calbench.bench.scenario import load_scenario
+from calbench.identify.core import Whitener, from_log
+from calbench.identify.discover import base_fit, discover
+from calbench.identify.report import run_identify
+
+
+def case_dir() -> Path:
+    """The converted IRB 6640 case, read from ../shared/data (never copied into the project);
+    the calling test is skipped, with the reason, where it is absent."""
+    return shared_data("cases", "irb6640")
+
+
+def have_case() -> bool:
+    root = shared_root()
+    return root is not None and (root / "cases" / "irb6640").is_dir()
+
+
+KR270 = ROOT / "scenarios" / "kr270_paper.toml"
+Z_DETERMINED = 4.5  # the issue's bound: no parameter reported as determined further from the truth
+
+
+def irb_scenario(tmp: Path, seed: int) -> Path:
+    text = (case_dir() / "irb6640_hidden.toml").read_text().replace("seed = 2", f"seed = {seed}")
+    text = text.replace('robot = "irb6640.xml"', f'robot = "{case_dir() / "irb6640.xml"}"')
+    path = tmp / f"irb{seed}.toml"
+    path.write_text(text)
+    return path
+
+
+def serial_scenario(tmp: Path) -> Path:
+    """tests/robots.py's serial arm with a balancer, on a ten-pose plan (tests/test_serial_robot.py's)."""
+    from test_serial_robot import scenario
+
+    return scenario(
+        tmp,
+        "bal",
+        serial_mjcf(balancer=True),
+        "[truth.compensators.balancer]\nstiffness = 3e6\npreload = 0.68",
+    )
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("honest")
+    scenarios = {
+        "fanuc": PAPER,
+        "kr270": KR270,
+        "serial": serial_scenario(tmp),
+        **({f"irb{s}": irb_scenario(tmp, s) for s in (2, 3, 4)} if have_case() else {}),
+    }
+    out = {}
+    for name, scn in scenarios.items():
+        out[name] = tmp / f"{name}.mcap"
+        run_campaign(load_scenario(scn), out[name])
+    out["tmp"] = tmp
+    return out
+
+
+MODELS = {
+    "fanuc": lambda: MJCF,
+    "kr270": lambda: ROOT / "mjcf" / "kr270.xml",
+    "irb2": lambda: case_dir() / "irb6640.xml",
+}
+
+
+@pytest.mark.parametrize("case", ["fanuc", "kr270", "serial", "irb2"])
+def test_discover_fits_the_users_model_as_identify_does(logs, case):
+    """The same estimator, parameter set and weighting: the same chi2, dof and residual RMS (to
+    the statics solver's precision: both evaluate the same equilibria at the same estimate)."""
+    model = MODELS[case]() if case in MODELS else None
+    rep = run_identify(logs[case], model, check_profile=False)
+    obs = from_log(read_log(logs[case]))
+    src = Path(model) if model is not None else read_log(logs[case]).mjcf_text
+    base = base_fit(src, obs, Whitener.from_observations(obs))
+    assert base.chi2 == pytest.approx(rep.chi2, rel=1e-7)
+    assert base.dof == rep.dof
+    assert np.sqrt(np.mean(base.residual**2)) == pytest.approx(rep.residual_rms, rel=1e-7)
+    ident = {p.name: p for p in rep.parameters}
+    for name, v, est in zip(base.names, base.values, base.free | base.at_bound):
+        if ident[name].estimate is not None:  # what identify reports, discovery starts from
+            assert v == pytest.approx(ident[name].estimate, rel=1e-12)
+            assert est
+
+
+def test_irb6640_base_fit_and_what_it_holds_are_said(logs):
+    """The issue's case: discover's user's model now leaves identify's 31.3 um (not 263.6), and
+    its report names the parameters identify could not determine, with identify's reasons."""
+    case_dir()  # skipped, with the reason, where ../shared/data is absent
+    rep = discover(logs["irb2"], case_dir() / "irb6640.xml", out_model=logs["tmp"] / "irb2.xml")
+    ident = run_identify(logs["irb2"], case_dir() / "irb6640.xml", check_profile=False)
+    assert rep["chi2_before"] == pytest.approx(ident.chi2, rel=1e-7)
+    assert rep["rms_before"] == pytest.approx(ident.residual_rms, rel=1e-7)
+    assert rep["rms_before"] < 2 * rep["noise_rms_before"]  # not 263.6 um against 27 um
+    bf = rep["base_fit"]
+    assert bf["chi2"] == pytest.approx(ident.chi2) and bf["dof"] == ident.dof
+    undetermined = {p.name for p in ident.parameters if p.estimate is None}
+    assert set(bf["not_determined"]) | set(bf["held"]) == undetermined
+    assert all(bf["not_determined"][n] == ident.unidentifiable[n] for n in bf["not_determined"])
+
+
+def irb_truth() -> dict:
+    """The hidden plan's truth by parameter name (read by the test only, never by discover)."""
+    import tomllib
+
+    t = tomllib.loads((case_dir() / "irb6640_hidden.toml").read_text())["truth"]
+    out = {f"k{i + 1}": v for i, v in enumerate(t["compliance"])}
+    out["balancer_stiffness"] = t["compensators"]["balancer"]["stiffness"]
+    out["balancer_preload"] = t["compensators"]["balancer"]["preload"]
+    out.update(
+        {
+            f"link_compliance[link_2].c{a}": v
+            for a, v in zip("xyz", t["effects"]["link_compliance"]["compliance"])
+        }
+    )
+    return out  # any other effect parameter: 0 in the truth
+
+
+HIDDEN = "link_compliance[link_2]"
+_RUNS: dict = {}
+
+
+def run_irb(logs, seed: int) -> dict:
+    case_dir()  # skipped, with the reason, where ../shared/data is absent
+    if seed not in _RUNS:
+        _RUNS[seed] = discover(
+            logs[f"irb{seed}"], case_dir() / "irb6640.xml", out_model=logs["tmp"] / f"irb{seed}.xml"
+        )
+    return _RUNS[seed]
+
+
+@pytest.mark.parametrize("seed", [2, 3, 4])
+def test_irb6640_nothing_determined_is_confidently_wrong(logs, seed):
+    """Seeds 2-4 of the issue: every parameter reported as determined is within Z_DETERMINED std of
+    the truth, or, where the hidden effect was not named, within that plus the bias the exposure
+    report predicts for it (identify/discover/exposure.py: the largest bias a link_2 bending
+    this plan would not name can cause). Every determined combination is within Z_DETERMINED std."""
+    rep = run_irb(logs, seed)
+    truth = irb_truth()
+    named = HIDDEN in {s["effect"] + f"[{s['detail']}]" for s in rep["steps"]}
+    for p in rep["parameters"]:
+        if not p["determined"]:
+            assert p["std"] is None
+            continue
+        allowed = Z_DETERMINED * p["std"]
+        if not named:
+            allowed += p["exposure"]["by_effect"][HIDDEN]
+        assert abs(p["estimate"] - truth.get(p["name"], 0.0)) <= allowed, (seed, p)
+    for c in rep["combinations"]:
+        t = sum(v * truth.get(n, 0.0) for n, v in c["combination"].items())
+        assert abs(c["estimate"] - t) <= Z_DETERMINED * c["std"], (seed, c)
+
+
+def test_irb6640_seed2_k2_is_not_determined_once_the_bending_is_named(logs):
+    """The issue's seed 2: link_2 is named; k2, which the bending makes undetermined, is reported
+    not determined (not 0.0167 +- 0.0042 against 0.16), and so are the splits k2 / cy."""
+    rep = run_irb(logs, 2)
+    assert rep["named_effects"] == ["link_compliance"] and rep["steps"][0]["detail"] == "link_2"
+    pars = {p["name"]: p for p in rep["parameters"]}
+    assert not pars["k2"]["determined"] and not pars[f"{HIDDEN}.cy"]["determined"]
+
+
+def test_irb6640_seed3_ambiguous_values_are_shown_not_determined(logs):
+    """Seed 3 is `ambiguous` (joint_nonlinearity[j4] or link_compliance[link_2]); every parameter on
+    which the tied candidates disagree beyond their std is reported not determined with every
+    model's value (k2: 0.46 under j4, undetermined under link_2)."""
+    rep = run_irb(logs, 3)
+    assert rep["named_effects"] == ["ambiguous"]
+    tied = {t["candidate"] for t in rep["ambiguous"][0]["candidates"]}
+    assert HIDDEN in tied and len(tied) >= 2
+    pars = {p["name"]: p for p in rep["parameters"]}
+    assert "under_tied_candidates" in pars["k2"]
+    for p in rep["parameters"]:
+        under = p.get("under_tied_candidates")
+        if under:
+            assert not p["determined"] and p["std"] is None
+            assert set(under) == tied | {"current model"}
+            vals = [u["estimate"] for u in under.values()]
+            stds = [u["std"] for u in under.values()]
+            assert None in stds or max(vals) - min(vals) > max(stds)
+
+
+def test_profile_interval_is_the_gaussian_one_where_chi2_is_quadratic():
+    """The report's profile interval (identify/report/html.py): a quadratic profile (rise 4 at
+    2 std) gives est +- 1.96 std exactly; a rise of 16 halves that side; no rise reaches the bound."""
+    from calbench.identify.report import Z95, profile_interval
+
+    lo, hi = profile_interval(10.0, 1.0, {"rise_plus": 4.0, "rise_minus": 4.0}, None)
+    assert (lo, hi) == pytest.approx((10.0 - Z95, 10.0 + Z95), rel=1e-12)
+    lo, hi = profile_interval(10.0, 1.0, {"rise_plus": 16.0, "rise_minus": None}, 0.0)
+    assert hi == pytest.approx(10.0 + Z95 / 2) and lo == 0.0
+    assert profile_interval(1.0, 1.0, {"rise_plus": None, "rise_minus": 1.0}, 0.0) == (0.0, None)
+
+
+def test_report_shows_profile_failures_and_no_false_all_clear(logs, tmp_path):
+    """IRB 6640 seed 4: identify flags both balancer parameters as chi2 not quadratic. The report
+    prints their profile interval (never a negative spring) and the flag, and does not say that
+    every parameter is identifiable."""
+    case_dir()  # skipped, with the reason, where ../shared/data is absent
+    import re
+
+    from calbench.identify.cli import main
+    from calbench.identify.report import html_report
+
+    js = tmp_path / "id.json"
+    assert (
+        main(["identify", str(logs["irb4"]), "--model", str(case_dir() / "irb6640.xml"), "--json", str(js)])
+        == 0
+    )
+    prof = __import__("json").loads(js.read_text())["profile"]
+    bent = [n for n, p in prof.items() if not p["quadratic"]]
+    assert "balancer_stiffness" in bent
+    page = html_report(logs["irb4"], identified=js, out=tmp_path / "r.html")
+    text = re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", page))
+    assert "Every parameter is identifiable" not in text
+    assert "χ² not quadratic over the std" in text
+    row = re.search(r"balancer_stiffness kN/m \S+ \S+ \[(\S+), (\S+)\] \(profile\)", text)
+    assert row and float(row.group(1)) >= 0.0
+
+
+def test_report_refuses_inputs_of_another_campaign_or_robot(logs, tmp_path, capsys):
+    """identify JSON of another log: exit 2 naming the JSON and its log key; a design whose
+    scenario's robot is another MJCF: exit 2 naming ``scenario``; a design whose scenario is not
+    here: accepted and named in the report. Nothing is written when refused."""
+    case_dir()  # skipped, with the reason, where ../shared/data is absent
+    import json
+
+    from calbench.identify.cli import main
+
+    js = tmp_path / "id.json"
+    assert (
+        main(["identify", str(logs["irb2"]), "--model", str(case_dir() / "irb6640.xml"), "--json", str(js)])
+        == 0
+    )
+    out = tmp_path / "r.html"
+    capsys.readouterr()
+    assert main(["report", str(logs["irb3"]), "--identified", str(js), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert str(js) in err and "log" in err and not out.exists()
+    assert main(["report", str(logs["irb2"]), "--identified", str(js), "--out", str(out)]) == 0
+    plan = {
+        "criterion": "D",
+        "poses": [{"q_deg": [0] * 6, "load": "weight", "wrench": [0] * 6, "repeats": 1}],
+    }
+    design = tmp_path / "design.json"
+    design.write_text(json.dumps({**plan, "scenario": str(KR270)}))
+    out.unlink()
+    capsys.readouterr()
+    assert main(["report", str(logs["fanuc"]), "--design", str(design), "--out", str(out)]) == 2
+    assert "scenario" in capsys.readouterr().err and not out.exists()
+    design.write_text(json.dumps({**plan, "scenario": str(PAPER)}))
+    assert main(["report", str(logs["fanuc"]), "--design", str(design), "--out", str(out)]) == 0
+    assert "Inputs not checked" not in out.read_text()
+    design.write_text(json.dumps({**plan, "scenario": "gone.toml"}))
+    assert main(["report", str(logs["fanuc"]), "--design", str(design), "--out", str(out)]) == 0
+    assert "gone.toml" in out.read_text() and "Inputs not checked" in out.read_text()
+
+
+@pytest.mark.parametrize(
+    "effect,param", [("link_compliance[link_2]", "k2"), ("link_compliance[link_2]", "k1")]
+)
+def test_exposure_is_the_shift_of_a_refit_to_the_worst_undetected_effect(logs, effect, param):
+    """The exposure (identify/discover/exposure.py, first order) against an independent computation:
+    the readings the user's model plus the effect at its worst-case size predict (the exact
+    statics), refitted with the user's model (the nonlinear fit, identify/discover/fit.py), move
+    the parameter by the exposure (differenced against the effect at its prior start, the size the
+    columns were taken at). The statics are linear in a compliance up to terms of the deflection
+    angles (~1e-3 rad) and the fit's stopping rule (1e-6 chi2): measured 0.07 % (k1), 0.4 % (k2);
+    allowed 3 %. Where the worst direction is one the plan sees cleanly (k1), the effect at that
+    size leaves the likelihood ratio its test needs (within a factor 1.5); k2's is absorbed beyond
+    first order (LR ~0.02), so there the exposure is a lower bound (docs/discovery.md)."""
+    case_dir()  # skipped, with the reason, where ../shared/data is absent
+    from calbench.identify.discover import (
+        build,
+        effect_exposure,
+        effect_priors,
+        fit_augmented,
+        label,
+        library,
+        lr_threshold,
+        whitened,
+        worst_case,
+    )
+
+    obs = from_log(read_log(logs["irb4"]))
+    white = Whitener.from_observations(obs)
+    src = case_dir() / "irb6640.xml"
+    base = base_fit(src, obs, white)
+    lib = library(base.robot)
+    eff = next(e for e in lib if label(e) == effect)
+    start, _, _, size = effect_priors(eff)
+    _, fm = build(src, [(eff, start)], obs)
+    _, jw = whitened(fm, white, np.r_[base.values, start])
+    k = start.size
+    est = base.free | base.at_bound
+    thr = lr_threshold(k, len(lib))
+    row = list(np.flatnonzero(est)).index(base.names.index(param))
+    exposure = effect_exposure(jw[:, :-k], est, jw[:, -k:], size, thr, np.full(est.sum(), np.inf))[0][row]
+    d = worst_case(jw[:, :-k], est, jw[:, -k:], size, thr, row)
+    lo, hi, hold = base.extra["bounds"]
+    refits = []
+    for p in (start, start + d):
+        dp, _ = fm.evaluate(np.r_[base.values, p], jacobian=False)
+        refits.append(
+            fit_augmented(base.model, dp, white, base.values, lo, hi, hold, max_iter=40, cost_tol=1e-6)
+        )
+    j = base.names.index(param)
+    assert refits[1].values[j] - refits[0].values[j] == pytest.approx(exposure, rel=0.03)
+    if param == "k1":
+        assert thr / 1.5 < refits[1].chi2 - refits[0].chi2 < 1.5 * thr
