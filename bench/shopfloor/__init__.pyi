@@ -2,16 +2,21 @@
 # calbench.bench.core.face reads these lines and loads each name on first use.
 
 from .logcsv import ImportSummary, Readings, campaign_readings, export_rows, write_imported_log
+from .probe import ProbeSeries, euler_xyz, read_probe_series, read_transform
 from .readings import ReadingsTable, group, read_readings, readings_csv
 
 __all__ = [
     "ImportSummary",
+    "ProbeSeries",
     "Readings",
     "ReadingsTable",
     "campaign_readings",
+    "euler_xyz",
     "export_rows",
     "group",
+    "read_probe_series",
     "read_readings",
+    "read_transform",
     "readings_csv",
     "write_imported_log",
 ]
