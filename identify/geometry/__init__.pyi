@@ -13,6 +13,7 @@ from .fit import (
     tool_from_transform,
     validate,
 )
+from .mjcf import chain_from_mjcf, chain_mjcf, write_chain_mjcf
 from .model import GeometricModel, kind, parameter_names
 
 __all__ = [
@@ -26,6 +27,8 @@ __all__ = [
     "Validation",
     "base_set",
     "calibrate",
+    "chain_from_mjcf",
+    "chain_mjcf",
     "gravity_torques",
     "initial_model",
     "kind",
@@ -36,4 +39,5 @@ __all__ = [
     "translation",
     "ur10",
     "validate",
+    "write_chain_mjcf",
 ]

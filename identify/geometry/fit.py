@@ -58,6 +58,13 @@ class GeometryFit:
     def predict(self, q: np.ndarray) -> np.ndarray:
         return self.model.predict(q, self.theta)
 
+    def calibrated(self) -> tuple[Chain, np.ndarray, np.ndarray, np.ndarray]:
+        """The fit folded into a plain chain: (chain, probe point in the flange frame, tracker from
+        robot base (4x4), joint compliances (0 where not fitted)). Each link frame becomes
+        P_k E_k Rz(o_k), so that the calibrated chain at q is the fitted model at q without the
+        compliance term (which a calbench MJCF carries as joint stiffness 1/c)."""
+        return self.model.calibrated(self.theta)
+
 
 def initial_model(chain: Chain, q: np.ndarray, y: np.ndarray, tool: np.ndarray) -> GeometricModel:
     """The nominal model registered on the readings (closed-form rigid fit, Horn/Kabsch) as start.

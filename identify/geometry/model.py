@@ -25,7 +25,7 @@ Units: SI (m, rad, N*m).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -77,6 +77,17 @@ class GeometricModel:
     def torques(self, q: np.ndarray) -> np.ndarray:
         """tau at the nominal geometry (n_poses, dof), the lever of the compliances."""
         return gravity_torques(self.chain, q)
+
+    def calibrated(self, theta: np.ndarray):
+        """See :meth:`fit.GeometryFit.calibrated`."""
+        base, tool, off, comp, link = self._split(np.asarray(theta, float))
+        frames = []
+        for k in range(self.chain.dof + 1):
+            e = translation(link[k, :3]) @ rot(0, link[k, 3]) @ rot(1, link[k, 4]) @ rot(2, link[k, 5])
+            frames.append(self.chain.frames[k] @ e @ (rot(2, off[k]) if k < self.chain.dof else np.eye(4)))
+        chain = replace(self.chain, frames=np.asarray(frames))
+        b = translation(base[:3]) @ rot(0, base[3]) @ rot(1, base[4]) @ rot(2, base[5]) @ self.base0
+        return chain, self.tool0 + tool, b, comp.copy()
 
     def _split(self, theta: np.ndarray):
         n = self.chain.dof
