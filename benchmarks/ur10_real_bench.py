@@ -13,7 +13,12 @@ time for each model, side by side with a peer on the same split and the same poi
   from the same registered start.
 Positions only (the probe's orientation is not used). Prints JSON.
 
+--out-model PATH writes the calibrated arm (geometry + compliance as joint stiffness) as a calbench
+MJCF, with the tracker-from-base transform in the JSON; keep it out of the project (it is made
+from the data).
+
 Usage: python benchmarks/ur10_real_bench.py [--series C] [--data DIR] [--quick] [--no-peer]
+       [--out-model PATH]
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ from calbench.identify.geometry import (
     tool_from_transform,
     ur10,
     validate,
+    write_chain_mjcf,
 )
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -92,7 +98,7 @@ def pybotics_peer(q_fit, y_fit, q_val, y_val, base0, tool) -> dict:
     }
 
 
-def run(series: str, data: Path, quick: bool, peer: bool) -> dict:
+def run(series: str, data: Path, quick: bool, peer: bool, out_model: Path | None = None) -> dict:
     chain = ur10()
     folder = data / f"Series_{series}"
     (csv,) = folder.glob("measurements_*.csv")
@@ -118,6 +124,11 @@ def run(series: str, data: Path, quick: bool, peer: bool) -> dict:
             "parameters": len(fit.free),
             "seconds": seconds,
         }
+        if name == "geometry+compliance" and out_model is not None:
+            chain_c, tool_c, base_c, comp = fit.calibrated()
+            write_chain_mjcf(out_model, chain_c, tool_c, name="ur10_calibrated", compliance=comp)
+            out["out_model"] = str(out_model)
+            out["tracker_from_base"] = base_c.tolist()
         if name == "geometry+compliance":
             models[name]["compliance_urad_per_Nm"] = {
                 n.split(".")[0]: [fit.theta[i] * 1e6, sd * 1e6]
@@ -141,8 +152,14 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=None)
     ap.add_argument("--quick", action="store_true", help="every 4th row")
     ap.add_argument("--no-peer", action="store_true")
+    ap.add_argument(
+        "--out-model",
+        type=Path,
+        default=None,
+        help="write the calibrated UR10 (geometry+compliance) as an MJCF",
+    )
     a = ap.parse_args()
-    report = run(a.series, a.data or find_data(), a.quick, not a.no_peer)
+    report = run(a.series, a.data or find_data(), a.quick, not a.no_peer, a.out_model)
     report["reference_rms_mm"] = {
         "values": REFERENCE_MM,
         "source": "issue 25: an independent calibration of another public six-axis dataset (not this one)",
