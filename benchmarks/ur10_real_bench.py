@@ -11,6 +11,9 @@ time for each model, side by side with a peer on the same split and the same poi
 * pybotics (if installed): its MDH model of the same DH table, every MDH parameter, the probe
   position and the world frame fitted with scipy's least_squares as its OptimizationHandler does,
   from the same registered start.
+* FIGAROH (with --figaroh PYTHON, a Python where `pip install figaroh` was run):
+  benchmarks/ur10_figaroh_peer.py in that Python, its joint_offset and full_params models and its
+  joint elasticity, on a URDF of the same nominal UR10, the same split and the same points.
 Positions only (the probe's orientation is not used). Prints JSON.
 
 --out-model PATH writes the calibrated arm (geometry + compliance as joint stiffness) as a calbench
@@ -18,13 +21,15 @@ MJCF, with the tracker-from-base transform in the JSON; keep it out of the proje
 from the data).
 
 Usage: python benchmarks/ur10_real_bench.py [--series C] [--data DIR] [--quick] [--no-peer]
-       [--out-model PATH]
+       [--out-model PATH] [--figaroh PYTHON]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import subprocess
+import tempfile
 import time
 from pathlib import Path
 
@@ -98,7 +103,26 @@ def pybotics_peer(q_fit, y_fit, q_val, y_val, base0, tool) -> dict:
     }
 
 
-def run(series: str, data: Path, quick: bool, peer: bool, out_model: Path | None = None) -> dict:
+def figaroh_peer(python: str, chain, tool, q_fit, y_fit, q_val, y_val) -> dict:
+    """benchmarks/ur10_figaroh_peer.py in FIGAROH's own Python, on the same split and points."""
+    with tempfile.TemporaryDirectory() as work:
+        split_file = Path(work) / "split.npz"
+        np.savez(
+            split_file, frames=chain.frames, joints=np.array(chain.joints), mass=chain.mass, com=chain.com,
+            tool=tool, q_fit=q_fit, y_fit=y_fit, q_val=q_val, y_val=y_val,
+        )  # fmt: skip
+        run = subprocess.run(
+            [python, str(ROOT / "benchmarks" / "ur10_figaroh_peer.py"), str(split_file)],
+            capture_output=True, text=True, cwd=work, timeout=1800,
+        )  # fmt: skip
+    if run.returncode:
+        return {"figaroh": {"failed": run.stderr.strip().splitlines()[-1:]}}
+    return json.loads(run.stdout.strip().splitlines()[-1])
+
+
+def run(
+    series: str, data: Path, quick: bool, peer: bool, out_model: Path | None = None, figaroh=None
+) -> dict:
     chain = ur10()
     folder = data / f"Series_{series}"
     (csv,) = folder.glob("measurements_*.csv")
@@ -142,6 +166,8 @@ def run(series: str, data: Path, quick: bool, peer: bool, out_model: Path | None
             )
         except ImportError as e:
             models["pybotics"] = {"skipped": f"not installed ({e.name}): pip install pybotics"}
+    if figaroh:
+        models.update(figaroh_peer(figaroh, chain, tool, q[fit_rows], y[fit_rows], q[val_rows], y[val_rows]))
     out["models"] = models
     return out
 
@@ -158,8 +184,14 @@ def main() -> None:
         default=None,
         help="write the calibrated UR10 (geometry+compliance) as an MJCF",
     )
+    ap.add_argument(
+        "--figaroh",
+        default=None,
+        metavar="PYTHON",
+        help="a Python with FIGAROH installed: run benchmarks/ur10_figaroh_peer.py in it on the same split",
+    )
     a = ap.parse_args()
-    report = run(a.series, a.data or find_data(), a.quick, not a.no_peer, a.out_model)
+    report = run(a.series, a.data or find_data(), a.quick, not a.no_peer, a.out_model, a.figaroh)
     report["reference_rms_mm"] = {
         "values": REFERENCE_MM,
         "source": "issue 25: an independent calibration of another public six-axis dataset (not this one)",
