@@ -3,18 +3,23 @@
 
 from .formats import FORMATS, ReadingsFormat, ReadingsTable
 from .logcsv import ImportSummary, Readings, campaign_readings, export_rows, write_imported_log
+from .probe import ProbeSeries, euler_xyz, read_probe_series, read_transform
 from .readings import group, read_readings, readings_csv
 
 __all__ = [
     "FORMATS",
     "ImportSummary",
+    "ProbeSeries",
     "Readings",
     "ReadingsFormat",
     "ReadingsTable",
     "campaign_readings",
+    "euler_xyz",
     "export_rows",
     "group",
+    "read_probe_series",
     "read_readings",
+    "read_transform",
     "readings_csv",
     "write_imported_log",
 ]

@@ -1,0 +1,43 @@
+# The public face of calbench.identify.geometry: what code outside this room may import. At run time
+# calbench.bench.core.face reads these lines and loads each name on first use.
+
+from .chain import GRAVITY, UR10_DH, UR10_JOINTS, Chain, gravity_torques, rot, translation, ur10
+from .fit import (
+    MODELS,
+    GeometryFit,
+    Validation,
+    base_set,
+    calibrate,
+    initial_model,
+    split,
+    tool_from_transform,
+    validate,
+)
+from .mjcf import chain_from_mjcf, chain_mjcf, write_chain_mjcf
+from .model import GeometricModel, kind, parameter_names
+
+__all__ = [
+    "GRAVITY",
+    "MODELS",
+    "UR10_DH",
+    "UR10_JOINTS",
+    "Chain",
+    "GeometricModel",
+    "GeometryFit",
+    "Validation",
+    "base_set",
+    "calibrate",
+    "chain_from_mjcf",
+    "chain_mjcf",
+    "gravity_torques",
+    "initial_model",
+    "kind",
+    "parameter_names",
+    "rot",
+    "split",
+    "tool_from_transform",
+    "translation",
+    "ur10",
+    "validate",
+    "write_chain_mjcf",
+]

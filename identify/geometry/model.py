@@ -1,0 +1,162 @@
+"""The complete geometric model of absolute readings, and its exact Jacobian.
+
+A reading y (a point on the flange, in the tracker frame) at joint angles q is predicted as
+
+    y = B  P_1 E_1 Rz(q_1 + o_1 + c_1 tau_1)  ...  P_n E_n Rz(q_n + o_n + c_n tau_n)  P_f E_f  t
+
+* ``E_k = Tr(v_k) Rx(a_k) Ry(b_k) Rz(c_k)``: the error of link frame k (``link_geometry``; k = n + 1
+  is the flange frame), six numbers per frame;
+* ``o_k``: the joint's zero offset (``joint_offset``);
+* ``c_k tau_k``: the joint's deflection under self-weight, compliance c_k (rad/(N*m)) times the
+  gravity torque tau_k of the nominal model at q (:func:`chain.gravity_torques`), the linear
+  joint-compliance model of Klimchik et al. (2016), eq. (1)-(3), with the wrench of the robot's
+  own weight in place of the payload's;
+* ``t``: the probe (or reflector) in the flange frame (``tool_frame``);
+* ``B = Tr(t_B) Rx Ry Rz(w_B) B_0``: the robot base in the tracker frame (``base_frame``). The
+  tracker's registration is this frame: it is fitted with the rest, not before it.
+
+Every parameter is a translation along an axis (dy = R u) or a rotation about an axis u through
+a point o (dy = u x (y - o)): :meth:`GeometricModel.jacobian` is exact, not a finite difference,
+and is checked against one in the tests. tau is held at the nominal geometry (its change with the
+fitted geometry is second order: mm on m lever arms).
+
+Units: SI (m, rad, N*m).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .chain import Chain, gravity_torques, rot, translation
+
+LINK = ("tx", "ty", "tz", "rx", "ry", "rz")
+BASE = ("tx", "ty", "tz", "rx", "ry", "rz")
+TOOL = ("x", "y", "z")
+
+
+def parameter_names(chain: Chain) -> list[str]:
+    """Names of the full parameter vector, in its order."""
+    n = chain.dof
+    names = [f"base.{s}" for s in BASE] + [f"tool.{s}" for s in TOOL]
+    names += [f"{chain.joints[k]}.offset" for k in range(n)]
+    names += [f"{chain.joints[k]}.compliance" for k in range(n)]
+    frames = [*chain.joints, "flange"]
+    names += [f"{frames[k]}.link_{s}" for k in range(n + 1) for s in LINK]
+    return names
+
+
+def kind(name: str) -> str:
+    """The effect a parameter belongs to: base_frame, tool_frame, joint_offset, joint_compliance,
+    link_geometry."""
+    if name.startswith("base."):
+        return "base_frame"
+    if name.startswith("tool."):
+        return "tool_frame"
+    tail = name.rsplit(".", 1)[1]
+    return {"offset": "joint_offset", "compliance": "joint_compliance"}.get(tail, "link_geometry")
+
+
+@dataclass(frozen=True)
+class GeometricModel:
+    """A chain, the starting tool point and base frame, and the poses' gravity torques."""
+
+    chain: Chain
+    base0: np.ndarray  # (4, 4) tracker from robot base, the start of B
+    tool0: np.ndarray  # (3,) m in the flange frame
+
+    @property
+    def names(self) -> list[str]:
+        return parameter_names(self.chain)
+
+    @property
+    def size(self) -> int:
+        return len(self.names)
+
+    def torques(self, q: np.ndarray) -> np.ndarray:
+        """tau at the nominal geometry (n_poses, dof), the lever of the compliances."""
+        return gravity_torques(self.chain, q)
+
+    def calibrated(self, theta: np.ndarray):
+        """See :meth:`fit.GeometryFit.calibrated`."""
+        base, tool, off, comp, link = self._split(np.asarray(theta, float))
+        frames = []
+        for k in range(self.chain.dof + 1):
+            e = translation(link[k, :3]) @ rot(0, link[k, 3]) @ rot(1, link[k, 4]) @ rot(2, link[k, 5])
+            frames.append(self.chain.frames[k] @ e @ (rot(2, off[k]) if k < self.chain.dof else np.eye(4)))
+        chain = replace(self.chain, frames=np.asarray(frames))
+        b = translation(base[:3]) @ rot(0, base[3]) @ rot(1, base[4]) @ rot(2, base[5]) @ self.base0
+        return chain, self.tool0 + tool, b, comp.copy()
+
+    def _split(self, theta: np.ndarray):
+        n = self.chain.dof
+        base, tool = theta[0:6], theta[6:9]
+        off, comp = theta[9 : 9 + n], theta[9 + n : 9 + 2 * n]
+        link = theta[9 + 2 * n :].reshape(n + 1, 6)
+        return base, tool, off, comp, link
+
+    def predict(self, q: np.ndarray, theta: np.ndarray, tau: np.ndarray | None = None) -> np.ndarray:
+        """Predicted readings (n_poses, 3) in the tracker frame."""
+        return self._run(q, theta, tau, jacobian=False)[0]
+
+    def jacobian(self, q: np.ndarray, theta: np.ndarray, tau: np.ndarray | None = None):
+        """(prediction (n, 3), dy/dtheta (n, 3, size))."""
+        y, jac = self._run(q, theta, tau, jacobian=True)
+        return y, jac
+
+    def _run(self, q, theta, tau, jacobian: bool):
+        q = np.atleast_2d(np.asarray(q, float))
+        theta = np.asarray(theta, float)
+        tau = self.torques(q) if tau is None else tau
+        base, tool, off, comp, link = self._split(theta)
+        n, dof = len(q), self.chain.dof
+        t = np.broadcast_to(np.eye(4), (n, 4, 4))
+        # each parameter's motion in the robot base frame: a translation axis, or a rotation axis
+        # through a point; gathered as (axis (n, 3), point (n, 3) or None)
+        motions: list[tuple[np.ndarray, np.ndarray | None]] = []
+        offset_motion: list[tuple[np.ndarray, np.ndarray]] = []
+
+        def frame_error(t, e):
+            for i in range(3):
+                motions.append((t[:, :3, i].copy(), None))
+            t = t @ translation(e[:3])
+            for i in range(3):
+                motions.append((t[:, :3, i].copy(), t[:, :3, 3].copy()))
+                t = t @ rot(i, e[3 + i])
+            return t
+
+        for k in range(dof):
+            t = frame_error(t @ self.chain.frames[k], link[k])
+            offset_motion.append((t[:, :3, 2].copy(), t[:, :3, 3].copy()))
+            t = t @ rot(2, q[:, k] + off[k] + comp[k] * tau[:, k])
+        t = frame_error(t @ self.chain.frames[-1], link[dof])
+        p = t[:, :3, :3] @ (self.tool0 + tool) + t[:, :3, 3]
+        rb = rot(0, base[3]) @ rot(1, base[4]) @ rot(2, base[5])
+        b = translation(base[:3]) @ rb @ self.base0
+        y = p @ b[:3, :3].T + b[:3, 3]
+        if not jacobian:
+            return y, None
+        jac = np.zeros((n, 3, self.size))
+        bt = base[:3]  # the rotations of B turn about the point t_B
+        for i in range(3):  # base: translation along tracker axes, rotations about axes through t_B
+            jac[:, i, i] = 1.0
+            axis = (
+                rot(0, base[3]) @ rot(1, base[4]) if i == 2 else rot(0, base[3]) if i == 1 else np.eye(4)
+            )[:3, i]
+            jac[:, :, 3 + i] = np.cross(axis, y - bt)
+        rbw = b[:3, :3]  # tracker from robot base: maps a base-frame motion into the tracker frame
+
+        def put(col, axis, point):
+            dp = axis if point is None else np.cross(axis, p - point)
+            jac[:, :, col] = dp @ rbw.T
+
+        for i in range(3):
+            put(6 + i, t[:, :3, i], None)
+        for k, (axis, point) in enumerate(offset_motion):
+            put(9 + k, axis, point)
+            jac[:, :, 9 + dof + k] = jac[:, :, 9 + k] * tau[:, k, None]
+        start = 9 + 2 * dof
+        for m, (axis, point) in enumerate(motions):
+            put(start + m, axis, point)
+        return y, jac
