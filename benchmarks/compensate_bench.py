@@ -37,7 +37,8 @@ import numpy as np
 from steps import say
 
 from calbench.bench.campaign import run_campaign
-from calbench.bench.model import Robot, without_compensator
+from calbench.bench.model import Robot
+from calbench.bench.model.effects import without_compensator
 from calbench.bench.scenario import load_scenario
 from calbench.identify import run_discover
 from calbench.identify.compensate import (

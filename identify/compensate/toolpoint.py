@@ -14,7 +14,8 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
-from calbench.bench.model import Robot, load_spec
+from calbench.bench.model import Robot
+from calbench.bench.model.effects import load_spec
 
 from .job import Tool
 
