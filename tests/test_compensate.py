@@ -218,7 +218,7 @@ def test_the_rigid_target_is_reached_where_the_campaign_determines_the_sag(tmp_p
     """The FANUC without its compensator spring: the sag rests on k1..k6 alone, which the paper
     plan determines, so the rigid target is reached to the predicted micrometres, as the default
     one is (issue 26: 'the same accuracy as the default')."""
-    from calbench.bench.model import without_compensator
+    from calbench.bench.model.effects import without_compensator
 
     xml = tmp_path / "nocomp.xml"
     xml.write_text(without_compensator(MJCF))
