@@ -55,6 +55,7 @@ from calbench.bench.model import Robot, set_spec_names
 from calbench.bench.scenario import check_length, robot_scale
 
 from .expand import urdf_text
+from .mimic import convert_balancers
 from .overlay import Attach, Overlay
 
 PLACEHOLDER_STIFFNESS = 1.0e6  # N*m/rad on every actuated hinge until a scenario sets it
@@ -142,16 +143,18 @@ class Conversion:
     moving_mass: float  # kg, every body that moves
     geoms: int
     meshes: int
+    notes: tuple[str, ...] = ()  # what was derived (a balancer cylinder's spring)
 
 
 # --------------------------------------------------------------------------- the URDF
 
 
-def read_urdf(path: str | Path, ov: Overlay | None = None) -> UrdfTree:
+def read_urdf(path: str | Path, ov: Overlay | None = None, text: tuple[str, bool] | None = None) -> UrdfTree:
     """The URDF's links and joints; InputError when it is not a URDF. A ``.xacro`` is expanded,
-    the overlay's inertials written in, geom names made unique (bench/robots/expand.py)."""
+    the overlay's inertials written in, geom names made unique (bench/robots/expand.py); ``text``:
+    that (text, from xacro) already made."""
     path = Path(path)
-    text, expanded = urdf_text(path, ov)
+    text, expanded = urdf_text(path, ov) if text is None else text
     try:
         root = ET.fromstring(text)
     except ET.ParseError as exc:
@@ -188,8 +191,9 @@ def check_urdf(tree: UrdfTree) -> None:
             raise InputError(
                 tree.path,
                 f"joint {j.name!r}",
-                "no <mimic> (the statics would ignore the "
-                "coupling; describe it as a loop in the overlay, or remove it)",
+                "no <mimic> (the statics would ignore the coupling; a balancer cylinder, two "
+                "mimic joints that stay collinear across one joint, becomes a spring by itself; "
+                "describe a parallelogram as [loops] in the overlay, or remove it)",
                 f"a mimic of {j.mimic!r}",
             )
         if j.type not in MOVING_TYPES + ("fixed",):
@@ -454,9 +458,16 @@ def header_comment(tree: UrdfTree, ov: Overlay) -> str:
             f"; ASSUMED in the overlay's [inertials] for {', '.join(assumed)} (mass and centre of mass; "
             "an inertia not given is mass * (0.1 m)^2, which the statics never use)"
         )
+    derived = [c.name for c in ov.compensators if c.key.startswith("(URDF mimic")]
+    springs = (
+        f"  Balancer cylinders drawn as URDF mimic joints: the compensator springs {', '.join(derived)} "
+        "(placeholder stiffness and free length; a scenario's [truth] replaces them).\n"
+        if derived
+        else ""
+    )
     text = (
         f" calbench robot built by calbench from-urdf from {source} with the overlay {ov.path.name}.\n"
-        f"  Masses and inertias: {masses}.\n  Stiffness of the actuated hinges: a placeholder "
+        f"  Masses and inertias: {masses}.\n{springs}  Stiffness of the actuated hinges: a placeholder "
         f"{PLACEHOLDER_STIFFNESS:g} N*m/rad; a scenario's [truth] replaces it.\n  Meshes are "
         "written inline; see bench/robots/urdf.py for the conventions. "
     )
@@ -490,7 +501,9 @@ def build_spec(tree: UrdfTree, ov: Overlay) -> tuple[mujoco.MjSpec, list[str]]:
 
 def convert(urdf: str | Path, ov: Overlay) -> Conversion:
     """Build and check the calbench MJCF of ``urdf`` with overlay ``ov`` (module docstring)."""
-    tree = read_urdf(urdf, ov)
+    text, expanded = urdf_text(Path(urdf), ov)
+    text, ov, notes = convert_balancers(text, ov)  # mimic cylinders -> compensator springs
+    tree = read_urdf(urdf, ov, (text, expanded))
     check_urdf(tree)
     check_overlay(tree, ov)
     spec, warnings = build_spec(tree, ov)
@@ -518,6 +531,7 @@ def convert(urdf: str | Path, ov: Overlay) -> Conversion:
         moving_mass=float(model.body_mass[moving].sum()),
         geoms=int(model.ngeom),
         meshes=int(model.nmesh),
+        notes=tuple(notes),
     )
 
 
