@@ -21,6 +21,7 @@ from conftest import MJCF
 from shared_data import shared_data
 from urdf_robots import LINKS, arm_overlay, arm_urdf, link_masses
 
+from calbench.bench.log import read_log
 from calbench.bench.model import Robot
 from calbench.identify.cli import main
 
@@ -265,3 +266,54 @@ def test_the_abb_xacro_converts_without_hand_surgery(tmp_path, capsys):
     assert m.body(m.site("balancer_from").bodyid[0]).name == "link_1"
     assert m.body(m.site("balancer_to").bodyid[0]).name == "link_2"
     assert main(["check-robot", str(out), "--grid", "1", "--sample", "0"]) == 0
+
+
+def test_controller_conventions_give_the_same_campaign_in_the_controllers_angles(tmp_path):
+    """joint_2 counted the other way from -90 deg, joint_3 from +90 deg: the scenario written in
+    those angles simulates the campaign the URDF's angles simulate on the plain conversion
+    (readings equal to rounding), and the MJCF's ranges are the mapped limits."""
+    from urdf_robots import scenario
+
+    conv = {"joint_2": (-90.0, -1), "joint_3": (90.0, 1)}
+    extra = "".join(f"\n[conventions.{j}]\nzero = {z}\nsign = {s}\n" for j, (z, s) in conv.items())
+    rc, plain = _convert(tmp_path / "plain", arm_urdf(), arm_overlay())
+    assert rc == 0
+    rc, ctrl = _convert(tmp_path / "ctrl", arm_urdf(), arm_overlay() + extra)
+    assert rc == 0
+    a, b = (mujoco.MjModel.from_xml_path(str(p)) for p in (plain, ctrl))
+    for j, (z, s) in conv.items():
+        lo, hi = np.degrees(a.joint(j).range)
+        np.testing.assert_allclose(np.degrees(b.joint(j).range), sorted((s * lo + z, s * hi + z)), atol=1e-9)
+    text = scenario(str(plain))
+    mapped = text.replace(str(plain), str(ctrl))
+
+    def to_ctrl(m: re.Match) -> str:
+        q = [float(x) for x in m[1].split(",")]
+        for j, (z, s) in conv.items():
+            k = int(j[-1]) - 1
+            q[k] = s * q[k] + z
+        return "q = [" + ", ".join(repr(x) for x in q) + "]"
+
+    mapped = re.sub(r"^q = \[(.*)\]$", to_ctrl, mapped, flags=re.M)
+    assert mapped != text.replace(str(plain), str(ctrl))
+    logs = []
+    for name, t in (("plain", text), ("ctrl", mapped)):
+        (tmp_path / f"{name}.toml").write_text(t, encoding="utf-8")
+        assert (
+            main(["simulate", str(tmp_path / f"{name}.toml"), "--out", str(tmp_path / f"{name}.mcap")]) == 0
+        )
+        logs.append(read_log(tmp_path / f"{name}.mcap"))
+    pa, pb = ([m.position for m in log.measurements] for log in logs)
+    assert len(pa) == len(pb) > 0
+    np.testing.assert_allclose(np.array(pa), np.array(pb), atol=1e-9, equal_nan=True)
+    assert "Joint angles are the controller's" in ctrl.read_text(encoding="utf-8")
+
+
+def test_a_bad_convention_exits_2_naming_it(tmp_path, capsys):
+    for extra, key in (
+        ("\n[conventions.joint_2]\nsign = 2\n", "conventions.joint_2.sign"),
+        ("\n[conventions.tool0_joint]\nzero = 5.0\n", "conventions.tool0_joint"),
+    ):
+        rc, _ = _convert(tmp_path, arm_urdf(), arm_overlay() + extra)
+        err = capsys.readouterr().err
+        assert rc == 2 and f"arm.toml: {key}: expected" in err, err

@@ -244,6 +244,14 @@ def check_overlay(tree: UrdfTree, ov: Overlay) -> None:
                 + ", ".join(n for n, jj in joints.items() if jj.type in ("revolute", "continuous")),
                 name if j is None else f"{name} ({j.type})",
             )
+    for c in ov.conventions:
+        if c.joint not in ov.actuated:
+            raise InputError(
+                ov.path,
+                c.key,
+                "an actuated joint (the controller counts only those): " + ", ".join(ov.actuated),
+                c.joint,
+            )
     passive: set[str] = set()
     for lp in ov.loops:
         for i, name in enumerate(lp.passive):
@@ -359,10 +367,16 @@ def _site(spec: mujoco.MjSpec, a: Attach, rgba) -> None:
 
 
 def _joints(spec: mujoco.MjSpec, tree: UrdfTree, ov: Overlay) -> None:
+    conv = {c.joint: c for c in ov.conventions}
     for j in spec.joints:
         if tree.joints[j.name].type == "continuous":
             j.range = list(CONTINUOUS_RANGE)
             j.limited = mujoco.mjtLimited.mjLIMITED_TRUE
+        if j.name in conv:  # the controller's angle: q = sign * q_urdf + zero
+            c = conv[j.name]
+            j.axis = [c.sign * float(a) for a in j.axis]
+            j.ref = c.zero
+            j.range = sorted(c.sign * float(r) + c.zero for r in j.range)
         j.stiffness = [PLACEHOLDER_STIFFNESS if j.name in ov.actuated else 0.0, 0.0, 0.0]  # linear (eq. 1)
         j.springref = 0.0
 
@@ -465,9 +479,16 @@ def header_comment(tree: UrdfTree, ov: Overlay) -> str:
         if derived
         else ""
     )
+    conventions = (
+        "  Joint angles are the controller's, q = sign * q_urdf + zero: "
+        + ", ".join(f"{c.joint} sign {c.sign:+d} zero {math.degrees(c.zero):g} deg" for c in ov.conventions)
+        + ".\n"
+        if ov.conventions
+        else ""
+    )
     text = (
         f" calbench robot built by calbench from-urdf from {source} with the overlay {ov.path.name}.\n"
-        f"  Masses and inertias: {masses}.\n{springs}  Stiffness of the actuated hinges: a placeholder "
+        f"  Masses and inertias: {masses}.\n{springs}{conventions}  Stiffness of the actuated hinges: a placeholder "
         f"{PLACEHOLDER_STIFFNESS:g} N*m/rad; a scenario's [truth] replaces it.\n  Meshes are "
         "written inline; see bench/robots/urdf.py for the conventions. "
     )
