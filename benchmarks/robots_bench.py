@@ -5,9 +5,14 @@ project; absent: the table says so and the benchmark exits 0). Each robot goes, 
 type it, through: from-urdf (its own ``.xacro``), check-robot, design (12 distinct poses from
 2000 candidates, certificate), simulate, identify --check, montecarlo (one-step, 200 runs;
 --quick: 40), discover on that null campaign (it must name nothing), view (an .rrd) and report
-(HTML). Figures: exit status and seconds per verb; the plan's certified efficiency; the largest
-|bias|/sigma and the range of var/CRB over the parameters (the issue's bands: |bias| < 0.2 sigma,
-var/CRB 0.8 ... 1.25 on 200 runs, whose own sampling error is +-0.07 and +-0.10).
+(HTML). Figures: exit status and seconds per verb; the plan's certified efficiency; per
+parameter |bias|/sigma and var/CRB, and their extremes over the joint compliances (the issue's
+bands: |bias| < 0.2 sigma, var/CRB 0.8 ... 1.25 on 200 runs, whose own sampling error is +-0.07
+and +-0.10). Measured (200 runs): the KR 210's k1..k6 within 0.80 ... 1.22 and |bias| < 0.07
+sigma; the IRB 6640's k1..k6 within 0.91 ... 1.29 and |bias| < 0.09 sigma, its balancer's
+stiffness and free length weakly determined by the A-optimal plan at 185 kg (std ~40 %, chi2 not
+quadratic, identified in 166 and 149 of 200 runs: var/CRB 0.69 and 0.32, bias 0.47 and 0.42
+sigma), the CRB's small-noise premise failing there, not the estimator.
 
 * ABB IRB 6640-185/2.8 (abb_irb6640_support): the xacro with its balancer cylinder (converted to
   a spring by from-urdf), masses ASSUMED in the overlay (the URDF has none: those of
@@ -157,10 +162,19 @@ def robot_row(name: str, spec: dict, robots: Path, runs: int, work: Path) -> dic
         if verb == "montecarlo":
             mc = json.loads((work / "mc.json").read_text())
             ps = mc["methods"]["one-step"]["parameters"]
-            row["max_abs_bias_over_sigma"] = round(max(abs(p["bias_over_sigma"]) for p in ps), 3)
-            ratios = [p["variance_over_crb"] for p in ps if p.get("variance_over_crb") is not None]
-            row["var_over_crb"] = [round(min(ratios), 3), round(max(ratios), 3)] if ratios else None
             row["runs"] = mc["runs"]
+            row["per_parameter"] = {
+                p["name"]: {
+                    "bias_over_sigma": round(p["bias_over_sigma"], 3),
+                    "var_over_crb": round(p["variance_over_crb"], 3),
+                    "identified_runs": p["identified_runs"],
+                }
+                for p in ps
+            }
+            joints = [p for p in ps if p["unit"] == "rad/(N*m)"]  # the joint compliances k1..kN
+            row["joints_max_abs_bias_over_sigma"] = round(max(abs(p["bias_over_sigma"]) for p in joints), 3)
+            ratios = [p["variance_over_crb"] for p in joints]
+            row["joints_var_over_crb"] = [round(min(ratios), 3), round(max(ratios), 3)]
         if verb == "discover":
             row["discover_named"] = json.loads((work / "discover.json").read_text()).get("named_effects")
     row["all_verbs_exit_0"] = all(v["exit"] == 0 for v in row["verbs"].values()) and len(row["verbs"]) == len(
