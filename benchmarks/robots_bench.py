@@ -12,7 +12,7 @@ and +-0.10). Measured (200 runs): the KR 210's k1..k6 within 0.80 ... 1.22 and |
 sigma; the IRB 6640's k1..k6 within 0.91 ... 1.29 and |bias| < 0.09 sigma, its balancer's
 stiffness and free length weakly determined by the A-optimal plan at 185 kg (std ~40 %, chi2 not
 quadratic, identified in 166 and 149 of 200 runs: var/CRB 0.69 and 0.32, bias 0.47 and 0.42
-sigma), the CRB's small-noise premise failing there, not the estimator.
+sigma): there the chi2 is not quadratic and the CRB is no longer what to expect.
 
 * ABB IRB 6640-185/2.8 (abb_irb6640_support): the xacro with its balancer cylinder (converted to
   a spring by from-urdf), masses ASSUMED in the overlay (the URDF has none: those of
