@@ -281,6 +281,8 @@ def cmd_from_urdf(args: argparse.Namespace) -> int:
     write_text(args.out, conv.xml)
     for w in conv.warnings:
         print(f"calbench from-urdf: warning: {w}", file=sys.stderr)
+    for n in conv.notes:
+        print(f"calbench from-urdf: note: {n}", file=sys.stderr)
     print(
         f"wrote {args.out}: {len(conv.actuated)} actuated joints ({' '.join(conv.actuated)})"
         + (f", passive {' '.join(conv.passive)}" if conv.passive else "")

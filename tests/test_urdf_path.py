@@ -21,6 +21,7 @@ from conftest import MJCF
 from shared_data import shared_data
 from urdf_robots import LINKS, arm_overlay, arm_urdf, link_masses
 
+from calbench.bench.log import read_log
 from calbench.bench.model import Robot
 from calbench.identify.cli import main
 
@@ -194,3 +195,125 @@ def test_check_robot_on_a_urdf_says_run_from_urdf_first(tmp_path, capsys):
         assert main(["check-robot", str(tmp_path / name)]) == 2
         err = capsys.readouterr().err
         assert "convert a URDF first, calbench from-urdf" in err and "got 'a URDF'" in err
+
+
+CYLINDER = """  <link name="cyl"><visual><geometry><cylinder radius="0.08" length="0.6"/></geometry></visual></link>
+  <link name="rod_in"><visual><geometry><cylinder radius="0.05" length="0.6"/></geometry></visual></link>
+  <joint name="cyl_joint" type="continuous"><parent link="link_1"/><child link="cyl"/>
+    <origin xyz="-0.25 0.35 1.2" rpy="0 0 0"/><axis xyz="0 1 0"/><mimic joint="joint_2" multiplier="{m_f}"/></joint>
+  <joint name="rod_joint" type="continuous"><parent link="link_2"/><child link="rod_in"/>
+    <origin xyz="0 0.35 0.45" rpy="0 0 0"/><axis xyz="0 1 0"/><mimic joint="joint_2" multiplier="{m_t}"/></joint>
+"""
+
+
+def _with_cylinder(m_f: float, m_t: float) -> str:
+    return arm_urdf().replace("</robot>", CYLINDER.format(m_f=m_f, m_t=m_t) + "</robot>")
+
+
+def test_a_balancer_cylinder_drawn_as_mimic_joints_becomes_a_spring(tmp_path, capsys):
+    """ROS-Industrial's pattern: cylinder on link_1, piston on link_2, both mimic joint_2 and stay
+    collinear (m_f = 1 + m_t). The spring joins the two pivots; its free length is their distance
+    at q = 0, here recomputed by MuJoCo from the sites of the MJCF."""
+    rc, out = _convert(tmp_path, _with_cylinder(-0.3, -1.3), arm_overlay())
+    err = capsys.readouterr().err
+    assert rc == 0, err
+    assert "note: balancer cylinder cyl/rod_in (mimic joints cyl_joint, rod_joint of joint_2)" in err
+    m = mujoco.MjModel.from_xml_path(str(out))
+    assert "cyl" not in [m.body(b).name for b in range(m.nbody)]
+    t = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_TENDON, "balancer")
+    d = mujoco.MjData(m)
+    mujoco.mj_kinematics(m, d)
+    a, b = (d.site(n).xpos for n in ("balancer_from", "balancer_to"))
+    np.testing.assert_allclose(m.tendon_lengthspring[t, 0], np.linalg.norm(a - b), rtol=1e-12)
+    np.testing.assert_array_equal(m.site("balancer_from").pos, [-0.25, 0.35, 1.2])
+    robot = Robot.from_file(out)
+    assert robot.layout.names[6:] == ("balancer_stiffness", "balancer_preload")
+    assert robot.description.actuated[robot.compensator_joint(0)] == "joint_2"
+    assert (
+        "Balancer cylinders drawn as URDF mimic joints: the compensator springs balancer" in out.read_text()
+    )
+
+
+def test_mimic_joints_that_turn_against_each_other_are_no_balancer(tmp_path, capsys):
+    """A parallelogram's crank and rod (m_f != 1 + m_t): refused, the loop named as the way."""
+    rc, _ = _convert(tmp_path, _with_cylinder(-1.0, 1.0), arm_overlay())
+    err = capsys.readouterr().err
+    assert rc == 2 and "joint 'cyl_joint': expected no <mimic>" in err and "[loops]" in err
+
+
+def test_the_abb_xacro_converts_without_hand_surgery(tmp_path, capsys):
+    """The IRB 6640's own xacro, cylinder and piston included: the spring lands on the pivots the
+    case's hand-written overlay (../shared/data/cases/irb6640/) gives."""
+    xacro = shared_data("robots", "abb_irb6640_support", "urdf", "irb6640_185_280.xacro")
+    case = shared_data("cases", "irb6640", "irb6640.toml").read_text(encoding="utf-8")
+    overlay = case[: case.index("# the balancing cylinder")].replace('compensator_sites = "balancer"\n', "")
+    masses = {
+        "link_1": 450.0,
+        "link_2": 220.0,
+        "link_3": 200.0,
+        "link_4": 120.0,
+        "link_5": 40.0,
+        "link_6": 5.0,
+    }
+    overlay += "".join(f"\n[inertials.{k}]\nmass = {v}\ncom = [0.0, 0.0, 0.0]\n" for k, v in masses.items())
+    (tmp_path / "irb.toml").write_text(overlay, encoding="utf-8")
+    out = tmp_path / "irb.xml"
+    assert main(["from-urdf", str(xacro), "--overlay", str(tmp_path / "irb.toml"), "--out", str(out)]) == 0
+    assert "became the compensator spring 'balancer'" in capsys.readouterr().err
+    m = mujoco.MjModel.from_xml_path(str(out))
+    np.testing.assert_array_equal(m.site("balancer_from").pos, [-0.3647, 0.0, -0.1455])
+    np.testing.assert_array_equal(m.site("balancer_to").pos, [-0.22, 0.0, -0.0672])
+    assert m.body(m.site("balancer_from").bodyid[0]).name == "link_1"
+    assert m.body(m.site("balancer_to").bodyid[0]).name == "link_2"
+    assert main(["check-robot", str(out), "--grid", "1", "--sample", "0"]) == 0
+
+
+def test_controller_conventions_give_the_same_campaign_in_the_controllers_angles(tmp_path):
+    """joint_2 counted the other way from -90 deg, joint_3 from +90 deg: the scenario written in
+    those angles simulates the campaign the URDF's angles simulate on the plain conversion
+    (readings equal to rounding), and the MJCF's ranges are the mapped limits."""
+    from urdf_robots import scenario
+
+    conv = {"joint_2": (-90.0, -1), "joint_3": (90.0, 1)}
+    extra = "".join(f"\n[conventions.{j}]\nzero = {z}\nsign = {s}\n" for j, (z, s) in conv.items())
+    rc, plain = _convert(tmp_path / "plain", arm_urdf(), arm_overlay())
+    assert rc == 0
+    rc, ctrl = _convert(tmp_path / "ctrl", arm_urdf(), arm_overlay() + extra)
+    assert rc == 0
+    a, b = (mujoco.MjModel.from_xml_path(str(p)) for p in (plain, ctrl))
+    for j, (z, s) in conv.items():
+        lo, hi = np.degrees(a.joint(j).range)
+        np.testing.assert_allclose(np.degrees(b.joint(j).range), sorted((s * lo + z, s * hi + z)), atol=1e-9)
+    text = scenario(str(plain))
+    mapped = text.replace(str(plain), str(ctrl))
+
+    def to_ctrl(m: re.Match) -> str:
+        q = [float(x) for x in m[1].split(",")]
+        for j, (z, s) in conv.items():
+            k = int(j[-1]) - 1
+            q[k] = s * q[k] + z
+        return "q = [" + ", ".join(repr(x) for x in q) + "]"
+
+    mapped = re.sub(r"^q = \[(.*)\]$", to_ctrl, mapped, flags=re.M)
+    assert mapped != text.replace(str(plain), str(ctrl))
+    logs = []
+    for name, t in (("plain", text), ("ctrl", mapped)):
+        (tmp_path / f"{name}.toml").write_text(t, encoding="utf-8")
+        assert (
+            main(["simulate", str(tmp_path / f"{name}.toml"), "--out", str(tmp_path / f"{name}.mcap")]) == 0
+        )
+        logs.append(read_log(tmp_path / f"{name}.mcap"))
+    pa, pb = ([m.position for m in log.measurements] for log in logs)
+    assert len(pa) == len(pb) > 0
+    np.testing.assert_allclose(np.array(pa), np.array(pb), atol=1e-9, equal_nan=True)
+    assert "Joint angles are the controller's" in ctrl.read_text(encoding="utf-8")
+
+
+def test_a_bad_convention_exits_2_naming_it(tmp_path, capsys):
+    for extra, key in (
+        ("\n[conventions.joint_2]\nsign = 2\n", "conventions.joint_2.sign"),
+        ("\n[conventions.tool0_joint]\nzero = 5.0\n", "conventions.tool0_joint"),
+    ):
+        rc, _ = _convert(tmp_path, arm_urdf(), arm_overlay() + extra)
+        err = capsys.readouterr().err
+        assert rc == 2 and f"arm.toml: {key}: expected" in err, err

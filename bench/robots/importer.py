@@ -39,6 +39,7 @@ class Conversion:
     moving_mass: float  # kg, every body that moves
     geoms: int
     meshes: int
+    notes: tuple[str, ...] = ()  # what was derived (a balancer cylinder's spring)
 
 
 class RobotImporter(FileFormat, ABC):

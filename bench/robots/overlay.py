@@ -15,6 +15,8 @@ overlay says so (docs/contract.md, "From a URDF")::
     [packages]            NAME = "folder"       # optional: where package://NAME/ and $(find NAME) point
     [inertials.LINK]      mass, com = [x, y, z], inertia = [ixx, iyy, izz(, ixy, ixz, iyz)]
                                                 # optional: ASSUMED masses for a URDF without them
+    [conventions.JOINT]   zero = deg, sign = 1 or -1    # optional: the controller's angle of an
+                                                # actuated joint, q_controller = sign * q_urdf + zero
     wrist = "link_5"                            # optional hints for design and discovery:
     links = ["link_2", "link_3"]                #   calbench:wrist, :links, :mass_compensators
     mass_compensators = ["counterweight"]       #   (links of the URDF)
@@ -27,6 +29,7 @@ expected. Whether the links and joints exist is the URDF's business (bench/robot
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -47,6 +50,7 @@ TOP_KEYS = (
     "mass_compensators",
     "compensator_sites",
     "inertials",
+    "conventions",
 )
 PAYLOAD_SITE = "payload"
 FLANGE_SITE = "flange"
@@ -103,6 +107,18 @@ class InertialSpec:
     key: str
 
 
+@dataclass(frozen=True)
+class ConventionSpec:
+    """How the controller counts an actuated joint: q_controller = sign * q_urdf + zero (zero in
+    rad here, degrees in the overlay). The MJCF's joint then reads the controller's angle (its
+    axis times sign, its ``ref`` the zero), so scenarios are written in the controller's angles."""
+
+    joint: str
+    zero: float
+    sign: int
+    key: str
+
+
 ASSUMED_GYRATION = 0.1  # m: radius of gyration of an overlay inertial given without an inertia
 
 
@@ -126,6 +142,7 @@ class Overlay:
     compensator_sites: tuple[str, str] | None = None
     mounts: tuple[Attach, ...] = ()
     inertials: tuple[InertialSpec, ...] = ()
+    conventions: tuple[ConventionSpec, ...] = ()
 
     def sites(self) -> list[Attach]:
         """Every site the overlay adds, in the order they are added to the MJCF."""
@@ -243,6 +260,16 @@ def _inertial(tables: Table, link: str) -> InertialSpec:
     )
 
 
+def _convention(tables: Table, joint: str) -> ConventionSpec:
+    c = tables.sub(joint)
+    c.only(("zero", "sign"))
+    zero = c.number("zero") if c.has("zero") else 0.0
+    sign = c.raw("sign") if c.has("sign") else 1
+    if isinstance(sign, bool) or sign not in (1, -1):
+        raise c.fail("sign", "1 or -1 (the controller counts the joint the URDF's way, or the other)", sign)
+    return ConventionSpec(joint, math.radians(zero), int(sign), c.prefix)
+
+
 def _named_tables(top: Table, key: str, what: str) -> list[tuple[Table, str]]:
     if not top.has(key):
         return []
@@ -290,6 +317,7 @@ def parse_overlay(text: str, path: str | Path) -> Overlay:
         compensator_sites=sites,
         mounts=mounts,
         inertials=tuple(_inertial(t, n) for t, n in _named_tables(top, "inertials", "link")),
+        conventions=tuple(_convention(t, n) for t, n in _named_tables(top, "conventions", "joint")),
     )
     seen: dict[str, str] = {}
     for s in ov.sites():
@@ -317,6 +345,7 @@ __all__ = [
     "LoopSpec",
     "Overlay",
     "InertialSpec",
+    "ConventionSpec",
     "ASSUMED_GYRATION",
     "parse_overlay",
     "load_overlay",

@@ -55,6 +55,7 @@ from calbench.bench.scenario import check_length, robot_scale
 
 from .expand import urdf_text
 from .importer import Conversion, RobotImporter
+from .mimic import convert_balancers
 from .overlay import Attach, Overlay
 
 PLACEHOLDER_STIFFNESS = 1.0e6  # N*m/rad on every actuated hinge until a scenario sets it
@@ -134,11 +135,12 @@ class UrdfTree:
 # --------------------------------------------------------------------------- the URDF
 
 
-def read_urdf(path: str | Path, ov: Overlay | None = None) -> UrdfTree:
+def read_urdf(path: str | Path, ov: Overlay | None = None, text: tuple[str, bool] | None = None) -> UrdfTree:
     """The URDF's links and joints; InputError when it is not a URDF. A ``.xacro`` is expanded,
-    the overlay's inertials written in, geom names made unique (bench/robots/expand.py)."""
+    the overlay's inertials written in, geom names made unique (bench/robots/expand.py); ``text``:
+    that (text, from xacro) already made."""
     path = Path(path)
-    text, expanded = urdf_text(path, ov)
+    text, expanded = urdf_text(path, ov) if text is None else text
     try:
         root = parse_xml(path, path, text=text)  # defusedxml: no entity bombs, no external entities
     except InputError as exc:
@@ -177,8 +179,9 @@ def check_urdf(tree: UrdfTree) -> None:
             raise InputError(
                 tree.path,
                 f"joint {j.name!r}",
-                "no <mimic> (the statics would ignore the "
-                "coupling; describe it as a loop in the overlay, or remove it)",
+                "no <mimic> (the statics would ignore the coupling; a balancer cylinder, two "
+                "mimic joints that stay collinear across one joint, becomes a spring by itself; "
+                "describe a parallelogram as [loops] in the overlay, or remove it)",
                 f"a mimic of {j.mimic!r}",
             )
         if j.type not in MOVING_TYPES + ("fixed",):
@@ -228,6 +231,14 @@ def check_overlay(tree: UrdfTree, ov: Overlay) -> None:
                 "(the VJM springs are torsional): "
                 + ", ".join(n for n, jj in joints.items() if jj.type in ("revolute", "continuous")),
                 name if j is None else f"{name} ({j.type})",
+            )
+    for c in ov.conventions:
+        if c.joint not in ov.actuated:
+            raise InputError(
+                ov.path,
+                c.key,
+                "an actuated joint (the controller counts only those): " + ", ".join(ov.actuated),
+                c.joint,
             )
     passive: set[str] = set()
     for lp in ov.loops:
@@ -344,10 +355,16 @@ def _site(spec: mujoco.MjSpec, a: Attach, rgba) -> None:
 
 
 def _joints(spec: mujoco.MjSpec, tree: UrdfTree, ov: Overlay) -> None:
+    conv = {c.joint: c for c in ov.conventions}
     for j in spec.joints:
         if tree.joints[j.name].type == "continuous":
             j.range = list(CONTINUOUS_RANGE)
             j.limited = mujoco.mjtLimited.mjLIMITED_TRUE
+        if j.name in conv:  # the controller's angle: q = sign * q_urdf + zero
+            c = conv[j.name]
+            j.axis = [c.sign * float(a) for a in j.axis]
+            j.ref = c.zero
+            j.range = sorted(c.sign * float(r) + c.zero for r in j.range)
         j.stiffness = [PLACEHOLDER_STIFFNESS if j.name in ov.actuated else 0.0, 0.0, 0.0]  # linear (eq. 1)
         j.springref = 0.0
 
@@ -443,9 +460,23 @@ def header_comment(tree: UrdfTree, ov: Overlay) -> str:
             f"; ASSUMED in the overlay's [inertials] for {', '.join(assumed)} (mass and centre of mass; "
             "an inertia not given is mass * (0.1 m)^2, which the statics never use)"
         )
+    derived = [c.name for c in ov.compensators if c.key.startswith("(URDF mimic")]
+    springs = (
+        f"  Balancer cylinders drawn as URDF mimic joints: the compensator springs {', '.join(derived)} "
+        "(placeholder stiffness and free length; a scenario's [truth] replaces them).\n"
+        if derived
+        else ""
+    )
+    conventions = (
+        "  Joint angles are the controller's, q = sign * q_urdf + zero: "
+        + ", ".join(f"{c.joint} sign {c.sign:+d} zero {math.degrees(c.zero):g} deg" for c in ov.conventions)
+        + ".\n"
+        if ov.conventions
+        else ""
+    )
     text = (
         f" calbench robot built by calbench from-urdf from {source} with the overlay {ov.path.name}.\n"
-        f"  Masses and inertias: {masses}.\n  Stiffness of the actuated hinges: a placeholder "
+        f"  Masses and inertias: {masses}.\n{springs}{conventions}  Stiffness of the actuated hinges: a placeholder "
         f"{PLACEHOLDER_STIFFNESS:g} N*m/rad; a scenario's [truth] replaces it.\n  Meshes are "
         "written inline; see bench/robots/urdf.py for the conventions. "
     )
@@ -479,7 +510,9 @@ def build_spec(tree: UrdfTree, ov: Overlay) -> tuple[mujoco.MjSpec, list[str]]:
 
 def convert(urdf: str | Path, ov: Overlay) -> Conversion:
     """Build and check the calbench MJCF of ``urdf`` with overlay ``ov`` (module docstring)."""
-    tree = read_urdf(urdf, ov)
+    text, expanded = urdf_text(Path(urdf), ov)
+    text, ov, notes = convert_balancers(text, ov)  # mimic cylinders -> compensator springs
+    tree = read_urdf(urdf, ov, (text, expanded))
     check_urdf(tree)
     check_overlay(tree, ov)
     spec, warnings = build_spec(tree, ov)
@@ -507,6 +540,7 @@ def convert(urdf: str | Path, ov: Overlay) -> Conversion:
         moving_mass=float(model.body_mass[moving].sum()),
         geoms=int(model.ngeom),
         meshes=int(model.nmesh),
+        notes=tuple(notes),
     )
 
 
