@@ -373,6 +373,52 @@ def montecarlo_methods(choice: str, scn: Scenario) -> tuple[str, ...]:
     return select_methods(choice, robot, scn.robot)
 
 
+PROBE_RUNS = 2  # runs timed at the start of `calbench montecarlo` to estimate the rest
+
+
+@dataclass(frozen=True)
+class WorkEstimate:
+    """What a job costs, measured on a few of its pieces at its start: the set-up each process
+    builds once, and the in-process seconds per piece (a Monte Carlo run)."""
+
+    setup_seconds: float
+    seconds_per_piece: float
+    probed: int  # pieces timed
+
+    def seconds(self, pieces: int) -> float:
+        """In-process work of ``pieces`` pieces (the set-up apart)."""
+        return pieces * self.seconds_per_piece
+
+
+def measure_montecarlo(
+    scn: Scenario, methods, seed: int | None = None, probe: int = PROBE_RUNS
+) -> WorkEstimate:
+    """The Monte Carlo's set-up (built here, then reused by the in-process runs) and the time of
+    ``probe`` runs on noise seeds of their own (the runs' seeds are untouched), each method
+    with one BLAS thread as the runs have: the per-run cost on this machine, now."""
+    from calbench.identify.runtime.threads import blas_threads
+
+    job = MonteCarloJob(
+        PortableScenario.from_scenario(scn), tuple(methods), scn.seed if seed is None else int(seed)
+    )
+    t0 = time.perf_counter()
+    s = _setup(job)
+    t1 = time.perf_counter()
+    with blas_threads(1):
+        for r in range(probe):  # noise seeds no run uses: (seed, 2^31 + r)
+            obs = campaign_observations(
+                s.scn, s.truth_rb, s.plans, np.random.default_rng([job.seed, 2**31 + r])
+            )
+            white = Whitener.from_observations(obs)
+            for meth in job.methods:
+                try:
+                    s.runs[meth](obs, white)
+                except (np.linalg.LinAlgError, NotApplicable):
+                    pass
+    t2 = time.perf_counter()
+    return WorkEstimate(t1 - t0, (t2 - t1) / max(probe, 1), probe)
+
+
 def estimated_seconds(runs: int, methods=None) -> float:
     """In-process time of ``runs`` runs of ``methods`` (default: all of them; each method's
     seconds_per_run, measured), for the executor choice."""
@@ -482,6 +528,9 @@ __all__ = [
     "run_montecarlo",
     "run_block",
     "estimated_seconds",
+    "measure_montecarlo",
+    "WorkEstimate",
+    "PROBE_RUNS",
     "MonteCarlo",
     "MonteCarloJob",
     "format_summary",
