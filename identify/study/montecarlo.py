@@ -396,7 +396,7 @@ def measure_montecarlo(
     """The Monte Carlo's set-up (built here, then reused by the in-process runs) and the time of
     ``probe`` runs on noise seeds of their own (the runs' seeds are untouched), each method
     with one BLAS thread as the runs have: the per-run cost on this machine, now."""
-    from calbench.identify.runtime.threads import blas_threads
+    from calbench.identify.runtime import blas_threads
 
     job = MonteCarloJob(
         PortableScenario.from_scenario(scn), tuple(methods), scn.seed if seed is None else int(seed)
