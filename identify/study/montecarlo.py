@@ -53,7 +53,7 @@ from calbench.bench.campaign import (
     truth_robot,
 )
 from calbench.bench.core import InputError, ProgressSink, sink
-from calbench.bench.model import Robot
+from calbench.bench.model import Robot, display_name, free_length_note
 from calbench.bench.scenario import (
     Scenario,
     check_size,
@@ -503,21 +503,43 @@ def format_summary(s: dict) -> str:
         fails = f"; failed on {d['failed_runs']} runs (left out)" if d.get("failed_runs") else ""
         lines.append(f"\n{meth}  ({d['seconds']:.2f} s, {1e3 * d['seconds_per_run']:.1f} ms/run{fails})")
         lines.append(
-            f"  {'parameter':<22}{'bias/sd':>9}{'sd/rep.sd':>11}{'var/CRB':>9}{'MSE/CRB':>9}"
+            f"  {'parameter':<24}{'bias/sd':>9}{'sd/rep.sd':>11}{'var/CRB':>9}{'MSE/CRB':>9}"
             f"{'noise-free err/CRBsd':>22}"
         )
         for p in d["parameters"]:
+            name = display_name(p["name"])
             if "bias_over_sigma" not in p:
-                lines.append(f"  {p['name']:<22}  not identified")
+                lines.append(f"  {name:<24}  not identified")
                 continue
             nfe = p["noise_free_error_over_crb_std"]
             g = lambda x: f"{x:.3f}" if abs(x) < 1e4 else f"{x:.2e}"  # noqa: E731
             lines.append(
-                f"  {p['name']:<22}{g(p['bias_over_sigma']):>9} {g(p['empirical_over_reported_std']):>10}"
+                f"  {name:<24}{g(p['bias_over_sigma']):>9} {g(p['empirical_over_reported_std']):>10}"
                 f" {g(p['variance_over_crb']):>9} {g(p['mse_over_crb']):>9}"
                 f"{(g(nfe) if nfe is not None else 'n/a'):>22}"
             )
+    names = [p["name"] for d in s["methods"].values() for p in d["parameters"]]
+    lines += ["", *LEGEND]
+    note = free_length_note(names)
+    if note:
+        lines.append(f"  {note}")
     return "\n".join(lines)
+
+
+LEGEND = (
+    'Columns (docs/identification.md, "Monte Carlo"), per parameter over the runs:',
+    "  bias/sd               (mean - truth) / the runs' spread: a bias in units of the spread (0 +- 1/sqrt(N))",
+    "  sd/rep.sd             the runs' spread / the std the method reports: 1 when its reported std is honest",
+    "  var/CRB               the runs' variance / the Cramer-Rao bound at the truth: 1 = efficient, > 1 wasted",
+    "  MSE/CRB               mean squared error / the CRB: spread and bias together; a huge ratio",
+    "                        with a small sd/rep.sd is heavy tails (the two-step's s0 = (s0 K_C) / K_C",
+    "                        divides by a noisy K_C): robust_std_over_crb_std in the JSON ignores them",
+    "  noise-free err/CRBsd  the estimate on exact readings minus the truth, in CRB stds: the method's",
+    "                        own model error (n/a: that estimate did not identify the parameter)",
+    "  methods: one-step (exact statics), two-step (paper eqs. 19-22, step 2 unweighted as eq. 21),",
+    "  two-step-weighted (step 2 weighted by step 1's covariance), two-step-iterated (two-step at its",
+    "  self-consistent sagged pose; --method all); not identified: fewer than two runs identified it",
+)
 
 
 __all__ = [
