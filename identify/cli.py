@@ -588,7 +588,9 @@ def cmd_study(args) -> int:
             f"calbench study: {pending.campaigns} campaigns to run ({pending.before} already in {args.out})",
             file=sys.stderr,
         )
-        with open_pieces(args, pending.estimated_seconds(), pending.tasks()) as ex:
+        scale, each = pending.measure()
+        basis = f"{each:.2g} s per campaign, measured on one" if each else "the constants' figures"
+        with open_pieces(args, pending.estimated_seconds(scale), pending.tasks(), 0.0, basis) as ex:
             bar = terminal_progress("calbench study", "campaigns")
             try:
                 outcome = run_study(pending, ex, progress=bar)

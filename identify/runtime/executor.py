@@ -207,7 +207,7 @@ class Executor:
         counts = self.worker_counts()
         if len(counts) < 2:
             return text
-        return f"{text} | per worker: " + ", ".join(f"{w} {n}" for w, n in sorted(counts.items()))
+        return f"{text} | pieces per worker: " + ", ".join(f"{w} {n}" for w, n in sorted(counts.items()))
 
     def ordered(self, fn: Callable, args: Iterable[tuple], window: int | None = None) -> Iterator[Any]:
         """Results in the order of ``args``, at most ``window`` calls in flight; ``args`` is drawn
