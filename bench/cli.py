@@ -25,6 +25,7 @@ from calbench.bench.view import (
     ViewerUnavailable,
     default_rrd_path,
     has_display,
+    open_hint,
     spawn_recording,
     write_recording,
 )
@@ -172,7 +173,8 @@ def cmd_view(args: argparse.Namespace) -> int:
     print(f"wrote {out}{'' if args.rrd is not None else why}: {_view_summary(s, magnify)}")
     if s.completeness:
         print(f"  campaign: {s.completeness}")
-    print(f"open it with: rerun {out}")
+    for line in open_hint(out, has_display()):
+        print(line)
     return 0
 
 

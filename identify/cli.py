@@ -36,6 +36,7 @@ from calbench.bench.core import (
     CalbenchError,
     InputError,
     check_outputs,
+    duration,
     holding_outputs,
     refused_write,
     terminal_progress,
@@ -137,12 +138,18 @@ def add_scheduler(p) -> None:
     )
 
 
-def open_pieces(args, work_seconds: float, tasks: int):
-    """The executor for this command (identify/runtime/executor.py), announced on stderr."""
+def open_pieces(args, work_seconds: float, tasks: int, setup_seconds: float = 0.0, basis: str = ""):
+    """The executor for this command (identify/runtime/executor.py), announced on stderr with
+    the wall-clock time it is expected to take (``basis``: what the estimate was measured on)."""
     from calbench.identify.runtime import choose, open_executor
 
     ex = open_executor(choose(args.scheduler, work_seconds, tasks, args.workers))
-    print(f"calbench {args.command}: {ex.choice.describe()}", file=sys.stderr)
+    expect = duration(ex.choice.expected_seconds(work_seconds, tasks, setup_seconds))
+    print(
+        f"calbench {args.command}: {ex.choice.describe()}; expected to take about {expect}"
+        + (f" ({basis})" if basis else ""),
+        file=sys.stderr,
+    )
     return ex
 
 
@@ -185,8 +192,8 @@ def cmd_montecarlo(args) -> int:
     from calbench.identify.study import (
         RUNS_PER_TASK,
         check_montecarlo_size,
-        estimated_seconds,
         format_summary,
+        measure_montecarlo,
         montecarlo_methods,
         run_montecarlo,
     )
@@ -199,7 +206,10 @@ def cmd_montecarlo(args) -> int:
         check_montecarlo_size(scn, args.runs)
     methods = montecarlo_methods(args.method, scn)
     interrupted = None
-    with open_pieces(args, estimated_seconds(args.runs, methods), -(-args.runs // RUNS_PER_TASK)) as ex:
+    cost = measure_montecarlo(scn, methods, args.seed)
+    basis = f"{1e3 * cost.seconds_per_piece:.0f} ms per run, measured on {cost.probed} runs"
+    tasks = -(-args.runs // RUNS_PER_TASK)
+    with open_pieces(args, cost.seconds(args.runs), tasks, cost.setup_seconds, basis) as ex:
         bar = terminal_progress("calbench montecarlo", "runs")
         try:
             mc = run_montecarlo(scn, args.runs, methods, progress=bar, executor=ex)
@@ -360,7 +370,7 @@ def cmd_design(args) -> int:
     try:
         outcome = run_design(
             request,
-            pieces=lambda seconds, tasks: open_pieces(args, seconds, tasks),
+            pieces=lambda seconds, tasks, setup, basis: open_pieces(args, seconds, tasks, setup, basis),
             progress=shown,
             notes=shown.note,
         )
@@ -699,7 +709,9 @@ def cmd_study(args) -> int:
             f"calbench study: {pending.campaigns} campaigns to run ({pending.before} already in {args.out})",
             file=sys.stderr,
         )
-        with open_pieces(args, pending.estimated_seconds(), pending.tasks()) as ex:
+        scale, each = pending.measure()
+        basis = f"{each:.2g} s per campaign, measured on one" if each else "the constants' figures"
+        with open_pieces(args, pending.estimated_seconds(scale), pending.tasks(), 0.0, basis) as ex:
             bar = terminal_progress("calbench study", "campaigns")
             try:
                 outcome = run_study(pending, ex, progress=bar)

@@ -41,11 +41,11 @@ def test_short_work_off_a_terminal_says_nothing_and_per_worker_counts_are_shown(
     bar = Progress(stream=out, tty=False, every=5.0, clock=clock)
     bar.start(4)
     clock.t = 1.0
-    bar.update("runs 2/4 | per worker: w1 1, w2 1", step=2)
+    bar.update("runs 2/4 | pieces per worker: w1 1, w2 1", step=2)
     bar.close()
     assert out.getvalue() == ""  # done before the first line was due
-    assert bar.line().endswith("; per worker: w1 1, w2 1")
-    assert duration(59.6) == "1 min 00 s" and duration(3725) == "1 h 02 min" and duration(4) == "4 s"
+    assert bar.line().endswith("; pieces per worker: w1 1, w2 1")
+    assert duration(59.6) == "59.6 s" and duration(3725) == "62.1 min" and duration(4) == "4 s"
 
 
 def test_on_a_terminal_a_tqdm_bar():

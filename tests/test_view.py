@@ -663,7 +663,9 @@ def test_cli_writes_next_to_the_log_without_display(paper_log, tmp_path, capsys,
     assert calbench_main(["view", str(log)]) == 0
     out = capsys.readouterr().out
     assert (tmp_path / "logs" / "demo.rrd").exists()
-    assert "no display" in out and f"rerun {tmp_path / 'logs' / 'demo.rrd'}" in out
+    # without a display: Rerun's web viewer, port forwarding, the Vulkan note and the telemetry
+    assert "no display" in out and f"rerun --web-viewer {tmp_path / 'logs' / 'demo.rrd'}" in out
+    assert "ssh -L 9090:localhost:9090" in out and "lavapipe" in out and "rerun analytics disable" in out
     rrd = tmp_path / "x" / "out.rrd"
     assert calbench_main(["view", str(log), "--rrd", str(rrd), "--magnify", "500"]) == 0
     assert "/deflection/x500/measured" in entity_paths(rrd)

@@ -3,7 +3,7 @@
 Library functions take an optional ``progress`` object and call ``start(total)`` once, then
 ``update(label)`` per finished piece; they never print. The command line passes a
 :class:`Progress` on stderr: on a terminal a tqdm bar; anywhere else (a pipe, a file, CI) a
-line every EVERY_S seconds (CALBENCH_PROGRESS_S in the environment), ``calbench montecarlo: 120/1000 runs (12 %), 8.1/s, about 1 min 49 s
+line every EVERY_S seconds (CALBENCH_PROGRESS_S in the environment), ``calbench montecarlo: 120/1000 runs (12 %), 8.1/s, about 1.82 min
 left``, and one when the work ends, so a ten-minute run is never silent. Notebooks and tests
 pass nothing (or any object with these two methods). A label of the form ``"... | worker: n,
 ..."`` (the Dask runs' per-worker counts) is shown as it is.
@@ -11,6 +11,7 @@ pass nothing (or any object with these two methods). A label of the form ``"... 
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 import time
@@ -40,13 +41,14 @@ def sink(progress: ProgressSink | None | bool) -> ProgressSink:
 
 
 def duration(seconds: float) -> str:
-    """A duration for people: ``45 s``, ``3 min 20 s``, ``1 h 05 min``."""
-    s = max(0, int(round(seconds)))
-    if s < 60:
-        return f"{s} s"
-    if s < 3600:
-        return f"{s // 60} min {s % 60:02d} s"
-    return f"{s // 3600} h {s % 3600 // 60:02d} min"
+    """A duration in the largest unit that keeps it readable (s, min, h, days, years)."""
+    if not math.isfinite(seconds):
+        return "forever"
+    for unit, s in (("years", 365.25 * 86400), ("days", 86400), ("h", 3600), ("min", 60)):
+        if seconds >= 2 * s:
+            v = seconds / s
+            return f"{v:,.0f} {unit}" if v >= 100 else f"{v:.3g} {unit}"
+    return f"{seconds:.3g} s"
 
 
 class Progress:

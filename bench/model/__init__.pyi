@@ -13,10 +13,20 @@ from .loop import (
     motor_jacobian,
     motor_jacobians,
 )
-from .params import LEGACY_COMPENSATOR, ParamLayout, Params, Spring, springs_from_message
+from .params import (
+    LEGACY_COMPENSATOR,
+    ParamLayout,
+    Params,
+    Spring,
+    display_name,
+    free_length_note,
+    springs_from_message,
+)
 from .robot import LOOP_MARGIN, LOOP_MARGIN_ANGLE, Robot, ancestors
 
 __all__ = [
+    "display_name",
+    "free_length_note",
     "DescriptionError",
     "GeomShape",
     "LEGACY_COMPENSATOR",

@@ -167,7 +167,27 @@ class ParamLayout:
         return np.array([BOUNDS[u][1] for u in self.units])
 
 
+def display_name(name: str) -> str:
+    """A parameter's name for people: ``<T>_preload`` (the contract's name, kept in every JSON
+    and log) is the spring's free length s0, shown as ``<T> free length`` (a length in mm, which
+    "preload" would have an engineer read as a force); others unchanged."""
+    return name[: -len("_preload")] + " free length" if name.endswith("_preload") else name
+
+
+def free_length_note(names) -> str | None:
+    """The line under a table that shows free lengths, naming what the JSON calls them."""
+    pre = [n for n in names if n.endswith("_preload")]
+    if not pre:
+        return None
+    return (
+        f"{display_name(pre[0])}: the spring's free length s0 (eq. 8), a length, not a force; "
+        f"`{pre[0]}` in the JSON (the contract's name)"
+    )
+
+
 __all__ = [
+    "display_name",
+    "free_length_note",
     "LEGACY_COMPENSATOR",
     "GENERIC",
     "BOUNDS",

@@ -43,13 +43,12 @@ upper bound of the log's size (tests/test_interrupt.py).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC, date, datetime, timedelta
 from typing import Any
 
-from calbench.bench.core import STATES, InputError
+from calbench.bench.core import STATES, InputError, duration
 
 DEFAULT_START = datetime(2025, 1, 6, 8, 0, 0, tzinfo=UTC)  # a Monday, 08:00 UTC
 MOVE_S = 60.0
@@ -230,17 +229,6 @@ def repeats_key(repeats: Sequence[int]) -> str:
     """The scenario key to blame for a campaign's size: the pose with the most repeats."""
     i = max(range(len(repeats)), key=lambda k: repeats[k]) if repeats else 0
     return f"pose[{i}].repeats" if repeats and repeats[i] > 1 else "pose"
-
-
-def duration(seconds: float) -> str:
-    """A duration in the largest unit that keeps it readable (s, min, h, days, years)."""
-    if not math.isfinite(seconds):
-        return "forever"
-    for unit, s in (("years", 365.25 * 86400), ("days", 86400), ("h", 3600), ("min", 60)):
-        if seconds >= 2 * s:
-            v = seconds / s
-            return f"{v:,.0f} {unit}" if v >= 100 else f"{v:.3g} {unit}"
-    return f"{seconds:.3g} s"
 
 
 def size(nbytes: float) -> str:

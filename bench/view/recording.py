@@ -988,6 +988,24 @@ def has_display() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
+WEB_PORT = 9090  # `rerun --web-viewer`'s page (its default)
+
+
+def open_hint(rrd: Path, display: bool) -> list[str]:
+    """How to open a recording (docs/log-and-views.md, "Without a display"): the native viewer
+    with a display; without one, Rerun's web viewer served to a browser (port forwarding from
+    another machine). Rerun's viewer sends anonymous usage data unless told not to."""
+    if display:
+        return [f"open it with: rerun {rrd}"]
+    return [
+        f"open it with: rerun --web-viewer {rrd}  (no display here: Rerun serves its viewer to a browser "
+        f"on this machine at http://localhost:{WEB_PORT}; from another machine forward the port "
+        f"first: ssh -L {WEB_PORT}:localhost:{WEB_PORT} THIS-HOST)",
+        "  the native viewer under Xvfb needs Vulkan (Mesa's lavapipe: WGPU_BACKEND=vulkan); "
+        "`rerun analytics disable` turns Rerun's telemetry off",
+    ]
+
+
 def default_rrd_path(log_path: Path) -> Path:
     """Where the recording goes without --rrd and without a display: beside the log."""
     return Path(log_path).with_suffix(".rrd")

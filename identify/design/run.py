@@ -36,7 +36,6 @@ from calbench.bench.core import InputError, ProgressSink, atomic_path, check_out
 from calbench.identify.runtime import Executor, InProcess
 
 from .candidates import (
-    SECONDS_PER_CANDIDATE,
     CandidateFile,
     CandidateSet,
     generate_candidates,
@@ -62,7 +61,7 @@ from .study import run_study
 
 CANDIDATES_PER_TASK = 300  # candidates per piece of work, for the executor's choice
 
-Pieces = Callable[[float, int], contextlib.AbstractContextManager[Executor]]
+Pieces = Callable[[float, int, float, str], contextlib.AbstractContextManager[Executor]]
 
 
 @dataclass(frozen=True)
@@ -102,7 +101,12 @@ class DesignOutcome:
     timings: dict = field(default_factory=dict)
 
 
-def _in_process(work_seconds: float, tasks: int) -> contextlib.AbstractContextManager[Executor]:
+PROBE_CANDIDATES = 200  # candidates generated first, timed, to announce the rest
+
+
+def _in_process(
+    work_seconds: float, tasks: int, setup_seconds: float = 0.0, basis: str = ""
+) -> contextlib.AbstractContextManager[Executor]:
     return contextlib.nullcontext(InProcess())
 
 
@@ -113,8 +117,9 @@ def run_design(
     notes: Callable[[str], Any] | None = None,
 ) -> DesignOutcome:
     """Everything `calbench design` does but printing and writing the plan and the JSON (module
-    docstring). ``pieces(work_seconds, tasks)`` opens the executor the candidates run on (when
-    they are generated; default: this process)."""
+    docstring). ``pieces(work_seconds, tasks, setup_seconds, basis)`` opens the executor the
+    candidates run on (when they are generated; default: this process), ``basis`` saying what
+    the work's estimate was measured on."""
     req = request
     if req.normalise and req.export_candidates is None:
         raise InputError("(command line)", "--normalise", "--export-candidates CANDS.npz with it", None)
@@ -168,8 +173,17 @@ def _generate(
             req.configs,
         )
     t0 = time.perf_counter()
-    with pieces(n * SECONDS_PER_CANDIDATE, -(-n // CANDIDATES_PER_TASK)) as ex:
-        cands = generate_candidates(scn, settings, n=n, processes=req.processes, progress=bar, executor=ex)
+    # the cost per feasible candidate, measured here on the first PROBE_CANDIDATES (the same
+    # draws the full set starts with): the announced duration is this machine's, now
+    probe = min(n, PROBE_CANDIDATES)
+    cands = generate_candidates(scn, settings, n=probe, processes=req.processes)
+    per = (time.perf_counter() - t0) / probe
+    if probe < n:
+        basis = f"generating the candidates, {1e3 * per:.2g} ms each, measured on the first {probe}"
+        with pieces(n * per, -(-n // CANDIDATES_PER_TASK), 0.0, basis) as ex:
+            cands = generate_candidates(
+                scn, settings, n=n, processes=req.processes, progress=bar, executor=ex
+            )
     t_c = time.perf_counter() - t0
     note(
         f"{len(cands)} feasible candidates ({int(cands.kind.sum())} lateral pulls) in {t_c:.1f} s "

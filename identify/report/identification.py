@@ -25,7 +25,7 @@ from calbench.bench.log import (
     ParameterEstimate,
     read_log,
 )
-from calbench.bench.model import Robot
+from calbench.bench.model import Robot, display_name, free_length_note
 from calbench.bench.tracker import DEFAULT_MODEL, tracker_models
 from calbench.identify.compensate import robot_sha256
 from calbench.identify.core import (
@@ -182,21 +182,21 @@ def format_table(rep: IdentificationReport) -> str:
         + (" (log truncated)" if rep.truncated else "")
         + f"; {rep.n_observations} reflector deflections",
     ]
-    head = f"  {'parameter':<22}{'unit':<12}{'estimate':>12} {'± std':>10}"
+    head = f"  {'parameter':<24}{'unit':<12}{'estimate':>12} {'± std':>10}"
     if has_truth:
         head += f"{'truth':>12}{'error':>11}{'z':>7}"
     lines.append(head)
     for p in rep.parameters:
         label, f = DISPLAY[p.unit]
         if p.estimate is None:
-            row = f"  {p.name:<22}{label:<12}{'not identifiable':>23}"
+            row = f"  {display_name(p.name):<24}{label:<12}{'not identifiable':>23}"
             if has_truth and p.truth is not None:
                 row += f"{p.truth * f:>12.5g}"
             lines.append(row)
             continue
         sd = p.std * f
         dec = max(0, 1 - math.floor(math.log10(sd))) if sd > 0 else 3  # std to 2 digits
-        row = f"  {p.name:<22}{label:<12}{p.estimate * f:>12.{dec}f} {sd:>10.{dec}f}"
+        row = f"  {display_name(p.name):<24}{label:<12}{p.estimate * f:>12.{dec}f} {sd:>10.{dec}f}"
         if has_truth and p.truth is not None:
             row += f"{p.truth * f:>12.{dec}f}{p.error * f:>+11.{dec}f}{p.z:>+7.2f}"
         lines.append(row)
@@ -206,6 +206,9 @@ def format_table(rep: IdentificationReport) -> str:
             f"{rep.expected_residual_rms * 1e6:.2f} µm from the tracker: {noise_source(rep)}, a "
             f"deflection is the difference of two); χ²/dof = {rep.chi2_per_dof:.3f} ({rep.dof} dof)"
         )
+    note = free_length_note([p.name for p in rep.parameters])
+    if note:
+        lines.append(f"  {note}")
     for name, why in rep.unidentifiable.items():
         lines.append(f"  not identifiable: {name}: {why}")
     for name, p in rep.details.get("profile", {}).items():

@@ -70,6 +70,7 @@ KEYWORDS = ("local", "in-process")
 LOCAL_STARTUP_S = 4.0  # import distributed, LocalCluster + Client, first task importing calbench
 LOCAL_SHUTDOWN_S = 1.0  # Client.close + LocalCluster.close (nannies stop their workers)
 TASK_OVERHEAD_S = 5e-3  # scheduling per task and worker (1000 trivial tasks on 2 workers)
+LOCAL_EFFICIENCY = 0.89  # parallel efficiency of 2 pinned workers (benchmarks/scaling_bench.py)
 CONNECT_TIMEOUT_S = 10.0  # how long to keep trying a --scheduler address
 
 
@@ -94,6 +95,18 @@ class ExecutorChoice:
     address: str | None  # the scheduler's address (REMOTE)
     workers: int  # worker processes (LOCAL; 1 in-process; REMOTE: known once open)
     reason: str
+
+    def expected_seconds(self, work_seconds: float, tasks: int = 1, setup_seconds: float = 0.0) -> float:
+        """Wall-clock time of ``work_seconds`` of in-process work in ``tasks`` pieces here: in
+        this process the work itself (its set-up already built: the caller measured it); on a
+        local cluster its start and stop, each worker's set-up (``setup_seconds``, in parallel)
+        and the work shared by its workers at LOCAL_EFFICIENCY; on another cluster the same
+        without the start and stop (not ours)."""
+        if self.kind == IN_PROCESS:
+            return work_seconds
+        w = max(self.workers, 1)
+        share = work_seconds / (w * LOCAL_EFFICIENCY) + tasks * TASK_OVERHEAD_S / w + setup_seconds
+        return share + (LOCAL_STARTUP_S + LOCAL_SHUTDOWN_S if self.kind == LOCAL else 0.0)
 
     def describe(self) -> str:
         procs = f"{self.workers} worker process" + ("es" if self.workers != 1 else "")
@@ -207,7 +220,7 @@ class Executor:
         counts = self.worker_counts()
         if len(counts) < 2:
             return text
-        return f"{text} | per worker: " + ", ".join(f"{w} {n}" for w, n in sorted(counts.items()))
+        return f"{text} | pieces per worker: " + ", ".join(f"{w} {n}" for w, n in sorted(counts.items()))
 
     def ordered(self, fn: Callable, args: Iterable[tuple], window: int | None = None) -> Iterator[Any]:
         """Results in the order of ``args``, at most ``window`` calls in flight; ``args`` is drawn

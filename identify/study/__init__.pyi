@@ -5,10 +5,12 @@ from .accuracy import predicted_std
 from .campaign import TIMING_COLUMNS, needs_log, simulate_in_memory
 from .montecarlo import (
     RUNS_PER_TASK,
+    WorkEstimate,
     campaign_observations,
     check_montecarlo_size,
     estimated_seconds,
     format_summary,
+    measure_montecarlo,
     montecarlo_methods,
     run_montecarlo,
     true_theta,
@@ -33,6 +35,8 @@ __all__ = [
     "check_montecarlo_size",
     "design_key",
     "estimated_seconds",
+    "measure_montecarlo",
+    "WorkEstimate",
     "format_cells",
     "format_summary",
     "load_study",

@@ -53,7 +53,7 @@ from calbench.bench.campaign import (
     truth_robot,
 )
 from calbench.bench.core import InputError, ProgressSink, sink
-from calbench.bench.model import Robot
+from calbench.bench.model import Robot, display_name, free_length_note
 from calbench.bench.scenario import (
     Scenario,
     check_size,
@@ -373,6 +373,52 @@ def montecarlo_methods(choice: str, scn: Scenario) -> tuple[str, ...]:
     return select_methods(choice, robot, scn.robot)
 
 
+PROBE_RUNS = 2  # runs timed at the start of `calbench montecarlo` to estimate the rest
+
+
+@dataclass(frozen=True)
+class WorkEstimate:
+    """What a job costs, measured on a few of its pieces at its start: the set-up each process
+    builds once, and the in-process seconds per piece (a Monte Carlo run)."""
+
+    setup_seconds: float
+    seconds_per_piece: float
+    probed: int  # pieces timed
+
+    def seconds(self, pieces: int) -> float:
+        """In-process work of ``pieces`` pieces (the set-up apart)."""
+        return pieces * self.seconds_per_piece
+
+
+def measure_montecarlo(
+    scn: Scenario, methods, seed: int | None = None, probe: int = PROBE_RUNS
+) -> WorkEstimate:
+    """The Monte Carlo's set-up (built here, then reused by the in-process runs) and the time of
+    ``probe`` runs on noise seeds of their own (the runs' seeds are untouched), each method
+    with one BLAS thread as the runs have: the per-run cost on this machine, now."""
+    from calbench.identify.runtime import blas_threads
+
+    job = MonteCarloJob(
+        PortableScenario.from_scenario(scn), tuple(methods), scn.seed if seed is None else int(seed)
+    )
+    t0 = time.perf_counter()
+    s = _setup(job)
+    t1 = time.perf_counter()
+    with blas_threads(1):
+        for r in range(probe):  # noise seeds no run uses: (seed, 2^31 + r)
+            obs = campaign_observations(
+                s.scn, s.truth_rb, s.plans, np.random.default_rng([job.seed, 2**31 + r])
+            )
+            white = Whitener.from_observations(obs)
+            for meth in job.methods:
+                try:
+                    s.runs[meth](obs, white)
+                except (np.linalg.LinAlgError, NotApplicable):
+                    pass
+    t2 = time.perf_counter()
+    return WorkEstimate(t1 - t0, (t2 - t1) / max(probe, 1), probe)
+
+
 def estimated_seconds(runs: int, methods=None) -> float:
     """In-process time of ``runs`` runs of ``methods`` (default: all of them; each method's
     seconds_per_run, measured), for the executor choice."""
@@ -457,21 +503,43 @@ def format_summary(s: dict) -> str:
         fails = f"; failed on {d['failed_runs']} runs (left out)" if d.get("failed_runs") else ""
         lines.append(f"\n{meth}  ({d['seconds']:.2f} s, {1e3 * d['seconds_per_run']:.1f} ms/run{fails})")
         lines.append(
-            f"  {'parameter':<22}{'bias/sd':>9}{'sd/rep.sd':>11}{'var/CRB':>9}{'MSE/CRB':>9}"
+            f"  {'parameter':<24}{'bias/sd':>9}{'sd/rep.sd':>11}{'var/CRB':>9}{'MSE/CRB':>9}"
             f"{'noise-free err/CRBsd':>22}"
         )
         for p in d["parameters"]:
+            name = display_name(p["name"])
             if "bias_over_sigma" not in p:
-                lines.append(f"  {p['name']:<22}  not identified")
+                lines.append(f"  {name:<24}  not identified")
                 continue
             nfe = p["noise_free_error_over_crb_std"]
             g = lambda x: f"{x:.3f}" if abs(x) < 1e4 else f"{x:.2e}"  # noqa: E731
             lines.append(
-                f"  {p['name']:<22}{g(p['bias_over_sigma']):>9} {g(p['empirical_over_reported_std']):>10}"
+                f"  {name:<24}{g(p['bias_over_sigma']):>9} {g(p['empirical_over_reported_std']):>10}"
                 f" {g(p['variance_over_crb']):>9} {g(p['mse_over_crb']):>9}"
                 f"{(g(nfe) if nfe is not None else 'n/a'):>22}"
             )
+    names = [p["name"] for d in s["methods"].values() for p in d["parameters"]]
+    lines += ["", *LEGEND]
+    note = free_length_note(names)
+    if note:
+        lines.append(f"  {note}")
     return "\n".join(lines)
+
+
+LEGEND = (
+    'Columns (docs/identification.md, "Monte Carlo"), per parameter over the runs:',
+    "  bias/sd               (mean - truth) / the runs' spread: a bias in units of the spread (0 +- 1/sqrt(N))",
+    "  sd/rep.sd             the runs' spread / the std the method reports: 1 when its reported std is honest",
+    "  var/CRB               the runs' variance / the Cramer-Rao bound at the truth: 1 = efficient, > 1 wasted",
+    "  MSE/CRB               mean squared error / the CRB: spread and bias together; a huge ratio",
+    "                        with a small sd/rep.sd is heavy tails (the two-step's s0 = (s0 K_C) / K_C",
+    "                        divides by a noisy K_C): robust_std_over_crb_std in the JSON ignores them",
+    "  noise-free err/CRBsd  the estimate on exact readings minus the truth, in CRB stds: the method's",
+    "                        own model error (n/a: that estimate did not identify the parameter)",
+    "  methods: one-step (exact statics), two-step (paper eqs. 19-22, step 2 unweighted as eq. 21),",
+    "  two-step-weighted (step 2 weighted by step 1's covariance), two-step-iterated (two-step at its",
+    "  self-consistent sagged pose; --method all); not identified: fewer than two runs identified it",
+)
 
 
 __all__ = [
@@ -482,6 +550,9 @@ __all__ = [
     "run_montecarlo",
     "run_block",
     "estimated_seconds",
+    "measure_montecarlo",
+    "WorkEstimate",
+    "PROBE_RUNS",
     "MonteCarlo",
     "MonteCarloJob",
     "format_summary",

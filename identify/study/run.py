@@ -125,12 +125,39 @@ class Pending:
             and design_key(c) not in self.store.plans
         }
 
-    def estimated_seconds(self) -> float:
-        """About how long the missing work takes in this process (for the executor choice)."""
+    def estimated_seconds(self, scale: float = 1.0) -> float:
+        """About how long the missing work takes in this process (for the executor choice and
+        the announcement): SECONDS_PER_CAMPAIGN's relative costs, times ``scale`` (this
+        machine's, now: :meth:`measure`)."""
         unique = {self.study.cells[i].inputs: (self.study.cells[i], len(r)) for i, r in self.missing.items()}
-        return sum(campaign_seconds(c) * n for c, n in unique.values()) + SECONDS_PER_DESIGN * len(
+        return scale * sum(campaign_seconds(c) * n for c, n in unique.values()) + SECONDS_PER_DESIGN * len(
             self._design_keys()
         )
+
+    def measure(self, probe: int = 1) -> tuple[float, float]:
+        """(scale, seconds): one campaign (``probe``) of the first missing cell that has a plan of
+        its own, on seeds no replicate uses, timed in this process; scale is its time over the
+        constants' figure for it (1, 0 when every missing cell waits for a designed plan)."""
+        study = self.study
+        for i in self.missing:
+            cell = study.cells[i]
+            if cell.plan.startswith("design:"):
+                continue
+            job = CampaignJob(
+                replace(study.portable(cell), mjcf=""),
+                cell.campaign.method,
+                cell.campaign.discover,
+                cell.campaign.discover_without,
+                cell.expected,
+                tuple((-1 - k, study.campaign_seed(2**31 + k)) for k in range(probe)),
+            )
+            without = cell.campaign.discover_without
+            models = {without: discover_model_text(study.mjcf, without)} if cell.campaign.discover else {}
+            t = time.perf_counter()
+            run_campaigns(study.mjcf, models, job)
+            each = (time.perf_counter() - t) / probe
+            return each / campaign_seconds(cell), each
+        return 1.0, 0.0
 
     def tasks(self) -> int:
         return sum(math.ceil(len(r) / per_task(self.study.cells[i])) for i, r in self.missing.items())
