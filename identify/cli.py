@@ -237,6 +237,13 @@ def add_design(sub) -> None:
         "pose: the deflection variance at the scenario's [work] pose (default: %(default)s)",
     )
     p.add_argument(
+        "--job",
+        type=Path,
+        default=None,
+        help="with --criterion pose: the mean squared compensation error over this job's points "
+        "(calbench compensate's JOB.toml; I-optimal) instead of the [work] pose (default: none)",
+    )
+    p.add_argument(
         "--out", type=Path, default=None, help="write the plan as a runnable scenario (default: none)"
     )
     p.add_argument(
@@ -342,6 +349,7 @@ def cmd_design(args) -> int:
         processes=args.processes,
         study=args.study,
         out_dir=args.out_dir,
+        job=args.job,
     )
     shown = _BarAndNotes()
     try:
