@@ -131,6 +131,18 @@ def rigid(work: Path) -> dict:
     }
 
 
+def figures(s: dict) -> dict:
+    """A compensation's summary on the bench in micrometres."""
+    return {
+        "true_before_rms_um": s["true_error_before_rms_m"] * 1e6,
+        "true_after_rms_um": s["true_error_after_rms_m"] * 1e6,
+        "true_after_max_um": s["true_error_after_max_m"] * 1e6,
+        "predicted_rms_um": s["predicted_error_rms_m"] * 1e6,
+        "z_rms": s["z_rms"],
+        "prediction_exceeded": s["prediction_exceeded"],
+    }
+
+
 def rigid_without_spring(work: Path) -> dict:
     """The rigid target on the FANUC without its compensator (bench.model.without_compensator):
     the sag then rests on k1..k6 alone, which the paper plan determines (seed 1)."""
@@ -146,13 +158,7 @@ def rigid_without_spring(work: Path) -> dict:
     js = identified(scn, 1, work)
     out = {}
     for target in ("unloaded", "rigid"):
-        s = run_compensate(CompensationRequest(jb, js, target=target, truth=scn)).summary()
-        out[target] = {
-            "true_before_rms_um": s["true_error_before_rms_m"] * 1e6,
-            "true_after_rms_um": s["true_error_after_rms_m"] * 1e6,
-            "predicted_rms_um": s["predicted_error_rms_m"] * 1e6,
-            "z_rms": s["z_rms"],
-        }
+        out[target] = figures(run_compensate(CompensationRequest(jb, js, target=target, truth=scn)).summary())
     return out
 
 
@@ -181,14 +187,7 @@ def discovery_value(work: Path) -> dict:
             continue
         js = work / f"hidden_{name}.json"
         js.write_text(run_identify(log, model).to_json())
-        s = run_compensate(CompensationRequest(job, js, model=model, truth=scn)).summary()
-        out[name] = {
-            "true_after_rms_um": s["true_error_after_rms_m"] * 1e6,
-            "true_after_max_um": s["true_error_after_max_m"] * 1e6,
-            "predicted_rms_um": s["predicted_error_rms_m"] * 1e6,
-            "z_rms": s["z_rms"],
-            "prediction_exceeded": s["prediction_exceeded"],
-        }
+        out[name] = figures(run_compensate(CompensationRequest(job, js, model=model, truth=scn)).summary())
     return out
 
 

@@ -7,6 +7,7 @@
 # other entry: run_identify, run_montecarlo, run_design, run_study): a public name equal to a room's
 # would be replaced by the room itself once it is imported.
 
+from .compensate import Compensation, CompensationRequest, run_compensate
 from .core import Observations, from_log, load_model
 from .demo import run_demo
 from .design import DesignOutcome, DesignRequest, run_design
@@ -18,6 +19,8 @@ from .shopfloor import import_readings
 from .study import format_summary, load_study, prepare, read_results, run_montecarlo, run_study
 
 __all__ = [
+    "Compensation",
+    "CompensationRequest",
     "DesignOutcome",
     "DesignRequest",
     "Observations",
@@ -32,6 +35,7 @@ __all__ = [
     "one_step",
     "prepare",
     "read_results",
+    "run_compensate",
     "run_demo",
     "run_design",
     "run_discover",

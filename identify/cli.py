@@ -260,6 +260,13 @@ def add_design(sub) -> None:
         "pose: the deflection variance at the scenario's [work] pose (default: %(default)s)",
     )
     p.add_argument(
+        "--job",
+        type=Path,
+        default=None,
+        help="with --criterion pose: the mean squared compensation error over this job's points "
+        "(calbench compensate's JOB.toml; I-optimal) instead of the [work] pose (default: none)",
+    )
+    p.add_argument(
         "--out", type=Path, default=None, help="write the plan as a runnable scenario (default: none)"
     )
     p.add_argument(
@@ -365,6 +372,7 @@ def cmd_design(args) -> int:
         processes=args.processes,
         study=args.study,
         out_dir=args.out_dir,
+        job=args.job,
     )
     shown = _BarAndNotes()
     try:
@@ -561,17 +569,35 @@ def add_compensate(sub) -> None:
         "'Job file'); ID.json: `calbench identify --json`. Exit 1 when a point cannot be reached "
         "(named; its row keeps the nominal command).",
     )
-    p.add_argument("job", type=Path, help="JOB.toml")
+    p.add_argument("job", type=Path, metavar="JOB.toml", help="the job: a path of nominal commands and loads")
     p.add_argument(
-        "--identified", type=Path, required=True, help="the identification (identify --json; required)"
+        "--identified",
+        type=Path,
+        required=True,
+        metavar="ID.json",
+        help="the identification (identify --json; required)",
     )
     p.add_argument(
-        "--out", type=Path, required=True, help="COMMANDS.csv: point,q1,...,qN in degrees (required)"
+        "--out",
+        type=Path,
+        required=True,
+        metavar="COMMANDS.csv",
+        help="COMMANDS.csv: point,q1,...,qN in degrees (required)",
     )
     p.add_argument(
-        "--json", type=Path, default=None, help="per-point predictions (and truth) as JSON (default: none)"
+        "--json",
+        type=Path,
+        default=None,
+        metavar="OUT.json",
+        help="per-point predictions (and truth) as JSON (default: none)",
     )
-    p.add_argument("--model", type=Path, default=None, help="robot MJCF (default: the job's `robot`)")
+    p.add_argument(
+        "--model",
+        type=Path,
+        default=None,
+        metavar="ROBOT.xml",
+        help="robot MJCF (default: the job's `robot`)",
+    )
     p.add_argument(
         "--target",
         choices=("unloaded", "rigid"),
@@ -584,6 +610,7 @@ def add_compensate(sub) -> None:
         "--truth",
         type=Path,
         default=None,
+        metavar="SCENARIO.toml",
         help="on the bench: apply the commands to the true robot of SCENARIO.toml and report the "
         "true error before and after (default: none)",
     )
@@ -591,6 +618,7 @@ def add_compensate(sub) -> None:
         "--rrd",
         type=Path,
         default=None,
+        metavar="PATH.rrd",
         help="write a Rerun recording of the path: targets, the loaded tool uncompensated and compensated "
         "(the truth's with --truth), errors magnified (default: none)",
     )
@@ -598,6 +626,7 @@ def add_compensate(sub) -> None:
         "--magnify",
         type=float,
         default=200.0,
+        metavar="K",
         help="error magnification in the recording (default: %(default)s)",
     )
     p.set_defaults(func=cmd_compensate)

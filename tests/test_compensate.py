@@ -484,3 +484,47 @@ def test_the_truth_of_another_robot_exits_2(ident_json, tmp_path, capsys):
     )
     assert f"{kr}: robot: expected the job's robot" in capsys.readouterr().err
     assert not out.exists()
+
+
+# --------------------------------------------------------------------------- design for the job
+
+
+def test_the_job_criterion_is_the_mean_predicted_compensation_variance(ident_json, tmp_path):
+    """design --criterion pose --job minimises trace(G C G^T) over normalised parameters; with
+    the identification's covariance (normalised by the prior) it must equal the mean over the
+    job's points of predicted_error_std_m^2 that compensate reports at that prior."""
+    from calbench.identify.compensate import job_design_jacobian
+
+    robot = Robot.from_file(MJCF)
+    params0 = fanuc_truth(load_scenario(PAPER))
+    theta0 = robot.layout.theta(params0)
+    g = job_design_jacobian(JOB, robot, params0)
+    doc = json.loads(ident_json.read_text())
+    for p, v in zip(doc["parameters"], theta0):
+        p["estimate"] = float(v)
+    at_prior = tmp_path / "prior.json"
+    at_prior.write_text(json.dumps(doc))
+    cov = np.array(doc["covariance"])
+    criterion = np.trace(g @ (cov / np.outer(theta0, theta0)) @ g.T)
+    res = run_compensate(CompensationRequest(JOB, at_prior))
+    assert math.isclose(criterion, np.mean([p.predicted_error_std_m**2 for p in res.points]), rel_tol=1e-9)
+
+
+@pytest.mark.parametrize(
+    "extra, key",
+    [
+        (["--criterion", "A"], "--job: criterion: expected --criterion pose"),
+        (
+            ["--criterion", "pose", "--job", str(ROOT / "scenarios" / "jobs" / "kr270_milling.toml")],
+            ": robot: expected the scenario's robot",
+        ),
+    ],
+)
+def test_design_for_a_job_refuses_what_does_not_fit(extra, key, tmp_path, capsys):
+    out = tmp_path / "plan.toml"
+    args = ["design", str(PAPER), "--configs", "8", "--out", str(out), *extra]
+    if "--job" not in extra:
+        args += ["--job", str(JOB)]
+    assert main(args) == 2
+    assert key in capsys.readouterr().err
+    assert not out.exists()

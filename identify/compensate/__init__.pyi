@@ -2,6 +2,7 @@
 # time calbench.bench.core.face reads these lines and loads each name on first use.
 
 from .batch import compensate_batch
+from .criterion import job_design_jacobian
 from .fingerprint import robot_sha256
 from .identified import Identified, identified_from_report, read_identified
 from .job import Job, JobPoint, Tool, check_job, load_job, parse_job
@@ -27,6 +28,7 @@ __all__ = [
     "check_job",
     "compensate_batch",
     "identified_from_report",
+    "job_design_jacobian",
     "load_job",
     "parse_job",
     "path_positions",

@@ -14,7 +14,7 @@ from calbench.bench.core import InputError
 from calbench.bench.model import Robot
 from calbench.bench.scenario import Scenario, load_scenario
 
-from .batch import compensate_batch
+from .batch import BATCH_MIN, compensate_batch
 from .identified import Identified, read_identified
 from .job import Job, check_job, load_job
 from .solve import TARGETS, Compensator, PointResult
@@ -25,9 +25,6 @@ from .truth import TruePoint, apply_to_truth
 # about one chi variable of a few degrees of freedom: above 3 by chance with probability < 0.3 %
 # when the model is right. Above it, the true robot has something the identified model lacks.
 Z_EXCEEDED = 3.0
-# From this many points a job is compensated on mujoco.batch (about 3 x faster per point than the
-# scalar loop; the two agree to 1e-8 rad, tests/test_compensate.py)
-BATCH_MIN = 100
 
 
 @dataclass(frozen=True)

@@ -73,6 +73,7 @@ class PointResult:
     position_covariance: np.ndarray  # (3, 3) m^2, of the true tool position after compensation
     orientation_std_rad: float  # sqrt of the trace of the rotation's covariance
     target_position: np.ndarray
+    dpos_dtheta: np.ndarray | None = None  # (3, p): G, the true error after is G (theta - theta_hat)
 
     @property
     def predicted_error_std_m(self) -> float:
@@ -221,6 +222,7 @@ class Compensator:
             0.5 * (cov + cov.T),
             rot_std,
             tgt.position,
+            g_pos,
         )
         return res, eq if reason is None else None
 

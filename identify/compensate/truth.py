@@ -66,7 +66,7 @@ class TruthBench:
         self.target_kind = target
         self.solver = StaticsSolver(self.robot)
 
-    def _load(self, p: JobPoint) -> Load:
+    def load(self, p: JobPoint) -> Load:
         if p.payload is not None:
             return Load.mass(self.robot, p.payload)
         return Load(np.array(p.wrench[:3]), np.array(p.wrench[3:]), self.site)
@@ -84,7 +84,7 @@ class TruthBench:
 
     def point(self, p: JobPoint, res: PointResult) -> TruePoint:
         nan = float("nan")
-        load = self._load(p)
+        load = self.load(p)
         pos_t, rot_t = self.target(np.asarray(p.q))
         pos, rot = self.pose(np.asarray(p.q), load)
         before, obefore = np.linalg.norm(pos - pos_t), np.linalg.norm(rotation_error(rot, rot_t))

@@ -50,7 +50,7 @@ def path_positions(res: Compensation) -> dict[str, np.ndarray]:
     for i, (pt, r) in enumerate(zip(res.job.points, res.points)):
         q = np.asarray(pt.q)
         if bench is not None:
-            load = bench._load(pt)
+            load = bench.load(pt)
             out["target"][i] = bench.target(q)[0]
             out["before"][i] = bench.pose(q, load)[0]
             if r.converged:

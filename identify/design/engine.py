@@ -65,6 +65,9 @@ class InfoEngine:
         self.rot = tracker_rotation(scn.tracker)
         self._js = np.zeros((3, self.robot.model.nv))
         self._jr = np.zeros((3, self.robot.model.nv))
+        # the pose criterion's G for a compensation job (identify/compensate/criterion.py), in
+        # place of the [work] pose's (plan.work_jacobian); set by run_design for --job
+        self.job_jacobian: np.ndarray | None = None
 
     def load_for(self, wrench) -> Load:
         return Load.wrench(self.robot, wrench)

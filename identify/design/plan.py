@@ -64,6 +64,10 @@ class DesignResult:
 
 
 def work_jacobian(engine: InfoEngine, scn: Scenario) -> np.ndarray | None:
+    """G of the pose criterion: the compensation job's (``engine.job_jacobian``, design --job),
+    else the [work] pose's, else None."""
+    if engine.job_jacobian is not None:
+        return engine.job_jacobian
     return None if scn.work is None else engine.work_jacobian(scn.work.q, scn.work.wrench)
 
 

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from calbench.bench.core import InputError, ProgressSink, atomic_path, check_outputs, sink
+from calbench.identify.compensate import job_design_jacobian
 from calbench.identify.runtime import Executor, InProcess
 
 from .candidates import (
@@ -83,6 +84,7 @@ class DesignRequest:
     processes: int | None = None
     study: bool = False
     out_dir: Path = Path("logs/design_study")
+    job: Path | None = None  # --criterion pose over a compensation job's points (I-optimal)
 
 
 @dataclass
@@ -123,6 +125,13 @@ def run_design(
     req = request
     if req.normalise and req.export_candidates is None:
         raise InputError("(command line)", "--normalise", "--export-candidates CANDS.npz with it", None)
+    if req.job is not None and (req.from_candidates is not None or req.study):
+        raise InputError(
+            "(command line)",
+            "--job",
+            "a design generated from SCENARIO (not --from-candidates or --study)",
+            None,
+        )
     if req.from_candidates is not None:
         return _from_candidates(req)
     if req.scenario is None:
@@ -157,13 +166,21 @@ def _generate(
     scn, settings = load_design_scenario(req.scenario)
     check_outputs(
         {"--out": req.out, "--json": req.json, "--export-candidates": req.export_candidates},
-        {"SCENARIO": req.scenario, "robot": scn.robot},
+        {"SCENARIO": req.scenario, "robot": scn.robot, "--job": req.job},
     )
     plan_wanted = req.out is not None or req.json is not None
-    if req.criterion == "pose" and scn.work is None and plan_wanted:
+    if req.job is not None and req.criterion != "pose":
+        raise InputError(
+            "--job", "criterion", "--criterion pose with --job (the job's compensation error)", req.criterion
+        )
+    if req.criterion == "pose" and scn.work is None and req.job is None and plan_wanted:
         raise InputError(
             scn.path, "work", "a [work] table (q in degrees, wrench in N and N*m) for --criterion pose", None
         )
+    job_g = None
+    if req.job is not None and plan_wanted:  # a job that does not fit: before minutes of candidates
+        prior = InfoEngine(scn, settings)
+        job_g = job_design_jacobian(req.job, prior.robot, prior.params0)
     n = settings.candidates if req.candidates is None else req.candidates
     if plan_wanted and req.configs > n:  # before minutes of candidates
         raise InputError(
@@ -206,6 +223,7 @@ def _generate(
         )
     bar.start(1 + 3 * req.configs, "exchange")
     engine = InfoEngine(scn, settings)
+    engine.job_jacobian = job_g
     res = design_plan(
         scn,
         settings,
