@@ -327,3 +327,30 @@ def test_self_check_confirms_the_paper_plan_and_catches_a_wrong_std(logs, capsys
         assert 1 / 1.5 <= p["std_ratio"] <= 1.5 and abs(p["bias_sigma"]) <= 0.5
     bad = self_check(robot, obs, "one-step", r.theta, r.std / 2, obs.dp - r.residual)
     assert set(bad["failed"]) == set(good["parameters"])
+
+
+def test_split_by_ties_keeps_the_loosest_std_or_says_not_determined():
+    """The `ambiguous` rule on three parameters: a and b agree within the loosest std (kept, with
+    that std, never the current model's tighter one); c disagrees beyond every std (not
+    determined, every model's value shown); d is determined under the current model only."""
+    from types import SimpleNamespace
+
+    from calbench.identify.discover import Determination, split_by_ties
+
+    names = ("a", "b", "c", "d")
+
+    def fit(values):
+        return SimpleNamespace(names=names, values=np.array(values, float))
+
+    def det(std):
+        std = np.array(std, float)
+        return Determination(std.copy(), np.isfinite(std), np.ones(4, bool))
+
+    current = det([0.1, 1.0, 0.1, 0.1])
+    alt = [("B", fit([1.05, 2.5, 3.0, 4.0]), det([0.5, 1.0, 0.1, np.nan]))]
+    split = split_by_ties(fit([1.0, 2.0, 1.0, 4.0]), current, alt)
+    assert current.determined.tolist() == [True, True, False, False]
+    assert current.std[0] == pytest.approx(0.5) and current.std[1] == pytest.approx(1.0)
+    assert set(split) == {2, 3}
+    assert split[2] == {"current model": {"estimate": 1.0, "std": 0.1}, "B": {"estimate": 3.0, "std": 0.1}}
+    assert split[3]["B"]["std"] is None

@@ -273,7 +273,7 @@ def discover_observations(obs: Observations, src, *, max_rounds: int = MAX_ROUND
     det = checked(final, obs, white)  # base and effect parameters together
     split = {}
     if tie_fits:  # ambiguous: what the tied candidates disagree on is not determined under either
-        split = split_by_ties(final, det, [(lab, f, determination(f, f.extra["jw"])) for lab, f in tie_fits])
+        split = split_by_ties(final, det, [(lab, f, checked(f, obs, white)) for lab, f in tie_fits])
     for s, (e, _) in zip(
         [s for s in steps if s["effect"] not in (UNEXPLAINED, AMBIGUOUS)], final.effect_params()
     ):
