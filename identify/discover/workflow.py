@@ -346,6 +346,21 @@ def discover_observations(obs: Observations, src, *, max_rounds: int = MAX_ROUND
     return (rep, final, base) if with_base else (rep, final)
 
 
+def base_exposure(src, obs: Observations, std: np.ndarray) -> list[dict]:
+    """The exposure (identify/discover/exposure.py) of the user's model's parameters, fitted as
+    identify fits them (basefit.py), to every library effect that owns no base quantity; std:
+    the parameters' reported std (identify's), NaN where not determined. For `identify --exposure`."""
+    white = Whitener.from_observations(obs)
+    base = base_fit(src, obs, white)
+    lib = library(base.robot)
+    cols = []
+    for e, block in alias_columns(src, obs, white, base, lib):
+        _, fm = build(src, [(e, effect_priors(e)[0])], obs)
+        if not fm._base_overridden(np.concatenate([base.values, effect_priors(e)[0]])).any():
+            cols.append((e, block))
+    return exposure_report(base, base.extra["jw"], np.asarray(std, float), cols, len(lib) or 1)
+
+
 def owns_base(f: Fit) -> bool:
     """Whether the last effect of a candidate fit writes over a base quantity (the compensator
     candidate on a model that has one): it is the base parameters again, not an effect they absorb."""
@@ -475,4 +490,5 @@ __all__ = [
     "UNEXPLAINED",
     "AMBIGUOUS",
     "alias_columns",
+    "base_exposure",
 ]
