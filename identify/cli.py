@@ -87,6 +87,19 @@ def add_identify(sub) -> None:
         help=f"refit without tracker readings off by more than {OUTLIER_SIGMA:g} sigma "
         "(default: list them, keep them)",
     )
+    p.add_argument(
+        "--self-check",
+        action="store_true",
+        help="re-simulate the readings from the estimate with the tracker's noise (30 replicas), "
+        "refit each and flag a parameter whose std or bias the replicas contradict; --check then "
+        "fails on it (default: no self-check)",
+    )
+    p.add_argument(
+        "--exposure",
+        action="store_true",
+        help="for each parameter, the largest bias an effect of discovery's library that this plan "
+        "would not name could cause (one-step; default: not computed)",
+    )
     p.set_defaults(func=cmd_identify)
 
 
@@ -94,7 +107,14 @@ def cmd_identify(args) -> int:
     from calbench.identify.report import Z_CHECK, check_failed, format_table, run_identify
 
     check_outputs({"--json": args.json}, {"LOG": args.log, "--model": args.model})
-    rep = run_identify(args.log, args.model, args.method, args.drop_outliers)
+    rep = run_identify(
+        args.log,
+        args.model,
+        args.method,
+        args.drop_outliers,
+        self_check=args.self_check,
+        exposure=args.exposure,
+    )
     print(format_table(rep))
     if args.json:
         write_text(args.json, rep.to_json())

@@ -17,12 +17,13 @@ from .fit import (
 from .narrative import alias_lines, base_lines, exposure_lines, tie_lines
 from .search import fit_candidate, polish, unabsorbed_norms
 from .stats import ALPHA_FIT
-from .uncertainty import MAX_RELATIVE_STD, determination
+from .uncertainty import MAX_RELATIVE_STD, Determination, determination, split_by_ties
 from .workflow import (
     AMBIGUOUS,
     UNEXPLAINED,
     alias_columns,
     augmented_mjcf,
+    base_exposure,
     base_fit,
     clean,
     discover,
@@ -36,6 +37,7 @@ __all__ = [
     "AMBIGUOUS",
     "AugmentedForward",
     "DISCOVERY_EFFECTS",
+    "Determination",
     "MAX_RELATIVE_STD",
     "MIN_EXPLAINED",
     "UNEXPLAINED",
@@ -46,6 +48,7 @@ __all__ = [
     "tie_lines",
     "aliasing_report",
     "augmented_mjcf",
+    "base_exposure",
     "base_fit",
     "build",
     "clean",
@@ -65,6 +68,7 @@ __all__ = [
     "lr_threshold",
     "near_ties",
     "polish",
+    "split_by_ties",
     "story",
     "unabsorbed_norms",
     "whitened",

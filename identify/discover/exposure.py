@@ -47,9 +47,12 @@ def _decompose(jw: np.ndarray, est: np.ndarray, block: np.ndarray, size: np.ndar
     if not excited.any() or not est.any():
         return None
     jb = jw[:, est]
+    norms = np.linalg.norm(jb, axis=0)
+    norms = np.where(norms > 0, norms, 1.0)  # unit columns: SI columns span 1e12 (compliance, N/m)
     cols = block[:, excited] / full[excited]
-    b = np.linalg.lstsq(jb, cols, rcond=None)[0]
-    perp = cols - jb @ b
+    bn = np.linalg.lstsq(jb / norms, cols, rcond=None)[0]
+    perp = cols - (jb / norms) @ bn
+    b = bn / norms[:, None]
     w, v = np.linalg.eigh(perp.T @ perp)
     return excited, full, b, w, v, w > VISIBLE_SHARE_MIN**2
 

@@ -243,7 +243,7 @@ def exposure_lines(params: list[dict]) -> list[str]:
                 row += f" ({e['sigma']:.2g} std"
                 row += f", {e['percent']:.2g} %)" if e["percent"] is not None else ")"
         if e["unbounded_by"]:
-            row += "; by any amount, never seen: " + ", ".join(e["unbounded_by"])
+            row += "; by any amount, along a direction this plan cannot see: " + ", ".join(e["unbounded_by"])
         out.append(row)
     if out:
         out.insert(

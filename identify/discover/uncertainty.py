@@ -205,7 +205,8 @@ def split_by_ties(f: Fit, det: Determination, alternatives: list[tuple[str, Fit,
     """An `ambiguous` verdict (issue 22): every parameter of ``f`` (the current model) on which
     ``f`` and the tied candidates' fits (label, fit, its determination) disagree by more than the
     largest of their stds, or that one of them does not determine, is made not determined in
-    ``det``. Returns {index: {model label: {"estimate", "std"}}} for those, every value shown."""
+    ``det``; one they agree on keeps the loosest of their stds. Returns {index: {model label:
+    {"estimate", "std"}}} for the undetermined ones, every value shown."""
     out = {}
     for i, name in enumerate(f.names):
         rows = [("current model", float(f.values[i]), det.std[i] if det.determined[i] else np.nan)]
@@ -215,6 +216,9 @@ def split_by_ties(f: Fit, det: Determination, alternatives: list[tuple[str, Fit,
         stds = np.array([r[2] for r in rows], float)
         vals = np.array([r[1] for r in rows])
         if np.all(np.isfinite(stds)) and np.ptp(vals) <= stds.max():
+            # determined under every model and within the loosest std: reported with that std,
+            # never tighter than one of the tied models allows
+            det.std[i] = max(float(stds.max()), float(np.ptp(vals)))
             continue
         det.determined[i] = False
         det.std[i] = np.nan

@@ -274,7 +274,7 @@ def discover_observations(obs: Observations, src, *, max_rounds: int = MAX_ROUND
     det = checked(final, obs, white)  # base and effect parameters together
     split = {}
     if tie_fits:  # ambiguous: what the tied candidates disagree on is not determined under either
-        split = split_by_ties(final, det, [(lab, f, determination(f, f.extra["jw"])) for lab, f in tie_fits])
+        split = split_by_ties(final, det, [(lab, f, checked(f, obs, white)) for lab, f in tie_fits])
     for s, (e, _) in zip(
         [s for s in steps if s["effect"] not in (UNEXPLAINED, AMBIGUOUS)], final.effect_params()
     ):
@@ -345,6 +345,21 @@ def discover_observations(obs: Observations, src, *, max_rounds: int = MAX_ROUND
         "seconds": time.perf_counter() - t0,
     }
     return (rep, final, base) if with_base else (rep, final)
+
+
+def base_exposure(src, obs: Observations, std: np.ndarray) -> list[dict]:
+    """The exposure (identify/discover/exposure.py) of the user's model's parameters, fitted as
+    identify fits them (basefit.py), to every library effect that owns no base quantity; std:
+    the parameters' reported std (identify's), NaN where not determined. For `identify --exposure`."""
+    white = Whitener.from_observations(obs)
+    base = base_fit(src, obs, white)
+    lib = library(base.robot)
+    cols = []
+    for e, block in alias_columns(src, obs, white, base, lib):
+        _, fm = build(src, [(e, effect_priors(e)[0])], obs)
+        if not fm._base_overridden(np.concatenate([base.values, effect_priors(e)[0]])).any():
+            cols.append((e, block))
+    return exposure_report(base, base.extra["jw"], np.asarray(std, float), cols, len(lib) or 1)
 
 
 def owns_base(f: Fit) -> bool:
@@ -476,4 +491,5 @@ __all__ = [
     "UNEXPLAINED",
     "AMBIGUOUS",
     "alias_columns",
+    "base_exposure",
 ]

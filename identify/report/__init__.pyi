@@ -11,6 +11,7 @@ from .identification import (
     run_identify,
     truth_vector,
 )
+from .selfcheck import self_check
 
 __all__ = [
     "html_report",
@@ -23,6 +24,7 @@ __all__ = [
     "format_table",
     "identify",
     "run_identify",
+    "self_check",
     "truth_vector",
     "write_report",
 ]

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -38,6 +39,9 @@ from calbench.identify.core import (
     outliers,
 )
 from calbench.identify.methods import IdentifyOptions, MethodResult, check_method, method_named, method_names
+
+from .selfcheck import self_check as bootstrap
+from .selfcheck import self_check_lines
 
 Z_CHECK = 4.0
 
@@ -234,19 +238,52 @@ def format_table(rep: IdentificationReport) -> str:
         )
     if rep.details.get("converged") is False:
         lines.append("  WARNING: the estimator did not converge")
+    lines += self_check_lines(rep.details.get("self_check"))
+    for e in rep.details.get("exposure", []):
+        label, f = DISPLAY[e["unit"]]
+        line = f"  exposure: {e['parameter']}: "
+        if e["effect"] and e["bias"] > 0:
+            line += (
+                f"an undetected {e['effect']} could move it by up to {e['bias'] * f:.3g} {label} "
+                f"({e['sigma']:.2g} std, {e['percent']:.2g} %)"
+            )
+        if e["unbounded_by"]:
+            line += (
+                ("; " if e["bias"] > 0 else "")
+                + "by any amount, along a direction this plan cannot see: "
+                + ", ".join(e["unbounded_by"])
+            )
+        lines.append(line)
     return "\n".join(lines)
 
 
 def run_identify(
-    log_path, model=None, method: str = "one-step", drop_outliers: bool = False, check_profile: bool = True
+    log_path,
+    model=None,
+    method: str = "one-step",
+    drop_outliers: bool = False,
+    check_profile: bool = True,
+    self_check: bool = False,
+    exposure: bool = False,
 ) -> IdentificationReport:
-    """Everything `calbench identify` does except printing; returns the report."""
+    """Everything `calbench identify` does except printing; returns the report. ``self_check``:
+    the parametric bootstrap at the estimate too (identify/report/selfcheck.py); ``exposure``:
+    each parameter's exposure to the discovery library's effects (the one-step only)."""
     t0 = time.perf_counter()
     log = read_log(log_path)  # no truth: nothing below can see it
     obs = from_log(log)
     robot = load_model(log, model)
     check_sites(robot, obs, model or log.path)
     res = identify(robot, obs, method, drop_outliers, check_profile)
+    if self_check:
+        r = res.result
+        r.details["self_check"] = bootstrap(robot, res.obs, method, r.theta, r.std, res.obs.dp - r.residual)
+    if exposure:
+        from calbench.identify.discover import base_exposure
+
+        src = Path(model) if model is not None else log.mjcf_text
+        r = res.result
+        r.details["exposure"] = [e for e in base_exposure(src, res.obs, r.std) if e["sigma"] is not None]
     seconds = time.perf_counter() - t0
     truth = truth_vector(read_log(log_path, include_truth=True).truth, robot)  # for the report only
     model_name = str(model) if model is not None else f"{log.header.get('robot', 'MJCF')} (from the log)"
@@ -263,6 +300,9 @@ def check_failed(rep: IdentificationReport, z_max: float = Z_CHECK) -> list[str]
     bad = []
     if rep.details.get("converged") is False:
         bad.append("the estimator did not converge")
+    sc = rep.details.get("self_check")
+    if sc and not sc["passed"]:
+        bad.append("the self-check flags " + ", ".join(sc["failed"]))
     for p in rep.parameters:
         if p.estimate is None:
             continue
