@@ -2,7 +2,7 @@
 # calbench.bench.core.face reads these lines and loads each name on first use.
 
 from .logcsv import ImportSummary, Readings, campaign_readings, export_rows, write_imported_log
-from .probe import ProbeSeries, euler_xyz, read_probe_series, read_transform
+from .probe import ProbeSeries, campaign_files, euler_xyz, read_probe_series, read_transform
 from .readings import ReadingsTable, group, read_readings, readings_csv
 
 __all__ = [
@@ -10,6 +10,7 @@ __all__ = [
     "ProbeSeries",
     "Readings",
     "ReadingsTable",
+    "campaign_files",
     "campaign_readings",
     "euler_xyz",
     "export_rows",

@@ -1,0 +1,100 @@
+"""`calbench identify LOG --geometry [--validate HELDOUT.mcap] [--out-model CALIBRATED.xml]`
+(docs/contract.md) end to end: a probe series on a UR10 with hidden geometry and joint compliance,
+converted to a plan and readings (bench/shopfloor/probe.py), imported as a real campaign is, then
+identified; the held-out readings are predicted to the tracker's noise."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calbench.bench.shopfloor import ProbeSeries, campaign_files, euler_xyz
+from calbench.identify.cli import main
+from calbench.identify.geometry import (
+    MODELS,
+    GeometricModel,
+    base_set,
+    chain_from_mjcf,
+    kind,
+    rot,
+    translation,
+    ur10,
+    write_chain_mjcf,
+)
+
+SIGMA = 20e-6  # m per axis
+TOOL = np.array([0.0, 0.0, 0.109])
+
+
+def series(q, y) -> ProbeSeries:
+    n = len(q)
+    return ProbeSeries(
+        Path("synthetic.csv"), ur10().joints, np.arange(2, n + 2), q, y, euler_xyz(np.zeros((n, 3))),
+        np.full((n, 3), SIGMA), np.zeros((n, 3)), np.full(n, 21.0), np.full((n, 6), np.nan),
+    )  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory):
+    d = tmp_path_factory.mktemp("geometry_cli")
+    chain = ur10()
+    write_chain_mjcf(d / "ur10.xml", chain, TOOL, name="ur10")
+    model = GeometricModel(chain, translation([0.4, -3.2, 0.2]) @ rot(2, 1.2), TOOL)
+    rng = np.random.default_rng(11)
+    q = rng.uniform(-np.pi, np.pi, (260, 6))
+    _, jac = model.jacobian(q, np.zeros(model.size))
+    truth = np.zeros(model.size)
+    for i in base_set(jac, model.names, MODELS["geometry+compliance"]):
+        comp = kind(model.names[i]) == "joint_compliance"
+        truth[i] = rng.uniform(3e-6, 3e-5) if comp else rng.choice([-1, 1]) * rng.uniform(1e-3, 3e-3)
+    y = model.predict(q, truth) + rng.normal(0, SIGMA, (len(q), 3))
+    s = series(q, y)
+    for name, rows in (("fit", np.arange(200)), ("held", np.arange(200, 260))):
+        plan, readings = campaign_files(s, rows, "ur10.xml", sigma=SIGMA)
+        (d / f"{name}.toml").write_text(plan)
+        (d / f"{name}.csv").write_text(readings)
+        args = [
+            "import",
+            str(d / f"{name}.csv"),
+            "--plan",
+            str(d / f"{name}.toml"),
+            "--out",
+            str(d / f"{name}.mcap"),
+        ]
+        assert main(args) == 0
+    return d
+
+
+def test_identify_geometry_predicts_held_out_readings_to_the_noise(campaign, capsys):
+    d = campaign
+    out = ["--json", str(d / "geo.json"), "--out-model", str(d / "cal.xml")]
+    assert (
+        main(["identify", str(d / "fit.mcap"), "--geometry", "--validate", str(d / "held.mcap"), *out]) == 0
+    )
+    rep = json.loads((d / "geo.json").read_text())
+    assert rep["point"] == "probe" and rep["n"] == 200
+    v = rep["validation"]
+    assert v["n"] == 60
+    # the 3-D RMS of pure noise is sigma sqrt(3); 60 points: its estimate varies by ~1/sqrt(360)
+    assert v["position_rms"] < 1.3 * SIGMA * np.sqrt(3)
+    # geometry alone leaves the compliance's sag (0.3-3 mrad of joint deflection): mm, not um
+    assert v["by_model"]["geometry"]["position_rms"] > 5 * v["position_rms"]
+    assert "held-out RMS" in capsys.readouterr().out
+    # the calibrated MJCF is a serial calbench arm again
+    assert chain_from_mjcf(d / "cal.xml").joints == ur10().joints
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--validate", "held.mcap"], "--geometry beside it"),
+        (["--geometry", "--check"], "no --method, --check"),
+        (["--geometry", "--out-model", "fit.mcap"], "fit.mcap"),
+    ],
+)
+def test_bad_geometry_flags_are_bad_input(campaign, capsys, extra, message):
+    d = campaign
+    extra = [str(d / e) if e.endswith(".mcap") else e for e in extra]
+    assert main(["identify", str(d / "fit.mcap"), *extra]) == 2
+    assert message in capsys.readouterr().err
