@@ -98,3 +98,20 @@ def test_bad_geometry_flags_are_bad_input(campaign, capsys, extra, message):
     extra = [str(d / e) if e.endswith(".mcap") else e for e in extra]
     assert main(["identify", str(d / "fit.mcap"), *extra]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_geometry_reads_logs_without_their_truth(campaign, monkeypatch):
+    """Truth never leaks: every log identify --geometry opens is read with include_truth=False."""
+    import calbench.bench.log as log_face
+
+    calls = []
+    real = log_face.read_log
+
+    def spy(path, *args, **kwargs):
+        calls.append(kwargs.get("include_truth", True if not args else args[0]))
+        return real(path, *args, **kwargs)
+
+    monkeypatch.setattr("calbench.identify.geometry.run.read_log", spy)
+    d = campaign
+    assert main(["identify", str(d / "fit.mcap"), "--geometry", "--validate", str(d / "held.mcap")]) == 0
+    assert calls == [False, False]
