@@ -115,3 +115,31 @@ def test_geometry_reads_logs_without_their_truth(campaign, monkeypatch):
     d = campaign
     assert main(["identify", str(d / "fit.mcap"), "--geometry", "--validate", str(d / "held.mcap")]) == 0
     assert calls == [False, False]
+
+
+def test_compliances_under_self_weight_match_calbenchs_own_statics(tmp_path):
+    """A second solver: calbench's MuJoCo equilibrium (bench/statics) sags a UR10 of known joint
+    compliances under its own weight; identify --geometry, with its linear model c_k tau_k at the
+    commanded pose (identify/geometry/model.py), must find those compliances within 4 sigma and
+    leave only the tracker's noise."""
+    write_chain_mjcf(tmp_path / "ur10.xml", ur10(), TOOL, name="ur10")
+    k = [1e-6, 1.5e-5, 1e-5, 2e-5, 2e-5, 2e-5]  # rad/(N*m)
+    lines = ['robot = "ur10.xml"', "seed = 1", "[truth]", f"compliance = {k}", "[tracker]"]
+    lines += [f"sigma = {SIGMA}", "position = [3.0, 1.0, 0.5]", "[load]", "mass = 2.0"]
+    for q in np.random.default_rng(0).uniform(-170, 170, (120, 6)):
+        lines += ["[[pose]]", "q = [" + ", ".join(f"{v:.3f}" for v in q) + "]"]
+    (tmp_path / "sag.toml").write_text("\n".join(lines) + "\n")
+    assert main(["simulate", str(tmp_path / "sag.toml"), "--out", str(tmp_path / "sag.mcap")]) == 0
+    assert (
+        main(["identify", str(tmp_path / "sag.mcap"), "--geometry", "--json", str(tmp_path / "g.json")]) == 0
+    )
+    rep = json.loads((tmp_path / "g.json").read_text())
+    found = {p["name"].split(".")[0]: p for p in rep["parameters"] if p["effect"] == "joint_compliance"}
+    assert set(found) == {"shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint"}
+    for j, p in found.items():
+        truth = k[list(ur10().joints).index(j)]
+        assert abs(p["value"] - truth) < 4 * p["std"], (j, p, truth)
+    assert found["shoulder_lift_joint"]["std"] < 0.01 * k[1]  # the shoulder's is well determined
+    assert rep["models"]["geometry+compliance"]["fit_rms"] < 1.2 * SIGMA * np.sqrt(3)
+    # without the compliance the sag is left: the nominal geometry cannot absorb it
+    assert rep["models"]["geometry"]["fit_rms"] > 10 * SIGMA

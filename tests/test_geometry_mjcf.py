@@ -86,3 +86,8 @@ def test_a_calibrated_model_as_mjcf_predicts_what_the_fit_does(tmp_path):
     pos, _ = mujoco_probe(path, Q)
     np.testing.assert_allclose(pos @ base[:3, :3].T + base[:3, 3], fit.predict(Q), atol=1e-9)
     np.testing.assert_allclose(fit.predict(Q), y, atol=1e-8)  # noise-free readings: fitted exactly
+
+
+def test_a_robot_with_a_compensator_spring_is_refused():
+    with pytest.raises(InputError, match="compensator springs"):
+        chain_from_mjcf(MJCF.with_name("kr270.xml"))  # its balancer is a tendon

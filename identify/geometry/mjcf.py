@@ -149,6 +149,15 @@ def load_arm(path: str | Path | None = None, xml: str | None = None, where: str 
         raise InputError(where, "MJCF", "a model MuJoCo compiles", str(e).splitlines()[0]) from None
     if model.neq:
         raise InputError(where, "equality", "a serial arm (geometry fits no kinematic loop yet)", model.neq)
+    if model.ntendon:
+        # a compensator's torque is a second gravity-like term the model does not carry yet:
+        # fitting without it would hide the spring in the compliances and the geometry
+        raise InputError(
+            where,
+            "tendon",
+            "an arm without compensator springs (geometry does not model them yet)",
+            model.ntendon,
+        )
     names = _text(model, "calbench:actuated").split()
     if not names:
         raise InputError(where, "calbench:actuated", "the actuated joints", None)
