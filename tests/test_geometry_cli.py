@@ -117,14 +117,18 @@ def test_geometry_reads_logs_without_their_truth(campaign, monkeypatch):
     assert calls == [False, False]
 
 
-def test_compliances_under_self_weight_match_calbenchs_own_statics(tmp_path):
+def test_hidden_geometry_and_compliances_match_calbenchs_own_statics(tmp_path):
     """A second solver: calbench's MuJoCo equilibrium (bench/statics) sags a UR10 of known joint
-    compliances under its own weight; identify --geometry, with its linear model c_k tau_k at the
-    commanded pose (identify/geometry/model.py), must find those compliances within 4 sigma and
-    leave only the tracker's noise."""
+    compliances under its own weight, with joint offsets and a probe off its drawing hidden in the
+    truth ([truth.effects.joint_offset], [truth.effects.tool_frame]: MjSpec edits,
+    bench/model/effects.py). identify --geometry, with its linear model c_k tau_k at the commanded
+    pose (identify/geometry/model.py), must find them within 4 sigma and leave only the noise."""
     write_chain_mjcf(tmp_path / "ur10.xml", ur10(), TOOL, name="ur10")
     k = [1e-6, 1.5e-5, 1e-5, 2e-5, 2e-5, 2e-5]  # rad/(N*m)
-    lines = ['robot = "ur10.xml"', "seed = 1", "[truth]", f"compliance = {k}", "[tracker]"]
+    offsets = [0.0, 0.0015, -0.002, 0.0012, -0.0018, 0.0]  # rad: 1-3 mm at the probe
+    lines = ['robot = "ur10.xml"', "seed = 1", "[truth]", f"compliance = {k}"]
+    lines += ["[truth.effects.joint_offset]", f"offset = {offsets}"]
+    lines += ["[truth.effects.tool_frame]", "offset = [0.0, 0.0, 0.002]", "[tracker]"]
     lines += [f"sigma = {SIGMA}", "position = [3.0, 1.0, 0.5]", "[load]", "mass = 2.0"]
     for q in np.random.default_rng(0).uniform(-170, 170, (120, 6)):
         lines += ["[[pose]]", "q = [" + ", ".join(f"{v:.3f}" for v in q) + "]"]
@@ -136,10 +140,30 @@ def test_compliances_under_self_weight_match_calbenchs_own_statics(tmp_path):
     rep = json.loads((tmp_path / "g.json").read_text())
     found = {p["name"].split(".")[0]: p for p in rep["parameters"] if p["effect"] == "joint_compliance"}
     assert set(found) == {"shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint"}
+    joints = list(ur10().joints)
     for j, p in found.items():
-        truth = k[list(ur10().joints).index(j)]
+        truth = k[joints.index(j)]
         assert abs(p["value"] - truth) < 4 * p["std"], (j, p, truth)
+    # the offsets the base set holds (the first joint's is the base's turn, the last one's turns
+    # a probe on its axis) and the probe's displacement along the flange axis
+    fitted = {p["name"]: p for p in rep["parameters"]}
+    for j in joints[1:5]:
+        p = fitted[f"{j}.offset"]
+        assert abs(p["value"] - offsets[joints.index(j)]) < 4 * p["std"], (j, p)
+    assert abs(fitted["tool.z"]["value"] - 0.002) < 4 * fitted["tool.z"]["std"]
     assert found["shoulder_lift_joint"]["std"] < 0.01 * k[1]  # the shoulder's is well determined
     assert rep["models"]["geometry+compliance"]["fit_rms"] < 1.2 * SIGMA * np.sqrt(3)
-    # without the compliance the sag is left: the nominal geometry cannot absorb it
+    # without the compliance the sag is left: the geometry cannot absorb it
     assert rep["models"]["geometry"]["fit_rms"] > 10 * SIGMA
+
+
+def test_a_hidden_offset_beyond_a_geometric_error_is_bad_input(tmp_path, capsys):
+    write_chain_mjcf(tmp_path / "ur10.xml", ur10(), TOOL, name="ur10")
+    lines = ['robot = "ur10.xml"', "seed = 1", "[truth]", "compliance = [1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6]"]
+    lines += ["[truth.effects.joint_offset]", "offset = [0, 5, 0, 0, 0, 0]", "[tracker]", "sigma = 2e-5"]
+    lines += ["position = [3.0, 1.0, 0.5]", "[load]", "mass = 2.0", "[[pose]]", "q = [0, 0, 0, 0, 0, 0]"]
+    (tmp_path / "bad.toml").write_text("\n".join(lines) + "\n")
+    assert main(["simulate", str(tmp_path / "bad.toml"), "--out", str(tmp_path / "bad.mcap")]) == 2
+    err = capsys.readouterr().err
+    assert "truth.effects.joint_offset.offset" in err and "within +-0.1 rad" in err
+    assert not (tmp_path / "bad.mcap").exists()

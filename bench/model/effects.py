@@ -780,6 +780,88 @@ def tracker_drift() -> Effect:
     return Effect("tracker_drift", ("bx", "by", "bz"), {}, ("m", "m", "m"), _no_edit, _no_edit, measure)
 
 
+# --------------------------------------------------------------------------- geometry
+# A real robot's first error (docs/geometry.md): truth-only effects that a bench truth hides and
+# identify --geometry recovers. Each edits body or site frames of the spec; set_params writes the
+# same frames into a compiled model from the nominal ones apply saw.
+
+
+def _offset_truth(t: dict) -> tuple[dict, np.ndarray]:
+    offsets = np.asarray(t["offset"], dtype=float)
+    return {"joints": len(offsets)}, offsets
+
+
+def _offset_frame(pos, quat, jpos, axis, angle) -> tuple[np.ndarray, np.ndarray]:
+    """A body frame turned by ``angle`` about its hinge (axis and point in the body frame)."""
+    axis = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
+    turn, new_quat = np.zeros(4), np.zeros(4)
+    mujoco.mju_axisAngle2Quat(turn, axis, float(angle))
+    mujoco.mju_mulQuat(new_quat, np.asarray(quat, dtype=float), turn)
+    rot, moved = np.zeros(9), np.zeros(3)
+    mujoco.mju_quat2Mat(rot, turn)
+    mujoco.mju_rotVecQuat(
+        moved, np.asarray(jpos, dtype=float) - rot.reshape(3, 3) @ jpos, np.asarray(quat, dtype=float)
+    )
+    return np.asarray(pos, dtype=float) + moved, new_quat / np.linalg.norm(new_quat)
+
+
+@register("joint_offset", from_truth=_offset_truth)
+def joint_offset(joints: int = 6) -> Effect:
+    """A zero offset o_k on every actuated joint (calbench:actuated order): the link turns by
+    q_k + o_k when commanded q_k. The body that carries the hinge is turned by o_k about the
+    hinge's axis and point, which is the same as the hinge reading o_k less (the rotations about one
+    axis commute). Parameters o1..oN in rad."""
+    nominal: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+
+    def apply(spec, p, o):
+        names = spec_names(spec, "actuated")
+        if len(names) != joints:
+            raise ValueError(f"joint_offset: {joints} offsets for {len(names)} actuated joints")
+        for name, angle in zip(names, p, strict=True):
+            j = spec.joint(name)
+            body = j.parent
+            nominal[name] = (np.array(body.pos, dtype=float), np.array(body.quat, dtype=float))
+            body.pos, body.quat = _offset_frame(body.pos, body.quat, j.pos, j.axis, angle)
+
+    def set_(robot, p, o):
+        for k, angle in enumerate(p):
+            jid = robot.act_joint[k]
+            name = mujoco.mj_id2name(robot.model, mujoco.mjtObj.mjOBJ_JOINT, jid)
+            if name not in nominal:
+                raise ValueError("joint_offset: set_params needs the model its apply built")
+            b = robot.model.jnt_bodyid[jid]
+            pos0, quat0 = nominal[name]
+            jpos, axis = robot.model.jnt_pos[jid], robot.model.jnt_axis[jid]
+            robot.model.body_pos[b], robot.model.body_quat[b] = _offset_frame(pos0, quat0, jpos, axis, angle)
+
+    names = tuple(f"o{k + 1}" for k in range(joints))
+    return Effect("joint_offset", names, {"joints": joints}, ("rad",) * joints, apply, set_)
+
+
+def _tool_frame_truth(t: dict) -> tuple[dict, np.ndarray]:
+    return {}, np.asarray(t["offset"], dtype=float)
+
+
+@register("tool_frame", from_truth=_tool_frame_truth)
+def tool_frame() -> Effect:
+    """The reflectors (calbench:reflectors) mounted off their nominal places by one common vector
+    (dx, dy, dz) in m, in each site's body frame: a probe or reflector plate not where the
+    drawing puts it."""
+    nominal: dict[str, np.ndarray] = {}
+
+    def apply(spec, p, o):
+        for name in spec_names(spec, "reflectors"):
+            site = spec.site(name)
+            nominal[name] = np.array(site.pos, dtype=float)
+            site.pos = nominal[name] + p
+
+    def set_(robot, p, o):
+        for name, pos0 in nominal.items():
+            robot.model.site_pos[mujoco.mj_name2id(robot.model, mujoco.mjtObj.mjOBJ_SITE, name)] = pos0 + p
+
+    return Effect("tool_frame", ("dx", "dy", "dz"), {}, ("m", "m", "m"), apply, set_)
+
+
 __all__ = [
     "Effect",
     "EffectRobot",
@@ -801,5 +883,7 @@ __all__ = [
     "joint_nonlinearity",
     "compensator",
     "tool_compliance",
+    "joint_offset",
+    "tool_frame",
     "RIGID_COMPLIANCE",
 ]

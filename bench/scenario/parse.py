@@ -97,13 +97,36 @@ DESIGN_KEYS = (
     "lateral_force",
     "lateral_fraction",
 )
-EFFECT_KEYS = ("link_compliance", "base_compliance", "joint_nonlinearity", "tool_compliance", "tracker_drift")
+EFFECT_KEYS = (
+    "link_compliance",
+    "base_compliance",
+    "joint_nonlinearity",
+    "tool_compliance",
+    "tracker_drift",
+    "joint_offset",
+    "tool_frame",
+)
+MAX_OFFSET = 0.1  # rad (5.7 deg) and m: a geometric error, not a different robot (docs/geometry.md)
 
 
-def _effects(c: Table) -> dict[str, dict]:
+def _effects(c: Table, n_joints: int) -> dict[str, dict]:
     """Validate the optional hidden effects present only in the simulated truth."""
     c.only(EFFECT_KEYS)
     out: dict[str, dict] = {}
+    if c.has("joint_offset"):  # geometry (truth only): one zero offset per actuated joint, rad
+        e = c.sub("joint_offset")
+        e.only(("offset",))
+        offset = e.vector("offset", n_joints)
+        if np.any(np.abs(offset) > MAX_OFFSET):
+            raise InputError(e.file, e.key("offset"), f"offsets within +-{MAX_OFFSET} rad", offset.tolist())
+        out["joint_offset"] = {"offset": frozen_array(offset)}
+    if c.has("tool_frame"):  # geometry (truth only): the reflectors moved by one vector, m
+        e = c.sub("tool_frame")
+        e.only(("offset",))
+        offset = e.vector("offset", 3)
+        if np.any(np.abs(offset) > MAX_OFFSET):
+            raise InputError(e.file, e.key("offset"), f"an offset within +-{MAX_OFFSET} m", offset.tolist())
+        out["tool_frame"] = {"offset": frozen_array(offset)}
     if c.has("link_compliance"):
         e = c.sub("link_compliance")
         e.only(("link", "compliance"))
@@ -230,7 +253,7 @@ def _truth(top: Table) -> tuple[np.ndarray, dict[str, Spring], dict[str, dict]]:
     truth.only(("compliance", "compensator", "compensators", "effects"))
     compliance = frozen_array(truth.vector("compliance", _joint_count(top.table, truth.table), positive=True))
     compensators = _compensators(truth)
-    effects = _effects(truth.sub("effects")) if truth.has("effects") else {}
+    effects = _effects(truth.sub("effects"), len(compliance)) if truth.has("effects") else {}
     return compliance, compensators, effects
 
 
