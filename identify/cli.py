@@ -100,12 +100,40 @@ def add_identify(sub) -> None:
         help="for each parameter, the largest bias an effect of discovery's library that this plan "
         "would not name could cause (one-step; default: not computed)",
     )
+    p.add_argument(
+        "--geometry",
+        action="store_true",
+        help="the complete model from absolute (unloaded) readings of one flange point: joint offsets, "
+        "link frames, base and probe frames and joint compliance under self-weight, serial arms "
+        "(docs/geometry.md; default: the elastostatic model from deflections)",
+    )
+    p.add_argument(
+        "--validate",
+        type=Path,
+        default=None,
+        metavar="HELDOUT.mcap",
+        help="with --geometry: predict this log's readings (same robot and tracker station); default: none",
+    )
+    p.add_argument(
+        "--out-model",
+        type=Path,
+        default=None,
+        metavar="CALIBRATED.xml",
+        help="with --geometry: write the calibrated robot as a calbench MJCF (default: none)",
+    )
     p.set_defaults(func=cmd_identify)
 
 
 def cmd_identify(args) -> int:
     from calbench.identify.report import Z_CHECK, check_failed, format_table, run_identify
 
+    if args.geometry:
+        return cmd_identify_geometry(args)
+    for flag, value in (("--validate", args.validate), ("--out-model", args.out_model)):
+        if value is not None:
+            raise InputError(
+                flag, flag, "--geometry beside it (it belongs to the complete model)", str(value)
+            )
     check_outputs({"--json": args.json}, {"LOG": args.log, "--model": args.model})
     rep = run_identify(
         args.log,
@@ -133,6 +161,25 @@ def cmd_identify(args) -> int:
             f"check passed: the fit converged, and every identified parameter is within "
             f"{Z_CHECK:g} standard deviations of the truth"
         )
+    return 0
+
+
+def cmd_identify_geometry(args) -> int:
+    """`identify --geometry`: identify/geometry/run.py; --check and --method belong to the other."""
+    from calbench.identify.geometry import format_geometry, geometry_json, run_geometry
+
+    if args.method != "one-step" or args.drop_outliers or args.check:
+        raise InputError(
+            "--geometry", "--geometry", "no --method, --check or --drop-outliers beside it", None
+        )
+    check_outputs(
+        {"--json": args.json, "--out-model": args.out_model},
+        {"LOG": args.log, "--model": args.model, "--validate": args.validate},
+    )
+    rep = run_geometry(args.log, args.model, args.validate, args.out_model)
+    print(format_geometry(rep))
+    if args.json:
+        write_text(args.json, geometry_json(rep))
     return 0
 
 

@@ -86,3 +86,42 @@ def test_a_calibrated_model_as_mjcf_predicts_what_the_fit_does(tmp_path):
     pos, _ = mujoco_probe(path, Q)
     np.testing.assert_allclose(pos @ base[:3, :3].T + base[:3, 3], fit.predict(Q), atol=1e-9)
     np.testing.assert_allclose(fit.predict(Q), y, atol=1e-8)  # noise-free readings: fitted exactly
+
+
+def test_a_robot_with_a_compensator_spring_is_refused():
+    with pytest.raises(InputError, match="compensator springs"):
+        chain_from_mjcf(MJCF.with_name("kr270.xml"))  # its balancer is a tendon
+
+
+def test_geometric_truth_effects_edit_the_spec_and_the_model_alike(ur10_xml):
+    """joint_offset and tool_frame (bench/model/effects.py): set_params on a compiled model gives
+    the model apply builds, and an offset o on joint k is the same probe as the command q_k + o."""
+    from calbench.bench.model.effects import apply_effects, effect_from_truth
+
+    offsets = np.array([0.01, -0.02, 0.015, 0.0, -0.01, 0.005])
+    q = Q[:5]
+    for name, table, p2 in (
+        ("joint_offset", {"offset": offsets}, -0.5 * offsets),
+        ("tool_frame", {"offset": [0.001, -0.002, 0.003]}, np.array([-0.002, 0.0, 0.001])),
+    ):
+        effect, p1 = effect_from_truth(name, table)
+        fast = apply_effects(ur10_xml, [(effect, p1)])
+        effect.set_params(fast, p2)
+        built = apply_effects(ur10_xml, [(effect_from_truth(name, table)[0], p2)])
+        np.testing.assert_allclose(
+            mujoco_probe_model(fast.model, q), mujoco_probe_model(built.model, q), atol=1e-12
+        )
+    effect, p1 = effect_from_truth("joint_offset", {"offset": offsets})
+    turned = mujoco_probe_model(apply_effects(ur10_xml, [(effect, p1)]).model, q)
+    np.testing.assert_allclose(turned, CHAIN.flange_point(q + offsets, TOOL), atol=1e-12)
+
+
+def mujoco_probe_model(model, q):
+    data = mujoco.MjData(model)
+    site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "probe")
+    out = []
+    for row in q:
+        data.qpos[:] = row
+        mujoco.mj_kinematics(model, data)
+        out.append(data.site_xpos[site].copy())
+    return np.asarray(out)

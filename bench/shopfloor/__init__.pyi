@@ -3,7 +3,7 @@
 
 from .formats import FORMATS, ReadingsFormat, ReadingsTable
 from .logcsv import ImportSummary, Readings, campaign_readings, export_rows, write_imported_log
-from .probe import ProbeSeries, euler_xyz, read_probe_series, read_transform
+from .probe import ProbeSeries, campaign_files, euler_xyz, read_probe_series, read_transform
 from .readings import group, read_readings, readings_csv
 
 __all__ = [
@@ -13,6 +13,7 @@ __all__ = [
     "Readings",
     "ReadingsFormat",
     "ReadingsTable",
+    "campaign_files",
     "campaign_readings",
     "euler_xyz",
     "export_rows",

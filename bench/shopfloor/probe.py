@@ -232,3 +232,34 @@ def _matrix_number(path: Path, text: str) -> float:
         return float(text)
     except ValueError:
         raise InputError(path, "matrix", "16 numbers (a 4x4 transform)", text) from None
+
+
+def campaign_files(
+    series: ProbeSeries, rows: np.ndarray, robot: str, point: str = "probe", sigma: float = 20e-6
+) -> tuple[str, str]:
+    """A plan (TOML) and readings (CSV, mm) of the given rows for ``calbench import``.
+
+    The plan's poses are the rows' joint angles (degrees, 9 digits: 1e-9 deg, far below any
+    encoder); each row is one ``unloaded`` reading of ``point`` (the probe's site in ``robot``,
+    the MJCF path as the plan should name it, relative to the plan). A plan needs a ``[load]``;
+    with no loaded reading its mass is never used. The readings' ``sigma`` column is each row's
+    largest per-axis std, where the series has them; ``sigma`` is the plan's tracker noise."""
+    plan = [
+        f'robot = "{robot}"',
+        f'name = "{series.path.stem}"',
+        "[tracker]",
+        f"sigma = {sigma:.6g}",
+        "[load]",
+        "mass = 1.0  # required by a plan; no loaded readings, never used",
+    ]
+    for q in series.q[rows]:
+        plan += ["[[pose]]", "q = [" + ", ".join(f"{v:.9f}" for v in np.degrees(q)) + "]"]
+    has_std = series.position_std is not None
+    out = ["pose,state,point,x,y,z" + (",sigma" if has_std else "")]
+    for k, i in enumerate(rows):
+        x, y, z = series.position[i] / MM
+        line = f"{k},unloaded,{point},{x:.6f},{y:.6f},{z:.6f}"
+        if has_std:
+            line += f",{max(series.position_std[i].max(), 1e-7) / MM:.7f}"
+        out.append(line)
+    return "\n".join(plan) + "\n", "\n".join(out) + "\n"

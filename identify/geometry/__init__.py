@@ -4,7 +4,7 @@ chain (a serial arm as fixed frames and revolute joints, the UR10 from its DH ta
 torques), model (the complete model of a reading: link frames, joint offsets, joint compliance
 under self-weight, probe and base frames, with its exact Jacobian), fit (the base set from the
 SVD, the least-squares fit, held-out validation), mjcf (a chain, e.g. a calibrated one, as a
-calbench MJCF, and a serial calbench MJCF as a chain).
+calbench MJCF, and a serial calbench MJCF as a chain), run (`calbench identify LOG --geometry`).
 """
 
 from calbench.bench.core import lazy_face

@@ -13,10 +13,13 @@ from .fit import (
     tool_from_transform,
     validate,
 )
-from .mjcf import chain_from_mjcf, chain_mjcf, write_chain_mjcf
+from .mjcf import Arm, chain_from_mjcf, chain_mjcf, load_arm, write_chain_mjcf
 from .model import GeometricModel, kind, parameter_names
+from .run import AbsoluteReadings, absolute_readings, format_geometry, geometry_json, run_geometry
 
 __all__ = [
+    "AbsoluteReadings",
+    "Arm",
     "GRAVITY",
     "MODELS",
     "UR10_DH",
@@ -25,15 +28,20 @@ __all__ = [
     "GeometricModel",
     "GeometryFit",
     "Validation",
+    "absolute_readings",
     "base_set",
     "calibrate",
     "chain_from_mjcf",
     "chain_mjcf",
+    "format_geometry",
+    "geometry_json",
     "gravity_torques",
     "initial_model",
     "kind",
+    "load_arm",
     "parameter_names",
     "rot",
+    "run_geometry",
     "split",
     "tool_from_transform",
     "translation",

@@ -116,9 +116,11 @@ def calibrate(
     y: np.ndarray,
     effects: Sequence[str],
     sigma: float | None = None,
+    tau: np.ndarray | None = None,
 ) -> GeometryFit:
-    """Fit the base set of ``effects`` to readings y (n, 3) at q; ``sigma`` (m, per axis) when known."""
-    tau = model.torques(q)
+    """Fit the base set of ``effects`` to readings y (n, 3) at q; ``sigma`` (m, per axis) when known;
+    ``tau`` the gravity torques (default: the model's nominal ones at q)."""
+    tau = model.torques(q) if tau is None else tau
     theta = np.zeros(model.size)
     _, jac0 = model.jacobian(q, theta, tau)
     free = base_set(jac0, model.names, effects)

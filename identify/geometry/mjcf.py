@@ -17,6 +17,7 @@ Units: SI (m, kg).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import mujoco
@@ -103,31 +104,77 @@ def write_chain_mjcf(path: str | Path, chain: Chain, tool: np.ndarray, **kw) -> 
     return path
 
 
+@dataclass(frozen=True)
+class Arm:
+    """A serial calbench MJCF as a chain, with what is needed to place its sites on the flange."""
+
+    chain: Chain
+    where: str  # the file (or log attachment) it came from, for messages
+    model: mujoco.MjModel
+    flange_world: np.ndarray  # (4, 4) the chain's flange frame at q = 0
+    last_body: int  # the body the last actuated joint moves
+
+    def point(self, site: str) -> np.ndarray:
+        """A site's position in the flange frame; InputError unless the last joint carries it."""
+        s = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, site)
+        if s < 0:
+            raise InputError(self.where, f"site {site}", "a site of the robot", None)
+        if not _under(self.model, int(self.model.site_bodyid[s]), self.last_body):
+            raise InputError(
+                self.where,
+                f"site {site}",
+                "a point the last joint moves (geometry fits a flange point)",
+                None,
+            )
+        d = mujoco.MjData(self.model)
+        mujoco.mj_kinematics(self.model, d)
+        return (np.linalg.inv(self.flange_world) @ np.append(d.site_xpos[s], 1.0))[:3]
+
+
 def chain_from_mjcf(path: str | Path) -> Chain:
     """A serial arm from a calbench MJCF: the actuated hinges, in order, along one body chain."""
-    path = Path(path)
+    return load_arm(path).chain
+
+
+def load_arm(path: str | Path | None = None, xml: str | None = None, where: str = "") -> Arm:
+    """:class:`Arm` of the MJCF at ``path``, or of the MJCF text ``xml`` (``where`` names it)."""
+    where = str(path) if path is not None else where
     try:
-        model = mujoco.MjModel.from_xml_path(str(path))
+        model = (
+            mujoco.MjModel.from_xml_path(str(path))
+            if path is not None
+            else mujoco.MjModel.from_xml_string(xml)
+        )
     except ValueError as e:
-        raise InputError(path, "MJCF", "a model MuJoCo compiles", str(e).splitlines()[0]) from None
+        raise InputError(where, "MJCF", "a model MuJoCo compiles", str(e).splitlines()[0]) from None
     if model.neq:
-        raise InputError(path, "equality", "a serial arm (geometry fits no kinematic loop yet)", model.neq)
+        raise InputError(where, "equality", "a serial arm (geometry fits no kinematic loop yet)", model.neq)
+    if model.ntendon:
+        # a compensator's torque is a second gravity-like term the model does not carry yet:
+        # fitting without it would hide the spring in the compliances and the geometry
+        raise InputError(
+            where,
+            "tendon",
+            "an arm without compensator springs (geometry does not model them yet)",
+            model.ntendon,
+        )
     names = _text(model, "calbench:actuated").split()
     if not names:
-        raise InputError(path, "calbench:actuated", "the actuated joints", None)
+        raise InputError(where, "calbench:actuated", "the actuated joints", None)
     joint_ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in names]
     bodies = [int(model.jnt_bodyid[j]) for j in joint_ids]
     for k in range(1, len(bodies)):
         if model.body_parentid[bodies[k]] != bodies[k - 1]:
             raise InputError(
-                path, f"joint {names[k]}", f"a child of {names[k - 1]}'s body (a serial chain)", None
+                where, f"joint {names[k]}", f"a child of {names[k - 1]}'s body (a serial chain)", None
             )
     if model.njnt != len(names):
-        raise InputError(path, "joints", "only the actuated hinges (no passive joints)", model.njnt)
+        raise InputError(where, "joints", "only the actuated hinges (no passive joints)", model.njnt)
     d = mujoco.MjData(model)
     mujoco.mj_kinematics(model, d)
     frames, com, mass = [], [], []
     carry = np.eye(4)  # the chain's frame is MuJoCo's world frame
+    hinge = np.eye(4)
     for k, (j, b) in enumerate(zip(joint_ids, bodies, strict=True)):
         body_world = _world(d, b)
         hinge = body_world @ translation(model.jnt_pos[j]) @ _align(model.jnt_axis[j])  # at q = 0
@@ -144,14 +191,14 @@ def chain_from_mjcf(path: str | Path) -> Chain:
         mass.append(m)
         com.append((carry @ np.append(c, 1.0))[:3])
     flange_site = _text(model, "calbench:flange").strip()
+    flange = hinge
     if flange_site:
         s = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, flange_site)
-        site = np.eye(4)
-        site[:3, :3], site[:3, 3] = d.site_xmat[s].reshape(3, 3), d.site_xpos[s]
-        frames.append(carry @ site)
-    else:
-        frames.append(np.eye(4))
-    return Chain(np.asarray(frames), tuple(names), np.asarray(mass), np.asarray(com))
+        flange = np.eye(4)
+        flange[:3, :3], flange[:3, 3] = d.site_xmat[s].reshape(3, 3), d.site_xpos[s]
+    frames.append(carry @ flange)
+    chain = Chain(np.asarray(frames), tuple(names), np.asarray(mass), np.asarray(com))
+    return Arm(chain, where, model, flange, bodies[-1])
 
 
 def _text(model: mujoco.MjModel, name: str) -> str:

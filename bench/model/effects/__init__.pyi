@@ -9,6 +9,7 @@ from .cubic_drive import joint_nonlinearity
 from .drift import tracker_drift
 from .edits import RIGID_COMPLIANCE
 from .link_springs import link_compliance
+from .reflector_plate import tool_frame
 from .registry import (
     DISCOVERY_OPTIONS,
     REGISTRY,
@@ -21,6 +22,7 @@ from .registry import (
 )
 from .spring_compensator import compensator, without_compensator
 from .tool_mount import tool_compliance
+from .zero_offsets import joint_offset, turned_frame
 
 __all__ = [
     "DISCOVERY_OPTIONS",
@@ -45,7 +47,10 @@ __all__ = [
     "priors",
     "read_table",
     "register_effect",
+    "joint_offset",
     "tool_compliance",
+    "tool_frame",
+    "turned_frame",
     "tracker_drift",
     "unregister_effect",
     "without_compensator",

@@ -22,7 +22,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from calbench.bench.core import Table, frozen_array
+from calbench.bench.core import InputError, Table, frozen_array
 from calbench.bench.model import Robot
 
 
@@ -114,7 +114,7 @@ class Field:
     """One key of an effect's ``[truth.effects.NAME]`` table (docs/contract.md), as its
     registration declares it: the TOML type (``kind``: string, integer, number or vector), the
     SI unit of the value ("" for a name or an index), the range (``lo`` for an integer;
-    ``positive`` (> 0) or ``nonneg`` (>= 0) for a number or every element of a vector), a
+    ``positive`` (> 0), ``nonneg`` (>= 0) or ``max_abs`` for a number or every element of a vector), a
     vector's ``size`` (None: any length >= 1) and whether the key must be present. The file
     speaks SI: what :meth:`read` returns is the value as written (a vector frozen)."""
 
@@ -127,6 +127,7 @@ class Field:
     nonneg: bool = False
     required: bool = True
     doc: str = ""
+    max_abs: float | None = None  # |value| (every element) at most this, in the unit
 
     def __post_init__(self):
         if self.kind not in KINDS:
@@ -140,8 +141,17 @@ class Field:
         if self.kind == "integer":
             return table.integer(self.key, self.lo)
         if self.kind == "number":
-            return table.number(self.key, positive=self.positive, nonneg=self.nonneg)
-        return frozen_array(table.vector(self.key, self.size, positive=self.positive, nonneg=self.nonneg))
+            value = table.number(self.key, positive=self.positive, nonneg=self.nonneg)
+        else:
+            value = frozen_array(
+                table.vector(self.key, self.size, positive=self.positive, nonneg=self.nonneg)
+            )
+        if self.max_abs is not None and np.any(np.abs(value) > self.max_abs):
+            got = value.tolist() if isinstance(value, np.ndarray) else value
+            raise InputError(
+                table.file, table.key(self.key), f"values within +-{self.max_abs} {self.unit}", got
+            )
+        return value
 
 
 def read_table(schema: tuple[Field, ...], table: Table) -> dict[str, Any]:
