@@ -34,7 +34,7 @@ def test_a_urdf_with_entities_is_refused(tmp_path, doc):
     p = tmp_path / "evil.urdf"
     p.write_text(doc.format(root="robot"))
     with pytest.raises(
-        InputError, match=r"evil\.urdf: \(file\): expected a readable URDF \(XML without entity"
+        InputError, match=r"evil\.urdf: \(file\): expected a readable URDF \(XML\), got .entity declarations"
     ):
         read_urdf(p)
 

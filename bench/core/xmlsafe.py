@@ -41,7 +41,12 @@ def parse_xml(source: str | os.PathLike, where: object, text: str | None = None)
         # which older calbench from-urdf headers hold): left out before parsing
         return SafeET.fromstring(_COMMENT.sub("", text))
     except DefusedXmlException as exc:
-        raise InputError(where, "<!DOCTYPE>", "XML without entity declarations", type(exc).__name__) from None
+        raise InputError(
+            where,
+            "<!DOCTYPE>",
+            "XML without entity declarations",
+            f"entity declarations ({type(exc).__name__})",
+        ) from None
     except ET.ParseError as exc:
         raise InputError(where, "XML", "well-formed XML", str(exc)) from None
     except OSError as exc:

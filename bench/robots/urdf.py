@@ -144,9 +144,7 @@ def read_urdf(path: str | Path, ov: Overlay | None = None, text: tuple[str, bool
     try:
         root = parse_xml(path, path, text=text)  # defusedxml: no entity bombs, no external entities
     except InputError as exc:
-        raise InputError(
-            path, "(file)", "a readable URDF (XML without entity declarations)", exc.got
-        ) from None
+        raise InputError(path, "(file)", "a readable URDF (XML)", exc.got) from None
     if root.tag != "robot":
         raise InputError(path, "(root element)", "<robot>", f"<{root.tag}>")
     links = {}

@@ -40,8 +40,8 @@ who keeps it (:class:`Interrupted` carries a partial result up to the command li
 
 Faults (tests/test_cluster_faults.py): a worker that dies mid-task (SIGKILL, out of memory) is
 Dask's to handle: the scheduler gives its tasks to the other workers, and since tasks are pure
-the numbers do not change. Shared inputs are therefore scattered to every worker
-(``broadcast=True``), so that no single worker holds the only copy. A scheduler that is lost,
+the numbers do not change. Shared inputs are therefore the results of tasks of their own, not
+scattered data, so that the scheduler can make them again when the worker holding them dies. A scheduler that is lost,
 or a task that killed several workers, ends the run with :class:`ClusterLost`: one line, the
 results already handed over are kept (a study resumes from its journal).
 """
@@ -407,14 +407,22 @@ class DaskExecutor(Executor):
             if self.client is not None and self.client.status == "running" and not _is_comm(exc):
                 raise
             where = self.choice.address or "the local cluster"
-            raise ClusterLost(f"lost the Dask scheduler at {where} ({type(exc).__name__})") from None
+            why = str(exc).split(" cancelled for reason: ")[-1][:120] if str(exc) else ""
+            raise ClusterLost(
+                f"lost the Dask scheduler at {where} ({type(exc).__name__}{': ' + why if why else ''})"
+            ) from None
 
     def run(self, fn, arglist, shared=()):
         from distributed import as_completed
 
         tag = uuid.uuid4().hex[:12]
-        # each as one object, on every worker: a worker that dies takes no input with it
-        held = [self.client.scatter([x], hash=False, broadcast=True)[0] for x in shared]
+        # each as one object, made by a task of its own rather than scattered: a worker that dies
+        # takes its copy with it, and the scheduler makes it again elsewhere (scattered data it
+        # could not, and the tasks needing it were cancelled)
+        held = [
+            self.client.submit(_shared, x, key=f"calbench-shared-{tag}-{k}", pure=False)
+            for k, x in enumerate(shared)
+        ]
         futures = [self._submit(fn, (*held, *a), tag, i) for i, a in enumerate(arglist)]
         index = {f.key: i for i, f in enumerate(futures)}
         try:
@@ -458,6 +466,11 @@ class DaskExecutor(Executor):
             logging.getLogger(n).setLevel(level)
         if cluster is not None:
             cluster.close()
+
+
+def _shared(x):
+    """A shared input as a task's result (see :meth:`DaskExecutor.run`)."""
+    return x
 
 
 def _is_comm(exc: BaseException) -> bool:
