@@ -862,6 +862,65 @@ def tool_frame() -> Effect:
     return Effect("tool_frame", ("dx", "dy", "dz"), {}, ("m", "m", "m"), apply, set_)
 
 
+def _frame_error(pos, quat, p) -> tuple[np.ndarray, np.ndarray]:
+    """A body frame P made P Tr(dx, dy, dz) Rx Ry Rz: the error E of docs/geometry.md."""
+    quat = np.asarray(quat, dtype=float) / np.linalg.norm(quat)
+    moved = np.zeros(3)
+    mujoco.mju_rotVecQuat(moved, np.asarray(p[:3], dtype=float), quat)
+    out = quat.copy()
+    for axis, angle in zip(np.eye(3), p[3:], strict=True):
+        turn, nxt = np.zeros(4), np.zeros(4)
+        mujoco.mju_axisAngle2Quat(turn, axis, float(angle))
+        mujoco.mju_mulQuat(nxt, out, turn)
+        out = nxt
+    return np.asarray(pos, dtype=float) + moved, out / np.linalg.norm(out)
+
+
+FRAME_PARAMS = ("dx", "dy", "dz", "rx", "ry", "rz")
+FRAME_UNITS = ("m", "m", "m", "rad", "rad", "rad")
+
+
+def _frame_effect(name: str, body_of: Callable[[mujoco.MjSpec], str], options: dict) -> Effect:
+    """A body's frame (its place in its parent) off by six numbers: :func:`_frame_error`."""
+    nominal: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+
+    def apply(spec, p, o):
+        body = _body(spec, body_of(spec))
+        nominal["body"] = (np.array(body.pos, dtype=float), np.array(body.quat, dtype=float))
+        nominal["name"] = body.name
+        body.pos, body.quat = _frame_error(body.pos, body.quat, p)
+
+    def set_(robot, p, o):
+        if "body" not in nominal:
+            raise ValueError(f"{name}: set_params needs the model its apply built")
+        b = mujoco.mj_name2id(robot.model, mujoco.mjtObj.mjOBJ_BODY, nominal["name"])
+        robot.model.body_pos[b], robot.model.body_quat[b] = _frame_error(*nominal["body"], p)
+
+    return Effect(name, FRAME_PARAMS, options, FRAME_UNITS, apply, set_)
+
+
+def _link_geometry_truth(t: dict) -> tuple[dict, np.ndarray]:
+    return {"link": str(t["link"])}, np.asarray(t["offset"], dtype=float)
+
+
+@register("link_geometry", from_truth=_link_geometry_truth)
+def link_geometry(link: str = "") -> Effect:
+    """The frame of body ``link`` in its parent off by (dx, dy, dz) m and (rx, ry, rz) rad: a link
+    longer, shorter or twisted against the drawing. Its children move with it."""
+    return _frame_effect("link_geometry", lambda spec: link, {"link": link})
+
+
+def _base_frame_truth(t: dict) -> tuple[dict, np.ndarray]:
+    return {}, np.asarray(t["offset"], dtype=float)
+
+
+@register("base_frame", from_truth=_base_frame_truth)
+def base_frame() -> Effect:
+    """The robot's base (the body fixed to the world that carries the arm) off its drawn place by
+    (dx, dy, dz) m and (rx, ry, rz) rad: the whole arm moves against the world and the tracker."""
+    return _frame_effect("base_frame", _root_body, {})
+
+
 __all__ = [
     "Effect",
     "EffectRobot",
@@ -885,5 +944,7 @@ __all__ = [
     "tool_compliance",
     "joint_offset",
     "tool_frame",
+    "link_geometry",
+    "base_frame",
     "RIGID_COMPLIANCE",
 ]

@@ -105,6 +105,8 @@ EFFECT_KEYS = (
     "tracker_drift",
     "joint_offset",
     "tool_frame",
+    "link_geometry",
+    "base_frame",
 )
 MAX_OFFSET = 0.1  # rad (5.7 deg) and m: a geometric error, not a different robot (docs/geometry.md)
 
@@ -127,6 +129,18 @@ def _effects(c: Table, n_joints: int) -> dict[str, dict]:
         if np.any(np.abs(offset) > MAX_OFFSET):
             raise InputError(e.file, e.key("offset"), f"an offset within +-{MAX_OFFSET} m", offset.tolist())
         out["tool_frame"] = {"offset": frozen_array(offset)}
+    for name, keys in (("link_geometry", ("link", "offset")), ("base_frame", ("offset",))):
+        if c.has(name):  # geometry (truth only): a body's frame off by (dx, dy, dz) m, (rx, ry, rz) rad
+            e = c.sub(name)
+            e.only(keys)
+            offset = e.vector("offset", 6)
+            if np.any(np.abs(offset) > MAX_OFFSET):
+                raise InputError(
+                    e.file, e.key("offset"), f"offsets within +-{MAX_OFFSET} m and rad", offset.tolist()
+                )
+            out[name] = {"offset": frozen_array(offset)}
+            if name == "link_geometry":
+                out[name] = {"link": e.string("link"), **out[name]}  # a body of the robot (its MJCF decides)
     if c.has("link_compliance"):
         e = c.sub("link_compliance")
         e.only(("link", "compliance"))
