@@ -128,15 +128,17 @@ def test_hidden_geometry_and_compliances_match_calbenchs_own_statics(tmp_path):
     offsets = [0.0, 0.0015, -0.002, 0.0012, -0.0018, 0.0]  # rad: 1-3 mm at the probe
     lines = ['robot = "ur10.xml"', "seed = 1", "[truth]", f"compliance = {k}"]
     lines += ["[truth.effects.joint_offset]", f"offset = {offsets}"]
-    lines += ["[truth.effects.tool_frame]", "offset = [0.0, 0.0, 0.002]", "[tracker]"]
+    lines += ["[truth.effects.tool_frame]", "offset = [0.0, 0.0, 0.002]"]
+    lines += ["[truth.effects.link_geometry]", 'link = "link3"', "offset = [0.001, 0, 0, 0.001, 0, 0]"]
+    base = [0.01, -0.02, 0.005, 0.002, -0.001, 0.003]  # m, rad: the arm off its drawn place
+    lines += ["[truth.effects.base_frame]", f"offset = {base}", "[tracker]"]
     lines += [f"sigma = {SIGMA}", "position = [3.0, 1.0, 0.5]", "[load]", "mass = 2.0"]
     for q in np.random.default_rng(0).uniform(-170, 170, (120, 6)):
         lines += ["[[pose]]", "q = [" + ", ".join(f"{v:.3f}" for v in q) + "]"]
     (tmp_path / "sag.toml").write_text("\n".join(lines) + "\n")
     assert main(["simulate", str(tmp_path / "sag.toml"), "--out", str(tmp_path / "sag.mcap")]) == 0
-    assert (
-        main(["identify", str(tmp_path / "sag.mcap"), "--geometry", "--json", str(tmp_path / "g.json")]) == 0
-    )
+    out = ["--json", str(tmp_path / "g.json"), "--out-model", str(tmp_path / "cal.xml")]
+    assert main(["identify", str(tmp_path / "sag.mcap"), "--geometry", *out]) == 0
     rep = json.loads((tmp_path / "g.json").read_text())
     found = {p["name"].split(".")[0]: p for p in rep["parameters"] if p["effect"] == "joint_compliance"}
     assert set(found) == {"shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint"}
@@ -151,6 +153,16 @@ def test_hidden_geometry_and_compliances_match_calbenchs_own_statics(tmp_path):
         p = fitted[f"{j}.offset"]
         assert abs(p["value"] - offsets[joints.index(j)]) < 4 * p["std"], (j, p)
     assert abs(fitted["tool.z"]["value"] - 0.002) < 4 * fitted["tool.z"]["std"]
+    # the elbow's link frame (body link3 is joint 3's frame): its base-set share, 1 mm and 1 mrad
+    for key, truth in (("tx", 0.001), ("rx", 0.001), ("ry", 0.0)):
+        p = fitted[f"elbow_joint.link_{key}"]
+        assert abs(p["value"] - truth) < 4 * p["std"], (key, p)
+    # the base: the tracker stands at (3, 1, 0.5), unturned, so tracker-from-base is the base's
+    # true pose less that; its std: the base translation's and 3 m times the rotation's
+    t_b = np.array(rep["tracker_from_base"])[:3, 3]
+    sd = np.linalg.norm([fitted[f"base.t{a}"]["std"] for a in "xyz"])
+    sd += 3.0 * np.linalg.norm([fitted[f"base.r{a}"]["std"] for a in "xyz"])
+    assert np.linalg.norm(t_b - (np.array(base[:3]) - [3.0, 1.0, 0.5])) < 4 * sd
     assert found["shoulder_lift_joint"]["std"] < 0.01 * k[1]  # the shoulder's is well determined
     assert rep["models"]["geometry+compliance"]["fit_rms"] < 1.2 * SIGMA * np.sqrt(3)
     # without the compliance the sag is left: the geometry cannot absorb it

@@ -94,7 +94,7 @@ def test_a_robot_with_a_compensator_spring_is_refused():
 
 
 def test_geometric_truth_effects_edit_the_spec_and_the_model_alike(ur10_xml):
-    """joint_offset and tool_frame (bench/model/effects.py): set_params on a compiled model gives
+    """The geometric truth effects (bench/model/effects.py): set_params on a compiled model gives
     the model apply builds, and an offset o on joint k is the same probe as the command q_k + o."""
     from calbench.bench.model.effects import apply_effects, effect_from_truth
 
@@ -103,6 +103,8 @@ def test_geometric_truth_effects_edit_the_spec_and_the_model_alike(ur10_xml):
     for name, table, p2 in (
         ("joint_offset", {"offset": offsets}, -0.5 * offsets),
         ("tool_frame", {"offset": [0.001, -0.002, 0.003]}, np.array([-0.002, 0.0, 0.001])),
+        ("link_geometry", {"link": "link3", "offset": [1e-3, 0, 2e-3, 1e-3, -2e-3, 0]}, np.full(6, 5e-4)),
+        ("base_frame", {"offset": [0.01, 0.02, 0, 0, 0, 0.01]}, np.array([0, 0, 0.01, 0.003, 0, 0])),
     ):
         effect, p1 = effect_from_truth(name, table)
         fast = apply_effects(ur10_xml, [(effect, p1)])

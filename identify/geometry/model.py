@@ -139,12 +139,13 @@ class GeometricModel:
             return y, None
         jac = np.zeros((n, 3, self.size))
         bt = base[:3]  # the rotations of B turn about the point t_B
-        for i in range(3):  # base: translation along tracker axes, rotations about axes through t_B
+        # base: translations along the tracker's axes; the rotations Rx Ry Rz about axes through t_B,
+        # each one's axis turned by the rotations before it
+        turned = np.eye(4)
+        for i in range(3):
             jac[:, i, i] = 1.0
-            axis = (
-                rot(0, base[3]) @ rot(1, base[4]) if i == 2 else rot(0, base[3]) if i == 1 else np.eye(4)
-            )[:3, i]
-            jac[:, :, 3 + i] = np.cross(axis, y - bt)
+            jac[:, :, 3 + i] = np.cross(turned[:3, i], y - bt)
+            turned = turned @ rot(i, base[3 + i])
         rbw = b[:3, :3]  # tracker from robot base: maps a base-frame motion into the tracker frame
 
         def put(col, axis, point):

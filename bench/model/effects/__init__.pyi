@@ -8,6 +8,7 @@ from .base_tilt import base_compliance
 from .cubic_drive import joint_nonlinearity
 from .drift import tracker_drift
 from .edits import RIGID_COMPLIANCE
+from .frame_errors import base_frame, frame_error, link_geometry
 from .link_springs import link_compliance
 from .reflector_plate import tool_frame
 from .registry import (
@@ -47,7 +48,10 @@ __all__ = [
     "priors",
     "read_table",
     "register_effect",
+    "base_frame",
+    "frame_error",
     "joint_offset",
+    "link_geometry",
     "tool_compliance",
     "tool_frame",
     "turned_frame",
