@@ -8,9 +8,8 @@ from .base_tilt import base_compliance
 from .cubic_drive import joint_nonlinearity
 from .drift import tracker_drift
 from .edits import RIGID_COMPLIANCE
-from .frame_errors import base_frame, frame_error, link_geometry
+from .geometric import base_frame, frame_error, joint_offset, link_geometry, tool_frame, turned_frame
 from .link_springs import link_compliance
-from .reflector_plate import tool_frame
 from .registry import (
     DISCOVERY_OPTIONS,
     REGISTRY,
@@ -23,7 +22,6 @@ from .registry import (
 )
 from .spring_compensator import compensator, without_compensator
 from .tool_mount import tool_compliance
-from .zero_offsets import joint_offset, turned_frame
 
 __all__ = [
     "DISCOVERY_OPTIONS",
