@@ -326,13 +326,14 @@ def summary_text(res: DesignResult, cands: CandidateSet, input_plan: dict) -> st
     return text
 
 
-def plan_comment(scenario: Path, res: DesignResult) -> str:
+def plan_comment(scenario: Path, res: DesignResult, job: Path | None = None) -> str:
     """The header comment of a written PLAN.toml: how it was made and what it predicts."""
     m = res.measures
     configs = int(sum(p.repeats for p in res.poses))
     return (
         f"Measurement plan by `calbench design {Path(scenario).name} --configs {configs} "
-        f"--criterion {res.criterion}`\n(prior guess = the scenario's [truth]). Predicted: "
+        f"--criterion {res.criterion}" + (f" --job {Path(job).name}" if job is not None else "") + "`"
+        "\n(prior guess = the scenario's [truth]). Predicted: "
         f"A = {m['A']:.6g}, D = {m['D']:.6g}, AD = {m['AD']:.6g}"
         + (f", pose = {m['pose']:.6g} m^2" if "pose" in m else "")
         + (

@@ -241,7 +241,7 @@ def _generate(
     out.result, out.timings = res, res.timings
     out.summary = summary_text(res, cands, input_plan)
     if req.out:
-        out.plan_text = plan_scenario_text(scn, res.poses, req.out, plan_comment(req.scenario, res))
+        out.plan_text = plan_scenario_text(scn, res.poses, req.out, plan_comment(req.scenario, res, req.job))
     if req.json:
         out.json_text = json.dumps(result_json(res, scn, cands, {"input_plan": input_plan}), indent=2)
     return out
