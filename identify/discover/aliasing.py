@@ -48,9 +48,21 @@ LOAD_STEP = 1e-3  # relative step of the weights for d dp / d s
 def _regress(jw: np.ndarray, est: np.ndarray, col: np.ndarray) -> tuple[np.ndarray, float, float]:
     """(B over the estimated columns, |col|, |col projected off them|)."""
     jb = jw[:, est]
-    b = np.linalg.lstsq(jb, col, rcond=None)[0] if jb.size else np.zeros(0)
-    perp = col - jb @ b if jb.size else col
+    if not jb.size:
+        return np.zeros(0), float(np.linalg.norm(col)), float(np.linalg.norm(col))
+    b, perp = regress(jb, col)
     return b, float(np.linalg.norm(col)), float(np.linalg.norm(perp))
+
+
+def regress(jb: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(B, P) with cols = jb B + P, P orthogonal to jb's span; cols (n,) or (n, k). On unit
+    columns of jb: the SI columns of a compliance and of a spring's N/m differ by ~1e12, and
+    lstsq's cut-off on the raw columns drops the small one (the spring: it then absorbs nothing)."""
+    norms = np.linalg.norm(jb, axis=0)
+    norms = np.where(norms > 0, norms, 1.0)
+    bn = np.linalg.lstsq(jb / norms, cols, rcond=None)[0]
+    perp = cols - (jb / norms) @ bn
+    return (bn.T / norms).T, perp
 
 
 def alias_record(
@@ -200,6 +212,7 @@ def aliasing_report(
 
 
 __all__ = [
+    "regress",
     "VISIBLE_SHARE_MIN",
     "alias_record",
     "effect_aliasing",

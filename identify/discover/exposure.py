@@ -30,7 +30,7 @@ import math
 
 import numpy as np
 
-from .aliasing import UNEXCITED, VISIBLE_SHARE_MIN
+from .aliasing import UNEXCITED, VISIBLE_SHARE_MIN, regress
 from .decide import lr_threshold
 from .fit import effect_priors, label
 
@@ -46,13 +46,8 @@ def _decompose(jw: np.ndarray, est: np.ndarray, block: np.ndarray, size: np.ndar
     excited = full * size > UNEXCITED
     if not excited.any() or not est.any():
         return None
-    jb = jw[:, est]
-    norms = np.linalg.norm(jb, axis=0)
-    norms = np.where(norms > 0, norms, 1.0)  # unit columns: SI columns span 1e12 (compliance, N/m)
     cols = block[:, excited] / full[excited]
-    bn = np.linalg.lstsq(jb / norms, cols, rcond=None)[0]
-    perp = cols - (jb / norms) @ bn
-    b = bn / norms[:, None]
+    b, perp = regress(jw[:, est], cols)
     w, v = np.linalg.eigh(perp.T @ perp)
     return excited, full, b, w, v, w > VISIBLE_SHARE_MIN**2
 
