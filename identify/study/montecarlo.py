@@ -71,6 +71,7 @@ from calbench.identify.core import (
     pose_observation,
 )
 from calbench.identify.methods import (
+    BOTH,
     MethodResult,
     NotApplicable,
     all_methods,
@@ -434,15 +435,15 @@ def run_montecarlo(
     seed: int | None = None,
     executor: Executor | None = None,
 ) -> MonteCarlo:
-    """N runs of the estimators on the scenario's campaign (``methods``: names, default all of
-    them); see the module docstring. Every method must apply to the robot (NotApplicable
+    """N runs of the estimators on the scenario's campaign (``methods``: names, default those
+    of `montecarlo --method both` that apply to its robot); see the module docstring. Every method must apply to the robot (NotApplicable
     otherwise: e.g. the two-step's TwoStepError).
 
     The runs go to ``executor`` (identify/runtime/executor.py; default: this process) in blocks of
     RUNS_PER_TASK. Ctrl-C raises :class:`Interrupted` carrying the Monte Carlo of the runs that
     finished."""
     t_wall = time.perf_counter()
-    methods = method_names() if methods is None else tuple(methods)
+    methods = montecarlo_methods(BOTH, scn) if methods is None else tuple(methods)
     job = MonteCarloJob(PortableScenario.from_scenario(scn), methods, scn.seed if seed is None else int(seed))
     s = _setup(job)
     lay = s.robot.layout
