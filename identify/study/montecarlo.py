@@ -3,11 +3,16 @@
 The campaign's physics is solved once (bench.campaign.plan_campaign: true reflector positions
 and visibility of every pose); each run redraws the tracker noise with bench.tracker.measure
 (generator seeded by (scenario seed, run)), builds the observations exactly as from a log
-(identify/core/observations.py) and runs the full estimators on them: every method of the
-family's one list (identify/methods/registry.py): the one-step estimator and the paper's
-two-step method, unweighted step 2 (eq. 21) and step-1-covariance-weighted, and the two-step at
-its self-consistent sagged pose (identify/methods/twostep_iterated.py; every run starts at the
-noise-free sag, with the noise-free Newton Jacobian as its chord). Each method sets itself up
+(identify/core/observations.py) and runs the full estimators on them, methods of the family's
+one list (identify/methods/registry.py): by default (`--method both`) the one-step estimator
+and the paper's two-step method, unweighted step 2 (eq. 21) and step-1-covariance-weighted;
+with `--method all` also the two-step at its self-consistent sagged pose
+(identify/methods/twostep_iterated.py; every run starts at the noise-free sag, its pose rows and
+equilibria, with the noise-free Newton Jacobian as its chord; ~5x the one-step per run).
+
+Time: `calbench montecarlo` announces the duration from :func:`measure_montecarlo` (the set-up
+and PROBE_RUNS runs on noise seeds no run uses, timed at its start); OBSERVATION_SECONDS_PER_RUN
+and the methods' seconds_per_run are only :func:`estimated_seconds`'s fallback. Each method sets itself up
 once on the exact readings (its ``repeats``: the noise-free estimate and a run function that
 may reuse what it found) and the runs call that function; the noise-free estimates of the cheap
 methods (``noise_free_always``) are reported even when they are not run.
