@@ -308,7 +308,7 @@ def _setup(job: MonteCarloJob) -> _Setup:
         noise_free[m.name] = rep.noise_free.theta
         if m.name in job.methods:
             runs[m.name] = rep.run
-    if two_step_ok(robot):
+    if two_step_ok(robot) and truth_rb.model.nq == robot.model.nq:  # hidden effects add joints
         # diagnostic: the linear model at the true (sagged) unloaded configuration -- what is left
         # of the two-step's model error is H00 (eq. 18) and the nonlinearity over the deflection
         lp_true = linear_plan(robot, obs0, {p.index: p.equilibria[0].qpos for p in plans})
