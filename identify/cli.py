@@ -521,7 +521,19 @@ def cmd_discover(args) -> int:
         {"--json": args.json, "--out-model": out_model, "--plot": plot, "--view-json": view, "--rrd": rrd},
         {"LOG": args.log, "--model": args.model},
     )
-    rep = discover(args.log, args.model, out_model=args.out_model, plot=plot, view_json=view, view_rrd=rrd)
+    bar = terminal_progress("calbench discover", "candidates")
+    try:
+        rep = discover(
+            args.log,
+            args.model,
+            out_model=args.out_model,
+            plot=plot,
+            view_json=view,
+            view_rrd=rrd,
+            progress=bar,
+        )
+    finally:
+        bar.close()
     print(story(rep))
     if args.json:
         write_text(args.json, json.dumps(clean(rep), indent=2, allow_nan=False))

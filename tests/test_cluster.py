@@ -74,6 +74,11 @@ def test_montecarlo_on_the_cluster_gives_the_local_numbers(cluster, monkeypatch,
     with open_executor(choose(c.address, 0.0)) as ex:
         assert ex.choice.workers == 2
         remote = montecarlo.run_montecarlo(scn, 8, methods=method_names(), progress=False, executor=ex)
+        # the progress line's per-worker counts: every piece counted once, for a worker
+        counts = ex.worker_counts()
+        assert sum(counts.values()) == 3 and set(counts) <= {"w1", "w2"}
+        if len(counts) == 2:
+            assert ex.progress_label("runs 8/8").startswith("runs 8/8 | pieces per worker: w1 ")
     for m in method_names():
         assert np.array_equal(local.estimates[m], remote.estimates[m], equal_nan=True), m
         assert np.array_equal(local.stds[m], remote.stds[m], equal_nan=True), m

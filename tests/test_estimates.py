@@ -35,3 +35,29 @@ def test_montecarlo_estimate_is_the_measured_cost_per_run_and_changes_no_result(
     for m in methods:  # the probe's own noise seeds: the runs' numbers are untouched
         np.testing.assert_array_equal(mc.estimates[m][:4], plain.estimates[m])
     M._setup.cache_clear()
+
+
+def test_design_announces_its_candidates_from_the_first_ones_timed(tmp_path):
+    """`design` times its first PROBE_CANDIDATES candidates and announces the rest from them: the
+    announced work is the candidates' count times that cost, and the phase takes about that."""
+    import contextlib
+
+    from calbench.identify.design import DesignRequest, run_design
+    from calbench.identify.runtime import InProcess
+
+    seen = {}
+
+    @contextlib.contextmanager
+    def pieces(work, tasks, setup, basis):
+        seen.update(work=work, basis=basis)
+        t = time.perf_counter()
+        yield InProcess()
+        seen["taken"] = time.perf_counter() - t
+
+    n = 1000
+    req = DesignRequest(
+        scenario=PAPER, configs=8, export_candidates=tmp_path / "c.npz", candidates=n, processes=1
+    )
+    run_design(req, pieces=pieces)
+    assert "measured on the first 200" in seen["basis"]
+    assert 1 / FACTOR < seen["work"] / seen["taken"] < FACTOR, seen

@@ -155,3 +155,16 @@ def test_one_step_reports_its_std_on_a_weak_designed_plan():
         assert abs(p["variance_over_crb"] - 1) < 4 * se_var, p
         assert abs(p["empirical_over_reported_std"] - 1) < 4 * se_sd, p
         assert abs(p["bias_over_sigma"]) < 4 / np.sqrt(N_WEAK), p
+
+
+def test_montecarlo_with_a_hidden_effect_that_adds_joints(tmp_path):
+    """A truth with a hidden link bending has more joints than the estimator's model: the Monte
+    Carlo runs (the two-step-at-the-true-sag diagnostic, which needs the model's joints, is
+    left out) instead of ending in a traceback."""
+    from calbench.bench.scenario import scenario_variant
+
+    extra = '[truth.effects.link_compliance]\nlink = "forearm"\ncompliance = [1.8e-7, 0.0, 1.8e-7]'
+    scn = load_scenario(scenario_variant(PAPER, tmp_path / "s.toml", extra=extra))
+    mc = run_montecarlo(scn, 2, ("one-step", "two-step"))
+    assert "two-step at the true sagged configuration" not in mc.noise_free
+    assert np.isfinite(mc.estimates["one-step"]).all()

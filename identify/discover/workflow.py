@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.core import write_text
+from calbench.bench.core import sink, write_text
 from calbench.bench.log import read_log
 from calbench.bench.model import Robot, set_spec_names, spec_names
 from calbench.bench.model.effects import augmented_xml, load_spec
@@ -86,11 +86,14 @@ class Candidate:
 
 
 def run_round(
-    src, obs, white, current: Fit, hold_base: np.ndarray, fresh: np.ndarray, lib
+    src, obs, white, current: Fit, hold_base: np.ndarray, fresh: np.ndarray, lib, progress=None, name=""
 ) -> list[Candidate]:
-    """Fit and test every library candidate not yet in the model."""
+    """Fit and test every library candidate not yet in the model (``progress``: a
+    bench.core.ProgressSink told of each, the round called ``name``)."""
     done = {label(e) for e, _ in current.effect_params()}
     cands = [e for e in lib if label(e) not in done]
+    bar = sink(progress)
+    bar.start(len(cands), name)
     out = []
     for e in cands:
         c = Candidate({"effect": e.name, "detail": e.detail, "score": None})
@@ -99,6 +102,7 @@ def run_round(
         except (ValueError, RuntimeError, NotImplementedError, np.linalg.LinAlgError) as exc:
             c.record["error"] = str(exc)
             out.append(c)
+            bar.update(f"{name}: {label(e)}")
             continue
         st = compare(current, c.fit, len(cands))
         if st["k"] > 0 and st["lr"] >= POLISH_SHARE * lr_threshold(st["k"], len(cands)):
@@ -123,6 +127,7 @@ def run_round(
             }
         )
         out.append(c)
+        bar.update(f"{name}: {label(e)}")
     return out
 
 
@@ -196,10 +201,13 @@ def _ties_resolved(
     return keep if len(keep) > 1 else []
 
 
-def discover_observations(obs: Observations, src, *, max_rounds: int = MAX_ROUNDS, with_base: bool = False):
+def discover_observations(
+    obs: Observations, src, *, max_rounds: int = MAX_ROUNDS, with_base: bool = False, progress=None
+):
     """The whole search on observations (no file read or written): the report (without the
     log, model, plot and file entries) and the final fit (and the user's model's fit, with
-    ``with_base``). src: the user's MJCF (path or text)."""
+    ``with_base``). src: the user's MJCF (path or text); ``progress``: told of each candidate
+    tested, round by round (bench.core.ProgressSink)."""
     t0 = time.perf_counter()
     white = Whitener.from_observations(obs)
     sigma = float(obs.noise_sigma)
@@ -212,7 +220,7 @@ def discover_observations(obs: Observations, src, *, max_rounds: int = MAX_ROUND
     tie_fits: list[tuple[str, Fit]] = []
     last: list[Candidate] = []
     for rnd in range(max_rounds):
-        cands = run_round(src, obs, white, current, hold_base, fresh, lib)
+        cands = run_round(src, obs, white, current, hold_base, fresh, lib, progress, f"round {rnd + 1}")
         last = cands
         ok = [c for c in cands if c.stats is not None and c.stats["accept"]]
         rounds.append(
@@ -438,10 +446,12 @@ def discover(
     view_json=None,
     view_rrd=None,
     max_rounds: int = MAX_ROUNDS,
+    progress=None,
 ) -> dict:
     """Run the whole workflow on a log; returns the JSON report (docs/contract.md keys plus
     extras) and writes the augmented MJCF (when an effect is named), the plot, the view JSON and,
-    with ``view_rrd``, the Rerun recording of where the model disagreed (:func:`write_view`)."""
+    with ``view_rrd``, the Rerun recording of where the model disagreed (:func:`write_view`);
+    ``progress``: as :func:`discover_observations`'s."""
     t0 = time.perf_counter()
     log_path = Path(log_path)
     log = read_log(log_path)  # no truth
@@ -449,7 +459,9 @@ def discover(
     robot = load_model(log, model)  # validates the MJCF (InputError)
     check_sites(robot, obs, model or log.path)
     src = Path(model) if model is not None else log.mjcf_text
-    rep, final, base = discover_observations(obs, src, max_rounds=max_rounds, with_base=True)
+    rep, final, base = discover_observations(
+        obs, src, max_rounds=max_rounds, with_base=True, progress=progress
+    )
     aug_path = None
     if final.effects:
         aug_path = Path(out_model) if out_model else log_path.with_name(log_path.stem + ".augmented.xml")

@@ -3,11 +3,16 @@
 The campaign's physics is solved once (bench.campaign.plan_campaign: true reflector positions
 and visibility of every pose); each run redraws the tracker noise with bench.tracker.measure
 (generator seeded by (scenario seed, run)), builds the observations exactly as from a log
-(identify/core/observations.py) and runs the full estimators on them: every method of the
-family's one list (identify/methods/registry.py): the one-step estimator and the paper's
-two-step method, unweighted step 2 (eq. 21) and step-1-covariance-weighted, and the two-step at
-its self-consistent sagged pose (identify/methods/twostep_iterated.py; every run starts at the
-noise-free sag, with the noise-free Newton Jacobian as its chord). Each method sets itself up
+(identify/core/observations.py) and runs the full estimators on them, methods of the family's
+one list (identify/methods/registry.py): by default (`--method both`) the one-step estimator
+and the paper's two-step method, unweighted step 2 (eq. 21) and step-1-covariance-weighted;
+with `--method all` also the two-step at its self-consistent sagged pose
+(identify/methods/twostep_iterated.py; every run starts at the noise-free sag, its pose rows and
+equilibria, with the noise-free Newton Jacobian as its chord; ~5x the one-step per run).
+
+Time: `calbench montecarlo` announces the duration from :func:`measure_montecarlo` (the set-up
+and PROBE_RUNS runs on noise seeds no run uses, timed at its start); OBSERVATION_SECONDS_PER_RUN
+and the methods' seconds_per_run are only :func:`estimated_seconds`'s fallback. Each method sets itself up
 once on the exact readings (its ``repeats``: the noise-free estimate and a run function that
 may reuse what it found) and the runs call that function; the noise-free estimates of the cheap
 methods (``noise_free_always``) are reported even when they are not run.
@@ -71,6 +76,7 @@ from calbench.identify.core import (
     pose_observation,
 )
 from calbench.identify.methods import (
+    BOTH,
     MethodResult,
     NotApplicable,
     all_methods,
@@ -302,7 +308,7 @@ def _setup(job: MonteCarloJob) -> _Setup:
         noise_free[m.name] = rep.noise_free.theta
         if m.name in job.methods:
             runs[m.name] = rep.run
-    if two_step_ok(robot):
+    if two_step_ok(robot) and truth_rb.model.nq == robot.model.nq:  # hidden effects add joints
         # diagnostic: the linear model at the true (sagged) unloaded configuration -- what is left
         # of the two-step's model error is H00 (eq. 18) and the nonlinearity over the deflection
         lp_true = linear_plan(robot, obs0, {p.index: p.equilibria[0].qpos for p in plans})
@@ -434,15 +440,15 @@ def run_montecarlo(
     seed: int | None = None,
     executor: Executor | None = None,
 ) -> MonteCarlo:
-    """N runs of the estimators on the scenario's campaign (``methods``: names, default all of
-    them); see the module docstring. Every method must apply to the robot (NotApplicable
+    """N runs of the estimators on the scenario's campaign (``methods``: names, default those
+    of `montecarlo --method both` that apply to its robot); see the module docstring. Every method must apply to the robot (NotApplicable
     otherwise: e.g. the two-step's TwoStepError).
 
     The runs go to ``executor`` (identify/runtime/executor.py; default: this process) in blocks of
     RUNS_PER_TASK. Ctrl-C raises :class:`Interrupted` carrying the Monte Carlo of the runs that
     finished."""
     t_wall = time.perf_counter()
-    methods = method_names() if methods is None else tuple(methods)
+    methods = montecarlo_methods(BOTH, scn) if methods is None else tuple(methods)
     job = MonteCarloJob(PortableScenario.from_scenario(scn), methods, scn.seed if seed is None else int(seed))
     s = _setup(job)
     lay = s.robot.layout
