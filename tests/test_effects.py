@@ -383,8 +383,8 @@ def test_campaign_with_hidden_effect(tmp_path):
     assert "link_compliance" in scn.effects
     robot = truth_robot(scn)
     assert isinstance(robot, EffectRobot) and robot.model.joint("forearm_rz").id >= 0
-    plans = run_campaign(scn, tmp_path / "hidden.mcap")
-    plain_plans = run_campaign(load_scenario(PAPER), tmp_path / "plain.mcap")
+    plans = run_campaign(scn, tmp_path / "hidden.mcap").plans
+    plain_plans = run_campaign(load_scenario(PAPER), tmp_path / "plain.mcap").plans
     log = read_log(tmp_path / "hidden.mcap", include_truth=True)
     eff = log.truth.parameters.effects["link_compliance"]
     assert eff == {"link": "forearm", "compliance": [8.0e-8, 1.0e-8, 8.0e-8]}

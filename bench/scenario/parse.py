@@ -418,26 +418,33 @@ def scenario_params(scn: Scenario, n_joints: int, compensators: tuple[str, ...])
 
 def check_joint_limits(scn: Scenario, limits: np.ndarray) -> None:
     """Reject poses (and the work pose) outside the robot's joint ``limits`` ((N, 2) rad)."""
+    named = [(f"pose[{i}].q", p.q) for i, p in enumerate(scn.poses)]
+    if scn.work is not None:
+        named.append(("work.q", scn.work.q))
+    check_commands(scn.path, named, limits, scn.robot.name)
+
+
+def check_commands(file: object, named, limits: np.ndarray, robot_name: str) -> None:
+    """Every command ``q`` of ``named`` ((key, q) pairs, rad) of the input ``file`` has one
+    angle per actuated joint of the robot ``robot_name`` and is within its joint ``limits``
+    ((N, 2) rad, JOINT_LIMIT_TOL beyond them allowed); InputError naming the key otherwise."""
     limits = np.asarray(limits, dtype=float)
     n = len(limits)
     if limits.shape != (n, 2):
         raise ValueError(f"limits must have shape (N, 2), got {limits.shape}")
-    named = [(f"pose[{i}].q", p.q) for i, p in enumerate(scn.poses)]
-    if scn.work is not None:
-        named.append(("work.q", scn.work.q))
     for key, q in named:
         if len(q) != n:
             raise InputError(
-                scn.path,
+                file,
                 key,
-                f"an array of {n} numbers (one per actuated joint of {scn.robot.name})",
+                f"an array of {n} numbers (one per actuated joint of {robot_name})",
                 f"{len(q)} elements",
             )
         for j in range(n):
             lo, hi = limits[j]
             if not lo - JOINT_LIMIT_TOL <= q[j] <= hi + JOINT_LIMIT_TOL:
                 raise InputError(
-                    scn.path,
+                    file,
                     f"{key}[{j}]",
                     f"joint {j + 1} within [{math.degrees(lo):.3f}, {math.degrees(hi):.3f}] degrees",
                     round(math.degrees(q[j]), 6),

@@ -42,8 +42,8 @@ import numpy as np
 from calbench.bench.campaign import pose_load
 from calbench.bench.core import STATES, InputError
 from calbench.bench.log import CampaignLog, LogHeader, LogWriter
-from calbench.bench.model import Robot
-from calbench.bench.scenario import NS, Plan, schedule
+from calbench.bench.model import load_robot
+from calbench.bench.scenario import NS, Plan, check_joint_limits, schedule
 from calbench.bench.tracker import TrackerSpec, noise_covariance
 
 from .readings import ReadingsTable, Row, group, iso8601
@@ -183,16 +183,9 @@ def write_imported_log(
     own time and each pose's command, load and end a millisecond around its readings (TICK);
     without, the log's campaign clock stamps them (bench/scenario/timeline.py), which is the schedule the
     readings were given (bench.scenario.schedule)."""
-    robot = Robot.from_file(model)
+    robot = load_robot(plan.path, "robot", path=model)  # as the import loaded it
     names = list(robot.reflector_names)
-    for i, pose in enumerate(plan.poses):
-        if len(pose.q) != robot.n_act:
-            raise InputError(
-                plan.path,
-                f"pose[{i}].q",
-                f"an array of {robot.n_act} numbers (one per actuated joint of {model.name})",
-                f"{len(pose.q)} elements",
-            )
+    check_joint_limits(plan, robot.limits())
     order = list(dict.fromkeys(p for p, _ in readings))
     loads = {p: pose_load(robot, plan, plan.poses[p]) for p in order}
 

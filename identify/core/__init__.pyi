@@ -14,8 +14,8 @@ from .identifiability import (
     whiten_factors,
 )
 from .leastsq import Fit, at_bounds, covariance, levenberg_marquardt, svd_step
-from .model import check_sites, load_model
-from .observations import Observations, PoseObservation, from_log, pose_observation
+from .model import check_sites
+from .observations import Observations, PoseObservation, from_campaign, from_log, pose_observation
 from .profile import PROFILE_SIGMAS, Profile, profile_check, quadratic
 from .rigid import RigidFit, fit_rigid, non_collinear, rotation_exp
 from .whitening import Whitener
@@ -42,9 +42,9 @@ __all__ = [
     "design_from_observations",
     "explain",
     "fit_rigid",
+    "from_campaign",
     "from_log",
     "levenberg_marquardt",
-    "load_model",
     "non_collinear",
     "outliers",
     "pose_observation",

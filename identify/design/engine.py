@@ -26,8 +26,8 @@ from calbench.bench.campaign import scenario_params
 from calbench.bench.scenario import Scenario, reading_times
 from calbench.bench.statics import Equilibrium, Load, StaticsSolver
 from calbench.bench.tracker import (
-    Measurement,
     deflection_covariance,
+    measure,
     noise_covariance,
     to_tracker_frame,
     tracker_rotation,
@@ -118,10 +118,8 @@ class InfoEngine:
         reflector unless the tracker's error is correlated)."""
         spec = self.scn.tracker
         n = len(p0)
-        reads, times = [], reading_times([repeats], n)
-        for p in (p0, p1):
-            y = to_tracker_frame(spec, p)
-            reads.append([Measurement(y, noise_covariance(spec, y), np.ones(n, bool))] * repeats)
+        times = reading_times([repeats], n)
+        reads = [[measure(spec, p, np.ones(n, bool), None)] * repeats for p in (p0, p1)]  # exact
         when = tuple([times[(0, s, r)] for r in range(repeats)] for s in ("unloaded", "loaded"))
         c = deflection_covariance(spec, reads[0], reads[1], np.arange(n), when)
         return np.einsum("ia,ranb,jb->rinj", self.rot, c, self.rot).reshape(3 * n, 3 * n)

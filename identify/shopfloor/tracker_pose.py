@@ -56,7 +56,7 @@ import numpy as np
 
 from calbench.bench.campaign import pose_load
 from calbench.bench.core import InputError
-from calbench.bench.model import Robot
+from calbench.bench.model import Robot, load_robot
 from calbench.bench.scenario import Plan
 from calbench.bench.shopfloor import Readings, ReadingsTable
 from calbench.bench.tracker import TrackerSpec, mean_reading, tracker_rotation
@@ -292,7 +292,7 @@ def register(
     plan: Plan, model: Path, readings: Readings, table: ReadingsTable, tracker: TrackerSpec
 ) -> Registration:
     """Register the tracker (module docstring); ``tracker`` gives the noise model."""
-    robot = Robot.from_file(model)
+    robot = load_robot(plan.path, "robot", path=model)  # as the import loaded it
     names = list(robot.reflector_names)
     pts = point_data(plan, robot, readings, table, names, tracker)
     keys, uy, uc, ulines = pts.unloaded
@@ -336,7 +336,7 @@ def register(
     obs_world = Observations(
         [_rotated(p, rigid.rotation) for p in pts.obs.poses], placed, pts.obs.noise_sigma, pts.obs.n_planned
     )
-    estimator = Robot.from_file(model)
+    estimator = load_robot(plan.path, "robot", path=model)
     theta0 = one_step(estimator, obs_world).values
     lay = robot.layout
     theta0, _ = sanitize_start(theta0, generic_start(estimator, obs_world), lay)
@@ -415,7 +415,7 @@ def check_placed(
     InputError beyond ABSURD_RMS (a wrong yaw, position or unit, poses out of order), naming the
     worst row. Returns the RMS distance per axis to rigid kinematics (m: the sag, the geometry
     and the tracker pose's own error)."""
-    robot = Robot.from_file(model)
+    robot = load_robot(plan.path, "robot", path=model)  # as the import loaded it
     names = list(robot.reflector_names)
     keys, uy, uc, ulines = point_data(plan, robot, readings, table, names, tracker).unloaded
     resid = rigid_points(robot, plan, keys) - (uy @ tracker_rotation(tracker).T + tracker.position)

@@ -6,7 +6,6 @@ from .campaign import TIMING_COLUMNS, needs_log, simulate_in_memory
 from .montecarlo import (
     RUNS_PER_TASK,
     WorkEstimate,
-    campaign_observations,
     check_montecarlo_size,
     estimated_seconds,
     format_summary,
@@ -30,7 +29,6 @@ __all__ = [
     "TIMING_COLUMNS",
     "accuracy_plots",
     "axis_ticks",
-    "campaign_observations",
     "cell_summaries",
     "check_montecarlo_size",
     "design_key",
