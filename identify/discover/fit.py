@@ -56,6 +56,7 @@ from calbench.bench.model.effects import (
 )
 from calbench.bench.tracker import tracker_rotation
 from calbench.identify.core import (
+    DISCOVER_RANK_TOL,
     Fit,
     ForwardModel,
     PoseDesign,
@@ -69,7 +70,6 @@ from calbench.identify.core import (
 
 # --------------------------------------------------------------------------- the library
 
-DISCOVER_RANK_TOL = 1e-5  # singular value (column-normalised) below which a direction is unseen
 COST_TOL = 1e-3  # chi2 units: a step gaining (or promising) less ends the fit
 STALL_LIMIT = 8  # Newton iterations a stalling step may re-assemble A_base + S (analytic S)
 # the base parameters' bounds: ParamLayout.lower / .upper (bench/model/params.py)
