@@ -44,7 +44,7 @@ class PosePlan:
     visible: np.ndarray  # (2, n) bool
 
 
-def scenario_params(scn: Scenario, robot: Robot) -> Params:
+def truth_params(scn: Scenario, robot: Robot) -> Params:
     """The scenario's truth for this robot (InputError naming a key that does not fit it)."""
     return _scenario_params(scn, robot.n_act, robot.description.compensators)
 
@@ -61,7 +61,7 @@ def truth_robot(scn: Scenario) -> Robot:
             raise InputError(
                 scn.path, "truth.effects", "effects that apply to the robot's MJCF", f"{scn.robot}: {exc}"
             ) from exc
-    robot.set_params(scenario_params(scn, robot))
+    robot.set_params(truth_params(scn, robot))
     return robot
 
 
@@ -134,4 +134,4 @@ def check_campaign_size(scn: Scenario, robot: Robot) -> None:
     check_size(estimate(repeats, len(robot.reflector_names)), scn.path, repeats_key(repeats))
 
 
-__all__ = ["PosePlan", "check_campaign_size", "plan_campaign", "pose_load", "scenario_params", "truth_robot"]
+__all__ = ["PosePlan", "check_campaign_size", "plan_campaign", "pose_load", "truth_params", "truth_robot"]

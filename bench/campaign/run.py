@@ -19,12 +19,12 @@ from calbench.bench.log import FoxgloveWriter, LogWriter, read_log
 from calbench.bench.model import Robot
 from calbench.bench.scenario import Scenario
 
-from .plan import check_campaign_size, scenario_params, truth_robot
+from .plan import check_campaign_size, truth_params, truth_robot
 from .simulation import Campaign, simulate
 
 
 def truth_record(scn: Scenario, robot: Robot) -> dict:
-    d = scenario_params(scn, robot).as_dict()
+    d = truth_params(scn, robot).as_dict()
     d["effects"] = {
         name: {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in e.items()}
         for name, e in scn.effects.items()

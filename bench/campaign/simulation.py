@@ -27,7 +27,7 @@ import numpy as np
 from calbench.bench.core import STATES, ProgressSink
 from calbench.bench.log import LogHeader
 from calbench.bench.model import Robot
-from calbench.bench.model.effects import Readings, effect_from_truth
+from calbench.bench.model.effects import ObservationRows, effect_from_truth
 from calbench.bench.scenario import Scenario, reading_times
 from calbench.bench.tracker import Measurement, TrackerSpec, measure_campaign, tracker_rotation
 
@@ -100,7 +100,7 @@ def reading_drift(scn: Scenario, index: int, reflectors: list[str]) -> np.ndarra
     for name, table in scn.effects.items():
         effect, params = effect_from_truth(name, table)
         if effect.measurement_side:
-            term = effect.deflection_term(params, Readings(tuple((index, r) for r in reflectors), rot))
+            term = effect.deflection_term(params, ObservationRows(tuple((index, r) for r in reflectors), rot))
             total = term if total is None else total + term
     return None if total is None else total @ rot  # world -> tracker frame: R^T x
 

@@ -64,7 +64,7 @@ class ImportedReading:
     time: float  # s: the table's (its kind), or the campaign clock's
 
 
-Readings = dict[tuple[int, str], list[ImportedReading]]
+ImportedReadings = dict[tuple[int, str], list[ImportedReading]]
 
 
 @dataclass(frozen=True)
@@ -135,7 +135,7 @@ def measured_order(table: ReadingsTable) -> list[int]:
     return order
 
 
-def campaign_readings(table: ReadingsTable, names: list[str], tracker: TrackerSpec) -> Readings:
+def campaign_readings(table: ReadingsTable, names: list[str], tracker: TrackerSpec) -> ImportedReadings:
     """The table's rows as log readings per (pose, state), reflectors in ``names`` order, with
     their covariances (:func:`reading_covariance`); poses in measured order. Every reading has a
     time: the table's, or, without a time column, the campaign clock's for these poses and
@@ -166,7 +166,7 @@ def campaign_readings(table: ReadingsTable, names: list[str], tracker: TrackerSp
 
 def write_imported_log(
     plan: Plan,
-    readings: Readings,
+    readings: ImportedReadings,
     tracker: TrackerSpec,
     model: Path,
     out: Path,
@@ -270,7 +270,7 @@ def export_rows(log: CampaignLog) -> list[Row]:
 
 __all__ = [
     "ImportedReading",
-    "Readings",
+    "ImportedReadings",
     "ImportSummary",
     "reading_covariance",
     "measured_order",

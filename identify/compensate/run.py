@@ -15,7 +15,7 @@ from calbench.bench.model import MODEL_FLAG, Robot, load_robot
 from calbench.bench.scenario import Scenario, load_scenario
 
 from .batch import BATCH_MIN, compensate_batch
-from .identified import Identified, read_identified
+from .identified import IdentifiedParams, read_identified
 from .job import Job, check_job, load_job
 from .solve import TARGETS, Compensator, PointResult
 from .toolpoint import with_tool
@@ -43,7 +43,7 @@ class CompensationRequest:
 class Compensation:
     job: Job
     robot: Robot
-    identified: Identified
+    identified: IdentifiedParams
     target: str
     points: tuple[PointResult, ...]
     truth: tuple[TruePoint, ...] | None = None

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from calbench.bench.campaign import scenario_params
+from calbench.bench.campaign import truth_params
 from calbench.bench.scenario import Scenario, reading_times
 from calbench.bench.statics import Equilibrium, Load, StaticsSolver
 from calbench.bench.tracker import (
@@ -57,7 +57,7 @@ class InfoEngine:
         self.scn = scn
         self.settings = settings
         self.robot = nominal_robot(scn)
-        self.params0 = scenario_params(scn, self.robot)
+        self.params0 = truth_params(scn, self.robot)
         self.theta0 = self.robot.layout.theta(self.params0)
         self.n_params = self.robot.layout.n
         self.solver = StaticsSolver(self.robot, tol=1e-10)

@@ -49,7 +49,7 @@ from calbench.bench.model import ParamLayout, Robot
 from calbench.bench.model.effects import (
     DISCOVERY_OPTIONS,
     Effect,
-    Readings,
+    ObservationRows,
     apply_effects,
     discovery_library,
     priors,
@@ -126,7 +126,7 @@ class AugmentedForward(ForwardModel):
         robot: Robot,
         design: list[PoseDesign],
         effects: list[Effect],
-        readings: Readings | None = None,
+        readings: ObservationRows | None = None,
         **kw,
     ):
         m = robot.model
@@ -145,7 +145,7 @@ class AugmentedForward(ForwardModel):
         self._dsprings: tuple[bytes, np.ndarray] | None = None
         self.readings = readings
         if any(e.measurement_side for e in self.effects) and readings is None:
-            raise ValueError("a measurement-side effect needs the observation rows (Readings)")
+            raise ValueError("a measurement-side effect needs the observation rows (ObservationRows)")
         hinge = np.flatnonzero(
             np.isin(m.jnt_type, (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE))
         )
@@ -395,7 +395,7 @@ def build(model_source, effects: list[tuple[Effect, np.ndarray]], obs) -> tuple[
             or (isinstance(model_source, str) and "<mujoco" not in model_source)
             else Robot.from_xml(model_source)
         )
-    readings = Readings(tuple(obs.labels), tracker_rotation(obs.tracker))
+    readings = ObservationRows(tuple(obs.labels), tracker_rotation(obs.tracker))
     fm = AugmentedForward(robot, design_from_observations(robot, obs), [e for e, _ in effects], readings)
     return robot, fm
 

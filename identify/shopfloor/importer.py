@@ -31,7 +31,7 @@ from calbench.bench.shopfloor import (
 )
 from calbench.bench.tracker import TrackerSpec
 
-from .tracker_pose import Registration, check_placed, register
+from .tracker_pose import TrackerRegistration, check_placed, fit_tracker_pose
 
 
 @dataclass
@@ -44,7 +44,7 @@ class ImportResult:
     tracker: TrackerSpec
     summary: ImportSummary
     imported: dict
-    registration: Registration | None = None
+    registration: TrackerRegistration | None = None
     warnings: list[str] = field(default_factory=list)
 
 
@@ -84,7 +84,7 @@ def import_readings(
         tracker = plan.tracker
         check_placed(plan, model_path, readings, table, tracker)
     else:
-        registration = register(plan, model_path, readings, table, plan.tracker)
+        registration = fit_tracker_pose(plan, model_path, readings, table, plan.tracker)
         tracker = plan.tracker.placed(registration.fit.position, registration.fit.rotation)
     imported = {
         "source": csv_path.name,

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from calbench.bench.campaign import run_campaign, scenario_params, simulate
+from calbench.bench.campaign import run_campaign, simulate, truth_params
 from calbench.bench.core import write_text
 from calbench.bench.model import LOG_KEY, Robot, load_robot
 from calbench.bench.model.effects import without_compensator
@@ -151,7 +151,7 @@ def simulate_in_memory(scn: Scenario) -> Simulated:
     mjcf = campaign.header.mjcf_text
     rb = Robot.from_xml(mjcf)
     try:
-        truth = rb.layout.theta(scenario_params(scn, campaign.robot))
+        truth = rb.layout.theta(truth_params(scn, campaign.robot))
     except ValueError:  # as report.truth_vector
         truth = None
     return Simulated(obs, mjcf, truth)

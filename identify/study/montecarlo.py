@@ -53,8 +53,8 @@ from calbench.bench.campaign import (
     Campaign,
     check_campaign_size,
     remeasure,
-    scenario_params,
     simulate,
+    truth_params,
     truth_robot,
 )
 from calbench.bench.core import ProgressSink, sink
@@ -88,7 +88,7 @@ OBSERVATION_SECONDS_PER_RUN = 0.004
 
 
 def true_theta(scn: Scenario, robot: Robot) -> np.ndarray:
-    return robot.layout.theta(scenario_params(scn, robot))
+    return robot.layout.theta(truth_params(scn, robot))
 
 
 def two_step_ok(robot: Robot) -> bool:
