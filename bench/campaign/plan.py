@@ -25,8 +25,8 @@ from calbench.bench.scenario import (
     check_size,
     estimate,
     repeats_key,
+    scenario_params,
 )
-from calbench.bench.scenario import scenario_params as _scenario_params
 from calbench.bench.statics import Equilibrium, Load, StaticsError, StaticsSolver
 from calbench.bench.tracker import visible_sites
 
@@ -46,7 +46,7 @@ class PosePlan:
 
 def truth_params(scn: Scenario, robot: Robot) -> Params:
     """The scenario's truth for this robot (InputError naming a key that does not fit it)."""
-    return _scenario_params(scn, robot.n_act, robot.description.compensators)
+    return scenario_params(scn, robot.n_act, robot.description.compensators)
 
 
 def truth_robot(scn: Scenario) -> Robot:

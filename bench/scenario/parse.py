@@ -344,16 +344,22 @@ def scenario_variant(
     seed: int | None = None,
     compensator: tuple[float, float] | None = None,
     extra: str = "",
+    robot: str | Path | None = None,
+    drop: tuple[str, ...] = (),
 ) -> Path:
     """Write a copy of scenario ``src`` at ``out`` with a few truths changed, keeping its comments.
 
-    The robot path is made absolute (the copy may live elsewhere); ``name``, ``seed`` and the
-    compensator's (stiffness, preload) replace the file's; ``extra`` is TOML inserted before
-    ``[tracker]``, e.g. a hidden ``[truth.effects.*]`` table. The result is validated.
+    The robot path is made absolute (the copy may live elsewhere), or is ``robot``; ``name``,
+    ``seed`` and the compensator's (stiffness, preload) replace the file's; the tables named in
+    ``drop`` (e.g. ``"truth.compensator"`` for a robot without the spring) are removed, their
+    keys and comments with them; ``extra`` is TOML inserted before ``[tracker]``, e.g. a hidden
+    ``[truth.effects.*]`` table. The result is validated.
     """
     src, out = Path(src), Path(out)
     text = src.read_text(encoding="utf-8")
-    robot = (src.parent / tomllib.loads(text)["robot"]).resolve()
+    robot = (
+        Path(robot).resolve() if robot is not None else (src.parent / tomllib.loads(text)["robot"]).resolve()
+    )
 
     def sub(pattern: str, value: str, flags: int = re.MULTILINE) -> None:
         nonlocal text
@@ -374,6 +380,10 @@ def scenario_variant(
                 repr(float(value)),
                 re.MULTILINE | re.DOTALL,
             )
+    for table in drop:  # the table's header up to the next table's
+        text, n = re.subn(rf"^\[{re.escape(table)}\]\n(?:(?!\[).*\n)*", "", text, count=1, flags=re.MULTILINE)
+        if n != 1:
+            raise ValueError(f"{src}: no table [{table}] to drop")
     if extra:
         sub(r"^()(?=\[tracker\])", extra.strip() + "\n\n")
     parse_scenario(text, out)  # raises InputError on a bad variant, before writing it

@@ -3,10 +3,11 @@
 
 from .formats import FORMATS, ReadingsFormat, ReadingsTable
 from .logcsv import ImportedReadings, ImportSummary, campaign_readings, export_rows, write_imported_log
-from .probe import ProbeSeries, campaign_files, euler_xyz, read_probe_series, read_transform
+from .probe import ProbeSeries, campaign_files, euler_xyz, read_probe_series, read_transform, series_files
 from .readings import group, read_readings, readings_csv
 
 __all__ = [
+    "series_files",
     "FORMATS",
     "ImportSummary",
     "ProbeSeries",
