@@ -57,7 +57,7 @@ from calbench.bench.campaign import (
     truth_params,
     truth_robot,
 )
-from calbench.bench.core import ProgressSink, sink
+from calbench.bench.core import InputError, ProgressSink, sink
 from calbench.bench.model import Robot, display_name, free_length_note, load_robot
 from calbench.bench.scenario import Scenario, check_size, montecarlo_estimate
 from calbench.identify.core import (
@@ -355,6 +355,41 @@ def measure_montecarlo(
     return WorkEstimate(t1 - t0, (t2 - t1) / max(probe, 1), probe)
 
 
+@dataclass(frozen=True)
+class PendingMonteCarlo:
+    """A Monte Carlo checked and priced, ready to run (:func:`prepare_montecarlo`): the
+    scenario, the runs, the methods that run, and the cost measured on probe runs."""
+
+    scenario: Scenario
+    runs: int
+    methods: tuple[str, ...]
+    cost: WorkEstimate
+
+    @property
+    def tasks(self) -> int:
+        """Blocks of RUNS_PER_TASK runs: the pieces an executor runs."""
+        return -(-self.runs // RUNS_PER_TASK)
+
+    def seconds(self) -> float:
+        """In-process work of every run (the set-up apart)."""
+        return self.cost.seconds(self.runs)
+
+
+def prepare_montecarlo(
+    scn: Scenario, runs: int, choice: str = BOTH, seed: int | None = None, force: bool = False
+) -> PendingMonteCarlo:
+    """`calbench montecarlo` before it runs: ``runs`` >= 2, the size limits (unless ``force``),
+    the methods ``choice`` names for the scenario's robot (:func:`montecarlo_methods`), and the
+    cost of a run measured here (:func:`measure_montecarlo`, whose set-up the runs in this
+    process reuse). InputError on any of them."""
+    if runs < 2:
+        raise InputError("--runs", "runs", "an integer >= 2", runs)
+    if not force:
+        check_montecarlo_size(scn, runs)
+    methods = montecarlo_methods(choice, scn)
+    return PendingMonteCarlo(scn, runs, methods, measure_montecarlo(scn, methods, seed))
+
+
 def estimated_seconds(runs: int, methods=None) -> float:
     """In-process time of ``runs`` runs of ``methods`` (default: all of them; each method's
     seconds_per_run, measured), for the executor choice."""
@@ -483,6 +518,8 @@ __all__ = [
     "check_montecarlo_size",
     "montecarlo_methods",
     "run_montecarlo",
+    "prepare_montecarlo",
+    "PendingMonteCarlo",
     "run_block",
     "estimated_seconds",
     "measure_montecarlo",
