@@ -57,6 +57,7 @@ from .expand import urdf_text
 from .importer import Conversion, RobotImporter
 from .mimic import convert_balancers
 from .overlay import Attach, Overlay
+from .parallelogram import convert_parallelograms
 
 PLACEHOLDER_STIFFNESS = 1.0e6  # N*m/rad on every actuated hinge until a scenario sets it
 CONTINUOUS_RANGE = (-2 * math.pi, 2 * math.pi)
@@ -177,9 +178,11 @@ def check_urdf(tree: UrdfTree) -> None:
             raise InputError(
                 tree.path,
                 f"joint {j.name!r}",
-                "no <mimic> (the statics would ignore the coupling; a balancer cylinder, two "
-                "mimic joints that stay collinear across one joint, becomes a spring by itself; "
-                "describe a parallelogram as [loops] in the overlay, or remove it)",
+                "no <mimic> (the statics would ignore the coupling; from-urdf converts a balancer "
+                "cylinder, two mimic joints that stay collinear across one joint, into a spring, and "
+                "a parallelogram, a crank keeping the forearm's orientation and a rod keeping the "
+                "upper arm's, into a loop; describe any other coupling as [loops] in the overlay, "
+                "or remove it)",
                 f"a mimic of {j.mimic!r}",
             )
         if j.type not in MOVING_TYPES + ("fixed",):
@@ -510,6 +513,8 @@ def convert(urdf: str | Path, ov: Overlay) -> Conversion:
     """Build and check the calbench MJCF of ``urdf`` with overlay ``ov`` (module docstring)."""
     text, expanded = urdf_text(Path(urdf), ov)
     text, ov, notes = convert_balancers(text, ov)  # mimic cylinders -> compensator springs
+    text, ov, more = convert_parallelograms(text, ov, Path(urdf))  # mimic parallelograms -> loops
+    notes += more
     tree = read_urdf(urdf, ov, (text, expanded))
     check_urdf(tree)
     check_overlay(tree, ov)
@@ -539,6 +544,7 @@ def convert(urdf: str | Path, ov: Overlay) -> Conversion:
         geoms=int(model.ngeom),
         meshes=int(model.nmesh),
         notes=tuple(notes),
+        assumed=tuple(i.link for i in ov.inertials),
     )
 
 
@@ -546,8 +552,8 @@ class UrdfImporter(RobotImporter):
     """The URDF importer (this module): :func:`convert` behind the importer interface."""
 
     name = "urdf"
-    summary = "a URDF (run xacro first if it is a .xacro) and an overlay"
-    suffixes = (".urdf",)
+    summary = "a URDF or a .xacro (expanded by the xacro package) and an overlay"
+    suffixes = (".urdf", ".xacro")
 
     def convert(self, path: Path, overlay: Overlay) -> Conversion:
         return convert(path, overlay)
