@@ -201,13 +201,14 @@ def robot_row(name: str, spec: dict, robots: Path, runs: int, work: Path) -> dic
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="40 Monte Carlo runs instead of 200")
+    ap.add_argument("--runs", type=int, help="Monte Carlo runs (default 200; --quick: 40)")
     ap.add_argument("--robot", action="append", help="only this robot (a word of its name); repeatable")
     args = ap.parse_args()
     robots = shared_robots()
     if robots is None:
         print(json.dumps({"skipped": "needs ../shared/data/robots (the ROS-Industrial packages)"}))
         return 0
-    runs = 40 if args.quick else 200
+    runs = args.runs or (40 if args.quick else 200)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for i, (name, spec) in enumerate(ROBOTS.items()):
