@@ -202,8 +202,8 @@ def add_check_robot(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--mass",
         type=float,
-        default=DEFAULT_MASS,
-        help="payload (kg) of the loaded grid (default: %(default)g)",
+        help=f"payload (kg) of the loaded grid (default: {DEFAULT_MASS:g}, or a third of the robot's "
+        "moving mass if less)",
     )
     p.add_argument(
         "--grid", type=int, default=3, help="values per joint of the grid of poses (default: %(default)s)"
@@ -218,7 +218,7 @@ def cmd_check_robot(args: argparse.Namespace, more=None) -> int:
 
     if args.grid < 1:
         raise InputError("--grid", "grid", "an integer >= 1", args.grid)
-    if not args.mass > 0:
+    if args.mass is not None and not args.mass > 0:
         raise InputError("--mass", "mass", "a mass > 0 (kg)", args.mass)
     res = check_robot(args.robot, args.tracker, args.mass, args.grid)
     print("\n".join(res.lines()), flush=True)

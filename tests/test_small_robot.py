@@ -67,3 +67,36 @@ def test_a_soft_arm_identifies_with_quadratic_profiles(tmp_path, capsys):
     assert main(["identify", str(tmp_path / "soft.mcap"), "--check"]) == 0
     out = capsys.readouterr().out
     assert "check passed" in out and "past its bound" not in out, out
+
+
+def test_check_robot_loads_a_light_robot_with_at_most_a_third_of_its_mass(tmp_path, capsys):
+    """The tests' arm at 1 % of its masses (about 19 kg moving): the loaded grid and the
+    feasibility sample hang a third of that, not 100 kg, and nothing warns about the payload."""
+    import mujoco
+
+    (tmp_path / "arm.urdf").write_text(arm_urdf(), encoding="utf-8")
+    (tmp_path / "arm.toml").write_text(arm_overlay(), encoding="utf-8")
+    heavy = tmp_path / "heavy.xml"
+    args = [
+        "from-urdf",
+        str(tmp_path / "arm.urdf"),
+        "--overlay",
+        str(tmp_path / "arm.toml"),
+        "--out",
+        str(heavy),
+    ]
+    assert main(args) == 0
+    spec = mujoco.MjSpec.from_file(str(heavy))
+    for b in spec.bodies:
+        b.mass *= 0.01
+        b.inertia = [0.01 * x for x in b.inertia]
+    light = tmp_path / "light.xml"
+    light.write_text(spec.to_xml(), encoding="utf-8")
+    m = mujoco.MjModel.from_xml_path(str(light))
+    moving = float(m.body_mass[m.body_weldid != 0].sum())
+    capsys.readouterr()
+    assert main(["check-robot", str(light), "--grid", "1", "--sample", "8"]) == 0
+    out, err = capsys.readouterr()
+    assert f"{float(f'{moving / 3:.2g}'):g} kg;" in out and "load.mass" not in err, (out, err)
+    assert main(["check-robot", str(heavy), "--grid", "1", "--sample", "8"]) == 0
+    assert "100 kg;" in capsys.readouterr().out  # a heavy robot: as before
