@@ -290,7 +290,7 @@ def cmd_from_urdf(args: argparse.Namespace) -> int:
         + (f", passive {' '.join(conv.passive)}" if conv.passive else "")
         + f"; moving mass {conv.moving_mass:.1f} kg "
         + (
-            f"(ASSUMED for {' '.join(conv.assumed)}: the overlay's [inertials])"
+            f"(ASSUMED for {' '.join(conv.assumed)}: the overlay's [inertials] or assumed_density)"
             if conv.assumed
             else "from the URDF's inertials"
         )

@@ -119,7 +119,7 @@ ROBOTS = {
         + "".join(f"\n[inertials.{k}]\nmass = {m}.0\ncom = {c}\n" for k, (m, c) in FANUC_MASSES.items()),
         "plan": 'name = "m900ib"\nrobot = "robot.xml"\nseed = 3\n'
         + TRUTH
-        + "[truth.compensators.balancer]\nstiffness = 2e5\npreload = 0.60\n"
+        + "[truth.compensators.balancer]\nstiffness = 5e5\npreload = 0.785\n"
         + TRACKER
         + "[load]\nmass = 700.0\n[[pose]]\nq = [0, 20, -10, 0, 30, 0]\n",
     },

@@ -98,7 +98,12 @@ class RobotCheck:
         )
         out.append(f"  payload site: {self.payload}" + (f"; flange: {self.flange}" if self.flange else ""))
         for key, names in self.optional.items():
-            out.append(f"  {key}: {' '.join(names)}")
+            if key == "assumed_masses":
+                out.append(
+                    f"  masses ASSUMED (a guess, not the maker's: calbench:assumed_masses) for {' '.join(names)}"
+                )
+            else:
+                out.append(f"  {key}: {' '.join(names)}")
         if self.frames:
             out.append(
                 "  links at the reference pose (q = 0), for placing reflectors and the payload: frame "
@@ -315,7 +320,9 @@ def check_robot(
         reference,
         spot,
         optional={
-            k: v for k in ("mass_compensators", "links", "compensator_sites") if (v := getattr(desc, k))
+            k: v
+            for k in ("mass_compensators", "links", "compensator_sites", "assumed_masses")
+            if (v := getattr(desc, k))
         }
         | ({"wrist": (desc.wrist,)} if desc.wrist else {}),
         frames=link_frames(robot),

@@ -121,6 +121,8 @@ def urdf_text(path: Path, ov: Overlay | None = None) -> tuple[str, bool]:
             raise InputError(
                 ov.path, f"{spec.key}", f"a link of {path.name} (" + ", ".join(links) + ")", spec.link
             )
+        if spec.density is not None:  # estimated from its geometry (bench/robots/density.py)
+            continue
         link = links[spec.link]
         for old in link.findall("inertial"):
             link.remove(old)

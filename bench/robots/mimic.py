@@ -51,7 +51,7 @@ def _vec(text: str | None, default=(0.0, 0.0, 0.0)) -> np.ndarray:
     return np.array([float(x) for x in text.split()]) if text else np.array(default, float)
 
 
-def _rpy(rpy: np.ndarray) -> np.ndarray:
+def rpy_matrix(rpy: np.ndarray) -> np.ndarray:
     """URDF rpy: Rz(yaw) Ry(pitch) Rx(roll)."""
     r, p, y = rpy
     cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
@@ -69,7 +69,7 @@ def mimic_joint(el: ET.Element) -> MimicJoint:
         el.find("parent").get("link", "") if el.find("parent") is not None else "",
         el.find("child").get("link", "") if el.find("child") is not None else "",
         _vec(o.get("xyz") if o is not None else None),
-        _rpy(_vec(o.get("rpy") if o is not None else None)),
+        rpy_matrix(_vec(o.get("rpy") if o is not None else None)),
         axis / (np.linalg.norm(axis) or 1.0),
         float(m.get("multiplier", "1")) if m is not None else 1.0,
         m.get("joint", "") if m is not None else "",
