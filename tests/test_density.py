@@ -7,13 +7,12 @@ marked ASSUMED wherever they show: from-urdf's notes and summary, the MJCF's hea
 from __future__ import annotations
 
 import re
-from pathlib import Path
 
 import mujoco
 import numpy as np
 import pytest
 from shared_data import shared_data
-from urdf_robots import arm_overlay, arm_urdf
+from urdf_robots import FANUC_TOOL, arm_overlay, arm_urdf, convert_arm
 
 from calbench.bench.model import Robot
 from calbench.identify.cli import main
@@ -45,22 +44,12 @@ def _tensor(m: mujoco.MjModel, body: int) -> np.ndarray:
     return r @ np.diag(m.body_inertia[body]) @ r.T
 
 
-def _convert(folder: Path, urdf: str, overlay: str) -> tuple[int, Path]:
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / "arm.urdf").write_text(urdf, encoding="utf-8")
-    (folder / "arm.toml").write_text(overlay, encoding="utf-8")
-    out = folder / "arm.xml"
-    return main(
-        ["from-urdf", str(folder / "arm.urdf"), "--overlay", str(folder / "arm.toml"), "--out", str(out)]
-    ), out
-
-
 def test_boxes_and_cylinders_at_a_density_match_mujocos_filling(tmp_path, capsys):
     """The tests' arm (boxes, cylinders, one laid along x by an rpy) without inertials, at
     2700 kg/m^3: every link's mass, centre and inertia tensor as MuJoCo computes them, to
     rounding; marked ASSUMED in the notes, the summary, the header and the description."""
     urdf = _no_inertials(arm_urdf())
-    rc, out = _convert(tmp_path, urdf, "assumed_density = 2700.0\n" + arm_overlay())
+    rc, out = convert_arm(tmp_path, urdf, "assumed_density = 2700.0\n" + arm_overlay())
     err = capsys.readouterr()
     assert rc == 0, err.err
     assert "note: link_3: mass" in err.err and "ASSUMED: its collision geometry" in err.err
@@ -87,7 +76,7 @@ def test_a_link_table_density_and_given_masses_mix(tmp_path, capsys):
     extra = (
         "\n[inertials.link_2]\ndensity = 7850.0\n\n[inertials.link_4]\nmass = 61.0\ncom = [0.1, 0.0, 0.0]\n"
     )
-    rc, out = _convert(tmp_path, urdf, arm_overlay(extra=extra))
+    rc, out = convert_arm(tmp_path, urdf, arm_overlay(extra=extra))
     assert rc == 0, capsys.readouterr().err
     m = mujoco.MjModel.from_xml_path(str(out))
     ref = _mujoco_masses(_no_inertials(urdf), 7850.0)
@@ -98,7 +87,7 @@ def test_a_link_table_density_and_given_masses_mix(tmp_path, capsys):
 
 def test_density_and_a_mass_in_one_table_exit_2(tmp_path, capsys):
     extra = "\n[inertials.link_2]\ndensity = 7850.0\nmass = 10.0\ncom = [0.0, 0.0, 0.0]\n"
-    rc, out = _convert(tmp_path, arm_urdf(), arm_overlay(extra=extra))
+    rc, out = convert_arm(tmp_path, arm_urdf(), arm_overlay(extra=extra))
     assert rc == 2 and not out.exists()
     assert "arm.toml: inertials.link_2.density: expected either a density" in capsys.readouterr().err
 
@@ -118,14 +107,7 @@ def test_the_fanuc_meshes_at_a_density_match_mujocos_exact_mesh_inertia(tmp_path
     2000 kg/m^3: mass, centre and inertia as MuJoCo's exact mesh inertia gives them (float32
     vertices: to 1e-6)."""
     xacro = shared_data("robots", "fanuc_m900ib_support", "urdf", "m900ib700.xacro")
-    overlay = (
-        'assumed_density = 2000.0\nactuated = ["joint_1", "joint_2", "joint_3", "joint_4", "joint_5", "joint_6"]\n'
-        '[payload]\nlink = "link_6"\npos = [0.3, 0.0, -0.15]\n'
-        + "".join(
-            f'[reflectors.r{i}]\nlink = "link_6"\npos = {p}\n'
-            for i, p in enumerate(([0.2, 0.3, 0.2], [0.2, -0.3, 0.2], [0.2, 0.0, -0.3]), 1)
-        )
-    )
+    overlay = "assumed_density = 2000.0\n" + FANUC_TOOL
     (tmp_path / "f.toml").write_text(overlay, encoding="utf-8")
     out = tmp_path / "f.xml"
     assert main(["from-urdf", str(xacro), "--overlay", str(tmp_path / "f.toml"), "--out", str(out)]) == 0

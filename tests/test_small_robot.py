@@ -13,7 +13,7 @@ from __future__ import annotations
 import re
 
 import pytest
-from urdf_robots import TRUTH_K, arm_overlay, arm_urdf, scenario
+from urdf_robots import TRUTH_K, arm_overlay, arm_urdf, convert_arm, scenario
 
 from calbench.bench.model import ParamLayout
 from calbench.identify.cli import main
@@ -44,18 +44,8 @@ def test_a_soft_arm_identifies_with_quadratic_profiles(tmp_path, capsys):
     """The tests' arm with drives 50 x softer (wrist 3e-5 rad/(N*m)) and a 10 kg payload: the
     check passes and no profile is cut at a bound (before: 'past its bound' on every wrist
     parameter, whose truth lay beyond 1e-5)."""
-    (tmp_path / "arm.urdf").write_text(arm_urdf(), encoding="utf-8")
-    (tmp_path / "arm.toml").write_text(arm_overlay(), encoding="utf-8")
-    robot = tmp_path / "arm.xml"
-    args = [
-        "from-urdf",
-        str(tmp_path / "arm.urdf"),
-        "--overlay",
-        str(tmp_path / "arm.toml"),
-        "--out",
-        str(robot),
-    ]
-    assert main(args) == 0
+    rc, robot = convert_arm(tmp_path, arm_urdf(), arm_overlay())
+    assert rc == 0
     soft = [50 * k for k in TRUTH_K]
     text = scenario(str(robot)).replace("mass = 400.0", "mass = 10.0")
     text = re.sub(r"^compliance = .*$", f"compliance = {soft!r}", text, flags=re.M)
@@ -74,18 +64,8 @@ def test_check_robot_loads_a_light_robot_with_at_most_a_third_of_its_mass(tmp_pa
     feasibility sample hang a third of that, not 100 kg, and nothing warns about the payload."""
     import mujoco
 
-    (tmp_path / "arm.urdf").write_text(arm_urdf(), encoding="utf-8")
-    (tmp_path / "arm.toml").write_text(arm_overlay(), encoding="utf-8")
-    heavy = tmp_path / "heavy.xml"
-    args = [
-        "from-urdf",
-        str(tmp_path / "arm.urdf"),
-        "--overlay",
-        str(tmp_path / "arm.toml"),
-        "--out",
-        str(heavy),
-    ]
-    assert main(args) == 0
+    rc, heavy = convert_arm(tmp_path, arm_urdf(), arm_overlay())
+    assert rc == 0
     spec = mujoco.MjSpec.from_file(str(heavy))
     for b in spec.bodies:
         b.mass *= 0.01

@@ -97,15 +97,24 @@ def _same_pivots(c: CompensatorSpec, f: MimicJoint, t: MimicJoint) -> bool:
     )
 
 
-def convert_balancers(text: str, ov: Overlay) -> tuple[str, Overlay, list[str]]:
-    """The URDF text without its balancer cylinders, the overlay with a compensator for each, and
-    a note per conversion (module docstring). Unchanged when there is none."""
+def read_joints(text: str) -> tuple[ET.Element, dict[str, ET.Element], dict[str, MimicJoint]] | None:
+    """The URDF's root, its joint elements and their numbers by name; None if it is no XML (the
+    URDF reader reports that)."""
     try:
         root = ET.fromstring(text)
     except ET.ParseError:
-        return text, ov, []
+        return None
     els = {el.get("name", ""): el for el in root.findall("joint")}
-    joints = {n: mimic_joint(el) for n, el in els.items()}
+    return root, els, {n: mimic_joint(el) for n, el in els.items()}
+
+
+def convert_balancers(text: str, ov: Overlay) -> tuple[str, Overlay, list[str]]:
+    """The URDF text without its balancer cylinders, the overlay with a compensator for each, and
+    a note per conversion (module docstring). Unchanged when there is none."""
+    read = read_joints(text)
+    if read is None:
+        return text, ov, []
+    root, els, joints = read
     parents = {j.parent for j in joints.values()}
     spanned = {frozenset((c.start.link, c.end.link)) for c in ov.compensators}
     found: list[tuple[MimicJoint, MimicJoint, MimicJoint]] = []

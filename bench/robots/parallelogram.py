@@ -44,7 +44,7 @@ import numpy as np
 
 from calbench.bench.core import InputError
 
-from .mimic import ALIGNED, MimicJoint, mimic_joint
+from .mimic import ALIGNED, MimicJoint, read_joints
 from .overlay import Attach, LoopSpec, Overlay
 
 ON_AXIS = 1e-6  # m: how far off G's axis a crank pivot may be and still count as coaxial
@@ -123,12 +123,10 @@ def convert_parallelograms(text: str, ov: Overlay, path) -> tuple[str, Overlay, 
     overlay with its ``[loops]`` entry, and a note per conversion (module docstring).
     Unchanged when there is none; InputError (naming ``path`` and the crank's joint) for a
     crank that cannot hang from the turret."""
-    try:
-        root = ET.fromstring(text)
-    except ET.ParseError:
+    read = read_joints(text)
+    if read is None:
         return text, ov, []
-    els = {el.get("name", ""): el for el in root.findall("joint")}
-    joints = {n: mimic_joint(el) for n, el in els.items()}
+    root, els, joints = read
     by_child = {j.child: j for j in joints.values()}
     taken = set(els)
     loops, notes = list(ov.loops), []
