@@ -128,3 +128,17 @@ def test_the_fanuc_meshes_at_a_density_match_mujocos_exact_mesh_inertia(tmp_path
         np.testing.assert_allclose(
             _tensor(ours, a), _tensor(ref, a), atol=1e-6 * np.abs(_tensor(ref, a)).max()
         )
+
+
+@pytest.mark.parametrize(
+    ("typed", "key", "mistake"),
+    [
+        ("assumed_density = 7.85\n", "assumed_density", "g/cm^3 written as kg/m^3? (7.85e+03 kg/m^3)"),
+        ("assumed_density = 7.85e6\n", "assumed_density", "denser than any metal"),
+    ],
+)
+def test_a_density_in_the_wrong_unit_exits_2_naming_it(tmp_path, capsys, typed, key, mistake):
+    rc, out = convert_arm(tmp_path, _no_inertials(arm_urdf()), typed + arm_overlay())
+    err = capsys.readouterr().err
+    assert rc == 2 and not out.exists()
+    assert f"arm.toml: {key}: expected a density in kg/m^3" in err and mistake in err, err

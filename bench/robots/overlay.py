@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from calbench.bench.core import InputError, Table, describe, parse_toml, read_text
+from calbench.bench.scenario import check_density
 
 TOP_KEYS = (
     "actuated",
@@ -258,7 +259,9 @@ def _inertial(tables: Table, link: str) -> InertialSpec:
                 "either a density (kg/m^3: estimated from the geometry) or mass and com, not both",
                 "both",
             )
-        return InertialSpec(link, 0.0, (0.0, 0.0, 0.0), None, c.prefix, c.number("density", positive=True))
+        rho = c.number("density", positive=True)
+        check_density(c.file, c.key("density"), rho)
+        return InertialSpec(link, 0.0, (0.0, 0.0, 0.0), None, c.prefix, rho)
     com = c.vector("com", 3)
     inertia = None
     if c.has("inertia"):
@@ -284,6 +287,12 @@ def _convention(tables: Table, joint: str) -> ConventionSpec:
     if isinstance(sign, bool) or sign not in (1, -1):
         raise c.fail("sign", "1 or -1 (the controller counts the joint the URDF's way, or the other)", sign)
     return ConventionSpec(joint, math.radians(zero), int(sign), c.prefix)
+
+
+def _density(top: Table) -> float:
+    rho = top.number("assumed_density", positive=True)
+    check_density(top.file, top.key("assumed_density"), rho)
+    return rho
 
 
 def _named_tables(top: Table, key: str, what: str) -> list[tuple[Table, str]]:
@@ -334,7 +343,7 @@ def parse_overlay(text: str, path: str | Path) -> Overlay:
         mounts=mounts,
         inertials=tuple(_inertial(t, n) for t, n in _named_tables(top, "inertials", "link")),
         conventions=tuple(_convention(t, n) for t, n in _named_tables(top, "conventions", "joint")),
-        assumed_density=top.number("assumed_density", positive=True) if top.has("assumed_density") else None,
+        assumed_density=_density(top) if top.has("assumed_density") else None,
     )
     seen: dict[str, str] = {}
     for s in ov.sites():
