@@ -906,11 +906,11 @@ def _design_lines(args, res) -> list[str]:
         raise InputError("--sample", "sample", "an integer >= 0", args.sample)
     if args.sample == 0:
         return []
-    t = robot_tally(args.robot, res.tracker, args.mass, args.sample)
+    t = robot_tally(args.robot, res.tracker, res.mass, args.sample)
     share = t.passed_command / t.sampled * (t.feasible / t.solved if t.solved else 0.0)
     return [
         f"  design's feasibility rules on {t.sampled} sampled commands (default [design] settings, "
-        f"{args.mass:g} kg; equilibria checked on {t.solved} that pass the command rules): "
+        f"{res.mass:g} kg; equilibria checked on {t.solved} that pass the command rules): "
         f"{100 * share:.1f} % feasible",
         *t.lines(),
     ]

@@ -19,6 +19,7 @@ from .parse import (
 from .plausible import (
     PlausibilityWarning,
     Scale,
+    check_density,
     check_length,
     check_plan,
     check_scenario,
@@ -62,6 +63,7 @@ __all__ = [
     "JOINT_LIMIT_TOL",
     "check_commands",
     "check_joint_limits",
+    "check_density",
     "check_length",
     "check_plan",
     "check_scenario",
