@@ -15,6 +15,7 @@ from .loop import (
 )
 from .params import (
     LEGACY_COMPENSATOR,
+    MAX_COMPLIANCE,
     ParamLayout,
     Params,
     Spring,
@@ -33,6 +34,7 @@ __all__ = [
     "LOOP_MARGIN",
     "LOOP_MARGIN_ANGLE",
     "LOOP_TOL",
+    "MAX_COMPLIANCE",
     "ParamLayout",
     "Params",
     "ReflectorPost",
