@@ -88,6 +88,58 @@ def test_a_xacro_with_find_converts_to_the_same_robot_as_its_urdf(tmp_path):
     assert "from arm.urdf.xacro (expanded by xacro)" in made.read_text(encoding="utf-8")
 
 
+def test_xacro_arguments_come_from_the_overlay_and_their_lack_is_named(tmp_path, capsys):
+    """A top-level xacro that needs arguments (ur_description's ur.xacro needs robot_model and
+    its parameter files): the overlay's [xacro] table gives them, $(find PKG) in a value
+    resolved from [packages]; the arm comes out number for number as from its plain URDF. No
+    value: one line naming the [xacro] key to add; a file that is not there: one line naming it
+    (ur_description here lacks config/ur5/); [xacro] on a plain URDF: refused."""
+    urdf = arm_urdf()
+    rc, plain = _convert(tmp_path / "plain", urdf, arm_overlay())
+    assert rc == 0
+    links = urdf[urdf.index("  <link") : urdf.index("  <joint")]
+    joints = urdf[urdf.index("  <joint") : urdf.index("</robot>")].replace(
+        'xyz="0.0 0.0 0.45"', 'xyz="0 0 $(arg base_height)"', 1
+    )
+    pkg = tmp_path / "elsewhere" / "arm_macros"
+    pkg.mkdir(parents=True)
+    (pkg / "links.xacro").write_text(
+        f'<robot xmlns:xacro="http://www.ros.org/wiki/xacro"><xacro:macro name="arm_links">\n{links}'
+        "</xacro:macro></robot>\n",
+        encoding="utf-8",
+    )
+    xacro = (
+        '<?xml version="1.0"?>\n<robot name="arm6" xmlns:xacro="http://www.ros.org/wiki/xacro">\n'
+        '  <xacro:arg name="base_height" default=""/>\n'
+        '  <xacro:include filename="$(arg links_file)"/>\n  <xacro:arm_links/>\n'
+        f"{joints}</robot>\n"
+    )
+    packages = '\n[packages]\narm_macros = "../elsewhere/arm_macros"\n'
+    args = '\n[xacro]\nbase_height = "0.45"\nlinks_file = "$(find arm_macros)/links.xacro"\n'
+    rc, made = _convert(tmp_path / "x", xacro, arm_overlay() + packages + args, suffix=".xacro")
+    assert rc == 0
+    a, b = _numbers(plain), _numbers(made)
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+    capsys.readouterr()
+    rc, out = _convert(tmp_path / "none", xacro, arm_overlay() + packages, suffix=".xacro")
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and not out.exists(), err
+    assert (
+        'arm.xacro: (xacro) $(arg links_file): expected a value for it: [xacro] links_file = "VALUE"'
+        in err[0]
+    )
+    gone = args.replace("links.xacro", "gone.xacro")
+    rc, out = _convert(tmp_path / "gone", xacro, arm_overlay() + packages + gone, suffix=".xacro")
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and not out.exists(), err
+    assert "arm.xacro: (xacro): expected every file the xacro reads" in err[0]
+    assert f"{pkg / 'gone.xacro'} is missing" in err[0]
+    rc, out = _convert(tmp_path / "plainargs", urdf, arm_overlay() + args)
+    err = capsys.readouterr().err
+    assert rc == 2 and "arm.toml: xacro: expected arguments only for a .xacro robot file" in err
+
+
 def test_a_missing_find_package_exits_2_naming_it(tmp_path, capsys):
     xacro = (
         '<robot name="x" xmlns:xacro="http://www.ros.org/wiki/xacro">'
