@@ -19,13 +19,12 @@ import pytest
 from conftest import ROOT
 from urdf_robots import arm_overlay, arm_urdf
 
-from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.campaign import simulate, truth_robot
 from calbench.bench.model import Robot
 from calbench.bench.scenario import PlausibilityWarning, check_scenario, load_scenario
 from calbench.identify.cli import main
-from calbench.identify.core import ForwardModel, NoEquilibrium, design_from_observations
+from calbench.identify.core import ForwardModel, NoEquilibrium, design_from_observations, from_campaign
 from calbench.identify.design import load_design_scenario
-from calbench.identify.study import campaign_observations
 
 BASE = bc.scenario_text(n_poses=4)  # the FANUC, 700 kg, sigma 20 um, compensator 2.6e6 N/m 0.83 m
 
@@ -143,7 +142,7 @@ def test_no_equilibrium_in_a_fit_names_the_pose_and_the_likely_cause(tmp_path):
     path.write_text(BASE, encoding="utf-8")
     scn = load_scenario(path)
     tr = truth_robot(scn)
-    obs = campaign_observations(scn, tr, plan_campaign(scn, tr), None)
+    obs = from_campaign(simulate(scn, None, robot=tr))
     robot = Robot.from_file(scn.robot)
     fm = ForwardModel(robot, design_from_observations(robot, obs))
     theta = robot.layout.theta(robot.params())

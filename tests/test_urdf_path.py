@@ -55,17 +55,15 @@ def test_the_header_is_a_well_formed_xml_comment_even_for_dashed_names(tmp_path)
     assert "--" not in comment and "from-urdf from my- -arm.urdf with the overlay my- -arm.toml" in comment
 
 
-def test_a_xacro_with_find_converts_to_the_same_robot_as_its_urdf(tmp_path):
-    urdf = arm_urdf()
-    rc, plain = _convert(tmp_path / "plain", urdf, arm_overlay())
-    assert rc == 0
-    # the same arm as a xacro: the links in a macro file of package 'arm_macros' (a folder the
-    # overlay's [packages] names), a property for the base height
+def _arm_macros(tmp_path: Path, urdf: str, base_height: str) -> tuple[Path, str]:
+    """The arm's links as a macro ``arm_links`` in links.xacro of a package folder
+    ``elsewhere/arm_macros``, and its joints' XML with the base height written ``base_height``:
+    (the package folder, the joints)."""
     links = urdf[urdf.index("  <link") : urdf.index("  <joint")]
     joints = urdf[urdf.index("  <joint") : urdf.index("</robot>")].replace(
-        'xyz="0.0 0.0 0.45"', 'xyz="0 0 ${h}"', 1
+        'xyz="0.0 0.0 0.45"', f'xyz="0 0 {base_height}"', 1
     )
-    assert "${h}" in joints
+    assert base_height in joints
     pkg = tmp_path / "elsewhere" / "arm_macros"
     pkg.mkdir(parents=True)
     (pkg / "links.xacro").write_text(
@@ -73,6 +71,16 @@ def test_a_xacro_with_find_converts_to_the_same_robot_as_its_urdf(tmp_path):
         "</xacro:macro></robot>\n",
         encoding="utf-8",
     )
+    return pkg, joints
+
+
+def test_a_xacro_with_find_converts_to_the_same_robot_as_its_urdf(tmp_path):
+    urdf = arm_urdf()
+    rc, plain = _convert(tmp_path / "plain", urdf, arm_overlay())
+    assert rc == 0
+    # the same arm as a xacro: the links in a macro file of package 'arm_macros' (a folder the
+    # overlay's [packages] names), a property for the base height
+    _, joints = _arm_macros(tmp_path, urdf, "${h}")
     xacro = (
         '<?xml version="1.0"?>\n<robot name="arm6" xmlns:xacro="http://www.ros.org/wiki/xacro">\n'
         '  <xacro:property name="h" value="0.45"/>\n'
@@ -97,17 +105,7 @@ def test_xacro_arguments_come_from_the_overlay_and_their_lack_is_named(tmp_path,
     urdf = arm_urdf()
     rc, plain = _convert(tmp_path / "plain", urdf, arm_overlay())
     assert rc == 0
-    links = urdf[urdf.index("  <link") : urdf.index("  <joint")]
-    joints = urdf[urdf.index("  <joint") : urdf.index("</robot>")].replace(
-        'xyz="0.0 0.0 0.45"', 'xyz="0 0 $(arg base_height)"', 1
-    )
-    pkg = tmp_path / "elsewhere" / "arm_macros"
-    pkg.mkdir(parents=True)
-    (pkg / "links.xacro").write_text(
-        f'<robot xmlns:xacro="http://www.ros.org/wiki/xacro"><xacro:macro name="arm_links">\n{links}'
-        "</xacro:macro></robot>\n",
-        encoding="utf-8",
-    )
+    pkg, joints = _arm_macros(tmp_path, urdf, "$(arg base_height)")
     xacro = (
         '<?xml version="1.0"?>\n<robot name="arm6" xmlns:xacro="http://www.ros.org/wiki/xacro">\n'
         '  <xacro:arg name="base_height" default=""/>\n'

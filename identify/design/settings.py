@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.campaign import scenario_params
+from calbench.bench.campaign import truth_params
 from calbench.bench.core import InputError
-from calbench.bench.model import Robot
+from calbench.bench.model import Robot, load_robot
 from calbench.bench.scenario import Scenario, check_scenario, parse_scenario
 
 # --------------------------------------------------------------------------- settings
@@ -150,16 +150,13 @@ def load_design_scenario(path: str | Path) -> tuple[Scenario, DesignSettings]:
 
 def nominal_theta(scn: Scenario, robot: Robot) -> np.ndarray:
     """The prior guess theta0 = the scenario's [truth] (see the module docstring)."""
-    return robot.layout.theta(scenario_params(scn, robot))
+    return robot.layout.theta(truth_params(scn, robot))
 
 
 def nominal_robot(scn: Scenario) -> Robot:
     """The design model: the scenario's MJCF with theta0 written in, WITHOUT the hidden
     ``[truth.effects]`` (a design knows the model, not what the model lacks)."""
-    try:
-        robot = Robot.from_file(scn.robot)
-    except ValueError as exc:  # MuJoCo compile errors, the robot description
-        raise InputError(scn.path, "robot", "a loadable MJCF robot", f"{scn.robot}: {exc}") from None
-    robot.set_params(scenario_params(scn, robot))
+    robot = load_robot(scn.path, "robot", path=scn.robot)
+    robot.set_params(truth_params(scn, robot))
     check_scenario(scn, robot)  # a slipped unit: InputError, or a PlausibilityWarning
     return robot
