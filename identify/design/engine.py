@@ -35,7 +35,7 @@ from calbench.bench.tracker import (
 )
 from calbench.identify.core import analyze, explain, resolve
 
-from .criteria import covariance
+from .criteria import inverse_information
 from .feasibility import Feasibility
 from .settings import DesignSettings, nominal_robot
 
@@ -198,7 +198,7 @@ def unseen_parameters(engine: InfoEngine, F: np.ndarray, q: np.ndarray, wrench: 
     jw = (vec * np.sqrt(np.clip(lam, 0.0, None))) @ vec.T  # any factor of F has its rank and columns
     rb = engine.robot
     ident = analyze(jw, rb.layout.names)
-    cov = covariance(F) if ident.identifiable.all() else None
+    cov = inverse_information(F) if ident.identifiable.all() else None
     if cov is not None:
         resolve(ident, np.ones(len(F)), cov)
     if ident.identifiable.all():
