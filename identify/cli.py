@@ -909,8 +909,8 @@ def _design_lines(args, res) -> list[str]:
     t = robot_tally(args.robot, res.tracker, res.mass, args.sample)
     share = t.passed_command / t.sampled * (t.feasible / t.solved if t.solved else 0.0)
     return [
-        f"  design's feasibility rules on {t.sampled} sampled commands (default [design] settings, "
-        f"{res.mass:g} kg; equilibria checked on {t.solved} that pass the command rules): "
+        f"  design's feasibility rules on {t.sampled} sampled commands (default [design] settings: "
+        f"{t.wrist_rules}; {res.mass:g} kg; equilibria checked on {t.solved} that pass the command rules): "
         f"{100 * share:.1f} % feasible",
         *t.lines(),
     ]

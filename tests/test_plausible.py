@@ -14,6 +14,7 @@ import warnings
 from pathlib import Path
 
 import badcases as bc
+import numpy as np
 import pytest
 from conftest import ROOT
 from urdf_robots import arm_overlay, arm_urdf
@@ -199,3 +200,23 @@ def test_fuzz_unit_factors_end_in_exit_0_or_2(tmp_path, capsys):
             assert rc in (0, 2), (key, f, capsys.readouterr().err)
             seen[rc] += 1
     assert seen[0] and seen[2]  # both outcomes met: the fuzz reaches past the checks
+
+
+def test_the_compliance_messages_quote_the_fits_own_bound(tmp_path, capsys):
+    """One constant: the band the messages quote ends where a fit may move (bench/model's
+    MAX_COMPLIANCE, the top of BOUNDS), a value at that bound runs quietly, one above it warns."""
+    from calbench.bench.model import MAX_COMPLIANCE
+
+    robot = Robot.from_file(ROOT / "mjcf" / "m900ib700.xml")
+    assert np.all(robot.layout.upper[: robot.n_act] == MAX_COMPLIANCE) and MAX_COMPLIANCE == 1e-4
+    old = "compliance = [0.25e-6, "
+    rc, err = _run(tmp_path, BASE.replace(old, "compliance = [4e6, "), capsys, "stiff")
+    assert rc == 2 and "(a joint's: 1e-10 ... 1e-4)" in err, err
+    rc, err = _run(tmp_path, BASE.replace(old, f"compliance = [{MAX_COMPLIANCE!r}, "), capsys, "edge")
+    assert rc == 0 and "warning" not in err, err
+    rc, err = _run(tmp_path, BASE.replace(old, f"compliance = [{2 * MAX_COMPLIANCE!r}, "), capsys, "soft")
+    assert (
+        rc == 0
+        and "truth.compliance[0]: compliance 0.0002 rad/(N*m) is outside a robot joint's 1e-10 ... 1e-4"
+        in err
+    ), err

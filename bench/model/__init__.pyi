@@ -16,6 +16,7 @@ from .loop import (
 )
 from .params import (
     LEGACY_COMPENSATOR,
+    MAX_COMPLIANCE,
     ParamLayout,
     Params,
     Spring,
@@ -38,6 +39,7 @@ __all__ = [
     "LOOP_MARGIN",
     "LOOP_MARGIN_ANGLE",
     "LOOP_TOL",
+    "MAX_COMPLIANCE",
     "ParamLayout",
     "Params",
     "ReflectorPost",
