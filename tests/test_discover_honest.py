@@ -38,6 +38,9 @@ def have_case() -> bool:
 
 KR270 = ROOT / "scenarios" / "kr270_paper.toml"
 Z_DETERMINED = 4.5  # the issue's bound: no parameter reported as determined further from the truth
+# campaign 8 of a 20-seed study of the case (benchmarks/honest_bench.py): nothing named, and
+# balancer_stiffness 188 +- 65 kN/m against 500 reported determined with no exposure to link_2
+STUDY_SEED = 4238346379
 
 
 def irb_scenario(tmp: Path, seed: int) -> Path:
@@ -67,7 +70,7 @@ def logs(tmp_path_factory):
         "fanuc": PAPER,
         "kr270": KR270,
         "serial": serial_scenario(tmp),
-        **({f"irb{s}": irb_scenario(tmp, s) for s in (2, 3, 4)} if have_case() else {}),
+        **({f"irb{s}": irb_scenario(tmp, s) for s in (2, 3, 4, STUDY_SEED)} if have_case() else {}),
     }
     out = {}
     for name, scn in scenarios.items():
@@ -149,7 +152,7 @@ def run_irb(logs, seed: int) -> dict:
     return _RUNS[seed]
 
 
-@pytest.mark.parametrize("seed", [2, 3, 4])
+@pytest.mark.parametrize("seed", [2, 3, 4, STUDY_SEED])
 def test_irb6640_nothing_determined_is_confidently_wrong(logs, seed):
     """Seeds 2-4 of the issue: every parameter reported as determined is within Z_DETERMINED std of
     the truth, or, where the hidden effect was not named, within that plus the bias the exposure
@@ -399,3 +402,62 @@ def test_identify_exposure_is_discovers_when_nothing_is_named(logs):
             assert e["bias"] == pytest.approx(p["exposure"]["bias"], rel=1e-6)
             assert e["unbounded_by"] == p["exposure"]["unbounded_by"]
     assert "link_compliance[link_2]" in mine["k2"]["unbounded_by"]
+
+
+def test_an_effect_absorbed_exactly_is_weighed_at_its_largest_size(logs):
+    """The study's campaign where balancer_stiffness was confidently wrong (STUDY_SEED): the link_2
+    bending has a direction k2 absorbs exactly (about y: visible share < VISIBLE_SHARE_MIN). Its
+    size is weighed at the largest it can have (identify/discover/exposure.py's absorbed_sizes:
+    sqrt(T) / VISIBLE_SHARE_MIN, capped by the prior's 1e-6 rad/(N*m)), and there it moves the
+    balancer by more than UNBOUNDED_SIGMA std, so the balancer is reported exposed to link_2 by any
+    amount. Checked against an independent computation: the readings of the user's model plus the
+    effect at that size (exact statics), refitted with the user's model (the nonlinear fit), move
+    balancer_stiffness by more than UNBOUNDED_SIGMA std (measured 2.1 std; first order 8.8: the
+    balancer's response saturates, K' ~ K / (1 + a cy K), a series spring) while the chi2 they leave
+    stays below the candidate's likelihood-ratio threshold (measured 0.05 against 21.3: unseen)."""
+    case_dir()  # skipped, with the reason, where ../shared/data is absent
+    from calbench.identify.discover import build, effect_priors, fit_augmented, label, library, whitened
+    from calbench.identify.discover.aliasing import VISIBLE_SHARE_MIN, regress
+    from calbench.identify.discover.decide import lr_threshold
+    from calbench.identify.discover.exposure import UNBOUNDED_SIGMA, absorbed_sizes
+
+    rep = run_irb(logs, STUDY_SEED)
+    pars = {p["name"]: p for p in rep["parameters"]}
+    bal = pars["balancer_stiffness"]
+    assert rep["named_effects"] == [] and bal["determined"]
+    assert HIDDEN in bal["exposure"]["unbounded_by"]
+    assert bal["exposure"]["absorbed_bias"][HIDDEN] > UNBOUNDED_SIGMA * bal["std"]
+
+    obs = from_log(read_log(logs[f"irb{STUDY_SEED}"]))
+    white = Whitener.from_observations(obs)
+    src = case_dir() / "irb6640.xml"
+    base = base_fit(src, obs, white)
+    lib = library(base.robot)
+    eff = next(e for e in lib if label(e) == HIDDEN)
+    start, lower, upper, _ = effect_priors(eff)
+    _, fm = build(src, [(eff, start)], obs)
+    _, jw = whitened(fm, white, np.r_[base.values, start])
+    k = start.size
+    est = base.free | base.at_bound
+    full = np.linalg.norm(jw[:, -k:], axis=0)
+    on = full > 0
+    _, perp = regress(jw[:, :-k][:, est], jw[:, -k:][:, on] / full[on])
+    w, v = np.linalg.eigh(perp.T @ perp)
+    seen = w > VISIBLE_SHARE_MIN**2
+    assert not seen.all()
+    thr = lr_threshold(k, len(lib))
+    reach = absorbed_sizes(v, seen, np.maximum(np.abs(lower), upper)[on] * full[on], thr)
+    u = v[:, ~seen][:, 0]
+    d = np.zeros(k)
+    d[on] = reach[~seen][0] * u * np.sign(u[np.argmax(np.abs(u))]) / full[on]  # compliances >= 0
+    assert np.all(np.abs(d) <= upper * (1 + 1e-9))  # no larger than the prior allows
+    lo, hi, hold = base.extra["bounds"]
+    refits = []
+    for p in (start, start + d):
+        dp, _ = fm.evaluate(np.r_[base.values, p], jacobian=False)
+        refits.append(
+            fit_augmented(base.model, dp, white, base.values, lo, hi, hold, max_iter=40, cost_tol=1e-6)
+        )
+    j = base.names.index("balancer_stiffness")
+    assert abs(refits[1].values[j] - refits[0].values[j]) > UNBOUNDED_SIGMA * bal["std"]
+    assert refits[1].chi2 - refits[0].chi2 < thr
