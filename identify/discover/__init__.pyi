@@ -14,10 +14,22 @@ from .fit import (
     library,
     whitened,
 )
-from .narrative import alias_lines, base_lines, exposure_lines, tie_lines
+from .narrative import alias_lines, base_lines, exposure_lines, self_check_lines, tie_lines
 from .search import fit_candidate, polish, unabsorbed_norms
 from .stats import ALPHA_FIT
-from .uncertainty import MAX_RELATIVE_STD, Determination, determination, split_by_ties
+from .uncertainty import (
+    BIAS_SIGMA,
+    MAX_RELATIVE_STD,
+    REPLICAS,
+    STD_FACTOR,
+    Determination,
+    bootstrap,
+    determination,
+    self_check,
+    split_by_ties,
+    unit_checks,
+    with_deflections,
+)
 from .workflow import (
     AMBIGUOUS,
     UNEXPLAINED,
@@ -32,6 +44,13 @@ from .workflow import (
 )
 
 __all__ = [
+    "BIAS_SIGMA",
+    "REPLICAS",
+    "STD_FACTOR",
+    "bootstrap",
+    "self_check",
+    "unit_checks",
+    "with_deflections",
     "ALPHA_EFFECT",
     "ALPHA_FIT",
     "AMBIGUOUS",
@@ -45,6 +64,7 @@ __all__ = [
     "alias_lines",
     "base_lines",
     "exposure_lines",
+    "self_check_lines",
     "tie_lines",
     "aliasing_report",
     "augmented_mjcf",
