@@ -150,7 +150,7 @@ def truth_table(effect, d: np.ndarray) -> tuple[str, dict] | None:
 def hidden_size(jw_base: np.ndarray, est: np.ndarray, block: np.ndarray, size: np.ndarray, k_thr, thr1):
     """(d (k,) SI at 'just detectable', absorbed?) for an effect with whitened columns ``block``
     (module docstring); None when the plan does not excite it at all."""
-    from calbench.identify.discover.aliasing import UNEXCITED, regress
+    from calbench.identify.discover import UNEXCITED, regress
 
     full = np.linalg.norm(block, axis=0)
     excited = full * size > UNEXCITED
@@ -587,6 +587,8 @@ def run(args, jsonl: Path, log) -> None:
             keys = [(r, k) if sep else ("", r) for r, sep, k in keys]
             cases = [c for c in cases if any(r in ("", robot) and k in c["label"] for r, k in keys)]
         for kind, cs, seeds in (("hidden", cases, args.seeds), ("null", [{"label": "none"}], args.nulls)):
+            if not cs or seeds < 1:
+                continue
             path = tmp / f"{robot}_{kind}_study.toml"
             path.write_text(study_text(scns[robot], seeds, cs, 22))
             study = _study(str(path))

@@ -242,13 +242,19 @@ def self_check_lines(check: dict | None) -> list[str]:
     if check["passed"]:
         return [head + ": passed."]
     out = [head + ": FAILED for " + ", ".join(check["failed"]) + " (reported as not determined):"]
+    return out + ["  " + line for line in self_check_failures(check)]
+
+
+def self_check_failures(check: dict) -> list[str]:
+    """One line per quantity a self-check failed: the replicas' spread and mean against its std."""
+    out = []
     for n in check["failed"]:
         p = check["parameters"][n]
         if p["std_ratio"] is None:
-            out.append(f"  {n}: only {p['replicas']} of the replicas could be refitted")
+            out.append(f"{n}: only {p['replicas']} of the replicas could be refitted")
         else:
             out.append(
-                f"  {n}: spread / reported std {p['std_ratio']:.2f}, mean - estimate {p['bias_sigma']:+.2f} std"
+                f"{n}: spread / reported std {p['std_ratio']:.2f}, mean - estimate {p['bias_sigma']:+.2f} std"
             )
     return out
 
@@ -398,6 +404,7 @@ __all__ = [
     "tie_lines",
     "exposure_lines",
     "self_check_lines",
+    "self_check_failures",
     "alias_lines",
     "plot_residuals",
     "view_report",

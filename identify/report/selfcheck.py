@@ -26,6 +26,7 @@ from calbench.identify.discover import (
     REPLICAS,
     STD_FACTOR,
     bootstrap,
+    self_check_failures,
     unit_checks,
     with_deflections,
 )
@@ -55,16 +56,9 @@ def self_check_lines(check: dict | None) -> list[str]:
     )
     if check["passed"]:
         return [head + ": passed"]
-    lines = [head + ": FAILED for " + ", ".join(check["failed"])]
-    for n in check["failed"]:
-        p = check["parameters"][n]
-        if p["std_ratio"] is None:
-            lines.append(f"    {n}: only {p['replicas']} of the replicas determined it")
-        else:
-            lines.append(
-                f"    {n}: spread / reported std {p['std_ratio']:.2f}, mean - estimate {p['bias_sigma']:+.2f} std"
-            )
-    return lines
+    return [head + ": FAILED for " + ", ".join(check["failed"])] + [
+        "    " + line for line in self_check_failures(check)
+    ]
 
 
 __all__ = ["REPLICAS", "STD_FACTOR", "BIAS_SIGMA", "self_check", "self_check_lines"]
