@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 from conftest import MJCF, PAPER, ROOT
 
-from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.campaign import simulate, truth_robot
 from calbench.bench.model import Robot
 from calbench.bench.scenario import load_scenario
 from calbench.identify.cli import main
-from calbench.identify.core import ForwardModel, design_from_observations, whiten_factors
+from calbench.identify.core import ForwardModel, design_from_observations, from_campaign, whiten_factors
 from calbench.identify.design import (
     Exchanger,
     InfoEngine,
@@ -34,7 +34,7 @@ from calbench.identify.design import (
     plan_scenario_text,
     read_design_settings,
 )
-from calbench.identify.study import campaign_observations, run_montecarlo
+from calbench.identify.study import run_montecarlo
 
 WEIGHT = np.r_[Robot.from_file(MJCF).weight(700.0), 0, 0, 0.0]  # the model's own gravity
 
@@ -139,7 +139,7 @@ def test_exported_blocks_reproduce_the_fisher_information_of_a_plan(tmp_path, pa
     path = _scenario_with_poses(scn, poses, tmp_path)
     s2 = load_scenario(path)
     rb = truth_robot(s2)
-    obs = campaign_observations(s2, rb, plan_campaign(s2, rb), None)
+    obs = from_campaign(simulate(s2, None, robot=rb))
     model_rb = Robot.from_file(s2.robot)
     _, J = ForwardModel(model_rb, design_from_observations(model_rb, obs)).evaluate(z["theta0"])
     jw = np.einsum("mij,mjk->mik", whiten_factors(obs.cov), J).reshape(-1, 8) * z["theta0"]

@@ -58,7 +58,7 @@ from .plan import (
 from .run import DesignOutcome, DesignRequest, run_design
 from .selection import Selection, select_rows, selection_text
 from .settings import DESIGN_KEYS, DesignSettings, load_design_scenario, read_design_settings
-from .study import run_study
+from .study import run_paper_study
 
 __all__ = [
     "ALGORITHMS",
@@ -112,7 +112,7 @@ __all__ = [
     "result_json",
     "robot_tally",
     "run_design",
-    "run_study",
+    "run_paper_study",
     "scenario_plan_information",
     "select_rows",
     "selection_text",

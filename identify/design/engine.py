@@ -22,12 +22,12 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from calbench.bench.campaign import scenario_params
+from calbench.bench.campaign import truth_params
 from calbench.bench.scenario import Scenario, reading_times
 from calbench.bench.statics import Equilibrium, Load, StaticsSolver
 from calbench.bench.tracker import (
-    Measurement,
     deflection_covariance,
+    measure,
     noise_covariance,
     to_tracker_frame,
     tracker_rotation,
@@ -57,7 +57,7 @@ class InfoEngine:
         self.scn = scn
         self.settings = settings
         self.robot = nominal_robot(scn)
-        self.params0 = scenario_params(scn, self.robot)
+        self.params0 = truth_params(scn, self.robot)
         self.theta0 = self.robot.layout.theta(self.params0)
         self.n_params = self.robot.layout.n
         self.solver = StaticsSolver(self.robot, tol=1e-10)
@@ -118,10 +118,8 @@ class InfoEngine:
         reflector unless the tracker's error is correlated)."""
         spec = self.scn.tracker
         n = len(p0)
-        reads, times = [], reading_times([repeats], n)
-        for p in (p0, p1):
-            y = to_tracker_frame(spec, p)
-            reads.append([Measurement(y, noise_covariance(spec, y), np.ones(n, bool))] * repeats)
+        times = reading_times([repeats], n)
+        reads = [[measure(spec, p, np.ones(n, bool), None)] * repeats for p in (p0, p1)]  # exact
         when = tuple([times[(0, s, r)] for r in range(repeats)] for s in ("unloaded", "loaded"))
         c = deflection_covariance(spec, reads[0], reads[1], np.arange(n), when)
         return np.einsum("ia,ranb,jb->rinj", self.rot, c, self.rot).reshape(3 * n, 3 * n)

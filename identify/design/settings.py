@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.campaign import scenario_params
+from calbench.bench.campaign import truth_params
 from calbench.bench.core import InputError
-from calbench.bench.model import Robot
+from calbench.bench.model import Robot, load_robot
 from calbench.bench.scenario import Scenario, check_scenario, parse_scenario
 
 # --------------------------------------------------------------------------- settings
@@ -35,7 +35,9 @@ class DesignSettings:
     seed: int | None = None  # candidate sampling; default: the scenario's seed
     clearance: float = 0.0  # m, collision margin
     compensator_margin: float = 0.02  # m, §3.3 rule
-    lateral_force: float = 1200.0  # N, horizontal pull of the lateral candidates
+    # N, horizontal pull of the lateral candidates; not given: this, or the payload's weight if
+    # less (read_design_settings: a robot is not pulled harder than it is rated to carry)
+    lateral_force: float = 1200.0
     lateral_fraction: float = 0.5  # share of lateral candidates in the set
 
     def as_dict(self) -> dict:
@@ -43,6 +45,7 @@ class DesignSettings:
 
 
 DESIGN_KEYS = tuple(DesignSettings.__dataclass_fields__)
+STANDARD_GRAVITY = 9.81  # m/s^2, MuJoCo's default gravity: a payload's weight
 
 
 def _design_number(path, key, v, lo=None, hi=None, integer=False):
@@ -85,6 +88,12 @@ def read_design_settings(path: str | Path, text: str | None = None) -> DesignSet
     for k, v in tab.items():
         lo, hi, integer = limits[k]
         kw[k] = _design_number(path, k, v, lo, hi, integer)
+    load = doc.get("load", {})
+    mass = load.get("mass") if isinstance(load, dict) else None
+    if "lateral_force" not in kw and isinstance(mass, int | float) and not isinstance(mass, bool):
+        weight = float(mass) * STANDARD_GRAVITY  # a 10 kg robot pulled with 98 N, not 1200
+        if 0.0 < weight < DesignSettings.lateral_force:
+            kw["lateral_force"] = weight
     return DesignSettings(**kw)
 
 
@@ -114,16 +123,13 @@ def load_design_scenario(path: str | Path) -> tuple[Scenario, DesignSettings]:
 
 def nominal_theta(scn: Scenario, robot: Robot) -> np.ndarray:
     """The prior guess theta0 = the scenario's [truth] (see the module docstring)."""
-    return robot.layout.theta(scenario_params(scn, robot))
+    return robot.layout.theta(truth_params(scn, robot))
 
 
 def nominal_robot(scn: Scenario) -> Robot:
     """The design model: the scenario's MJCF with theta0 written in, WITHOUT the hidden
     ``[truth.effects]`` (a design knows the model, not what the model lacks)."""
-    try:
-        robot = Robot.from_file(scn.robot)
-    except ValueError as exc:  # MuJoCo compile errors, the robot description
-        raise InputError(scn.path, "robot", "a loadable MJCF robot", f"{scn.robot}: {exc}") from None
-    robot.set_params(scenario_params(scn, robot))
+    robot = load_robot(scn.path, "robot", path=scn.robot)
+    robot.set_params(truth_params(scn, robot))
     check_scenario(scn, robot)  # a slipped unit: InputError, or a PlausibilityWarning
     return robot

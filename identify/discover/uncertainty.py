@@ -33,11 +33,16 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from calbench.bench.model.effects import priors
-from calbench.identify.core import Fit, Observations, Whitener, profile_check, quadratic
-
-MAX_RELATIVE_STD = 1.0  # a parameter whose std exceeds its own size is not determined
-NULL_TOL = 1e-3  # component in the null space that makes a parameter unidentifiable
-RANK_TOL = 1e-8  # singular values of the relative Fisher factor below this x the largest are null
+from calbench.identify.core import (
+    MAX_RELATIVE_STD,
+    NULL_TOL,
+    Fit,
+    Observations,
+    Whitener,
+    profile_check,
+    quadratic,
+)
+from calbench.identify.core import RELATIVE_RANK_TOL as RANK_TOL
 
 
 @dataclass

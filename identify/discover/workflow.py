@@ -42,10 +42,10 @@ import numpy as np
 
 from calbench.bench.core import sink, write_text
 from calbench.bench.log import read_log
-from calbench.bench.model import Robot, set_spec_names, spec_names
+from calbench.bench.model import Robot, log_robot, set_spec_names, spec_names
 from calbench.bench.model.effects import augmented_xml, load_spec
 from calbench.bench.view import Discovery, write_discovery_recording
-from calbench.identify.core import Observations, Whitener, check_sites, from_log, load_model
+from calbench.identify.core import Observations, Whitener, check_sites, from_log
 
 from .aliasing import aliasing_report
 from .basefit import base_fit, base_record, hold_mask
@@ -463,7 +463,7 @@ def discover(
     log_path = Path(log_path)
     log = read_log(log_path)  # no truth
     obs = from_log(log)
-    robot = load_model(log, model)  # validates the MJCF (InputError)
+    robot = log_robot(log, model)  # validates the MJCF (InputError)
     check_sites(robot, obs, model or log.path)
     src = Path(model) if model is not None else log.mjcf_text
     rep, final, base = discover_observations(
