@@ -63,7 +63,7 @@ from .fit import Fit, build, effect_priors, label, library, whitened
 from .narrative import clean, plot_residuals, story, view_report
 from .search import fit_candidate, polish
 from .stats import ALPHA_FIT, chi2_p, diagnose, expected_rms, rms
-from .uncertainty import MAX_RELATIVE_STD, checked, determination, split_by_ties
+from .uncertainty import MAX_RELATIVE_STD, checked, determination, self_check, split_by_ties
 
 MAX_ROUNDS = 3
 UNEXPLAINED = "unexplained"
@@ -131,10 +131,14 @@ def run_round(
     return out
 
 
-def _params(f: Fit, det=None, lo: int = 0, hi: int | None = None, split: dict | None = None) -> list[dict]:
+def _params(
+    f: Fit, det=None, lo: int = 0, hi: int | None = None, split: dict | None = None, check: dict | None = None
+) -> list[dict]:
     """Parameter records of f[lo:hi] with the honest std of ``det`` (uncertainty.py); ``split``:
-    the values under each tied candidate where an `ambiguous` verdict leaves one undetermined."""
+    the values under each tied candidate where an `ambiguous` verdict leaves one undetermined;
+    ``check``: the self-check (uncertainty.self_check), each checked parameter's line."""
     split = split or {}
+    checked_ = (check or {}).get("parameters", {})
     det = determination(f, f.extra["jw"]) if det is None else det
     hi = f.values.size if hi is None else hi
     profile = getattr(det, "profile", {})
@@ -147,6 +151,7 @@ def _params(f: Fit, det=None, lo: int = 0, hi: int | None = None, split: dict | 
             "determined": bool(det.determined[i]),
             **({"chi2_rise_at_2_fisher_std": profile[i]} if i in profile else {}),
             **({"under_tied_candidates": split[i]} if i in split else {}),
+            **({"self_check": checked_[f.names[i]]} if f.names[i] in checked_ else {}),
         }
         for i in range(lo, hi)
     ]
@@ -283,6 +288,7 @@ def discover_observations(
     split = {}
     if tie_fits:  # ambiguous: what the tied candidates disagree on is not determined under either
         split = split_by_ties(final, det, [(lab, f, checked(f, obs, white)) for lab, f in tie_fits])
+    check = self_check(final, obs, white, det)  # what fails is not determined
     for s, (e, _) in zip(
         [s for s in steps if s["effect"] not in (UNEXPLAINED, AMBIGUOUS)], final.effect_params()
     ):
@@ -338,7 +344,8 @@ def discover_observations(
         "where_after": diag_after,
         "rounds": rounds,
         "hints": hints,
-        "parameters": with_exposure(_params(final, det, split=split), exposure),
+        "parameters": with_exposure(_params(final, det, split=split, check=check), exposure),
+        "self_check": check,
         "combinations": det.combinations,
         "combinations_not_quadratic": det.rejected,
         "n_observations": obs.n_obs(),

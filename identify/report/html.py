@@ -43,7 +43,7 @@ from calbench.bench.core import InputError, check_outputs, unit_display, write_t
 from calbench.bench.log import CampaignLog, IdentificationReport, has_truth, read_log
 from calbench.bench.view import measured_deflections
 from calbench.identify.discover import ALPHA_FIT as MISFIT_P  # chi2 p below which the model is rejected
-from calbench.identify.discover import alias_lines, base_lines, exposure_lines, tie_lines
+from calbench.identify.discover import alias_lines, base_lines, exposure_lines, self_check_lines, tie_lines
 
 from . import htmlplots
 from .identification import noise_source
@@ -407,10 +407,16 @@ def ambiguous_rows(ambiguous: list[dict]) -> list[dict]:
 def honesty_lines(disc: dict, path) -> list[str]:
     """Discovery's own statements of what it does not know (identify/discover/narrative.py's
     words): the base fit's held and undetermined parameters, what tied candidates disagree on,
-    combinations whose profile is not quadratic, each determined parameter's exposure."""
+    combinations whose profile is not quadratic, the self-check of the reported model, each
+    determined parameter's exposure."""
     try:
         params = disc.get("parameters") or []
-        lines = base_lines(disc.get("base_fit")) + tie_lines(params) + exposure_lines(params)
+        lines = (
+            base_lines(disc.get("base_fit"))
+            + tie_lines(params)
+            + self_check_lines(disc.get("self_check"))
+            + exposure_lines(params)
+        )
         undetermined = [p["name"] for p in params if not p["determined"]]
         if undetermined:
             lines.append(
