@@ -15,6 +15,9 @@ from .fit import (
     whitened,
 )
 from .geometric import (
+    ALPHA_GEOMETRY,
+    ALPHA_NAMING,
+    ALPHA_UNEXPLAINED,
     Candidate,
     Readings,
     discover_geometry,
@@ -52,6 +55,9 @@ from .workflow import (
 __all__ = [
     "ALPHA_EFFECT",
     "ALPHA_FIT",
+    "ALPHA_GEOMETRY",
+    "ALPHA_NAMING",
+    "ALPHA_UNEXPLAINED",
     "Candidate",
     "Readings",
     "discover_geometry",
