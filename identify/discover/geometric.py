@@ -97,7 +97,8 @@ from .stats import chi2_p
 
 UNEXPLAINED = "unexplained"
 AMBIGUOUS = "ambiguous"
-START_EFFECTS = ("base_frame", "joint_compliance")  # the user's model: registration and compliances
+# the user's model: registration, compliances and its compensator springs (statics.py)
+START_EFFECTS = ("base_frame", "joint_compliance", "compensator")
 REDUNDANT_SHARE = 1e-6  # a base-set column's share of a redundant one below which it is not named
 ALPHA_GEOMETRY = 1e-4  # a null campaign's chance of any verdict (named or unexplained): the sum of
 ALPHA_NAMING = ALPHA_GEOMETRY / 2  # the LR tests of a round (family-wise, Bonferroni) and
@@ -167,7 +168,7 @@ def group(model: GeometricModel, effect: Effect, bodies) -> tuple[int, ...]:
         body = effect.options["link"]
         if body not in bodies:
             raise ValueError(f"link_geometry: {body!r} is not a body an actuated joint turns")
-        joint = model.chain.joints[list(bodies).index(body)]
+        joint = model.joints[list(bodies).index(body)]
         return tuple(i for i, n in enumerate(names) if n.startswith(joint + ".link_"))
     kinds = {"joint_offset", "tool_frame", "base_frame"}
     if effect.name not in kinds:
@@ -199,7 +200,7 @@ def global_base(model: GeometricModel, data: Readings, theta: np.ndarray | None 
     theta = np.zeros(model.size) if theta is None else theta
     _, jac = model.jacobian(data.q, theta, data.tau)
     jac = jac * _weights(data, jac.shape[:2])[..., None]
-    return extend_base(jac, (), in_priority(model.names, range(model.size)))
+    return extend_base(jac, (), in_priority(model.names, range(model.size)), getattr(model, "rank_tol", None))
 
 
 def reduced(cands: list[Candidate], base: tuple[int, ...]) -> list[Candidate]:
@@ -260,7 +261,8 @@ def redundancies(model: GeometricModel, data: Readings, fit: GeometryFit, indice
     _, jac = model.jacobian(data.q, fit.theta, data.tau)
     jac = jac * _weights(data, jac.shape[:2])[..., None]
     a = jac.reshape(-1, model.size)
-    free = list(extend_base(jac, fit.free, in_priority(model.names, range(model.size))))
+    order = in_priority(model.names, range(model.size))
+    free = list(extend_base(jac, fit.free, order, getattr(model, "rank_tol", None)))
     out = []
     for i in indices:
         if i in free:

@@ -24,12 +24,14 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.core import InputError
+from calbench.bench.core import InputError, write_text
 from calbench.bench.log import read_log
+from calbench.bench.model import Robot
 
-from .fit import MODELS, calibrate, initial_model, validate
+from .fit import MODELS, GeometryFit, calibrate, initial_model, validate
 from .mjcf import load_arm, write_chain_mjcf
-from .model import kind
+from .model import GeometricModel, kind
+from .statics import StaticsModel, calibrated_xml, statics_model
 
 
 @dataclass(frozen=True)
@@ -80,6 +82,40 @@ def absolute_readings(log, point: str | None = None) -> AbsoluteReadings:
     )
 
 
+@dataclass(frozen=True)
+class Complete:
+    """The complete model of one robot registered on a point's readings, and what names it."""
+
+    model: GeometricModel | StaticsModel
+    bodies: tuple[str, ...]  # the bodies the actuated joints turn, in order
+    name: str  # the MJCF's model name
+
+
+def complete_model(path, xml: str | None, where: str, point: str, q: np.ndarray, y: np.ndarray) -> Complete:
+    """A serial arm's numpy chain (model.py), or, for a robot with a kinematic loop or a
+    compensator spring, the statics model (statics.py), registered on readings y at q."""
+    try:
+        robot = Robot.from_file(path) if path is not None else Robot.from_xml(xml, where)
+    except ValueError as e:
+        raise InputError(where, "MJCF", "a model MuJoCo compiles", str(e).splitlines()[0]) from None
+    name = bytes(robot.model.names).split(b"\0")[0].decode()
+    if robot.loops or len(robot.tendons):
+        m = statics_model(path, xml, point, q, y, where)
+        return Complete(m, m.bodies, name)
+    arm = load_arm(path, xml, where)
+    return Complete(initial_model(arm.chain, q, y, arm.point(point)), arm.bodies, name)
+
+
+def write_calibrated(path: str | Path, fit: GeometryFit, name: str) -> np.ndarray:
+    """The calibrated robot as a calbench MJCF at ``path``; returns the tracker-from-base transform."""
+    if isinstance(fit.model, StaticsModel):
+        write_text(Path(path), calibrated_xml(fit.model, fit.theta))
+        return fit.model.base(fit.theta)
+    chain, tool, base, comp = fit.calibrated()
+    write_chain_mjcf(path, chain, tool, name=name + "_calibrated", compliance=comp)
+    return base
+
+
 def run_geometry(
     log_path: str | Path,
     model: str | Path | None = None,
@@ -92,9 +128,10 @@ def run_geometry(
         raise InputError(
             log.path, "robot model", "an MJCF attachment in the log (or --model ROBOT.xml)", "none"
         )
-    arm = load_arm(model, log.mjcf_text, f"{log.path} (MJCF attachment)")
     data = absolute_readings(log)
-    start = initial_model(arm.chain, data.q, data.y, arm.point(data.point))
+    where = str(model) if model is not None else f"{log.path} (MJCF attachment)"
+    robot = complete_model(model, log.mjcf_text, where, data.point, data.q, data.y)
+    start = robot.model
     fits = {name: calibrate(start, data.q, data.y, effects) for name, effects in MODELS.items()}
     fit = fits["geometry+compliance"]
     report: dict = {
@@ -125,16 +162,8 @@ def run_geometry(
             "by_model": {name: v.as_dict() for name, v in by_model.items()},
         }
     if out_model is not None:
-        chain, tool, base, comp = fit.calibrated()
-        write_chain_mjcf(
-            out_model,
-            chain,
-            tool,
-            name=bytes(arm.model.names).split(b"\0")[0].decode() + "_calibrated",
-            compliance=comp,
-        )
+        report["tracker_from_base"] = write_calibrated(out_model, fit, robot.name).tolist()
         report["out_model"] = str(out_model)
-        report["tracker_from_base"] = base.tolist()
     return report
 
 
