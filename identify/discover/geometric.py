@@ -89,6 +89,7 @@ from calbench.identify.geometry import (
     extend_base,
     in_priority,
     kind,
+    rank_rule,
     refresh_torques,
 )
 
@@ -200,7 +201,7 @@ def global_base(model: GeometricModel, data: Readings, theta: np.ndarray | None 
     theta = np.zeros(model.size) if theta is None else theta
     _, jac = model.jacobian(data.q, theta, data.tau)
     jac = jac * _weights(data, jac.shape[:2])[..., None]
-    return extend_base(jac, (), in_priority(model.names, range(model.size)), getattr(model, "rank_tol", None))
+    return extend_base(jac, (), in_priority(model.names, range(model.size)), **rank_rule(model))
 
 
 def reduced(cands: list[Candidate], base: tuple[int, ...]) -> list[Candidate]:
@@ -262,7 +263,7 @@ def redundancies(model: GeometricModel, data: Readings, fit: GeometryFit, indice
     jac = jac * _weights(data, jac.shape[:2])[..., None]
     a = jac.reshape(-1, model.size)
     order = in_priority(model.names, range(model.size))
-    free = list(extend_base(jac, fit.free, order, getattr(model, "rank_tol", None)))
+    free = list(extend_base(jac, fit.free, order, **rank_rule(model)))
     out = []
     for i in indices:
         if i in free:

@@ -109,8 +109,18 @@ def in_priority(names: Sequence[str], indices: Sequence[int]) -> list[int]:
     return sorted(indices, key=lambda i: (PRIORITY.index(kind(names[i])), i))
 
 
+def rank_rule(model) -> dict:
+    """The base set's rank tolerance and column floor of a model (extend_base's ``tol`` and
+    ``floor``): the defaults for model.py's exact Jacobian; statics.py's differences pass theirs."""
+    return {"tol": getattr(model, "rank_tol", None), "floor": getattr(model, "column_floor", None)}
+
+
 def extend_base(
-    jac: np.ndarray, chosen: Sequence[int], candidates: Sequence[int], tol: float | None = None
+    jac: np.ndarray,
+    chosen: Sequence[int],
+    candidates: Sequence[int],
+    tol: float | None = None,
+    floor: float | None = None,
 ) -> tuple[int, ...]:
     """A base set ``chosen`` grown by each of ``candidates``, taken in the order given, that raises
     the rank of the column-scaled Jacobian (module docstring); the grown set, in its order.
@@ -118,7 +128,10 @@ def extend_base(
     The singular values of the chosen columns with one more are those of the small triangular
     factor [[R, Q^T c], [0, |c - Q Q^T c|]] of their QR (Q^T c twice: re-orthogonalised), so each
     test is an SVD of a (k + 1)-square matrix, not of the tall Jacobian. ``tol``: the rank
-    tolerance (default RANK_TOL; a model whose columns are differences passes its own)."""
+    tolerance (default RANK_TOL; a model whose columns are differences passes its own);
+    ``floor``: the column norm at or below which a column is none (default ``tol`` times the
+    median column's, which compares columns of different units: a model that zeroes its own
+    noise columns passes 0)."""
     tol = RANK_TOL if tol is None else tol
     a = jac.reshape(-1, jac.shape[-1])
     scale = np.linalg.norm(a, axis=0)
@@ -128,7 +141,7 @@ def extend_base(
     else:
         q, r = np.zeros((a.shape[0], 0)), np.zeros((0, 0))
     rank = len(out)
-    floor = tol * np.median(scale)
+    floor = tol * np.median(scale) if floor is None else floor
     for i in candidates:
         # a column of rounding noise only (a rotation about an axis through the probe) is
         # no parameter: it would enter with any scaling
@@ -154,11 +167,12 @@ def extend_base(
 
 
 def base_set(
-    jac: np.ndarray, names: Sequence[str], effects: Sequence[str], tol: float | None = None
+    jac: np.ndarray, names: Sequence[str], effects: Sequence[str], rule: dict | None = None
 ) -> tuple[int, ...]:
-    """Indices of an identifiable base set among the parameters of the given effects (see above)."""
+    """Indices of an identifiable base set among the parameters of the given effects (see above;
+    ``rule``: :func:`rank_rule` of the model)."""
     order = in_priority(names, [i for i, n in enumerate(names) if kind(n) in effects])
-    return tuple(sorted(extend_base(jac, (), order, tol)))
+    return tuple(sorted(extend_base(jac, (), order, **(rule or {}))))
 
 
 def weights(sigma: float | np.ndarray | None, shape: tuple[int, ...]) -> np.ndarray:
@@ -189,7 +203,7 @@ def calibrate(
     theta = np.zeros(model.size) if theta0 is None else np.asarray(theta0, float)
     if free is None:
         _, jac0 = model.jacobian(q, np.zeros(model.size), tau)
-        free = base_set(jac0, model.names, effects, getattr(model, "rank_tol", None))
+        free = base_set(jac0, model.names, effects, rank_rule(model))
     else:
         _, jac0 = model.jacobian(q, theta, tau, columns=free)
     idx = np.asarray(free, dtype=int)
@@ -214,19 +228,25 @@ def calibrate(
         return j.reshape(-1, model.size)[:, idx] * wf[:, None] / scale
 
     bounds = getattr(model, "bounds", None)  # statics.py: compliances kept positive
+    _method = "lm"
     if bounds is None or not np.any(np.isfinite(np.concatenate([bounds[0][idx], bounds[1][idx]]))):
         sol = least_squares(resid, theta[idx] * scale, jac=jac, method="lm", xtol=1e-12, ftol=1e-12)
     else:
         lo, hi = bounds[0][idx] * scale, bounds[1][idx] * scale
         x0 = np.clip(theta[idx] * scale, lo, hi)
         sol = least_squares(resid, x0, jac=jac, method="trf", bounds=(lo, hi), xtol=1e-12, ftol=1e-12)
+        _method = "trf"
     theta = full(sol.x)
     rw = sol.fun
     r = (rw / wf).reshape(-1, 3)
     dof = max(r.size - len(idx), 1)
     s2 = 1.0 if sigma is not None else float(rw @ rw) / dof
-    js = sol.jac * scale  # d/d theta = d/dx * scale (x = theta * scale)
-    cov = s2 * np.linalg.pinv(js.T @ js)  # pinv: a start far off may end where the rank drops
+    # in x = theta * scale, whose columns are of one size (theta's span 1e10 in units: a spring's
+    # N/m against a compliance's rad/(N*m), beyond pinv's 1e-15), then back: cov_theta = cov_x /
+    # (scale scale^T). With bounds, trf's jac is scaled by the variables' distance to them
+    # (Coleman-Li), not the model's: taken again at the solution.
+    jx = sol.jac if _method == "lm" else jac(sol.x)
+    cov = s2 * np.linalg.pinv(jx.T @ jx) / np.outer(scale, scale)  # pinv: the rank may drop far off
     rms = float(np.sqrt(np.mean(np.sum(r**2, 1))))
     return GeometryFit(
         model, theta, tuple(int(i) for i in idx), cov, rms, len(y), rw if sigma is not None else None
