@@ -310,7 +310,7 @@ def _params(model: GeometricModel, f: GeometryFit, indices=None) -> list[dict]:
         {
             "name": model.names[i],
             "effect": kind(model.names[i]),
-            "value": float(f.theta[i]),
+            "value": model.value(i, f.theta) if hasattr(model, "value") else float(f.theta[i]),
             "std": float(np.sqrt(f.cov[pos[i], pos[i]])),
         }
         for i in idx

@@ -47,7 +47,9 @@ class AbsoluteReadings:
 
 
 def absolute_readings(log, point: str | None = None) -> AbsoluteReadings:
-    """The unloaded readings of ``point`` (default: the first reflector every measured pose saw)."""
+    """The unloaded readings of ``point`` (default: the first reflector every measured pose saw,
+    or, where none is, the one seen in the most poses: a big arm hides some reflectors in some
+    poses), in the poses that saw it."""
     rows: dict[int, dict[str, list[np.ndarray]]] = {}
     var: dict[int, dict[str, list[np.ndarray]]] = {}
     names: list[str] = []
@@ -62,13 +64,11 @@ def absolute_readings(log, point: str | None = None) -> AbsoluteReadings:
                         names.append(name)
         if seen:
             rows[p] = seen
-    if point is None:
-        common = [n for n in names if all(n in s for s in rows.values())]
-        if not common:
-            raise InputError(
-                log.path, "/tracker/measurement", "one reflector seen unloaded in every pose", names
-            )
-        point = common[0]
+    if point is None:  # the first of those seen unloaded in the most poses (all, where one is)
+        if not names:
+            raise InputError(log.path, "/tracker/measurement", "unloaded readings of a reflector", names)
+        seen = {n: sum(n in s for s in rows.values()) for n in names}
+        point = max(names, key=lambda n: seen[n])
     poses = [p for p, s in rows.items() if point in s]
     if len(poses) < 10:
         raise InputError(log.path, f"reflector {point}", "unloaded readings in at least 10 poses", len(poses))
@@ -106,6 +106,21 @@ def complete_model(path, xml: str | None, where: str, point: str, q: np.ndarray,
     return Complete(initial_model(arm.chain, q, y, arm.point(point)), arm.bodies, name)
 
 
+def value(model, i: int, theta: np.ndarray) -> float:
+    """Parameter i of theta as reported (statics.py's compliances are deltas from a start)."""
+    return model.value(i, theta) if hasattr(model, "value") else float(theta[i])
+
+
+def springs(model, theta: np.ndarray) -> dict:
+    """Each compensator's fitted stiffness (N/m) and preload length (m), where the model has any."""
+    if not getattr(model, "tendons", ()):
+        return {}
+    ks = model.springs(theta).reshape(-1, 2)
+    return {
+        t: {"stiffness": float(k), "preload": float(s0)} for t, (k, s0) in zip(model.tendons, ks, strict=True)
+    }
+
+
 def write_calibrated(path: str | Path, fit: GeometryFit, name: str) -> np.ndarray:
     """The calibrated robot as a calbench MJCF at ``path``; returns the tracker-from-base transform."""
     if isinstance(fit.model, StaticsModel):
@@ -141,10 +156,11 @@ def run_geometry(
         "n": len(data.q),
         "models": {name: {"fit_rms": f.rms, "parameters": len(f.free)} for name, f in fits.items()},
         "parameters": [
-            {"name": n, "effect": kind(n), "value": float(fit.theta[i]), "std": float(sd)}
+            {"name": n, "effect": kind(n), "value": value(start, i, fit.theta), "std": float(sd)}
             for n, i, sd in zip(fit.names, fit.free, fit.std, strict=True)
         ],
         "not_identified": [n for i, n in enumerate(start.names) if i not in fit.free],
+        "springs": springs(start, fit.theta),
         "tracker_sigma": data.sigma,
     }
     if validate_path is not None:

@@ -198,6 +198,13 @@ class StaticsModel:
         lo[self.lay.spring.start : self.lay.spring.stop : 2] = 0.0
         return lo, hi
 
+    def value(self, i: int, theta: np.ndarray) -> float:
+        """Parameter i as a person reads it: a compliance's value, not its delta from the generic
+        start (the rest are theirs already; a spring's s0 is P / K_C: :meth:`springs`)."""
+        if self.lay.compliance.start <= i < self.lay.compliance.stop:
+            return float(self.compliance0[i - self.lay.compliance.start] + theta[i])
+        return float(theta[i])
+
     def torques(self, q: np.ndarray) -> np.ndarray:
         """No input torques: each reading is its own equilibrium (placeholder of model.py's)."""
         return np.zeros((len(np.atleast_2d(q)), self.lay.n))
