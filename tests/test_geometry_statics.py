@@ -58,14 +58,26 @@ def campaign(name: str, n: int, seed: int):
             continue
         poses.append(q)
     _, table, k, s0 = r["spring"]
-    lines = [f'robot = "{path}"', "seed = 0", "[truth]", f"compliance = {r['compliance']}"]
-    lines += [table, f"stiffness = {k}", f"preload = {s0}"]
-    lines += ["[truth.effects.joint_offset]", f"offset = {OFFSETS}"]
-    lines += ["[truth.effects.link_geometry]", f'link = "{r["link"]}"', f"offset = {FRAME}"]
-    lines += ["[tracker]", f"sigma = {SIGMA}", "position = [3.5, -3.5, 3.2]", "[load]", "mass = 100.0"]
-    for q in poses:
-        lines += ["[[pose]]", "q = [" + ", ".join(f"{v:.4f}" for v in q) + "]"]
-    scn = parse_scenario("\n".join(lines) + "\n", MJCF / "geometry_statics.toml")
+    text = f"""robot = "{path}"
+seed = 0
+[truth]
+compliance = {r["compliance"]}
+{table}
+stiffness = {k}
+preload = {s0}
+[truth.effects.joint_offset]
+offset = {OFFSETS}
+[truth.effects.link_geometry]
+link = "{r["link"]}"
+offset = {FRAME}
+[tracker]
+sigma = {SIGMA}
+position = [3.5, -3.5, 3.2]
+[load]
+mass = 100.0
+"""
+    text += "".join(f"[[pose]]\nq = {np.round(q, 4).tolist()}\n" for q in poses)
+    scn = parse_scenario(text, MJCF / "geometry_statics.toml")
     rb = truth_robot(scn)
     plans = plan_campaign(scn, rb)
     i = rb.reflector_names.index(r["reflector"])
