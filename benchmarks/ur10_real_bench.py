@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from calbench.bench.model import Robot
-from calbench.bench.shopfloor import read_probe_series, read_transform
+from calbench.bench.shopfloor import read_probe_series, read_transform, series_files
 from calbench.identify.discover import discover_geometry, geometric_problem
 from calbench.identify.geometry import (
     MODELS,
@@ -182,14 +182,13 @@ def run(
     series: str, data: Path, quick: bool, peer: bool, out_model: Path | None = None, figaroh=None
 ) -> dict:
     chain = ur10()
-    folder = data / f"Series_{series}"
-    (csv,) = folder.glob("measurements_*.csv")
+    csv, transform = series_files(data / f"Series_{series}")
     s = read_probe_series(csv, chain.joints)
     q, y = s.q, s.position
     if quick:  # every 4th row: the same robot and station, a quarter of the work
         q, y = q[::4], y[::4]
     fit_rows, val_rows = split(len(q), 0.7, seed=0)
-    tool = tool_from_transform(read_transform(folder / "Trafo_TM_F_init.txt"))
+    tool = tool_from_transform(read_transform(transform))
     start = initial_model(chain, q[fit_rows], y[fit_rows], tool)
     out: dict = {"series": series, "file": csv.name, "fit": len(fit_rows), "held_out": len(val_rows)}
     models = {}

@@ -13,8 +13,13 @@ overlay says so (docs/contract.md, "From a URDF")::
     [compensators.NAME]   stiffness, preload, from = {link, pos}, to = {link, pos}   # optional
     [loops.NAME]          passive = [...], site1 = {link, pos}, site2 = {link, pos}  # optional
     [packages]            NAME = "folder"       # optional: where package://NAME/ and $(find NAME) point
+    [xacro]               NAME = "value"        # optional: a .xacro's arguments (xacro NAME:=value);
+                                                #   a value may hold $(find PKG)
     [inertials.LINK]      mass, com = [x, y, z], inertia = [ixx, iyy, izz(, ixy, ixz, iyz)]
-                                                # optional: ASSUMED masses for a URDF without them
+                                                # optional: ASSUMED masses for a URDF without them,
+                          or density = kg/m^3   #   or estimated from the link's collision geometry
+    assumed_density = kg/m^3                    # optional: that estimate for every moving link
+                                                #   with neither an <inertial> nor a table
     [conventions.JOINT]   zero = deg, sign = 1 or -1    # optional: the controller's angle of an
                                                 # actuated joint, q_controller = sign * q_urdf + zero
     wrist = "link_5"                            # optional hints for design and discovery:
@@ -36,6 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from calbench.bench.core import InputError, Table, describe, parse_toml, read_text
+from calbench.bench.scenario import check_density
 
 TOP_KEYS = (
     "actuated",
@@ -45,12 +51,14 @@ TOP_KEYS = (
     "compensators",
     "loops",
     "packages",
+    "xacro",
     "wrist",
     "links",
     "mass_compensators",
     "compensator_sites",
     "inertials",
     "conventions",
+    "assumed_density",
 )
 PAYLOAD_SITE = "payload"
 FLANGE_SITE = "flange"
@@ -98,13 +106,16 @@ class InertialSpec:
     """A link's mass (kg), centre of mass (m, link frame) and inertia (kg*m^2 about the centre
     of mass, link axes: ixx, iyy, izz, ixy, ixz, iyz), given in the overlay because the URDF has
     none: ASSUMED values (the header of the MJCF and from-urdf's summary say so). Without an
-    inertia, ASSUMED_GYRATION: the statics use only the mass and its centre, never the inertia."""
+    inertia, ASSUMED_GYRATION: the statics use only the mass and its centre, never the inertia.
+    With ``density`` instead (mass 0 here), all three are estimated from the link's collision
+    geometry at that density (bench/robots/density.py), ASSUMED as well."""
 
     link: str
     mass: float
     com: tuple[float, float, float]
     inertia: tuple[float, float, float, float, float, float] | None
     key: str
+    density: float | None = None  # kg/m^3: estimate mass, com, inertia from the link's geometry
 
 
 @dataclass(frozen=True)
@@ -143,6 +154,8 @@ class Overlay:
     mounts: tuple[Attach, ...] = ()
     inertials: tuple[InertialSpec, ...] = ()
     conventions: tuple[ConventionSpec, ...] = ()
+    assumed_density: float | None = None  # kg/m^3 for every moving link without a mass
+    xacro_args: dict[str, str] = field(default_factory=dict)  # a .xacro's arguments, as typed
 
     def sites(self) -> list[Attach]:
         """Every site the overlay adds, in the order they are added to the MJCF."""
@@ -242,7 +255,17 @@ def _mounts(
 
 def _inertial(tables: Table, link: str) -> InertialSpec:
     c = tables.sub(link)
-    c.only(("mass", "com", "inertia"))
+    c.only(("mass", "com", "inertia", "density"))
+    if c.has("density"):
+        if c.has("mass") or c.has("com") or c.has("inertia"):
+            raise c.fail(
+                "density",
+                "either a density (kg/m^3: estimated from the geometry) or mass and com, not both",
+                "both",
+            )
+        rho = c.number("density", positive=True)
+        check_density(c.file, c.key("density"), rho)
+        return InertialSpec(link, 0.0, (0.0, 0.0, 0.0), None, c.prefix, rho)
     com = c.vector("com", 3)
     inertia = None
     if c.has("inertia"):
@@ -268,6 +291,12 @@ def _convention(tables: Table, joint: str) -> ConventionSpec:
     if isinstance(sign, bool) or sign not in (1, -1):
         raise c.fail("sign", "1 or -1 (the controller counts the joint the URDF's way, or the other)", sign)
     return ConventionSpec(joint, math.radians(zero), int(sign), c.prefix)
+
+
+def _density(top: Table) -> float:
+    rho = top.number("assumed_density", positive=True)
+    check_density(top.file, top.key("assumed_density"), rho)
+    return rho
 
 
 def _named_tables(top: Table, key: str, what: str) -> list[tuple[Table, str]]:
@@ -298,6 +327,10 @@ def parse_overlay(text: str, path: str | Path) -> Overlay:
         pk = top.sub("packages")
         for name in pk.table:
             packages[name] = (path.parent / pk.string(name)).resolve()
+    xacro_args: dict[str, str] = {}
+    if top.has("xacro"):
+        xa = top.sub("xacro")
+        xacro_args = {name: xa.string(name) for name in xa.table}
     sites, mounts = _mounts(top, compensators) if top.has("compensator_sites") else (None, ())
     wrist = top.string("wrist") if top.has("wrist") else None
     if wrist == "":
@@ -318,6 +351,8 @@ def parse_overlay(text: str, path: str | Path) -> Overlay:
         mounts=mounts,
         inertials=tuple(_inertial(t, n) for t, n in _named_tables(top, "inertials", "link")),
         conventions=tuple(_convention(t, n) for t, n in _named_tables(top, "conventions", "joint")),
+        assumed_density=_density(top) if top.has("assumed_density") else None,
+        xacro_args=xacro_args,
     )
     seen: dict[str, str] = {}
     for s in ov.sites():

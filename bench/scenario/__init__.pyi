@@ -3,8 +3,10 @@
 
 from .parse import (
     DESIGN_KEYS,
+    JOINT_LIMIT_TOL,
     Plan,
     Scenario,
+    check_commands,
     check_joint_limits,
     load_plan,
     load_scenario,
@@ -17,6 +19,7 @@ from .parse import (
 from .plausible import (
     PlausibilityWarning,
     Scale,
+    check_density,
     check_length,
     check_plan,
     check_scenario,
@@ -57,7 +60,10 @@ __all__ = [
     "Scale",
     "Scenario",
     "UNLOAD_S",
+    "JOINT_LIMIT_TOL",
+    "check_commands",
     "check_joint_limits",
+    "check_density",
     "check_length",
     "check_plan",
     "check_scenario",

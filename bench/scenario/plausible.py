@@ -17,6 +17,8 @@ every pose (and work) q    some angle beyond 6.29  one pose only          two po
                            deg                                            within +-2 pi: radians
 payload mass M             M / robot 1e-2 ... 2    1e-3 ... 1e-2,         < 1e-3 (tonnes as kg),
                                                    2 ... 10               > 10 (grams as kg)
+overlay density (kg/m^3)   500 ... 8000            100 ... 500,           < 100 (g/cm^3 as kg/m^3),
+                                                   8000 ... 25000         > 25000
 offsets, spring lengths,   < the robot's size      1 ... 10 sizes         > 10 sizes (mm as m)
 the tracker's distance     (tracker: 30 sizes)     (tracker: 30 ... 300)  (tracker: > 300)
 =========================  ======================  =====================  ==========================
@@ -37,8 +39,11 @@ import mujoco
 import numpy as np
 
 from calbench.bench.core import InputError
-from calbench.bench.model import Robot
+from calbench.bench.model import MAX_COMPLIANCE, Robot
 
+# rad/(N*m): the quiet band of a compliance; its top is the fit's own bound (bench/model's
+# MAX_COMPLIANCE), so a value quoted as plausible here is one a fit can reach
+COMPLIANCE_BAND = (1e-10, MAX_COMPLIANCE)
 RADIAN_SPAN = 2 * math.pi + 0.01  # a wrist's angles in radians reach +-2 pi (q6 = 270 deg: 4.71)
 
 
@@ -110,25 +115,48 @@ def check_sigma(file, key: str, sigma: float) -> None:
 
 
 def check_compliance(file, key: str, values) -> None:
-    """Joint or effect compliances (rad/(N*m)), each nonzero one against 1e-10 ... 1e-4."""
+    """Joint or effect compliances (rad/(N*m)), each nonzero one against COMPLIANCE_BAND."""
+    lo, hi = (f"{x:.0e}".replace("e-0", "e-") for x in COMPLIANCE_BAND)
+    expected = f"a compliance in rad/(N*m) (a joint's: {lo} ... {hi})"
     for i, c in enumerate(np.asarray(values, float).ravel()):
         k = f"{key}[{i}]"
         if c > 1e3:
             raise InputError(
                 file,
                 k,
-                "a compliance in rad/(N*m) (a joint's: 1e-8 ... 1e-5)",
+                expected,
                 f"{_fmt(c)}: a stiffness in N*m/rad? (compliance = 1 / stiffness = {_fmt(1 / c)})",
             )
         if c > 1e-2:
             raise InputError(
                 file,
                 k,
-                "a compliance in rad/(N*m) (a joint's: 1e-8 ... 1e-5)",
+                expected,
                 f"{_fmt(c)}: urad/(N*m) written as rad/(N*m)? ({_fmt(c * 1e-6)} rad/(N*m))",
             )
-        if c > 1e-4 or 0 < c < 1e-10:
-            warn(file, k, f"compliance {_fmt(c)} rad/(N*m) is outside a heavy robot's 1e-10 ... 1e-4")
+        if c > COMPLIANCE_BAND[1] or 0 < c < COMPLIANCE_BAND[0]:
+            warn(file, k, f"compliance {_fmt(c)} rad/(N*m) is outside a robot joint's {lo} ... {hi}")
+
+
+def check_density(file, key: str, rho: float) -> None:
+    """A material density (kg/m^3) to fill a robot's geometry with: engineering materials span
+    ~100 (foam) ... 22600 (osmium); below 100, g/cm^3 written for kg/m^3 (steel 7.85 for 7850)."""
+    if rho < 100.0:
+        raise InputError(
+            file,
+            key,
+            "a density in kg/m^3 (steel 7850, aluminium 2700, a robot's average ~1000 ... 3000)",
+            f"{_fmt(rho)}: g/cm^3 written as kg/m^3? ({_fmt(rho * 1000)} kg/m^3)",
+        )
+    if rho > 25000.0:
+        raise InputError(
+            file,
+            key,
+            "a density in kg/m^3 (steel 7850, aluminium 2700, a robot's average ~1000 ... 3000)",
+            f"{_fmt(rho)} kg/m^3, denser than any metal: g/m^3 or a mass?",
+        )
+    if rho > 8000.0 or rho < 500.0:
+        warn(file, key, f"density {_fmt(rho)} kg/m^3: beyond a robot's materials (500 ... 8000)")
 
 
 def check_poses(file, angles: list[tuple[str, np.ndarray]]) -> None:
@@ -240,6 +268,7 @@ __all__ = [
     "check_length",
     "check_sigma",
     "check_compliance",
+    "check_density",
     "check_poses",
     "check_mass",
     "check_tracker",

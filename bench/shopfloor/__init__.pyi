@@ -2,15 +2,16 @@
 # calbench.bench.core.face reads these lines and loads each name on first use.
 
 from .formats import FORMATS, ReadingsFormat, ReadingsTable
-from .logcsv import ImportSummary, Readings, campaign_readings, export_rows, write_imported_log
-from .probe import ProbeSeries, campaign_files, euler_xyz, read_probe_series, read_transform
+from .logcsv import ImportedReadings, ImportSummary, campaign_readings, export_rows, write_imported_log
+from .probe import ProbeSeries, campaign_files, euler_xyz, read_probe_series, read_transform, series_files
 from .readings import group, read_readings, readings_csv
 
 __all__ = [
+    "series_files",
     "FORMATS",
     "ImportSummary",
     "ProbeSeries",
-    "Readings",
+    "ImportedReadings",
     "ReadingsFormat",
     "ReadingsTable",
     "campaign_files",

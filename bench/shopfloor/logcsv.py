@@ -42,8 +42,8 @@ import numpy as np
 from calbench.bench.campaign import pose_load
 from calbench.bench.core import STATES, InputError
 from calbench.bench.log import CampaignLog, LogHeader, LogWriter
-from calbench.bench.model import Robot
-from calbench.bench.scenario import NS, Plan, schedule
+from calbench.bench.model import load_robot
+from calbench.bench.scenario import NS, Plan, check_joint_limits, schedule
 from calbench.bench.tracker import TrackerSpec, noise_covariance
 
 from .readings import ReadingsTable, Row, group, iso8601
@@ -64,7 +64,7 @@ class ImportedReading:
     time: float  # s: the table's (its kind), or the campaign clock's
 
 
-Readings = dict[tuple[int, str], list[ImportedReading]]
+ImportedReadings = dict[tuple[int, str], list[ImportedReading]]
 
 
 @dataclass(frozen=True)
@@ -135,7 +135,7 @@ def measured_order(table: ReadingsTable) -> list[int]:
     return order
 
 
-def campaign_readings(table: ReadingsTable, names: list[str], tracker: TrackerSpec) -> Readings:
+def campaign_readings(table: ReadingsTable, names: list[str], tracker: TrackerSpec) -> ImportedReadings:
     """The table's rows as log readings per (pose, state), reflectors in ``names`` order, with
     their covariances (:func:`reading_covariance`); poses in measured order. Every reading has a
     time: the table's, or, without a time column, the campaign clock's for these poses and
@@ -166,7 +166,7 @@ def campaign_readings(table: ReadingsTable, names: list[str], tracker: TrackerSp
 
 def write_imported_log(
     plan: Plan,
-    readings: Readings,
+    readings: ImportedReadings,
     tracker: TrackerSpec,
     model: Path,
     out: Path,
@@ -183,16 +183,9 @@ def write_imported_log(
     own time and each pose's command, load and end a millisecond around its readings (TICK);
     without, the log's campaign clock stamps them (bench/scenario/timeline.py), which is the schedule the
     readings were given (bench.scenario.schedule)."""
-    robot = Robot.from_file(model)
+    robot = load_robot(plan.path, "robot", path=model)  # as the import loaded it
     names = list(robot.reflector_names)
-    for i, pose in enumerate(plan.poses):
-        if len(pose.q) != robot.n_act:
-            raise InputError(
-                plan.path,
-                f"pose[{i}].q",
-                f"an array of {robot.n_act} numbers (one per actuated joint of {model.name})",
-                f"{len(pose.q)} elements",
-            )
+    check_joint_limits(plan, robot.limits())
     order = list(dict.fromkeys(p for p, _ in readings))
     loads = {p: pose_load(robot, plan, plan.poses[p]) for p in order}
 
@@ -277,7 +270,7 @@ def export_rows(log: CampaignLog) -> list[Row]:
 
 __all__ = [
     "ImportedReading",
-    "Readings",
+    "ImportedReadings",
     "ImportSummary",
     "reading_covariance",
     "measured_order",

@@ -35,6 +35,7 @@ from .feasibility import (
     excluded_pairs,
     horizontal_clearance,
     lateral_wrench,
+    robot_reach,
     robot_tally,
     tally_rules,
     world_parent_pairs,
@@ -58,7 +59,7 @@ from .plan import (
 from .run import DesignOutcome, DesignRequest, run_design
 from .selection import Selection, select_rows, selection_text
 from .settings import DESIGN_KEYS, DesignSettings, load_design_scenario, read_design_settings
-from .study import run_study
+from .study import run_paper_study
 
 __all__ = [
     "ALGORITHMS",
@@ -110,9 +111,10 @@ __all__ = [
     "read_candidates",
     "read_design_settings",
     "result_json",
+    "robot_reach",
     "robot_tally",
     "run_design",
-    "run_study",
+    "run_paper_study",
     "scenario_plan_information",
     "select_rows",
     "selection_text",

@@ -284,7 +284,7 @@ def generate_candidates(
         np.array(kinds[:n], int),
         out,
         eng.theta0,
-        settings,
+        eng.settings,
         stats,
         eng.robot.layout.names,
     )

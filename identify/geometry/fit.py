@@ -22,12 +22,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.optimize import least_squares
 
+from calbench.identify.core import GEOMETRY_RANK_TOL as RANK_TOL  # identify/core/tolerances.py
 from calbench.identify.core import fit_rigid
 
 from .chain import Chain
 from .model import GeometricModel, kind
 
-RANK_TOL = 1e-9
 # the models a validation compares, by the effects each one fits
 MODELS = {
     "nominal": ("base_frame", "tool_frame"),

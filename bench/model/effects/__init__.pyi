@@ -3,7 +3,7 @@
 # themselves are found by registry.py (every module here registers its own), not through this face.
 
 from .apply import EffectRobot, apply_effects, augmented_xml, load_spec
-from .base import UNIT_PRIORS, Effect, Field, Prior, Readings, read_table
+from .base import UNIT_PRIORS, Effect, Field, ObservationRows, Prior, read_table
 from .base_tilt import base_compliance
 from .cubic_drive import joint_nonlinearity
 from .drift import tracker_drift
@@ -41,7 +41,7 @@ __all__ = [
     "Prior",
     "REGISTRY",
     "RIGID_COMPLIANCE",
-    "Readings",
+    "ObservationRows",
     "TRUTH_SCHEMAS",
     "UNIT_PRIORS",
     "apply_effects",
