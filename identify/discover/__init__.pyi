@@ -15,6 +15,9 @@ from .fit import (
     whitened,
 )
 from .geometric import (
+    ALPHA_GEOMETRY,
+    ALPHA_NAMING,
+    ALPHA_UNEXPLAINED,
     Candidate,
     Readings,
     discover_geometry,
@@ -83,6 +86,9 @@ __all__ = [
     "with_deflections",
     "ALPHA_EFFECT",
     "ALPHA_FIT",
+    "ALPHA_GEOMETRY",
+    "ALPHA_NAMING",
+    "ALPHA_UNEXPLAINED",
     "Candidate",
     "Readings",
     "discover_geometry",

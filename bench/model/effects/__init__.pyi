@@ -8,7 +8,15 @@ from .base_tilt import base_compliance
 from .cubic_drive import joint_nonlinearity
 from .drift import tracker_drift
 from .edits import RIGID_COMPLIANCE
-from .geometric import base_frame, frame_error, joint_offset, link_geometry, tool_frame, turned_frame
+from .geometric import (
+    base_frame,
+    body_quat,
+    frame_error,
+    joint_offset,
+    link_geometry,
+    tool_frame,
+    turned_frame,
+)
 from .link_springs import link_compliance
 from .registry import (
     DISCOVERY_OPTIONS,
@@ -49,6 +57,7 @@ __all__ = [
     "read_table",
     "register_effect",
     "base_frame",
+    "body_quat",
     "frame_error",
     "joint_offset",
     "link_geometry",
