@@ -290,7 +290,7 @@ def cmd_montecarlo(args) -> int:
 
 
 def add_design(sub) -> None:
-    from calbench.identify.design import CRITERIA
+    from calbench.identify.design.optimal import CRITERIA
 
     p = sub.add_parser("design", help="optimal measurement configurations (design of experiments)")
     p.add_argument(

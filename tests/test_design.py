@@ -24,19 +24,16 @@ from calbench.identify.cli import main
 from calbench.identify.core import ForwardModel, design_from_observations, from_campaign, whiten_factors
 from calbench.identify.design import (
     DesignSettings,
-    Exchanger,
     InfoEngine,
     PlanPose,
-    criterion_value,
     generate_candidates,
-    information,
     load_design_scenario,
-    measures,
     plan_scenario_text,
     read_design_settings,
     robot_reach,
     wrist_body,
 )
+from calbench.identify.design.optimal import Exchanger, criterion_value, information, measures
 from calbench.identify.study import run_montecarlo
 
 WEIGHT = np.r_[Robot.from_file(MJCF).weight(700.0), 0, 0, 0.0]  # the model's own gravity

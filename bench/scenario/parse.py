@@ -87,7 +87,7 @@ TOP_KEYS = (
     "pose",
     "design",
 )
-# [design]: settings of `calbench design` (identify/design_candidates.py validates the values)
+# [design]: settings of `calbench design` (identify/design/settings.py validates the values)
 DESIGN_KEYS = (
     "min_height",
     "min_radius",

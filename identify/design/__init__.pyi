@@ -11,22 +11,7 @@ from .candidates import (
     hopeless,
     read_candidates,
 )
-from .certificate import (
-    ALGORITHMS,
-    ApproximateDesign,
-    Certificate,
-    SingularCandidates,
-    a_bound,
-    approximate_design,
-    certify,
-    column_scale,
-    d_bound,
-    normalise_blocks,
-    plan_logdet,
-)
-from .criteria import CRITERIA, criterion_value, information, measures
 from .engine import InfoEngine
-from .exchange import Exchanger
 from .feasibility import (
     EQUILIBRIUM_RULES,
     LOAD_KINDS,
@@ -57,54 +42,36 @@ from .plan import (
     work_jacobian,
 )
 from .run import DesignOutcome, DesignRequest, run_design
-from .selection import Selection, select_rows, selection_text
 from .settings import DESIGN_KEYS, DesignSettings, load_design_scenario, read_design_settings
 from .study import run_paper_study
 
 __all__ = [
-    "ALGORITHMS",
     "BATCH",
-    "ApproximateDesign",
     "BatchInfo",
-    "CRITERIA",
     "CandidateFile",
     "CandidateSet",
-    "Certificate",
     "DESIGN_KEYS",
     "DesignOutcome",
     "DesignRequest",
     "DesignResult",
     "DesignSettings",
     "EQUILIBRIUM_RULES",
-    "Exchanger",
     "InfoEngine",
     "LOAD_KINDS",
     "PlanPose",
     "SECONDS_PER_CANDIDATE",
     "RuleTally",
-    "Selection",
-    "SingularCandidates",
-    "a_bound",
-    "approximate_design",
-    "certify",
-    "column_scale",
     "collision_model",
-    "criterion_value",
-    "d_bound",
     "design_plan",
     "excluded_pairs",
     "generate_candidates",
     "hopeless",
     "horizontal_clearance",
-    "information",
     "input_plan_measures",
     "lateral_wrench",
     "load_design_scenario",
-    "measures",
     "merge_repeats",
-    "normalise_blocks",
     "plan_comment",
-    "plan_logdet",
     "plan_measures",
     "plan_scenario_text",
     "poses_of_rows",
@@ -116,8 +83,6 @@ __all__ = [
     "run_design",
     "run_paper_study",
     "scenario_plan_information",
-    "select_rows",
-    "selection_text",
     "summary_text",
     "tally_rules",
     "work_jacobian",

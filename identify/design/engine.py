@@ -35,8 +35,8 @@ from calbench.bench.tracker import (
 )
 from calbench.identify.core import analyze, explain, resolve
 
-from .criteria import inverse_information
 from .feasibility import Feasibility
+from .optimal import inverse_information
 from .settings import DesignSettings, nominal_robot
 
 # --------------------------------------------------------------------------- information

@@ -30,11 +30,18 @@ from calbench.bench.core import InputError, ProgressSink
 from calbench.bench.scenario import Scenario, scenario_as_dict, scenario_to_toml
 
 from .candidates import CandidateSet
-from .certificate import SingularCandidates
-from .criteria import CRITERIA, criterion_value, information, measures
 from .engine import InfoEngine, unseen_parameters
 from .feasibility import LOAD_KINDS, lateral_wrench
-from .selection import Selection, select_rows, selection_text
+from .optimal import (
+    CRITERIA,
+    Selection,
+    SingularCandidates,
+    criterion_value,
+    information,
+    measures,
+    select_rows,
+    selection_text,
+)
 from .settings import DesignSettings
 
 REFINE_STEPS_DEG = (4.0, 2.0, 1.0)

@@ -42,9 +42,9 @@ from .candidates import (
     generate_candidates,
     read_candidates,
 )
-from .certificate import SingularCandidates
 from .engine import InfoEngine
 from .feasibility import LOAD_KINDS
+from .optimal import Selection, SingularCandidates, select_rows, selection_text
 from .plan import (
     DesignResult,
     design_plan,
@@ -56,7 +56,6 @@ from .plan import (
     result_json,
     summary_text,
 )
-from .selection import Selection, select_rows, selection_text
 from .settings import load_design_scenario
 from .study import run_paper_study
 

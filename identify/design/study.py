@@ -30,8 +30,8 @@ import numpy as np
 
 from calbench.bench.core import InputError, write_text
 
-from .criteria import measures
 from .engine import InfoEngine
+from .optimal import measures
 from .settings import load_design_scenario
 
 WRISTS = ((-45.0, 30.0, 135.0), (45.0, -30.0, 45.0))
