@@ -321,17 +321,18 @@ def judge(rep: dict, truth_base: dict, hidden: dict, expected: str | None) -> di
     else:
         outcome = "right" if labels[0] == expected else "wrong"
     bad = []
+
+    def truth(name: str) -> float:
+        if name in truth_base:
+            return truth_base[name]
+        lab, _, pn = name.rpartition(".")
+        return hidden.get(lab, {}).get(pn, 0.0)
+
     for p in rep["parameters"]:
         if not p["determined"]:
             continue
         name = p["name"]
-        if name in truth_base:
-            t = truth_base[name]
-        else:
-            lab, _, pn = name.rpartition(".")
-            t = hidden.get(lab, {}).get(pn, 0.0)
-            if lab == "compensator" and "compensator" in hidden:
-                t = hidden["compensator"].get(pn, 0.0)
+        t = truth(name)
         gap = abs(p["estimate"] - t)
         allowed = Z_DETERMINED * p["std"]
         excused = False
@@ -352,7 +353,7 @@ def judge(rep: dict, truth_base: dict, hidden: dict, expected: str | None) -> di
                 }
             )
     for c in rep.get("combinations", []):
-        t = sum(v * truth_base.get(n, 0.0) for n, v in c["combination"].items())
+        t = sum(v * truth(n) for n, v in c["combination"].items())  # an effect's: the hidden one's
         if abs(c["estimate"] - t) > Z_DETERMINED * c["std"]:
             bad.append(
                 {
@@ -400,9 +401,21 @@ def one_campaign(study_path: str, cell_index: int, replicate: int, without: tupl
     rec.update(
         expected=expected,
         self_check_failed=rep["self_check"]["failed"],
+        exposure_growth=exposure_growth(rep),
         seconds=time.perf_counter() - t0,
     )
     return rec
+
+
+def exposure_growth(rep: dict) -> list[float]:
+    """Per determined parameter: its exposure over the region (identify/discover/exposure.py)
+    over its exposure at the estimate alone: what evaluating across the valley costs in words."""
+    out = []
+    for p in rep["parameters"]:
+        ex = p.get("exposure") or {}
+        if p["determined"] and ex.get("bias_at_estimate"):
+            out.append(ex["bias"] / ex["bias_at_estimate"])
+    return out
 
 
 # ----------------------------------------------------------------------------- summary
@@ -433,6 +446,9 @@ def summarise(rows: list[dict]) -> dict:
         row["confidently_wrong_upper"] = cp_upper(k, n)
         row["wrong_parameters"] = sorted({b["name"] for r in ok for b in r["confidently_wrong"]})
         row["self_check_flags"] = sum(bool(r["self_check_failed"]) for r in ok)
+        growth = [g for r in ok for g in r.get("exposure_growth", [])]
+        row["exposure_growth_median"] = float(np.median(growth)) if growth else None
+        row["exposure_growth_p90"] = float(np.percentile(growth, 90)) if growth else None
         row["seconds_median"] = float(np.median([r["seconds"] for r in rs])) if rs else 0.0
         cells.append(row)
     hidden = [r for r in rows if r["kind"] == "hidden" and "error" not in r]

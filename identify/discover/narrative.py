@@ -280,7 +280,8 @@ def exposure_lines(params: list[dict]) -> list[str]:
         out.insert(
             0,
             "Exposure of each determined parameter to the library's effects not named (the largest "
-            "bias one could cause while its test stays silent, first order):",
+            "bias one could cause while its test stays silent, first order, at the estimate and "
+            "+-2 std along each principal axis of its covariance):",
         )
     return out
 

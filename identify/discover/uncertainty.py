@@ -311,25 +311,23 @@ def self_check(f: Fit, obs, white: Whitener, det: Determination) -> dict:
     each replica refitted as the final fit is made (identify/core/leastsq.py's Levenberg-Marquardt
     on the exact model from the estimate, with fit.py's scale, rank cut-off, holds and bounds)
     with the Monte Carlo's stopping rule (identify/methods/onestep.py: a step below
-    REPLICA_STEP_TOL std is applied without evaluating the model again; the whitened model and
-    Jacobian at the estimate, evaluated once, are every replica's first step), so a replica
-    usually costs one evaluation of the exact model and its Jacobian. Stopping on the chi2 gain
+    REPLICA_STEP_TOL std is applied without evaluating the model again unless a bound clips it;
+    the whitened model and Jacobian at the estimate, evaluated once, are every replica's first
+    step), so a replica usually costs one evaluation of the exact model and its Jacobian. Stopping on the chi2 gain
     instead (fit.py's rule) took 17 evaluations a replica on the IRB 6640's named model, 22 s
     for the check, where the model's valley along the directions it does not determine is flat.
     A parameter or combination that fails is made not determined in ``det`` (its std was not
     what the campaign shows) and named in ``failed``; returns the record."""
-    from calbench.identify.core import at_bounds, levenberg_marquardt
+    from calbench.identify.core import levenberg_marquardt
 
-    from .fit import COST_TOL, DISCOVER_RANK_TOL, fit_augmented, whitened
+    from .fit import COST_TOL, DISCOVER_RANK_TOL, whitened
 
     lo, hi, hold = f.extra["bounds"]
     first = whitened(f.model, white, f.values)
     scale = np.where(np.abs(f.values) > 0, np.abs(f.values), f.model._fd_size)
 
-    inside = ~np.any(at_bounds(f.values, lo, hi), axis=0) & ~np.asarray(hold, bool)
-
     def refit(o: Observations) -> np.ndarray:
-        x = levenberg_marquardt(
+        return levenberg_marquardt(
             lambda th: whitened(f.model, white, th),
             white.vec(o.dp),
             f.values,
@@ -344,12 +342,6 @@ def self_check(f: Fit, obs, white: Whitener, det: Determination) -> dict:
             final_eval=False,
             start_eval=first,
         ).x
-        if np.any(np.any(at_bounds(x, lo, hi), axis=0) & inside):
-            # a step applied without evaluation was clipped at a bound (the k3 / forearm pitch
-            # split of the FANUC: its minimum-norm step along the undetermined split, clipped,
-            # moved k3 + cy by 100 std): the final fit's own rule, which evaluates every step
-            x = fit_augmented(f.model, o.dp, white, f.values, lo, hi, hold, start_eval=first).values
-        return x
 
     checks = unit_checks(f.names, np.where(det.determined, det.std, np.nan))
     for k, c in enumerate(det.combinations):

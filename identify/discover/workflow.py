@@ -302,13 +302,16 @@ def discover_observations(
         fresh_cols = alias_columns(src, obs, white, final, lib)
     aliasing = aliasing_report(final, final.extra["jw"], det.std, fresh_cols, obs, white, max(len(last), 1))
     own = {label(c.fit.effects[-1]) for c in last if c.fit is not None and owns_base(c.fit)}
+    exposed = [(e, b) for e, b in fresh_cols if label(e) not in own]
     exposure = exposure_report(
         final,
         final.extra["jw"],
         det.std,
-        [(e, b) for e, b in fresh_cols if label(e) not in own],
+        exposed,
         len(last) or 1,
+        region_columns(src, obs, white, final, [e for e, _ in exposed]),
     )
+    final.model.evaluate(final.values, jacobian=False)  # the model back at the estimate
     diag_before = diagnose(base, obs, sigma)
     diag_after = diagnose(final, obs, sigma) if final is not base else diag_before
     rep = {
@@ -374,7 +377,40 @@ def base_exposure(src, obs: Observations, std: np.ndarray) -> list[dict]:
         _, fm = build(src, [(e, effect_priors(e)[0])], obs)
         if not fm._base_overridden(np.concatenate([base.values, effect_priors(e)[0]])).any():
             cols.append((e, block))
-    return exposure_report(base, base.extra["jw"], np.asarray(std, float), cols, len(lib) or 1)
+    return exposure_report(
+        base,
+        base.extra["jw"],
+        np.asarray(std, float),
+        cols,
+        len(lib) or 1,
+        region_columns(src, obs, white, base, [e for e, _ in cols]),
+    )
+
+
+def region_columns(src, obs, white, final: Fit, effects: list):
+    """theta -> (chi2, whitened Jacobian of ``final``'s model, [(effect, its whitened columns)])
+    at theta, for each of ``effects`` added to ``final``'s model at its prior start (each model
+    built once): the exposure's evaluation away from the estimate (exposure.py's region)."""
+    models = []
+    for e in effects:
+        start = effect_priors(e)[0]
+        try:
+            models.append((e, build(src, final.effect_params() + [(e, start)], obs)[1], start))
+        except (ValueError, RuntimeError, NotImplementedError, np.linalg.LinAlgError):
+            continue
+    yw = white.vec(obs.dp)
+
+    def at(theta: np.ndarray):
+        fw, jw = whitened(final.model, white, theta)
+        cols = []
+        for e, fm, start in models:
+            try:
+                cols.append((e, whitened(fm, white, np.concatenate([theta, start]))[1][:, -start.size :]))
+            except (ValueError, RuntimeError, NotImplementedError, np.linalg.LinAlgError):
+                continue  # no equilibrium with this effect there: the others still count
+        return float(np.sum((yw - fw) ** 2)), jw, cols
+
+    return at
 
 
 def owns_base(f: Fit) -> bool:
