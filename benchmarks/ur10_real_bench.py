@@ -22,6 +22,10 @@ Positions only (the probe's orientation is not used). Prints JSON.
 MJCF, with the tracker-from-base transform in the JSON; keep it out of the project (it is made
 from the data).
 
+The peers are no dependency of calbench: `pip install figaroh` into a virtual environment of its own
+(pass its python as --figaroh), `pip install --no-deps pybotics` into calbench's (it pins numpy < 2
+but runs on numpy 2).
+
 Usage: python benchmarks/ur10_real_bench.py [--series C] [--data DIR] [--quick] [--no-peer]
        [--out-model PATH] [--figaroh PYTHON]
 """

@@ -114,9 +114,10 @@ def format_discover_geometry(rep: dict) -> str:
         return f"; held-out RMS {v['position_rms'] * mm:.3f} mm" if v else ""
 
     st = rep["start_model"]
+    springs = " + balancer springs" if any(p["effect"] == "compensator" for p in st["parameters"]) else ""
     lines = [
         f"discover --geometry: {rep['n_readings']} unloaded readings of {rep['point']} ({rep['log']})",
-        f"start: registration + joint compliance under self-weight, fit RMS {st['rms'] * mm:.3f} mm "
+        f"start: registration + joint compliance under self-weight{springs}, fit RMS {st['rms'] * mm:.3f} mm "
         f"(chi2 {st['chi2']:.4g} for {st['dof']} dof, p = {st['p']:.2g}){tail('start')}",
     ]
     for s in rep["steps"]:
