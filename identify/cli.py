@@ -613,7 +613,15 @@ def cmd_import(args) -> int:
     check_outputs(
         {"--out": args.out}, {"READINGS": args.readings, "--plan": args.plan, "--model": args.model}
     )
-    res = import_readings(args.readings, args.plan, args.out, args.units, args.model)
+    bars = (
+        terminal_progress("calbench import", "MB read"),
+        terminal_progress("calbench import", "poses written"),
+    )
+    try:
+        res = import_readings(args.readings, args.plan, args.out, args.units, args.model, *bars)
+    finally:
+        for bar in bars:
+            bar.close()
     s = res.summary
     for w in res.warnings:
         print(f"calbench import: warning: {w}", file=sys.stderr)

@@ -7,7 +7,7 @@ from .mcapscan import Cut, Damage, scan
 from .read import CorruptLogError, read_log
 from .records import STATES, CampaignLog, PerState, WrenchRecord
 from .recover import recover_log
-from .schema import SCHEMAS
+from .schema import SCHEMAS, checker, findings, problems
 from .writer import (
     TRUTH_PREFIX,
     CampaignTruth,
@@ -20,6 +20,9 @@ from .writer import (
 )
 
 __all__ = [
+    "problems",
+    "findings",
+    "checker",
     "CampaignLog",
     "CampaignTruth",
     "CorruptLogError",

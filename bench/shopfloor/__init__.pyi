@@ -1,12 +1,15 @@
 # The public face of calbench.bench.shopfloor: what code outside this room may import. At run time
 # calbench.bench.core.face reads these lines and loads each name on first use.
 
-from .formats import FORMATS, ReadingsFormat, ReadingsTable
+from .formats import FORMATS, ROW_BYTES, ReadingsFormat, ReadingsTable
+from .grouping import first_time
 from .logcsv import ImportSummary, Readings, campaign_readings, export_rows, write_imported_log
 from .probe import ProbeSeries, campaign_files, euler_xyz, read_probe_series, read_transform
-from .readings import group, read_readings, readings_csv
+from .readings import TABLE_BYTES_PER_ROW, group, read_readings, readings_csv
 
 __all__ = [
+    "TABLE_BYTES_PER_ROW",
+    "ROW_BYTES",
     "FORMATS",
     "ImportSummary",
     "ProbeSeries",
@@ -17,6 +20,7 @@ __all__ = [
     "campaign_readings",
     "euler_xyz",
     "export_rows",
+    "first_time",
     "group",
     "read_probe_series",
     "read_readings",
