@@ -152,7 +152,7 @@ def test_command_tangent_matches_finite_differences(ident_json):
 def test_parameter_tangent_matches_finite_differences(ident_json):
     robot, ident, comp, load, u, _, analytic = tool_tangents(ident_json, 3)
     theta = ident.theta
-    cols = []
+    cols, floor = [], []
     for i in range(len(theta)):
         h = 1e-4 * abs(theta[i])
         out = []
@@ -162,10 +162,13 @@ def test_parameter_tangent_matches_finite_differences(ident_json):
             comp.robot.set_params(robot.layout.params(t))
             out.append(tool_at(comp, u, load))
         cols.append((out[0] - out[1]) / (2 * h))
+        # the difference's round-off: a few ulps of the tool's position over the step (a parameter
+        # that moves the tool by nothing, k6 under a pure force, still shows ~eps*|p|/h here)
+        floor.append(8 * np.finfo(float).eps * np.abs(out[0]).max() / (2 * h))
     comp.robot.set_params(comp.params)
     fd = np.column_stack(cols)
     scale = np.abs(fd).max(axis=0)  # per parameter: the units differ
-    assert np.all(np.abs(analytic - fd).max(axis=0) <= 1e-3 * scale + 1e-12)
+    assert np.all(np.abs(analytic - fd).max(axis=0) <= 1e-3 * scale + np.array(floor))
 
 
 def test_the_true_parameters_compensate_the_true_robot_exactly(ident_json, tmp_path):
