@@ -19,16 +19,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from big_inputs import readings_file, replicated_log
 from conftest import MJCF, PAPER
 
 from calbench.bench.core import STATES, InputError
-from calbench.bench.log import SCHEMAS, checker, findings, problems
-from calbench.bench.model import Robot
-from calbench.bench.scenario import load_plan
+from calbench.bench.log import SCHEMAS, LogReadings, checker, findings, message_problems, problems, read_log
 from calbench.bench.shopfloor import ROW_BYTES, TABLE_BYTES_PER_ROW, read_readings
-from calbench.bench.tracker import tracker_rotation
+from calbench.bench.view import measured_deflections
 from calbench.identify.cli import main
-from calbench.identify.shopfloor import import_readings, rigid_points
+from calbench.identify.core import from_log
+from calbench.identify.shopfloor import import_readings
 
 NAMES = ["refl_a", "refl_b", "refl_c"]
 
@@ -133,30 +133,7 @@ def plan_file(tmp_path_factory) -> Path:
     return path
 
 
-def write_csv(path: Path, plan_file: Path, rows: int, seed: int = 0) -> Path:
-    """``rows`` readings along the paper plan with the tracker where the plan puts it: the
-    reflectors by rigid kinematics (what check_placed compares with), loaded 1 mm lower, 20 um
-    noise, every pose measured in both states with times."""
-    plan = load_plan(plan_file)
-    robot = Robot.from_file(MJCF)
-    keys = [(p, n) for p in range(len(plan.poses)) for n in NAMES]
-    world = rigid_points(robot, plan, keys).reshape(len(plan.poses), len(NAMES), 3)
-    rot = tracker_rotation(plan.tracker)
-    base = (world - plan.tracker.position) @ rot * 1e3  # mm, tracker frame
-    per_pose = 2 * len(NAMES)
-    k = max(rows // (len(plan.poses) * per_pose), 1)
-    rng = np.random.default_rng(seed)
-    with open(path, "w") as f:
-        f.write("pose,state,point,x,y,z,time\n")
-        for p in range(len(plan.poses)):
-            for s, shift in (("unloaded", 0.0), ("loaded", -1.0)):
-                xyz = base[p] + [0.0, 0.0, shift] + rng.normal(0, 0.02, (k, len(NAMES), 3))
-                for j in range(k):
-                    t = 1000 * p + (500 if s == "loaded" else 0) + 0.01 * j
-                    for i, name in enumerate(NAMES):
-                        x, y, z = xyz[j, i]
-                        f.write(f"{p},{s},{name},{x:.6f},{y:.6f},{z:.6f},{t:.2f}\n")
-    return path
+write_csv = readings_file
 
 
 def test_the_table_grows_by_its_columns_not_by_row_objects(tmp_path, plan_file):
@@ -236,3 +213,114 @@ def test_a_byte_that_is_not_utf8_is_named_by_its_line(tmp_path):
     )
     with pytest.raises(InputError, match=r"r\.csv: line 3: expected UTF-8 text"):
         read_readings(p, 16, NAMES)
+
+
+# --------------------------------------------------------------------------- campaign logs
+
+
+@pytest.fixture(scope="module")
+def paper_log(tmp_path_factory) -> Path:
+    d = tmp_path_factory.mktemp("log")
+    assert main(["simulate", str(PAPER), "--out", str(d / "paper.mcap")]) == 0
+    return d / "paper.mcap"
+
+
+def read_a_pose_at_a_time(monkeypatch) -> None:
+    """read_log keeps no reading in memory (as for a log of more than KEEP_READINGS)."""
+    monkeypatch.setattr("calbench.bench.log.read.KEEP_READINGS", 0)
+
+
+def outputs(log: Path, d: Path) -> dict:
+    """What identify, export, report, view and discover make of ``log`` (names and timings out)."""
+    d.mkdir()
+    assert main(["identify", str(log), "--json", str(d / "id.json")]) == 0
+    assert main(["export", str(log), "--csv", str(d / "r.csv")]) == 0
+    assert main(["report", str(log), "--out", str(d / "r.html")]) == 0
+    ident = json.loads((d / "id.json").read_text())
+    ident.pop("seconds", None)
+    opened = read_log(log)
+    return {
+        "identify": ident,
+        "export": (d / "r.csv").read_bytes(),
+        "report": (d / "r.html").read_text().replace(str(d), "OUT"),
+        "view": {p: {n: v.tolist() for n, v in r.items()} for p, r in measured_deflections(opened).items()},
+        "observations": [(o.index, o.dp.tolist(), o.cov.tolist()) for o in from_log(opened).poses],
+        "readings": [
+            (m.pose, m.state, m.repeat, repr(m.position.tolist()), m.time) for m in opened.measurements
+        ],
+        "first": opened.first_reading_time,
+    }
+
+
+def test_a_log_read_a_pose_at_a_time_gives_every_verb_the_same_results(paper_log, tmp_path, monkeypatch):
+    kept = outputs(paper_log, tmp_path / "kept")
+    read_a_pose_at_a_time(monkeypatch)
+    assert isinstance(read_log(paper_log).measurements, LogReadings)
+    assert outputs(paper_log, tmp_path / "lazy") == kept
+
+
+def test_a_log_that_changes_while_read_a_pose_at_a_time_is_refused(paper_log, tmp_path, monkeypatch):
+    read_a_pose_at_a_time(monkeypatch)
+    copy = tmp_path / "c.mcap"
+    copy.write_bytes(paper_log.read_bytes())
+    log = read_log(copy)
+    assert len(log.readings(0, "unloaded")) == 1
+    copy.write_bytes(paper_log.read_bytes()[:-1] + b"\x00")  # rewritten since it was checked
+    with pytest.raises(InputError, match="expected the log unchanged while it is read"):
+        log.readings(1, "unloaded")
+
+
+def log_peak(log: Path) -> int:
+    """Peak memory of what identify does with a log before fitting: read it, make the
+    observations (every pose's mean readings and deflection covariance)."""
+    return peak_bytes(lambda: len(from_log(read_log(log)).poses))[0]
+
+
+def test_the_log_reader_holds_a_pose_at_a_time(paper_log, tmp_path, monkeypatch):
+    """Logs beyond KEEP_READINGS: 10x the poses costs only the per-pose bookkeeping (commands,
+    loads, where each pose's readings are, its observation: POSE_BYTES, ~2.5 kB measured,
+    budgeted at 6 kB); 10x the readings per pose costs one pose's readings, READING_BYTES each
+    (the record, ~1 kB, and its share of the arrays the pose's mean and deflection covariance
+    stack, ~2 kB: 3.1 kB measured, budgeted at 5 kB), not all of them. Kept in memory, the
+    readings of every pose would cost ~1 kB each, and stacked twice as much."""
+    pose_bytes, reading_bytes = 6000, 5000
+    read_a_pose_at_a_time(monkeypatch)
+    few = replicated_log(paper_log, tmp_path / "few.mcap", poses=16, repeats=5)
+    many = replicated_log(paper_log, tmp_path / "many.mcap", poses=160, repeats=5)
+    deep = replicated_log(paper_log, tmp_path / "deep.mcap", poses=16, repeats=50)
+    base = log_peak(few)
+    assert log_peak(many) - base <= pose_bytes * 144
+    assert pose_bytes * 144 < 1000 * 2 * 5 * 144  # what holding the readings would add
+    assert log_peak(deep) - base <= reading_bytes * 2 * 45  # one pose's extra readings
+    assert reading_bytes * 2 * 45 < 1000 * 2 * 45 * 16  # every pose's extra readings
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_fast_covariance_check_agrees_with_eigenvalues(seed):
+    """read.py accepts a plainly positive definite covariance from its leading minors and asks
+    eigvalsh otherwise: the verdict equals eigvalsh's on random, near-singular, indefinite and
+    asymmetric matrices of every scale."""
+    rng = np.random.default_rng(seed)
+    base = dict(MESSAGES["/tracker/measurement"])
+    for _ in range(300):
+        a = rng.normal(size=(3, 3))
+        kind = rng.integers(4)
+        if kind == 0:
+            c = a @ a.T  # positive definite
+        elif kind == 1:
+            u = np.linalg.qr(a)[0]
+            c = u @ np.diag([1.0, 1.0, rng.choice([1e-17, 1e-15, 1e-12, 0.0, -1e-15])]) @ u.T
+        elif kind == 2:
+            c = a + a.T  # indefinite, mostly
+        else:
+            c = a @ a.T + np.diag([0, 0, 1e-6]) * np.eye(3)[rng.integers(3)]
+        c = c * 10.0 ** rng.integers(-14, 3)
+        sym = 0.5 * (c + c.T)
+        scale = np.abs(c).max()
+        if np.abs(c - c.T).max() > 1e-9 * scale or not scale > 0:
+            want = "an asymmetric or zero matrix"
+        else:
+            want = "a matrix with an eigenvalue <= 0" if np.linalg.eigvalsh(sym).min() <= 0 else None
+        m = dict(base, covariance=[c.tolist(), c.tolist(), None])
+        found = message_problems("/tracker/measurement", m, None)
+        assert (found[0].got if found else None) == want, (c, found)

@@ -3,7 +3,14 @@
 
 from .formats import FORMATS, ROW_BYTES, ReadingsFormat, ReadingsTable
 from .grouping import first_time
-from .logcsv import ImportSummary, Readings, campaign_readings, export_rows, write_imported_log
+from .logcsv import (
+    ImportSummary,
+    Readings,
+    campaign_readings,
+    export_readings,
+    export_rows,
+    write_imported_log,
+)
 from .probe import ProbeSeries, campaign_files, euler_xyz, read_probe_series, read_transform
 from .readings import TABLE_BYTES_PER_ROW, group, read_readings, readings_csv
 
@@ -19,6 +26,7 @@ __all__ = [
     "campaign_files",
     "campaign_readings",
     "euler_xyz",
+    "export_readings",
     "export_rows",
     "first_time",
     "group",

@@ -33,6 +33,7 @@ import reads back; otherwise the plan's tracker model gives the covariances agai
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -40,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from calbench.bench.campaign import pose_load
-from calbench.bench.core import InputError, ProgressSink, sink
+from calbench.bench.core import InputError, ProgressSink, atomic_path, sink
 from calbench.bench.log import CampaignLog, LogHeader, LogWriter
 from calbench.bench.model import Robot
 from calbench.bench.scenario import NS, Plan
@@ -54,7 +55,7 @@ from .grouping import (
     measured_order,
     reading_covariance,
 )
-from .readings import Row
+from .readings import Row, write_readings
 
 TICK = 1_000_000  # ns: a pose's command, load and end stamped 1-3 ms around its readings
 
@@ -167,10 +168,9 @@ def isotropic_sigma(cov: np.ndarray) -> float | None:
     return float(np.sqrt(s2)) if ok else None
 
 
-def export_rows(log: CampaignLog) -> list[Row]:
-    """Every visible reflector of every reading of ``log``'s complete poses (see the module
-    docstring), in log order."""
-    rows: list[Row] = []
+def _visible_rows(log: CampaignLog, with_sigma: bool = True) -> Iterator[Row]:
+    """Every visible reflector of every reading of ``log``'s complete poses, in log order, a
+    reading at a time (a log of any size: its measurements may be read from the file)."""
     keep = set(log.complete_poses)
     for m in log.measurements:
         if m.pose not in keep:
@@ -178,12 +178,35 @@ def export_rows(log: CampaignLog) -> list[Row]:
         t = None if m.time is None else m.time / 1e9
         for i, name in enumerate(m.reflectors):
             if m.visible[i] and np.all(np.isfinite(m.position[i])):
-                rows.append(
-                    Row(m.pose, m.state, name, m.position[i].copy(), t, isotropic_sigma(m.covariance[i]))
-                )
+                sigma = isotropic_sigma(m.covariance[i]) if with_sigma else None
+                yield Row(m.pose, m.state, name, m.position[i].copy(), t, sigma)
+
+
+def export_rows(log: CampaignLog) -> list[Row]:
+    """Every visible reflector of every reading of ``log``'s complete poses (see the module
+    docstring), in log order."""
+    rows = list(_visible_rows(log))
     if rows and any(r.sigma is None for r in rows):
         rows = [Row(r.pose, r.state, r.point, r.position, r.time, None) for r in rows]
     return rows
+
+
+def export_readings(log: CampaignLog, out: Path, units: str = "mm") -> int:
+    """Write :func:`export_rows` of ``log`` as CSV to ``out`` (atomically) without holding them:
+    one pass over the readings decides the columns (time, sigma), a second writes the rows.
+    Returns the number of rows."""
+    with_time = with_sigma = True
+    rows = 0
+    for r in _visible_rows(log):
+        rows += 1
+        with_time &= r.time is not None
+        with_sigma &= r.sigma is not None
+        if not (with_time or with_sigma):
+            break
+    with_time &= rows > 0
+    with_sigma &= rows > 0
+    with atomic_path(out) as tmp, open(tmp, "w", encoding="utf-8", newline="") as f:
+        return write_readings(f, _visible_rows(log, with_sigma), units, with_time, with_sigma)
 
 
 __all__ = [
@@ -195,5 +218,6 @@ __all__ = [
     "campaign_readings",
     "write_imported_log",
     "export_rows",
+    "export_readings",
     "isotropic_sigma",
 ]

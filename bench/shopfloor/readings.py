@@ -463,20 +463,29 @@ def readings_csv(rows: Iterable[Row], units: str = "mm") -> str:
     any tracker's noise, so a round trip loses nothing that matters. The ``time`` column is
     written when every row has a time, ``sigma`` when every row has one."""
     rows = list(rows)
-    scale = 1.0 / UNITS[units]
-    digits = 6 if units == "mm" else 9
     with_time = bool(rows) and all(r.time is not None for r in rows)
     with_sigma = bool(rows) and all(r.sigma is not None for r in rows)
     buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
+    write_readings(buf, rows, units, with_time, with_sigma)
+    return buf.getvalue()
+
+
+def write_readings(f, rows: Iterable[Row], units: str, with_time: bool, with_sigma: bool) -> int:
+    """Write the CSV of ``rows`` (:func:`readings_csv`'s form, the columns chosen by the caller)
+    to the text file ``f`` a row at a time; returns the number of rows."""
+    scale = 1.0 / UNITS[units]
+    digits = 6 if units == "mm" else 9
+    w = csv.writer(f, lineterminator="\n")
     w.writerow(REQUIRED + (("time",) if with_time else ()) + (("sigma",) if with_sigma else ()))
+    n = 0
     for r in rows:
         xyz = [f"{v * scale:.{digits}f}" for v in r.position]
         extra = ([iso8601(r.time)] if with_time else []) + (
-            [f"{r.sigma * scale:.{digits}f}"] if with_sigma else []
+            [f"{r.sigma * scale:.{digits}f}"] if with_sigma else []  # type: ignore[operator]
         )
         w.writerow([r.pose, r.state, r.point, *xyz, *extra])
-    return buf.getvalue()
+        n += 1
+    return n
 
 
 class CsvReadings(ReadingsFormat):
@@ -520,5 +529,6 @@ __all__ = [
     "CsvReadings",
     "FORMAT",
     "readings_csv",
+    "write_readings",
     "iso8601",
 ]
