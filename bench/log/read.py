@@ -32,6 +32,7 @@ read as before.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from collections.abc import Iterator
@@ -351,7 +352,7 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
     topics: dict[int, str] = {}
     c = _Collected()
     metadata: dict[str, dict] = {}
-    scenario_att = mjcf_text = None
+    scenario_att = mjcf_text = mjcf_sha256 = None
     saw_truth = cut = False
     n_poses: int | None = None
     n_joints: int | None = None
@@ -421,6 +422,7 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
                 scenario_att = rec.data.decode("utf-8", "replace")
             elif rec.media_type == "application/xml" and mjcf_text is None:
                 mjcf_text = rec.data.decode("utf-8", "replace")
+                mjcf_sha256 = hashlib.sha256(rec.data).hexdigest()
         elif isinstance(rec, Footer):
             break
 
@@ -431,6 +433,7 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
     if c.info is None:
         raise InputError(path, "/campaign/info", "one campaign info message", "none")
 
+    check_robot_hash(path, c.info, mjcf_sha256)
     complete = sorted(c.done)
     keep = set(complete)
     for p in complete:  # a complete pose is all there
@@ -497,6 +500,21 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
         end=end,
         dropped_poses=_dropped(metadata),
     )
+
+
+def check_robot_hash(path: Path, info: dict, got: str | None) -> None:
+    """The robot attachment is the MJCF whose SHA-256 ``/campaign/info`` records (logs written
+    before the hash was recorded have none to check)."""
+    want = info.get("robot_sha256")
+    if want is None:
+        return
+    if got != want:
+        raise CorruptLogError(
+            path,
+            f"attachment {info.get('robot', 'robot')!r}",
+            f"the robot MJCF whose SHA-256 /campaign/info records ({want[:12]}...)",
+            "no robot attachment" if got is None else f"another MJCF (SHA-256 {got[:12]}...)",
+        )
 
 
 def log_end(cut: bool, metadata: dict[str, dict]) -> tuple[str, bool]:

@@ -102,6 +102,10 @@ SCHEMAS: dict[str, dict] = {
             ),
             "seed": {"type": "integer"},
             "calbench_version": {"type": "string"},
+            "robot_sha256": {
+                "type": "string",
+                "description": "SHA-256 (hex) of the robot MJCF attachment, as written",
+            },
             "n_joints": {
                 "type": "integer",
                 "minimum": 1,
