@@ -202,8 +202,8 @@ def add_check_robot(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--mass",
         type=float,
-        default=DEFAULT_MASS,
-        help="payload (kg) of the loaded grid (default: %(default)g)",
+        help=f"payload (kg) of the loaded grid (default: {DEFAULT_MASS:g}, or a third of the robot's "
+        "moving mass if less)",
     )
     p.add_argument(
         "--grid", type=int, default=3, help="values per joint of the grid of poses (default: %(default)s)"
@@ -218,7 +218,7 @@ def cmd_check_robot(args: argparse.Namespace, more=None) -> int:
 
     if args.grid < 1:
         raise InputError("--grid", "grid", "an integer >= 1", args.grid)
-    if not args.mass > 0:
+    if args.mass is not None and not args.mass > 0:
         raise InputError("--mass", "mass", "a mass > 0 (kg)", args.mass)
     res = check_robot(args.robot, args.tracker, args.mass, args.grid)
     print("\n".join(res.lines()), flush=True)
@@ -268,7 +268,7 @@ def add_from_urdf(sub: argparse._SubParsersAction) -> None:
         "the actuated joints, reflectors, payload, compensators and loops "
         "(docs/contract.md, 'From a URDF').",
     )
-    p.add_argument("urdf", type=Path, help="the robot's URDF (run xacro first if it is a .xacro)")
+    p.add_argument("urdf", type=Path, help="the robot's URDF, or its .xacro (expanded by the xacro package)")
     p.add_argument("--overlay", type=Path, required=True, help="overlay TOML (required)")
     p.add_argument("--out", type=Path, required=True, help="output MJCF (required)")
     p.set_defaults(func=cmd_from_urdf)
@@ -287,7 +287,13 @@ def cmd_from_urdf(args: argparse.Namespace) -> int:
     print(
         f"wrote {args.out}: {len(conv.actuated)} actuated joints ({' '.join(conv.actuated)})"
         + (f", passive {' '.join(conv.passive)}" if conv.passive else "")
-        + f"; moving mass {conv.moving_mass:.1f} kg from the URDF's inertials; {conv.geoms} geoms"
+        + f"; moving mass {conv.moving_mass:.1f} kg "
+        + (
+            f"(ASSUMED for {' '.join(conv.assumed)}: the overlay's [inertials] or assumed_density)"
+            if conv.assumed
+            else "from the URDF's inertials"
+        )
+        + f"; {conv.geoms} geoms"
         + (f" ({conv.meshes} meshes inline)" if conv.meshes else "")
         + f"; joint stiffness placeholders {PLACEHOLDER_STIFFNESS:g} N*m/rad (a scenario's [truth] "
         "replaces them)"

@@ -8,6 +8,8 @@ time for each model, side by side with a peer on the same split and the same poi
 * geometry: + joint offsets and link frames (the SVD base set);
 * geometry+compliance: + joint compliance under self-weight (gravity torques from the UR10's
   published masses);
+* discover: `discover --geometry` from the nominal model (registration and compliances) on the same
+  fitted rows, each step's model on the held-out rows, and a thermal check of its final model;
 * pybotics (if installed): its MDH model of the same DH table, every MDH parameter, the probe
   position and the world frame fitted with scipy's least_squares as its OptimizationHandler does,
   from the same registered start.
@@ -35,12 +37,15 @@ from pathlib import Path
 
 import numpy as np
 
+from calbench.bench.model import Robot
 from calbench.bench.shopfloor import read_probe_series, read_transform
+from calbench.identify.discover import discover_geometry, geometric_problem
 from calbench.identify.geometry import (
     MODELS,
     UR10_DH,
     calibrate,
     initial_model,
+    load_arm,
     split,
     tool_from_transform,
     ur10,
@@ -120,6 +125,59 @@ def figaroh_peer(python: str, chain, tool, q_fit, y_fit, q_val, y_val) -> dict:
     return json.loads(run.stdout.strip().splitlines()[-1])
 
 
+def discover_rows(chain, tool, s, q, y, fit_rows, val_rows, quick: bool) -> dict:
+    """`discover --geometry` from the nominal model on the fitted rows (identify/discover/geometric.py,
+    sigma the rows' RMS std; series A has none: 20 um), each step's model predicting the
+    held-out rows; then a thermal check of the final model: its linearised fit with a term linear in
+    the ambient temperature added (a drift of the readings, 3 numbers; a scale about the robot's
+    base, 1 number), held out the same way."""
+    with tempfile.TemporaryDirectory() as work:
+        path = write_chain_mjcf(Path(work) / "ur10.xml", chain, tool, name="ur10")
+        arm, robot = load_arm(path), Robot.from_file(path)
+    # one sigma, the rows' RMS std: the readings' own std (1-10 um) would weigh rows by the
+    # tracker's repeatability, while the misfit (0.3 mm) is the model's, the same for every row
+    sigma = float(np.sqrt(np.mean(s.position_std**2))) if s.position_std is not None else 20e-6
+    t0 = time.perf_counter()
+    start, data, cands = geometric_problem(arm, robot, "probe", q[fit_rows], y[fit_rows], sigma)
+    rep, fits = discover_geometry(start, data, cands)
+    seconds = time.perf_counter() - t0
+    out = {}
+    for label, f in fits:
+        v = validate(f.fit, q[val_rows], y[val_rows])
+        out[f"discover: {label}"] = {
+            "mean_mm": v.mean * 1e3, "rms_mm": v.rms * 1e3, "max_mm": v.max * 1e3,
+            "fit_rms_mm": f.fit.rms * 1e3, "parameters": len(f.fit.free),
+        }  # fmt: skip
+    out[f"discover: {fits[-1][0]}"]["seconds"] = seconds
+    out["discover: named"] = {"named": [label for label, _ in fits[1:]], "verdict": rep["named_effects"][-1:],
+                              "dropped": rep["dropped"]}  # fmt: skip
+    final = fits[-1][1].fit
+    temp = s.temperature[::4] if quick else s.temperature
+    out["discover + temperature (linearised)"] = thermal_check(final, q, y, temp, fit_rows, val_rows)
+    return out
+
+
+def thermal_check(fit, q, y, temp, fit_rows, val_rows) -> dict:
+    """Held-out RMS (mm) of the fit's Gauss-Newton step with temperature terms added (docstring of
+    :func:`discover_rows`)."""
+    _, jac = fit.model.jacobian(q, fit.theta, fit.model.torques_at(q, fit.theta) if fit.own_torques else None)
+    jac = jac[:, :, list(fit.free)]
+    r = y - fit.predict(q)
+    dt = temp - temp[fit_rows].mean()
+    drift = np.zeros((len(q), 3, 3))
+    for a in range(3):
+        drift[:, a, a] = dt
+    scale = (dt[:, None] * (y - fit.model.base0[:3, 3]))[:, :, None]
+    res = {}
+    for name, extra in (("drift", drift), ("scale", scale)):
+        a = np.concatenate([jac, extra], axis=2)
+        step = np.linalg.lstsq(a[fit_rows].reshape(-1, a.shape[2]), r[fit_rows].ravel(), rcond=None)[0]
+        d = np.linalg.norm(r[val_rows] - (a[val_rows].reshape(-1, a.shape[2]) @ step).reshape(-1, 3), axis=1)
+        res[f"{name}_rms_mm"] = float(np.sqrt(np.mean(d**2)) * 1e3)
+    res["temperature_range_K"] = float(np.ptp(temp))
+    return res
+
+
 def run(
     series: str, data: Path, quick: bool, peer: bool, out_model: Path | None = None, figaroh=None
 ) -> dict:
@@ -159,6 +217,7 @@ def run(
                 for n, i, sd in zip(fit.names, fit.free, fit.std, strict=True)
                 if n.endswith(".compliance")
             }
+    models.update(discover_rows(chain, tool, s, q, y, fit_rows, val_rows, quick))
     if peer:
         try:
             models["pybotics"] = pybotics_peer(

@@ -501,6 +501,20 @@ def add_discover(sub) -> None:
         help="Rerun recording of where the model disagreed, residuals before and after on the robot "
         "(default: next to --json, or LOG.discover.rrd)",
     )
+    p.add_argument(
+        "--geometry",
+        action="store_true",
+        help="name geometric effects (joint offsets, link frames, the probe) from absolute unloaded "
+        "readings, the tracker registration fitted (docs/geometry.md; default: elastostatic effects "
+        "from deflections)",
+    )
+    p.add_argument(
+        "--validate",
+        type=Path,
+        default=None,
+        metavar="HELDOUT.mcap",
+        help="with --geometry: predict this log's readings after each naming (default: none)",
+    )
     p.set_defaults(func=cmd_discover)
 
 
@@ -509,6 +523,10 @@ def cmd_discover(args) -> int:
 
     if not args.log.is_file():
         raise InputError(args.log, "LOG.mcap", "an existing campaign log", "no such file")
+    if args.geometry:
+        return cmd_discover_geometry(args)
+    if args.validate is not None:
+        raise InputError("--validate", "--validate", "--geometry beside it", str(args.validate))
     plot = args.plot or (
         args.json.with_suffix(".png") if args.json else args.log.with_name(args.log.stem + ".discover.png")
     )
@@ -537,6 +555,33 @@ def cmd_discover(args) -> int:
     print(story(rep))
     if args.json:
         write_text(args.json, json.dumps(clean(rep), indent=2, allow_nan=False))
+    return 0
+
+
+def cmd_discover_geometry(args) -> int:
+    """`discover --geometry`: identify/discover/geometric_run.py (no plot or view yet)."""
+    from calbench.identify.discover import (
+        discover_geometry_json,
+        format_discover_geometry,
+        run_discover_geometry,
+    )
+
+    for flag, value in (("--plot", args.plot), ("--view-json", args.view_json), ("--rrd", args.rrd)):
+        if value is not None:
+            raise InputError(flag, flag, "no plot or view beside --geometry (not made yet)", str(value))
+    out_model = args.out_model or args.log.with_name(args.log.stem + ".augmented.xml")
+    check_outputs(
+        {"--json": args.json, "--out-model": out_model},
+        {"LOG": args.log, "--model": args.model, "--validate": args.validate},
+    )
+    bar = terminal_progress("calbench discover --geometry", "candidates")
+    try:
+        rep = run_discover_geometry(args.log, args.model, args.validate, args.out_model, progress=bar)
+    finally:
+        bar.close()
+    print(format_discover_geometry(rep))
+    if args.json:
+        write_text(args.json, discover_geometry_json(rep))
     return 0
 
 
@@ -881,11 +926,11 @@ def _design_lines(args, res) -> list[str]:
         raise InputError("--sample", "sample", "an integer >= 0", args.sample)
     if args.sample == 0:
         return []
-    t = robot_tally(args.robot, res.tracker, args.mass, args.sample)
+    t = robot_tally(args.robot, res.tracker, res.mass, args.sample)
     share = t.passed_command / t.sampled * (t.feasible / t.solved if t.solved else 0.0)
     return [
         f"  design's feasibility rules on {t.sampled} sampled commands (default [design] settings, "
-        f"{args.mass:g} kg; equilibria checked on {t.solved} that pass the command rules): "
+        f"{res.mass:g} kg; equilibria checked on {t.solved} that pass the command rules): "
         f"{100 * share:.1f} % feasible",
         *t.lines(),
     ]

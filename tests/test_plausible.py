@@ -73,6 +73,18 @@ def test_a_slipped_unit_exits_2_naming_file_key_and_mistake(tmp_path, capsys, ca
     assert not (tmp_path / "s.mcap").exists()
 
 
+@pytest.mark.parametrize("verb", ["design", "montecarlo"])
+def test_a_slipped_unit_found_on_a_worker_names_the_users_file(tmp_path, capsys, verb):
+    """design and montecarlo check the scenario where its copy is rebuilt (a worker's private
+    folder): the message still names the file the user typed, not that copy."""
+    scn = tmp_path / "mine.toml"
+    scn.write_text(BASE.replace("sigma = 20e-6", "sigma = 20"), encoding="utf-8")
+    out = ["--out", str(tmp_path / "d.toml")] if verb == "design" else ["--runs", "2"]
+    assert main([verb, str(scn), *out]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"calbench {verb}: error: {scn}: tracker.sigma: expected"), err
+
+
 def test_angles_in_radians_exit_2_with_the_degrees_meant(tmp_path, capsys):
     text = re.sub(
         r"^q = \[(.*)\]$",

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import re
+import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -317,3 +318,16 @@ def test_a_bad_convention_exits_2_naming_it(tmp_path, capsys):
         rc, _ = _convert(tmp_path, arm_urdf(), arm_overlay() + extra)
         err = capsys.readouterr().err
         assert rc == 2 and f"arm.toml: {key}: expected" in err, err
+
+
+def test_a_xacro_without_the_xacro_package_names_the_fix(tmp_path, capsys, monkeypatch):
+    """A user whose environment lacks the xacro package: one line naming the file and `pip
+    install xacro`, exit 2, no output file."""
+    monkeypatch.setitem(sys.modules, "xacro", None)  # import xacro -> ImportError
+    xacro = '<?xml version="1.0"?>\n<robot name="a" xmlns:xacro="http://www.ros.org/wiki/xacro"/>\n'
+    rc, out = _convert(tmp_path, xacro, arm_overlay(), suffix=".urdf.xacro")
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and not out.exists() and len(err.splitlines()) == 1
+    assert (
+        "arm.urdf.xacro: (file): expected the xacro package (pip install xacro), got 'not installed'" in err
+    )

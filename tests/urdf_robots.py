@@ -262,3 +262,29 @@ def scenario(robot: str, compensator: bool = False, loop: bool = False, seed: in
             lines.append("wrench = [" + ", ".join(repr(float(x)) for x in w) + "]")
         lines.append("")
     return "\n".join(lines)
+
+
+def convert_arm(folder, urdf: str, overlay: str):
+    """``calbench from-urdf`` on ``urdf`` and ``overlay`` written to ``folder`` (arm.urdf, arm.toml):
+    (exit status, the MJCF's path arm.xml)."""
+    from calbench.identify.cli import main
+
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "arm.urdf").write_text(urdf, encoding="utf-8")
+    (folder / "arm.toml").write_text(overlay, encoding="utf-8")
+    out = folder / "arm.xml"
+    return main(
+        ["from-urdf", str(folder / "arm.urdf"), "--overlay", str(folder / "arm.toml"), "--out", str(out)]
+    ), out
+
+
+# the FANUC M-900iB/700 of ../shared/data (fanuc_m900ib_support): its controller's axes, a payload
+# off the J6 axis and three reflectors on link_6 (an overlay's start; tests add masses)
+FANUC_TOOL = (
+    'actuated = ["joint_1", "joint_2", "joint_3", "joint_4", "joint_5", "joint_6"]\n'
+    '[payload]\nlink = "link_6"\npos = [0.3, 0.0, -0.15]\n'
+    + "".join(
+        f'[reflectors.r{i}]\nlink = "link_6"\npos = {p}\n'
+        for i, p in enumerate(([0.2, 0.3, 0.2], [0.2, -0.3, 0.2], [0.2, 0.0, -0.3]), 1)
+    )
+)

@@ -26,6 +26,9 @@ description"):
                               (``link_compliance``); none: not a candidate
 ``calbench:compensator_sites``  two sites between which discovery tries a          optional
                               compensator spring; none: not a candidate
+``calbench:assumed_masses``   bodies whose mass, centre and inertia are ASSUMED    optional
+                              (a guess, not the maker's: from-urdf's overlay
+                              ``[inertials]``); check-robot says so
 ============================  ==================================================  ========
 
 Everything else (passive joints, loop degeneracy, a compensator's joint and geometry, the
@@ -62,6 +65,7 @@ class Description:
     wrist: str | None = None
     links: tuple[str, ...] = ()
     compensator_sites: tuple[str, ...] = ()
+    assumed_masses: tuple[str, ...] = ()
 
 
 # key -> (required, how many names (None: any), element kind, what it names)
@@ -76,6 +80,7 @@ KEYS: dict[str, tuple[bool, int | None, str, str]] = {
     "wrist": (False, 1, "body", "the body whose origin is the wrist centre"),
     "links": (False, None, "body", "bodies whose root compliance discovery tries"),
     "compensator_sites": (False, 2, "site", "two sites between which discovery tries a spring"),
+    "assumed_masses": (False, None, "body", "bodies whose masses are ASSUMED (a guess, not the maker's)"),
 }
 _KINDS = {
     "joint": mujoco.mjtObj.mjOBJ_JOINT,
@@ -167,6 +172,7 @@ def read_description(model: mujoco.MjModel) -> Description:
         wrist=one["wrist"],
         links=names["links"],
         compensator_sites=names["compensator_sites"],
+        assumed_masses=names["assumed_masses"],
     )
 
 

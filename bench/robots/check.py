@@ -43,7 +43,8 @@ MIN_SPREAD = 0.01  # m, second singular value of the centred reflector positions
 TRACKER_DISTANCE = 5.0  # m from axis 1, at least twice the payload's reach
 TRACKER_HEIGHT = 3.0  # m above the world's z = 0
 TRACKER_AZIMUTH = -45.0  # deg from the payload's direction at the reference pose
-DEFAULT_MASS = 100.0  # kg hung at the payload site for the loaded grid
+DEFAULT_MASS = 100.0  # kg hung at the payload site for the loaded grid (at most MASS_SHARE of the robot)
+MASS_SHARE = 1 / 3  # of the robot's own mass: a cobot of 33 kg carries 10 kg, a KR 210 of 1.1 t 210 kg
 
 
 @dataclass
@@ -63,6 +64,7 @@ class RobotCheck:
     poses: int = 0  # grid poses solved (unloaded and loaded)
     skipped: int = 0  # grid poses within the loop margin
     max_gap: float = 0.0  # m, largest loop gap at an equilibrium
+    mass: float = DEFAULT_MASS  # kg, the payload of the loaded grid
     optional: dict[str, tuple[str, ...]] = field(default_factory=dict)
     frames: list[LinkFrame] = field(default_factory=list)
 
@@ -96,7 +98,12 @@ class RobotCheck:
         )
         out.append(f"  payload site: {self.payload}" + (f"; flange: {self.flange}" if self.flange else ""))
         for key, names in self.optional.items():
-            out.append(f"  {key}: {' '.join(names)}")
+            if key == "assumed_masses":
+                out.append(
+                    f"  masses ASSUMED (a guess, not the maker's: calbench:assumed_masses) for {' '.join(names)}"
+                )
+            else:
+                out.append(f"  {key}: {' '.join(names)}")
         if self.frames:
             out.append(
                 "  links at the reference pose (q = 0), for placing reflectors and the payload: frame "
@@ -207,10 +214,11 @@ def _is_urdf(path: Path) -> bool:
 
 
 def check_robot(
-    path: str | Path, tracker: np.ndarray | None = None, mass: float = DEFAULT_MASS, per_joint: int = 3
+    path: str | Path, tracker: np.ndarray | None = None, mass: float | None = None, per_joint: int = 3
 ) -> RobotCheck:
     """Run the checks of the module docstring on the MJCF at ``path``; InputError at the first
-    failure, naming the element."""
+    failure, naming the element. ``mass`` (kg): the loaded grid's payload; None: DEFAULT_MASS, or
+    MASS_SHARE of the robot's moving mass if less (a small robot is not loaded past its rating)."""
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "ROBOT.xml", "an existing MJCF file", "no such file")
@@ -296,6 +304,9 @@ def check_robot(
 
     # the grid: loops close, statics converge
     solver = StaticsSolver(robot)
+    if mass is None:
+        moving = float(m.body_mass[m.body_weldid != 0].sum())
+        mass = DEFAULT_MASS if moving <= 0 else min(DEFAULT_MASS, float(f"{MASS_SHARE * moving:.2g}"))
     load = Load.mass(robot, mass)
     out = RobotCheck(
         path,
@@ -309,10 +320,13 @@ def check_robot(
         reference,
         spot,
         optional={
-            k: v for k in ("mass_compensators", "links", "compensator_sites") if (v := getattr(desc, k))
+            k: v
+            for k in ("mass_compensators", "links", "compensator_sites", "assumed_masses")
+            if (v := getattr(desc, k))
         }
         | ({"wrist": (desc.wrist,)} if desc.wrist else {}),
         frames=link_frames(robot),
+        mass=mass,
     )
     for q in grid(robot, per_joint):
         try:

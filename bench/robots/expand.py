@@ -71,7 +71,7 @@ def expand_xacro(path: Path, packages: dict[str, Path]) -> str:
     """The URDF a ``.xacro`` file expands to (InputError naming the file on any xacro error)."""
     try:
         import xacro
-    except ImportError:  # pragma: no cover - a dependency of calbench
+    except ImportError:  # a dependency of calbench, but a user may run without it
         raise InputError(path, "(file)", "the xacro package (pip install xacro)", "not installed") from None
     try:
         with _finder(path, packages) as failed, contextlib.redirect_stderr(io.StringIO()):
@@ -123,6 +123,8 @@ def urdf_text(path: Path, ov: Overlay | None = None) -> tuple[str, bool]:
             raise InputError(
                 ov.path, f"{spec.key}", f"a link of {path.name} (" + ", ".join(links) + ")", spec.link
             )
+        if spec.density is not None:  # estimated from its geometry (bench/robots/density.py)
+            continue
         link = links[spec.link]
         for old in link.findall("inertial"):
             link.remove(old)

@@ -39,7 +39,8 @@ class Conversion:
     moving_mass: float  # kg, every body that moves
     geoms: int
     meshes: int
-    notes: tuple[str, ...] = ()  # what was derived (a balancer cylinder's spring)
+    notes: tuple[str, ...] = ()  # what was derived (a balancer cylinder's spring, a loop)
+    assumed: tuple[str, ...] = ()  # links whose masses are ASSUMED (the overlay's [inertials])
 
 
 class RobotImporter(FileFormat, ABC):

@@ -14,7 +14,10 @@ overlay says so (docs/contract.md, "From a URDF")::
     [loops.NAME]          passive = [...], site1 = {link, pos}, site2 = {link, pos}  # optional
     [packages]            NAME = "folder"       # optional: where package://NAME/ and $(find NAME) point
     [inertials.LINK]      mass, com = [x, y, z], inertia = [ixx, iyy, izz(, ixy, ixz, iyz)]
-                                                # optional: ASSUMED masses for a URDF without them
+                                                # optional: ASSUMED masses for a URDF without them,
+                          or density = kg/m^3   #   or estimated from the link's collision geometry
+    assumed_density = kg/m^3                    # optional: that estimate for every moving link
+                                                #   with neither an <inertial> nor a table
     [conventions.JOINT]   zero = deg, sign = 1 or -1    # optional: the controller's angle of an
                                                 # actuated joint, q_controller = sign * q_urdf + zero
     wrist = "link_5"                            # optional hints for design and discovery:
@@ -36,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from calbench.bench.core import InputError, Table, describe, parse_toml, read_text
+from calbench.bench.scenario import check_density
 
 TOP_KEYS = (
     "actuated",
@@ -51,6 +55,7 @@ TOP_KEYS = (
     "compensator_sites",
     "inertials",
     "conventions",
+    "assumed_density",
 )
 PAYLOAD_SITE = "payload"
 FLANGE_SITE = "flange"
@@ -98,13 +103,16 @@ class InertialSpec:
     """A link's mass (kg), centre of mass (m, link frame) and inertia (kg*m^2 about the centre
     of mass, link axes: ixx, iyy, izz, ixy, ixz, iyz), given in the overlay because the URDF has
     none: ASSUMED values (the header of the MJCF and from-urdf's summary say so). Without an
-    inertia, ASSUMED_GYRATION: the statics use only the mass and its centre, never the inertia."""
+    inertia, ASSUMED_GYRATION: the statics use only the mass and its centre, never the inertia.
+    With ``density`` instead (mass 0 here), all three are estimated from the link's collision
+    geometry at that density (bench/robots/density.py), ASSUMED as well."""
 
     link: str
     mass: float
     com: tuple[float, float, float]
     inertia: tuple[float, float, float, float, float, float] | None
     key: str
+    density: float | None = None  # kg/m^3: estimate mass, com, inertia from the link's geometry
 
 
 @dataclass(frozen=True)
@@ -143,6 +151,7 @@ class Overlay:
     mounts: tuple[Attach, ...] = ()
     inertials: tuple[InertialSpec, ...] = ()
     conventions: tuple[ConventionSpec, ...] = ()
+    assumed_density: float | None = None  # kg/m^3 for every moving link without a mass
 
     def sites(self) -> list[Attach]:
         """Every site the overlay adds, in the order they are added to the MJCF."""
@@ -242,7 +251,17 @@ def _mounts(
 
 def _inertial(tables: Table, link: str) -> InertialSpec:
     c = tables.sub(link)
-    c.only(("mass", "com", "inertia"))
+    c.only(("mass", "com", "inertia", "density"))
+    if c.has("density"):
+        if c.has("mass") or c.has("com") or c.has("inertia"):
+            raise c.fail(
+                "density",
+                "either a density (kg/m^3: estimated from the geometry) or mass and com, not both",
+                "both",
+            )
+        rho = c.number("density", positive=True)
+        check_density(c.file, c.key("density"), rho)
+        return InertialSpec(link, 0.0, (0.0, 0.0, 0.0), None, c.prefix, rho)
     com = c.vector("com", 3)
     inertia = None
     if c.has("inertia"):
@@ -268,6 +287,12 @@ def _convention(tables: Table, joint: str) -> ConventionSpec:
     if isinstance(sign, bool) or sign not in (1, -1):
         raise c.fail("sign", "1 or -1 (the controller counts the joint the URDF's way, or the other)", sign)
     return ConventionSpec(joint, math.radians(zero), int(sign), c.prefix)
+
+
+def _density(top: Table) -> float:
+    rho = top.number("assumed_density", positive=True)
+    check_density(top.file, top.key("assumed_density"), rho)
+    return rho
 
 
 def _named_tables(top: Table, key: str, what: str) -> list[tuple[Table, str]]:
@@ -318,6 +343,7 @@ def parse_overlay(text: str, path: str | Path) -> Overlay:
         mounts=mounts,
         inertials=tuple(_inertial(t, n) for t, n in _named_tables(top, "inertials", "link")),
         conventions=tuple(_convention(t, n) for t, n in _named_tables(top, "conventions", "joint")),
+        assumed_density=_density(top) if top.has("assumed_density") else None,
     )
     seen: dict[str, str] = {}
     for s in ov.sites():

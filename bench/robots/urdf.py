@@ -43,6 +43,7 @@ each loop's unsprung joints between its two sites must be exactly the overlay's 
 from __future__ import annotations
 
 import math
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -53,10 +54,12 @@ from calbench.bench.core import CalbenchError, InputError, parse_xml
 from calbench.bench.model import Robot, set_spec_names
 from calbench.bench.scenario import check_length, robot_scale
 
+from .density import Estimate, MeshReader, estimate_inertials
 from .expand import urdf_text
 from .importer import Conversion, RobotImporter
 from .mimic import convert_balancers
 from .overlay import Attach, Overlay
+from .parallelogram import convert_parallelograms
 
 PLACEHOLDER_STIFFNESS = 1.0e6  # N*m/rad on every actuated hinge until a scenario sets it
 CONTINUOUS_RANGE = (-2 * math.pi, 2 * math.pi)
@@ -177,9 +180,11 @@ def check_urdf(tree: UrdfTree) -> None:
             raise InputError(
                 tree.path,
                 f"joint {j.name!r}",
-                "no <mimic> (the statics would ignore the coupling; a balancer cylinder, two "
-                "mimic joints that stay collinear across one joint, becomes a spring by itself; "
-                "describe a parallelogram as [loops] in the overlay, or remove it)",
+                "no <mimic> (the statics would ignore the coupling; from-urdf converts a balancer "
+                "cylinder, two mimic joints that stay collinear across one joint, into a spring, and "
+                "a parallelogram, a crank keeping the forearm's orientation and a rod keeping the "
+                "upper arm's, into a loop; describe any other coupling as [loops] in the overlay, "
+                "or remove it)",
                 f"a mimic of {j.mimic!r}",
             )
         if j.type not in MOVING_TYPES + ("fixed",):
@@ -281,20 +286,40 @@ def check_overlay(tree: UrdfTree, ov: Overlay) -> None:
 # --------------------------------------------------------------------------- meshes
 
 
-def _mesh_file(file: str, tree: UrdfTree, meshdir: str, ov: Overlay) -> tuple[Path | None, str]:
+def _mesh_file(file: str, urdf: Path, meshdir: str, ov: Overlay) -> tuple[Path | None, str]:
     """Where a URDF mesh URI points on disk, or (None, why not)."""
     if file.startswith("package://"):
         pkg, _, rest = file[len("package://") :].partition("/")
         if pkg in ov.packages:
             return ov.packages[pkg] / rest, ""
-        for folder in tree.path.resolve().parents:
+        for folder in urdf.resolve().parents:
             if folder.name == pkg:
                 return folder / rest, ""
         return None, f"no [packages] {pkg} in the overlay and no folder named {pkg!r} above the URDF"
     if file.startswith("file://"):
         file = file[len("file://") :]
     p = Path(file)
-    return (p if p.is_absolute() else tree.path.parent / meshdir / p), ""
+    return (p if p.is_absolute() else urdf.parent / meshdir / p), ""
+
+
+def _mesh_reader(urdf: Path, text: str, ov: Overlay) -> MeshReader:
+    """Meshes as from-urdf finds them (for the density estimates: bench/robots/density.py)."""
+    try:
+        compiler = ET.fromstring(text).find("mujoco/compiler")
+    except ET.ParseError:
+        compiler = None
+    meshdir = compiler.get("meshdir", "") if compiler is not None else ""
+
+    def read(file: str, scale) -> tuple[np.ndarray, np.ndarray]:
+        path, why = _mesh_file(file, urdf, meshdir, ov)
+        if path is None:
+            raise ValueError(f"mesh {file}: {why}")
+        try:
+            return _load_mesh(path, scale)
+        except ValueError as exc:
+            raise ValueError(f"mesh {path}: " + str(exc).replace("\n", " ").removeprefix("Error: ")) from None
+
+    return read
 
 
 def _load_mesh(path: Path, scale) -> tuple[np.ndarray, np.ndarray]:
@@ -321,7 +346,7 @@ def _inline_meshes(spec: mujoco.MjSpec, tree: UrdfTree, ov: Overlay) -> list[str
         if g.type == mujoco.mjtGeom.mjGEOM_MESH:
             users.setdefault(g.meshname, []).append(g)
     for mesh in list(spec.meshes):
-        path, why = _mesh_file(mesh.file, tree, spec.meshdir, ov)
+        path, why = _mesh_file(mesh.file, tree.path, spec.meshdir, ov)
         if path is not None:
             try:
                 verts, faces = _load_mesh(path, mesh.scale)
@@ -447,17 +472,24 @@ def _check_built(model: mujoco.MjModel, ov: Overlay) -> Robot:
     return robot
 
 
-def header_comment(tree: UrdfTree, ov: Overlay) -> str:
+def header_comment(tree: UrdfTree, ov: Overlay, estimated: tuple[Estimate, ...] = ()) -> str:
     """The MJCF's header: how it was made, where masses come from. Well-formed XML: no ``--``
     inside a comment (ElementTree and lxml refuse one; MuJoCo does not mind)."""
     source = f"{tree.path.name} (expanded by xacro)" if tree.expanded else tree.path.name
-    assumed = [i.link for i in ov.inertials]
-    masses = "the URDF's <inertial> elements (nothing inferred from geometry)"
+    assumed = [i.link for i in ov.inertials if i.density is None]
+    masses = "the URDF's <inertial> elements"
     if assumed:
         masses += (
             f"; ASSUMED in the overlay's [inertials] for {', '.join(assumed)} (mass and centre of mass; "
             "an inertia not given is mass * (0.1 m)^2, which the statics never use)"
         )
+    if estimated:
+        masses += (
+            "; ASSUMED, estimated from the collision geometry filled at a stated density, for "
+            + ", ".join(f"{e.link} ({e.mass:.1f} kg at {e.density:g} kg/m^3)" for e in estimated)
+        )
+    if not assumed and not estimated:
+        masses += " (nothing inferred from geometry)"
     derived = [c.name for c in ov.compensators if c.key.startswith("(URDF mimic")]
     springs = (
         f"  Balancer cylinders drawn as URDF mimic joints: the compensator springs {', '.join(derived)} "
@@ -483,7 +515,9 @@ def header_comment(tree: UrdfTree, ov: Overlay) -> str:
     return text.rstrip("- ") + " "
 
 
-def build_spec(tree: UrdfTree, ov: Overlay) -> tuple[mujoco.MjSpec, list[str]]:
+def build_spec(
+    tree: UrdfTree, ov: Overlay, estimated: tuple[Estimate, ...] = ()
+) -> tuple[mujoco.MjSpec, list[str]]:
     """The calbench MjSpec of a checked URDF and overlay, with the mesh warnings."""
     try:
         spec = mujoco.MjSpec.from_string(tree.xml)
@@ -495,7 +529,7 @@ def build_spec(tree: UrdfTree, ov: Overlay) -> tuple[mujoco.MjSpec, list[str]]:
     spec.compiler.fusestatic = False
     spec.compiler.discardvisual = False
     spec.compiler.savecompiled = False  # every number saved exactly
-    spec.comment = header_comment(tree, ov)
+    spec.comment = header_comment(tree, ov, estimated)
     for g in spec.geoms:
         g.contype = 0
         g.conaffinity = 0
@@ -503,17 +537,29 @@ def build_spec(tree: UrdfTree, ov: Overlay) -> tuple[mujoco.MjSpec, list[str]]:
     spec.meshdir = ""
     _joints(spec, tree, ov)
     _additions(spec, ov)
+    set_spec_names(spec, "assumed_masses", [n for n in assumed_links(ov, estimated) if n in tree.links])
     return spec, warnings
+
+
+def assumed_links(ov: Overlay, estimated: tuple[Estimate, ...] = ()) -> list[str]:
+    """The links whose masses are ASSUMED: the overlay's [inertials], given or estimated."""
+    out = [i.link for i in ov.inertials if i.density is None] + [e.link for e in estimated]
+    return list(dict.fromkeys(out))
 
 
 def convert(urdf: str | Path, ov: Overlay) -> Conversion:
     """Build and check the calbench MJCF of ``urdf`` with overlay ``ov`` (module docstring)."""
     text, expanded = urdf_text(Path(urdf), ov)
     text, ov, notes = convert_balancers(text, ov)  # mimic cylinders -> compensator springs
+    text, ov, more = convert_parallelograms(text, ov, Path(urdf))  # mimic parallelograms -> loops
+    notes += more
+    # masses from geometry last: the links that stay, in their final frames
+    text, estimated, more = estimate_inertials(text, Path(urdf), ov, _mesh_reader(Path(urdf), text, ov))
+    notes += more
     tree = read_urdf(urdf, ov, (text, expanded))
     check_urdf(tree)
     check_overlay(tree, ov)
-    spec, warnings = build_spec(tree, ov)
+    spec, warnings = build_spec(tree, ov, estimated)
     try:
         model = spec.compile()
     except ValueError as exc:
@@ -539,6 +585,7 @@ def convert(urdf: str | Path, ov: Overlay) -> Conversion:
         geoms=int(model.ngeom),
         meshes=int(model.nmesh),
         notes=tuple(notes),
+        assumed=tuple(n for n in assumed_links(ov, estimated) if n in tree.links),
     )
 
 
@@ -546,8 +593,8 @@ class UrdfImporter(RobotImporter):
     """The URDF importer (this module): :func:`convert` behind the importer interface."""
 
     name = "urdf"
-    summary = "a URDF (run xacro first if it is a .xacro) and an overlay"
-    suffixes = (".urdf",)
+    summary = "a URDF or a .xacro (expanded by the xacro package) and an overlay"
+    suffixes = (".urdf", ".xacro")
 
     def convert(self, path: Path, overlay: Overlay) -> Conversion:
         return convert(path, overlay)

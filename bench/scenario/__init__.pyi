@@ -17,6 +17,7 @@ from .parse import (
 from .plausible import (
     PlausibilityWarning,
     Scale,
+    check_density,
     check_length,
     check_plan,
     check_scenario,
@@ -58,6 +59,7 @@ __all__ = [
     "Scenario",
     "UNLOAD_S",
     "check_joint_limits",
+    "check_density",
     "check_length",
     "check_plan",
     "check_scenario",

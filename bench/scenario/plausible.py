@@ -17,6 +17,8 @@ every pose (and work) q    some angle beyond 6.29  one pose only          two po
                            deg                                            within +-2 pi: radians
 payload mass M             M / robot 1e-2 ... 2    1e-3 ... 1e-2,         < 1e-3 (tonnes as kg),
                                                    2 ... 10               > 10 (grams as kg)
+overlay density (kg/m^3)   500 ... 8000            100 ... 500,           < 100 (g/cm^3 as kg/m^3),
+                                                   8000 ... 25000         > 25000
 offsets, spring lengths,   < the robot's size      1 ... 10 sizes         > 10 sizes (mm as m)
 the tracker's distance     (tracker: 30 sizes)     (tracker: 30 ... 300)  (tracker: > 300)
 =========================  ======================  =====================  ==========================
@@ -131,6 +133,27 @@ def check_compliance(file, key: str, values) -> None:
             warn(file, k, f"compliance {_fmt(c)} rad/(N*m) is outside a heavy robot's 1e-10 ... 1e-4")
 
 
+def check_density(file, key: str, rho: float) -> None:
+    """A material density (kg/m^3) to fill a robot's geometry with: engineering materials span
+    ~100 (foam) ... 22600 (osmium); below 100, g/cm^3 written for kg/m^3 (steel 7.85 for 7850)."""
+    if rho < 100.0:
+        raise InputError(
+            file,
+            key,
+            "a density in kg/m^3 (steel 7850, aluminium 2700, a robot's average ~1000 ... 3000)",
+            f"{_fmt(rho)}: g/cm^3 written as kg/m^3? ({_fmt(rho * 1000)} kg/m^3)",
+        )
+    if rho > 25000.0:
+        raise InputError(
+            file,
+            key,
+            "a density in kg/m^3 (steel 7850, aluminium 2700, a robot's average ~1000 ... 3000)",
+            f"{_fmt(rho)} kg/m^3, denser than any metal: g/m^3 or a mass?",
+        )
+    if rho > 8000.0 or rho < 500.0:
+        warn(file, key, f"density {_fmt(rho)} kg/m^3: beyond a robot's materials (500 ... 8000)")
+
+
 def check_poses(file, angles: list[tuple[str, np.ndarray]]) -> None:
     """Joint angles the file gave in degrees (here rad): all within +-pi deg looks like radians."""
     if not angles:
@@ -240,6 +263,7 @@ __all__ = [
     "check_length",
     "check_sigma",
     "check_compliance",
+    "check_density",
     "check_poses",
     "check_mass",
     "check_tracker",

@@ -56,7 +56,7 @@ from calbench.bench.tracker import (
     visible_sites,
 )
 
-from .settings import DesignSettings, nominal_robot
+from .settings import DesignSettings, nominal_robot, read_design_settings
 
 RULES = (
     "joint_limits",
@@ -434,7 +434,7 @@ def tally_rules(feas: Feasibility, solver: StaticsSolver, mass: float, q: np.nda
 
 def robot_tally(path: Path, tracker, mass: float, n: int = 256, seed: int = 0) -> RuleTally:
     """`check-robot`'s look at design: :func:`tally_rules` on n commands sampled as design
-    samples them, with design's default settings, the tracker at ``tracker`` (m), a payload
+    samples them, with design's default settings (for that payload: its lateral pull), the tracker at ``tracker`` (m), a payload
     ``mass`` (kg) and the MJCF's own stiffness values as the prior."""
     robot = Robot.from_file(path)
     p = robot.params()
@@ -450,7 +450,7 @@ def robot_tally(path: Path, tracker, mass: float, n: int = 256, seed: int = 0) -
     )
     scn = parse_scenario(text, Path(path).with_name("(check-robot)"))
     rb = nominal_robot(scn)
-    feas = Feasibility(rb, scn, DesignSettings())
+    feas = Feasibility(rb, scn, read_design_settings(scn.path, text))  # design's defaults for that load
     q = sample_commands(np.random.default_rng([seed, 5]), rb.limits(), n)
     return tally_rules(feas, StaticsSolver(rb, tol=1e-10), mass, q)
 

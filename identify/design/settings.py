@@ -35,7 +35,9 @@ class DesignSettings:
     seed: int | None = None  # candidate sampling; default: the scenario's seed
     clearance: float = 0.0  # m, collision margin
     compensator_margin: float = 0.02  # m, §3.3 rule
-    lateral_force: float = 1200.0  # N, horizontal pull of the lateral candidates
+    # N, horizontal pull of the lateral candidates; not given: this, or the payload's weight if
+    # less (read_design_settings: a robot is not pulled harder than it is rated to carry)
+    lateral_force: float = 1200.0
     lateral_fraction: float = 0.5  # share of lateral candidates in the set
 
     def as_dict(self) -> dict:
@@ -43,6 +45,7 @@ class DesignSettings:
 
 
 DESIGN_KEYS = tuple(DesignSettings.__dataclass_fields__)
+STANDARD_GRAVITY = 9.81  # m/s^2, MuJoCo's default gravity: a payload's weight
 
 
 def _design_number(path, key, v, lo=None, hi=None, integer=False):
@@ -85,6 +88,12 @@ def read_design_settings(path: str | Path, text: str | None = None) -> DesignSet
     for k, v in tab.items():
         lo, hi, integer = limits[k]
         kw[k] = _design_number(path, k, v, lo, hi, integer)
+    load = doc.get("load", {})
+    mass = load.get("mass") if isinstance(load, dict) else None
+    if "lateral_force" not in kw and isinstance(mass, int | float) and not isinstance(mass, bool):
+        weight = float(mass) * STANDARD_GRAVITY  # a 10 kg robot pulled with 98 N, not 1200
+        if 0.0 < weight < DesignSettings.lateral_force:
+            kw["lateral_force"] = weight
     return DesignSettings(**kw)
 
 

@@ -14,6 +14,24 @@ from .fit import (
     library,
     whitened,
 )
+from .geometric import (
+    Candidate,
+    Readings,
+    discover_geometry,
+    global_base,
+    group,
+    reduced,
+    redundancies,
+    start_fit,
+    with_candidate,
+)
+from .geometric import library as geometric_library
+from .geometric_run import (
+    discover_geometry_json,
+    format_discover_geometry,
+    geometric_problem,
+    run_discover_geometry,
+)
 from .narrative import alias_lines, base_lines, exposure_lines, tie_lines
 from .search import fit_candidate, polish, unabsorbed_norms
 from .stats import ALPHA_FIT
@@ -34,6 +52,20 @@ from .workflow import (
 __all__ = [
     "ALPHA_EFFECT",
     "ALPHA_FIT",
+    "Candidate",
+    "Readings",
+    "discover_geometry",
+    "discover_geometry_json",
+    "format_discover_geometry",
+    "geometric_library",
+    "geometric_problem",
+    "global_base",
+    "group",
+    "redundancies",
+    "reduced",
+    "run_discover_geometry",
+    "start_fit",
+    "with_candidate",
     "AMBIGUOUS",
     "AugmentedForward",
     "DISCOVERY_EFFECTS",

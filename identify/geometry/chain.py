@@ -113,19 +113,26 @@ class Chain:
         return flange[:, :3, :3] @ np.asarray(tool, float) + flange[:, :3, 3]
 
 
-def gravity_torques(chain: Chain, q: np.ndarray, tool_mass: float = 0.0, tool: np.ndarray | None = None):
+def gravity_torques(
+    chain: Chain,
+    q: np.ndarray,
+    tool_mass: float = 0.0,
+    tool: np.ndarray | None = None,
+    gravity: np.ndarray = GRAVITY,
+):
     """Generalised gravity forces (n_poses, dof), N*m: tau_k = u_k . sum_(j>=k) (c_j - o_k) x m_j g.
 
-    ``tool_mass`` at ``tool`` (flange frame) adds a payload (the probe) to the last body."""
+    ``tool_mass`` at ``tool`` (flange frame) adds a payload (the probe) to the last body; ``gravity``
+    (m/s^2) in the chain's base frame."""
     frames, flange = chain.joint_frames(q)
     coms = frames[:, :, :3, :3] @ chain.com[None, :, :, None]
     coms = coms[..., 0] + frames[:, :, :3, 3]  # (n, dof, 3) world centres of mass
-    forces = chain.mass[None, :, None] * GRAVITY  # (1, dof, 3)
+    forces = chain.mass[None, :, None] * np.asarray(gravity, float)  # (1, dof, 3)
     points, weights = [coms], [np.broadcast_to(forces, coms.shape)]
     if tool_mass:
         tip = flange[:, :3, :3] @ np.asarray(tool, float) + flange[:, :3, 3]
         points.append(tip[:, None])
-        weights.append(np.broadcast_to(tool_mass * GRAVITY, tip[:, None].shape))
+        weights.append(np.broadcast_to(tool_mass * np.asarray(gravity, float), tip[:, None].shape))
     pts, fs = np.concatenate(points, axis=1), np.concatenate(weights, axis=1)
     body = np.append(np.arange(chain.dof), chain.dof - 1)[: pts.shape[1]]
     tau = np.zeros((len(frames), chain.dof))

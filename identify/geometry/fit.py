@@ -17,7 +17,7 @@ Units: SI (m, rad, N*m).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -46,6 +46,13 @@ class GeometryFit:
     cov: np.ndarray  # (len(free), len(free))
     rms: float  # m, 3-D RMS of the fitted readings' residuals
     n: int  # readings used
+    residual_w: np.ndarray | None = None  # (3 n,) the residuals over their sigma (None: no sigma given)
+    own_torques: bool = False  # fitted with the torques at its own deflected pose (refresh_torques)
+
+    @property
+    def chi2(self) -> float:
+        """|residual / sigma|^2 (NaN when no reading sigma was given)."""
+        return float("nan") if self.residual_w is None else float(self.residual_w @ self.residual_w)
 
     @property
     def names(self) -> list[str]:
@@ -56,7 +63,8 @@ class GeometryFit:
         return np.sqrt(np.diag(self.cov))
 
     def predict(self, q: np.ndarray) -> np.ndarray:
-        return self.model.predict(q, self.theta)
+        tau = self.model.torques_at(q, self.theta) if self.own_torques else None
+        return self.model.predict(q, self.theta, tau)
 
     def calibrated(self) -> tuple[Chain, np.ndarray, np.ndarray, np.ndarray]:
         """The fit folded into a plain chain: (chain, probe point in the flange frame, tracker from
@@ -86,45 +94,93 @@ def tool_from_transform(probe_to_flange: np.ndarray) -> np.ndarray:
     return -r.T @ t
 
 
-def base_set(jac: np.ndarray, names: Sequence[str], effects: Sequence[str]) -> tuple[int, ...]:
-    """Indices of an identifiable base set among the parameters of the given effects (see above)."""
-    order = ("base_frame", "tool_frame", "joint_offset", "joint_compliance", "link_geometry")
+PRIORITY = ("base_frame", "tool_frame", "joint_offset", "joint_compliance", "link_geometry")
+
+
+def in_priority(names: Sequence[str], indices: Sequence[int]) -> list[int]:
+    """``indices`` in the base set's priority order (by effect: :data:`PRIORITY`, then by index)."""
+    return sorted(indices, key=lambda i: (PRIORITY.index(kind(names[i])), i))
+
+
+def extend_base(jac: np.ndarray, chosen: Sequence[int], candidates: Sequence[int]) -> tuple[int, ...]:
+    """A base set ``chosen`` grown by each of ``candidates``, taken in the order given, that raises
+    the rank of the column-scaled Jacobian (module docstring); the grown set, in its order.
+
+    The singular values of the chosen columns with one more are those of the small triangular
+    factor [[R, Q^T c], [0, |c - Q Q^T c|]] of their QR (Q^T c twice: re-orthogonalised), so each
+    test is an SVD of a (k + 1)-square matrix, not of the tall Jacobian."""
     a = jac.reshape(-1, jac.shape[-1])
     scale = np.linalg.norm(a, axis=0)
-    chosen: list[int] = []
-    rank = 0
-    for eff in order:
-        if eff not in effects:
+    out = list(chosen)
+    if out:
+        q, r = np.linalg.qr(a[:, out] / scale[out])
+    else:
+        q, r = np.zeros((a.shape[0], 0)), np.zeros((0, 0))
+    rank = len(out)
+    floor = RANK_TOL * np.median(scale)
+    for i in candidates:
+        # a column of rounding noise only (a rotation about an axis through the probe) is
+        # no parameter: it would enter with any scaling
+        if i in out or scale[i] <= floor:
             continue
-        for i, name in enumerate(names):
-            # a column of rounding noise only (a rotation about an axis through the probe) is
-            # no parameter: it would enter with any scaling
-            if kind(name) != eff or scale[i] <= RANK_TOL * np.median(scale):
-                continue
-            cols = a[:, [*chosen, i]] / scale[[*chosen, i]]
-            s = np.linalg.svd(cols, compute_uv=False)
-            r = int(np.sum(s > RANK_TOL * s[0]))
-            if r > rank:
-                chosen.append(i)
-                rank = r
-    return tuple(sorted(chosen))
+        c = a[:, i] / scale[i]
+        h = q.T @ c
+        res = c - q @ h
+        h2 = q.T @ res  # the second pass of Gram-Schmidt
+        res -= q @ h2
+        h += h2
+        rho = float(np.linalg.norm(res))
+        k = r.shape[0]
+        grown = np.zeros((k + 1, k + 1))
+        grown[:k, :k], grown[:k, k], grown[k, k] = r, h, rho
+        sv = np.linalg.svd(grown, compute_uv=False)
+        if int(np.sum(sv > RANK_TOL * sv[0])) > rank:
+            out.append(i)
+            rank += 1
+            q = np.column_stack([q, res / rho])
+            r = grown
+    return tuple(out)
+
+
+def base_set(jac: np.ndarray, names: Sequence[str], effects: Sequence[str]) -> tuple[int, ...]:
+    """Indices of an identifiable base set among the parameters of the given effects (see above)."""
+    order = in_priority(names, [i for i, n in enumerate(names) if kind(n) in effects])
+    return tuple(sorted(extend_base(jac, (), order)))
+
+
+def weights(sigma: float | np.ndarray | None, shape: tuple[int, ...]) -> np.ndarray:
+    """1 / sigma per coordinate (shape (n, 3)) from one sigma, one per reading (n,) or one per
+    coordinate (n, 3); ones where no sigma is given."""
+    if sigma is None:
+        return np.ones(shape)
+    s = np.asarray(sigma, float)
+    return np.broadcast_to(1.0 / (s[:, None] if s.ndim == 1 else s), shape)
 
 
 def calibrate(
     model: GeometricModel,
     q: np.ndarray,
     y: np.ndarray,
-    effects: Sequence[str],
-    sigma: float | None = None,
+    effects: Sequence[str] = (),
+    sigma: float | np.ndarray | None = None,
     tau: np.ndarray | None = None,
+    free: Sequence[int] | None = None,
+    theta0: np.ndarray | None = None,
 ) -> GeometryFit:
-    """Fit the base set of ``effects`` to readings y (n, 3) at q; ``sigma`` (m, per axis) when known;
-    ``tau`` the gravity torques (default: the model's nominal ones at q)."""
+    """Fit the base set of ``effects`` to readings y (n, 3) at q; ``sigma`` (m, per axis: one number,
+    or one per reading (n,) or per coordinate (n, 3)) when known: the residuals are weighted by it;
+    ``tau`` the gravity torques (default: the model's nominal ones at q). ``free``: the parameters
+    to fit, already a base set, in place of the base set of ``effects``; ``theta0``: the start of
+    the free ones (default: zero, the nominal model)."""
     tau = model.torques(q) if tau is None else tau
-    theta = np.zeros(model.size)
-    _, jac0 = model.jacobian(q, theta, tau)
-    free = base_set(jac0, model.names, effects)
-    idx = np.asarray(free)
+    theta = np.zeros(model.size) if theta0 is None else np.asarray(theta0, float)
+    if free is None:
+        _, jac0 = model.jacobian(q, np.zeros(model.size), tau)
+        free = base_set(jac0, model.names, effects)
+    else:
+        _, jac0 = model.jacobian(q, theta, tau)
+    idx = np.asarray(free, dtype=int)
+    wf = weights(sigma, np.shape(y)).ravel()
     scale = np.linalg.norm(jac0.reshape(-1, model.size)[:, idx], axis=0)
 
     def full(x):
@@ -133,19 +189,47 @@ def calibrate(
         return th
 
     def resid(x):
-        return (model.predict(q, full(x), tau) - y).ravel()
+        return (model.predict(q, full(x), tau) - y).ravel() * wf
 
     def jac(x):
-        return model.jacobian(q, full(x), tau)[1].reshape(-1, model.size)[:, idx] / scale
+        return model.jacobian(q, full(x), tau)[1].reshape(-1, model.size)[:, idx] * wf[:, None] / scale
 
-    sol = least_squares(resid, np.zeros(len(idx)), jac=jac, method="lm", xtol=1e-12, ftol=1e-12)
+    sol = least_squares(resid, theta[idx] * scale, jac=jac, method="lm", xtol=1e-12, ftol=1e-12)
     theta = full(sol.x)
-    r = sol.fun.reshape(-1, 3)
+    rw = sol.fun
+    r = (rw / wf).reshape(-1, 3)
     dof = max(r.size - len(idx), 1)
-    s2 = sigma**2 if sigma is not None else float(r.ravel() @ r.ravel()) / dof
+    s2 = 1.0 if sigma is not None else float(rw @ rw) / dof
     js = sol.jac * scale  # d/d theta = d/dx * scale (x = theta * scale)
     cov = s2 * np.linalg.pinv(js.T @ js)  # pinv: a start far off may end where the rank drops
-    return GeometryFit(model, theta, free, cov, float(np.sqrt(np.mean(np.sum(r**2, 1)))), len(y))
+    rms = float(np.sqrt(np.mean(np.sum(r**2, 1))))
+    return GeometryFit(
+        model, theta, tuple(int(i) for i in idx), cov, rms, len(y), rw if sigma is not None else None
+    )
+
+
+def refresh_torques(
+    fit: GeometryFit,
+    q: np.ndarray,
+    y: np.ndarray,
+    sigma: float | np.ndarray | None = None,
+    rounds: int = 3,
+) -> tuple[GeometryFit, np.ndarray]:
+    """The fit repeated with the gravity torques at its own model's deflected pose
+    (:meth:`GeometricModel.torques_at`) until they settle (``rounds`` at most; a round changes them
+    by ~1e-3 of the last change): (the fit, the torques it used). Only a fit with compliances
+    needs it: without, the fit is returned with the nominal torques."""
+    if not any(kind(fit.model.names[i]) == "joint_compliance" for i in fit.free):
+        return fit, fit.model.torques(q)
+    tau = fit.model.torques(q)
+    for _ in range(rounds):
+        new = fit.model.torques_at(q, fit.theta)
+        step = float(np.max(np.abs(new - tau)))
+        tau = new
+        fit = calibrate(fit.model, q, y, sigma=sigma, tau=tau, free=fit.free, theta0=fit.theta)
+        if step < 1e-9 * max(1.0, float(np.max(np.abs(tau)))):
+            break
+    return replace(fit, own_torques=True), tau
 
 
 @dataclass(frozen=True)

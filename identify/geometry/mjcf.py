@@ -113,6 +113,7 @@ class Arm:
     model: mujoco.MjModel
     flange_world: np.ndarray  # (4, 4) the chain's flange frame at q = 0
     last_body: int  # the body the last actuated joint moves
+    bodies: tuple[str, ...] = ()  # the bodies the actuated joints turn, in order
 
     def point(self, site: str) -> np.ndarray:
         """A site's position in the flange frame; InputError unless the last joint carries it."""
@@ -198,7 +199,8 @@ def load_arm(path: str | Path | None = None, xml: str | None = None, where: str 
         flange[:3, :3], flange[:3, 3] = d.site_xmat[s].reshape(3, 3), d.site_xpos[s]
     frames.append(carry @ flange)
     chain = Chain(np.asarray(frames), tuple(names), np.asarray(mass), np.asarray(com))
-    return Arm(chain, where, model, flange, bodies[-1])
+    body_names = tuple(mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b) or f"body {b}" for b in bodies)
+    return Arm(chain, where, model, flange, bodies[-1], body_names)
 
 
 def _text(model: mujoco.MjModel, name: str) -> str:

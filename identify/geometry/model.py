@@ -17,8 +17,12 @@ A reading y (a point on the flange, in the tracker frame) at joint angles q is p
 
 Every parameter is a translation along an axis (dy = R u) or a rotation about an axis u through
 a point o (dy = u x (y - o)): :meth:`GeometricModel.jacobian` is exact, not a finite difference,
-and is checked against one in the tests. tau is held at the nominal geometry (its change with the
-fitted geometry is second order: mm on m lever arms).
+and is checked against one in the tests. tau is an input held fixed in a fit: by default the
+nominal geometry's at the commanded q. Its change with the fitted geometry and with the sag itself
+is second order (mm on m lever arms), but not always below a tracker's noise: a 3 mrad sag of the
+shoulder moves the arm's centres of mass by ~2 mm, which changes the torques by ~0.3 N*m and the
+reading by ~10 um at 30 urad/(N*m). :meth:`GeometricModel.torques_at` gives tau at a fitted
+model's own deflected pose, for a fit repeated with it (fit.py :func:`~.fit.refresh_torques`).
 
 Units: SI (m, rad, N*m).
 """
@@ -29,7 +33,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .chain import Chain, gravity_torques, rot, translation
+from .chain import GRAVITY, Chain, gravity_torques, rot, translation
 
 LINK = ("tx", "ty", "tz", "rx", "ry", "rz")
 BASE = ("tx", "ty", "tz", "rx", "ry", "rz")
@@ -77,6 +81,22 @@ class GeometricModel:
     def torques(self, q: np.ndarray) -> np.ndarray:
         """tau at the nominal geometry (n_poses, dof), the lever of the compliances."""
         return gravity_torques(self.chain, q)
+
+    def torques_at(
+        self, q: np.ndarray, theta: np.ndarray, levelled: bool = True, steps: int = 3
+    ) -> np.ndarray:
+        """tau (n_poses, dof) of the model ``theta`` at its own deflected pose: the calibrated chain
+        (link frames and offsets) at q + c tau, by fixed-point iteration (``steps``; it contracts by
+        |c dtau/dq|, ~1e-3). ``levelled``: gravity along the tracker's -z (a levelled tracker,
+        as the bench's and the UR10 dataset's), turned into the robot's base by the fitted
+        registration; else along the base's -z (the chain's GRAVITY)."""
+        q = np.atleast_2d(np.asarray(q, float))
+        chain, _, b, comp = self.calibrated(theta)
+        g = b[:3, :3].T @ np.array([0.0, 0.0, -np.linalg.norm(GRAVITY)]) if levelled else GRAVITY
+        tau = gravity_torques(chain, q, gravity=g)
+        for _ in range(steps - 1):
+            tau = gravity_torques(chain, q + comp * tau, gravity=g)
+        return tau
 
     def calibrated(self, theta: np.ndarray):
         """See :meth:`fit.GeometryFit.calibrated`."""

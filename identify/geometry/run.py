@@ -41,11 +41,13 @@ class AbsoluteReadings:
     q: np.ndarray  # (n, dof) rad
     y: np.ndarray  # (n, 3) m, tracker frame, the mean of the pose's repeats
     sigma: float  # m per axis, the tracker's nominal
+    std: np.ndarray | None = None  # (n, 3) m, each mean reading's std per axis, from the log's covariances
 
 
 def absolute_readings(log, point: str | None = None) -> AbsoluteReadings:
     """The unloaded readings of ``point`` (default: the first reflector every measured pose saw)."""
     rows: dict[int, dict[str, list[np.ndarray]]] = {}
+    var: dict[int, dict[str, list[np.ndarray]]] = {}
     names: list[str] = []
     for p in log.complete_poses:
         seen: dict[str, list[np.ndarray]] = {}
@@ -53,6 +55,7 @@ def absolute_readings(log, point: str | None = None) -> AbsoluteReadings:
             for i, name in enumerate(m.reflectors):
                 if m.visible[i]:
                     seen.setdefault(name, []).append(m.position[i])
+                    var.setdefault(p, {}).setdefault(name, []).append(np.diagonal(m.covariance[i]))
                     if name not in names:
                         names.append(name)
         if seen:
@@ -69,7 +72,12 @@ def absolute_readings(log, point: str | None = None) -> AbsoluteReadings:
         raise InputError(log.path, f"reflector {point}", "unloaded readings in at least 10 poses", len(poses))
     q = np.array([log.poses[p].unloaded for p in poses])
     y = np.array([np.mean(rows[p][point], axis=0) for p in poses])
-    return AbsoluteReadings(point, np.array(poses), q, y, float(log.tracker_spec().sigma))
+    # the mean of m repeats: its variance is the readings' mean variance over m
+    std = np.array([np.sqrt(np.mean(var[p][point], axis=0) / len(var[p][point])) for p in poses])
+    ok = bool(np.all(np.isfinite(std)) and np.all(std > 0))
+    return AbsoluteReadings(
+        point, np.array(poses), q, y, float(log.tracker_spec().sigma), std if ok else None
+    )
 
 
 def run_geometry(

@@ -6,7 +6,8 @@ rebuilds the validated :class:`bench.scenario.Scenario` on whatever machine it r
 written under its own file name into a folder named by the hash of its text, in the user's
 private cache ``$TMPDIR/calbench-<uid>/`` (mode 0700; written atomically, shared by every process
 of the user, one file per distinct robot, so even killed workers leave nothing that grows), and
-the scenario's ``robot`` key points at it. The texts are the identity: the same
+the scenario's ``robot`` key points at it; its ``path``, which messages name, is the user's file.
+The texts are the identity: the same
 PortableScenario gives the same Scenario values everywhere.
 """
 
@@ -20,7 +21,7 @@ import re
 import stat
 import tempfile
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from calbench.bench.core import write_text
@@ -63,6 +64,9 @@ class PortableScenario:
     mjcf: str
     robot_name: str  # the MJCF's file name, e.g. m900ib700.xml
     filename: str  # the scenario's file name, for messages and logs
+    # where the user's file is, for messages: a slipped unit found on a worker names the user's
+    # file, not this process's copy (not part of the identity)
+    source: str = field(default="", compare=False)
 
     @classmethod
     def from_scenario(cls, scn: Scenario) -> PortableScenario:
@@ -72,6 +76,7 @@ class PortableScenario:
             robot.read_text(encoding="utf-8"),
             robot.name,
             Path(scn.path).name,
+            str(scn.path),
         )
 
     @classmethod
@@ -93,7 +98,8 @@ class PortableScenario:
         robot = d / self.robot_name
         if not robot.is_file() or robot.read_text(encoding="utf-8") != self.mjcf:
             write_text(robot, self.mjcf)
-        return parse_scenario(self.text, d / self.filename, seed)
+        scn = parse_scenario(self.text, d / self.filename, seed)
+        return replace(scn, path=Path(self.source)) if self.source else scn
 
 
 __all__ = ["PortableScenario", "with_robot"]

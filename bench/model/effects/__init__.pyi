@@ -12,6 +12,7 @@ from .geometric import base_frame, frame_error, joint_offset, link_geometry, too
 from .link_springs import link_compliance
 from .registry import (
     DISCOVERY_OPTIONS,
+    GEOMETRY_OPTIONS,
     REGISTRY,
     TRUTH_SCHEMAS,
     discovery_library,
@@ -28,6 +29,7 @@ __all__ = [
     "Effect",
     "EffectRobot",
     "Field",
+    "GEOMETRY_OPTIONS",
     "Prior",
     "REGISTRY",
     "RIGID_COMPLIANCE",

@@ -1,8 +1,13 @@
-"""Geometric errors, truth-only effects a bench truth hides and identify --geometry recovers
+"""Geometric errors, effects a bench truth hides, identify --geometry recovers and discover names
 (docs/geometry.md): `joint_offset` (each actuated joint's zero off), `tool_frame` (the reflectors
 off their drawn places by one vector), `link_geometry` (a body's frame off in its parent) and
 `base_frame` (the arm off its place). Each edits frames of the spec; its set_params writes the
-same frames into a compiled model from the nominal ones its apply saw."""
+same frames into a compiled model from the nominal ones its apply saw.
+
+Discovery tries the first three on absolute readings (``readings="absolute"``: `calbench discover
+--geometry`, identify/discover/geometric.py): all the joint offsets as one candidate, each
+actuated joint's body frame, the reflectors' common offset. `base_frame` is no candidate there:
+with the tracker registration fitted in every model, an arm off its place is the registration."""
 
 from __future__ import annotations
 
@@ -43,6 +48,8 @@ def turned_frame(pos, quat, jpos, axis, angle) -> tuple[np.ndarray, np.ndarray]:
     "joint_offset",
     truth=(Field("offset", "vector", "rad", max_abs=MAX_OFFSET, doc="o1..oN, one per actuated joint"),),
     from_truth=_offset_truth,
+    discover=lambda robot: [{"joints": robot.n_act}],
+    readings="absolute",
 )
 def joint_offset(joints: int = 6) -> Effect:
     """A zero offset o_k on every actuated joint (calbench:actuated order): the link turns by
@@ -84,6 +91,8 @@ def _tool_frame_truth(t: dict) -> tuple[dict, np.ndarray]:
     "tool_frame",
     truth=(Field("offset", "vector", "m", size=3, max_abs=MAX_OFFSET, doc="dx, dy, dz in each site's body"),),
     from_truth=_tool_frame_truth,
+    discover=[{}],
+    readings="absolute",
 )
 def tool_frame() -> Effect:
     """The reflectors (calbench:reflectors) mounted off their nominal places by one common vector
@@ -144,6 +153,12 @@ def _frame_effect(name: str, body_of: Callable[[mujoco.MjSpec], str], options: d
     return Effect(name, FRAME_PARAMS, options, FRAME_UNITS, apply, set_)
 
 
+def actuated_bodies(robot) -> list[str]:
+    """The names of the bodies the actuated joints turn, in calbench:actuated order."""
+    m = robot.model
+    return [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, int(m.jnt_bodyid[j])) for j in robot.act_joint]
+
+
 def _link_geometry_truth(t: dict) -> tuple[dict, np.ndarray]:
     return {"link": str(t["link"])}, np.asarray(t["offset"], dtype=float)
 
@@ -152,6 +167,8 @@ def _link_geometry_truth(t: dict) -> tuple[dict, np.ndarray]:
     "link_geometry",
     truth=(Field("link", "string", doc="the body whose frame is off"), OFFSET),
     from_truth=_link_geometry_truth,
+    discover=lambda robot: [{"link": name} for name in actuated_bodies(robot)],
+    readings="absolute",
 )
 def link_geometry(link: str = "") -> Effect:
     """The frame of body ``link`` in its parent off by (dx, dy, dz) m and (rx, ry, rz) rad: a link

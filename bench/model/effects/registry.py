@@ -11,7 +11,9 @@ about it:
   without ``truth`` cannot be hidden in a scenario (the compensator: the truth gives it in
   ``[truth.compensator]``);
 * ``discover``: the structural options discovery tries (a list, or a function of the robot;
-  none = a truth-only effect);
+  none = a truth-only effect), on the readings ``readings`` names: ``deflections`` (loaded minus
+  unloaded, `calbench discover`) or ``absolute`` (the geometric effects, which deflections cancel
+  to first order: `calbench discover --geometry`, identify/discover/geometric.py);
 * ``priors``: its parameters' priors where the per-unit defaults (:data:`~.base.UNIT_PRIORS`)
   do not fit.
 
@@ -44,6 +46,9 @@ TRUTH_SCHEMAS: dict[str, tuple[Field, ...]] = {}
 _FROM_TRUTH: dict[str, Callable[[dict], tuple[dict, np.ndarray]]] = {}
 # effect -> the structural options discovery tries on a robot (a function of the Robot)
 DISCOVERY_OPTIONS: dict[str, Callable[[Robot], list[dict]]] = {}
+# the same for discovery on absolute readings (discover --geometry)
+GEOMETRY_OPTIONS: dict[str, Callable[[Robot], list[dict]]] = {}
+READINGS = ("deflections", "absolute")
 _PRIORS: dict[str, dict[str, Prior]] = {}  # effect -> parameter name -> prior override
 
 
@@ -54,6 +59,7 @@ def register_effect(
     from_truth: Callable[[dict], tuple[dict, np.ndarray]] | None = None,
     discover: list[dict] | Callable[[Robot], list[dict]] | None = None,
     priors: dict[str, Prior] | None = None,
+    readings: str = "deflections",
 ):
     """Decorator: add an effect factory (keyword options -> Effect) to the library.
 
@@ -62,9 +68,12 @@ def register_effect(
     neither. discover gives the structural options (factory keyword arguments) that discovery
     tries as candidates: a list, or a function of the robot returning one (e.g. one per
     actuated joint); None keeps the effect out of discovery (truth only). priors overrides
-    :data:`UNIT_PRIORS` for named parameters."""
+    :data:`UNIT_PRIORS` for named parameters. readings: the readings discovery tries the effect
+    on (``deflections`` or ``absolute``, the module docstring)."""
     if name in REGISTRY:
         raise ValueError(f"effect {name!r} is already registered")
+    if readings not in READINGS:
+        raise ValueError(f"effect {name!r}: readings must be one of {READINGS}, got {readings!r}")
     if (truth is None) != (from_truth is None):
         raise ValueError(f"effect {name!r}: give both truth (its table's keys) and from_truth, or neither")
     if truth is not None:
@@ -79,7 +88,8 @@ def register_effect(
             _FROM_TRUTH[name] = from_truth
         if discover is not None:
             fixed = None if callable(discover) else tuple(dict(o) for o in discover)
-            DISCOVERY_OPTIONS[name] = discover if fixed is None else (lambda robot: [dict(o) for o in fixed])
+            table = DISCOVERY_OPTIONS if readings == "deflections" else GEOMETRY_OPTIONS
+            table[name] = discover if fixed is None else (lambda robot: [dict(o) for o in fixed])
         if priors:
             _PRIORS[name] = dict(priors)
         return factory
@@ -89,7 +99,7 @@ def register_effect(
 
 def unregister_effect(name: str) -> None:
     """Remove an effect registered at run time (a test's toy, a notebook's experiment)."""
-    for table in (REGISTRY, TRUTH_SCHEMAS, _FROM_TRUTH, DISCOVERY_OPTIONS, _PRIORS):
+    for table in (REGISTRY, TRUTH_SCHEMAS, _FROM_TRUTH, DISCOVERY_OPTIONS, GEOMETRY_OPTIONS, _PRIORS):
         table.pop(name, None)
 
 
@@ -107,10 +117,11 @@ def priors(effect: Effect) -> list[Prior]:
     return [own.get(n) or UNIT_PRIORS[u] for n, u in zip(effect.param_names, effect.units)]
 
 
-def discovery_library(robot: Robot) -> list[Effect]:
+def discovery_library(robot: Robot, readings: str = "deflections") -> list[Effect]:
     """Every discovery candidate on this robot: each registered effect with each of the
-    structural options it declares for the robot."""
-    return [REGISTRY[name](**opts) for name, options in DISCOVERY_OPTIONS.items() for opts in options(robot)]
+    structural options it declares for the robot, on ``readings`` (deflections or absolute)."""
+    table = DISCOVERY_OPTIONS if readings == "deflections" else GEOMETRY_OPTIONS
+    return [REGISTRY[name](**opts) for name, options in table.items() for opts in options(robot)]
 
 
 def effect_from_truth(name: str, table: dict) -> tuple[Effect, np.ndarray]:
