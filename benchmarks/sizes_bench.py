@@ -8,13 +8,15 @@ against the budget each states.
   largest pose (the only pose whose readings exist at once).
 * ``log``: campaign logs of 20 MB .. 2 GB (the paper campaign's poses repeated, 5000 readings
   per state each: a pose's readings are ~1 MB), `calbench identify LOG --json`. Budget: the
-  first run's RSS + POSE_BYTES (6 kB) per extra pose; the readings themselves are read a pose
-  at a time (bench/log/read.py LogReadings), so the log's size does not count.
+  first run's RSS + POSE_BYTES (40 kB: identify's own state per pose) per extra pose; the
+  readings are read a pose at a time (bench/log/read.py LogReadings), so their number does not
+  count.
 * ``design``: `calbench design` on the paper scenario with 10^4 and 10^5 candidates (one
-  process). Budget: the 10^4 run's RSS + DESIGN_BYTES per extra candidate (its information
-  block m x p and its rows: identify/design).
+  process). Budget: the 10^4 run's RSS + DESIGN_BYTES (7 kB: the batched statics' peak per
+  candidate, identify/design/run.py CANDIDATE_BYTES) per extra candidate.
 * ``compensate``: a job of 24 and 10^4 points (the FANUC milling pass, interpolated), with the
-  paper campaign's identification. Budget: the small run's RSS + JOB_BYTES per extra point.
+  paper campaign's identification. Budget: the small run's RSS + JOB_BYTES (16 kB,
+  identify/compensate/run.py POINT_BYTES) per extra point.
 
 Prints JSON rows {what, size, seconds, peak_mb, budget_mb, within}. Usage:
 python benchmarks/sizes_bench.py [--quick] [--only import,log,design,compensate] [--log-gb 2]
@@ -44,10 +46,10 @@ from big_inputs import readings_file, replicated_log  # noqa: E402
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
 JOB = ROOT / "scenarios" / "jobs" / "fanuc_milling.toml"
 READING_BYTES = 5000  # per reading of the largest pose (tests/test_sizes.py)
-POSE_BYTES = 6000  # per pose of a log (tests/test_sizes.py)
+POSE_BYTES = 40_000  # per pose of a log: identify's own per-pose state (~34 kB measured; the reader's ~6 kB)
 REPEATS = 5000  # readings per state of each pose of the big logs
-DESIGN_BYTES = 4000  # per candidate: its 9 x 8 information block, command and rows, 2x for copies
-JOB_BYTES = 4000  # per job point: command, wrench, solution and the per-point JSON row
+DESIGN_BYTES = 7000  # per candidate: identify/design/run.py CANDIDATE_BYTES (its batched statics' peak)
+JOB_BYTES = 16_000  # per job point: identify/compensate/run.py POINT_BYTES
 
 
 def run(cmd: list[str]) -> tuple[float, float, str]:
@@ -161,26 +163,27 @@ def bench_log(d: Path, sizes_gb: list[float]) -> list[dict]:
     return out
 
 
-def bench_design(d: Path, sizes: list[int]) -> list[dict]:
+def growing(what: str, unit: str, sizes: list[int], per_bytes: int, argv_of) -> list[dict]:
+    """``calbench argv_of(n)`` for each size n: its peak against the first run's plus per_bytes
+    per extra unit."""
     out, first = [], None
     for n in sizes:
-        seconds, peak, _ = run(
-            [
-                "design",
-                str(PAPER),
-                "--candidates",
-                str(n),
-                "--processes",
-                "1",
-                "--json",
-                str(d / "design.json"),
-            ]
-        )
+        seconds, peak, _ = run(argv_of(n))
         if first is None:
             first = (peak, n)
-        budget = first[0] + DESIGN_BYTES * (n - first[1]) / 2**20
-        out.append(row("design", n, "candidates", seconds, peak, budget))
+        out.append(row(what, n, unit, seconds, peak, first[0] + per_bytes * (n - first[1]) / 2**20))
     return out
+
+
+def bench_design(d: Path, sizes: list[int]) -> list[dict]:
+    json_out = str(d / "design.json")
+    return growing(
+        "design",
+        "candidates",
+        sizes,
+        DESIGN_BYTES,
+        lambda n: ["design", str(PAPER), "--candidates", str(n), "--processes", "1", "--json", json_out],
+    )
 
 
 def job_of(points: int, d: Path) -> Path:
@@ -220,26 +223,23 @@ def bench_compensate(d: Path, sizes: list[int]) -> list[dict]:
         check=True,
         capture_output=True,
     )
-    out, first = [], None
-    for n in sizes:
-        job = JOB if n == 24 else job_of(n, d)
-        seconds, peak, _ = run(
-            [
-                "compensate",
-                str(job),
-                "--identified",
-                str(d / "id.json"),
-                "--out",
-                str(d / "c.csv"),
-                "--json",
-                str(d / "c.json"),
-            ]
-        )
-        if first is None:
-            first = (peak, n)
-        budget = first[0] + JOB_BYTES * (n - first[1]) / 2**20
-        out.append(row("compensate", n, "points", seconds, peak, budget))
-    return out
+    ident, csv_out, json_out = str(d / "id.json"), str(d / "c.csv"), str(d / "c.json")
+    return growing(
+        "compensate",
+        "points",
+        sizes,
+        JOB_BYTES,
+        lambda n: [
+            "compensate",
+            str(JOB if n == 24 else job_of(n, d)),
+            "--identified",
+            ident,
+            "--out",
+            csv_out,
+            "--json",
+            json_out,
+        ],
+    )
 
 
 def main() -> None:

@@ -324,3 +324,73 @@ def test_the_fast_covariance_check_agrees_with_eigenvalues(seed):
         m = dict(base, covariance=[c.tolist(), c.tolist(), None])
         found = message_problems("/tracker/measurement", m, None)
         assert (found[0].got if found else None) == want, (c, found)
+
+
+def test_checking_a_big_log_shows_its_progress(paper_log, tmp_path, monkeypatch):
+    """Within showing_progress (the command line's), a log above PROGRESS_BYTES shows the MB
+    checked: started with the file's size, advanced to its end, closed."""
+    from calbench.bench.log import showing_progress
+
+    big = replicated_log(paper_log, tmp_path / "big.mcap", poses=40, repeats=400, fast=True)
+    monkeypatch.setattr("calbench.bench.log.read.PROGRESS_BYTES", 1 << 20)
+    seen = []
+
+    class Bar:
+        def __init__(self, name):
+            self.name, self.total, self.done, self.closed = name, 0, 0, False
+            seen.append(self)
+
+        def start(self, total, label=""):
+            self.total = total
+
+        def update(self, label="", step=1):
+            self.done += step
+
+        def close(self):
+            self.closed = True
+
+    read_log(paper_log)  # no sink asked for: nothing shown
+    with showing_progress(Bar):
+        read_log(paper_log)  # small: nothing shown
+        assert not seen
+        read_log(big)
+    mb = big.stat().st_size >> 20
+    assert mb >= 2 and len(seen) == 1
+    (bar,) = seen
+    assert big.name in bar.name and bar.total == mb and mb - 1 <= bar.done <= mb and bar.closed
+
+
+def test_a_design_or_a_job_too_big_for_memory_is_refused_up_front(tmp_path, monkeypatch, capsys):
+    """The design's candidates (CANDIDATE_BYTES each at their peak) and a compensation job's
+    points (POINT_BYTES each) are estimated before any work: beyond the memory available, exit 2
+    with the estimate."""
+    monkeypatch.setattr("calbench.bench.core.memory.available_bytes", lambda: 10_000_000)
+    rc = main(["design", str(PAPER), "--candidates", "5000", "--json", str(tmp_path / "d.json")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1, err
+    assert (
+        "--candidates: candidates: expected an input whose work fits" in err
+        and "5,000 candidates at 7000 B each: ~35 MB" in err
+    )
+    job = tmp_path / "job.toml"
+    points = "".join(
+        "[[point]]\nq = [0, 10, -10, 0, -30, 0]\nwrench = [0, 0, -1000, 0, 0, 0]\n" for _ in range(700)
+    )
+    job.write_text(f'robot = "{MJCF.as_posix()}"\n[tool]\nbody = "link6"\n{points}')
+    rc = main(
+        [
+            "compensate",
+            str(job),
+            "--identified",
+            str(tmp_path / "none.json"),
+            "--out",
+            str(tmp_path / "c.csv"),
+        ]
+    )
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1, err
+    assert (
+        "job.toml: point: expected an input whose work fits" in err
+        and "700 points at 16000 B each: ~11.2 MB" in err
+    )
+    assert not (tmp_path / "d.json").exists() and not (tmp_path / "c.csv").exists()

@@ -4,7 +4,14 @@
 from .foxglove import FoxgloveWriter
 from .idreport import IdentificationReport, ObservationFit, Outlier, ParameterEstimate
 from .mcapscan import Cut, Damage, scan
-from .read import KEEP_READINGS, CorruptLogError, LogReadings, message_problems, read_log
+from .read import (
+    KEEP_READINGS,
+    CorruptLogError,
+    LogReadings,
+    message_problems,
+    read_log,
+    showing_progress,
+)
 from .records import STATES, CampaignLog, PerState, WrenchRecord
 from .recover import recover_log
 from .schema import SCHEMAS, checker, findings, problems
@@ -20,6 +27,7 @@ from .writer import (
 )
 
 __all__ = [
+    "showing_progress",
     "message_problems",
     "LogReadings",
     "KEEP_READINGS",

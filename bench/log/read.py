@@ -32,10 +32,12 @@ read as before.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import hashlib
 import json
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -68,6 +70,26 @@ from .schema import (
 
 END_METADATA = "campaign_end"  # how the campaign ended (bench/log/writer.py writes it)
 RECOVERED_METADATA = "recovered"  # written by `calbench recover`
+# a log this big shows its reading's progress (MB of the file checked) where a command asked
+# for it (:func:`showing_progress`); smaller ones are read in seconds
+PROGRESS_BYTES = 64 << 20
+_PROGRESS: contextvars.ContextVar[Callable[[str], Any] | None] = contextvars.ContextVar(
+    "calbench_log_progress", default=None
+)
+
+
+@contextlib.contextmanager
+def showing_progress(make: Callable[[str], Any]) -> Iterator[None]:
+    """Within, :func:`read_log` of a big log shows its progress on ``make(name)`` (a
+    bench.core.Progress-like sink with start, update, close): the command line's way to say what
+    a minutes-long read is doing without every verb passing a sink down."""
+    token = _PROGRESS.set(make)
+    try:
+        yield
+    finally:
+        _PROGRESS.reset(token)
+
+
 # Readings a log may hold for read_log to keep them in memory (~1 kB each with three reflectors);
 # beyond, CampaignLog.measurements reads them again a pose at a time (LogReadings)
 KEEP_READINGS = 50_000
@@ -359,9 +381,17 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
     pending: list[tuple[str, dict]] = []  # pose messages met before /campaign/info
     stamp = _stamp(path)
     offset = 0  # of the top-level record being read
+    make = _PROGRESS.get()
+    bar = make(f"calbench: checking {path.name}") if make and stamp[0] > PROGRESS_BYTES else None
+    if bar is not None:
+        bar.start(stamp[0] >> 20)
+    shown = 0
     for rec in scan(path, marks=True):
         if isinstance(rec, At):
             offset = rec.offset
+            if bar is not None and offset >> 20 > shown:
+                bar.update(step=(offset >> 20) - shown)
+                shown = offset >> 20
             continue
         if isinstance(rec, Damage):
             raise CorruptLogError(path, f"byte {rec.offset}", f"an undamaged {rec.record} record", rec.why)
@@ -426,6 +456,8 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
         elif isinstance(rec, Footer):
             break
 
+    if bar is not None:
+        bar.close()
     present = set(topics.values())
     for topic in REQUIRED_TOPICS:
         if topic not in present:
@@ -661,6 +693,7 @@ __all__ = [
     "log_end",
     "CorruptLogError",
     "LogReadings",
+    "showing_progress",
     "KEEP_READINGS",
     "END_METADATA",
     "RECOVERED_METADATA",
