@@ -2,7 +2,7 @@
 # room's face (bench/<room>/__init__.pyi). At run time calbench.bench.core.face reads these lines
 # and loads each name on first use. Code inside calbench imports from the rooms' faces instead.
 
-from .campaign import plan_campaign, run_campaign, truth_robot
+from .campaign import Campaign, plan_campaign, remeasure, run_campaign, simulate, truth_robot
 from .core import (
     PAPER_SCENARIO,
     CalbenchError,
@@ -30,6 +30,9 @@ from .tracker import TrackerSpec
 from .view import write_recording
 
 __all__ = [
+    "Campaign",
+    "remeasure",
+    "simulate",
     "BatchStatics",
     "CalbenchError",
     "CampaignLog",

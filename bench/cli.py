@@ -14,7 +14,7 @@ import signal
 import sys
 from pathlib import Path
 
-from calbench.bench.campaign import CampaignInterrupted, simulate
+from calbench.bench.campaign import CampaignInterrupted, simulate_to_log
 from calbench.bench.core import atomic_path, check_outputs, terminal_progress, write_text
 from calbench.bench.log import read_log, recover_log
 from calbench.bench.robots import DEFAULT_MASS, check_robot
@@ -77,7 +77,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     bar = terminal_progress("calbench simulate", "equilibria")
     try:
         with _sigterm_as_interrupt():
-            plans = simulate(scn, args.out, progress=bar, force=args.force)
+            campaign = simulate_to_log(scn, args.out, progress=bar, force=args.force)
     except CampaignInterrupted as stop:
         bar.close()
         if not stop.written:
@@ -93,9 +93,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         )
         return 130
     bar.close()
-    n_meas = sum(p.visible.sum() for p in plans)
+    n_meas = sum(p.visible.sum() for p in campaign.plans)
     print(
-        f"wrote {args.out}: {len(plans)} poses, unloaded and loaded, {n_meas} reflector sightings "
+        f"wrote {args.out}: {len(campaign.plans)} poses, unloaded and loaded, {n_meas} reflector sightings "
         f"(tracker sigma {scn.tracker.sigma * 1e6:.0f} um, seed {scn.seed})"
     )
     return 0

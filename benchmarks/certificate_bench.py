@@ -30,15 +30,8 @@ from pathlib import Path
 import numpy as np
 from steps import say
 
-from calbench.identify.design import (
-    ALGORITHMS,
-    Exchanger,
-    approximate_design,
-    generate_candidates,
-    load_design_scenario,
-    read_candidates,
-    select_rows,
-)
+from calbench.identify.design import generate_candidates, load_design_scenario, read_candidates
+from calbench.identify.design.optimal import ALGORITHMS, Exchanger, approximate_design, select_rows
 
 ROOT = Path(__file__).resolve().parent.parent
 M = 12

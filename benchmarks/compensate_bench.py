@@ -39,7 +39,7 @@ from steps import say
 from calbench.bench.campaign import run_campaign
 from calbench.bench.model import Robot
 from calbench.bench.model.effects import without_compensator
-from calbench.bench.scenario import load_scenario
+from calbench.bench.scenario import load_scenario, scenario_variant
 from calbench.identify import run_discover
 from calbench.identify.compensate import (
     CompensationRequest,
@@ -149,10 +149,7 @@ def rigid_without_spring(work: Path) -> dict:
     scenario, job = CASES["fanuc_m900ib700"]
     xml = work / "nocomp.xml"
     xml.write_text(without_compensator(ROOT / "mjcf" / "m900ib700.xml"))
-    text = scenario.read_text()
-    text = text[: text.index("[truth.compensator]")] + text[text.index("[tracker]") :]
-    scn = work / "nocomp.toml"
-    scn.write_text(text.replace('robot = "../mjcf/m900ib700.xml"', f'robot = "{xml}"'))
+    scn = scenario_variant(scenario, work / "nocomp.toml", robot=xml, drop=("truth.compensator",))
     jb = work / "nocomp_job.toml"
     jb.write_text(job.read_text().replace('robot = "../../mjcf/m900ib700.xml"', f'robot = "{xml}"'))
     js = identified(scn, 1, work)

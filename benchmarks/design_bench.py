@@ -29,18 +29,16 @@ from steps import say
 
 from calbench.bench.scenario import load_scenario
 from calbench.identify.design import (
-    Exchanger,
     InfoEngine,
     design_plan,
     generate_candidates,
-    information,
     load_design_scenario,
-    measures,
     plan_measures,
     plan_scenario_text,
     scenario_plan_information,
     work_jacobian,
 )
+from calbench.identify.design.optimal import Exchanger, information, measures
 from calbench.identify.study import run_montecarlo
 
 

@@ -17,8 +17,8 @@ something in at most 0.1 % of the seeds. N seeds (default 300) of the isotropic 
   1 %, 5 %, 10 %;
 * the discovery time per seed (median, max; wall and CPU).
 
-The campaign is solved once; each seed redraws the tracker noise (identify/study/montecarlo.py's
-campaign_observations) and runs the whole discovery on the observations in memory
+The campaign is solved once; each seed redraws the tracker noise (bench.campaign.remeasure, then
+identify/core's from_campaign) and runs the whole discovery on the observations in memory
 (identify/discover/workflow.py's discover_observations). Prints JSON.
 
     python benchmarks/discover_null_bench.py [--seeds 300] [--spec-seeds 100] [--processes 2]
@@ -55,7 +55,7 @@ def _setup(model: str) -> None:
     """Per process: the solved campaign of the paper scenario with the tracker model."""
     import tempfile
 
-    from calbench.bench.campaign import plan_campaign, truth_robot
+    from calbench.bench.campaign import simulate
     from calbench.bench.scenario import load_scenario, scenario_variant
 
     tmp = Path(tempfile.mkdtemp())
@@ -63,19 +63,19 @@ def _setup(model: str) -> None:
     if model == "spec":
         path.write_text(path.read_text().replace("[tracker]\n", '[tracker]\nmodel = "spec"\n', 1))
     scn = load_scenario(path)
-    robot = truth_robot(scn)
-    _STATE.update(scn=scn, robot=robot, plans=plan_campaign(scn, robot), model=model)
+    _STATE.update(scn=scn, campaign=simulate(scn, None), model=model)
 
 
 def one_seed(args: tuple[str, int]) -> dict:
     model, seed = args
     if _STATE.get("model") != model:
         _setup(model)
+    from calbench.bench.campaign import remeasure
+    from calbench.identify.core import from_campaign
     from calbench.identify.discover import discover_observations
-    from calbench.identify.study import campaign_observations
 
-    scn, robot, plans = _STATE["scn"], _STATE["robot"], _STATE["plans"]
-    obs = campaign_observations(scn, robot, plans, np.random.default_rng([20261, seed]))
+    scn = _STATE["scn"]
+    obs = from_campaign(remeasure(_STATE["campaign"], np.random.default_rng([20261, seed])))
     t, c = time.perf_counter(), time.process_time()
     rep, _ = discover_observations(obs, Path(scn.robot))
     cands = [x for x in rep["rounds"][0]["candidates"] if x.get("k")]

@@ -25,12 +25,11 @@ import numpy as np
 import scipy.optimize
 from steps import say
 
-from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.campaign import simulate
 from calbench.bench.model import Robot
 from calbench.bench.scenario import load_scenario
-from calbench.identify.core import Whitener
+from calbench.identify.core import Whitener, from_campaign
 from calbench.identify.methods import OneStep, generic_start, sanitize_start, to_phi, to_theta, two_step
-from calbench.identify.study import campaign_observations
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
@@ -38,9 +37,8 @@ PAPER = ROOT / "scenarios" / "paper_table5.toml"
 
 def problem(seed: int):
     scn = load_scenario(PAPER)
-    plans = plan_campaign(scn, truth_robot(scn))
     robot = Robot.from_file(scn.robot)
-    obs = campaign_observations(scn, truth_robot(scn), plans, np.random.default_rng(seed))
+    obs = from_campaign(simulate(scn, np.random.default_rng(seed)))
     white = Whitener.from_observations(obs)
     start, _ = sanitize_start(two_step(robot, obs).theta, generic_start(robot, obs), robot.layout)
     return robot, obs, white, start
@@ -155,12 +153,7 @@ def main() -> None:
         theta0 = ours.theta
         f0, j0 = est.model.evaluate(theta0)
         _, _, white2, _ = problem(seed + 100)
-        obs2 = campaign_observations(
-            load_scenario(PAPER),
-            truth_robot(load_scenario(PAPER)),
-            plan_campaign(load_scenario(PAPER)),
-            np.random.default_rng(seed + 100),
-        )
+        obs2 = from_campaign(simulate(load_scenario(PAPER), np.random.default_rng(seed + 100)))
         n0 = est.model.stats["evaluations"]
         t = time.perf_counter()
         r2 = est.fit(

@@ -27,11 +27,12 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 
-from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.campaign import simulate, truth_robot
 from calbench.bench.scenario import load_scenario, scenario_to_toml
 from calbench.identify.cli import main as calbench
+from calbench.identify.core import from_campaign
 from calbench.identify.runtime import blas_threads
-from calbench.identify.study import campaign_observations, predicted_std
+from calbench.identify.study import predicted_std
 
 PAPER = ROOT / "scenarios" / "paper_table5.toml"
 MODELS = {"isotropic": {"sigma": 20e-6}, "spec": {"model": "spec"}, "iso10360": {"model": "iso10360"}}
@@ -49,7 +50,7 @@ def variant(src: Path, model: str, out: Path):
 def deflection_sigma(scn) -> list[float]:
     """The sqrt of the diagonal of the first deflection's covariance (m, world x y z)."""
     truth = truth_robot(scn)
-    obs = campaign_observations(scn, truth, plan_campaign(scn, truth), None)
+    obs = from_campaign(simulate(scn, None, robot=truth))
     return np.sqrt(np.diag(obs.poses[0].cov[0])).tolist()
 
 

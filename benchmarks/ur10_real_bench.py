@@ -22,6 +22,10 @@ Positions only (the probe's orientation is not used). Prints JSON.
 MJCF, with the tracker-from-base transform in the JSON; keep it out of the project (it is made
 from the data).
 
+The peers are no dependency of calbench: `pip install figaroh` into a virtual environment of its own
+(pass its python as --figaroh), `pip install --no-deps pybotics` into calbench's (it pins numpy < 2
+but runs on numpy 2).
+
 Usage: python benchmarks/ur10_real_bench.py [--series C] [--data DIR] [--quick] [--no-peer]
        [--out-model PATH] [--figaroh PYTHON]
 """
@@ -38,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from calbench.bench.model import Robot
-from calbench.bench.shopfloor import read_probe_series, read_transform
+from calbench.bench.shopfloor import read_probe_series, read_transform, series_files
 from calbench.identify.discover import discover_geometry, geometric_problem
 from calbench.identify.geometry import (
     MODELS,
@@ -182,14 +186,13 @@ def run(
     series: str, data: Path, quick: bool, peer: bool, out_model: Path | None = None, figaroh=None
 ) -> dict:
     chain = ur10()
-    folder = data / f"Series_{series}"
-    (csv,) = folder.glob("measurements_*.csv")
+    csv, transform = series_files(data / f"Series_{series}")
     s = read_probe_series(csv, chain.joints)
     q, y = s.q, s.position
     if quick:  # every 4th row: the same robot and station, a quarter of the work
         q, y = q[::4], y[::4]
     fit_rows, val_rows = split(len(q), 0.7, seed=0)
-    tool = tool_from_transform(read_transform(folder / "Trafo_TM_F_init.txt"))
+    tool = tool_from_transform(read_transform(transform))
     start = initial_model(chain, q[fit_rows], y[fit_rows], tool)
     out: dict = {"series": series, "file": csv.name, "fit": len(fit_rows), "held_out": len(val_rows)}
     models = {}
@@ -263,9 +266,10 @@ def main() -> None:
         "values": REFERENCE_MM,
         "source": "issue 25: an independent calibration of another public six-axis dataset (not this one)",
     }
-    report["figaroh"] = (
-        "not run: needs pinocchio (pip install pin) and its own URDF/YAML set-up; see docs/geometry.md"
-    )
+    if not a.figaroh:
+        report["figaroh"] = (
+            "not run: pass --figaroh PYTHON, a Python with `pip install figaroh` (docs/geometry.md)"
+        )
     print(json.dumps(report, indent=1, default=float))
 
 

@@ -8,7 +8,7 @@
 # would be replaced by the room itself once it is imported.
 
 from .compensate import Compensation, CompensationRequest, run_compensate
-from .core import Observations, from_log, load_model
+from .core import Observations, from_campaign, from_log
 from .demo import run_demo
 from .design import DesignOutcome, DesignRequest, run_design
 from .discover import discover as run_discover
@@ -27,10 +27,10 @@ __all__ = [
     "check_failed",
     "format_summary",
     "format_table",
+    "from_campaign",
     "from_log",
     "identify",
     "import_readings",
-    "load_model",
     "load_study",
     "one_step",
     "prepare",

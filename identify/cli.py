@@ -256,30 +256,18 @@ def add_montecarlo(sub) -> None:
 def cmd_montecarlo(args) -> int:
     from calbench.bench.scenario import load_scenario
     from calbench.identify.runtime import Interrupted
-    from calbench.identify.study import (
-        RUNS_PER_TASK,
-        check_montecarlo_size,
-        format_summary,
-        measure_montecarlo,
-        montecarlo_methods,
-        run_montecarlo,
-    )
+    from calbench.identify.study import format_summary, prepare_montecarlo, run_montecarlo
 
-    if args.runs < 2:
-        raise InputError("--runs", "runs", "an integer >= 2", args.runs)
     scn = load_scenario(args.scenario, seed=args.seed)
     check_outputs({"--json": args.json}, {"SCENARIO": args.scenario, "robot": scn.robot})
-    if not args.force:
-        check_montecarlo_size(scn, args.runs)
-    methods = montecarlo_methods(args.method, scn)
+    job = prepare_montecarlo(scn, args.runs, args.method, args.seed, args.force)
     interrupted = None
-    cost = measure_montecarlo(scn, methods, args.seed)
+    cost = job.cost
     basis = f"{1e3 * cost.seconds_per_piece:.0f} ms per run, measured on {cost.probed} runs"
-    tasks = -(-args.runs // RUNS_PER_TASK)
-    with open_pieces(args, cost.seconds(args.runs), tasks, cost.setup_seconds, basis) as ex:
+    with open_pieces(args, job.seconds(), job.tasks, cost.setup_seconds, basis) as ex:
         bar = terminal_progress("calbench montecarlo", "runs")
         try:
-            mc = run_montecarlo(scn, args.runs, methods, progress=bar, executor=ex)
+            mc = run_montecarlo(scn, job.runs, job.methods, progress=bar, executor=ex)
         except Interrupted as exc:
             mc, interrupted = exc.partial, exc
         bar.close()
@@ -302,7 +290,7 @@ def cmd_montecarlo(args) -> int:
 
 
 def add_design(sub) -> None:
-    from calbench.identify.design import CRITERIA
+    from calbench.identify.design.optimal import CRITERIA
 
     p = sub.add_parser("design", help="optimal measurement configurations (design of experiments)")
     p.add_argument(
@@ -929,8 +917,8 @@ def _design_lines(args, res) -> list[str]:
     t = robot_tally(args.robot, res.tracker, res.mass, args.sample)
     share = t.passed_command / t.sampled * (t.feasible / t.solved if t.solved else 0.0)
     return [
-        f"  design's feasibility rules on {t.sampled} sampled commands (default [design] settings, "
-        f"{res.mass:g} kg; equilibria checked on {t.solved} that pass the command rules): "
+        f"  design's feasibility rules on {t.sampled} sampled commands (default [design] settings: "
+        f"{t.wrist_rules}; {res.mass:g} kg; equilibria checked on {t.solved} that pass the command rules): "
         f"{100 * share:.1f} % feasible",
         *t.lines(),
     ]

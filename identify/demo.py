@@ -65,8 +65,8 @@ def run_demo(logs: Path) -> Iterator[str]:
 
     files = demo_files(logs)
     log, rrd = files["campaign log"], files["recording"]
-    plans = run_campaign(load_scenario(PAPER), log)
-    yield f"1. simulated {len(plans)} poses of {PAPER.name} -> {log}"
+    campaign = run_campaign(load_scenario(PAPER), log)
+    yield f"1. simulated {len(campaign.plans)} poses of {PAPER.name} -> {log}"
     write_recording(log, rrd)
     yield f"2. Rerun recording of the deflections -> {rrd}   (open it with: rerun {rrd})"
     rep = run_identify(log)

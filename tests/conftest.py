@@ -46,11 +46,11 @@ def fanuc_params(compliance, stiffness: float, preload: float):
 
 
 def fanuc_truth(scn):
-    """The scenario's truth as Params of the FANUC model (bench.campaign.scenario_params)."""
-    from calbench.bench.campaign import scenario_params
+    """The scenario's truth as Params of the FANUC model (bench.campaign.truth_params)."""
+    from calbench.bench.campaign import truth_params
     from calbench.bench.model import Robot
 
-    return scenario_params(scn, Robot.from_file(MJCF))
+    return truth_params(scn, Robot.from_file(MJCF))
 
 
 # -- MuJoCo's warnings ------------------------------------------------------------------------

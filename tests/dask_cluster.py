@@ -197,3 +197,16 @@ def same_table(a: Path, b: Path, timing_columns) -> None:
             continue
         x, y = ta.column(name).to_pylist(), tb.column(name).to_pylist()
         assert [v if v == v else "nan" for v in x] == [v if v == v else "nan" for v in y], name
+
+
+def reference_study(folder: Path, text: str, paper: Path) -> tuple[Path, Path]:
+    """A study (``text``, its ``{paper}`` the paper scenario's path) written in ``folder`` and run
+    in one go in this process: (the study TOML, its Parquet results), what a run on a cluster,
+    interrupted or with a worker lost, must reproduce (:func:`same_table`)."""
+    from calbench.identify.cli import main
+
+    study = folder / "study.toml"
+    study.write_text(text.format(paper=paper.as_posix()))
+    ref = folder / "reference.parquet"
+    assert main(["study", str(study), "--out", str(ref), "--scheduler", "in-process"]) == 0
+    return study, ref

@@ -192,8 +192,9 @@ def fanuc_names() -> set[str]:
 
 
 # contract vocabulary that happens to be a FANUC name too: description keys (calbench:payload,
-# calbench:flange), the [truth.compensator] key and the `compensator` effect
-CONTRACT_WORDS = {"payload", "flange", "compensator"}
+# calbench:flange), the [truth.compensator] key and the `compensator` effect, and the loop
+# `parallelogram` that from-urdf makes of a parallelogram drawn as mimic joints (docs/contract.md)
+CONTRACT_WORDS = {"payload", "flange", "compensator", "parallelogram"}
 LOOKUPS = {"mj_name2id", "site", "body", "joint", "tendon", "geom", "equality", "delete"}
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import subprocess
 import sys
 from pathlib import Path
@@ -163,3 +164,89 @@ def test_cli_exit_status_from_a_real_process(tmp_path):
     )
     assert res.returncode == 2
     assert "missing.toml" in res.stderr
+
+
+# sha256 of the messages that carry a campaign's commands, loads, readings and truth (the topics
+# of _digest, with their log times; not /campaign/info, which names calbench's version), as main
+# wrote them at d2b8fbd, before the campaign pipeline became one (bench/campaign/simulation.py,
+# issue 20). The same scenario and seed must keep giving these bytes: a digest changes only on
+# purpose (a new noise model, new MuJoCo or NumPy builds in constraints.txt), said in its commit.
+PINNED = {
+    "paper": "6b441613b78d231dc8394c37656420dc27c6ab65300a707819fe406450691231",
+    "iso10360": "38d68d061ba7968e366fd823c1ebeab969f66c0e4d830c5a8927d570bb4bef21",
+    "effects and repeats": "ad1cc18a094422d4e412debe52a23d74e5ab51de0c16908e39ac365225e8432f",
+}
+PAPER_TRACKER = (
+    "[tracker]\nsigma = 20e-6                     # m per axis (isotropic)\n"
+    "position = [3.5, -3.5, 3.2]       # m, world frame: a tripod on a platform, 5 m from the base\n"
+)
+ISO10360 = (
+    '[tracker]\nmodel = "iso10360"\ndistance = [10e-6, 0.3e-6]\ntransverse = [15e-6, 6e-6]\n'
+    "random = 0.25\ncorrelation_angle = 10.0\ncorrelation_range = 1.0\ndrift = [5e-6, 1e-6]\n"
+    "position = [3.5, -3.5, 3.2]\n"
+)
+EFFECTS = """
+[truth.effects.tracker_drift]
+offset = [30e-6, -20e-6, 10e-6]
+
+[truth.effects.link_compliance]
+link = "forearm"
+compliance = [0.05e-6, 0.03e-6, 0.02e-6]
+
+[truth.effects.joint_offset]
+offset = [0.001, -0.002, 0.0005, 0.001, 0.0, -0.001]
+
+[truth.effects.base_compliance]
+compliance = [0.01e-6, 0.02e-6]
+
+"""
+
+
+def _variant(name: str) -> str:
+    text = PAPER.read_text().replace('robot = "../mjcf/m900ib700.xml"', f'robot = "{MJCF.as_posix()}"')
+    assert PAPER_TRACKER in text
+    if name == "iso10360":
+        return text.replace(PAPER_TRACKER, ISO10360)
+    if name == "effects and repeats":
+        first = "q = [0, 0, -30, -45, 30, 135]\n"
+        return text.replace(PAPER_TRACKER, EFFECTS + PAPER_TRACKER).replace(first, first + "repeats = 3\n", 1)
+    return text
+
+
+def _digest(path: Path) -> str:
+    from mcap.reader import make_reader
+
+    h = hashlib.sha256()
+    with path.open("rb") as f:
+        for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
+            if channel.topic.startswith(
+                ("/campaign/pose", "/campaign/wrench", "/tracker/measurement", "/truth/")
+            ):
+                h.update(channel.topic.encode())
+                h.update(message.log_time.to_bytes(8, "little"))
+                h.update(message.data)
+    return h.hexdigest()
+
+
+@pytest.mark.parametrize("name", list(PINNED))
+def test_one_pipeline_gives_the_logs_main_wrote(tmp_path, name):
+    """The log writer reads the one in-memory campaign (bench.campaign.simulate): its messages
+    are those main wrote before the pipeline became one (PINNED), and every reading it logged is
+    the in-memory campaign's, bit for bit, under the same seed (isotropic; the correlated,
+    time-dependent iso10360; a measurement-side drift, hidden robot-side effects and repeats)."""
+    from calbench.bench.campaign import run_campaign, simulate
+    from calbench.bench.scenario import parse_scenario
+
+    path = tmp_path / "s.toml"
+    path.write_text(_variant(name))
+    scn = parse_scenario(path.read_text(), path)
+    campaign = run_campaign(scn, tmp_path / "s.mcap")
+    assert _digest(tmp_path / "s.mcap") == PINNED[name]
+    fresh = simulate(scn, np.random.default_rng(scn.seed))
+    log = read_log(tmp_path / "s.mcap")
+    assert len(log.measurements) == len(fresh.readings) == len(campaign.readings)
+    for m in log.measurements:
+        mine = fresh.readings[(m.pose, m.state, m.repeat)]
+        np.testing.assert_array_equal(m.position, mine.position)
+        np.testing.assert_array_equal(m.covariance, mine.covariance)
+        np.testing.assert_array_equal(m.visible, mine.visible)

@@ -23,7 +23,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 from conftest import PAPER
-from dask_cluster import LocalDaskCluster, same_table, self_signed, strip_timing, tls_env
+from dask_cluster import LocalDaskCluster, reference_study, same_table, self_signed, strip_timing, tls_env
 
 from calbench.bench.scenario import load_scenario
 from calbench.identify.cli import main
@@ -152,12 +152,7 @@ def _same_table(a: Path, b: Path) -> None:
 @pytest.fixture(scope="module")
 def study_reference(tmp_path_factory):
     """The small study run in one go, in this process."""
-    d = tmp_path_factory.mktemp("study")
-    study = d / "study.toml"
-    study.write_text(STUDY.format(paper=PAPER.as_posix()))
-    ref = d / "reference.parquet"
-    assert main(["study", str(study), "--out", str(ref), "--scheduler", "in-process"]) == 0
-    return study, ref
+    return reference_study(tmp_path_factory.mktemp("study"), STUDY, PAPER)
 
 
 def _scheduler_tasks(client) -> int:

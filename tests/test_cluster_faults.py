@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 from conftest import PAPER
-from dask_cluster import LocalDaskCluster, same_table, strip_timing
+from dask_cluster import LocalDaskCluster, reference_study, same_table, strip_timing
 
 from calbench.identify.cli import main
 from calbench.identify.study import TIMING_COLUMNS
@@ -47,12 +47,8 @@ def _same_table(a: Path, b: Path) -> None:
 
 @pytest.fixture(scope="module")
 def study(tmp_path_factory):
-    d = tmp_path_factory.mktemp("faults")
-    s = d / "study.toml"
-    s.write_text(STUDY.format(paper=PAPER.as_posix()))
-    ref = d / "reference.parquet"
-    assert main(["study", str(s), "--out", str(ref), "--scheduler", "in-process"]) == 0
-    return s, ref
+    """The study run in one go, in this process."""
+    return reference_study(tmp_path_factory.mktemp("faults"), STUDY, PAPER)
 
 
 def _busy_worker(client, proc, timeout: float = 120.0) -> str:

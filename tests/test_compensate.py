@@ -222,13 +222,11 @@ def test_the_rigid_target_is_reached_where_the_campaign_determines_the_sag(tmp_p
     plan determines, so the rigid target is reached to the predicted micrometres, as the default
     one is (issue 26: 'the same accuracy as the default')."""
     from calbench.bench.model.effects import without_compensator
+    from calbench.bench.scenario import scenario_variant
 
     xml = tmp_path / "nocomp.xml"
     xml.write_text(without_compensator(MJCF))
-    text = PAPER.read_text()
-    text = text[: text.index("[truth.compensator]")] + text[text.index("[tracker]") :]
-    scn = tmp_path / "nocomp.toml"
-    scn.write_text(text.replace('robot = "../mjcf/m900ib700.xml"', f'robot = "{xml}"'))
+    scn = scenario_variant(PAPER, tmp_path / "nocomp.toml", robot=xml, drop=("truth.compensator",))
     job = tmp_path / "job.toml"
     job.write_text(JOB.read_text().replace('robot = "../../mjcf/m900ib700.xml"', f'robot = "{xml}"'))
     log, js = tmp_path / "nocomp.mcap", tmp_path / "id.json"

@@ -17,24 +17,24 @@ import numpy as np
 import pytest
 from conftest import MJCF, PAPER, ROOT
 
-from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.campaign import simulate, truth_robot
 from calbench.bench.model import Robot
 from calbench.bench.scenario import load_scenario
 from calbench.identify.cli import main
-from calbench.identify.core import ForwardModel, design_from_observations, whiten_factors
+from calbench.identify.core import ForwardModel, design_from_observations, from_campaign, whiten_factors
 from calbench.identify.design import (
-    Exchanger,
+    DesignSettings,
     InfoEngine,
     PlanPose,
-    criterion_value,
     generate_candidates,
-    information,
     load_design_scenario,
-    measures,
     plan_scenario_text,
     read_design_settings,
+    robot_reach,
+    wrist_body,
 )
-from calbench.identify.study import campaign_observations, run_montecarlo
+from calbench.identify.design.optimal import Exchanger, criterion_value, information, measures
+from calbench.identify.study import run_montecarlo
 
 WEIGHT = np.r_[Robot.from_file(MJCF).weight(700.0), 0, 0, 0.0]  # the model's own gravity
 
@@ -81,6 +81,59 @@ def test_a_pose_violating_a_rule_is_rejected_with_the_rule_named(engine, q, rule
 
 def test_a_feasible_pose_passes_every_rule(engine):
     assert engine.pose(np.radians([90, 120, 30, 0, 0, 0]), WEIGHT).violations == []
+
+
+def _wrist_radii(robot: Robot, n: int, seed: int = 0) -> np.ndarray:
+    """The wrist centre's distance from axis 1 at n commands sampled in the joint ranges, by
+    MuJoCo's kinematics on the plain model (not the design's Feasibility)."""
+    import mujoco
+
+    m, d = robot.model, mujoco.MjData(robot.model)
+    lim = robot.limits()
+    q = np.random.default_rng(seed).uniform(lim[:, 0], lim[:, 1], (n, robot.n_act))
+    out = []
+    for qi in q:
+        d.qpos[:] = robot.rigid_qpos(qi)
+        mujoco.mj_kinematics(m, d)
+        j = robot.act_joint[0]
+        v = d.xpos[wrist_body(robot)] - d.xanchor[j]
+        out.append(np.linalg.norm(v - (v @ d.xaxis[j]) * d.xaxis[j]))
+    return np.array(out)
+
+
+@pytest.mark.parametrize("mjcf", [MJCF, ROOT / "mjcf" / "kr270.xml"])
+def test_a_heavy_robot_keeps_the_papers_wrist_rules(mjcf):
+    """The reach bounds the wrist centre's distance from axis 1 (sampled commands stay below it
+    and come within 10 %: these arms stretch out straight), and a robot of 2.5 m reach or more
+    keeps the paper's 0.5 m and 1 m exactly (the shipped plans are those of before)."""
+    robot = Robot.from_file(mjcf)
+    reach, radii = robot_reach(robot), _wrist_radii(robot, 1500)
+    assert radii.max() <= reach + 1e-9 and radii.max() >= 0.9 * reach, (radii.max(), reach)
+    st = DesignSettings().for_reach(reach)
+    assert reach >= 2.5 and (st.min_height, st.min_radius) == (0.5, 1.0)
+
+
+def test_the_wrist_rules_scale_with_a_smaller_robot(tmp_path, paper):
+    """The FANUC shrunk to 40 % (bodies, joints, sites; a UR10's size): its reach is 40 % of the
+    FANUC's (a length: exactly), and design's defaults 0.5 m x and 1 m x min(1, reach / 2.5 m);
+    a value the scenario gives is kept as given."""
+    import mujoco
+
+    spec = mujoco.MjSpec.from_file(str(MJCF))
+    for el in (*spec.bodies, *spec.joints, *spec.sites):
+        el.pos = [0.4 * x for x in el.pos]
+    for eq in spec.equalities:  # the loop's connect anchors, when given as points
+        eq.data = [0.4 * x for x in eq.data[:6]] + list(eq.data[6:])
+    small = tmp_path / "small.xml"
+    small.write_text(spec.to_xml(), encoding="utf-8")
+    big = robot_reach(Robot.from_file(MJCF))
+    reach = robot_reach(Robot.from_file(small))
+    assert reach == pytest.approx(0.4 * big, rel=1e-9)
+    st = DesignSettings().for_reach(reach)
+    assert st.min_height == pytest.approx(0.5 * reach / 2.5) and st.min_radius == pytest.approx(reach / 2.5)
+    given = DesignSettings(min_radius=0.2).for_reach(reach)
+    assert given.min_radius == 0.2 and given.min_height == st.min_height
+    assert InfoEngine(*paper).settings.min_radius == 1.0  # the engine applies them
 
 
 def test_min_height_is_a_scenario_setting(tmp_path, paper):
@@ -139,7 +192,7 @@ def test_exported_blocks_reproduce_the_fisher_information_of_a_plan(tmp_path, pa
     path = _scenario_with_poses(scn, poses, tmp_path)
     s2 = load_scenario(path)
     rb = truth_robot(s2)
-    obs = campaign_observations(s2, rb, plan_campaign(s2, rb), None)
+    obs = from_campaign(simulate(s2, None, robot=rb))
     model_rb = Robot.from_file(s2.robot)
     _, J = ForwardModel(model_rb, design_from_observations(model_rb, obs)).evaluate(z["theta0"])
     jw = np.einsum("mij,mjk->mik", whiten_factors(obs.cov), J).reshape(-1, 8) * z["theta0"]

@@ -17,7 +17,7 @@ import tomllib
 import numpy as np
 import pytest
 
-from calbench.identify.design import (
+from calbench.identify.design.optimal import (
     ALGORITHMS,
     Exchanger,
     a_bound,

@@ -444,18 +444,19 @@ def test_a_split_the_data_do_not_fix_gets_no_dishonest_std(tmp_path):
     the chi2 profile only 2.4). Each named parameter's profile is checked at +-2 Fisher std
     (identify/discover/uncertainty.py): cx is reported not determined, with the profile's rise,
     and every parameter still reported with a std is within 4 of them of the truth."""
-    from calbench.bench.campaign import plan_campaign, truth_robot
+    from calbench.bench.campaign import remeasure, simulate, truth_robot
+    from calbench.identify.core import from_campaign
     from calbench.identify.discover import discover_observations
-    from calbench.identify.study import campaign_observations, true_theta
+    from calbench.identify.study import true_theta
 
     extra = '[truth.effects.link_compliance]\nlink = "upper_arm"\ncompliance = [1.5e-8, 0.0, 1.5e-8]'
     scn = load_scenario(scenario(tmp_path, "xz", extra))
     tr = truth_robot(scn)
-    plans = plan_campaign(scn, tr)
+    campaign = simulate(scn, None, robot=tr)
     truth = dict(zip(tr.layout.names, true_theta(scn, tr)))
     truth.update({f"link_compliance[upper_arm].c{a}": v for a, v in zip("xyz", (1.5e-8, 0.0, 1.5e-8))})
     for seed in (0, 4):
-        obs = campaign_observations(scn, tr, plans, np.random.default_rng([99, seed]))
+        obs = from_campaign(remeasure(campaign, np.random.default_rng([99, seed])))
         rep, _ = discover_observations(obs, Path(scn.robot))
         assert rep["named_effects"] == ["link_compliance"]
         pars = {p["name"]: p for p in rep["parameters"]}

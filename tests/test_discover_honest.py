@@ -38,6 +38,9 @@ def have_case() -> bool:
 
 KR270 = ROOT / "scenarios" / "kr270_paper.toml"
 Z_DETERMINED = 4.5  # the issue's bound: no parameter reported as determined further from the truth
+# campaign 8 of a 20-seed study of the case (benchmarks/honest_bench.py): nothing named, and
+# balancer_stiffness 188 +- 65 kN/m against 500 reported determined with no exposure to link_2
+STUDY_SEED = 4238346379
 
 
 def irb_scenario(tmp: Path, seed: int) -> Path:
@@ -67,7 +70,7 @@ def logs(tmp_path_factory):
         "fanuc": PAPER,
         "kr270": KR270,
         "serial": serial_scenario(tmp),
-        **({f"irb{s}": irb_scenario(tmp, s) for s in (2, 3, 4)} if have_case() else {}),
+        **({f"irb{s}": irb_scenario(tmp, s) for s in (2, 3, 4, STUDY_SEED)} if have_case() else {}),
     }
     out = {}
     for name, scn in scenarios.items():
@@ -149,7 +152,7 @@ def run_irb(logs, seed: int) -> dict:
     return _RUNS[seed]
 
 
-@pytest.mark.parametrize("seed", [2, 3, 4])
+@pytest.mark.parametrize("seed", [2, 3, 4, STUDY_SEED])
 def test_irb6640_nothing_determined_is_confidently_wrong(logs, seed):
     """Seeds 2-4 of the issue: every parameter reported as determined is within Z_DETERMINED std of
     the truth, or, where the hidden effect was not named, within that plus the bias the exposure
@@ -278,6 +281,50 @@ def test_report_refuses_inputs_of_another_campaign_or_robot(logs, tmp_path, caps
     assert "gone.toml" in out.read_text() and "Inputs not checked" in out.read_text()
 
 
+def effect_case(log, effect: str):
+    """The user's IRB 6640 model fitted as identify fits it on ``log``, the library ``effect`` at
+    its prior start and the whitened Jacobian of both there; ``refit_shift(p)``: the user's
+    model refitted (the nonlinear fit) to the readings the model plus the effect at p predict,
+    against the effect at its start: (shift of every base parameter, chi2 it leaves)."""
+    from types import SimpleNamespace
+
+    from calbench.identify.discover import build, effect_priors, fit_augmented, label, library, whitened
+
+    obs = from_log(read_log(log))
+    white = Whitener.from_observations(obs)
+    src = case_dir() / "irb6640.xml"
+    base = base_fit(src, obs, white)
+    lib = library(base.robot)
+    eff = next(e for e in lib if label(e) == effect)
+    start, lower, upper, size = effect_priors(eff)
+    _, fm = build(src, [(eff, start)], obs)
+    _, jw = whitened(fm, white, np.r_[base.values, start])
+    lo, hi, hold = base.extra["bounds"]
+
+    def refit(p):
+        dp, _ = fm.evaluate(np.r_[base.values, p], jacobian=False)
+        return fit_augmented(base.model, dp, white, base.values, lo, hi, hold, max_iter=40, cost_tol=1e-6)
+
+    def refit_shift(p):
+        f0, f1 = refit(start), refit(p)
+        return f1.values - f0.values, f1.chi2 - f0.chi2
+
+    k = start.size
+    return SimpleNamespace(
+        base=base,
+        n_lib=len(lib),
+        start=start,
+        lower=lower,
+        upper=upper,
+        size=size,
+        k=k,
+        jb=jw[:, :-k],
+        je=jw[:, -k:],
+        est=base.free | base.at_bound,
+        refit_shift=refit_shift,
+    )
+
+
 @pytest.mark.parametrize(
     "effect,param", [("link_compliance[link_4]", "k3"), ("link_compliance[link_2]", "k1")]
 )
@@ -291,44 +338,16 @@ def test_exposure_is_the_shift_of_a_refit_to_the_worst_undetected_effect(logs, e
     allowed 3 %. Where the worst direction is one the plan sees cleanly (k1), the effect at that
     size leaves the likelihood ratio its test needs (within a factor 1.5)."""
     case_dir()  # skipped, with the reason, where ../shared/data is absent
-    from calbench.identify.discover import (
-        build,
-        effect_exposure,
-        effect_priors,
-        fit_augmented,
-        label,
-        library,
-        lr_threshold,
-        whitened,
-        worst_case,
-    )
+    from calbench.identify.discover import effect_exposure, lr_threshold, worst_case
 
-    obs = from_log(read_log(logs["irb4"]))
-    white = Whitener.from_observations(obs)
-    src = case_dir() / "irb6640.xml"
-    base = base_fit(src, obs, white)
-    lib = library(base.robot)
-    eff = next(e for e in lib if label(e) == effect)
-    start, _, _, size = effect_priors(eff)
-    _, fm = build(src, [(eff, start)], obs)
-    _, jw = whitened(fm, white, np.r_[base.values, start])
-    k = start.size
-    est = base.free | base.at_bound
-    thr = lr_threshold(k, len(lib))
-    row = list(np.flatnonzero(est)).index(base.names.index(param))
-    exposure = effect_exposure(jw[:, :-k], est, jw[:, -k:], size, thr, np.full(est.sum(), np.inf))[0][row]
-    d = worst_case(jw[:, :-k], est, jw[:, -k:], size, thr, row)
-    lo, hi, hold = base.extra["bounds"]
-    refits = []
-    for p in (start, start + d):
-        dp, _ = fm.evaluate(np.r_[base.values, p], jacobian=False)
-        refits.append(
-            fit_augmented(base.model, dp, white, base.values, lo, hi, hold, max_iter=40, cost_tol=1e-6)
-        )
-    j = base.names.index(param)
-    assert refits[1].values[j] - refits[0].values[j] == pytest.approx(exposure, rel=0.03)
+    c = effect_case(logs["irb4"], effect)
+    thr = lr_threshold(c.k, c.n_lib)
+    row = list(np.flatnonzero(c.est)).index(c.base.names.index(param))
+    exposure = effect_exposure(c.jb, c.est, c.je, c.size, thr, np.full(c.est.sum(), np.inf))[0][row]
+    shift, chi2 = c.refit_shift(c.start + worst_case(c.jb, c.est, c.je, c.size, thr, row))
+    assert shift[c.base.names.index(param)] == pytest.approx(exposure, rel=0.03)
     if param == "k1":
-        assert thr / 1.5 < refits[1].chi2 - refits[0].chi2 < 1.5 * thr
+        assert thr / 1.5 < chi2 < 1.5 * thr
 
 
 def test_self_check_confirms_the_paper_plan_and_catches_a_wrong_std(logs, capsys):
@@ -399,3 +418,108 @@ def test_identify_exposure_is_discovers_when_nothing_is_named(logs):
             assert e["bias"] == pytest.approx(p["exposure"]["bias"], rel=1e-6)
             assert e["unbounded_by"] == p["exposure"]["unbounded_by"]
     assert "link_compliance[link_2]" in mine["k2"]["unbounded_by"]
+
+
+def test_an_effect_absorbed_exactly_is_weighed_at_its_largest_size(logs):
+    """The study's campaign where balancer_stiffness was confidently wrong (STUDY_SEED): the link_2
+    bending has a direction k2 absorbs exactly (about y: visible share < VISIBLE_SHARE_MIN). Its
+    size is weighed at the largest it can have (identify/discover/exposure.py's absorbed_sizes:
+    sqrt(T) / VISIBLE_SHARE_MIN, capped by the prior's 1e-6 rad/(N*m)), and there it moves the
+    balancer by more than UNBOUNDED_SIGMA std, so the balancer is reported exposed to link_2 by any
+    amount. Checked against an independent computation: the readings of the user's model plus the
+    effect at that size (exact statics), refitted with the user's model (the nonlinear fit), move
+    balancer_stiffness by more than UNBOUNDED_SIGMA std (measured 2.1 std; first order 8.8: the
+    balancer's response saturates, K' ~ K / (1 + a cy K), a series spring) while the chi2 they leave
+    stays below the candidate's likelihood-ratio threshold (measured 0.05 against 21.3: unseen)."""
+    case_dir()  # skipped, with the reason, where ../shared/data is absent
+    from calbench.identify.discover import (
+        UNBOUNDED_SIGMA,
+        VISIBLE_SHARE_MIN,
+        absorbed_sizes,
+        lr_threshold,
+        regress,
+    )
+
+    rep = run_irb(logs, STUDY_SEED)
+    pars = {p["name"]: p for p in rep["parameters"]}
+    bal = pars["balancer_stiffness"]
+    assert rep["named_effects"] == [] and bal["determined"]
+    assert HIDDEN in bal["exposure"]["unbounded_by"]
+    assert bal["exposure"]["absorbed_bias"][HIDDEN] > UNBOUNDED_SIGMA * bal["std"]
+
+    c = effect_case(logs[f"irb{STUDY_SEED}"], HIDDEN)
+    full = np.linalg.norm(c.je, axis=0)
+    on = full > 0
+    _, perp = regress(c.jb[:, c.est], c.je[:, on] / full[on])
+    w, v = np.linalg.eigh(perp.T @ perp)
+    seen = w > VISIBLE_SHARE_MIN**2
+    assert not seen.all()
+    thr = lr_threshold(c.k, c.n_lib)
+    reach = absorbed_sizes(v, seen, np.maximum(np.abs(c.lower), c.upper)[on] * full[on], thr)
+    u = v[:, ~seen][:, 0]
+    d = np.zeros(c.k)
+    d[on] = reach[~seen][0] * u * np.sign(u[np.argmax(np.abs(u))]) / full[on]  # compliances >= 0
+    assert np.all(np.abs(d) <= c.upper * (1 + 1e-9))  # no larger than the prior allows
+    shift, chi2 = c.refit_shift(c.start + d)
+    assert abs(shift[c.base.names.index("balancer_stiffness")]) > UNBOUNDED_SIGMA * bal["std"]
+    assert chi2 < thr
+
+
+def test_discover_self_checks_the_model_it_reports(logs):
+    """discover's self-check (identify/discover/uncertainty.py's self_check, the bootstrap identify
+    --self-check runs too) on the paper FANUC campaign, nothing named: every determined parameter
+    is checked and passes (a right std fails with probability < 0.5 %, a right mean < 0.6 %), the
+    JSON carries it per parameter and the story says so. The same bootstrap told a std half the
+    truth flags every parameter, makes it not determined, and the verdict names it."""
+    from calbench.identify.discover import determination, discover, self_check, story
+
+    rep = discover(logs["fanuc"], out_model=logs["tmp"] / "fanuc.xml")
+    det_names = {p["name"] for p in rep["parameters"] if p["determined"]}
+    assert rep["self_check"]["passed"] and set(rep["self_check"]["parameters"]) == det_names
+    for p in rep["parameters"]:
+        if p["determined"]:
+            assert 1 / 1.5 <= p["self_check"]["std_ratio"] <= 1.5
+            assert abs(p["self_check"]["bias_sigma"]) <= 0.5
+    rep.update(log=str(logs["fanuc"]), model="log")
+    assert "Self-check (30 replicas" in story(rep) and ": passed." in story(rep)
+
+    obs = from_log(read_log(logs["fanuc"]))
+    white = Whitener.from_observations(obs)
+    base = base_fit(read_log(logs["fanuc"]).mjcf_text, obs, white)
+    det = determination(base, base.extra["jw"])
+    names = {base.names[i] for i in np.flatnonzero(det.determined)}
+    det.std = det.std / 2
+    bad = self_check(base, obs, white, det)
+    assert set(bad["failed"]) == names and not det.determined.any()
+    rep["self_check"] = bad
+    assert "FAILED for " + ", ".join(bad["failed"]) + " (reported as not determined)" in story(rep)
+
+
+# benchmarks/honest_bench.py, FANUC, joint_nonlinearity[j2] at 3x its just-detectable size,
+# campaign 0 (study seed): the user's model absorbs the cubic (nothing named) with k2 19 std low
+J2_CUBIC_SEED, J2_CUBIC = 4165129670, 867640864.3435981
+
+
+def test_a_curved_valley_is_exposed_where_the_truth_lies_not_only_at_the_estimate(tmp_path):
+    """The exposure is first order; made at the estimate alone it saw the J2 cubic 5x weaker than
+    it is at the truth: the cubic itself moved the compensator's free length (1.17 m against
+    0.83), where the compensator and k2 absorb a J2 cubic better (identify/discover/exposure.py,
+    REGION). Evaluated over +-2 std along each principal axis too, it covers the bias: k2's
+    gap to the truth is within 4.5 std plus its exposure to the cubic, which the estimate's
+    exposure alone does not reach (else this test would not test the region)."""
+    text = PAPER.read_text().replace("seed = 1", f"seed = {J2_CUBIC_SEED}")
+    text = text.replace('robot = "../mjcf/m900ib700.xml"', f'robot = "{MJCF}"')
+    text += f"\n[truth.effects.joint_nonlinearity]\njoint = 2\ncubic = {J2_CUBIC!r}\n"
+    scn = tmp_path / "cubic.toml"
+    scn.write_text(text)
+    run_campaign(load_scenario(scn), tmp_path / "cubic.mcap")
+    rep = discover(tmp_path / "cubic.mcap", MJCF, out_model=tmp_path / "aug.xml")
+    hidden = "joint_nonlinearity[j2]"
+    k2 = next(p for p in rep["parameters"] if p["name"] == "k2")
+    truth = load_scenario(scn).compliance[1]
+    if hidden in {s["effect"] + f"[{s['detail']}]" for s in rep["steps"]}:
+        pytest.skip("the cubic was named on this platform: the case does not arise")
+    assert k2["determined"]
+    gap = abs(k2["estimate"] - truth)
+    assert gap > Z_DETERMINED * k2["std"] + k2["exposure"]["by_effect_at_estimate"][hidden]
+    assert gap <= Z_DETERMINED * k2["std"] + k2["exposure"]["by_effect"][hidden]

@@ -24,11 +24,11 @@ import numpy as np
 import pytest
 from conftest import MJCF, PAPER
 
-from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.campaign import simulate, truth_robot
 from calbench.bench.core import InputError
 from calbench.bench.model import Robot
 from calbench.bench.scenario import load_scenario, scenario_variant
-from calbench.identify.core import Whitener
+from calbench.identify.core import Whitener, from_campaign
 from calbench.identify.discover import (
     base_fit,
     build,
@@ -41,7 +41,7 @@ from calbench.identify.discover import (
     unabsorbed_norms,
     whitened,
 )
-from calbench.identify.study import campaign_observations, true_theta
+from calbench.identify.study import true_theta
 
 SIGNATURE = 15.0  # sigma: the truth's unabsorbed signature
 GLOBAL_TOL = 0.5  # chi2
@@ -67,11 +67,7 @@ def truth_table(effect, p) -> str:
 
 def observations(tmp: Path, extra: str = "", seed=None):
     scn = load_scenario(scenario_variant(PAPER, tmp / "s.toml", extra=extra))
-    robot = truth_robot(scn)
-    plans = plan_campaign(scn, robot)
-    return scn, campaign_observations(
-        scn, robot, plans, None if seed is None else np.random.default_rng(seed)
-    )
+    return scn, from_campaign(simulate(scn, None if seed is None else np.random.default_rng(seed)))
 
 
 CASES = [
@@ -152,9 +148,7 @@ def test_compensator_candidate_fit_reaches_the_global_minimum(tmp_path, k_c, see
     bare.write_text(without_compensator(MJCF))
     scn = load_scenario(scenario_variant(PAPER, tmp_path / "c.toml", compensator=(k_c, 0.83)))
     robot = truth_robot(scn)
-    obs = campaign_observations(
-        scn, robot, plan_campaign(scn, robot), None if seed is None else np.random.default_rng(seed)
-    )
+    obs = from_campaign(simulate(scn, None if seed is None else np.random.default_rng(seed), robot=robot))
     white = Whitener.from_observations(obs)
     base = base_fit(bare, obs, white)
     nb = Robot.from_file(bare).layout.n  # no compensator in the user's model

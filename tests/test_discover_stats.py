@@ -11,10 +11,10 @@ import pytest
 from conftest import MJCF, PAPER
 from scipy import stats
 
-from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.campaign import simulate, truth_robot
 from calbench.bench.model import Robot
 from calbench.bench.scenario import parse_scenario
-from calbench.identify.core import Fit, Whitener
+from calbench.identify.core import Fit, Whitener, from_campaign
 from calbench.identify.discover import (
     ALPHA_EFFECT,
     MAX_RELATIVE_STD,
@@ -28,7 +28,6 @@ from calbench.identify.discover import (
     lr_threshold,
     near_ties,
 )
-from calbench.identify.study import campaign_observations
 
 
 def fit_stats(chi2, dof, rank, n=132):
@@ -145,7 +144,7 @@ def exact_fits():
     for n in (12, 16):
         scn = parse_scenario(head + "".join("[[pose]]" + p for p in poses[:n]), Path(f"/tmp/alias{n}.toml"))
         robot = truth_robot(scn)
-        obs = campaign_observations(scn, robot, plan_campaign(scn, robot), None)
+        obs = from_campaign(simulate(scn, None, robot=robot))
         white = Whitener.from_observations(obs)
         f = base_fit(MJCF, obs, white)
         det = determination(f, f.extra["jw"])

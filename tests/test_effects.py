@@ -383,8 +383,8 @@ def test_campaign_with_hidden_effect(tmp_path):
     assert "link_compliance" in scn.effects
     robot = truth_robot(scn)
     assert isinstance(robot, EffectRobot) and robot.model.joint("forearm_rz").id >= 0
-    plans = run_campaign(scn, tmp_path / "hidden.mcap")
-    plain_plans = run_campaign(load_scenario(PAPER), tmp_path / "plain.mcap")
+    plans = run_campaign(scn, tmp_path / "hidden.mcap").plans
+    plain_plans = run_campaign(load_scenario(PAPER), tmp_path / "plain.mcap").plans
     log = read_log(tmp_path / "hidden.mcap", include_truth=True)
     eff = log.truth.parameters.effects["link_compliance"]
     assert eff == {"link": "forearm", "compliance": [8.0e-8, 1.0e-8, 8.0e-8]}
@@ -518,7 +518,7 @@ def test_tracker_drift_offsets_only_the_loaded_readings(tmp_path):
     """The measurement-side effect: same scenario and seed with and without the drift give the
     same unloaded readings and loaded readings shifted by exactly the offset (tracker frame,
     here yawed), the same truth; discovery's deflection term is R b on every row."""
-    from calbench.bench.model.effects import Readings, tracker_drift
+    from calbench.bench.model.effects import ObservationRows, tracker_drift
     from calbench.bench.tracker import tracker_rotation
 
     text = PAPER.read_text().replace("position = [3.5, -3.5, 3.2]", "position = [3.5, -3.5, 3.2]\nyaw = 30.0")
@@ -542,7 +542,7 @@ def test_tracker_drift_offsets_only_the_loaded_readings(tmp_path):
             mb.position[vis] - ma.position[vis], np.tile(shift, (vis.sum(), 1)), rtol=0, atol=1e-15
         )
     rot = tracker_rotation(scn.tracker)
-    term = tracker_drift().deflection_term(offset, Readings(((0, "refl_a"), (1, "refl_b")), rot))
+    term = tracker_drift().deflection_term(offset, ObservationRows(((0, "refl_a"), (1, "refl_b")), rot))
     np.testing.assert_allclose(term, np.tile(rot @ offset, (2, 1)), rtol=1e-15)
     assert tracker_drift().measurement_side and not link_compliance("forearm").measurement_side
 

@@ -19,19 +19,19 @@ import numpy as np
 import pytest
 from conftest import PAPER
 
-from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.campaign import simulate, truth_robot
 from calbench.bench.model import Robot
 from calbench.bench.scenario import load_scenario
-from calbench.identify.core import ForwardModel, design_from_observations
+from calbench.identify.core import ForwardModel, design_from_observations, from_campaign
 from calbench.identify.discover import AugmentedForward
-from calbench.identify.study import campaign_observations, true_theta
+from calbench.identify.study import true_theta
 
 
 @pytest.fixture(scope="module")
 def paper():
     scn = load_scenario(PAPER)
     tr = truth_robot(scn)
-    obs = campaign_observations(scn, tr, plan_campaign(scn, tr), None)
+    obs = from_campaign(simulate(scn, None, robot=tr))
     return scn, obs
 
 

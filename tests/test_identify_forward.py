@@ -17,21 +17,19 @@ import numpy as np
 import pytest
 from conftest import MJCF, PAPER, fanuc_params
 
-from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.campaign import simulate, truth_robot
 from calbench.bench.model import Robot
 from calbench.bench.scenario import load_scenario
-from calbench.identify.core import ForwardModel, design_from_observations
+from calbench.identify.core import ForwardModel, design_from_observations, from_campaign
 from calbench.identify.methods import step2_rows
-from calbench.identify.study import campaign_observations, true_theta
+from calbench.identify.study import true_theta
 
 
 @pytest.fixture(scope="module")
 def paper():
     scn = load_scenario(PAPER)
-    tr = truth_robot(scn)
-    plans = plan_campaign(scn, tr)
-    obs = campaign_observations(scn, tr, plans, None)
-    return scn, plans, obs
+    campaign = simulate(scn, None)
+    return scn, campaign.plans, from_campaign(campaign)
 
 
 def test_forward_model_reproduces_the_simulator(paper):
@@ -133,7 +131,7 @@ def test_jacobian_exact_after_a_far_excursion():
     docstring): 2e-3 of the column."""
     scn = load_scenario(KR270_PAPER)
     tr = truth_robot(scn)
-    obs = campaign_observations(scn, tr, plan_campaign(scn, tr), None)
+    obs = from_campaign(simulate(scn, None, robot=tr))
     robot = Robot.from_file(scn.robot)
     th = true_theta(scn, Robot.from_file(scn.robot))
     fm = ForwardModel(robot, design_from_observations(robot, obs), tol=1e-12)

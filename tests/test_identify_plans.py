@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 from conftest import MJCF, PAPER
 
-from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.campaign import simulate, truth_robot
 from calbench.bench.model import Robot
 from calbench.bench.scenario import parse_scenario
-from calbench.identify.core import ForwardModel, design_from_observations, whiten_factors
+from calbench.identify.core import ForwardModel, design_from_observations, from_campaign, whiten_factors
 from calbench.identify.methods import linear_plan, one_step, two_step
-from calbench.identify.study import campaign_observations, true_theta
+from calbench.identify.study import true_theta
 
 TEXT = PAPER.read_text()
 HEAD, *POSES = TEXT.split("[[pose]]")
@@ -28,9 +28,7 @@ COMPENSATOR = ("k2", "compensator_stiffness", "compensator_preload")
 def observations(poses, tmp="/tmp/plan.toml"):
     head = HEAD.replace('robot = "../mjcf/m900ib700.xml"', f'robot = "{(MJCF).as_posix()}"')
     scn = parse_scenario(head + "".join("[[pose]]" + POSES[i] for i in poses), Path(tmp))
-    tr = truth_robot(scn)
-    plans = plan_campaign(scn, tr)
-    return scn, Robot.from_file(scn.robot), campaign_observations(scn, tr, plans, None)
+    return scn, Robot.from_file(scn.robot), from_campaign(simulate(scn, None))
 
 
 @pytest.fixture(scope="module")
@@ -102,7 +100,7 @@ def test_two_step_is_unbiased_where_its_linear_model_holds(tmp_path):
 
     scn = parse_scenario(linear_world(tmp_path).read_text(), tmp_path / "linear_world.toml")
     tr = truth_robot(scn)
-    obs = campaign_observations(scn, tr, plan_campaign(scn, tr), None)
+    obs = from_campaign(simulate(scn, None, robot=tr))
     robot = Robot.from_file(scn.robot)
     truth = true_theta(scn, robot)
     res = two_step(robot, obs)

@@ -15,7 +15,7 @@ import pytest
 from conftest import ROOT
 from test_statics import deflection_twist, relaxed_flange, site_pose, small_load_response, tendon_torque_j2
 
-from calbench.bench.campaign import run_campaign, scenario_params
+from calbench.bench.campaign import run_campaign, truth_params
 from calbench.bench.model import Params, Robot, Spring
 from calbench.bench.scenario import load_scenario, scenario_variant
 from calbench.bench.statics import Load, StaticsSolver
@@ -41,7 +41,7 @@ def paper():
 def make_robot(paper, k_c: float | None = None) -> Robot:
     """The KR 270 with the paper scenario's truth (the balancer's K_C replaced if given)."""
     robot = Robot.from_file(KR270)
-    p = scenario_params(paper, robot)
+    p = truth_params(paper, robot)
     if k_c is not None:
         p = Params(p.compliance, {BALANCER: Spring(k_c, p.springs[BALANCER].preload)})
     robot.set_params(p)
@@ -175,7 +175,7 @@ def test_apparent_a2_stiffness_varies_over_the_plan(paper):
 
     def span(scn):
         robot = Robot.from_file(KR270)
-        robot.set_params(scenario_params(scn, robot))
+        robot.set_params(truth_params(scn, robot))
         a2 = np.unique([p.q[1] for p in scn.poses])
         k = [1.0 / scn.compliance[1] + balancer_eq9(robot, a)[1] for a in a2]
         return max(k) / min(k) - 1.0
@@ -191,7 +191,7 @@ def test_realistic_balancer_holds_most_of_the_arm(paper):
 
     def cancelled(scn):
         robot = Robot.from_file(KR270)
-        robot.set_params(scenario_params(scn, robot))
+        robot.set_params(truth_params(scn, robot))
         m, d = robot.model, robot.data
         grav, bal = [], []
         for a2 in np.radians(np.arange(-140.0, -4.0, 5.0)):

@@ -53,24 +53,24 @@ def test_two_step_is_unbiased_where_its_linear_model_holds(tmp_path):
     an sd). A two-step that mis-builds a regressor or a step-2 row fails this."""
     from linear_case import linear_world
 
-    from calbench.bench.campaign import plan_campaign, truth_robot
+    from calbench.bench.campaign import remeasure, simulate
     from calbench.bench.model import Robot
     from calbench.bench.scenario import parse_scenario
+    from calbench.identify.core import from_campaign
     from calbench.identify.methods import linear_plan, two_step
-    from calbench.identify.study import campaign_observations, true_theta
+    from calbench.identify.study import true_theta
 
     path = linear_world(tmp_path)
     scn = parse_scenario(path.read_text(), path)
-    tr = truth_robot(scn)
-    plans = plan_campaign(scn, tr)
+    campaign = simulate(scn, None)
     robot = Robot.from_file(scn.robot)
     truth = true_theta(scn, robot)
-    obs0 = campaign_observations(scn, tr, plans, None)
+    obs0 = from_campaign(campaign)
     lp = linear_plan(robot, obs0)
     nf = two_step(robot, obs0, lp=lp)
     est, sd = [], []
     for r in range(N):
-        res = two_step(robot, campaign_observations(scn, tr, plans, np.random.default_rng([7, r])), lp=lp)
+        res = two_step(robot, from_campaign(remeasure(campaign, np.random.default_rng([7, r]))), lp=lp)
         est.append(res.theta[:7])
         sd.append(np.sqrt(np.diag(res.cov))[:7])
     est, sd = np.array(est), np.array(sd)
@@ -102,23 +102,24 @@ def test_montecarlo_cli_writes_json(tmp_path):
     ["", "[truth.effects.tracker_drift]\noffset = [30e-6, -20e-6, 25e-6]"],
     ids=["nothing hidden", "tracker drift"],
 )
-def test_campaign_observations_are_the_logs_readings(tmp_path, extra):
+def test_in_memory_observations_are_the_logs_readings(tmp_path, extra):
     """The in-memory campaign (Monte Carlo, the discovery benchmarks and tests) is the campaign
     `simulate` logs, drawn with the same seed: the same deflections to the last bit, the
     measurement-side effects of the truth (a tracker drift added to the loaded readings)
     included. Exact data (no generator) differ from them by the noise alone: here by exactly
     the drift's offset where it is hidden, since the noise-free readings carry it too."""
-    from calbench.bench.campaign import plan_campaign, run_campaign, truth_robot
+    from calbench.bench.campaign import remeasure, run_campaign, simulate
     from calbench.bench.log import read_log
     from calbench.bench.scenario import scenario_variant
-    from calbench.identify.core import from_log
-    from calbench.identify.study import campaign_observations
+    from calbench.identify.core import from_campaign, from_log
 
     scn = load_scenario(scenario_variant(PAPER, tmp_path / "s.toml", extra=extra))
-    tr = truth_robot(scn)
-    plans = run_campaign(scn, tmp_path / "s.mcap")
+    logged_campaign = run_campaign(scn, tmp_path / "s.mcap")
+    plans, tr = logged_campaign.plans, logged_campaign.robot
     logged = from_log(read_log(tmp_path / "s.mcap"))
-    noisy = campaign_observations(scn, tr, plans, np.random.default_rng(scn.seed))
+    noisy = from_campaign(simulate(scn, np.random.default_rng(scn.seed)))
+    for a, b in zip(from_campaign(logged_campaign).poses, noisy.poses, strict=True):  # the log's own
+        np.testing.assert_array_equal(a.dp, b.dp)
     assert [p.index for p in noisy.poses] == [p.index for p in logged.poses]
     for a, b in zip(noisy.poses, logged.poses):
         assert a.reflectors == b.reflectors
@@ -127,7 +128,7 @@ def test_campaign_observations_are_the_logs_readings(tmp_path, extra):
     # frame (bench/tracker/instrument.py: world -> tracker is R^T x) and shifted by the drift, if any
     from calbench.bench.tracker import tracker_rotation
 
-    exact = campaign_observations(scn, tr, plan_campaign(scn, tr), None)
+    exact = from_campaign(remeasure(logged_campaign, None))
     offset = np.array([30e-6, -20e-6, 25e-6]) if extra else np.zeros(3)
     rot = tracker_rotation(scn.tracker)
     for ob, plan in zip(exact.poses, plans):

@@ -20,12 +20,12 @@ import numpy as np
 import pytest
 from conftest import ROOT
 
-from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.campaign import simulate, truth_robot
 from calbench.bench.model import Robot
 from calbench.bench.scenario import load_scenario
-from calbench.identify.core import Whitener
+from calbench.identify.core import Whitener, from_campaign
 from calbench.identify.methods import OneStep, generic_start, one_step, sanitize_start, two_step
-from calbench.identify.study import campaign_observations, true_theta
+from calbench.identify.study import true_theta
 
 KR270_PAPER = ROOT / "scenarios" / "kr270_paper.toml"
 # (q in degrees, lateral wrench or None, repeats): the study's designed plan, to 1e-4 deg
@@ -54,7 +54,7 @@ def exact(tmp_path_factory):
     path.write_text(text, encoding="utf-8")
     scn = load_scenario(path)
     truth_rb = truth_robot(scn)
-    obs = campaign_observations(scn, truth_rb, plan_campaign(scn, truth_rb), None)
+    obs = from_campaign(simulate(scn, None, robot=truth_rb))
     robot = Robot.from_file(scn.robot)
     return robot, obs, true_theta(scn, robot)
 

@@ -14,17 +14,17 @@ import warnings
 from pathlib import Path
 
 import badcases as bc
+import numpy as np
 import pytest
 from conftest import ROOT
 from urdf_robots import arm_overlay, arm_urdf
 
-from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.campaign import simulate, truth_robot
 from calbench.bench.model import Robot
 from calbench.bench.scenario import PlausibilityWarning, check_scenario, load_scenario
 from calbench.identify.cli import main
-from calbench.identify.core import ForwardModel, NoEquilibrium, design_from_observations
+from calbench.identify.core import ForwardModel, NoEquilibrium, design_from_observations, from_campaign
 from calbench.identify.design import load_design_scenario
-from calbench.identify.study import campaign_observations
 
 BASE = bc.scenario_text(n_poses=4)  # the FANUC, 700 kg, sigma 20 um, compensator 2.6e6 N/m 0.83 m
 
@@ -142,7 +142,7 @@ def test_no_equilibrium_in_a_fit_names_the_pose_and_the_likely_cause(tmp_path):
     path.write_text(BASE, encoding="utf-8")
     scn = load_scenario(path)
     tr = truth_robot(scn)
-    obs = campaign_observations(scn, tr, plan_campaign(scn, tr), None)
+    obs = from_campaign(simulate(scn, None, robot=tr))
     robot = Robot.from_file(scn.robot)
     fm = ForwardModel(robot, design_from_observations(robot, obs))
     theta = robot.layout.theta(robot.params())
@@ -200,3 +200,23 @@ def test_fuzz_unit_factors_end_in_exit_0_or_2(tmp_path, capsys):
             assert rc in (0, 2), (key, f, capsys.readouterr().err)
             seen[rc] += 1
     assert seen[0] and seen[2]  # both outcomes met: the fuzz reaches past the checks
+
+
+def test_the_compliance_messages_quote_the_fits_own_bound(tmp_path, capsys):
+    """One constant: the band the messages quote ends where a fit may move (bench/model's
+    MAX_COMPLIANCE, the top of BOUNDS), a value at that bound runs quietly, one above it warns."""
+    from calbench.bench.model import MAX_COMPLIANCE
+
+    robot = Robot.from_file(ROOT / "mjcf" / "m900ib700.xml")
+    assert np.all(robot.layout.upper[: robot.n_act] == MAX_COMPLIANCE) and MAX_COMPLIANCE == 1e-4
+    old = "compliance = [0.25e-6, "
+    rc, err = _run(tmp_path, BASE.replace(old, "compliance = [4e6, "), capsys, "stiff")
+    assert rc == 2 and "(a joint's: 1e-10 ... 1e-4)" in err, err
+    rc, err = _run(tmp_path, BASE.replace(old, f"compliance = [{MAX_COMPLIANCE!r}, "), capsys, "edge")
+    assert rc == 0 and "warning" not in err, err
+    rc, err = _run(tmp_path, BASE.replace(old, f"compliance = [{2 * MAX_COMPLIANCE!r}, "), capsys, "soft")
+    assert (
+        rc == 0
+        and "truth.compliance[0]: compliance 0.0002 rad/(N*m) is outside a robot joint's 1e-10 ... 1e-4"
+        in err
+    ), err

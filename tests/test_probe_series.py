@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from calbench.bench.core import InputError
-from calbench.bench.shopfloor import euler_xyz, read_probe_series, read_transform
+from calbench.bench.shopfloor import euler_xyz, read_probe_series, read_transform, series_files
 from calbench.identify.geometry import UR10_JOINTS
 
 # ../shared/data beside the checkout (a worktree under wt/ sits one level deeper)
@@ -115,13 +115,13 @@ def test_the_datasets_series_read_with_their_row_counts():
     # issue 25 counts 11 910 grid poses; the file holds 11 911 rows (its last line has no newline)
     counts = {"A": 11911, "B": 1495, "C": 2773, "D": 632}
     for series, n in counts.items():
-        (path,) = (DATA / f"Series_{series}").glob("measurements_*.csv")
+        path, transform = series_files(DATA / f"Series_{series}")
         s = read_probe_series(path, UR10_JOINTS)
         assert len(s) == n
         assert (s.position_std is None) == (series == "A")  # series A has no std columns
         # the tracker stands metres away from the probe, never at its own head
         assert np.all(np.linalg.norm(s.position, axis=1) > 0.3)
-        t = read_transform(DATA / f"Series_{series}" / "Trafo_TM_F_init.txt")
+        t = read_transform(transform)
         assert abs(np.linalg.norm(t[:3, 3]) - 0.109) < 1e-3  # the T-Mac sits 109 mm off the flange
 
 
@@ -141,10 +141,10 @@ def test_geometry_beats_the_nominal_model_on_held_out_real_poses():
     )
 
     chain = ur10()
-    (path,) = (DATA / "Series_D").glob("measurements_*.csv")
+    path, transform = series_files(DATA / "Series_D")
     s = read_probe_series(path, chain.joints)
     fit_rows, held = split(len(s))
-    tool = tool_from_transform(read_transform(DATA / "Series_D" / "Trafo_TM_F_init.txt"))
+    tool = tool_from_transform(read_transform(transform))
     start = initial_model(chain, s.q[fit_rows], s.position[fit_rows], tool)
     nominal = calibrate(start, s.q[fit_rows], s.position[fit_rows], MODELS["nominal"])
     geometry = calibrate(start, s.q[fit_rows], s.position[fit_rows], MODELS["geometry"])
@@ -154,3 +154,16 @@ def test_geometry_beats_the_nominal_model_on_held_out_real_poses():
     # 190 held-out points: an RMS estimate's relative std is ~1/sqrt(2 * 3 * 190) = 4 %; 25 %
     # leaves room for the fit's own 25 parameters' optimism
     assert v_geo.rms < 1.25 * geometry.rms
+
+
+def test_a_series_folder_names_its_two_files_or_says_what_is_missing(tmp_path):
+    with pytest.raises(InputError, match=r"measurements_\*\.csv: expected one probe series CSV.*got 0"):
+        series_files(tmp_path)
+    (tmp_path / "measurements_a.csv").write_text("")
+    with pytest.raises(InputError, match=r"Trafo_TM_F_init\.txt: expected the probe-to-flange transform"):
+        series_files(tmp_path)
+    (tmp_path / "Trafo_TM_F_init.txt").write_text("")
+    assert series_files(tmp_path) == (tmp_path / "measurements_a.csv", tmp_path / "Trafo_TM_F_init.txt")
+    (tmp_path / "measurements_b.csv").write_text("")
+    with pytest.raises(InputError, match=r"got 2"):
+        series_files(tmp_path)

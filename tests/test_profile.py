@@ -16,12 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.campaign import remeasure, simulate
 from calbench.bench.model import Robot
 from calbench.bench.scenario import load_scenario
-from calbench.identify.core import PROFILE_SIGMAS, profile_check
+from calbench.identify.core import PROFILE_SIGMAS, from_campaign, profile_check
 from calbench.identify.methods import one_step
-from calbench.identify.study import campaign_observations, run_montecarlo
+from calbench.identify.study import run_montecarlo
 
 WEAK = Path(__file__).resolve().parent / "kr270_weak7.toml"
 CAMPAIGNS = 12
@@ -41,11 +41,10 @@ def test_a_quadratic_profile_passes_and_a_flat_or_bounded_one_does_not():
 
 
 def _campaigns(scn, n):
-    tr = truth_robot(scn)
-    plans = plan_campaign(scn, tr)
+    campaign = simulate(scn, None)
     robot = Robot.from_file(scn.robot)
     for r in range(n):
-        obs = campaign_observations(scn, tr, plans, np.random.default_rng([scn.seed, r]))
+        obs = from_campaign(remeasure(campaign, np.random.default_rng([scn.seed, r])))
         yield one_step(robot, obs, check_profile=True)
 
 

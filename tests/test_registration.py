@@ -23,7 +23,7 @@ from test_import import identify_json, plan_text, rows_of, simulate_and_export, 
 
 from calbench.bench.log import read_log
 from calbench.identify.cli import main
-from calbench.identify.core import fit_rigid, rotation_exp
+from calbench.identify.core import fit_rigid, from_campaign, rotation_exp
 
 AXIS = np.array([0.3, -0.5, 0.81])
 R_EXTRA = rotation_exp(np.radians(40.0) * AXIS / np.linalg.norm(AXIS))  # tens of degrees, tilted
@@ -232,15 +232,15 @@ def test_unloaded_positions_are_the_same_stacked_or_scalar():
     """The forward model leaves the unloaded positions and their Jacobian for the registration
     on both of its paths; they agree like its deflections (tests/test_forward_batch.py: 1e-10 m,
     Jacobians to 1e-8 of a column's largest entry while the warm path converges)."""
-    from calbench.bench.campaign import plan_campaign, truth_robot
+    from calbench.bench.campaign import simulate, truth_robot
     from calbench.bench.model import Robot
     from calbench.bench.scenario import load_scenario
     from calbench.identify.core import ForwardModel, design_from_observations
-    from calbench.identify.study import campaign_observations, true_theta
+    from calbench.identify.study import true_theta
 
     scn = load_scenario(PAPER)
     tr = truth_robot(scn)
-    obs = campaign_observations(scn, tr, plan_campaign(scn, tr), None)
+    obs = from_campaign(simulate(scn, None, robot=tr))
     out = []
     for batched in (True, False):
         robot = Robot.from_file(scn.robot)

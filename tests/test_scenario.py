@@ -417,6 +417,17 @@ def test_scenario_variant_overrides_and_validates(tmp_path):
     with pytest.raises(InputError):
         scenario_variant(paper, bad, extra="[truth.effects.base_compliance]\ncompliance = [-1, 0]")
     assert not bad.exists()
+    # another MJCF, and the compensator's table dropped with its keys (a robot without the spring)
+    other = tmp_path / "robot.xml"
+    other.write_text((paper.parent.parent / "mjcf" / "m900ib700.xml").read_text())
+    bare = load_scenario(
+        scenario_variant(paper, tmp_path / "bare.toml", robot=other, drop=("truth.compensator",))
+    )
+    assert bare.robot == other.resolve() and bare.compensators == {}
+    assert bare.tracker.to_dict() == load_scenario(paper).tracker.to_dict()
+    assert len(bare.poses) == len(load_scenario(paper).poses)
+    with pytest.raises(ValueError, match="no table"):
+        scenario_variant(out, tmp_path / "again.toml", drop=("truth.no_such_table",))
 
 
 # --------------------------------------------------------------------------- TrackerSpec as a dict

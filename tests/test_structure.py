@@ -147,28 +147,58 @@ def _all_sources() -> list[Path]:
     return [p for top in (*PACKAGES, "tests", "benchmarks") for p in (ROOT / top).rglob("*.py")]
 
 
-def test_no_private_name_is_imported_from_another_folder():
+def _imported_folder(path: Path, node: ast.ImportFrom) -> Path | None:
+    """The folder a ``from X import ...`` in ``path`` takes its names from (a module's folder, or
+    the package folder itself), or None for an import from outside calbench."""
+    if node.level:  # relative: the same folder or a parent's
+        target = path.parent.joinpath(*[".."] * (node.level - 1), *(node.module or "").split(".")).resolve()
+    elif (node.module or "").startswith("calbench."):
+        target = ROOT.joinpath(*node.module.split(".")[1:])
+    else:
+        return None
+    return target if target.is_dir() else target.parent
+
+
+def private_imports(path: Path, source: str) -> list[str]:
+    """Every ``_private`` name ``source`` (the text of ``path``) imports from another folder's
+    module or package: a module may share its own folder's private names, never another's."""
     bad = []
-    for path in _all_sources():
-        folder = path.parent
-        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-            if (
-                not isinstance(node, ast.ImportFrom)
-                or not (node.module or "").startswith("calbench.")
-                and not node.level
-            ):
-                continue
-            if node.level:  # relative: the same folder or a parent's
-                target_folder = folder.joinpath(
-                    *[".."] * (node.level - 1), *(node.module or "").split(".")
-                ).resolve()
-            else:
-                target_folder = ROOT.joinpath(*node.module[9:].split("."))
-                target_folder = target_folder if target_folder.is_dir() else target_folder.parent
-            for a in node.names:
-                if a.name.startswith("_") and not a.name.startswith("__") and target_folder != folder:
-                    bad.append(f"{path.relative_to(ROOT)}:{node.lineno} {a.name}")
+    for node in ast.walk(ast.parse(source)):
+        if not isinstance(node, ast.ImportFrom):
+            continue
+        target = _imported_folder(path, node)
+        if target is None:
+            continue
+        for a in node.names:
+            if a.name.startswith("_") and not a.name.startswith("__") and target != path.parent.resolve():
+                bad.append(f"{path.relative_to(ROOT)}:{node.lineno} {a.name}")
+    return bad
+
+
+def test_no_private_name_is_imported_from_another_folder():
+    bad = [b for path in _all_sources() for b in private_imports(path, path.read_text(encoding="utf-8"))]
     assert bad == []
+
+
+@pytest.mark.parametrize(
+    "line, refused",
+    [
+        ("from .certificate import _scale", False),  # a module beside it: the same folder
+        ("from . import _helper", False),
+        ("from calbench.identify.design.plan import _lateral_sign", False),  # absolute, same folder
+        ("from ..core.forward import _x", True),  # a sibling room's module
+        ("from ..core import _x", True),  # a sibling room's package
+        ("from calbench.identify.core.forward import _x", True),
+        ("from calbench.bench.model import _x", True),
+        ("from .sub.mod import _x", True),  # a folder below is another folder too
+        ("from calbench.identify.design.plan import __all__", False),  # dunder: not private
+    ],
+)
+def test_the_private_import_check_is_exact(line, refused):
+    """Same folder allowed, any other folder refused: the check above, on a module written into
+    identify/design (not on disk: only its path matters)."""
+    path = ROOT / "identify" / "design" / "example.py"
+    assert bool(private_imports(path, line + "\n")) == refused
 
 
 @pytest.mark.parametrize("room", ROOMS)

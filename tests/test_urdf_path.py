@@ -55,17 +55,15 @@ def test_the_header_is_a_well_formed_xml_comment_even_for_dashed_names(tmp_path)
     assert "--" not in comment and "from-urdf from my- -arm.urdf with the overlay my- -arm.toml" in comment
 
 
-def test_a_xacro_with_find_converts_to_the_same_robot_as_its_urdf(tmp_path):
-    urdf = arm_urdf()
-    rc, plain = _convert(tmp_path / "plain", urdf, arm_overlay())
-    assert rc == 0
-    # the same arm as a xacro: the links in a macro file of package 'arm_macros' (a folder the
-    # overlay's [packages] names), a property for the base height
+def _arm_macros(tmp_path: Path, urdf: str, base_height: str) -> tuple[Path, str]:
+    """The arm's links as a macro ``arm_links`` in links.xacro of a package folder
+    ``elsewhere/arm_macros``, and its joints' XML with the base height written ``base_height``:
+    (the package folder, the joints)."""
     links = urdf[urdf.index("  <link") : urdf.index("  <joint")]
     joints = urdf[urdf.index("  <joint") : urdf.index("</robot>")].replace(
-        'xyz="0.0 0.0 0.45"', 'xyz="0 0 ${h}"', 1
+        'xyz="0.0 0.0 0.45"', f'xyz="0 0 {base_height}"', 1
     )
-    assert "${h}" in joints
+    assert base_height in joints
     pkg = tmp_path / "elsewhere" / "arm_macros"
     pkg.mkdir(parents=True)
     (pkg / "links.xacro").write_text(
@@ -73,6 +71,16 @@ def test_a_xacro_with_find_converts_to_the_same_robot_as_its_urdf(tmp_path):
         "</xacro:macro></robot>\n",
         encoding="utf-8",
     )
+    return pkg, joints
+
+
+def test_a_xacro_with_find_converts_to_the_same_robot_as_its_urdf(tmp_path):
+    urdf = arm_urdf()
+    rc, plain = _convert(tmp_path / "plain", urdf, arm_overlay())
+    assert rc == 0
+    # the same arm as a xacro: the links in a macro file of package 'arm_macros' (a folder the
+    # overlay's [packages] names), a property for the base height
+    _, joints = _arm_macros(tmp_path, urdf, "${h}")
     xacro = (
         '<?xml version="1.0"?>\n<robot name="arm6" xmlns:xacro="http://www.ros.org/wiki/xacro">\n'
         '  <xacro:property name="h" value="0.45"/>\n'
@@ -86,6 +94,48 @@ def test_a_xacro_with_find_converts_to_the_same_robot_as_its_urdf(tmp_path):
     for k in a:
         np.testing.assert_array_equal(a[k], b[k], err_msg=k)
     assert "from arm.urdf.xacro (expanded by xacro)" in made.read_text(encoding="utf-8")
+
+
+def test_xacro_arguments_come_from_the_overlay_and_their_lack_is_named(tmp_path, capsys):
+    """A top-level xacro that needs arguments (ur_description's ur.xacro needs robot_model and
+    its parameter files): the overlay's [xacro] table gives them, $(find PKG) in a value
+    resolved from [packages]; the arm comes out number for number as from its plain URDF. No
+    value: one line naming the [xacro] key to add; a file that is not there: one line naming it
+    (ur_description here lacks config/ur5/); [xacro] on a plain URDF: refused."""
+    urdf = arm_urdf()
+    rc, plain = _convert(tmp_path / "plain", urdf, arm_overlay())
+    assert rc == 0
+    pkg, joints = _arm_macros(tmp_path, urdf, "$(arg base_height)")
+    xacro = (
+        '<?xml version="1.0"?>\n<robot name="arm6" xmlns:xacro="http://www.ros.org/wiki/xacro">\n'
+        '  <xacro:arg name="base_height" default=""/>\n'
+        '  <xacro:include filename="$(arg links_file)"/>\n  <xacro:arm_links/>\n'
+        f"{joints}</robot>\n"
+    )
+    packages = '\n[packages]\narm_macros = "../elsewhere/arm_macros"\n'
+    args = '\n[xacro]\nbase_height = "0.45"\nlinks_file = "$(find arm_macros)/links.xacro"\n'
+    rc, made = _convert(tmp_path / "x", xacro, arm_overlay() + packages + args, suffix=".xacro")
+    assert rc == 0
+    a, b = _numbers(plain), _numbers(made)
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+    capsys.readouterr()
+    rc, out = _convert(tmp_path / "none", xacro, arm_overlay() + packages, suffix=".xacro")
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and not out.exists(), err
+    assert (
+        'arm.xacro: (xacro) $(arg links_file): expected a value for it: [xacro] links_file = "VALUE"'
+        in err[0]
+    )
+    gone = args.replace("links.xacro", "gone.xacro")
+    rc, out = _convert(tmp_path / "gone", xacro, arm_overlay() + packages + gone, suffix=".xacro")
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and not out.exists(), err
+    assert "arm.xacro: (xacro): expected every file the xacro reads" in err[0]
+    assert f"{pkg / 'gone.xacro'} is missing" in err[0]
+    rc, out = _convert(tmp_path / "plainargs", urdf, arm_overlay() + args)
+    err = capsys.readouterr().err
+    assert rc == 2 and "arm.toml: xacro: expected arguments only for a .xacro robot file" in err
 
 
 def test_a_missing_find_package_exits_2_naming_it(tmp_path, capsys):

@@ -1,28 +1,21 @@
 # The public face of calbench.bench.campaign: what code outside this room may import. At run time
 # calbench.bench.core.face reads these lines and loads each name on first use.
 
-from .run import (
-    CampaignInterrupted,
-    PosePlan,
-    drifted,
-    plan_campaign,
-    pose_load,
-    reading_drift,
-    run_campaign,
-    scenario_params,
-    simulate,
-    truth_robot,
-)
+from .plan import PosePlan, check_campaign_size, plan_campaign, pose_load, truth_params, truth_robot
+from .run import CampaignInterrupted, run_campaign, simulate_to_log
+from .simulation import Campaign, remeasure, simulate
 
 __all__ = [
+    "Campaign",
     "CampaignInterrupted",
     "PosePlan",
-    "drifted",
+    "check_campaign_size",
     "plan_campaign",
     "pose_load",
-    "reading_drift",
+    "remeasure",
     "run_campaign",
-    "scenario_params",
+    "truth_params",
     "simulate",
+    "simulate_to_log",
     "truth_robot",
 ]

@@ -400,7 +400,7 @@ def truth_entities(
 # ---------------------------------------------------------------------------------------------
 
 
-class Poser:
+class FoxgloveRobot:
     """One robot model posed with ``mj_kinematics`` in its own MjData.
 
     Its geoms are drawn once, static, each body's geoms as one entity in the body's frame
@@ -462,8 +462,8 @@ class FoxgloveWriter:
         self.log, self.spec, self.names, self.magnify = log, spec, list(names), float(magnify)
         self.rigid_qpos = nominal.rigid_qpos
         self.flange_name = nominal.description.flange or ""  # the frame of the flange site
-        self.nominal = Poser(nominal.model, "", nominal.flange_site)
-        self.truth = {s: Poser(truth.model, f"true_{s}/", truth.flange_site) for s in STATES}
+        self.nominal = FoxgloveRobot(nominal.model, "", nominal.flange_site)
+        self.truth = {s: FoxgloveRobot(truth.model, f"true_{s}/", truth.flange_site) for s in STATES}
         for topic, name in TOPICS.items():  # validity: tests/test_foxglove.py, every message
             log.add_channel(topic, name, schema_text(name), check=False)
         self._yaw = np.empty(4)
@@ -577,7 +577,7 @@ class FoxgloveWriter:
 
 __all__ = [
     "FoxgloveWriter",
-    "Poser",
+    "FoxgloveRobot",
     "TOPICS",
     "MAGNIFY",
     "schema_text",

@@ -3,6 +3,7 @@
 
 from .description import DescriptionError, read_description, set_spec_names, spec_names
 from .geoms import GeomShape, ReflectorPost, geom_shapes, reflector_posts, tendon_sites
+from .loading import LOG_KEY, MODEL_FLAG, load_robot, log_robot
 from .loop import (
     LOOP_TOL,
     constraint_basis,
@@ -15,6 +16,7 @@ from .loop import (
 )
 from .params import (
     LEGACY_COMPENSATOR,
+    MAX_COMPLIANCE,
     ParamLayout,
     Params,
     Spring,
@@ -25,6 +27,10 @@ from .params import (
 from .robot import LOOP_MARGIN, LOOP_MARGIN_ANGLE, Robot, ancestors
 
 __all__ = [
+    "LOG_KEY",
+    "MODEL_FLAG",
+    "load_robot",
+    "log_robot",
     "display_name",
     "free_length_note",
     "DescriptionError",
@@ -33,6 +39,7 @@ __all__ = [
     "LOOP_MARGIN",
     "LOOP_MARGIN_ANGLE",
     "LOOP_TOL",
+    "MAX_COMPLIANCE",
     "ParamLayout",
     "Params",
     "ReflectorPost",

@@ -32,11 +32,12 @@ SPRING_UNITS = ("N/m", "m")
 # read from the MJCF. A preload has no generic size: the estimators start it at the spring's
 # mean length over the plan (ParamLayout.generic_start), 1 m without geometry.
 GENERIC = {COMPLIANCE_UNIT: 1e-7, "N/m": 1e6, "m": 1.0}
-# Where a fit may move (identify/discover, the one-step's profiles): a compliance up to 1e-4
-# rad/(N*m) (a cobot's wrist is ~3e-5, a heavy robot's drives 1e-7 ... 2e-6; beyond, the
-# plausibility checks call it a slipped unit: bench/scenario/plausible.py), a spring rate
-# 1 N/m .. 1e9 N/m, a preload length 1 mm .. 10 m.
-BOUNDS = {COMPLIANCE_UNIT: (1e-12, 1e-4), "N/m": (1.0, 1e9), "m": (1e-3, 10.0)}
+# Where a fit may move (identify/discover, the one-step's profiles): a compliance up to
+# MAX_COMPLIANCE rad/(N*m) (a cobot's wrist is ~3e-5, a heavy robot's drives 1e-7 ... 2e-6; beyond,
+# the plausibility checks warn and, past 1e-2, call it a slipped unit: bench/scenario/plausible.py,
+# which quotes this same constant), a spring rate 1 N/m .. 1e9 N/m, a preload length 1 mm .. 10 m.
+MAX_COMPLIANCE = 1e-4
+BOUNDS = {COMPLIANCE_UNIT: (1e-12, MAX_COMPLIANCE), "N/m": (1.0, 1e9), "m": (1e-3, 10.0)}
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,11 @@ geom names made unique (issue 21).
 * ``.xacro``: expanded by the ``xacro`` package (pure Python, no ROS). ``$(find PKG)`` is the
   overlay's ``[packages] PKG`` folder, else a folder named PKG beside the file's package or any
   folder above it (ROS-Industrial's packages sit side by side: ``fanuc_m900ib_support`` finds
-  ``fanuc_resources``). xacro's own errors become InputError naming the file.
+  ``fanuc_resources``). The overlay's ``[xacro]`` table gives the file's arguments (what
+  ``xacro FILE NAME:=value`` gives on a command line; ``$(find PKG)`` in a value resolved the
+  same way). xacro's own errors become InputError naming the file, on one line: an argument
+  without a value names the ``[xacro]`` key to add, a file the xacro reads and cannot find is
+  named as the package's missing file.
 * ``[inertials.LINK]``: an ``<inertial>`` element written into the link (replacing the URDF's,
   if any), inertia mass * ASSUMED_GYRATION^2 on the diagonal when not given.
 * Geom names: ROS-Industrial's URDFs name every ``<collision>`` and ``<visual>`` "collision" and
@@ -16,6 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
 from xml.parsers.expat import ExpatError
@@ -67,16 +72,46 @@ def _finder(path: Path, packages: dict[str, Path]):
         sa._eval_find, sa._eval_dict["find"] = old, old_eval
 
 
-def expand_xacro(path: Path, packages: dict[str, Path]) -> str:
-    """The URDF a ``.xacro`` file expands to (InputError naming the file on any xacro error)."""
+_FIND = re.compile(r"\$\(find ([^)\s]+)\)")
+
+
+def _xacro_error(path: Path, exc: Exception) -> InputError:
+    """xacro's error as one line naming what to change (module docstring)."""
+    text = str(exc) or type(exc).__name__
+    first = text.strip().splitlines()[0] if text.strip() else text
+    if m := re.match(r"Undefined substitution argument (\S+)", first):
+        return InputError(
+            path,
+            f"(xacro) $(arg {m[1]})",
+            f'a value for it: [xacro] {m[1]} = "VALUE" in the overlay',
+            "none given",
+        )
+    if isinstance(exc, FileNotFoundError) or "No such file or directory" in first:
+        missing = getattr(exc, "filename", None) or (re.findall(r"'([^']+)'", first) or [first])[-1]
+        return InputError(
+            path,
+            "(xacro)",
+            "every file the xacro reads (a package with all its files; or [xacro] arguments that point "
+            "to files that exist)",
+            f"{missing} is missing",
+        )
+    return InputError(path, "(xacro)", "a xacro file that expands to a URDF", first)
+
+
+def expand_xacro(path: Path, packages: dict[str, Path], args: dict[str, str] | None = None) -> str:
+    """The URDF a ``.xacro`` file expands to, with arguments ``args`` (InputError naming the file
+    on any xacro error)."""
     try:
         import xacro
     except ImportError:  # a dependency of calbench, but a user may run without it
         raise InputError(path, "(file)", "the xacro package (pip install xacro)", "not installed") from None
     try:
+        mappings = {
+            k: _FIND.sub(lambda m: _find_package(m[1], path, packages), v) for k, v in (args or {}).items()
+        }
         with _finder(path, packages) as failed, contextlib.redirect_stderr(io.StringIO()):
             try:
-                doc = xacro.process_file(str(path))
+                doc = xacro.process_file(str(path), mappings=mappings)
             except Exception:
                 if failed:
                     raise failed[0] from None
@@ -84,9 +119,7 @@ def expand_xacro(path: Path, packages: dict[str, Path]) -> str:
     except InputError:
         raise
     except (xacro.XacroException, OSError, ExpatError, KeyError, NameError, ValueError) as exc:
-        raise InputError(
-            path, "(xacro)", "a xacro file that expands to a URDF", str(exc) or type(exc).__name__
-        ) from None
+        raise _xacro_error(path, exc) from None
     return doc.toxml()
 
 
@@ -106,8 +139,10 @@ def urdf_text(path: Path, ov: Overlay | None = None) -> tuple[str, bool]:
     packages = ov.packages if ov is not None else {}
     if is_xacro(path):
         parse_xml(path, path)  # no entity declarations in the xacro itself, before xacro reads it
-        text, expanded = expand_xacro(path, packages), True
+        text, expanded = expand_xacro(path, packages, ov.xacro_args if ov is not None else None), True
     else:
+        if ov is not None and ov.xacro_args:
+            raise InputError(ov.path, "xacro", "arguments only for a .xacro robot file", path.name)
         try:
             text, expanded = path.read_text(encoding="utf-8"), False
         except (OSError, UnicodeDecodeError) as exc:

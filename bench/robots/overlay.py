@@ -13,6 +13,8 @@ overlay says so (docs/contract.md, "From a URDF")::
     [compensators.NAME]   stiffness, preload, from = {link, pos}, to = {link, pos}   # optional
     [loops.NAME]          passive = [...], site1 = {link, pos}, site2 = {link, pos}  # optional
     [packages]            NAME = "folder"       # optional: where package://NAME/ and $(find NAME) point
+    [xacro]               NAME = "value"        # optional: a .xacro's arguments (xacro NAME:=value);
+                                                #   a value may hold $(find PKG)
     [inertials.LINK]      mass, com = [x, y, z], inertia = [ixx, iyy, izz(, ixy, ixz, iyz)]
                                                 # optional: ASSUMED masses for a URDF without them,
                           or density = kg/m^3   #   or estimated from the link's collision geometry
@@ -49,6 +51,7 @@ TOP_KEYS = (
     "compensators",
     "loops",
     "packages",
+    "xacro",
     "wrist",
     "links",
     "mass_compensators",
@@ -152,6 +155,7 @@ class Overlay:
     inertials: tuple[InertialSpec, ...] = ()
     conventions: tuple[ConventionSpec, ...] = ()
     assumed_density: float | None = None  # kg/m^3 for every moving link without a mass
+    xacro_args: dict[str, str] = field(default_factory=dict)  # a .xacro's arguments, as typed
 
     def sites(self) -> list[Attach]:
         """Every site the overlay adds, in the order they are added to the MJCF."""
@@ -323,6 +327,10 @@ def parse_overlay(text: str, path: str | Path) -> Overlay:
         pk = top.sub("packages")
         for name in pk.table:
             packages[name] = (path.parent / pk.string(name)).resolve()
+    xacro_args: dict[str, str] = {}
+    if top.has("xacro"):
+        xa = top.sub("xacro")
+        xacro_args = {name: xa.string(name) for name in xa.table}
     sites, mounts = _mounts(top, compensators) if top.has("compensator_sites") else (None, ())
     wrist = top.string("wrist") if top.has("wrist") else None
     if wrist == "":
@@ -344,6 +352,7 @@ def parse_overlay(text: str, path: str | Path) -> Overlay:
         inertials=tuple(_inertial(t, n) for t, n in _named_tables(top, "inertials", "link")),
         conventions=tuple(_convention(t, n) for t, n in _named_tables(top, "conventions", "joint")),
         assumed_density=_density(top) if top.has("assumed_density") else None,
+        xacro_args=xacro_args,
     )
     seen: dict[str, str] = {}
     for s in ov.sites():

@@ -3,8 +3,10 @@
 
 from .parse import (
     DESIGN_KEYS,
+    JOINT_LIMIT_TOL,
     Plan,
     Scenario,
+    check_commands,
     check_joint_limits,
     load_plan,
     load_scenario,
@@ -58,6 +60,8 @@ __all__ = [
     "Scale",
     "Scenario",
     "UNLOAD_S",
+    "JOINT_LIMIT_TOL",
+    "check_commands",
     "check_joint_limits",
     "check_density",
     "check_length",

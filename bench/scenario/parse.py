@@ -87,7 +87,7 @@ TOP_KEYS = (
     "pose",
     "design",
 )
-# [design]: settings of `calbench design` (identify/design_candidates.py validates the values)
+# [design]: settings of `calbench design` (identify/design/settings.py validates the values)
 DESIGN_KEYS = (
     "min_height",
     "min_radius",
@@ -344,16 +344,22 @@ def scenario_variant(
     seed: int | None = None,
     compensator: tuple[float, float] | None = None,
     extra: str = "",
+    robot: str | Path | None = None,
+    drop: tuple[str, ...] = (),
 ) -> Path:
     """Write a copy of scenario ``src`` at ``out`` with a few truths changed, keeping its comments.
 
-    The robot path is made absolute (the copy may live elsewhere); ``name``, ``seed`` and the
-    compensator's (stiffness, preload) replace the file's; ``extra`` is TOML inserted before
-    ``[tracker]``, e.g. a hidden ``[truth.effects.*]`` table. The result is validated.
+    The robot path is made absolute (the copy may live elsewhere), or is ``robot``; ``name``,
+    ``seed`` and the compensator's (stiffness, preload) replace the file's; the tables named in
+    ``drop`` (e.g. ``"truth.compensator"`` for a robot without the spring) are removed, their
+    keys and comments with them; ``extra`` is TOML inserted before ``[tracker]``, e.g. a hidden
+    ``[truth.effects.*]`` table. The result is validated.
     """
     src, out = Path(src), Path(out)
     text = src.read_text(encoding="utf-8")
-    robot = (src.parent / tomllib.loads(text)["robot"]).resolve()
+    robot = (
+        Path(robot).resolve() if robot is not None else (src.parent / tomllib.loads(text)["robot"]).resolve()
+    )
 
     def sub(pattern: str, value: str, flags: int = re.MULTILINE) -> None:
         nonlocal text
@@ -374,6 +380,10 @@ def scenario_variant(
                 repr(float(value)),
                 re.MULTILINE | re.DOTALL,
             )
+    for table in drop:  # the table's header up to the next table's
+        text, n = re.subn(rf"^\[{re.escape(table)}\]\n(?:(?!\[).*\n)*", "", text, count=1, flags=re.MULTILINE)
+        if n != 1:
+            raise ValueError(f"{src}: no table [{table}] to drop")
     if extra:
         sub(r"^()(?=\[tracker\])", extra.strip() + "\n\n")
     parse_scenario(text, out)  # raises InputError on a bad variant, before writing it
@@ -418,26 +428,33 @@ def scenario_params(scn: Scenario, n_joints: int, compensators: tuple[str, ...])
 
 def check_joint_limits(scn: Scenario, limits: np.ndarray) -> None:
     """Reject poses (and the work pose) outside the robot's joint ``limits`` ((N, 2) rad)."""
+    named = [(f"pose[{i}].q", p.q) for i, p in enumerate(scn.poses)]
+    if scn.work is not None:
+        named.append(("work.q", scn.work.q))
+    check_commands(scn.path, named, limits, scn.robot.name)
+
+
+def check_commands(file: object, named, limits: np.ndarray, robot_name: str) -> None:
+    """Every command ``q`` of ``named`` ((key, q) pairs, rad) of the input ``file`` has one
+    angle per actuated joint of the robot ``robot_name`` and is within its joint ``limits``
+    ((N, 2) rad, JOINT_LIMIT_TOL beyond them allowed); InputError naming the key otherwise."""
     limits = np.asarray(limits, dtype=float)
     n = len(limits)
     if limits.shape != (n, 2):
         raise ValueError(f"limits must have shape (N, 2), got {limits.shape}")
-    named = [(f"pose[{i}].q", p.q) for i, p in enumerate(scn.poses)]
-    if scn.work is not None:
-        named.append(("work.q", scn.work.q))
     for key, q in named:
         if len(q) != n:
             raise InputError(
-                scn.path,
+                file,
                 key,
-                f"an array of {n} numbers (one per actuated joint of {scn.robot.name})",
+                f"an array of {n} numbers (one per actuated joint of {robot_name})",
                 f"{len(q)} elements",
             )
         for j in range(n):
             lo, hi = limits[j]
             if not lo - JOINT_LIMIT_TOL <= q[j] <= hi + JOINT_LIMIT_TOL:
                 raise InputError(
-                    scn.path,
+                    file,
                     f"{key}[{j}]",
                     f"joint {j + 1} within [{math.degrees(lo):.3f}, {math.degrees(hi):.3f}] degrees",
                     round(math.degrees(q[j]), 6),

@@ -39,8 +39,11 @@ import mujoco
 import numpy as np
 
 from calbench.bench.core import InputError
-from calbench.bench.model import Robot
+from calbench.bench.model import MAX_COMPLIANCE, Robot
 
+# rad/(N*m): the quiet band of a compliance; its top is the fit's own bound (bench/model's
+# MAX_COMPLIANCE), so a value quoted as plausible here is one a fit can reach
+COMPLIANCE_BAND = (1e-10, MAX_COMPLIANCE)
 RADIAN_SPAN = 2 * math.pi + 0.01  # a wrist's angles in radians reach +-2 pi (q6 = 270 deg: 4.71)
 
 
@@ -112,25 +115,27 @@ def check_sigma(file, key: str, sigma: float) -> None:
 
 
 def check_compliance(file, key: str, values) -> None:
-    """Joint or effect compliances (rad/(N*m)), each nonzero one against 1e-10 ... 1e-4."""
+    """Joint or effect compliances (rad/(N*m)), each nonzero one against COMPLIANCE_BAND."""
+    lo, hi = (f"{x:.0e}".replace("e-0", "e-") for x in COMPLIANCE_BAND)
+    expected = f"a compliance in rad/(N*m) (a joint's: {lo} ... {hi})"
     for i, c in enumerate(np.asarray(values, float).ravel()):
         k = f"{key}[{i}]"
         if c > 1e3:
             raise InputError(
                 file,
                 k,
-                "a compliance in rad/(N*m) (a joint's: 1e-8 ... 1e-5)",
+                expected,
                 f"{_fmt(c)}: a stiffness in N*m/rad? (compliance = 1 / stiffness = {_fmt(1 / c)})",
             )
         if c > 1e-2:
             raise InputError(
                 file,
                 k,
-                "a compliance in rad/(N*m) (a joint's: 1e-8 ... 1e-5)",
+                expected,
                 f"{_fmt(c)}: urad/(N*m) written as rad/(N*m)? ({_fmt(c * 1e-6)} rad/(N*m))",
             )
-        if c > 1e-4 or 0 < c < 1e-10:
-            warn(file, k, f"compliance {_fmt(c)} rad/(N*m) is outside a heavy robot's 1e-10 ... 1e-4")
+        if c > COMPLIANCE_BAND[1] or 0 < c < COMPLIANCE_BAND[0]:
+            warn(file, k, f"compliance {_fmt(c)} rad/(N*m) is outside a robot joint's {lo} ... {hi}")
 
 
 def check_density(file, key: str, rho: float) -> None:

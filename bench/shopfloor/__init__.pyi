@@ -4,23 +4,24 @@
 from .formats import FORMATS, ROW_BYTES, ReadingsFormat, ReadingsTable
 from .grouping import first_time
 from .logcsv import (
+    ImportedReadings,
     ImportSummary,
-    Readings,
     campaign_readings,
     export_readings,
     export_rows,
     write_imported_log,
 )
-from .probe import ProbeSeries, campaign_files, euler_xyz, read_probe_series, read_transform
+from .probe import ProbeSeries, campaign_files, euler_xyz, read_probe_series, read_transform, series_files
 from .readings import TABLE_BYTES_PER_ROW, group, read_readings, readings_csv
 
 __all__ = [
     "TABLE_BYTES_PER_ROW",
     "ROW_BYTES",
+    "series_files",
     "FORMATS",
     "ImportSummary",
     "ProbeSeries",
-    "Readings",
+    "ImportedReadings",
     "ReadingsFormat",
     "ReadingsTable",
     "campaign_files",

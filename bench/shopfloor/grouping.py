@@ -10,7 +10,7 @@ readings of one pose, not of the file.
 
 Order. Poses are in the order they were measured: plan order, or, when the table has times, the
 order of their first readings (:func:`measured_order`; a pose's readings must form one stretch
-of time, unloaded before loaded). Readings of a pose and state are in time order (file order
+of time, unloaded before loaded). ImportedReadings of a pose and state are in time order (file order
 without times): the k-th row of each reflector is reading k (bench.shopfloor.readings.group).
 
 Covariance. A reading's row gets sigma^2 I where the table gives its ``sigma``, else the plan's
@@ -129,7 +129,7 @@ class CampaignReadings(Mapping[tuple[int, str], list[ImportedReading]]):
             )
 
     def _repeats(self, rows: np.ndarray) -> int:
-        """Readings of one pose and state: the most rows of one reflector."""
+        """ImportedReadings of one pose and state: the most rows of one reflector."""
         return int(np.bincount(self.table.point[rows]).max()) if len(rows) else 0
 
     def __len__(self) -> int:
@@ -168,10 +168,10 @@ class CampaignReadings(Mapping[tuple[int, str], list[ImportedReading]]):
         return min((t for t in times if t is not None), default=0.0)
 
 
-Readings = Mapping[tuple[int, str], list[ImportedReading]]
+ImportedReadings = Mapping[tuple[int, str], list[ImportedReading]]
 
 
-def first_time(readings: Readings) -> float:
+def first_time(readings: ImportedReadings) -> float:
     """The time of the first of ``readings`` (any mapping of them; CampaignReadings knows it)."""
     if isinstance(readings, CampaignReadings):
         return readings.first_time
@@ -185,7 +185,7 @@ def campaign_readings(table: ReadingsTable, names: list[str], tracker: TrackerSp
 
 __all__ = [
     "ImportedReading",
-    "Readings",
+    "ImportedReadings",
     "CampaignReadings",
     "reading_covariance",
     "measured_order",

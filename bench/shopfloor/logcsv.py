@@ -41,15 +41,15 @@ from pathlib import Path
 import numpy as np
 
 from calbench.bench.campaign import pose_load
-from calbench.bench.core import InputError, ProgressSink, atomic_path, sink
+from calbench.bench.core import ProgressSink, atomic_path, sink
 from calbench.bench.log import CampaignLog, LogHeader, LogWriter
-from calbench.bench.model import Robot
-from calbench.bench.scenario import NS, Plan
+from calbench.bench.model import load_robot
+from calbench.bench.scenario import NS, Plan, check_joint_limits
 from calbench.bench.tracker import TrackerSpec
 
 from .grouping import (
     ImportedReading,
-    Readings,
+    ImportedReadings,
     campaign_readings,
     first_time,
     measured_order,
@@ -73,7 +73,7 @@ class ImportSummary:
 
 def write_imported_log(
     plan: Plan,
-    readings: Readings,
+    readings: ImportedReadings,
     tracker: TrackerSpec,
     model: Path,
     out: Path,
@@ -91,16 +91,9 @@ def write_imported_log(
     own time and each pose's command, load and end a millisecond around its readings (TICK);
     without, the log's campaign clock stamps them (bench/scenario/timeline.py), which is the schedule the
     readings were given (bench.scenario.schedule)."""
-    robot = Robot.from_file(model)
+    robot = load_robot(plan.path, "robot", path=model)  # as the import loaded it
     names = list(robot.reflector_names)
-    for i, pose in enumerate(plan.poses):
-        if len(pose.q) != robot.n_act:
-            raise InputError(
-                plan.path,
-                f"pose[{i}].q",
-                f"an array of {robot.n_act} numbers (one per actuated joint of {model.name})",
-                f"{len(pose.q)} elements",
-            )
+    check_joint_limits(plan, robot.limits())
     order = list(dict.fromkeys(p for p, _ in readings))
     loads = {p: pose_load(robot, plan, plan.poses[p]) for p in order}
 
@@ -211,7 +204,7 @@ def export_readings(log: CampaignLog, out: Path, units: str = "mm") -> int:
 
 __all__ = [
     "ImportedReading",
-    "Readings",
+    "ImportedReadings",
     "ImportSummary",
     "reading_covariance",
     "measured_order",

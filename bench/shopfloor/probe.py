@@ -242,6 +242,20 @@ def _matrix_number(path: Path, text: str) -> float:
         raise InputError(path, "matrix", "16 numbers (a 4x4 transform)", text) from None
 
 
+def series_files(folder: str | Path) -> tuple[Path, Path]:
+    """A series folder of the public dataset (``Series_X``): its one ``measurements_*.csv`` (for
+    :func:`read_probe_series`) and the probe's ``Trafo_TM_F_init.txt`` (for :func:`read_transform`);
+    InputError naming the folder when either is missing or the CSV is not alone."""
+    folder = Path(folder)
+    found = sorted(folder.glob("measurements_*.csv"))
+    if len(found) != 1:
+        raise InputError(folder, "measurements_*.csv", "one probe series CSV in the folder", len(found))
+    transform = folder / "Trafo_TM_F_init.txt"
+    if not transform.is_file():
+        raise InputError(folder, transform.name, "the probe-to-flange transform", "no such file")
+    return found[0], transform
+
+
 def campaign_files(
     series: ProbeSeries, rows: np.ndarray, robot: str, point: str = "probe", sigma: float = 20e-6
 ) -> tuple[str, str]:

@@ -228,7 +228,7 @@ def unoccluded(hit: np.ndarray, dist: np.ndarray) -> np.ndarray:
 
 
 def measure(
-    spec: TrackerSpec, points_world: np.ndarray, visible: np.ndarray, rng: np.random.Generator
+    spec: TrackerSpec, points_world: np.ndarray, visible: np.ndarray, rng: np.random.Generator | None
 ) -> Measurement:
     """Noisy tracker-frame readings of the true ``points_world``.
 
@@ -236,7 +236,9 @@ def measure(
     standard-normal (m, 3) block for the m visible points in order, coloured by the Cholesky
     factor of :func:`noise_covariance`). So the generator's consumption depends on how many
     points are visible, and the same generator state gives identical output. Invisible rows are
-    NaN in position and covariance.
+    NaN in position and covariance. ``rng`` None: the exact reading (the true points, no noise)
+    still carrying :func:`noise_covariance` as its covariance, what the noise-free analyses
+    (Cramer-Rao bounds, noise-free estimates) weight by.
     """
     p = to_tracker_frame(spec, points_world)
     vis = np.asarray(visible)
@@ -244,7 +246,10 @@ def measure(
         raise ValueError(f"visible must be a bool array of shape ({len(p)},)")
     position = np.full_like(p, np.nan)
     covariance = np.full((len(p), 3, 3), np.nan)
-    if vis.any():
+    if vis.any() and rng is None:
+        position[vis] = p[vis]
+        covariance[vis] = noise_covariance(spec, p[vis])
+    elif vis.any():
         err, cov = spec.error_model.draw(spec, p[vis], rng)
         position[vis] = p[vis] + err
         covariance[vis] = cov

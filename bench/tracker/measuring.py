@@ -32,17 +32,18 @@ def measure_campaign(
     points_world: Sequence[np.ndarray],
     visible: Sequence[np.ndarray],
     repeats: Sequence[int],
-    rng: np.random.Generator,
+    rng: np.random.Generator | None,
     times: dict[Key, float] | None = None,
 ) -> dict[Key, Measurement]:
     """Every reading of a campaign (module docstring): ``points_world[j]`` (2, n, 3) the true
     reflector positions of pose j unloaded and loaded, ``visible[j]`` (2, n) which the tracker
     sees, ``repeats[j]`` readings per state; ``times`` as bench.scenario.reading_times (needed
-    by a model whose error depends on them, TrackerModel.uses_times)."""
+    by a model whose error depends on them, TrackerModel.uses_times). ``rng`` None: the exact
+    readings (:func:`measure`'s), no shared error either."""
     keys = [(j, s, r) for j, n in enumerate(repeats) for s in STATES for r in range(int(n))]
     extra: dict[Key, np.ndarray] = {}
     model = spec.error_model
-    if model.correlated:
+    if model.correlated and rng is not None:
         if times is None and model.uses_times:
             raise ValueError(f"the {model.name} tracker needs the readings' times")
         rows, pts, tms = [], [], []

@@ -73,7 +73,7 @@ import numpy as np
 
 from calbench.bench.core import InputError, atomic_path, check_outputs
 from calbench.bench.log import STATES, CampaignLog, IdentificationReport, read_log
-from calbench.bench.model import GeomShape, ReflectorPost, Robot, geom_shapes, reflector_posts
+from calbench.bench.model import GeomShape, ReflectorPost, Robot, geom_shapes, log_robot, reflector_posts
 
 from . import params as viewparams
 from . import text as viewtext
@@ -134,22 +134,6 @@ def _shades(rgb, n: int) -> list[tuple[int, int, int, int]]:
 # ---------------------------------------------------------------------------------------------
 # inputs
 # ---------------------------------------------------------------------------------------------
-
-
-def load_robot(log: CampaignLog) -> Robot:
-    if not log.mjcf_text:
-        raise InputError(
-            log.path, "robot MJCF attachment (application/xml)", "the robot model carried in the log", "none"
-        )
-    try:
-        return Robot.from_xml(log.mjcf_text)
-    except ValueError as e:
-        raise InputError(
-            log.path,
-            "robot MJCF attachment",
-            "an MJCF model MuJoCo can load",
-            str(e).splitlines()[0] if str(e) else "a compile error",
-        ) from None
 
 
 def measured_deflections(log: CampaignLog) -> dict[int, dict[str, np.ndarray]]:
@@ -249,7 +233,7 @@ def plan_view(
     discovery: Discovery | None = None,
 ) -> ViewPlan:
     """Compute what the recording shows (raises InputError on a log it cannot draw)."""
-    robot = load_robot(log)
+    robot = log_robot(log)
     log.tracker_spec()
     names = list(log.header.get("reflectors") or [])
     ghosts = {}

@@ -50,7 +50,7 @@ class RobotPose:
     tendons: dict[str, np.ndarray]
 
 
-class Poser:
+class RobotPoser:
     """One model posed by ``mj_kinematics`` in its own MjData."""
 
     def __init__(self, robot: Robot):
@@ -209,7 +209,7 @@ def pose_scenes(
     """Every complete pose of the log as a :class:`PoseScene`. ``ghosts`` maps a source
     ("truth", "model") to its motor deflections per pose (:func:`true_deflections`,
     :func:`model_deflections`)."""
-    poser = Poser(robot)
+    poser = RobotPoser(robot)
     means = mean_measurements(log, names)
     truth_refl = log.truth.reflectors if log.truth else {}
     nan = np.full((len(names), 3), np.nan)
@@ -307,7 +307,7 @@ def framing(
 
 __all__ = [
     "RobotPose",
-    "Poser",
+    "RobotPoser",
     "PoseScene",
     "deformed_command",
     "mean_measurements",

@@ -4,7 +4,7 @@
 from .batch import compensate_batch
 from .criterion import job_design_jacobian
 from .fingerprint import robot_sha256
-from .identified import Identified, identified_from_report, read_identified
+from .identified import IdentifiedParams, identified_from_report, read_identified
 from .job import Job, JobPoint, Tool, check_job, load_job, parse_job
 from .run import Z_EXCEEDED, Compensation, CompensationRequest, run_compensate
 from .solve import TARGETS, Compensator, PointResult
@@ -16,7 +16,7 @@ __all__ = [
     "Compensation",
     "CompensationRequest",
     "Compensator",
-    "Identified",
+    "IdentifiedParams",
     "Job",
     "JobPoint",
     "PointResult",

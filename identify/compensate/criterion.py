@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from calbench.bench.core import InputError
-from calbench.bench.model import Params, Robot
+from calbench.bench.model import Params, Robot, load_robot
 
 from .batch import BATCH_MIN, compensate_batch
 from .job import check_job, load_job
@@ -32,9 +32,7 @@ def job_design_jacobian(job_path: str | Path, robot: Robot, params0: Params) -> 
     columns times theta0, rows over sqrt(n). InputError when the job is not for this robot or a
     point cannot be compensated at the prior (named)."""
     job = load_job(job_path)
-    mine = Robot.from_file(job.robot) if job.robot.is_file() else None
-    if mine is None:
-        raise InputError(job.path, "robot", "an existing MJCF file", str(job.robot))
+    mine = load_robot(job.path, "robot", path=job.robot)
     label = robot.source.name if robot.source else "the scenario's robot"
     if mine.description.actuated != robot.description.actuated or mine.layout != robot.layout:
         raise InputError(

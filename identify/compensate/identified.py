@@ -23,7 +23,7 @@ from .fingerprint import robot_sha256
 
 
 @dataclass(frozen=True)
-class Identified:
+class IdentifiedParams:
     """theta (SI, in the robot's layout order), its covariance (n, n) and the layout's names."""
 
     names: tuple[str, ...]
@@ -35,7 +35,7 @@ class Identified:
         return robot.layout.params(self.theta)
 
 
-def identified_from_report(rep: IdentificationReport, robot: Robot, source: object) -> Identified:
+def identified_from_report(rep: IdentificationReport, robot: Robot, source: object) -> IdentifiedParams:
     """The report's estimates and covariance for ``robot`` (InputError if they do not fit)."""
     names = tuple(p.name for p in rep.parameters)
     want = robot.layout.names
@@ -71,12 +71,12 @@ def identified_from_report(rep: IdentificationReport, robot: Robot, source: obje
     theta = np.array([p.estimate for p in rep.parameters], dtype=float)
     if np.any(theta[robot.layout.compliance] <= 0):
         raise InputError(source, "parameters", "positive compliances k1 … kN", theta.tolist())
-    return Identified(names, theta, 0.5 * (cov + cov.T), str(source))
+    return IdentifiedParams(names, theta, 0.5 * (cov + cov.T), str(source))
 
 
-def read_identified(path: str | Path, robot: Robot) -> Identified:
+def read_identified(path: str | Path, robot: Robot) -> IdentifiedParams:
     """:func:`identified_from_report` of an ``identify --json`` file."""
     return identified_from_report(IdentificationReport.read(path), robot, path)
 
 
-__all__ = ["Identified", "identified_from_report", "read_identified"]
+__all__ = ["IdentifiedParams", "identified_from_report", "read_identified"]

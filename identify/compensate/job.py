@@ -17,14 +17,13 @@ import numpy as np
 
 from calbench.bench.core import InputError, Table, frozen_array, parse_toml, read_text
 from calbench.bench.model import Robot
+from calbench.bench.scenario import check_commands
 
 # A wrench is "plausible" below these sizes: the heaviest industrial robots carry 2.3 t (23 kN);
 # 100 kN and 100 kN*m are 4 x that at 1 m. Larger values are a unit slip (N*mm, or g for kg).
 MAX_FORCE = 1e5  # N
 MAX_MOMENT = 1e5  # N*m
 MAX_PAYLOAD = 1e4  # kg
-# The same slack as bench.scenario's check of a campaign's poses (rounding of degrees)
-JOINT_LIMIT_TOL = 1e-9
 
 
 @dataclass(frozen=True)
@@ -127,23 +126,7 @@ def check_job(job: Job, robot: Robot) -> None:
         )
     if job.tool.site is None and job.tool.body is None and robot.flange_site < 0:
         raise InputError(job.path, "tool", f"a [tool] table ({name} names no calbench:flange site)")
-    lim = robot.limits()
-    for i, p in enumerate(job.points):
-        if len(p.q) != robot.n_act:
-            raise InputError(
-                job.path,
-                f"point[{i}].q",
-                f"an array of {robot.n_act} numbers (one per actuated joint of {name})",
-                f"{len(p.q)} elements",
-            )
-        for j, (lo, hi) in enumerate(lim):
-            if not lo - JOINT_LIMIT_TOL <= p.q[j] <= hi + JOINT_LIMIT_TOL:
-                raise InputError(
-                    job.path,
-                    f"point[{i}].q[{j}]",
-                    f"joint {j + 1} within [{math.degrees(lo):.3f}, {math.degrees(hi):.3f}] degrees",
-                    round(math.degrees(p.q[j]), 6),
-                )
+    check_commands(job.path, [(f"point[{i}].q", p.q) for i, p in enumerate(job.points)], robot.limits(), name)
 
 
 __all__ = ["Job", "JobPoint", "Tool", "parse_job", "load_job", "check_job", "MAX_FORCE", "MAX_MOMENT"]

@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 
 from calbench.bench.core import InputError, check_memory
-from calbench.bench.model import Robot
+from calbench.bench.model import MODEL_FLAG, Robot, load_robot
 from calbench.bench.scenario import Scenario, load_scenario
 
 from .batch import BATCH_MIN, compensate_batch
-from .identified import Identified, read_identified
+from .identified import IdentifiedParams, read_identified
 from .job import Job, check_job, load_job
 from .solve import TARGETS, Compensator, PointResult
 from .toolpoint import with_tool
@@ -43,7 +43,7 @@ class CompensationRequest:
 class Compensation:
     job: Job
     robot: Robot
-    identified: Identified
+    identified: IdentifiedParams
     target: str
     points: tuple[PointResult, ...]
     truth: tuple[TruePoint, ...] | None = None
@@ -145,15 +145,6 @@ def _rms(xs) -> float | None:
     return float(math.sqrt(sum(x * x for x in xs) / len(xs))) if xs else None
 
 
-def _robot(path: Path, key: str, where: object) -> Robot:
-    if not path.is_file():
-        raise InputError(where, key, "an existing MJCF file", str(path))
-    try:
-        return Robot.from_file(path)
-    except ValueError as exc:  # MuJoCo compile errors, the description
-        raise InputError(path, "robot model", "a loadable MJCF of a calbench robot", str(exc)) from None
-
-
 POINT_BYTES = 16_000  # memory per job point (budget; ~12 kB measured)
 
 
@@ -168,9 +159,9 @@ def run_compensate(req: CompensationRequest) -> Compensation:
     n = len(job.points)
     check_memory(n * POINT_BYTES, job.path, "point", f"{n:,} points at {POINT_BYTES} B each")
     robot = (
-        _robot(Path(req.model), "--model", "--model")
+        load_robot(*MODEL_FLAG, path=req.model)
         if req.model is not None
-        else _robot(job.robot, "robot", job.path)
+        else load_robot(job.path, "robot", path=job.robot)
     )
     check_job(job, robot)
     ident = read_identified(req.identified, robot)

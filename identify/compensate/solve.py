@@ -35,9 +35,10 @@ import numpy as np
 
 from calbench.bench.core import StaticsError
 from calbench.bench.model import Params
+from calbench.bench.scenario import JOINT_LIMIT_TOL
 from calbench.bench.statics import Equilibrium, Load, StaticsSolver, statics_options
 
-from .job import JOINT_LIMIT_TOL, JobPoint
+from .job import JobPoint
 from .toolpoint import ToolRobot, rotation_error, tool_jacobian, tool_pose
 
 TARGETS = ("unloaded", "rigid")

@@ -3,9 +3,7 @@
 
 from .forward import ForwardModel, NoEquilibrium, PoseDesign, design_from_observations
 from .identifiability import (
-    MAX_RELATIVE_STD,
     OUTLIER_SIGMA,
-    RANK_TOL,
     Identifiability,
     analyze,
     explain,
@@ -14,13 +12,27 @@ from .identifiability import (
     whiten_factors,
 )
 from .leastsq import Fit, at_bounds, covariance, levenberg_marquardt, svd_step
-from .model import check_sites, load_model
-from .observations import Observations, PoseObservation, from_log, pose_observation
+from .model import check_sites
+from .observations import Observations, PoseObservation, from_campaign, from_log, pose_observation
 from .profile import PROFILE_SIGMAS, Profile, profile_check, quadratic
 from .rigid import RigidFit, fit_rigid, non_collinear, rotation_exp
+from .tolerances import (
+    DISCOVER_RANK_TOL,
+    GEOMETRY_RANK_TOL,
+    MAX_RELATIVE_STD,
+    NULL_TOL,
+    RANK_TOL,
+    RELATIVE_RANK_TOL,
+    ZERO_COLUMN_TOL,
+)
 from .whitening import Whitener
 
 __all__ = [
+    "DISCOVER_RANK_TOL",
+    "GEOMETRY_RANK_TOL",
+    "NULL_TOL",
+    "RELATIVE_RANK_TOL",
+    "ZERO_COLUMN_TOL",
     "Fit",
     "ForwardModel",
     "Identifiability",
@@ -42,9 +54,9 @@ __all__ = [
     "design_from_observations",
     "explain",
     "fit_rigid",
+    "from_campaign",
     "from_log",
     "levenberg_marquardt",
-    "load_model",
     "non_collinear",
     "outliers",
     "pose_observation",

@@ -56,7 +56,7 @@ import mujoco
 import numpy as np
 
 from calbench.bench.core import CalbenchError
-from calbench.bench.model import Robot
+from calbench.bench.model import MAX_COMPLIANCE, Robot
 from calbench.bench.statics import (
     BatchStatics,
     Load,
@@ -79,7 +79,7 @@ class NoEquilibrium(CalbenchError, RuntimeError):
     and the likely cause in one line (exit status 2). Also a RuntimeError, so an estimator's
     trial step that meets it is rejected as before; at the fit's start it reaches the user."""
 
-    FAR = 1e-4  # rad/(N*m): beyond a heavy robot's joints (bench/scenario/plausible.py)
+    FAR = MAX_COMPLIANCE  # rad/(N*m): beyond any joint, the fit's bound (bench/scenario/plausible.py)
 
     def __init__(self, robot: Robot, des: PoseDesign, theta):
         theta = np.asarray(theta, float)

@@ -53,11 +53,9 @@ import numpy as np
 
 from calbench.bench.model import ParamLayout
 
-RANK_TOL = 1e-6
-ZERO_COLUMN_TOL = 1e-12
-NULL_TOL = 1e-3
+from .tolerances import MAX_RELATIVE_STD, NULL_TOL, RANK_TOL, ZERO_COLUMN_TOL
+
 OUTLIER_SIGMA = 5.0
-MAX_RELATIVE_STD = 1.0
 
 
 @dataclass

@@ -17,7 +17,8 @@ The known inputs are the commanded angles q, the applied wrench (force, moment, 
 tracker pose from the log header.
 
 Nothing here reads a ``/truth/`` topic or the ``ground_truth`` record: :func:`from_log` takes a
-:class:`bench.logformat.CampaignLog`, and the caller reads it with ``include_truth=False``.
+:class:`bench.log.CampaignLog`, and the caller reads it with ``include_truth=False``;
+:func:`from_campaign` reads of a campaign simulated in memory only what its log would carry.
 """
 
 from __future__ import annotations
@@ -27,7 +28,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from calbench.bench.core import InputError
+from calbench.bench.campaign import Campaign
+from calbench.bench.core import STATES, InputError
 from calbench.bench.log import CampaignLog
 from calbench.bench.tracker import TrackerSpec, deflection_covariance, mean_reading, tracker_rotation
 
@@ -151,6 +153,44 @@ def pose_observation(
     )
 
 
+def _no_pose(path) -> InputError:
+    return InputError(
+        path,
+        "/tracker/measurement",
+        "at least one complete pose with a reflector seen unloaded and loaded",
+        "none",
+    )
+
+
+def from_campaign(campaign: Campaign) -> Observations:
+    """Observations of a campaign simulated in memory (bench.campaign.simulate): the same rows
+    :func:`from_log` reads from its log without truth (readings, commands, loads, the tracker),
+    the readings' times from the campaign's timeline. Reads nothing of the truth (the plans'
+    equilibria, the true robot). Raises InputError, as :func:`from_log`, when no pose has a
+    reflector seen in both states."""
+    scn = campaign.scenario
+    spec = campaign.tracker
+    names = list(campaign.reflectors)
+    poses: list[PoseObservation] = []
+    for plan in campaign.plans:
+        ob = pose_observation(
+            plan.index,
+            plan.q,
+            plan.load.force,
+            plan.load.moment,
+            campaign.header.payload_site,
+            names,
+            *(campaign.pose_readings(plan.index, s) for s in STATES),
+            spec,
+            tuple(campaign.pose_times(plan.index, s) for s in STATES),
+        )
+        if len(ob.reflectors):
+            poses.append(ob)
+    if not poses:
+        raise _no_pose(scn.path)
+    return Observations(poses, spec, float(spec.sigma), len(scn.poses), [], False, str(scn.path))
+
+
 def from_log(log: CampaignLog) -> Observations:
     """Observations of every complete pose of a campaign log (read without truth).
 
@@ -177,15 +217,10 @@ def from_log(log: CampaignLog) -> Observations:
         if len(ob.reflectors):
             poses.append(ob)
     if not poses:
-        raise InputError(
-            path,
-            "/tracker/measurement",
-            "at least one complete pose with a reflector seen unloaded and loaded",
-            "none",
-        )
+        raise _no_pose(path)
     n_planned = max(int(log.n_poses_planned), len(log.complete_poses))
     lost = sorted(set(range(n_planned)) - set(log.complete_poses))
     return Observations(poses, spec, float(spec.sigma), n_planned, lost, bool(log.truncated), str(path))
 
 
-__all__ = ["PoseObservation", "Observations", "from_log", "pose_observation"]
+__all__ = ["PoseObservation", "Observations", "from_campaign", "from_log", "pose_observation"]

@@ -116,7 +116,7 @@ def fit_rigid(y: np.ndarray, p: np.ndarray, cov: np.ndarray) -> RigidFit:
     points ``p`` (n, 3): see the module docstring. Needs three points not on one line."""
     y, p, cov = np.asarray(y, float), np.asarray(p, float), np.asarray(cov, float)
     if not non_collinear(y):
-        raise ValueError("a rigid registration needs at least three points not on one line")
+        raise ValueError("a rigid fit needs at least three points not on one line")
     cinv = np.linalg.inv(cov)
     rot, t = kabsch(y, p, 1.0 / np.trace(cov, axis1=1, axis2=2))
     for _ in range(MAX_STEPS):

@@ -55,9 +55,9 @@ from calbench.bench.core import InputError, ProgressSink, sink
 from calbench.bench.scenario import Scenario
 from calbench.identify.runtime import IN_PROCESS, Executor, InProcess, PortableScenario
 
-from .certificate import normalise_blocks
 from .engine import InfoEngine
 from .feasibility import LOAD_KINDS, RULES, lateral_wrench, sample_commands, tally_rules
+from .optimal import normalise_blocks
 from .settings import DesignSettings
 
 # --------------------------------------------------------------------------- candidate set
@@ -284,7 +284,7 @@ def generate_candidates(
         np.array(kinds[:n], int),
         out,
         eng.theta0,
-        settings,
+        eng.settings,
         stats,
         eng.robot.layout.names,
     )

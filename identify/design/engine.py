@@ -22,18 +22,21 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from calbench.bench.campaign import scenario_params
+from calbench.bench.campaign import truth_params
+from calbench.bench.model import motor_jacobian
 from calbench.bench.scenario import Scenario, reading_times
 from calbench.bench.statics import Equilibrium, Load, StaticsSolver
 from calbench.bench.tracker import (
-    Measurement,
     deflection_covariance,
+    measure,
     noise_covariance,
     to_tracker_frame,
     tracker_rotation,
 )
+from calbench.identify.core import analyze, explain, resolve
 
 from .feasibility import Feasibility
+from .optimal import inverse_information
 from .settings import DesignSettings, nominal_robot
 
 # --------------------------------------------------------------------------- information
@@ -57,11 +60,12 @@ class InfoEngine:
         self.scn = scn
         self.settings = settings
         self.robot = nominal_robot(scn)
-        self.params0 = scenario_params(scn, self.robot)
+        self.params0 = truth_params(scn, self.robot)
         self.theta0 = self.robot.layout.theta(self.params0)
         self.n_params = self.robot.layout.n
         self.solver = StaticsSolver(self.robot, tol=1e-10)
         self.feas = Feasibility(self.robot, scn, settings)
+        self.settings = self.feas.settings  # min_height, min_radius scaled with the robot's reach
         self.rot = tracker_rotation(scn.tracker)
         self._js = np.zeros((3, self.robot.model.nv))
         self._jr = np.zeros((3, self.robot.model.nv))
@@ -118,10 +122,8 @@ class InfoEngine:
         reflector unless the tracker's error is correlated)."""
         spec = self.scn.tracker
         n = len(p0)
-        reads, times = [], reading_times([repeats], n)
-        for p in (p0, p1):
-            y = to_tracker_frame(spec, p)
-            reads.append([Measurement(y, noise_covariance(spec, y), np.ones(n, bool))] * repeats)
+        times = reading_times([repeats], n)
+        reads = [[measure(spec, p, np.ones(n, bool), None)] * repeats for p in (p0, p1)]  # exact
         when = tuple([times[(0, s, r)] for r in range(repeats)] for s in ("unloaded", "loaded"))
         c = deflection_covariance(spec, reads[0], reads[1], np.arange(n), when)
         return np.einsum("ia,ranb,jb->rinj", self.rot, c, self.rot).reshape(3 * n, 3 * n)
@@ -174,3 +176,66 @@ class InfoEngine:
             mujoco.mj_jacSite(m, d, self._js, None, rb.payload_site)
             out.append(self._js @ tan)
         return (out[1] - out[0]) * self.theta0
+
+
+# --------------------------------------------------------------------------- what a plan leaves unseen
+
+
+def unseen_parameters(engine: InfoEngine, F: np.ndarray, q: np.ndarray, wrench: np.ndarray) -> dict[str, str]:
+    """Each parameter that information F (p, p; parameters normalised by the prior, so the
+    covariance F^-1 is relative) leaves undetermined, and why, in the words ``identify`` uses
+    (identify/core/identifiability.py): structurally (analyze and explain: the rank of F at
+    RANK_TOL, a zero column when no load turns a motor or no reflector moves with it) or
+    statistically (resolve: a predicted std above MAX_RELATIVE_STD = 1 of the prior, so not even
+    its sign is determined). ``q`` (n, joints) rad and ``wrench`` (n, 6) world N, N*m at the
+    payload site: the plan's (or the candidates') commands and loads, for the facts the reasons
+    need (each motor's load torque J_motor^T w at the rigid pose, paper eq. 12; the motor axes
+    along gravity; the compensator joint's distinct angles). A k_i that no load turns but that F
+    still sees faintly (the links' own weights, moved by the load's sag) is named for the torque.
+    Empty when F determines every parameter."""
+    F = 0.5 * (F + F.T)
+    lam, vec = np.linalg.eigh(F)
+    jw = (vec * np.sqrt(np.clip(lam, 0.0, None))) @ vec.T  # any factor of F has its rank and columns
+    rb = engine.robot
+    ident = analyze(jw, rb.layout.names)
+    cov = inverse_information(F) if ident.identifiable.all() else None
+    if cov is not None:
+        resolve(ident, np.ones(len(F)), cov)
+    if ident.identifiable.all():
+        return {}
+    facts = _plan_facts(rb, np.atleast_2d(q), np.atleast_2d(wrench))
+    reasons = explain(ident, rb.layout, facts)
+    for i, name in enumerate(ident.names):
+        j = i if i < rb.n_act else -1
+        if name in reasons and j >= 0 and ident.unresolved is not None and ident.unresolved[i]:
+            if not facts["motor_torque_seen"][j]:
+                reasons[name] = (
+                    f"no pose's load puts a torque on motor {j + 1} (the plan sees k{j + 1} only through "
+                    f"the links' own weights moved by the load: to +-{100 * ident.relative_std[i]:,.0f} %)"
+                )
+    return reasons
+
+
+def _plan_facts(rb, q: np.ndarray, wrench: np.ndarray) -> dict:
+    """identify/core's explain's facts for commands q and loads wrench (unseen_parameters)."""
+    m, d = rb.model, mujoco.MjData(rb.model)
+    g = m.opt.gravity / max(np.linalg.norm(m.opt.gravity), 1e-300)
+    tau = np.zeros((len(q), rb.n_act))
+    vertical = np.ones(rb.n_act, bool)
+    for i, (qi, w) in enumerate(zip(q, wrench)):
+        d.qpos[:] = rb.rigid_qpos(qi)
+        mujoco.mj_fwdPosition(m, d)
+        tau[i] = motor_jacobian(rb, d, rb.payload_site).T @ w
+        vertical &= np.abs(d.xaxis[rb.act_joint] @ g) > 1 - 1e-9
+    try:
+        joint = rb.compensator_joint(0) if rb.description.compensators else None
+    except ValueError:
+        joint = None
+    fmax = max(np.abs(wrench[:, :3]).max(), 1e-300)
+    return {
+        "motor_torque_seen": np.abs(tau).max(axis=0) > 1e-9 * max(np.abs(tau).max(), 1e-300),
+        "loads_vertical": bool(np.all(np.abs(wrench[:, :2]) <= 1e-9 * fmax)),
+        "vertical_axes": vertical,
+        "compensator_joint": joint,
+        "n_distinct_q2": 0 if joint is None else len(np.unique(np.round(q[:, joint], 9))),
+    }

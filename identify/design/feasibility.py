@@ -10,7 +10,8 @@ Feasibility rules (each named; :func:`Feasibility.check` returns the violated on
   body, by default of the body of the last-but-one actuated joint: on a six-axis arm the J5
   axis, the point of the paper's Fig. 6; the FANUC's link5) at z >= min_height and at least
   min_radius from axis 1 (distance from the first actuated joint's axis line), at the commanded
-  (rigid) pose. Paper: 0.5 m and 1 m.
+  (rigid) pose. Paper: 0.5 m and 1 m, the defaults for a robot of 2.5 m reach or more; a
+  smaller robot's scale with its reach (:func:`robot_reach`, DesignSettings.for_reach).
 * ``self_collision``: MuJoCo collision detection on a copy of the MJCF with every geom made
   collidable (contype = conaffinity = 1, margin = ``clearance``), at the rigid pose and at both
   equilibria. Not counted (:func:`excluded_pairs`, derived from the model, no table): parent-
@@ -81,6 +82,30 @@ def wrist_body(robot: Robot) -> int:
     if robot.description.wrist:
         return mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, robot.description.wrist)
     return int(m.jnt_bodyid[robot.act_joint[max(robot.n_act - 2, 0)]])
+
+
+def robot_reach(robot: Robot) -> float:
+    """R (m): an upper bound of the wrist centre's distance from axis 1 over every command, from
+    the reference pose (q = 0): the chain of joint anchors on the kinematic tree's path from the
+    wrist centre up to axis 1's body, its segment lengths summed, plus the radial distance from
+    axis 1 of the chain's last anchor (each joint turns its segment rigidly: the triangle
+    inequality). The FANUC M-900iB: 2.87 m, the KR 270: 2.70 m, a UR10: 1.32 m (data sheets:
+    2.83, 2.70, 1.30 m to the flange)."""
+    m = robot.model
+    d = mujoco.MjData(m)
+    d.qpos[:] = robot.rigid_qpos(np.zeros(robot.n_act))
+    mujoco.mj_kinematics(m, d)
+    j1 = robot.act_joint[0]
+    origin, axis = d.xanchor[j1], d.xaxis[j1]
+    body, top = wrist_body(robot), int(m.jnt_bodyid[j1])
+    chain = [d.xpos[body].copy()]
+    while body not in (top, 0):
+        adr = m.body_jntadr[body]
+        chain += [d.xanchor[j].copy() for j in range(adr, adr + m.body_jntnum[body])]
+        body = int(m.body_parentid[body])
+    v = chain[-1] - origin
+    radial = float(np.linalg.norm(v - (v @ axis) * axis))
+    return radial + float(sum(np.linalg.norm(a - b) for a, b in zip(chain, chain[1:])))
 
 
 def lateral_wrench(q1: float, sign: float, force: float) -> np.ndarray:
@@ -184,7 +209,7 @@ class Feasibility:
     def __init__(self, robot: Robot, scn: Scenario, settings: DesignSettings):
         self.robot = robot
         self.scn = scn
-        self.settings = settings
+        self.settings = settings.for_reach(robot_reach(robot))  # the defaults scaled
         self.limits = robot.limits()
         m = robot.model
         self.cmodel = collision_model(robot, Path(scn.robot), settings.clearance)
@@ -320,6 +345,7 @@ class RuleTally:
     passed_command: int = 0  # commands that pass every command rule
     solved: int = 0  # of those, how many had their equilibria checked
     feasible: int = 0  # of those, how many pass every rule
+    wrist_rules: str = ""  # min_height and min_radius as applied, and the reach they scale with
 
     def tried(self, rule: str) -> int:
         return self.solved if rule in EQUILIBRIUM_RULES and rule not in COMMAND_RULES else self.sampled
@@ -392,11 +418,14 @@ def tally_rules(feas: Feasibility, solver: StaticsSolver, mass: float, q: np.nda
             f"loop {', '.join(rb.description.loops)} conditioning below {LOOP_MARGIN:.3f}: near degenerate"
         )
     wname = rb.model.body(feas.wrist).name
+    t.wrist_rules = (
+        f"min_height {st.min_height:.3g} m, min_radius {st.min_radius:.3g} m; reach {robot_reach(rb):.2f} m"
+    )
     t.culprit["min_height"] = (
-        f"wrist centre {wname} below {st.min_height:g} m; highest {wrist[:, 2].max():.2f} m"
+        f"wrist centre {wname} below {st.min_height:.3g} m; highest {wrist[:, 2].max():.2f} m"
     )
     t.culprit["min_radius"] = (
-        f"wrist centre {wname} within {st.min_radius:g} m of axis 1; farthest {feas.radius(wrist).max():.2f} m"
+        f"wrist centre {wname} within {st.min_radius:.3g} m of axis 1; farthest {feas.radius(wrist).max():.2f} m"
     )
     if pairs:
         t.culprit["self_collision"] = _top(pairs, n)

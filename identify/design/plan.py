@@ -19,6 +19,7 @@ The prior guess of the parameters is the scenario's [truth] (see design_candidat
 
 from __future__ import annotations
 
+import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,11 +30,18 @@ from calbench.bench.core import InputError, ProgressSink
 from calbench.bench.scenario import Scenario, scenario_as_dict, scenario_to_toml
 
 from .candidates import CandidateSet
-from .certificate import SingularCandidates
-from .criteria import CRITERIA, criterion_value, information, measures
-from .engine import InfoEngine
+from .engine import InfoEngine, unseen_parameters
 from .feasibility import LOAD_KINDS, lateral_wrench
-from .selection import Selection, select_rows, selection_text
+from .optimal import (
+    CRITERIA,
+    Selection,
+    SingularCandidates,
+    criterion_value,
+    information,
+    measures,
+    select_rows,
+    selection_text,
+)
 from .settings import DesignSettings
 
 REFINE_STEPS_DEG = (4.0, 2.0, 1.0)
@@ -58,6 +66,7 @@ class DesignResult:
     exchange: dict
     refine: dict = field(default_factory=dict)
     selection: Selection | None = None  # the exchange's rows and their certificate
+    unseen: dict = field(default_factory=dict)  # parameter -> why the plan leaves it undetermined
 
     def information(self) -> np.ndarray:
         return sum(p.repeats * p.block.T @ p.block for p in self.poses)
@@ -80,6 +89,35 @@ def plan_measures(F: np.ndarray, theta0: np.ndarray, G: np.ndarray | None, names
     out["relative_std"] = {n: float(s) for n, s in zip(names, m["std"])}
     out["std"] = {n: float(s * t) for n, s, t in zip(names, m["std"], theta0)}
     return out
+
+
+def _fix(reason: str, every_pose: bool = False) -> str:
+    """What to change so that a plan sees a parameter ``reason`` (identify's words) says it lacks;
+    ``every_pose``: the reason holds for every candidate, so other poses will not do."""
+    if m := re.match(r"no pose's load puts a torque on motor (\d+)", reason):
+        return f"hang the payload off motor {m[1]}'s axis (calbench:payload, the overlay's [payload] pos)" + (
+            "" if every_pose else ", or add poses whose load has a lever arm about it"
+        )
+    if m := re.match(r"every load is vertical, so none turns the J(\d+)", reason):
+        return "add lateral pulls ([design] lateral_force > 0) or a [[pose]] with a horizontal wrench"
+    if m := re.match(r"no reflector seen moves when motor (\d+)", reason):
+        return f"place a reflector off motor {m[1]}'s axis, seen by the tracker"
+    if m := re.match(r"only \d+ distinct (q\d+)", reason):
+        return f"poses at three or more {m[1]}"
+    if every_pose:
+        return "a robot description whose parameters each move a reflector (check-robot), or fewer parameters"
+    return "more poses, or other ones (calbench design chooses them)"
+
+
+def unseen_lines(reasons: dict[str, str], indent: str = "    ", every_pose: bool = False) -> list[str]:
+    """One line per distinct reason: the parameters, why the plan cannot determine them, and the
+    fix (the reasons of :func:`engine.unseen_parameters`; ``every_pose``: of all the candidates)."""
+    groups: dict[str, list[str]] = {}
+    for name, why in reasons.items():
+        groups.setdefault(why, []).append(name)
+    return [
+        f"{indent}{', '.join(names)}: {why}; fix: {_fix(why, every_pose)}" for why, names in groups.items()
+    ]
 
 
 def scenario_plan_information(engine: InfoEngine, scn: Scenario) -> tuple[np.ndarray, list]:
@@ -207,7 +245,15 @@ def design_plan(
     try:
         sel = select_rows(cands.blocks, M, criterion, G, distinct=distinct, n_random=n_random, seed=seed)
     except SingularCandidates as exc:
-        raise InputError(scn.path, "design", "candidates that identify every parameter", str(exc)) from None
+        F = information(cands.blocks)
+        why = unseen_parameters(engine, F, cands.q, cands.wrench)
+        got = "; ".join(line.strip() for line in unseen_lines(why, every_pose=True)) or str(exc)
+        raise InputError(
+            scn.path,
+            "design",
+            "candidates that identify every parameter",
+            f"from none of {len(cands)}: {got}",
+        ) from None
     r = sel.exchange
     if progress:
         progress.update("exchange done")
@@ -218,6 +264,9 @@ def design_plan(
         ref = refine(engine, poses, criterion, G, progress=progress)
     merged = merge_repeats(poses)
     F = sum(p.repeats * p.block.T @ p.block for p in merged)
+    unseen = unseen_parameters(
+        engine, F, np.array([p.q for p in merged]), np.array([p.wrench for p in merged])
+    )
     return DesignResult(
         criterion,
         merged,
@@ -236,6 +285,7 @@ def design_plan(
         },
         ref,
         sel,
+        unseen,
     )
 
 
@@ -261,6 +311,7 @@ def result_json(res: DesignResult, scn: Scenario, cands: CandidateSet, extra: di
         "criterion": res.criterion,
         "configs": int(sum(p.repeats for p in res.poses)),
         "measures": res.measures,
+        "not_identifiable": res.unseen,
         "measures_before_refinement": res.exchange_measures,
         "poses": [
             {
@@ -297,10 +348,18 @@ def result_json(res: DesignResult, scn: Scenario, cands: CandidateSet, extra: di
 def input_plan_measures(engine: InfoEngine, scn: Scenario, theta0: np.ndarray) -> dict:
     """The scenario's own [[pose]] plan, measured like a designed one, with its rule violations."""
     F_in, viol = scenario_plan_information(engine, scn)
+    q = np.array([p.q for p in scn.poses])
+    w = np.array(
+        [
+            p.wrench if p.wrench is not None else np.r_[engine.robot.weight(scn.load_mass), 0, 0, 0.0]
+            for p in scn.poses
+        ]
+    )
     return {
         "configs": int(sum(p.repeats for p in scn.poses)),
         "measures": plan_measures(F_in, theta0, work_jacobian(engine, scn), engine.robot.layout.names),
         "violations": viol,
+        "not_identifiable": unseen_parameters(engine, F_in, q, w),
     }
 
 
@@ -311,11 +370,18 @@ def summary_text(res: DesignResult, cands: CandidateSet, input_plan: dict) -> st
     configs = int(sum(p.repeats for p in res.poses))
     text = (
         f"design: {res.criterion}-optimal plan of {configs} configurations from {len(cands)} candidates\n"
-        f"  A (trace cov) {m['A']:.4g}   D (det^1/8) {m['D']:.4g}   AD {m['AD']:.4g}"
+        f"  A (trace cov) {m['A']:.4g}   D (det^1/{len(m['std'])}) {m['D']:.4g}   AD {m['AD']:.4g}"
         + (f"   pose {m['pose']:.4g} m^2 ({m['pose_rms_um']:.2f} um rms)" if "pose" in m else "")
         + f"\n  scenario's own plan ({input_plan['configs']} poses): A {mi['A']:.4g}   D {mi['D']:.4g}"
         + (f"   pose {mi['pose']:.4g}" if "pose" in mi else "")
     )
+    unseen = input_plan.get("not_identifiable") or {}
+    if unseen:
+        text += f"; it leaves {', '.join(unseen)} undetermined:\n" + "\n".join(unseen_lines(unseen))
+    if res.unseen:
+        text += f"\n  the designed plan leaves {', '.join(res.unseen)} undetermined:\n" + "\n".join(
+            unseen_lines(res.unseen, every_pose=True)
+        )
     if res.selection is not None:
         text += "\n" + selection_text(res.selection, len(cands), cands.q, [LOAD_KINDS[k] for k in cands.kind])
         if res.refine:

@@ -42,9 +42,9 @@ from .candidates import (
     generate_candidates,
     read_candidates,
 )
-from .certificate import SingularCandidates
 from .engine import InfoEngine
 from .feasibility import LOAD_KINDS
+from .optimal import Selection, SingularCandidates, select_rows, selection_text
 from .plan import (
     DesignResult,
     design_plan,
@@ -56,9 +56,8 @@ from .plan import (
     result_json,
     summary_text,
 )
-from .selection import Selection, select_rows, selection_text
 from .settings import load_design_scenario
-from .study import run_study
+from .study import run_paper_study
 
 CANDIDATES_PER_TASK = 300  # candidates per piece of work, for the executor's choice
 
@@ -141,7 +140,7 @@ def run_design(
             "(command line)", "SCENARIO", "a scenario TOML (or --from-candidates CANDS.npz)", None
         )
     if req.study:
-        res = run_study(req.scenario, req.out_dir)
+        res = run_paper_study(req.scenario, req.out_dir)
         text = json.dumps({k: res[k] for k in ("table1", "table2", "table3_parameters")}, indent=1)
         return DesignOutcome(summary=text, study=res)
     return _generate(req, pieces or _in_process, sink(progress), notes or (lambda line: None))

@@ -12,25 +12,42 @@ from __future__ import annotations
 import math
 import re
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.campaign import scenario_params
+from calbench.bench.campaign import truth_params
 from calbench.bench.core import InputError
-from calbench.bench.model import Robot
+from calbench.bench.model import Robot, load_robot
 from calbench.bench.scenario import Scenario, check_scenario, parse_scenario
 
 # --------------------------------------------------------------------------- settings
 
 
+# The wrist-centre rules' defaults scale with the robot (DesignSettings.for_reach): a heavy
+# robot's values (the paper's, for the FANUC: 0.5 m and 1 m) at a reach of REFERENCE_REACH or
+# more, in proportion below it.
+HEAVY_MIN_HEIGHT = 0.5  # m
+HEAVY_MIN_RADIUS = 1.0  # m
+REFERENCE_REACH = 2.5  # m
+
+
 @dataclass(frozen=True)
 class DesignSettings:
-    """The scenario's optional ``[design]`` table (read here from the TOML text)."""
+    """The scenario's optional ``[design]`` table (read here from the TOML text).
 
-    min_height: float = 0.5  # m, wrist centre z
-    min_radius: float = 1.0  # m, wrist centre from axis 1
+    ``min_height`` and ``min_radius`` (the wrist centre's height above the floor and distance
+    from axis 1) not given in the scenario (None) scale with the robot's reach R
+    (identify/design/feasibility.py's ``robot_reach``: an upper bound of the wrist centre's
+    distance from axis 1 over every command), in :meth:`for_reach`: min_height = 0.5 m x
+    min(1, R / 2.5 m), min_radius = 1 m x min(1, R / 2.5 m). A heavy robot (R >= 2.5 m: the
+    FANUC M-900iB 2.87 m, the KR 270 2.70 m, the IRB 6640 2.99 m) keeps the paper's 0.5 m and
+    1 m; a UR10 (1.32 m) gets 0.26 m and 0.53 m, where 1 m rejected 90 % of its commands.
+    """
+
+    min_height: float | None = None  # m, wrist centre z; None: scaled with the reach
+    min_radius: float | None = None  # m, wrist centre from axis 1; None: scaled with the reach
     candidates: int = 10000  # size of the candidate set
     seed: int | None = None  # candidate sampling; default: the scenario's seed
     clearance: float = 0.0  # m, collision margin
@@ -42,6 +59,16 @@ class DesignSettings:
 
     def as_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+    def for_reach(self, reach: float) -> DesignSettings:
+        """These settings with min_height and min_radius, where not given, scaled with the
+        robot's reach (m; the class docstring's rule); given ones are kept as they are."""
+        scale = min(1.0, max(float(reach), 0.0) / REFERENCE_REACH)
+        return replace(
+            self,
+            min_height=HEAVY_MIN_HEIGHT * scale if self.min_height is None else self.min_height,
+            min_radius=HEAVY_MIN_RADIUS * scale if self.min_radius is None else self.min_radius,
+        )
 
 
 DESIGN_KEYS = tuple(DesignSettings.__dataclass_fields__)
@@ -123,16 +150,13 @@ def load_design_scenario(path: str | Path) -> tuple[Scenario, DesignSettings]:
 
 def nominal_theta(scn: Scenario, robot: Robot) -> np.ndarray:
     """The prior guess theta0 = the scenario's [truth] (see the module docstring)."""
-    return robot.layout.theta(scenario_params(scn, robot))
+    return robot.layout.theta(truth_params(scn, robot))
 
 
 def nominal_robot(scn: Scenario) -> Robot:
     """The design model: the scenario's MJCF with theta0 written in, WITHOUT the hidden
     ``[truth.effects]`` (a design knows the model, not what the model lacks)."""
-    try:
-        robot = Robot.from_file(scn.robot)
-    except ValueError as exc:  # MuJoCo compile errors, the robot description
-        raise InputError(scn.path, "robot", "a loadable MJCF robot", f"{scn.robot}: {exc}") from None
-    robot.set_params(scenario_params(scn, robot))
+    robot = load_robot(scn.path, "robot", path=scn.robot)
+    robot.set_params(truth_params(scn, robot))
     check_scenario(scn, robot)  # a slipped unit: InputError, or a PlausibilityWarning
     return robot

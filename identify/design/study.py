@@ -30,15 +30,15 @@ import numpy as np
 
 from calbench.bench.core import InputError, write_text
 
-from .criteria import measures
 from .engine import InfoEngine
+from .optimal import measures
 from .settings import load_design_scenario
 
 WRISTS = ((-45.0, 30.0, 135.0), (45.0, -30.0, 45.0))
 Q3 = (-30.0, 30.0)
 
 
-def run_study(scenario: Path, out_dir: Path, progress=None, step: float = 5.0) -> dict:
+def run_paper_study(scenario: Path, out_dir: Path, progress=None, step: float = 5.0) -> dict:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -157,4 +157,4 @@ def run_study(scenario: Path, out_dir: Path, progress=None, step: float = 5.0) -
     return res
 
 
-__all__ = ["run_study"]
+__all__ = ["run_paper_study"]

@@ -1,9 +1,9 @@
 # The public face of calbench.identify.discover: what code outside this room may import. At run time
 # calbench.bench.core.face reads these lines and loads each name on first use.
 
-from .aliasing import aliasing_report
+from .aliasing import UNEXCITED, VISIBLE_SHARE_MIN, aliasing_report, regress
 from .decide import ALPHA_EFFECT, MIN_EXPLAINED, compare, lr_spread, lr_threshold, near_ties
-from .exposure import effect_exposure, exposure_report, worst_case
+from .exposure import UNBOUNDED_SIGMA, absorbed_sizes, effect_exposure, exposure_report, worst_case
 from .fit import (
     DISCOVERY_EFFECTS,
     AugmentedForward,
@@ -15,6 +15,9 @@ from .fit import (
     whitened,
 )
 from .geometric import (
+    ALPHA_GEOMETRY,
+    ALPHA_NAMING,
+    ALPHA_UNEXPLAINED,
     Candidate,
     Readings,
     discover_geometry,
@@ -32,10 +35,29 @@ from .geometric_run import (
     geometric_problem,
     run_discover_geometry,
 )
-from .narrative import alias_lines, base_lines, exposure_lines, tie_lines
+from .narrative import (
+    alias_lines,
+    base_lines,
+    exposure_lines,
+    self_check_failures,
+    self_check_lines,
+    tie_lines,
+)
 from .search import fit_candidate, polish, unabsorbed_norms
 from .stats import ALPHA_FIT
-from .uncertainty import MAX_RELATIVE_STD, Determination, determination, split_by_ties
+from .uncertainty import (
+    BIAS_SIGMA,
+    MAX_RELATIVE_STD,
+    REPLICAS,
+    STD_FACTOR,
+    Determination,
+    bootstrap,
+    determination,
+    self_check,
+    split_by_ties,
+    unit_checks,
+    with_deflections,
+)
 from .workflow import (
     AMBIGUOUS,
     UNEXPLAINED,
@@ -50,8 +72,23 @@ from .workflow import (
 )
 
 __all__ = [
+    "UNBOUNDED_SIGMA",
+    "VISIBLE_SHARE_MIN",
+    "UNEXCITED",
+    "absorbed_sizes",
+    "regress",
+    "BIAS_SIGMA",
+    "REPLICAS",
+    "STD_FACTOR",
+    "bootstrap",
+    "self_check",
+    "unit_checks",
+    "with_deflections",
     "ALPHA_EFFECT",
     "ALPHA_FIT",
+    "ALPHA_GEOMETRY",
+    "ALPHA_NAMING",
+    "ALPHA_UNEXPLAINED",
     "Candidate",
     "Readings",
     "discover_geometry",
@@ -77,6 +114,8 @@ __all__ = [
     "alias_lines",
     "base_lines",
     "exposure_lines",
+    "self_check_lines",
+    "self_check_failures",
     "tie_lines",
     "aliasing_report",
     "augmented_mjcf",

@@ -49,13 +49,14 @@ from calbench.bench.model import ParamLayout, Robot
 from calbench.bench.model.effects import (
     DISCOVERY_OPTIONS,
     Effect,
-    Readings,
+    ObservationRows,
     apply_effects,
     discovery_library,
     priors,
 )
 from calbench.bench.tracker import tracker_rotation
 from calbench.identify.core import (
+    DISCOVER_RANK_TOL,
     Fit,
     ForwardModel,
     PoseDesign,
@@ -69,7 +70,6 @@ from calbench.identify.core import (
 
 # --------------------------------------------------------------------------- the library
 
-DISCOVER_RANK_TOL = 1e-5  # singular value (column-normalised) below which a direction is unseen
 COST_TOL = 1e-3  # chi2 units: a step gaining (or promising) less ends the fit
 STALL_LIMIT = 8  # Newton iterations a stalling step may re-assemble A_base + S (analytic S)
 # the base parameters' bounds: ParamLayout.lower / .upper (bench/model/params.py)
@@ -126,7 +126,7 @@ class AugmentedForward(ForwardModel):
         robot: Robot,
         design: list[PoseDesign],
         effects: list[Effect],
-        readings: Readings | None = None,
+        readings: ObservationRows | None = None,
         **kw,
     ):
         m = robot.model
@@ -145,7 +145,7 @@ class AugmentedForward(ForwardModel):
         self._dsprings: tuple[bytes, np.ndarray] | None = None
         self.readings = readings
         if any(e.measurement_side for e in self.effects) and readings is None:
-            raise ValueError("a measurement-side effect needs the observation rows (Readings)")
+            raise ValueError("a measurement-side effect needs the observation rows (ObservationRows)")
         hinge = np.flatnonzero(
             np.isin(m.jnt_type, (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE))
         )
@@ -395,7 +395,7 @@ def build(model_source, effects: list[tuple[Effect, np.ndarray]], obs) -> tuple[
             or (isinstance(model_source, str) and "<mujoco" not in model_source)
             else Robot.from_xml(model_source)
         )
-    readings = Readings(tuple(obs.labels), tracker_rotation(obs.tracker))
+    readings = ObservationRows(tuple(obs.labels), tracker_rotation(obs.tracker))
     fm = AugmentedForward(robot, design_from_observations(robot, obs), [e for e, _ in effects], readings)
     return robot, fm
 

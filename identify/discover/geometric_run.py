@@ -28,10 +28,10 @@ from calbench.bench.model.effects import discovery_library
 from calbench.identify.geometry import (
     Arm,
     absolute_readings,
+    complete_model,
     initial_model,
-    load_arm,
     validate,
-    write_chain_mjcf,
+    write_calibrated,
 )
 
 from .geometric import AMBIGUOUS, UNEXPLAINED, Readings, discover_geometry, library
@@ -52,11 +52,12 @@ def run_discover_geometry(
         raise InputError(
             log.path, "robot model", "an MJCF attachment in the log (or --model ROBOT.xml)", "none"
         )
-    arm = load_arm(model, log.mjcf_text, f"{log.path} (MJCF attachment)")
-    robot = Robot.from_file(model) if model is not None else Robot.from_xml(log.mjcf_text)
+    where = str(model) if model is not None else f"{log.path} (MJCF attachment)"
     data = absolute_readings(log)
     sigma = data.std if data.std is not None else data.sigma
-    start, readings, cands = geometric_problem(arm, robot, data.point, data.q, data.y, sigma)
+    comp = complete_model(model, log.mjcf_text, where, data.point, data.q, data.y)
+    robot = Robot.from_file(model) if model is not None else Robot.from_xml(log.mjcf_text)
+    start, readings, cands = problem_of(comp.model, comp.bodies, robot, data.q, data.y, sigma)
     rep, fits = discover_geometry(start, readings, cands, progress=progress)
     rep.update(
         {
@@ -77,11 +78,8 @@ def run_discover_geometry(
         del rep["validation"]["model"]
     if fits[-1][1].labels:
         path = Path(out_model) if out_model else log_path.with_name(log_path.stem + ".augmented.xml")
-        chain, tool, base, comp = fits[-1][1].fit.calibrated()
-        name = bytes(arm.model.names).split(b"\0")[0].decode() + "_calibrated"
-        write_chain_mjcf(path, chain, tool, name=name, compliance=comp)
+        rep["tracker_from_base"] = write_calibrated(path, fits[-1][1].fit, comp.name).tolist()
         rep["augmented_model"] = str(path)
-        rep["tracker_from_base"] = base.tolist()
     else:
         rep["augmented_model"] = None
     return rep
@@ -91,8 +89,13 @@ def geometric_problem(arm: Arm, robot: Robot, point: str, q: np.ndarray, y: np.n
     """(the nominal complete model registered on the readings, the readings with their gravity
     torques, the candidates on this robot) for one flange ``point`` read at q as y (tracker
     frame) with ``sigma`` (m: one number, (n,) or (n, 3))."""
-    start = initial_model(arm.chain, q, y, arm.point(point))
-    cands = library(start, discovery_library(robot, "absolute"), arm.bodies)
+    return problem_of(initial_model(arm.chain, q, y, arm.point(point)), arm.bodies, robot, q, y, sigma)
+
+
+def problem_of(start, bodies, robot: Robot, q: np.ndarray, y: np.ndarray, sigma):
+    """(the registered complete model ``start`` (model.py's chain, or statics.py's for a robot with
+    a loop or a spring), the readings with their gravity torques, the candidates on this robot)."""
+    cands = library(start, discovery_library(robot, "absolute"), bodies)
     return start, Readings(q, y, sigma, start.torques(q)), cands
 
 
@@ -111,9 +114,10 @@ def format_discover_geometry(rep: dict) -> str:
         return f"; held-out RMS {v['position_rms'] * mm:.3f} mm" if v else ""
 
     st = rep["start_model"]
+    springs = " + balancer springs" if any(p["effect"] == "compensator" for p in st["parameters"]) else ""
     lines = [
         f"discover --geometry: {rep['n_readings']} unloaded readings of {rep['point']} ({rep['log']})",
-        f"start: registration + joint compliance under self-weight, fit RMS {st['rms'] * mm:.3f} mm "
+        f"start: registration + joint compliance under self-weight{springs}, fit RMS {st['rms'] * mm:.3f} mm "
         f"(chi2 {st['chi2']:.4g} for {st['dof']} dof, p = {st['p']:.2g}){tail('start')}",
     ]
     for s in rep["steps"]:
@@ -146,4 +150,10 @@ def discover_geometry_json(rep: dict) -> str:
     return json.dumps(clean(rep), indent=1, allow_nan=False) + "\n"
 
 
-__all__ = ["geometric_problem", "run_discover_geometry", "format_discover_geometry", "discover_geometry_json"]
+__all__ = [
+    "geometric_problem",
+    "problem_of",
+    "run_discover_geometry",
+    "format_discover_geometry",
+    "discover_geometry_json",
+]

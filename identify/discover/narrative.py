@@ -228,6 +228,37 @@ def tie_lines(params: list[dict]) -> list[str]:
     return out
 
 
+def self_check_lines(check: dict | None) -> list[str]:
+    """The verdict of the self-check of the reported model (identify/discover/uncertainty.py's
+    self_check): passed, or which parameters and combinations failed (and are reported as not
+    determined), with the replicas' spread and mean against the reported std."""
+    if not check:
+        return []
+    head = (
+        f"Self-check ({check['replicas']} replicas re-simulated from the reported model and refitted): "
+        f"every reported std within {check['std_factor']:g}x of the replicas' spread and their mean "
+        f"within {check['bias_sigma_max']:g} std of the estimate"
+    )
+    if check["passed"]:
+        return [head + ": passed."]
+    out = [head + ": FAILED for " + ", ".join(check["failed"]) + " (reported as not determined):"]
+    return out + ["  " + line for line in self_check_failures(check)]
+
+
+def self_check_failures(check: dict) -> list[str]:
+    """One line per quantity a self-check failed: the replicas' spread and mean against its std."""
+    out = []
+    for n in check["failed"]:
+        p = check["parameters"][n]
+        if p["std_ratio"] is None:
+            out.append(f"{n}: only {p['replicas']} of the replicas could be refitted")
+        else:
+            out.append(
+                f"{n}: spread / reported std {p['std_ratio']:.2f}, mean - estimate {p['bias_sigma']:+.2f} std"
+            )
+    return out
+
+
 def exposure_lines(params: list[dict]) -> list[str]:
     """Each determined parameter's exposure: the largest bias an effect of the library that this
     plan would not name could cause (identify/discover/exposure.py)."""
@@ -249,7 +280,8 @@ def exposure_lines(params: list[dict]) -> list[str]:
         out.insert(
             0,
             "Exposure of each determined parameter to the library's effects not named (the largest "
-            "bias one could cause while its test stays silent, first order):",
+            "bias one could cause while its test stays silent, first order, at the estimate and "
+            "+-2 std along each principal axis of its covariance):",
         )
     return out
 
@@ -304,12 +336,15 @@ def story(rep: dict) -> str:
         lines.append("Determined only in combination (the split is not):")
         lines += ["  " + _combination(c) for c in rep["combinations"]]
     for c in rep.get("combinations_not_quadratic", []):
+        if c.get("rejected_by") == "self-check":
+            continue  # said by self_check_lines
         lines.append(
             f"Not determined, not even in combination: {' + '.join(c['combination'])} (chi2 rises "
             + ", ".join("none" if r is None else f"{r:.2g}" for r in c["chi2_rise_at_2_std"])
             + " at +-2 std of its linear combination, 4 if quadratic: its std would be dishonest)"
         )
     lines += tie_lines(rep["parameters"])
+    lines += self_check_lines(rep.get("self_check"))
     lines += exposure_lines(rep["parameters"])
     if not rep["named_effects"]:
         lines.append(
@@ -369,6 +404,8 @@ __all__ = [
     "base_lines",
     "tie_lines",
     "exposure_lines",
+    "self_check_lines",
+    "self_check_failures",
     "alias_lines",
     "plot_residuals",
     "view_report",

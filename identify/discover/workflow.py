@@ -42,10 +42,10 @@ import numpy as np
 
 from calbench.bench.core import sink, write_text
 from calbench.bench.log import read_log
-from calbench.bench.model import Robot, set_spec_names, spec_names
+from calbench.bench.model import Robot, log_robot, set_spec_names, spec_names
 from calbench.bench.model.effects import augmented_xml, load_spec
 from calbench.bench.view import Discovery, write_discovery_recording
-from calbench.identify.core import Observations, Whitener, check_sites, from_log, load_model
+from calbench.identify.core import Observations, Whitener, check_sites, from_log
 
 from .aliasing import aliasing_report
 from .basefit import base_fit, base_record, hold_mask
@@ -63,7 +63,7 @@ from .fit import Fit, build, effect_priors, label, library, whitened
 from .narrative import clean, plot_residuals, story, view_report
 from .search import fit_candidate, polish
 from .stats import ALPHA_FIT, chi2_p, diagnose, expected_rms, rms
-from .uncertainty import MAX_RELATIVE_STD, checked, determination, split_by_ties
+from .uncertainty import MAX_RELATIVE_STD, checked, determination, self_check, split_by_ties
 
 MAX_ROUNDS = 3
 UNEXPLAINED = "unexplained"
@@ -131,10 +131,14 @@ def run_round(
     return out
 
 
-def _params(f: Fit, det=None, lo: int = 0, hi: int | None = None, split: dict | None = None) -> list[dict]:
+def _params(
+    f: Fit, det=None, lo: int = 0, hi: int | None = None, split: dict | None = None, check: dict | None = None
+) -> list[dict]:
     """Parameter records of f[lo:hi] with the honest std of ``det`` (uncertainty.py); ``split``:
-    the values under each tied candidate where an `ambiguous` verdict leaves one undetermined."""
+    the values under each tied candidate where an `ambiguous` verdict leaves one undetermined;
+    ``check``: the self-check (uncertainty.self_check), each checked parameter's line."""
     split = split or {}
+    checked_ = (check or {}).get("parameters", {})
     det = determination(f, f.extra["jw"]) if det is None else det
     hi = f.values.size if hi is None else hi
     profile = getattr(det, "profile", {})
@@ -147,6 +151,7 @@ def _params(f: Fit, det=None, lo: int = 0, hi: int | None = None, split: dict | 
             "determined": bool(det.determined[i]),
             **({"chi2_rise_at_2_fisher_std": profile[i]} if i in profile else {}),
             **({"under_tied_candidates": split[i]} if i in split else {}),
+            **({"self_check": checked_[f.names[i]]} if f.names[i] in checked_ else {}),
         }
         for i in range(lo, hi)
     ]
@@ -283,6 +288,7 @@ def discover_observations(
     split = {}
     if tie_fits:  # ambiguous: what the tied candidates disagree on is not determined under either
         split = split_by_ties(final, det, [(lab, f, checked(f, obs, white)) for lab, f in tie_fits])
+    check = self_check(final, obs, white, det)  # what fails is not determined
     for s, (e, _) in zip(
         [s for s in steps if s["effect"] not in (UNEXPLAINED, AMBIGUOUS)], final.effect_params()
     ):
@@ -296,13 +302,16 @@ def discover_observations(
         fresh_cols = alias_columns(src, obs, white, final, lib)
     aliasing = aliasing_report(final, final.extra["jw"], det.std, fresh_cols, obs, white, max(len(last), 1))
     own = {label(c.fit.effects[-1]) for c in last if c.fit is not None and owns_base(c.fit)}
+    exposed = [(e, b) for e, b in fresh_cols if label(e) not in own]
     exposure = exposure_report(
         final,
         final.extra["jw"],
         det.std,
-        [(e, b) for e, b in fresh_cols if label(e) not in own],
+        exposed,
         len(last) or 1,
+        region_columns(src, obs, white, final, [e for e, _ in exposed]),
     )
+    final.model.evaluate(final.values, jacobian=False)  # the model back at the estimate
     diag_before = diagnose(base, obs, sigma)
     diag_after = diagnose(final, obs, sigma) if final is not base else diag_before
     rep = {
@@ -338,7 +347,8 @@ def discover_observations(
         "where_after": diag_after,
         "rounds": rounds,
         "hints": hints,
-        "parameters": with_exposure(_params(final, det, split=split), exposure),
+        "parameters": with_exposure(_params(final, det, split=split, check=check), exposure),
+        "self_check": check,
         "combinations": det.combinations,
         "combinations_not_quadratic": det.rejected,
         "n_observations": obs.n_obs(),
@@ -367,7 +377,40 @@ def base_exposure(src, obs: Observations, std: np.ndarray) -> list[dict]:
         _, fm = build(src, [(e, effect_priors(e)[0])], obs)
         if not fm._base_overridden(np.concatenate([base.values, effect_priors(e)[0]])).any():
             cols.append((e, block))
-    return exposure_report(base, base.extra["jw"], np.asarray(std, float), cols, len(lib) or 1)
+    return exposure_report(
+        base,
+        base.extra["jw"],
+        np.asarray(std, float),
+        cols,
+        len(lib) or 1,
+        region_columns(src, obs, white, base, [e for e, _ in cols]),
+    )
+
+
+def region_columns(src, obs, white, final: Fit, effects: list):
+    """theta -> (chi2, whitened Jacobian of ``final``'s model, [(effect, its whitened columns)])
+    at theta, for each of ``effects`` added to ``final``'s model at its prior start (each model
+    built once): the exposure's evaluation away from the estimate (exposure.py's region)."""
+    models = []
+    for e in effects:
+        start = effect_priors(e)[0]
+        try:
+            models.append((e, build(src, final.effect_params() + [(e, start)], obs)[1], start))
+        except (ValueError, RuntimeError, NotImplementedError, np.linalg.LinAlgError):
+            continue
+    yw = white.vec(obs.dp)
+
+    def at(theta: np.ndarray):
+        fw, jw = whitened(final.model, white, theta)
+        cols = []
+        for e, fm, start in models:
+            try:
+                cols.append((e, whitened(fm, white, np.concatenate([theta, start]))[1][:, -start.size :]))
+            except (ValueError, RuntimeError, NotImplementedError, np.linalg.LinAlgError):
+                continue  # no equilibrium with this effect there: the others still count
+        return float(np.sum((yw - fw) ** 2)), jw, cols
+
+    return at
 
 
 def owns_base(f: Fit) -> bool:
@@ -456,7 +499,7 @@ def discover(
     log_path = Path(log_path)
     log = read_log(log_path)  # no truth
     obs = from_log(log)
-    robot = load_model(log, model)  # validates the MJCF (InputError)
+    robot = log_robot(log, model)  # validates the MJCF (InputError)
     check_sites(robot, obs, model or log.path)
     src = Path(model) if model is not None else log.mjcf_text
     rep, final, base = discover_observations(

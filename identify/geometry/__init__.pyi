@@ -12,6 +12,7 @@ from .fit import (
     extend_base,
     in_priority,
     initial_model,
+    rank_rule,
     refresh_torques,
     split,
     tool_from_transform,
@@ -19,10 +20,26 @@ from .fit import (
 )
 from .mjcf import Arm, chain_from_mjcf, chain_mjcf, load_arm, write_chain_mjcf
 from .model import GeometricModel, kind, parameter_names
-from .run import AbsoluteReadings, absolute_readings, format_geometry, geometry_json, run_geometry
+from .run import (
+    AbsoluteReadings,
+    Complete,
+    absolute_readings,
+    complete_model,
+    format_geometry,
+    geometry_json,
+    run_geometry,
+    write_calibrated,
+)
+from .statics import StaticsModel, calibrated_xml, statics_model
 
 __all__ = [
     "AbsoluteReadings",
+    "Complete",
+    "StaticsModel",
+    "calibrated_xml",
+    "complete_model",
+    "statics_model",
+    "write_calibrated",
     "Arm",
     "GRAVITY",
     "MODELS",
@@ -47,6 +64,7 @@ __all__ = [
     "kind",
     "load_arm",
     "parameter_names",
+    "rank_rule",
     "refresh_torques",
     "rot",
     "run_geometry",

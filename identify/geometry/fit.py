@@ -22,17 +22,24 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.optimize import least_squares
 
+from calbench.identify.core import GEOMETRY_RANK_TOL as RANK_TOL  # identify/core/tolerances.py
 from calbench.identify.core import fit_rigid
 
 from .chain import Chain
 from .model import GeometricModel, kind
 
-RANK_TOL = 1e-9
 # the models a validation compares, by the effects each one fits
 MODELS = {
     "nominal": ("base_frame", "tool_frame"),
     "geometry": ("base_frame", "tool_frame", "joint_offset", "link_geometry"),
-    "geometry+compliance": ("base_frame", "tool_frame", "joint_offset", "link_geometry", "joint_compliance"),
+    "geometry+compliance": (
+        "base_frame",
+        "tool_frame",
+        "joint_offset",
+        "link_geometry",
+        "joint_compliance",
+        "compensator",  # a spring's stiffness and preload (statics.py; none on a serial arm)
+    ),
 }
 
 
@@ -94,7 +101,7 @@ def tool_from_transform(probe_to_flange: np.ndarray) -> np.ndarray:
     return -r.T @ t
 
 
-PRIORITY = ("base_frame", "tool_frame", "joint_offset", "joint_compliance", "link_geometry")
+PRIORITY = ("base_frame", "tool_frame", "joint_offset", "joint_compliance", "compensator", "link_geometry")
 
 
 def in_priority(names: Sequence[str], indices: Sequence[int]) -> list[int]:
@@ -102,13 +109,30 @@ def in_priority(names: Sequence[str], indices: Sequence[int]) -> list[int]:
     return sorted(indices, key=lambda i: (PRIORITY.index(kind(names[i])), i))
 
 
-def extend_base(jac: np.ndarray, chosen: Sequence[int], candidates: Sequence[int]) -> tuple[int, ...]:
+def rank_rule(model) -> dict:
+    """The base set's rank tolerance and column floor of a model (extend_base's ``tol`` and
+    ``floor``): the defaults for model.py's exact Jacobian; statics.py's differences pass theirs."""
+    return {"tol": getattr(model, "rank_tol", None), "floor": getattr(model, "column_floor", None)}
+
+
+def extend_base(
+    jac: np.ndarray,
+    chosen: Sequence[int],
+    candidates: Sequence[int],
+    tol: float | None = None,
+    floor: float | None = None,
+) -> tuple[int, ...]:
     """A base set ``chosen`` grown by each of ``candidates``, taken in the order given, that raises
     the rank of the column-scaled Jacobian (module docstring); the grown set, in its order.
 
     The singular values of the chosen columns with one more are those of the small triangular
     factor [[R, Q^T c], [0, |c - Q Q^T c|]] of their QR (Q^T c twice: re-orthogonalised), so each
-    test is an SVD of a (k + 1)-square matrix, not of the tall Jacobian."""
+    test is an SVD of a (k + 1)-square matrix, not of the tall Jacobian. ``tol``: the rank
+    tolerance (default RANK_TOL; a model whose columns are differences passes its own);
+    ``floor``: the column norm at or below which a column is none (default ``tol`` times the
+    median column's, which compares columns of different units: a model that zeroes its own
+    noise columns passes 0)."""
+    tol = RANK_TOL if tol is None else tol
     a = jac.reshape(-1, jac.shape[-1])
     scale = np.linalg.norm(a, axis=0)
     out = list(chosen)
@@ -117,7 +141,7 @@ def extend_base(jac: np.ndarray, chosen: Sequence[int], candidates: Sequence[int
     else:
         q, r = np.zeros((a.shape[0], 0)), np.zeros((0, 0))
     rank = len(out)
-    floor = RANK_TOL * np.median(scale)
+    floor = tol * np.median(scale) if floor is None else floor
     for i in candidates:
         # a column of rounding noise only (a rotation about an axis through the probe) is
         # no parameter: it would enter with any scaling
@@ -134,7 +158,7 @@ def extend_base(jac: np.ndarray, chosen: Sequence[int], candidates: Sequence[int
         grown = np.zeros((k + 1, k + 1))
         grown[:k, :k], grown[:k, k], grown[k, k] = r, h, rho
         sv = np.linalg.svd(grown, compute_uv=False)
-        if int(np.sum(sv > RANK_TOL * sv[0])) > rank:
+        if int(np.sum(sv > tol * sv[0])) > rank:
             out.append(i)
             rank += 1
             q = np.column_stack([q, res / rho])
@@ -142,10 +166,13 @@ def extend_base(jac: np.ndarray, chosen: Sequence[int], candidates: Sequence[int
     return tuple(out)
 
 
-def base_set(jac: np.ndarray, names: Sequence[str], effects: Sequence[str]) -> tuple[int, ...]:
-    """Indices of an identifiable base set among the parameters of the given effects (see above)."""
+def base_set(
+    jac: np.ndarray, names: Sequence[str], effects: Sequence[str], rule: dict | None = None
+) -> tuple[int, ...]:
+    """Indices of an identifiable base set among the parameters of the given effects (see above;
+    ``rule``: :func:`rank_rule` of the model)."""
     order = in_priority(names, [i for i, n in enumerate(names) if kind(n) in effects])
-    return tuple(sorted(extend_base(jac, (), order)))
+    return tuple(sorted(extend_base(jac, (), order, **(rule or {}))))
 
 
 def weights(sigma: float | np.ndarray | None, shape: tuple[int, ...]) -> np.ndarray:
@@ -171,37 +198,55 @@ def calibrate(
     or one per reading (n,) or per coordinate (n, 3)) when known: the residuals are weighted by it;
     ``tau`` the gravity torques (default: the model's nominal ones at q). ``free``: the parameters
     to fit, already a base set, in place of the base set of ``effects``; ``theta0``: the start of
-    the free ones (default: zero, the nominal model)."""
+    the free ones and the values of the others (default: zero, the nominal model)."""
     tau = model.torques(q) if tau is None else tau
     theta = np.zeros(model.size) if theta0 is None else np.asarray(theta0, float)
     if free is None:
         _, jac0 = model.jacobian(q, np.zeros(model.size), tau)
-        free = base_set(jac0, model.names, effects)
+        free = base_set(jac0, model.names, effects, rank_rule(model))
     else:
-        _, jac0 = model.jacobian(q, theta, tau)
+        _, jac0 = model.jacobian(q, theta, tau, columns=free)
     idx = np.asarray(free, dtype=int)
     wf = weights(sigma, np.shape(y)).ravel()
     scale = np.linalg.norm(jac0.reshape(-1, model.size)[:, idx], axis=0)
 
+    held = theta.copy()  # the parameters not fitted keep theta0's values
+
     def full(x):
-        th = np.zeros(model.size)
+        th = held.copy()
         th[idx] = x / scale
         return th
 
     def resid(x):
-        return (model.predict(q, full(x), tau) - y).ravel() * wf
+        try:
+            return (model.predict(q, full(x), tau) - y).ravel() * wf
+        except ValueError:  # statics.py: no equilibrium there; a huge residual makes LM step back
+            return np.full(wf.size, 1e8)
 
     def jac(x):
-        return model.jacobian(q, full(x), tau)[1].reshape(-1, model.size)[:, idx] * wf[:, None] / scale
+        j = model.jacobian(q, full(x), tau, columns=idx)[1]
+        return j.reshape(-1, model.size)[:, idx] * wf[:, None] / scale
 
-    sol = least_squares(resid, theta[idx] * scale, jac=jac, method="lm", xtol=1e-12, ftol=1e-12)
+    bounds = getattr(model, "bounds", None)  # statics.py: compliances kept positive
+    _method = "lm"
+    if bounds is None or not np.any(np.isfinite(np.concatenate([bounds[0][idx], bounds[1][idx]]))):
+        sol = least_squares(resid, theta[idx] * scale, jac=jac, method="lm", xtol=1e-12, ftol=1e-12)
+    else:
+        lo, hi = bounds[0][idx] * scale, bounds[1][idx] * scale
+        x0 = np.clip(theta[idx] * scale, lo, hi)
+        sol = least_squares(resid, x0, jac=jac, method="trf", bounds=(lo, hi), xtol=1e-12, ftol=1e-12)
+        _method = "trf"
     theta = full(sol.x)
     rw = sol.fun
     r = (rw / wf).reshape(-1, 3)
     dof = max(r.size - len(idx), 1)
     s2 = 1.0 if sigma is not None else float(rw @ rw) / dof
-    js = sol.jac * scale  # d/d theta = d/dx * scale (x = theta * scale)
-    cov = s2 * np.linalg.pinv(js.T @ js)  # pinv: a start far off may end where the rank drops
+    # in x = theta * scale, whose columns are of one size (theta's span 1e10 in units: a spring's
+    # N/m against a compliance's rad/(N*m), beyond pinv's 1e-15), then back: cov_theta = cov_x /
+    # (scale scale^T). With bounds, trf's jac is scaled by the variables' distance to them
+    # (Coleman-Li), not the model's: taken again at the solution.
+    jx = sol.jac if _method == "lm" else jac(sol.x)
+    cov = s2 * np.linalg.pinv(jx.T @ jx) / np.outer(scale, scale)  # pinv: the rank may drop far off
     rms = float(np.sqrt(np.mean(np.sum(r**2, 1))))
     return GeometryFit(
         model, theta, tuple(int(i) for i in idx), cov, rms, len(y), rw if sigma is not None else None
@@ -219,6 +264,8 @@ def refresh_torques(
     (:meth:`GeometricModel.torques_at`) until they settle (``rounds`` at most; a round changes them
     by ~1e-3 of the last change): (the fit, the torques it used). Only a fit with compliances
     needs it: without, the fit is returned with the nominal torques."""
+    if getattr(fit.model, "self_consistent", False):  # statics.py: each reading its own equilibrium
+        return replace(fit, own_torques=True), fit.model.torques(q)
     if not any(kind(fit.model.names[i]) == "joint_compliance" for i in fit.free):
         return fit, fit.model.torques(q)
     tau = fit.model.torques(q)

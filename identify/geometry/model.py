@@ -53,12 +53,14 @@ def parameter_names(chain: Chain) -> list[str]:
 
 def kind(name: str) -> str:
     """The effect a parameter belongs to: base_frame, tool_frame, joint_offset, joint_compliance,
-    link_geometry."""
+    compensator (a spring's stiffness and preload: statics.py), link_geometry."""
     if name.startswith("base."):
         return "base_frame"
     if name.startswith("tool."):
         return "tool_frame"
     tail = name.rsplit(".", 1)[1]
+    if tail.startswith("spring_"):
+        return "compensator"
     return {"offset": "joint_offset", "compliance": "joint_compliance"}.get(tail, "link_geometry")
 
 
@@ -73,6 +75,10 @@ class GeometricModel:
     @property
     def names(self) -> list[str]:
         return parameter_names(self.chain)
+
+    @property
+    def joints(self) -> tuple[str, ...]:
+        return self.chain.joints
 
     @property
     def size(self) -> int:
@@ -120,8 +126,9 @@ class GeometricModel:
         """Predicted readings (n_poses, 3) in the tracker frame."""
         return self._run(q, theta, tau, jacobian=False)[0]
 
-    def jacobian(self, q: np.ndarray, theta: np.ndarray, tau: np.ndarray | None = None):
-        """(prediction (n, 3), dy/dtheta (n, 3, size))."""
+    def jacobian(self, q: np.ndarray, theta: np.ndarray, tau: np.ndarray | None = None, columns=None):
+        """(prediction (n, 3), dy/dtheta (n, 3, size)); every column, whatever ``columns`` asks
+        for (exact and cheap here; statics.py computes only those)."""
         y, jac = self._run(q, theta, tau, jacobian=True)
         return y, jac
 

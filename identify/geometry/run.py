@@ -24,12 +24,14 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.core import InputError
+from calbench.bench.core import InputError, write_text
 from calbench.bench.log import read_log
+from calbench.bench.model import Robot
 
-from .fit import MODELS, calibrate, initial_model, validate
+from .fit import MODELS, GeometryFit, calibrate, initial_model, validate
 from .mjcf import load_arm, write_chain_mjcf
-from .model import kind
+from .model import GeometricModel, kind
+from .statics import StaticsModel, calibrated_xml, statics_model
 
 
 @dataclass(frozen=True)
@@ -45,7 +47,9 @@ class AbsoluteReadings:
 
 
 def absolute_readings(log, point: str | None = None) -> AbsoluteReadings:
-    """The unloaded readings of ``point`` (default: the first reflector every measured pose saw)."""
+    """The unloaded readings of ``point`` (default: the first reflector every measured pose saw,
+    or, where none is, the one seen in the most poses: a big arm hides some reflectors in some
+    poses), in the poses that saw it."""
     rows: dict[int, dict[str, list[np.ndarray]]] = {}
     var: dict[int, dict[str, list[np.ndarray]]] = {}
     names: list[str] = []
@@ -60,13 +64,11 @@ def absolute_readings(log, point: str | None = None) -> AbsoluteReadings:
                         names.append(name)
         if seen:
             rows[p] = seen
-    if point is None:
-        common = [n for n in names if all(n in s for s in rows.values())]
-        if not common:
-            raise InputError(
-                log.path, "/tracker/measurement", "one reflector seen unloaded in every pose", names
-            )
-        point = common[0]
+    if point is None:  # the first of those seen unloaded in the most poses (all, where one is)
+        if not names:
+            raise InputError(log.path, "/tracker/measurement", "unloaded readings of a reflector", names)
+        seen = {n: sum(n in s for s in rows.values()) for n in names}
+        point = max(names, key=lambda n: seen[n])
     poses = [p for p, s in rows.items() if point in s]
     if len(poses) < 10:
         raise InputError(log.path, f"reflector {point}", "unloaded readings in at least 10 poses", len(poses))
@@ -78,6 +80,55 @@ def absolute_readings(log, point: str | None = None) -> AbsoluteReadings:
     return AbsoluteReadings(
         point, np.array(poses), q, y, float(log.tracker_spec().sigma), std if ok else None
     )
+
+
+@dataclass(frozen=True)
+class Complete:
+    """The complete model of one robot registered on a point's readings, and what names it."""
+
+    model: GeometricModel | StaticsModel
+    bodies: tuple[str, ...]  # the bodies the actuated joints turn, in order
+    name: str  # the MJCF's model name
+
+
+def complete_model(path, xml: str | None, where: str, point: str, q: np.ndarray, y: np.ndarray) -> Complete:
+    """A serial arm's numpy chain (model.py), or, for a robot with a kinematic loop or a
+    compensator spring, the statics model (statics.py), registered on readings y at q."""
+    try:
+        robot = Robot.from_file(path) if path is not None else Robot.from_xml(xml, where)
+    except ValueError as e:
+        raise InputError(where, "MJCF", "a model MuJoCo compiles", str(e).splitlines()[0]) from None
+    name = bytes(robot.model.names).split(b"\0")[0].decode()
+    if robot.loops or len(robot.tendons):
+        m = statics_model(path, xml, point, q, y, where)
+        return Complete(m, m.bodies, name)
+    arm = load_arm(path, xml, where)
+    return Complete(initial_model(arm.chain, q, y, arm.point(point)), arm.bodies, name)
+
+
+def value(model, i: int, theta: np.ndarray) -> float:
+    """Parameter i of theta as reported (statics.py's compliances are deltas from a start)."""
+    return model.value(i, theta) if hasattr(model, "value") else float(theta[i])
+
+
+def springs(model, theta: np.ndarray) -> dict:
+    """Each compensator's fitted stiffness (N/m) and preload length (m), where the model has any."""
+    if not getattr(model, "tendons", ()):
+        return {}
+    ks = model.springs(theta).reshape(-1, 2)
+    return {
+        t: {"stiffness": float(k), "preload": float(s0)} for t, (k, s0) in zip(model.tendons, ks, strict=True)
+    }
+
+
+def write_calibrated(path: str | Path, fit: GeometryFit, name: str) -> np.ndarray:
+    """The calibrated robot as a calbench MJCF at ``path``; returns the tracker-from-base transform."""
+    if isinstance(fit.model, StaticsModel):
+        write_text(Path(path), calibrated_xml(fit.model, fit.theta))
+        return fit.model.base(fit.theta)
+    chain, tool, base, comp = fit.calibrated()
+    write_chain_mjcf(path, chain, tool, name=name + "_calibrated", compliance=comp)
+    return base
 
 
 def run_geometry(
@@ -92,9 +143,10 @@ def run_geometry(
         raise InputError(
             log.path, "robot model", "an MJCF attachment in the log (or --model ROBOT.xml)", "none"
         )
-    arm = load_arm(model, log.mjcf_text, f"{log.path} (MJCF attachment)")
     data = absolute_readings(log)
-    start = initial_model(arm.chain, data.q, data.y, arm.point(data.point))
+    where = str(model) if model is not None else f"{log.path} (MJCF attachment)"
+    robot = complete_model(model, log.mjcf_text, where, data.point, data.q, data.y)
+    start = robot.model
     fits = {name: calibrate(start, data.q, data.y, effects) for name, effects in MODELS.items()}
     fit = fits["geometry+compliance"]
     report: dict = {
@@ -104,10 +156,11 @@ def run_geometry(
         "n": len(data.q),
         "models": {name: {"fit_rms": f.rms, "parameters": len(f.free)} for name, f in fits.items()},
         "parameters": [
-            {"name": n, "effect": kind(n), "value": float(fit.theta[i]), "std": float(sd)}
+            {"name": n, "effect": kind(n), "value": value(start, i, fit.theta), "std": float(sd)}
             for n, i, sd in zip(fit.names, fit.free, fit.std, strict=True)
         ],
         "not_identified": [n for i, n in enumerate(start.names) if i not in fit.free],
+        "springs": springs(start, fit.theta),
         "tracker_sigma": data.sigma,
     }
     if validate_path is not None:
@@ -125,16 +178,8 @@ def run_geometry(
             "by_model": {name: v.as_dict() for name, v in by_model.items()},
         }
     if out_model is not None:
-        chain, tool, base, comp = fit.calibrated()
-        write_chain_mjcf(
-            out_model,
-            chain,
-            tool,
-            name=bytes(arm.model.names).split(b"\0")[0].decode() + "_calibrated",
-            compliance=comp,
-        )
+        report["tracker_from_base"] = write_calibrated(out_model, fit, robot.name).tolist()
         report["out_model"] = str(out_model)
-        report["tracker_from_base"] = base.tolist()
     return report
 
 

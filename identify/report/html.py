@@ -39,14 +39,14 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
-from calbench.bench.core import InputError, check_outputs, write_text
+from calbench.bench.core import InputError, check_outputs, unit_display, write_text
 from calbench.bench.log import CampaignLog, IdentificationReport, has_truth, read_log
 from calbench.bench.view import measured_deflections
 from calbench.identify.discover import ALPHA_FIT as MISFIT_P  # chi2 p below which the model is rejected
-from calbench.identify.discover import alias_lines, base_lines, exposure_lines, tie_lines
+from calbench.identify.discover import alias_lines, base_lines, exposure_lines, self_check_lines, tie_lines
 
 from . import htmlplots
-from .identification import DISPLAY, noise_source
+from .identification import noise_source
 from .provenance import provenance
 
 Z95 = 1.959963984540054  # two-sided 95 % quantile of the standard normal
@@ -86,7 +86,7 @@ def read_json_report(path: str | os.PathLike, kind: str) -> dict:
     return doc
 
 
-def read_identified(path: str | os.PathLike) -> IdentificationReport:
+def read_identify_report(path: str | os.PathLike) -> IdentificationReport:
     """The ``identify --json`` report: its defining keys checked (a discover report also has
     ``parameters``), then read as the typed report the viewer reads too."""
     read_json_report(path, "identify")
@@ -106,11 +106,6 @@ def _finite(x) -> float | None:
     if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
         return None
     return float(x)
-
-
-def unit_display(unit: str) -> tuple[str, float]:
-    """(label, factor from SI) of a unit for people: µrad/(N·m), kN/m, mm."""
-    return DISPLAY.get(unit, (unit, 1.0))
 
 
 def decimals(std: float | None) -> int:
@@ -412,10 +407,16 @@ def ambiguous_rows(ambiguous: list[dict]) -> list[dict]:
 def honesty_lines(disc: dict, path) -> list[str]:
     """Discovery's own statements of what it does not know (identify/discover/narrative.py's
     words): the base fit's held and undetermined parameters, what tied candidates disagree on,
-    combinations whose profile is not quadratic, each determined parameter's exposure."""
+    combinations whose profile is not quadratic, the self-check of the reported model, each
+    determined parameter's exposure."""
     try:
         params = disc.get("parameters") or []
-        lines = base_lines(disc.get("base_fit")) + tie_lines(params) + exposure_lines(params)
+        lines = (
+            base_lines(disc.get("base_fit"))
+            + tie_lines(params)
+            + self_check_lines(disc.get("self_check"))
+            + exposure_lines(params)
+        )
         undetermined = [p["name"] for p in params if not p["determined"]]
         if undetermined:
             lines.append(
@@ -710,7 +711,7 @@ def html_report(
         if path is not None:
             inputs[kind] = (
                 Path(path),
-                read_identified(path) if kind == "identify" else read_json_report(path, kind),
+                read_identify_report(path) if kind == "identify" else read_json_report(path, kind),
             )
     notes = provenance(log_path, log, inputs)  # refuses inputs that do not belong together
     ident = inputs.get("identify", (None, None))[1]
@@ -748,7 +749,7 @@ __all__ = [
     "profile_interval",
     "html_report",
     "read_json_report",
-    "read_identified",
+    "read_identify_report",
     "campaign_section",
     "parameters_section",
     "correlation_section",

@@ -26,7 +26,7 @@ from calbench.bench.log import (
     ParameterEstimate,
     read_log,
 )
-from calbench.bench.model import Robot, display_name, free_length_note
+from calbench.bench.model import Robot, display_name, free_length_note, log_robot
 from calbench.bench.tracker import DEFAULT_MODEL, tracker_models
 from calbench.identify.compensate import robot_sha256
 from calbench.identify.core import (
@@ -35,7 +35,6 @@ from calbench.identify.core import (
     Observations,
     check_sites,
     from_log,
-    load_model,
     outliers,
 )
 from calbench.identify.methods import IdentifyOptions, MethodResult, check_method, method_named, method_names
@@ -272,7 +271,7 @@ def run_identify(
     t0 = time.perf_counter()
     log = read_log(log_path)  # no truth: nothing below can see it
     obs = from_log(log)
-    robot = load_model(log, model)
+    robot = log_robot(log, model)
     check_sites(robot, obs, model or log.path)
     res = identify(robot, obs, method, drop_outliers, check_profile)
     if self_check:

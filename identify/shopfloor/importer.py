@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from calbench.bench.core import InputError, ProgressSink, atomic_path
-from calbench.bench.model import Robot
+from calbench.bench.model import MODEL_FLAG, Robot, load_robot
 from calbench.bench.scenario import Plan, check_joint_limits, check_plan, load_plan, start_ns
 from calbench.bench.shopfloor import (
     FORMATS,
@@ -31,7 +31,7 @@ from calbench.bench.shopfloor import (
 )
 from calbench.bench.tracker import TrackerSpec
 
-from .tracker_pose import Registration, check_placed, register
+from .tracker_pose import TrackerRegistration, check_placed, fit_tracker_pose
 
 
 @dataclass
@@ -44,22 +44,17 @@ class ImportResult:
     tracker: TrackerSpec
     summary: ImportSummary
     imported: dict
-    registration: Registration | None = None
+    registration: TrackerRegistration | None = None
     warnings: list[str] = field(default_factory=list)
 
 
-def load_robot(plan: Plan, model: Path | None) -> tuple[Robot, Path]:
+def plan_robot(plan: Plan, model: Path | None) -> tuple[Robot, Path]:
     """The robot the readings were taken on: ``model`` or the plan's MJCF (InputError when it
     does not load), its poses checked against the joint limits."""
     path = Path(model) if model is not None else plan.robot
-    key = "--model" if model is not None else "robot"
-    src = "--model" if model is not None else plan.path
-    if not path.is_file():
-        raise InputError(src, key, "an existing MJCF file", str(path))
-    try:
-        robot = Robot.from_file(path)
-    except ValueError as exc:
-        raise InputError(src, key, "a loadable MJCF robot", f"{path}: {exc}") from None
+    robot = (
+        load_robot(*MODEL_FLAG, path=path) if model is not None else load_robot(plan.path, "robot", path=path)
+    )
     check_joint_limits(plan, robot.limits())
     check_plan(plan, robot)
     return robot, path
@@ -88,7 +83,7 @@ def import_readings(
     they are written."""
     csv_path, out = Path(csv_path), Path(out)
     plan = load_plan(plan_path)
-    robot, model_path = load_robot(plan, None if model is None else Path(model))
+    robot, model_path = plan_robot(plan, None if model is None else Path(model))
     fmt = FORMATS.for_path(csv_path)  # by the file's name; CSV unless a format claims it
     names = list(robot.reflector_names)
     table = fmt.read_file(csv_path, len(plan.poses), names, units, progress=read_progress)
@@ -99,7 +94,7 @@ def import_readings(
         tracker = plan.tracker
         check_placed(plan, model_path, readings, table, tracker)
     else:
-        registration = register(plan, model_path, readings, table, plan.tracker)
+        registration = fit_tracker_pose(plan, model_path, readings, table, plan.tracker)
         tracker = plan.tracker.placed(registration.fit.position, registration.fit.rotation)
     imported = {
         "source": csv_path.name,
@@ -126,4 +121,4 @@ def import_readings(
     )
 
 
-__all__ = ["ImportResult", "import_readings", "load_robot"]
+__all__ = ["ImportResult", "import_readings", "plan_robot"]

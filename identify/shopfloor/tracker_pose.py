@@ -6,7 +6,7 @@ Nobody measures a tracker's pose relative to the robot's base to a few micrometr
 predicts at the commanded poses.
 
 What the model predicts: the unloaded robot is not rigid. Gravity bends it: on the paper robot
-the stiff compensator alone sags J2 by up to 1.8 deg, tens of mm at the tool, so a registration
+the stiff compensator alone sags J2 by up to 1.8 deg, tens of mm at the tool, so a rigid fit
 against rigid kinematics is turned by ~2e-3 rad, and deflections rotated by as little as 1e-4 rad
 already move the one-step estimates by up to 0.02 sigma (measured on the paper campaign). The
 prediction must include the sag, by the exact statics, with elastic parameters that no plan and
@@ -22,7 +22,7 @@ reflector, in the tracker frame, with their covariances):
 
 (identify/core/forward.py's exact statics and Jacobians; identify/core/leastsq.py's Levenberg-Marquardt,
 parameters the data cannot determine, e.g. k1 under vertical loads, held). It starts from the
-closed-form rigid registration (identify/core/rigid.py: against rigid kinematics) and the
+closed-form rigid fit (identify/core/rigid.py: against rigid kinematics) and the
 one-step estimate from the deflections so rotated, and needs a handful of evaluations. The
 pose's uncertainty is the [rotation, position] block of the inverse Fisher information (the
 elastic parameters marginalised), scaled by sqrt(chi2/dof) when the misfit exceeds the noise.
@@ -39,7 +39,7 @@ explain, gives the per-axis variance g^2 of the geometric misfit (:func:`geometr
 the fit is repeated with g^2 I added to both states' covariance and between them (correlated:
 the deflections keep their full weight), until g^2 settles (two or three fits). The first fit's
 chi2 per degree of freedom beyond 1 + GEOMETRY_CHI2 sqrt(2/dof) (4 standard deviations of the
-chi2 distribution) draws a warning naming g; the pose's uncertainty then includes the misfit. Beyond ABSURD_RMS, even with the rigid registration alone, the readings cannot be those
+chi2 distribution) draws a warning naming g; the pose's uncertainty then includes the misfit. Beyond ABSURD_RMS, even with the rigid fit alone, the readings cannot be those
 of the plan's poses (wrong pose indices, point names or unit): InputError naming the worst row.
 
 With no pose measured in both states nothing says how much the robot sags: the rigid
@@ -56,9 +56,9 @@ import numpy as np
 
 from calbench.bench.campaign import pose_load
 from calbench.bench.core import InputError
-from calbench.bench.model import Robot
+from calbench.bench.model import Robot, load_robot
 from calbench.bench.scenario import Plan
-from calbench.bench.shopfloor import Readings, ReadingsTable, first_time
+from calbench.bench.shopfloor import ImportedReadings, ReadingsTable, first_time
 from calbench.bench.tracker import TrackerSpec, mean_reading, tracker_rotation
 from calbench.identify.core import (
     RANK_TOL,
@@ -87,7 +87,7 @@ from calbench.identify.methods import (
 
 GEOMETRY_CHI2 = 4.0  # warn when chi2/dof > 1 + GEOMETRY_CHI2 sqrt(2/dof)
 GEOMETRY_ROUNDS = 5  # fits to settle the geometric misfit's variance (2-3 suffice)
-ABSURD_RMS = 0.2  # m per axis of the rigid registration: beyond, not the plan's poses
+ABSURD_RMS = 0.2  # m per axis of the rigid fit: beyond, not the plan's poses
 POSE_NAMES = ("rx", "ry", "rz", "tx", "ty", "tz")
 POSE_SCALE = 1e-3  # rad and m: the size of the correction the joint fit makes to the start
 
@@ -106,7 +106,7 @@ class PointData:
 
 
 @dataclass
-class Registration:
+class TrackerRegistration:
     """The registered tracker pose and how it was found."""
 
     fit: RigidFit
@@ -145,7 +145,12 @@ class Registration:
 
 
 def point_data(
-    plan: Plan, robot: Robot, readings: Readings, table: ReadingsTable, names: list[str], tracker: TrackerSpec
+    plan: Plan,
+    robot: Robot,
+    readings: ImportedReadings,
+    table: ReadingsTable,
+    names: list[str],
+    tracker: TrackerSpec,
 ) -> PointData:
     """Mean readings per state in the tracker frame (bench.tracker.mean_reading with the
     tracker at the origin, unrotated). Their covariance is that of the readings' independent
@@ -290,11 +295,11 @@ def _skews(v: np.ndarray) -> np.ndarray:
     return out
 
 
-def register(
-    plan: Plan, model: Path, readings: Readings, table: ReadingsTable, tracker: TrackerSpec
-) -> Registration:
+def fit_tracker_pose(
+    plan: Plan, model: Path, readings: ImportedReadings, table: ReadingsTable, tracker: TrackerSpec
+) -> TrackerRegistration:
     """Register the tracker (module docstring); ``tracker`` gives the noise model."""
-    robot = Robot.from_file(model)
+    robot = load_robot(plan.path, "robot", path=model)  # as the import loaded it
     names = list(robot.reflector_names)
     pts = point_data(plan, robot, readings, table, names, tracker)
     keys, uy, uc, ulines = pts.unloaded
@@ -319,7 +324,7 @@ def register(
             f"{keys[worst][1]} {np.linalg.norm(rigid.residual[worst]) * 1e3:.0f} mm off",
         )
     if pts.obs is None or not non_collinear(pts.y[0]):
-        reg = Registration(
+        reg = TrackerRegistration(
             rigid,
             1,
             True,
@@ -333,12 +338,12 @@ def register(
             ],
         )
         return _judged(reg)
-    # the start: the rigid registration, and the one-step estimate from the deflections it rotates
+    # the start: the rigid fit, and the one-step estimate from the deflections it rotates
     placed = tracker.placed(rigid.position, rigid.rotation)
     obs_world = Observations(
         [_rotated(p, rigid.rotation) for p in pts.obs.poses], placed, pts.obs.noise_sigma, pts.obs.n_planned
     )
-    estimator = Robot.from_file(model)
+    estimator = load_robot(plan.path, "robot", path=model)
     theta0 = one_step(estimator, obs_world).values
     lay = robot.layout
     theta0, _ = sanitize_start(theta0, generic_start(estimator, obs_world), lay)
@@ -396,7 +401,7 @@ def register(
         n_params=rank,
     )
     theta = to_theta(x[6:], lay)
-    reg = Registration(
+    reg = TrackerRegistration(
         fit,
         evaluations,
         sol.converged and settled,
@@ -411,13 +416,13 @@ def register(
 
 
 def check_placed(
-    plan: Plan, model: Path, readings: Readings, table: ReadingsTable, tracker: TrackerSpec
+    plan: Plan, model: Path, readings: ImportedReadings, table: ReadingsTable, tracker: TrackerSpec
 ) -> float:
     """With the tracker where the plan puts it, the unloaded readings must be the plan's poses:
     InputError beyond ABSURD_RMS (a wrong yaw, position or unit, poses out of order), naming the
     worst row. Returns the RMS distance per axis to rigid kinematics (m: the sag, the geometry
     and the tracker pose's own error)."""
-    robot = Robot.from_file(model)
+    robot = load_robot(plan.path, "robot", path=model)  # as the import loaded it
     names = list(robot.reflector_names)
     keys, uy, uc, ulines = point_data(plan, robot, readings, table, names, tracker).unloaded
     resid = rigid_points(robot, plan, keys) - (uy @ tracker_rotation(tracker).T + tracker.position)
@@ -443,7 +448,7 @@ def _rotated(p: PoseObservation, rot: np.ndarray) -> PoseObservation:
     return replace(p, dp=p.dp @ rot.T, cov=rot @ p.cov @ rot.T, cov_block=block)
 
 
-def _judged(reg: Registration) -> Registration:
+def _judged(reg: TrackerRegistration) -> TrackerRegistration:
     """Add the geometry warning the residual calls for (module docstring)."""
     fit = reg.fit
     chi2 = fit.chi2 if reg.misfit_chi2 is None else reg.misfit_chi2
@@ -461,8 +466,8 @@ def _judged(reg: Registration) -> Registration:
 
 
 __all__ = [
-    "Registration",
-    "register",
+    "TrackerRegistration",
+    "fit_tracker_pose",
     "check_placed",
     "point_data",
     "rigid_points",

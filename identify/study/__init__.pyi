@@ -5,13 +5,14 @@ from .accuracy import predicted_std
 from .campaign import TIMING_COLUMNS, needs_log, simulate_in_memory
 from .montecarlo import (
     RUNS_PER_TASK,
+    PendingMonteCarlo,
     WorkEstimate,
-    campaign_observations,
     check_montecarlo_size,
     estimated_seconds,
     format_summary,
     measure_montecarlo,
     montecarlo_methods,
+    prepare_montecarlo,
     run_montecarlo,
     true_theta,
 )
@@ -23,6 +24,7 @@ from .summary import cell_summaries, format_cells, pooled_by_axis
 
 __all__ = [
     "Pending",
+    "PendingMonteCarlo",
     "RUNS_PER_TASK",
     "Study",
     "StudyOutcome",
@@ -30,7 +32,6 @@ __all__ = [
     "TIMING_COLUMNS",
     "accuracy_plots",
     "axis_ticks",
-    "campaign_observations",
     "cell_summaries",
     "check_montecarlo_size",
     "design_key",
@@ -46,6 +47,7 @@ __all__ = [
     "power_plots",
     "predicted_std",
     "prepare",
+    "prepare_montecarlo",
     "read_results",
     "report_study",
     "run_montecarlo",

@@ -13,19 +13,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from calbench.bench.campaign import plan_campaign, truth_robot
+from calbench.bench.campaign import simulate
 from calbench.bench.model import Robot
 from calbench.bench.scenario import Scenario
-from calbench.identify.core import ForwardModel, Whitener, design_from_observations
+from calbench.identify.core import ForwardModel, Whitener, design_from_observations, from_campaign
 
-from .montecarlo import campaign_observations, true_theta
+from .montecarlo import true_theta
 
 
 def cramer_rao(scn: Scenario) -> tuple[np.ndarray, tuple[str, ...]]:
     """(p, p) Cramer-Rao bound of theta (SI, the robot's parameter layout: k1..kN, then K_C and s0
     per compensator) for the scenario's campaign, and the parameters' names."""
-    truth = truth_robot(scn)
-    obs = campaign_observations(scn, truth, plan_campaign(scn, truth), None)
+    obs = from_campaign(simulate(scn, None, force=True))  # exact readings: no noise drawn, no size limit
     robot = Robot.from_file(scn.robot)
     theta = true_theta(scn, robot)
     _, jac = ForwardModel(robot, design_from_observations(robot, obs)).evaluate(theta)

@@ -7,10 +7,10 @@ columns, as in identify/report/identification.py), and, where the study asks, ``
 parameter the estimate, reported std, truth, error and z; the fit's chi2; what discover named;
 the timings; and the error, if the campaign failed (then the numbers are NaN).
 
-No log is written where nothing needs one (:func:`needs_log`): the campaign is solved and
-measured in memory (bench.campaign.plan_campaign, then identify/study/montecarlo.py's
-``campaign_observations`` with the campaign's own generator), which gives identify and discover
-the same Observations, to the last bit, that ``from_log`` reads from the log without its truth
+No log is written where nothing needs one (:func:`needs_log`): the campaign is simulated in
+memory (bench.campaign.simulate with the campaign's own generator, the one code path the log
+writer reads too) and identify/core's ``from_campaign`` gives identify and discover the same
+Observations, to the last bit, that ``from_log`` reads from the log without its truth
 (the robot from the same MJCF text, the truth afterwards for the error columns): the same rows,
 without writing the log and reading it back twice. A tracker whose covariance depends on the
 readings' times (TrackerModel.uses_times: iso10360) still goes through the log: identify takes
@@ -34,13 +34,13 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from calbench.bench.campaign import plan_campaign, run_campaign, scenario_params, truth_robot
-from calbench.bench.core import InputError, write_text
-from calbench.bench.model import Robot
+from calbench.bench.campaign import run_campaign, simulate, truth_params
+from calbench.bench.core import write_text
+from calbench.bench.model import LOG_KEY, Robot, load_robot
 from calbench.bench.model.effects import without_compensator
-from calbench.bench.scenario import Scenario, check_size, estimate, repeats_key
+from calbench.bench.scenario import Scenario
 from calbench.bench.tracker import tracker_models
-from calbench.identify.core import Observations
+from calbench.identify.core import Observations, from_campaign
 from calbench.identify.runtime import PortableScenario
 
 # effects discover's starting model can lack (campaign.discover_without): MJCF text -> MJCF text
@@ -142,27 +142,16 @@ class Simulated:
 
 
 def simulate_in_memory(scn: Scenario) -> Simulated:
-    """bench.campaign.run_campaign without the log: the same size check, plan and readings (the
-    generator seeded by the scenario's seed, consumed as run_campaign does), then the
-    observations as ``from_log`` makes them (InputError when no pose can be used, as it does)."""
-    from .montecarlo import campaign_observations
-
-    truth_rb = truth_robot(scn)
-    repeats = [p.repeats for p in scn.poses]
-    check_size(estimate(repeats, len(truth_rb.reflector_names)), scn.path, repeats_key(repeats))
-    plans = plan_campaign(scn, truth_rb)
-    obs = campaign_observations(scn, truth_rb, plans, np.random.default_rng(scn.seed))
-    if not obs.poses:
-        raise InputError(
-            scn.path,
-            "/tracker/measurement",
-            "at least one complete pose with a reflector seen unloaded and loaded",
-            "none",
-        )
-    mjcf = Path(scn.robot).read_text()  # what run_campaign attaches to the log
+    """The campaign `calbench simulate` would log (bench.campaign.simulate with the scenario's
+    seed, the same size check), as a reader of that log without its truth gets it: the
+    observations (identify/core's from_campaign, InputError when no pose can be used, as
+    ``from_log``) and the header's MJCF text; the truth's parameter vector apart."""
+    campaign = simulate(scn, np.random.default_rng(scn.seed))
+    obs = from_campaign(campaign)
+    mjcf = campaign.header.mjcf_text
     rb = Robot.from_xml(mjcf)
     try:
-        truth = rb.layout.theta(scenario_params(scn, truth_rb))
+        truth = rb.layout.theta(truth_params(scn, campaign.robot))
     except ValueError:  # as report.truth_vector
         truth = None
     return Simulated(obs, mjcf, truth)
@@ -175,7 +164,7 @@ def identify_in_memory(sim: Simulated, method: str):
     from calbench.identify.report import identification_report, identify
 
     t0 = time.perf_counter()
-    robot = Robot.from_xml(sim.mjcf)
+    robot = load_robot(sim.obs.source, LOG_KEY, text=sim.mjcf)  # as from the log
     check_sites(robot, sim.obs, sim.obs.source)
     res = identify(robot, sim.obs, method)
     return identification_report(res, sim.truth, sim.obs.source, "MJCF (in memory)", time.perf_counter() - t0)

@@ -1,9 +1,9 @@
 """Monte Carlo of the estimators: the same campaign re-measured with N noise seeds.
 
-The campaign's physics is solved once (bench.campaign.plan_campaign: true reflector positions
-and visibility of every pose); each run redraws the tracker noise with bench.tracker.measure
-(generator seeded by (scenario seed, run)), builds the observations exactly as from a log
-(identify/core/observations.py) and runs the full estimators on them, methods of the family's
+The campaign is simulated once (bench.campaign.simulate: the true reflector positions and
+visibility of every pose, read exactly); each run reads it again with its own generator
+(bench.campaign.remeasure, seeded by (scenario seed, run)), builds its observations
+(identify/core/observations.py's from_campaign, the rows a log gives) and runs the full estimators on them, methods of the family's
 one list (identify/methods/registry.py): by default (`--method both`) the one-step estimator
 and the paper's two-step method, unweighted step 2 (eq. 21) and step-1-covariance-weighted;
 with `--method all` also the two-step at its self-consistent sagged pose
@@ -50,30 +50,22 @@ from pathlib import Path
 import numpy as np
 
 from calbench.bench.campaign import (
-    PosePlan,
-    drifted,
-    plan_campaign,
-    reading_drift,
-    scenario_params,
+    Campaign,
+    check_campaign_size,
+    remeasure,
+    simulate,
+    truth_params,
     truth_robot,
 )
 from calbench.bench.core import InputError, ProgressSink, sink
-from calbench.bench.model import Robot, display_name, free_length_note
-from calbench.bench.scenario import (
-    Scenario,
-    check_size,
-    estimate,
-    montecarlo_estimate,
-    reading_times,
-    repeats_key,
-)
-from calbench.bench.tracker import Measurement, measure_campaign, noise_covariance, to_tracker_frame
+from calbench.bench.model import Robot, display_name, free_length_note, load_robot
+from calbench.bench.scenario import Scenario, check_size, montecarlo_estimate
 from calbench.identify.core import (
     ForwardModel,
     Observations,
     Whitener,
     design_from_observations,
-    pose_observation,
+    from_campaign,
 )
 from calbench.identify.methods import (
     BOTH,
@@ -96,7 +88,7 @@ OBSERVATION_SECONDS_PER_RUN = 0.004
 
 
 def true_theta(scn: Scenario, robot: Robot) -> np.ndarray:
-    return robot.layout.theta(scenario_params(scn, robot))
+    return robot.layout.theta(truth_params(scn, robot))
 
 
 def two_step_ok(robot: Robot) -> bool:
@@ -106,60 +98,6 @@ def two_step_ok(robot: Robot) -> bool:
     except NotApplicable:
         return False
     return True
-
-
-def campaign_observations(
-    scn: Scenario, robot: Robot, plans: list[PosePlan], rng: np.random.Generator | None
-) -> Observations:
-    """Observations of a solved campaign: noisy readings (rng; bench.tracker.measure_campaign,
-    the generator consumed as by bench.campaign.run_campaign) or exact ones (rng None, with the
-    tracker's covariances still attached as weights), on the campaign's timeline. The truth's
-    measurement-side effects (a tracker drift) shift the loaded readings as in the log."""
-    spec = scn.tracker
-    names = list(robot.reflector_names)
-    repeats = [p.repeats for p in scn.poses]
-    times = reading_times(repeats, len(names))
-    if rng is not None:
-        measured = measure_campaign(
-            spec, [p.reflectors_world for p in plans], [p.visible for p in plans], repeats, rng, times
-        )
-    poses = []
-    for plan, pose in zip(plans, scn.poses):
-        readings = []
-        for s, state in enumerate(("unloaded", "loaded")):
-            reps = []
-            shift = reading_drift(scn, plan.index, names) if s == 1 else None
-            for r in range(pose.repeats):
-                if rng is None:
-                    p = to_tracker_frame(spec, plan.reflectors_world[s])
-                    vis = plan.visible[s]
-                    pos = np.where(vis[:, None], p, np.nan)
-                    cov = np.full((len(p), 3, 3), np.nan)
-                    if vis.any():
-                        cov[vis] = noise_covariance(spec, p[vis])
-                    reps.append(drifted(Measurement(pos, cov, vis), shift))
-                else:
-                    reps.append(drifted(measured[(plan.index, state, r)], shift))
-            readings.append(reps)
-        site = robot.model.site(plan.load.site).name
-        when = tuple(
-            [times[(plan.index, state, r)] for r in range(pose.repeats)] for state in ("unloaded", "loaded")
-        )
-        ob = pose_observation(
-            plan.index,
-            plan.q,
-            plan.load.force,
-            plan.load.moment,
-            site,
-            names,
-            readings[0],
-            readings[1],
-            spec,
-            when,
-        )
-        if len(ob.reflectors):
-            poses.append(ob)
-    return Observations(poses, spec, float(spec.sigma), len(scn.poses), [], False, str(scn.path))
 
 
 @dataclass
@@ -270,8 +208,7 @@ class _Setup:
     """What every run of a job shares, built once per process (see the module docstring)."""
 
     scn: Scenario
-    truth_rb: Robot
-    plans: list[PosePlan]
+    campaign: Campaign  # solved once, read exactly; each run remeasures it
     robot: Robot
     obs0: Observations
     runs: dict[str, Callable[[Observations, Whitener], MethodResult]]  # method -> one run
@@ -285,12 +222,11 @@ class _Setup:
 def _setup(job: MonteCarloJob) -> _Setup:
     t0 = time.perf_counter()
     scn = job.scenario.scenario(job.seed)
-    truth_rb = truth_robot(scn)
-    plans = plan_campaign(scn, truth_rb)
+    exact = simulate(scn, None, force=True)  # the size is the caller's to check (--force)
     robot = Robot.from_file(scn.robot)  # the estimator's own model: geometry only
     for name in job.methods:
         method_named(name).check(robot)  # NotApplicable when the robot is outside a method
-    obs0 = campaign_observations(scn, truth_rb, plans, None)
+    obs0 = from_campaign(exact)
     white0 = Whitener.from_observations(obs0)
     theta_true = true_theta(scn, robot)
 
@@ -308,10 +244,10 @@ def _setup(job: MonteCarloJob) -> _Setup:
         noise_free[m.name] = rep.noise_free.theta
         if m.name in job.methods:
             runs[m.name] = rep.run
-    if two_step_ok(robot) and truth_rb.model.nq == robot.model.nq:  # hidden effects add joints
+    if two_step_ok(robot) and exact.robot.model.nq == robot.model.nq:  # hidden effects add joints
         # diagnostic: the linear model at the true (sagged) unloaded configuration -- what is left
         # of the two-step's model error is H00 (eq. 18) and the nonlinearity over the deflection
-        lp_true = linear_plan(robot, obs0, {p.index: p.equilibria[0].qpos for p in plans})
+        lp_true = linear_plan(robot, obs0, {p.index: p.equilibria[0].qpos for p in exact.plans})
         noise_free["two-step at the true sagged configuration"] = two_step(
             robot, obs0, False, lp=lp_true, white=white0
         ).theta
@@ -319,9 +255,7 @@ def _setup(job: MonteCarloJob) -> _Setup:
     _, jt = ForwardModel(robot, design_from_observations(robot, obs0)).evaluate(theta_true)
     jtw = white0.mat(jt) * theta_true  # scaled columns
     crb = np.linalg.pinv(jtw.T @ jtw) * np.outer(theta_true, theta_true)
-    return _Setup(
-        scn, truth_rb, plans, robot, obs0, runs, theta_true, crb, noise_free, time.perf_counter() - t0
-    )
+    return _Setup(scn, exact, robot, obs0, runs, theta_true, crb, noise_free, time.perf_counter() - t0)
 
 
 def run_block(job: MonteCarloJob, first: int, stop: int) -> dict:
@@ -338,7 +272,7 @@ def run_block(job: MonteCarloJob, first: int, stop: int) -> dict:
     failed = {m: 0 for m in job.methods}
     for k, r in enumerate(range(first, stop)):
         rng = np.random.default_rng([job.seed, r])
-        obs = campaign_observations(s.scn, s.truth_rb, s.plans, rng)
+        obs = from_campaign(remeasure(s.campaign, rng))
         if obs.labels != s.obs0.labels:
             raise RuntimeError("visibility changed between runs")  # cannot happen: fixed plan
         white = Whitener.from_observations(obs)
@@ -363,8 +297,9 @@ def run_block(job: MonteCarloJob, first: int, stop: int) -> dict:
 def check_montecarlo_size(scn: Scenario, runs: int) -> None:
     """InputError when one campaign of the scenario, or ``runs`` of them, is estimated to be too
     large (bench/scenario/timeline.py's limits, as `simulate`'s)."""
-    repeats, n_refl = [p.repeats for p in scn.poses], len(truth_robot(scn).reflector_names)
-    check_size(estimate(repeats, n_refl), scn.path, repeats_key(repeats))  # one campaign
+    truth_rb = truth_robot(scn)
+    check_campaign_size(scn, truth_rb)  # one campaign
+    repeats, n_refl = [p.repeats for p in scn.poses], len(truth_rb.reflector_names)
     check_size(montecarlo_estimate(repeats, n_refl, runs), "--runs", "runs")
 
 
@@ -372,10 +307,7 @@ def montecarlo_methods(choice: str, scn: Scenario) -> tuple[str, ...]:
     """The methods `calbench montecarlo --method choice` runs on the scenario's robot
     (identify/methods/registry.py: ``both`` those that apply to it); InputError when its MJCF
     does not load or a method chosen by name does not apply."""
-    try:
-        robot = Robot.from_file(scn.robot)
-    except ValueError as exc:  # the MJCF itself: reported where the campaign loads it
-        raise InputError(scn.path, "robot", "a loadable MJCF robot", f"{scn.robot}: {exc}") from None
+    robot = load_robot(scn.path, "robot", path=scn.robot)
     return select_methods(choice, robot, scn.robot)
 
 
@@ -412,9 +344,7 @@ def measure_montecarlo(
     t1 = time.perf_counter()
     with blas_threads(1):
         for r in range(probe):  # noise seeds no run uses: (seed, 2^31 + r)
-            obs = campaign_observations(
-                s.scn, s.truth_rb, s.plans, np.random.default_rng([job.seed, 2**31 + r])
-            )
+            obs = from_campaign(remeasure(s.campaign, np.random.default_rng([job.seed, 2**31 + r])))
             white = Whitener.from_observations(obs)
             for meth in job.methods:
                 try:
@@ -423,6 +353,41 @@ def measure_montecarlo(
                     pass
     t2 = time.perf_counter()
     return WorkEstimate(t1 - t0, (t2 - t1) / max(probe, 1), probe)
+
+
+@dataclass(frozen=True)
+class PendingMonteCarlo:
+    """A Monte Carlo checked and priced, ready to run (:func:`prepare_montecarlo`): the
+    scenario, the runs, the methods that run, and the cost measured on probe runs."""
+
+    scenario: Scenario
+    runs: int
+    methods: tuple[str, ...]
+    cost: WorkEstimate
+
+    @property
+    def tasks(self) -> int:
+        """Blocks of RUNS_PER_TASK runs: the pieces an executor runs."""
+        return -(-self.runs // RUNS_PER_TASK)
+
+    def seconds(self) -> float:
+        """In-process work of every run (the set-up apart)."""
+        return self.cost.seconds(self.runs)
+
+
+def prepare_montecarlo(
+    scn: Scenario, runs: int, choice: str = BOTH, seed: int | None = None, force: bool = False
+) -> PendingMonteCarlo:
+    """`calbench montecarlo` before it runs: ``runs`` >= 2, the size limits (unless ``force``),
+    the methods ``choice`` names for the scenario's robot (:func:`montecarlo_methods`), and the
+    cost of a run measured here (:func:`measure_montecarlo`, whose set-up the runs in this
+    process reuse). InputError on any of them."""
+    if runs < 2:
+        raise InputError("--runs", "runs", "an integer >= 2", runs)
+    if not force:
+        check_montecarlo_size(scn, runs)
+    methods = montecarlo_methods(choice, scn)
+    return PendingMonteCarlo(scn, runs, methods, measure_montecarlo(scn, methods, seed))
 
 
 def estimated_seconds(runs: int, methods=None) -> float:
@@ -552,8 +517,9 @@ __all__ = [
     "OBSERVATION_SECONDS_PER_RUN",
     "check_montecarlo_size",
     "montecarlo_methods",
-    "campaign_observations",
     "run_montecarlo",
+    "prepare_montecarlo",
+    "PendingMonteCarlo",
     "run_block",
     "estimated_seconds",
     "measure_montecarlo",

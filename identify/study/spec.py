@@ -57,7 +57,7 @@ import numpy as np
 
 from calbench.bench.core import InputError
 from calbench.bench.scenario import Scenario, load_scenario
-from calbench.identify.design import CRITERIA
+from calbench.identify.design.optimal import CRITERIA
 from calbench.identify.methods import method_names
 from calbench.identify.runtime import PortableScenario
 

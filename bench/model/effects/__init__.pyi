@@ -3,12 +3,20 @@
 # themselves are found by registry.py (every module here registers its own), not through this face.
 
 from .apply import EffectRobot, apply_effects, augmented_xml, load_spec
-from .base import UNIT_PRIORS, Effect, Field, Prior, Readings, read_table
+from .base import UNIT_PRIORS, Effect, Field, ObservationRows, Prior, read_table
 from .base_tilt import base_compliance
 from .cubic_drive import joint_nonlinearity
 from .drift import tracker_drift
 from .edits import RIGID_COMPLIANCE
-from .geometric import base_frame, frame_error, joint_offset, link_geometry, tool_frame, turned_frame
+from .geometric import (
+    base_frame,
+    body_quat,
+    frame_error,
+    joint_offset,
+    link_geometry,
+    tool_frame,
+    turned_frame,
+)
 from .link_springs import link_compliance
 from .registry import (
     DISCOVERY_OPTIONS,
@@ -33,7 +41,7 @@ __all__ = [
     "Prior",
     "REGISTRY",
     "RIGID_COMPLIANCE",
-    "Readings",
+    "ObservationRows",
     "TRUTH_SCHEMAS",
     "UNIT_PRIORS",
     "apply_effects",
@@ -49,6 +57,7 @@ __all__ = [
     "read_table",
     "register_effect",
     "base_frame",
+    "body_quat",
     "frame_error",
     "joint_offset",
     "link_geometry",

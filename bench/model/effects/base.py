@@ -6,7 +6,7 @@ to edit a spec (:meth:`Effect.apply`, then compile) and how to write the same va
 already compiled model without recompiling (:meth:`Effect.set_params`, the fast path for
 fitting). Both give the same model. A MEASUREMENT-SIDE effect (`tracker_drift`) changes what the
 instrument reports, not the robot: it leaves the spec alone and adds a term to every predicted
-deflection instead (:meth:`Effect.deflection_term`, given the :class:`Readings` it applies to).
+deflection instead (:meth:`Effect.deflection_term`, given the :class:`ObservationRows` it applies to).
 
 Effects know no robot by name: what they need comes from the robot description the MJCF carries
 (bench/model/description.py: the actuated joints, the payload and reflector sites, the optional
@@ -27,7 +27,7 @@ from calbench.bench.model import Robot
 
 
 @dataclass(frozen=True)
-class Readings:
+class ObservationRows:
     """What a measurement-side effect acts on: the observation rows of a campaign, one
     (pose index, reflector name) per measured deflection, and the tracker's orientation
     (world-from-tracker rotation, bench.tracker.tracker_rotation)."""
@@ -49,7 +49,7 @@ class Effect:
     the spec (``_apply``) and writes its parameters into a compiled model (``_set``), and may
     write nothing but spring stiffnesses and rest lengths there (discovery keeps the springs'
     part of the stiffness matrix analytic, identify/discover/fit.py). A measurement-side effect
-    has ``_measure`` instead: params, options, :class:`Readings` -> (M, 3) world-frame term added
+    has ``_measure`` instead: params, options, :class:`ObservationRows` -> (M, 3) world-frame term added
     to every deflection.
     """
 
@@ -59,7 +59,7 @@ class Effect:
     units: tuple[str, ...] = ()
     _apply: Callable[[mujoco.MjSpec, np.ndarray, dict], None] = field(default=None, repr=False, compare=False)
     _set: Callable[[Robot, np.ndarray, dict], None] = field(default=None, repr=False, compare=False)
-    _measure: Callable[[np.ndarray, dict, Readings], np.ndarray] | None = field(
+    _measure: Callable[[np.ndarray, dict, ObservationRows], np.ndarray] | None = field(
         default=None, repr=False, compare=False
     )
 
@@ -87,7 +87,7 @@ class Effect:
         """True when the effect changes the readings, not the robot (no spec edit)."""
         return self._measure is not None
 
-    def deflection_term(self, params, readings: Readings) -> np.ndarray:
+    def deflection_term(self, params, readings: ObservationRows) -> np.ndarray:
         """(M, 3) m, world frame: what a measurement-side effect adds to each measured
         deflection (loaded minus unloaded reading); zeros for a robot-side effect."""
         if self._measure is None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import Effect, Field, Prior, Readings, no_edit
+from .base import Effect, Field, ObservationRows, Prior, no_edit
 from .registry import register_effect
 
 
@@ -31,7 +31,7 @@ def tracker_drift() -> Effect:
     Parameters bx, by, bz in m.
     """
 
-    def measure(p, o, readings: Readings):
+    def measure(p, o, readings: ObservationRows):
         return np.tile(np.asarray(readings.tracker_rotation, float) @ p, (len(readings.rows), 1))
 
     return Effect("tracker_drift", ("bx", "by", "bz"), {}, ("m", "m", "m"), no_edit, no_edit, measure)

@@ -25,6 +25,18 @@ from .registry import register_effect
 MAX_OFFSET = 0.1  # rad (5.7 deg): a geometric error, not a different robot (docs/geometry.md)
 
 
+def body_quat(spec: mujoco.MjSpec, body) -> np.ndarray:
+    """The body's orientation in its parent as a quaternion, made the one its spec holds. A body
+    oriented by ``euler`` (or another alternative: the FANUC's upper arm) keeps ``quat`` = 1 in the
+    spec and its turn in ``alt``, which wins at compile: an edit of ``quat`` alone would be lost.
+    So the compiled orientation is written into ``quat`` and ``alt`` set to it."""
+    if body.alt.type != mujoco.mjtOrientation.mjORIENTATION_QUAT:
+        model = spec.compile()
+        body.quat = model.body_quat[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, body.name)]
+        body.alt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT
+    return np.array(body.quat, dtype=float)
+
+
 def _offset_truth(t: dict) -> tuple[dict, np.ndarray]:
     offsets = np.asarray(t["offset"], dtype=float)
     return {"joints": len(offsets)}, offsets
@@ -65,7 +77,7 @@ def joint_offset(joints: int = 6) -> Effect:
         for name, angle in zip(names, p, strict=True):
             j = spec.joint(name)
             body = j.parent
-            nominal[name] = (np.array(body.pos, dtype=float), np.array(body.quat, dtype=float))
+            nominal[name] = (np.array(body.pos, dtype=float), body_quat(spec, body))
             body.pos, body.quat = turned_frame(body.pos, body.quat, j.pos, j.axis, angle)
 
     def set_(robot, p, o):
@@ -140,7 +152,7 @@ def _frame_effect(name: str, body_of: Callable[[mujoco.MjSpec], str], options: d
 
     def apply(spec, p, o):
         body = spec_body(spec, body_of(spec))
-        nominal["body"] = (np.array(body.pos, dtype=float), np.array(body.quat, dtype=float))
+        nominal["body"] = (np.array(body.pos, dtype=float), body_quat(spec, body))
         nominal["name"] = body.name
         body.pos, body.quat = frame_error(body.pos, body.quat, p)
 

@@ -32,7 +32,7 @@ def information(blocks: np.ndarray, idx=None, repeats=None) -> np.ndarray:
     return np.einsum("n,nmi,nmj->ij", w, b, b)
 
 
-def covariance(F: np.ndarray) -> np.ndarray | None:
+def inverse_information(F: np.ndarray) -> np.ndarray | None:
     """F^-1, or None when F is singular (rank-deficient to working precision)."""
     F = 0.5 * (F + F.T)
     try:
@@ -49,7 +49,7 @@ def covariance(F: np.ndarray) -> np.ndarray | None:
 def measures(F: np.ndarray, G: np.ndarray | None = None) -> dict:
     """All measures of information F (and the pose measure when G is given)."""
     p = F.shape[0]
-    C = covariance(F)
+    C = inverse_information(F)
     if C is None:
         out = {"A": np.inf, "D": np.inf, "AD": np.inf, "std": np.full(p, np.inf)}
         if G is not None:
@@ -95,7 +95,7 @@ __all__ = [
     "CRITERIA",
     "AD_WEIGHTS",
     "information",
-    "covariance",
+    "inverse_information",
     "measures",
     "criterion_value",
     "weight_matrix",
