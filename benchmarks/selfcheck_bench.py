@@ -6,6 +6,8 @@ equilibria pose by pose until its warm evaluations ran stacked on bench/statics/
 base model's do. For each case the campaign is simulated in memory (the scenario's seed),
 discovered once, and the self-check of the final model is run twice on the same fit, in the
 same process, alternating: pose by pose (``batched = False``, the baseline) and batched.
+The same for `calbench identify --self-check` (identify/report/selfcheck.py: the one-step's refits
+on the base model, which ran batched before): its wall and CPU seconds both ways.
 Reported per case: wall and CPU seconds of each, their ratio, the model evaluations, and how
 far apart the two runs' replicas came out (the largest |difference| over replicas and
 parameters, in the parameter's reported std: the replicas stop on a step below 1e-2 std, so
@@ -71,7 +73,26 @@ def one_check(fit, obs, white, det, batched: bool) -> dict:
     }
 
 
+def identify_check(robot, obs, batched: bool) -> dict:
+    """`calbench identify --self-check`'s bootstrap (identify/report/selfcheck.py: the one-step's
+    Monte Carlo refits on the base model, identify/core/forward.py) with the statics batched or
+    pose by pose (ForwardModel.BATCHED: the refits build their own model)."""
+    from calbench.identify.core import ForwardModel
+    from calbench.identify.report import identify, self_check
+
+    ForwardModel.BATCHED = batched
+    try:
+        res = identify(robot, obs)
+        r = res.result
+        t, c = time.perf_counter(), time.process_time()
+        rec = self_check(robot, res.obs, "one-step", r.theta, r.std, res.obs.dp - r.residual)
+        return {"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c, "failed": rec["failed"]}
+    finally:
+        ForwardModel.BATCHED = True
+
+
 def run_case(name: str, scn_path: Path, model, repeats: int) -> dict:
+    from calbench.bench.model import Robot
     from calbench.bench.scenario import load_scenario
     from calbench.identify.core import Whitener
     from calbench.identify.discover import checked, discover_observations
@@ -114,6 +135,19 @@ def run_case(name: str, scn_path: Path, model, repeats: int) -> dict:
         }
     out["speedup_wall"] = min(out["pose_by_pose"]["wall_s"]) / min(out["batched"]["wall_s"])
     out["speedup_cpu"] = min(out["pose_by_pose"]["cpu_s"]) / min(out["batched"]["cpu_s"])
+    robot = Robot.from_file(model) if model is not None else Robot.from_xml(sim.mjcf)
+    ident: dict[str, list[dict]] = {"pose_by_pose": [], "batched": []}
+    for _ in range(repeats):
+        ident["pose_by_pose"].append(identify_check(robot, sim.obs, False))
+        ident["batched"].append(identify_check(robot, sim.obs, True))
+    out["identify_self_check"] = {
+        key: {
+            "wall_s": [r["wall_s"] for r in rows],
+            "cpu_s": [r["cpu_s"] for r in rows],
+            "failed": rows[0]["failed"],
+        }
+        for key, rows in ident.items()
+    }
     out["load_average_1min"] = os.getloadavg()[0]
     return out
 

@@ -476,11 +476,15 @@ class ForwardModel:
         )
         qpos = np.array([eq.qpos for *_, eq in rows])
         lam = np.array([eq.lam for *_, eq in rows])
-        for i, (*_, eq) in enumerate(rows):
-            if eq.tangent is not None and eq.theta is not None:  # first-order prediction
-                step = eq.tangent @ (theta - eq.theta)
-                qpos[i] += step[:nv]
-                lam[i] += step[nv:]
+        pred = [i for i, (*_, eq) in enumerate(rows) if eq.tangent is not None and eq.theta is not None]
+        if pred:  # first-order prediction from the cached tangents
+            step = np.einsum(
+                "kij,kj->ki",
+                np.array([rows[i][2].tangent for i in pred]),
+                theta - np.array([rows[i][2].theta for i in pred]),
+            )
+            qpos[pred] += step[:, :nv]
+            lam[pred] += step[:, nv:]
         basis = np.array([eq.basis for *_, eq in rows])
         a_base = np.array([eq.a_base for *_, eq in rows])
         h_len = np.array([eq.h_len for *_, eq in rows])
@@ -501,14 +505,14 @@ class ForwardModel:
             one = self._solve(des, ld, eq, theta, False)
             qpos[i], lam[i] = one.qpos, one.lam
             a_base[i], h_len[i], basis[i] = eq.a_base, eq.h_len, eq.basis
-        stale = []
         for i, (*_, eq) in enumerate(rows):
             eq.qpos, eq.lam, eq.theta, eq.tangent = qpos[i], lam[i], theta.copy(), None
-            if jacobian and self._stale(eq, qpos[i]):  # the tangent needs A_base at the solution
-                stale.append(i)
-        if stale:  # _retake of every stale row at once
+        # the tangent needs A_base at the solution: _stale's test, every row at once
+        moved = np.abs(qpos - np.array([eq.q_kkt for *_, eq in rows])).max(axis=1) > KKT_QTOL
+        stale = np.flatnonzero(moved) if jacobian else np.zeros(0, int)
+        if len(stale):  # _retake of every stale row at once
             self.stats["retakes"] += len(stale)
-            ids = np.array(stale)
+            ids = stale
             a_base[ids], h_len[ids] = self._kkt_fd_stack(
                 theta, bs, ids, qpos[ids], q[ids], take_load(load, ids), lam[ids], basis[ids]
             )
