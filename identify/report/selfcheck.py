@@ -37,10 +37,12 @@ def self_check(robot, obs: Observations, method: str, theta: np.ndarray, std: np
     """The bootstrap of the module docstring around the estimate ``theta`` (std: its reported
     std, NaN where not determined; ``predicted``: (M, 3) the model's deflections at theta)."""
     obs0 = with_deflections(obs, predicted)
-    reps = method_named(method).repeats(robot, obs0, Whitener.from_observations(obs0))
+    # every replica has the campaign's covariance (only its deflections differ): one whitening
+    white = Whitener.from_observations(obs0)
+    reps = method_named(method).repeats(robot, obs0, white)
 
     def refit(o: Observations) -> np.ndarray:
-        return reps.run(o, Whitener.from_observations(o)).theta
+        return reps.run(o, white).theta
 
     return bootstrap(obs, predicted, theta, unit_checks(reps.noise_free.names, std), refit)
 
