@@ -5,9 +5,11 @@ of the final model. A model with effects (identify/discover/fit.py's AugmentedFo
 equilibria pose by pose until its warm evaluations ran stacked on bench/statics/batched.py as the
 base model's do. For each case the campaign is simulated in memory (the scenario's seed),
 discovered once, and the self-check of the final model is run twice on the same fit, in the
-same process, alternating: pose by pose (``batched = False``, the baseline) and batched.
-The same for `calbench identify --self-check` (identify/report/selfcheck.py: the one-step's refits
-on the base model, which ran batched before): its wall and CPU seconds both ways.
+same process, alternating: pose by pose (``batched = False``, the baseline) and batched. The
+whole discovery (every candidate's fit runs on the same model) is timed both ways too, once
+(``discover_pose_by_pose_s``, ``discover_s``), and `calbench identify --self-check`
+(identify/report/selfcheck.py: the one-step's refits on the base model, which ran batched
+before) both ways, alternating.
 Reported per case: wall and CPU seconds of each, their ratio, the model evaluations, and how
 far apart the two runs' replicas came out (the largest |difference| over replicas and
 parameters, in the parameter's reported std: the replicas stop on a step below 1e-2 std, so
@@ -94,12 +96,19 @@ def identify_check(robot, obs, batched: bool) -> dict:
 def run_case(name: str, scn_path: Path, model, repeats: int) -> dict:
     from calbench.bench.model import Robot
     from calbench.bench.scenario import load_scenario
-    from calbench.identify.core import Whitener
+    from calbench.identify.core import ForwardModel, Whitener
     from calbench.identify.discover import checked, discover_observations
     from calbench.identify.study import simulate_in_memory
 
     sim = simulate_in_memory(load_scenario(scn_path))
     src = model if model is not None else sim.mjcf
+    ForwardModel.BATCHED = False  # the whole discovery pose by pose first (its result unused)
+    try:
+        t = time.perf_counter()
+        discover_observations(sim.obs, src)
+        discover_pbp_s = time.perf_counter() - t
+    finally:
+        ForwardModel.BATCHED = True
     t = time.perf_counter()
     rep, fit = discover_observations(sim.obs, src)
     discover_s = time.perf_counter() - t
@@ -118,6 +127,7 @@ def run_case(name: str, scn_path: Path, model, repeats: int) -> dict:
         "named": rep["named_effects"],
         "parameters": len(fit.names),
         "discover_s": discover_s,
+        "discover_pose_by_pose_s": discover_pbp_s,
         "replica_difference_max_std": float(np.nanmax(diff)) if np.isfinite(diff).any() else None,
         "replica_difference_median_std": float(np.nanmedian(diff)) if np.isfinite(diff).any() else None,
         "same_verdict": a["failed"] == b["failed"],
