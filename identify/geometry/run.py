@@ -221,14 +221,17 @@ def run_geometry(
     model: str | Path | None = None,
     validate_path: str | Path | None = None,
     out_model: str | Path | None = None,
+    states: tuple[str, ...] = STATES,
 ) -> dict:
-    """Fit the three models to the log; the report as a JSON-ready dict (see the module docstring)."""
+    """Fit the three models to the log; the report as a JSON-ready dict (see the module docstring).
+    ``states``: the load states whose readings it reads (default both; ``("unloaded",)``: the
+    robot's own weight alone, as benchmarks/geometry_loaded_bench.py compares)."""
     log = read_log(log_path, include_truth=False)
     if model is None and not log.mjcf_text:
         raise InputError(
             log.path, "robot model", "an MJCF attachment in the log (or --model ROBOT.xml)", "none"
         )
-    data = campaign_readings(log)
+    data = campaign_readings(log, states=states)
     where = str(model) if model is not None else f"{log.path} (MJCF attachment)"
     robot = complete_model(model, log.mjcf_text, where, data.points, data.rows, data.y)
     start = robot.model
@@ -251,7 +254,7 @@ def run_geometry(
         "tracker_sigma": data.sigma,
     }
     if validate_path is not None:
-        held = campaign_readings(read_log(validate_path, include_truth=False), data.points)
+        held = campaign_readings(read_log(validate_path, include_truth=False), data.points, states)
         if held.q.shape[1] != data.q.shape[1]:
             raise InputError(
                 validate_path, "poses", f"{data.q.shape[1]} joint angles per pose", held.q.shape[1]
