@@ -19,7 +19,8 @@ something in at most 0.1 % of the seeds. N seeds (default 300) of the isotropic 
 
 The campaign is solved once; each seed redraws the tracker noise (bench.campaign.remeasure, then
 identify/core's from_campaign) and runs the whole discovery on the observations in memory
-(identify/discover/workflow.py's discover_observations). Prints JSON.
+(identify/discover/workflow.py's discover_observations). Prints JSON; each seed's row goes to
+stderr as it finishes (progress, and what a run cut short has measured).
 
     python benchmarks/discover_null_bench.py [--seeds 300] [--spec-seeds 100] [--processes 2]
                                              [--scheduler ADDR] [--quick]
@@ -175,7 +176,11 @@ def main() -> int:
         blocks = [(model, list(range(a, min(a + SEEDS_PER_TASK, n)))) for a in range(0, n, SEEDS_PER_TASK)]
         where = args.scheduler or ("local" if args.processes > 1 else "in-process")
         with open_executor(choose(where, 0.0, len(blocks), workers=args.processes)) as ex:
-            done = dict(ex.run(seed_block, blocks))
+            done = {}
+            for i, block_rows in ex.run(seed_block, blocks):
+                done[i] = block_rows
+                for r in block_rows:  # progress, and what a cut-short run has measured
+                    print(json.dumps({"model": model, **r}), file=sys.stderr, flush=True)
         rows = [r for i in range(len(blocks)) for r in done[i]]
         res["models"][model] = summarise(rows)
         print(

@@ -15,7 +15,7 @@ over the seeds (unbiased: mean within ~2/sqrt(seeds); honest: std near 1), and t
 (the complete fit's reported std over the geometry-known one's, mean over seeds). Prints JSON;
 progress on stderr.
 
-Usage: python benchmarks/geometry_statics_bench.py [--seeds N] [--poses N] [--robots m900ib700,kr270]
+Usage: python benchmarks/geometry_statics_bench.py [--seeds N] [--poses N] [--robots m900ib700,kr270] [--quick]
 """
 
 from __future__ import annotations
@@ -122,7 +122,10 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=6)
     ap.add_argument("--poses", type=int, default=40)
     ap.add_argument("--robots", default="m900ib700,kr270")
+    ap.add_argument("--quick", action="store_true", help="2 seeds of 20 poses on the KR 270 only")
     a = ap.parse_args()
+    if a.quick:
+        a.seeds, a.poses, a.robots = 2, 20, "kr270"
     report: dict = {"poses": a.poses, "seeds": a.seeds, "sigma_m": SIGMA, "robots": {}}
     for name in a.robots.split(","):
         runs = []

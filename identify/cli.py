@@ -646,7 +646,15 @@ def cmd_import(args) -> int:
     check_outputs(
         {"--out": args.out}, {"READINGS": args.readings, "--plan": args.plan, "--model": args.model}
     )
-    res = import_readings(args.readings, args.plan, args.out, args.units, args.model)
+    bars = (
+        terminal_progress("calbench import", "MB read"),
+        terminal_progress("calbench import", "poses written"),
+    )
+    try:
+        res = import_readings(args.readings, args.plan, args.out, args.units, args.model, *bars)
+    finally:
+        for bar in bars:
+            bar.close()
     s = res.summary
     for w in res.warnings:
         print(f"calbench import: warning: {w}", file=sys.stderr)
@@ -1002,8 +1010,14 @@ def main(argv: list[str] | None = None) -> int:
     if mujoco.get_mju_user_warning() is None:
         # MuJoCo's own handler writes MUJOCO_LOG.TXT into the user's folder: say it on stderr
         mujoco.set_mju_user_warning(_mujoco_warning)
+    from calbench.bench.log import showing_progress
+
     try:
-        with holding_outputs(), warnings.catch_warnings():  # a second run on one output is refused
+        with (
+            holding_outputs(),  # a second run on one output is refused
+            showing_progress(lambda name: terminal_progress(name, "MB")),  # a big log's check
+            warnings.catch_warnings(),
+        ):
             warnings.simplefilter("default", PlausibilityWarning)
             warnings.showwarning = _one_line_warning(args.command)
             return int(args.func(args) or 0)

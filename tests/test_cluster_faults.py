@@ -183,3 +183,18 @@ def test_a_worker_with_another_mujoco_build_is_named(tmp_path, monkeypatch, caps
         assert "has MuJoCo 0.0.1, this machine" in err and "NumPy" not in err, err
     finally:
         c.stop()
+
+
+def test_a_worker_killed_mid_design_changes_nothing(tmp_path):
+    """The design's pieces (candidates' information, starts of the exchange) rescheduled after a
+    SIGKILL give the plan an in-process design gives, criteria and poses alike."""
+    ref, out = tmp_path / "ref.json", tmp_path / "design.json"
+    args = ["design", str(PAPER), "--candidates", "1500", "--starts", "4"]
+    assert main([*args, "--scheduler", "in-process", "--json", str(ref)]) == 0
+    _run_killing_a_worker([*args, "--json", str(out)], tmp_path)
+    # the threads that made the candidates, and their phases' times (measured in this process
+    # only): the machine, not the plan
+    where = TIMING_KEYS | {"threads", "phase_seconds"}
+    a, b = (strip_timing(json.loads(p.read_text()), where) for p in (out, ref))
+    assert a == b
+    assert sum(p["repeats"] for p in a["poses"]) == 12 and a["measures"]  # a plan, not two empty reports

@@ -4,6 +4,7 @@
 from .errors import CalbenchError, InputError, StaticsError
 from .face import face_exports, lazy_face
 from .family import Family, FileFormat
+from .memory import available_bytes, check_memory, nbytes_text
 from .outputs import (
     WriteError,
     atomic_path,
@@ -36,6 +37,8 @@ __all__ = [
     "Table",
     "WriteError",
     "atomic_path",
+    "available_bytes",
+    "check_memory",
     "check_mjcf_text",
     "check_model_file",
     "check_outputs",
@@ -44,6 +47,7 @@ __all__ = [
     "frozen_array",
     "holding_outputs",
     "mjcf_path",
+    "nbytes_text",
     "parse_toml",
     "parse_xml",
     "read_text",

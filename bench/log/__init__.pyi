@@ -4,10 +4,17 @@
 from .foxglove import FoxgloveWriter
 from .idreport import IdentificationReport, ObservationFit, Outlier, ParameterEstimate
 from .mcapscan import Cut, Damage, scan
-from .read import CorruptLogError, read_log
+from .read import (
+    KEEP_READINGS,
+    CorruptLogError,
+    LogReadings,
+    message_problems,
+    read_log,
+    showing_progress,
+)
 from .records import STATES, CampaignLog, PerState, WrenchRecord
 from .recover import recover_log
-from .schema import SCHEMAS
+from .schema import SCHEMAS, checker, findings, problems
 from .writer import (
     TRUTH_PREFIX,
     CampaignTruth,
@@ -20,6 +27,13 @@ from .writer import (
 )
 
 __all__ = [
+    "showing_progress",
+    "message_problems",
+    "LogReadings",
+    "KEEP_READINGS",
+    "problems",
+    "findings",
+    "checker",
     "CampaignLog",
     "CampaignTruth",
     "CorruptLogError",

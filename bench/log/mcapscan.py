@@ -93,6 +93,16 @@ class Damage:
 
 
 @dataclass(frozen=True)
+class At:
+    """Yielded before each complete top-level record when asked (``scan(..., marks=True)``): the
+    records that follow, up to the next ``At``, are that record or, for a chunk, its content.
+    A reader notes where a pose's messages are and reads just those again
+    (:func:`scan_span`)."""
+
+    offset: int
+
+
+@dataclass(frozen=True)
 class Cut:
     """The file ends before its footer; ``offset`` is where the readable part ends."""
 
@@ -123,21 +133,43 @@ def open_mcap(path: str | os.PathLike):
     return f
 
 
-def scan(path: str | os.PathLike) -> Iterator[Any]:
+def scan(path: str | os.PathLike, marks: bool = False) -> Iterator[Any]:
     """Records of an MCAP file in order, with :class:`Damage` and :class:`Cut` events (see the
-    module docstring). Raises InputError when the file is missing or not MCAP."""
+    module docstring), and with ``marks`` an :class:`At` before each record. Raises InputError
+    when the file is missing or not MCAP."""
     f = open_mcap(path)
     with f:
         size = os.fstat(f.fileno()).st_size
         f.seek(size - len(MAGIC))
         finished = size >= 2 * len(MAGIC) + 9 and f.read(len(MAGIC)) == MAGIC
         f.seek(len(MAGIC))
-        yield from _scan(f, size, finished)
+        yield from _scan(f, size, finished, marks)
 
 
-def _scan(f, size: int, finished: bool) -> Iterator[Any]:
-    pos = len(MAGIC)
-    crc = zlib.crc32(MAGIC)  # running CRC of the data section
+def scan_span(path: str | os.PathLike, first: int, last: int) -> Iterator[Any]:
+    """The records of the top-level records from offset ``first`` to offset ``last`` (both
+    :attr:`At.offset` values of an earlier scan), chunks opened and their CRCs checked again:
+    what a reader that noted where a pose's messages are reads to have them again. A record
+    that no longer decodes yields :class:`Damage` (the file changed since)."""
+    f = open_mcap(path)
+    with f:
+        size = os.fstat(f.fileno()).st_size
+        f.seek(first)
+        for rec in _scan(f, size, False, True, pos=first, whole=False):
+            if isinstance(rec, At) and rec.offset > last:
+                return
+            if isinstance(rec, (Cut, Footer)):
+                return
+            if not isinstance(rec, (At, MessageIndex)):
+                yield rec
+
+
+def _scan(
+    f, size: int, finished: bool, marks: bool = False, pos: int = len(MAGIC), whole: bool = True
+) -> Iterator[Any]:
+    """The records from ``pos`` (the file positioned there); not ``whole``: a span read from the
+    middle of the file, without the data section's CRC."""
+    crc = zlib.crc32(MAGIC)  # running CRC of the data section (unused in a span)
     seen: Counter = Counter()  # messages read per channel
     chunk_counts: Counter | None = None  # messages of the chunk just read, for its indexes
     chunk_damaged = False
@@ -162,10 +194,14 @@ def _scan(f, size: int, finished: bool) -> Iterator[Any]:
         if len(body) < length:  # pragma: no cover - the file shrank while read
             yield Cut(pos)
             return
-        crc_before, crc = crc, zlib.crc32(body, zlib.crc32(head, crc))
+        crc_before = crc
+        if whole:
+            crc = zlib.crc32(body, zlib.crc32(head, crc))
         here, pos = pos, pos + 9 + length
         if opcode not in _RECORD_TYPES:
             continue  # unknown records are skipped (the MCAP spec)
+        if marks:
+            yield At(here)
         name = _RECORD_TYPES[opcode].__name__
         try:
             rec = _parse(opcode, body)
@@ -208,7 +244,7 @@ def _scan(f, size: int, finished: bool) -> Iterator[Any]:
                 yield Damage(here, name, f"CRC mismatch ({rec.name!r})")
                 continue
         elif isinstance(rec, DataEnd):
-            if rec.data_section_crc and rec.data_section_crc != crc_before:
+            if whole and rec.data_section_crc and rec.data_section_crc != crc_before:
                 yield Damage(
                     here,
                     name,
@@ -262,4 +298,4 @@ def _check_summary(f, footer: Footer, here: int, stats: Statistics | None, seen:
             )
 
 
-__all__ = ["MAGIC", "MAGIC_TEXT", "Damage", "Cut", "scan", "open_mcap"]
+__all__ = ["MAGIC", "MAGIC_TEXT", "At", "Damage", "Cut", "scan", "scan_span", "open_mcap"]

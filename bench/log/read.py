@@ -32,8 +32,12 @@ read as before.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
+import hashlib
 import json
 import os
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -43,7 +47,7 @@ from mcap.records import Attachment, Channel, Footer, Message, Metadata
 
 from calbench.bench.core import InputError
 
-from .mcapscan import Cut, Damage, scan
+from .mcapscan import At, Cut, Damage, scan, scan_span
 from .records import (
     CampaignLog,
     CampaignTruth,
@@ -66,11 +70,36 @@ from .schema import (
 
 END_METADATA = "campaign_end"  # how the campaign ended (bench/log/writer.py writes it)
 RECOVERED_METADATA = "recovered"  # written by `calbench recover`
+# a log this big shows its reading's progress (MB of the file checked) where a command asked
+# for it (:func:`showing_progress`); smaller ones are read in seconds
+PROGRESS_BYTES = 64 << 20
+_PROGRESS: contextvars.ContextVar[Callable[[str], Any] | None] = contextvars.ContextVar(
+    "calbench_log_progress", default=None
+)
+
+
+@contextlib.contextmanager
+def showing_progress(make: Callable[[str], Any]) -> Iterator[None]:
+    """Within, :func:`read_log` of a big log shows its progress on ``make(name)`` (a
+    bench.core.Progress-like sink with start, update, close): the command line's way to say what
+    a minutes-long read is doing without every verb passing a sink down."""
+    token = _PROGRESS.set(make)
+    try:
+        yield
+    finally:
+        _PROGRESS.reset(token)
+
+
+# Readings a log may hold for read_log to keep them in memory (~1 kB each with three reflectors);
+# beyond, CampaignLog.measurements reads them again a pose at a time (LogReadings)
+KEEP_READINGS = 50_000
 RECOVER_HINT = "`calbench recover LOG --out FIXED.mcap` keeps its valid poses"
 # the topics this reader decodes; the others (Foxglove's view) are passed by
 DECODED = frozenset(SCHEMAS)
 # relative asymmetry tolerated in a covariance (round-off of R D R^T in the writer is ~1e-16)
 SYMMETRY_TOL = 1e-9
+# a leading principal minor above this share of its scale is positive beyond round-off (~1e-15)
+MINOR_MARGIN = 1e-9
 # rad: a pose is one command, written in both states (JSON carries a float exactly; this is the
 # same 1e-12 as identify/core/observations.py's check, far below any encoder's resolution)
 COMMAND_TOL = 1e-12
@@ -131,42 +160,54 @@ def message_problems(topic: str, m: Any, n_poses: int | None, n_joints: int | No
 
 
 def _measurement_problems(m: dict) -> list[Problem]:
+    """The first problem reflector by reflector: nulls where not visible, then a symmetric
+    positive definite covariance."""
     n = len(m["reflectors"])
     if len(set(m["reflectors"])) != n:
         return [Problem("reflectors", "each reflector named once", m["reflectors"])]
     for key in ("position", "covariance", "visible"):
         if len(m[key]) != n:
             return [Problem(key, f"{n} entries, one per reflector", f"{len(m[key])} entries")]
+    null = None  # the first reflector whose nulls disagree with visible
     for i, vis in enumerate(m["visible"]):
         for key in ("position", "covariance"):
             if (m[key][i] is not None) != vis:
-                return [
-                    Problem(
-                        f"{key}[{i}]",
-                        "null exactly where visible is false",
-                        m[key][i] if m[key][i] is None else f"a value with visible {vis}",
-                    )
-                ]
-        if vis:
-            c = np.asarray(m["covariance"][i], dtype=float)
-            scale = np.abs(c).max()
-            if not scale > 0 or np.abs(c - c.T).max() > SYMMETRY_TOL * scale:
-                return [
-                    Problem(
-                        f"covariance[{i}]",
-                        "a symmetric positive definite 3x3 matrix",
-                        "an asymmetric or zero matrix",
-                    )
-                ]
-            if np.linalg.eigvalsh(0.5 * (c + c.T)).min() <= 0:
-                return [
-                    Problem(
-                        f"covariance[{i}]",
-                        "a symmetric positive definite 3x3 matrix",
-                        "a matrix with an eigenvalue <= 0",
-                    )
-                ]
-    return []
+                null = Problem(
+                    f"{key}[{i}]",
+                    "null exactly where visible is false",
+                    m[key][i] if m[key][i] is None else f"a value with visible {vis}",
+                )
+                break
+        if null is not None:
+            n = i
+            break
+    for i in range(n):
+        if m["visible"][i]:
+            why = _covariance_problem(m["covariance"][i])
+            if why:
+                return [Problem(f"covariance[{i}]", "a symmetric positive definite 3x3 matrix", why)]
+    return [] if null is None else [null]
+
+
+def _covariance_problem(c: list) -> str | None:
+    """What is wrong with a 3x3 covariance (lists of finite numbers: its schema), or None.
+
+    Symmetric to SYMMETRY_TOL of its largest entry, and positive definite: no eigenvalue <= 0
+    (numpy's eigvalsh of its symmetric part). Most covariances are plainly positive definite:
+    their leading principal minors exceed MINOR_MARGIN times the largest entry's power, far
+    beyond their round-off, so every eigenvalue is positive (Sylvester's criterion) and the
+    eigenvalues need not be computed (~50 times slower in numpy for one 3x3)."""
+    (a, b, d), (b2, e, f), (d2, f2, g) = c
+    scale = max(abs(a), abs(b), abs(d), abs(b2), abs(e), abs(f), abs(d2), abs(f2), abs(g))
+    if not scale > 0 or max(abs(b - b2), abs(d - d2), abs(f - f2)) > SYMMETRY_TOL * scale:
+        return "an asymmetric or zero matrix"
+    b, d, f = (b + b2) / 2, (d + d2) / 2, (f + f2) / 2
+    m2 = a * e - b * b
+    m3 = a * (e * g - f * f) - b * (b * g - f * d) + d * (b * f - e * d)
+    if a > MINOR_MARGIN * scale and m2 > MINOR_MARGIN * scale**2 and m3 > MINOR_MARGIN * scale**3:
+        return None
+    sym = 0.5 * (np.asarray(c, dtype=float) + np.asarray(c, dtype=float).T)
+    return "a matrix with an eigenvalue <= 0" if np.linalg.eigvalsh(sym).min() <= 0 else None
 
 
 def _key(topic: str, m: Any, field_: str) -> str:
@@ -201,6 +242,14 @@ class _Collected:
     t_refl: dict[int, dict[str, TruthReflectors]] = field(default_factory=dict)
     t_joints: dict[int, dict[str, TruthJoints]] = field(default_factory=dict)
     seen: set[tuple] = field(default_factory=set)
+    # readings: kept while there are at most KEEP_READINGS (meas), else only where each pose's
+    # are (spans: the offsets of the first and last record holding them), how many, and when
+    kept: bool = True
+    spans: dict[int, list[int]] = field(default_factory=dict)
+    counts: dict[int, int] = field(default_factory=dict)
+    first_time: dict[int, int] = field(default_factory=dict)
+    repeats: dict[tuple[int, str], list] = field(default_factory=dict)  # [n, set]: see once_reading
+    lists: dict[int, list[str]] = field(default_factory=dict)  # each pose's first reflector list
 
     def once(self, key: tuple) -> bool:
         """True the first time ``key`` (topic and identity of a message) is met."""
@@ -209,13 +258,27 @@ class _Collected:
         self.seen.add(key)
         return True
 
+    def once_reading(self, pose: int, state: str, repeat: int) -> bool:
+        """:meth:`once` for readings in a few bytes per pose and state: repeats 0..n-1 all met
+        are one number n (a writer numbers them in order), others a set until the gap fills."""
+        n_ahead = self.repeats.setdefault((pose, state), [0, set()])
+        n, ahead = n_ahead
+        if repeat < n or repeat in ahead:
+            return False
+        ahead.add(repeat)
+        while n in ahead:
+            ahead.discard(n)
+            n += 1
+        n_ahead[0] = n
+        return True
+
 
 def _nan_rows(rows: list, shape: tuple[int, ...]) -> np.ndarray:
-    out = np.full((len(rows), *shape), np.nan)
-    for i, r in enumerate(rows):
-        if r is not None:
-            out[i] = np.asarray(r, dtype=float)
-    return out
+    """Rows (lists, or None where not seen) as one array with NaN rows for the Nones."""
+    if any(r is None for r in rows):
+        nan = np.full(shape, np.nan).tolist()
+        rows = [nan if r is None else r for r in rows]
+    return np.array(rows, dtype=float).reshape(len(rows), *shape)
 
 
 def _identity(topic: str, m: dict) -> tuple:
@@ -237,18 +300,10 @@ def _take(c: _Collected, topic: str, m: dict, log_time: int) -> None:
             mass=m["mass"],
         )
     elif topic == "/tracker/measurement":
-        c.meas.append(
-            MeasurementRecord(
-                pose=m["pose"],
-                state=m["state"],
-                repeat=m["repeat"],
-                reflectors=list(m["reflectors"]),
-                position=_nan_rows(m["position"], (3,)),
-                covariance=_nan_rows(m["covariance"], (3, 3)),
-                visible=np.asarray(m["visible"], dtype=bool),
-                time=int(log_time),
-            )
-        )
+        if c.kept:
+            c.meas.append(measurement_record(m, log_time))
+            if len(c.meas) > KEEP_READINGS:  # from here on, read again pose by pose when asked
+                c.kept, c.meas = False, []
     elif topic == "/campaign/pose_done":
         c.done.add(m["pose"])
     elif topic == "/truth/parameters":
@@ -263,26 +318,51 @@ def _take(c: _Collected, topic: str, m: dict, log_time: int) -> None:
         )
 
 
+def measurement_record(m: dict, log_time: int) -> MeasurementRecord:
+    """One checked ``/tracker/measurement`` message as a record."""
+    return MeasurementRecord(
+        pose=m["pose"],
+        state=m["state"],
+        repeat=m["repeat"],
+        reflectors=list(m["reflectors"]),
+        position=_nan_rows(m["position"], (3,)),
+        covariance=_nan_rows(m["covariance"], (3, 3)),
+        visible=np.asarray(m["visible"], dtype=bool),
+        time=int(log_time),
+    )
+
+
+def _note_reading(c: _Collected, m: dict, log_time: int, offset: int) -> None:
+    """Where, when and how many readings of a pose the log holds."""
+    p = m["pose"]
+    span = c.spans.get(p)
+    if span is None:
+        c.spans[p] = [offset, offset]
+    else:
+        span[1] = offset
+    c.counts[p] = c.counts.get(p, 0) + 1
+    c.first_time[p] = min(c.first_time.get(p, log_time), log_time)
+
+
 def _per_state(d: dict[int, dict[str, Any]], keep: set[int]) -> dict[int, PerState]:
     return {p: PerState(v.get("unloaded"), v.get("loaded")) for p, v in sorted(d.items()) if p in keep}
 
 
-def _check_reflector_lists(path: Path, header: list[str], meas: list[MeasurementRecord]) -> None:
-    """Every reading names reflectors of ``/campaign/info`` only, and the readings of one pose
-    all name the same list (its rows are matched by position between states and repeats)."""
-    known, first = set(header), {}
-    for m in meas:
-        key = _key(
-            "/tracker/measurement", {"pose": m.pose, "state": m.state, "repeat": m.repeat}, "reflectors"
+def _check_reflector_list(path: Path, header: list[str], first: dict[int, list[str]], m: dict) -> None:
+    """A reading names reflectors of ``/campaign/info`` only, and the readings of one pose all
+    name the same list (its rows are matched by position between states and repeats): ``first``
+    holds each pose's first list."""
+    names = first.setdefault(m["pose"], m["reflectors"])
+    if m["reflectors"] == names and names is not m["reflectors"]:
+        return  # the pose's list again: checked when first met
+    key = _key("/tracker/measurement", m, "reflectors")
+    unknown = [r for r in m["reflectors"] if r not in header]
+    if unknown:
+        raise CorruptLogError(
+            path, key, f"reflectors that /campaign/info lists ({', '.join(header) or 'none'})", unknown
         )
-        unknown = [r for r in m.reflectors if r not in known]
-        if unknown:
-            raise CorruptLogError(
-                path, key, f"reflectors that /campaign/info lists ({', '.join(header) or 'none'})", unknown
-            )
-        names = first.setdefault(m.pose, m.reflectors)
-        if m.reflectors != names:
-            raise CorruptLogError(path, key, f"the list of the pose's first reading {names}", m.reflectors)
+    if m["reflectors"] != names:
+        raise CorruptLogError(path, key, f"the list of the pose's first reading {names}", m["reflectors"])
 
 
 def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLog:
@@ -294,12 +374,25 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
     topics: dict[int, str] = {}
     c = _Collected()
     metadata: dict[str, dict] = {}
-    scenario_att = mjcf_text = None
+    scenario_att = mjcf_text = mjcf_sha256 = None
     saw_truth = cut = False
     n_poses: int | None = None
     n_joints: int | None = None
     pending: list[tuple[str, dict]] = []  # pose messages met before /campaign/info
-    for rec in scan(path):
+    stamp = _stamp(path)
+    offset = 0  # of the top-level record being read
+    make = _PROGRESS.get()
+    bar = make(f"calbench: checking {path.name}") if make and stamp[0] > PROGRESS_BYTES else None
+    if bar is not None:
+        bar.start(stamp[0] >> 20)
+    shown = 0
+    for rec in scan(path, marks=True):
+        if isinstance(rec, At):
+            offset = rec.offset
+            if bar is not None and offset >> 20 > shown:
+                bar.update(step=(offset >> 20) - shown)
+                shown = offset >> 20
+            continue
         if isinstance(rec, Damage):
             raise CorruptLogError(path, f"byte {rec.offset}", f"an undamaged {rec.record} record", rec.why)
         if isinstance(rec, Cut):
@@ -324,7 +417,10 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
                 raise CorruptLogError(path, _key(topic, m, p.field), p.expected, p.got)
             if topic == "/campaign/pose" and n_joints is None:
                 n_joints = len(m["q"])  # the first command fixes it (old logs)
-            if not c.once(_identity(topic, m)):
+            reading = topic == "/tracker/measurement"
+            if not (
+                c.once_reading(m["pose"], m["state"], m["repeat"]) if reading else c.once(_identity(topic, m))
+            ):
                 raise CorruptLogError(path, _key(topic, m, ""), "each message once", "a duplicate")
             if topic == "/campaign/info":
                 n_poses = m["n_poses"]
@@ -335,8 +431,14 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
                         raise CorruptLogError(
                             path, _key(t, pm, found[0].field), found[0].expected, found[0].got
                         )
+                    if t == "/tracker/measurement":
+                        _check_reflector_list(path, m["reflectors"], c.lists, pm)
             elif n_poses is None and "pose" in m:
                 pending.append((topic, m))
+            if reading:
+                if c.info is not None:
+                    _check_reflector_list(path, c.info["reflectors"], c.lists, m)
+                _note_reading(c, m, rec.log_time, offset)
             _take(c, topic, m, rec.log_time)
         elif isinstance(rec, Metadata):
             if rec.name == GROUND_TRUTH_METADATA:
@@ -350,9 +452,12 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
                 scenario_att = rec.data.decode("utf-8", "replace")
             elif rec.media_type == "application/xml" and mjcf_text is None:
                 mjcf_text = rec.data.decode("utf-8", "replace")
+                mjcf_sha256 = hashlib.sha256(rec.data).hexdigest()
         elif isinstance(rec, Footer):
             break
 
+    if bar is not None:
+        bar.close()
     present = set(topics.values())
     for topic in REQUIRED_TOPICS:
         if topic not in present:
@@ -360,6 +465,7 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
     if c.info is None:
         raise InputError(path, "/campaign/info", "one campaign info message", "none")
 
+    check_robot_hash(path, c.info, mjcf_sha256)
     complete = sorted(c.done)
     keep = set(complete)
     for p in complete:  # a complete pose is all there
@@ -380,7 +486,6 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
                 "the command of the unloaded state (a pose is one command)",
                 states["loaded"].tolist(),
             )
-    _check_reflector_lists(path, c.info["reflectors"], c.meas)
     truth = None
     if include_truth and saw_truth:
         t_meta = metadata.get(GROUND_TRUTH_METADATA) or {}
@@ -409,7 +514,17 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
         mjcf_text=mjcf_text,
         poses=_per_state(c.poses, keep),
         wrenches={p: v for p, v in sorted(c.wrenches.items()) if p in keep},
-        measurements=[m for m in c.meas if m.pose in keep],
+        measurements=[m for m in c.meas if m.pose in keep]
+        if c.kept
+        else LogReadings(
+            path,
+            stamp,
+            {i for i, t in topics.items() if t == "/tracker/measurement"},
+            c.spans,
+            c.counts,
+            c.first_time,
+            keep,
+        ),
         complete_poses=complete,
         n_poses_planned=int(c.info["n_poses"]),
         truncated=truncated,
@@ -417,6 +532,21 @@ def read_log(path: str | os.PathLike, include_truth: bool = False) -> CampaignLo
         end=end,
         dropped_poses=_dropped(metadata),
     )
+
+
+def check_robot_hash(path: Path, info: dict, got: str | None) -> None:
+    """The robot attachment is the MJCF whose SHA-256 ``/campaign/info`` records (logs written
+    before the hash was recorded have none to check)."""
+    want = info.get("robot_sha256")
+    if want is None:
+        return
+    if got != want:
+        raise CorruptLogError(
+            path,
+            f"attachment {info.get('robot', 'robot')!r}",
+            f"the robot MJCF whose SHA-256 /campaign/info records ({want[:12]}...)",
+            "no robot attachment" if got is None else f"another MJCF (SHA-256 {got[:12]}...)",
+        )
 
 
 def log_end(cut: bool, metadata: dict[str, dict]) -> tuple[str, bool]:
@@ -463,6 +593,80 @@ def _truth_parameters(path: Path, m: dict | None) -> TruthParameters | None:
         ) from None
 
 
+def _stamp(path: Path) -> tuple[int, int, int]:
+    """What tells a file changed: its size, modification time and inode."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return (0, 0, 0)  # the scan says why the file cannot be read
+    return (st.st_size, st.st_mtime_ns, st.st_ino)
+
+
+class LogReadings:
+    """The readings of a log's complete poses, read from the file again a pose at a time: what
+    :func:`read_log` gives as ``CampaignLog.measurements`` when the log holds more than
+    KEEP_READINGS, so that no verb holds a whole log of any size. The first read checked every
+    message and noted where each pose's readings are (``spans``: offsets of the first and the
+    last top-level record holding them); reading them again checks the chunks' CRCs and that the
+    file is the one checked (size, time, inode). Iterating gives every reading in log order;
+    :meth:`of` those of one pose and state (the last pose's are kept for its other state)."""
+
+    def __init__(
+        self,
+        path: Path,
+        stamp: tuple[int, int, int],
+        channels: set[int],
+        spans: dict[int, list[int]],
+        counts: dict[int, int],
+        first_time: dict[int, int],
+        keep: set[int],
+    ):
+        self.path, self.stamp, self.channels = path, stamp, frozenset(channels)
+        self.spans = {p: tuple(spans[p]) for p in sorted(keep) if p in spans}
+        self.count = sum(counts.get(p, 0) for p in self.spans)
+        self.first_time = min((first_time[p] for p in self.spans), default=None)
+        self._last: tuple[int, dict[str, list[MeasurementRecord]]] | None = None
+
+    def __len__(self) -> int:
+        return self.count
+
+    def __bool__(self) -> bool:
+        return self.count > 0
+
+    def _read(self, first: int, last: int, poses: set[int] | frozenset[int]) -> Iterator[MeasurementRecord]:
+        if _stamp(self.path) != self.stamp:
+            raise InputError(
+                self.path, "file", "the log unchanged while it is read", "it changed since it was checked"
+            )
+        for rec in scan_span(self.path, first, last):
+            if isinstance(rec, Damage):
+                raise CorruptLogError(
+                    self.path, f"byte {rec.offset}", f"an undamaged {rec.record} record", rec.why
+                )
+            if isinstance(rec, Message) and rec.channel_id in self.channels:
+                m = json.loads(rec.data)
+                if m["pose"] in poses:
+                    yield measurement_record(m, rec.log_time)
+
+    def __iter__(self) -> Iterator[MeasurementRecord]:
+        if not self.spans:
+            return iter(())
+        first = min(a for a, _ in self.spans.values())
+        last = max(b for _, b in self.spans.values())
+        return self._read(first, last, frozenset(self.spans))
+
+    def of(self, pose: int, state: str) -> list[MeasurementRecord]:
+        """The readings of one pose and state, in log order (empty when none)."""
+        if pose not in self.spans:
+            return []
+        if self._last is None or self._last[0] != pose:
+            by: dict[str, list[MeasurementRecord]] = {}
+            for m in self._read(*self.spans[pose], {pose}):
+                by.setdefault(m.state, []).append(m)
+            self._last = (pose, by)
+        return list(self._last[1].get(state, ()))
+
+
 def has_truth(path: str | os.PathLike) -> bool:
     """True when the log carries ground truth: a message on a ``/truth/`` topic or a
     ``ground_truth`` metadata record (read up to the first damage or the cut). A registered
@@ -488,6 +692,9 @@ __all__ = [
     "decode",
     "log_end",
     "CorruptLogError",
+    "LogReadings",
+    "showing_progress",
+    "KEEP_READINGS",
     "END_METADATA",
     "RECOVERED_METADATA",
     "DECODED",

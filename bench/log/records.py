@@ -16,7 +16,7 @@ Units: SI throughout (m, rad, N, N*m; covariances in m^2).
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
@@ -155,7 +155,10 @@ class CampaignLog:
     mjcf_text: str | None
     poses: dict[int, PerState[np.ndarray]] = field(default_factory=dict)  # q (N,) rad
     wrenches: dict[int, WrenchRecord] = field(default_factory=dict)
-    measurements: list[MeasurementRecord] = field(default_factory=list)
+    # every reading of the complete poses, in log order: a list, or for a log too big to hold
+    # (bench/log/read.py KEEP_READINGS) a collection that reads them again a pose at a time
+    # (LogReadings: iterate it, or ask readings(pose, state))
+    measurements: Collection[MeasurementRecord] = field(default_factory=list)
     complete_poses: list[int] = field(default_factory=list)
     n_poses_planned: int = 0
     truncated: bool = False
@@ -195,7 +198,19 @@ class CampaignLog:
 
     def readings(self, pose: int, state: str) -> list[MeasurementRecord]:
         """The readings of one pose and state, in log order (empty when none)."""
+        of = getattr(self.measurements, "of", None)
+        if of is not None:  # a log read a pose at a time
+            return of(pose, state)
         return list(self._by_state.get((pose, state), ()))
+
+    @property
+    def first_reading_time(self) -> int | None:
+        """When the first reading was complete (ns since 1970); None without readings or when
+        one has no time."""
+        if hasattr(self.measurements, "first_time"):
+            return self.measurements.first_time  # type: ignore[attr-defined]
+        times = [m.time for m in self.measurements]
+        return None if not times or None in times else min(t for t in times if t is not None)
 
 
 def pose_list(poses: Sequence[int]) -> str:

@@ -33,6 +33,7 @@ Units: SI throughout (m, rad, N, N*m; covariances in m^2).
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import os
 import re
@@ -324,6 +325,8 @@ class LogWriter:
             "tracker": _jsonable(h.tracker),
             "seed": int(h.seed),
             "calbench_version": _version(),
+            # the robot attachment's SHA-256: the reader refuses a log whose MJCF is another one
+            "robot_sha256": hashlib.sha256(h.mjcf_text.encode()).hexdigest(),
         }
         if h.n_joints is not None:
             info["n_joints"] = int(h.n_joints)

@@ -28,6 +28,7 @@ from xml.parsers.expat import ExpatError
 from calbench.bench.core import InputError, parse_xml
 
 from .overlay import ASSUMED_GYRATION, Overlay
+from .urdfnumbers import check_numbers
 
 
 def is_xacro(path: Path) -> bool:
@@ -150,6 +151,7 @@ def urdf_text(path: Path, ov: Overlay | None = None) -> tuple[str, bool]:
         root = parse_xml(path, path, text=text)  # defusedxml (bench/core/xmlsafe.py)
     except InputError:
         return text, expanded  # read_urdf reports it
+    check_numbers(path, root)  # before anything reads them (bench/robots/urdfnumbers.py)
     links = {el.get("name", ""): el for el in root.findall("link")}
     for spec in ov.inertials if ov is not None else ():
         if spec.link not in links:

@@ -33,6 +33,7 @@ import reads back; otherwise the plan's tracker model gives the covariances agai
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -40,31 +41,23 @@ from pathlib import Path
 import numpy as np
 
 from calbench.bench.campaign import pose_load
-from calbench.bench.core import STATES, InputError
+from calbench.bench.core import ProgressSink, atomic_path, sink
 from calbench.bench.log import CampaignLog, LogHeader, LogWriter
 from calbench.bench.model import load_robot
-from calbench.bench.scenario import NS, Plan, check_joint_limits, schedule
-from calbench.bench.tracker import TrackerSpec, noise_covariance
+from calbench.bench.scenario import NS, Plan, check_joint_limits
+from calbench.bench.tracker import TrackerSpec
 
-from .readings import ReadingsTable, Row, group, iso8601
+from .grouping import (
+    ImportedReading,
+    ImportedReadings,
+    campaign_readings,
+    first_time,
+    measured_order,
+    reading_covariance,
+)
+from .readings import Row, write_readings
 
 TICK = 1_000_000  # ns: a pose's command, load and end stamped 1-3 ms around its readings
-
-
-@dataclass(frozen=True)
-class ImportedReading:
-    """One ``/tracker/measurement`` to write: the k-th reading of every reflector of a pose and
-    state (bench.readings.GroupedReading) with its covariances; it reads like a
-    :class:`bench.tracker.Measurement` (tracker frame, NaN rows where not seen)."""
-
-    repeat: int
-    position: np.ndarray  # (n, 3) m
-    covariance: np.ndarray  # (n, 3, 3) m^2
-    visible: np.ndarray  # (n,) bool
-    time: float  # s: the table's (its kind), or the campaign clock's
-
-
-ImportedReadings = dict[tuple[int, str], list[ImportedReading]]
 
 
 @dataclass(frozen=True)
@@ -78,92 +71,6 @@ class ImportSummary:
     readings: int  # /tracker/measurement messages
 
 
-def reading_covariance(tracker: TrackerSpec, position: np.ndarray, sigma: np.ndarray) -> np.ndarray:
-    """(n, 3, 3) covariance of one reading's rows (tracker frame): sigma^2 I where the row gave
-    a sigma, the tracker model's elsewhere; NaN for rows not seen."""
-    n = len(position)
-    cov = np.full((n, 3, 3), np.nan)
-    seen = np.all(np.isfinite(position), axis=1)
-    given = seen & np.isfinite(sigma)
-    model = seen & ~given
-    if given.any():
-        cov[given] = sigma[given, None, None] ** 2 * np.eye(3)
-    if model.any():
-        cov[model] = noise_covariance(tracker, position[model])
-    return cov
-
-
-def _time_as_written(table: ReadingsTable, t: float) -> str:
-    """A reading's time in the file's own kind (ISO 8601 or seconds), for messages."""
-    return iso8601(t) if table.absolute_time else f"{t:g} s"
-
-
-def measured_order(table: ReadingsTable) -> list[int]:
-    """Poses in the order they were measured (see the module docstring); InputError naming the
-    row whose time breaks a campaign's order."""
-    poses = table.poses()
-    if not table.has_time:
-        return poses
-    span: dict[int, tuple[float, float]] = {}
-    for p in poses:
-        rows = [r for r in table.readings if r.pose == p]
-        u = [r for r in rows if r.state == "unloaded"]
-        ld = [r for r in rows if r.state == "loaded"]
-        if u and ld:
-            last_u = max(u, key=lambda r: r.time)
-            first_l = min(ld, key=lambda r: r.time)
-            if first_l.time < last_u.time:
-                raise InputError(
-                    table.path,
-                    f"line {first_l.line}, column time",
-                    f"the loaded readings of pose {p} after its unloaded ones (line "
-                    f"{last_u.line} is unloaded and later)",
-                    _time_as_written(table, first_l.time),
-                )
-        span[p] = (min(r.time for r in rows), max(r.time for r in rows))
-    order = sorted(poses, key=lambda p: span[p])
-    for a, b in zip(order, order[1:]):
-        if span[b][0] < span[a][1]:
-            first_b = min((r for r in table.readings if r.pose == b), key=lambda r: r.time)
-            raise InputError(
-                table.path,
-                f"line {first_b.line}, column time",
-                f"pose {b}'s readings after every reading of pose {a} (a campaign "
-                "measures one pose at a time)",
-                _time_as_written(table, first_b.time),
-            )
-    return order
-
-
-def campaign_readings(table: ReadingsTable, names: list[str], tracker: TrackerSpec) -> ImportedReadings:
-    """The table's rows as log readings per (pose, state), reflectors in ``names`` order, with
-    their covariances (:func:`reading_covariance`); poses in measured order. Every reading has a
-    time: the table's, or, without a time column, the campaign clock's for these poses and
-    readings (bench.scenario.schedule, s since the first reading)."""
-    order = measured_order(table)
-    grouped = {(p, s): group(table.of(p, s), names) for p in order for s in STATES}
-    clock = (
-        None
-        if table.has_time
-        else schedule(
-            [(p, len(grouped[(p, "unloaded")]), len(grouped[(p, "loaded")])) for p in order], len(names)
-        )
-    )
-    return {
-        (p, s): [
-            ImportedReading(
-                g.repeat,
-                g.position,
-                reading_covariance(tracker, g.position, g.sigma),
-                g.visible,
-                g.time if clock is None else clock[(p, s, g.repeat)],
-            )
-            for g in gs
-        ]
-        for (p, s), gs in grouped.items()
-    }
-
-
 def write_imported_log(
     plan: Plan,
     readings: ImportedReadings,
@@ -173,6 +80,7 @@ def write_imported_log(
     imported: dict,
     rows: int,
     time_origin: int | None = None,
+    progress: ProgressSink | None = None,
 ) -> ImportSummary:
     """Write the log of ``readings`` (:func:`campaign_readings`, ``rows`` CSV rows) taken along
     ``plan`` with the tracker at ``tracker``'s pose, the robot described by the MJCF ``model``;
@@ -192,10 +100,10 @@ def write_imported_log(
     def at(t: float | None, shift: int = 0) -> int | None:
         return None if time_origin is None or t is None else time_origin + int(round(t * NS)) + shift
 
-    first = [r.time for p in order for s in STATES for r in readings[(p, s)]]
     start = plan.start_time
-    if time_origin is not None and first:
-        start = min(start, datetime.fromtimestamp((at(min(first)) - NS) / NS, tz=UTC))
+    if time_origin is not None and order:
+        first = first_time(readings)
+        start = min(start, datetime.fromtimestamp((at(first) - NS) / NS, tz=UTC))
     header = LogHeader(
         scenario_name=plan.name,
         scenario_text=plan.text,
@@ -211,7 +119,9 @@ def write_imported_log(
         n_joints=robot.n_act,
         start_time=start,
     )
-    n_read = 0
+    n_read, one = 0, []
+    bar = sink(progress)  # a pose at a time: only one pose's readings exist at once
+    bar.start(len(order), "poses written")
     with LogWriter(out, header) as log:
         for p in order:
             q = plan.poses[p].q
@@ -237,7 +147,9 @@ def write_imported_log(
                     )
                     n_read += 1
             log.pose_done(p, at=at((ld or u)[-1].time, 3 * TICK))
-    one = [p for p in order if not (readings[(p, "unloaded")] and readings[(p, "loaded")])]
+            if not (u and ld):
+                one.append(p)
+            bar.update()
     lost = sorted(set(range(len(plan.poses))) - set(order))
     return ImportSummary(order, lost, one, rows, n_read)
 
@@ -249,10 +161,9 @@ def isotropic_sigma(cov: np.ndarray) -> float | None:
     return float(np.sqrt(s2)) if ok else None
 
 
-def export_rows(log: CampaignLog) -> list[Row]:
-    """Every visible reflector of every reading of ``log``'s complete poses (see the module
-    docstring), in log order."""
-    rows: list[Row] = []
+def _visible_rows(log: CampaignLog, with_sigma: bool = True) -> Iterator[Row]:
+    """Every visible reflector of every reading of ``log``'s complete poses, in log order, a
+    reading at a time (a log of any size: its measurements may be read from the file)."""
     keep = set(log.complete_poses)
     for m in log.measurements:
         if m.pose not in keep:
@@ -260,12 +171,35 @@ def export_rows(log: CampaignLog) -> list[Row]:
         t = None if m.time is None else m.time / 1e9
         for i, name in enumerate(m.reflectors):
             if m.visible[i] and np.all(np.isfinite(m.position[i])):
-                rows.append(
-                    Row(m.pose, m.state, name, m.position[i].copy(), t, isotropic_sigma(m.covariance[i]))
-                )
+                sigma = isotropic_sigma(m.covariance[i]) if with_sigma else None
+                yield Row(m.pose, m.state, name, m.position[i].copy(), t, sigma)
+
+
+def export_rows(log: CampaignLog) -> list[Row]:
+    """Every visible reflector of every reading of ``log``'s complete poses (see the module
+    docstring), in log order."""
+    rows = list(_visible_rows(log))
     if rows and any(r.sigma is None for r in rows):
         rows = [Row(r.pose, r.state, r.point, r.position, r.time, None) for r in rows]
     return rows
+
+
+def export_readings(log: CampaignLog, out: Path, units: str = "mm") -> int:
+    """Write :func:`export_rows` of ``log`` as CSV to ``out`` (atomically) without holding them:
+    one pass over the readings decides the columns (time, sigma), a second writes the rows.
+    Returns the number of rows."""
+    with_time = with_sigma = True
+    rows = 0
+    for r in _visible_rows(log):
+        rows += 1
+        with_time &= r.time is not None
+        with_sigma &= r.sigma is not None
+        if not (with_time or with_sigma):
+            break
+    with_time &= rows > 0
+    with_sigma &= rows > 0
+    with atomic_path(out) as tmp, open(tmp, "w", encoding="utf-8", newline="") as f:
+        return write_readings(f, _visible_rows(log, with_sigma), units, with_time, with_sigma)
 
 
 __all__ = [
@@ -277,5 +211,6 @@ __all__ = [
     "campaign_readings",
     "write_imported_log",
     "export_rows",
+    "export_readings",
     "isotropic_sigma",
 ]

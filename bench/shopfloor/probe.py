@@ -109,6 +109,9 @@ def read_probe_series(path: str | Path, joint_names: Sequence[str]) -> ProbeSeri
         lines = path.read_text(encoding="utf-8-sig").splitlines()
     except OSError as e:
         raise InputError(path, "file", "a readable CSV file", e.strerror) from None
+    except UnicodeDecodeError as e:
+        line = path.read_bytes()[: e.start].count(b"\n") + 1
+        raise InputError(path, f"line {line}", "UTF-8 text", str(e)) from None
     if len(lines) < 2:
         raise InputError(path, "line 2", "a header and at least one row", f"{len(lines)} line(s)")
     header = lines[0].split(";")
@@ -186,6 +189,8 @@ def read_transform(path: str | Path) -> np.ndarray:
         text = path.read_text(encoding="utf-8")
     except OSError as e:
         raise InputError(path, "file", "a readable transform file", e.strerror) from None
+    except UnicodeDecodeError as e:
+        raise InputError(path, "file", "a UTF-8 text file", str(e)) from None
     # the rows run together as "... 1.-0.00079 ..." or "1.0. 0.": split a number after its "."
     cells = text.replace("\n", " ").split()
     numbers: list[float] = []
@@ -194,9 +199,12 @@ def read_transform(path: str | Path) -> np.ndarray:
     if len(numbers) != 16:
         raise InputError(path, "matrix", "16 numbers (a 4x4 transform)", len(numbers))
     t = np.asarray(numbers).reshape(4, 4)
+    if not np.all(np.isfinite(t)):
+        i, j = np.argwhere(~np.isfinite(t))[0]
+        raise InputError(path, f"row {i + 1}, column {j + 1}", "a finite number", float(t[i, j]))
     r = t[:3, :3]
     err = np.abs(r.T @ r - np.eye(3))
-    if err.max() > ORTHO_TOL or np.linalg.det(r) < 0:
+    if not err.max() <= ORTHO_TOL or np.linalg.det(r) < 0:
         i, j = np.unravel_index(int(np.argmax(err)), err.shape)
         raise InputError(
             path, f"rows 1-3, columns 1-3 (worst entry row {i + 1}, column {j + 1})",

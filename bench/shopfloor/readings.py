@@ -30,14 +30,17 @@ from __future__ import annotations
 import csv
 import io
 import math
-from collections.abc import Iterable, Sequence
+import os
+import re
+from array import array
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.core import STATES, InputError
+from calbench.bench.core import STATES, InputError, ProgressSink, check_memory, sink
 
 from .formats import Reading, ReadingsFormat, ReadingsTable
 
@@ -69,24 +72,34 @@ class GroupedReading:
     time: float | None  # s (the table's time kind): when the last of its rows was read
 
 
-def group(rows: Sequence[Reading], names: Sequence[str]) -> list[GroupedReading]:
-    """Rows of one pose and state as log readings: the k-th row of each reflector (in the given
-    order) forms reading k."""
-    per = {n: [r for r in rows if r.point == n] for n in names}
-    count = max((len(v) for v in per.values()), default=0)
+def group(rows: ReadingsTable, names: Sequence[str]) -> list[GroupedReading]:
+    """Rows of one pose and state (:meth:`ReadingsTable.of`) as log readings: the k-th row of
+    each reflector (in the table's order) forms reading k, rows in ``names`` order."""
+    n, m = len(names), len(rows)
+    at = {name: i for i, name in enumerate(names)}
+    col = (
+        np.array([at.get(p, -1) for p in rows.points], dtype=np.int64)[rows.point] if m else np.zeros(0, int)
+    )
+    # k: how many rows of the same reflector come before each row
+    k = np.zeros(m, dtype=np.int64)
+    for i in range(n):
+        mine = np.flatnonzero(col == i)
+        k[mine] = np.arange(len(mine))
+    count = int(k.max()) + 1 if m else 0
+    pos = np.full((count, n, 3), np.nan)
+    sig = np.full((count, n), np.nan)
+    vis = np.zeros((count, n), bool)
+    when = np.full((count, n), np.nan)
+    ok = col >= 0
+    pos[k[ok], col[ok]] = rows.position[ok]
+    sig[k[ok], col[ok]] = rows.sigma[ok]
+    vis[k[ok], col[ok]] = True
+    when[k[ok], col[ok]] = rows.time[ok]
     out = []
-    for k in range(count):
-        n = len(names)
-        pos, vis, sig = np.full((n, 3), np.nan), np.zeros(n, bool), np.full(n, np.nan)
-        times = []
-        for i, name in enumerate(names):
-            if k < len(per[name]):
-                r = per[name][k]
-                pos[i], vis[i] = r.position, True
-                sig[i] = np.nan if r.sigma is None else r.sigma
-                if r.time is not None:
-                    times.append(r.time)
-        out.append(GroupedReading(k, pos, vis, sig, max(times) if times else None))
+    for j in range(count):
+        t = when[j][vis[j]]
+        t = t[np.isfinite(t)]
+        out.append(GroupedReading(j, pos[j], vis[j], sig[j], float(t.max()) if len(t) else None))
     return out
 
 
@@ -101,9 +114,9 @@ def _number(path: Path, line: int, column: str, text: str) -> float:
     try:
         x = float(text)
     except ValueError:
-        raise InputError(path, _where(line, column), "a number", text) from None
+        raise InputError(path, _where(line, column), "a number", text.strip()) from None
     if not math.isfinite(x):
-        raise InputError(path, _where(line, column), "a finite number", text)
+        raise InputError(path, _where(line, column), "a finite number", text.strip())
     return x
 
 
@@ -163,77 +176,159 @@ def _header(path: Path, fields: list[str]) -> tuple[str, ...]:
     return names
 
 
+MB = 1 << 20  # progress counts the file in these
+
+
+def _lines(f, progress, size: int) -> Iterator[str]:
+    """The text lines of the binary file ``f`` (UTF-8, a leading BOM dropped; a line ends at
+    \\n, \\r\\n or a lone \\r), reporting the MB read to ``progress``. Decoded a line at a
+    time, so a byte that is not UTF-8 is named by its line."""
+    done = 0
+    for k, raw in enumerate(f):
+        if not k:
+            raw = raw.removeprefix(b"\xef\xbb\xbf")
+        elif not k & 4095:
+            now = min(f.tell(), size) // MB
+            if now > done:
+                progress.update(step=now - done)
+                done = now
+        text = raw.decode("utf-8")
+        if "\r" in text[:-2]:
+            yield from LONE_CR.split(text)  # old Mac line ends
+        else:
+            yield text
+    progress.update(step=max(-(-size // MB) - done, 0))
+
+
+LONE_CR = re.compile(r"(?<=\r)(?!\n|$)")
+
+
+# Memory of a table row while the file is read (formats.ROW_BYTES = 51 in the columns, ~6 %
+# spare as they grow, the (pose, state) index's 4 and the transients of the copied-row check and
+# of that index, ~24): tests/test_sizes.py holds the reader to it.
+TABLE_BYTES_PER_ROW = 100
+SAMPLE = 1 << 16  # bytes of the file's start read to estimate its rows
+
+
+def check_fits(path: Path, f, size: int) -> None:
+    """Refuse up front a file whose table would not fit in memory: its rows estimated from the
+    bytes per line of its first SAMPLE bytes (the open text file ``f`` is rewound)."""
+    head = f.read(SAMPLE)
+    f.seek(0)
+    if not head:
+        return
+    lines = head.count(b"\n") or head.count(b"\r") or 1
+    rows = size * lines / len(head)
+    check_memory(
+        rows * TABLE_BYTES_PER_ROW,
+        path,
+        "(file)",
+        f"~{rows:,.0f} rows at {TABLE_BYTES_PER_ROW} B each (its first {len(head):,} bytes hold {lines:,} lines)",
+    )
+
+
 def read_readings(
-    path: str | Path, n_poses: int, points: Sequence[str], units: str = "mm", text: str | None = None
+    path: str | Path,
+    n_poses: int,
+    points: Sequence[str],
+    units: str = "mm",
+    text: str | None = None,
+    progress: ProgressSink | None = None,
 ) -> ReadingsTable:
     """Read and validate a readings CSV for a plan of ``n_poses`` poses whose robot has the
     reflector sites ``points`` (see the module docstring for every rule). ``text`` is the
-    file's content when already read."""
+    file's content when already read; otherwise the file is read a line at a time into the
+    table's columns (formats.ROW_BYTES a row: a 10^6-row file in ~51 MB, never the whole text),
+    with ``progress`` started with its size in MB."""
     path = Path(path)
     if units not in UNITS:
         raise InputError("--units", "units", " or ".join(UNITS), units)
+    if text is not None:
+        return _read(
+            path,
+            io.StringIO(text[1:] if text.startswith("\ufeff") else text, newline=""),
+            n_poses,
+            points,
+            units,
+        )
+    bar = sink(progress)
+    try:
+        f = open(path, "rb")
+        size = os.fstat(f.fileno()).st_size
+    except OSError as exc:
+        raise InputError(path, "(file)", "a readable UTF-8 CSV file", exc.strerror or str(exc)) from None
+    with f:
+        check_fits(path, f, size)
+        bar.start(max(-(-size // MB), 1), "reading " + path.name)
+        return _read(path, _lines(f, bar, size), n_poses, points, units)
+
+
+def _read(path: Path, lines: Iterable[str], n_poses: int, points: Sequence[str], units: str) -> ReadingsTable:
     scale = UNITS[units]
-    if text is None:
+    rows = csv.reader(lines)
+    try:
         try:
-            text = path.read_text(encoding="utf-8-sig")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise InputError(path, "(file)", "a readable UTF-8 CSV file", str(exc)) from None
-    elif text.startswith("\ufeff"):
-        text = text[1:]
-    rows = csv.reader(io.StringIO(text, newline=""))
-    try:
-        fields = next(rows)
-    except StopIteration:
-        raise InputError(path, "line 1", "a header row: " + ",".join(REQUIRED), "an empty file") from None
-    except csv.Error as exc:
-        raise InputError(path, "line 1", "a CSV header row", str(exc)) from None
-    columns = _header(path, fields)
-    col = {name: i for i, name in enumerate(columns)}
-    known = set(points)
-    out: list[Reading] = []
-    absolute: bool | None = None
-    seen: dict[tuple[int, str, tuple[float, float, float]], tuple[str, int]] = {}
-    try:
+            fields = next(rows)
+        except StopIteration:
+            raise InputError(path, "line 1", "a header row: " + ",".join(REQUIRED), "an empty file") from None
+        except csv.Error as exc:
+            raise InputError(path, "line 1", "a CSV header row", str(exc)) from None
+        columns = _header(path, fields)
+        col = {name: i for i, name in enumerate(columns)}
+        i_pose, i_state, i_point, i_x, i_y, i_z = (col[c] for c in REQUIRED)
+        i_time, i_sigma = col.get("time"), col.get("sigma")
+        point_at = {name: i for i, name in enumerate(points)}
+        state_at = {s: i for i, s in enumerate(STATES)}
+        lo, hi = SIGMA_RANGE
+        # the table's columns, grown a row at a time (array.array: ~6 % spare, no per-row object)
+        c_line, c_pose, c_state = array("I"), array("i"), array("b")
+        c_point, c_pos, c_time, c_sigma = array("h"), array("d"), array("d"), array("d")
+        absolute: bool | None = None
+        ncol = len(columns)
         for values in rows:
             line = rows.line_num
-            if not any(v.strip() for v in values):
-                continue  # blank lines
-            if len(values) != len(columns):
+            if len(values) != ncol:
+                if not any(v.strip() for v in values):
+                    continue  # blank lines
                 raise InputError(
                     path,
                     f"line {line}",
-                    f"{len(columns)} fields as in the header ({','.join(columns)})",
+                    f"{ncol} fields as in the header ({','.join(columns)})",
                     f"{len(values)} fields",
                 )
-            cell = {name: values[i].strip() for name, i in col.items()}
+            text = values[i_pose]
             try:
-                pose = int(cell["pose"])
+                pose = int(text)
             except ValueError:
+                if not any(v.strip() for v in values):
+                    continue
                 raise InputError(
-                    path, _where(line, "pose"), "a 0-based pose index (an integer)", cell["pose"]
+                    path, _where(line, "pose"), "a 0-based pose index (an integer)", text.strip()
                 ) from None
             if not 0 <= pose < n_poses:
                 raise InputError(
                     path,
                     _where(line, "pose"),
                     f"a pose of the plan: an index in 0..{n_poses - 1}",
-                    cell["pose"],
+                    text.strip(),
                 )
-            state = cell["state"].lower()
-            if state not in STATES:
-                raise InputError(
-                    path, _where(line, "state"), "unloaded or loaded", cell["state"] or "an empty cell"
-                )
-            point = cell["point"]
-            if point not in known:
+            text = values[i_state].strip()
+            state = state_at.get(text.lower())
+            if state is None:
+                raise InputError(path, _where(line, "state"), "unloaded or loaded", text or "an empty cell")
+            text = values[i_point].strip()
+            point = point_at.get(text)
+            if point is None:
                 raise InputError(
                     path,
                     _where(line, "point"),
                     "a reflector site of the robot: " + ", ".join(points),
-                    point or "an empty cell",
+                    text or "an empty cell",
                 )
-            xyz = np.array([_number(path, line, c, cell[c]) for c in ("x", "y", "z")]) * scale
-            rng = float(np.linalg.norm(xyz))
+            x = _number(path, line, "x", values[i_x]) * scale
+            y = _number(path, line, "y", values[i_y]) * scale
+            z = _number(path, line, "z", values[i_z]) * scale
+            rng = math.sqrt(x * x + y * y + z * z)
             if not MIN_RANGE <= rng <= MAX_RANGE:
                 other = "m" if units == "mm" else "mm"
                 raise InputError(
@@ -244,9 +339,9 @@ def read_readings(
                     f"file in {other}? --units {other})",
                     f"{rng:.4g} m away",
                 )
-            t = None
-            if "time" in col:
-                t, is_abs = _time(path, line, cell["time"])
+            t = math.nan
+            if i_time is not None:
+                t, is_abs = _time(path, line, values[i_time].strip())
                 if absolute is None:
                     absolute = is_abs
                 elif is_abs != absolute:
@@ -256,36 +351,90 @@ def read_readings(
                         "the same kind of time in every row ("
                         + ("ISO 8601 date-times" if absolute else "seconds")
                         + ")",
-                        cell["time"],
+                        values[i_time].strip(),
                     )
-            sigma = None
-            if "sigma" in col:
-                sigma = _number(path, line, "sigma", cell["sigma"]) * scale
-                lo, hi = SIGMA_RANGE
+            sigma = math.nan
+            if i_sigma is not None:
+                sigma = _number(path, line, "sigma", values[i_sigma]) * scale
                 if not lo <= sigma <= hi:
                     raise InputError(
                         path,
                         _where(line, "sigma"),
                         f"a 1-sigma from {lo / scale:g} to {hi / scale:g} {units}",
-                        cell["sigma"],
+                        values[i_sigma].strip(),
                     )
-            key = (pose, point, tuple(float(v) for v in xyz))
-            twin = seen.setdefault(key, (state, line))
-            if twin[0] != state:
-                raise InputError(
-                    path,
-                    _where(line, "state"),
-                    f"a {state} reading that differs from the "
-                    f"{twin[0]} one (line {twin[1]} has the same x, y, z: a row copied "
-                    "into both states?)",
-                    state,
-                )
-            out.append(Reading(line, pose, state, point, xyz, t, sigma))
+            c_line.append(line)
+            c_pose.append(pose)
+            c_state.append(state)
+            c_point.append(point)
+            c_pos.append(x)
+            c_pos.append(y)
+            c_pos.append(z)
+            c_time.append(t)
+            c_sigma.append(sigma)
     except csv.Error as exc:
         raise InputError(path, f"line {rows.line_num}", "valid CSV", str(exc)) from None
-    if not out:
+    except UnicodeDecodeError as exc:
+        raise InputError(path, f"line {rows.line_num + 1}", "UTF-8 text", str(exc)) from None
+    if not c_line:
         raise InputError(path, "line 2", "at least one reading after the header", "none")
-    return ReadingsTable(path, units, columns, tuple(out), bool(absolute))
+    table = ReadingsTable(
+        path,
+        units,
+        columns,
+        tuple(points),
+        np.frombuffer(c_line, np.uint32),
+        np.frombuffer(c_pose, np.int32),
+        np.frombuffer(c_state, np.int8),
+        np.frombuffer(c_point, np.int16),
+        np.frombuffer(c_pos, np.float64).reshape(-1, 3),
+        np.frombuffer(c_time, np.float64),
+        np.frombuffer(c_sigma, np.float64),
+        bool(absolute),
+    )
+    copied = copied_row(table)
+    if copied is not None:
+        j, i = copied
+        state = STATES[int(table.state[j])]
+        raise InputError(
+            path,
+            _where(int(table.line[j]), "state"),
+            f"a {state} reading that differs from the "
+            f"{STATES[int(table.state[i])]} one (line {int(table.line[i])} has the same x, y, z: a row "
+            "copied into both states?)",
+            state,
+        )
+    return table
+
+
+def copied_row(table: ReadingsTable) -> tuple[int, int] | None:
+    """A row whose pose, point and x, y, z equal those of an earlier row in the other state (a
+    row copied into both states: two real readings never agree to the last digit), as (its
+    index, the earlier row's), the first such row in the file; None when there is none.
+    Sorted, not hashed: a few bytes a row, whatever the file's size."""
+    n = len(table)
+    if n < 2:
+        return None
+    pos = table.position
+    order = np.lexsort((table.line, pos[:, 2], pos[:, 1], pos[:, 0], table.point, table.pose))
+    same = np.ones(n - 1, bool)  # sorted row i + 1 has the key of sorted row i
+    for column in (table.pose, table.point, pos[:, 0], pos[:, 1], pos[:, 2]):
+        c = column[order]
+        same &= c[1:] == c[:-1]
+        del c
+    twins = np.flatnonzero(same)  # few: only rows that share a key with the one before
+    del same
+    if not len(twins):
+        return None
+    # the first row of each twin's key: walk back over the run of equal keys
+    starts = np.setdiff1d(twins, twins + 1)  # sorted positions where a run of twins begins
+    run_start = starts[np.searchsorted(starts, twins, side="right") - 1]
+    later, first = order[twins + 1], order[run_start]
+    bad = np.flatnonzero(table.state[later] != table.state[first])
+    if not len(bad):
+        return None
+    k = bad[np.argmin(table.line[later[bad]])]
+    return int(later[k]), int(first[k])
 
 
 # --------------------------------------------------------------------------- writing
@@ -314,20 +463,29 @@ def readings_csv(rows: Iterable[Row], units: str = "mm") -> str:
     any tracker's noise, so a round trip loses nothing that matters. The ``time`` column is
     written when every row has a time, ``sigma`` when every row has one."""
     rows = list(rows)
-    scale = 1.0 / UNITS[units]
-    digits = 6 if units == "mm" else 9
     with_time = bool(rows) and all(r.time is not None for r in rows)
     with_sigma = bool(rows) and all(r.sigma is not None for r in rows)
     buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
+    write_readings(buf, rows, units, with_time, with_sigma)
+    return buf.getvalue()
+
+
+def write_readings(f, rows: Iterable[Row], units: str, with_time: bool, with_sigma: bool) -> int:
+    """Write the CSV of ``rows`` (:func:`readings_csv`'s form, the columns chosen by the caller)
+    to the text file ``f`` a row at a time; returns the number of rows."""
+    scale = 1.0 / UNITS[units]
+    digits = 6 if units == "mm" else 9
+    w = csv.writer(f, lineterminator="\n")
     w.writerow(REQUIRED + (("time",) if with_time else ()) + (("sigma",) if with_sigma else ()))
+    n = 0
     for r in rows:
         xyz = [f"{v * scale:.{digits}f}" for v in r.position]
         extra = ([iso8601(r.time)] if with_time else []) + (
-            [f"{r.sigma * scale:.{digits}f}"] if with_sigma else []
+            [f"{r.sigma * scale:.{digits}f}"] if with_sigma else []  # type: ignore[operator]
         )
         w.writerow([r.pose, r.state, r.point, *xyz, *extra])
-    return buf.getvalue()
+        n += 1
+    return n
 
 
 class CsvReadings(ReadingsFormat):
@@ -346,6 +504,11 @@ class CsvReadings(ReadingsFormat):
             raise InputError(path, "(file)", "a UTF-8 CSV file", str(exc)) from None
         return read_readings(path, n_poses, points, units, text=text)
 
+    def read_file(
+        self, path: Path, n_poses: int, points: Sequence[str], units: str = "mm", progress=None
+    ) -> ReadingsTable:
+        return read_readings(path, n_poses, points, units, progress=progress)
+
 
 FORMAT = CsvReadings()
 
@@ -361,9 +524,11 @@ __all__ = [
     "GroupedReading",
     "group",
     "read_readings",
+    "copied_row",
     "Row",
     "CsvReadings",
     "FORMAT",
     "readings_csv",
+    "write_readings",
     "iso8601",
 ]

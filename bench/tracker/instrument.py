@@ -101,17 +101,13 @@ def mean_reading(spec: TrackerSpec, readings) -> MeanReading:
     if not readings:
         raise ValueError("mean_reading needs at least one reading")
     n = len(readings[0].visible)
-    s = np.zeros((n, 3))
-    c = np.zeros((n, 3, 3))
-    cnt = np.zeros(n)
-    for m in readings:
-        pos = np.asarray(m.position, dtype=float)
-        if pos.shape != (n, 3):
-            raise ValueError(f"every reading must have {n} rows, got shape {pos.shape}")
-        vis = np.asarray(m.visible, dtype=bool) & np.all(np.isfinite(pos), axis=1)
-        s[vis] += pos[vis]
-        c[vis] += np.asarray(m.covariance, dtype=float)[vis]
-        cnt[vis] += 1
+    pos, vis = _stacked(readings, n)
+    # sums in reading order (cumsum is sequential, and adding 0.0 where a row is not seen
+    # changes nothing): the same bits as adding reading after reading
+    s = np.cumsum(np.where(vis[..., None], pos, 0.0), axis=0)[-1]
+    cov = np.array([np.asarray(m.covariance, dtype=float) for m in readings])
+    c = np.cumsum(np.where(vis[..., None, None], cov, 0.0), axis=0)[-1]
+    cnt = vis.sum(axis=0).astype(float)
     seen = cnt > 0
     rot = tracker_rotation(spec)
     mean = np.full((n, 3), np.nan)
@@ -119,6 +115,21 @@ def mean_reading(spec: TrackerSpec, readings) -> MeanReading:
     mean[seen] = (s[seen] / cnt[seen, None]) @ rot.T + np.asarray(spec.position, dtype=float)
     cov[seen] = rot @ (c[seen] / cnt[seen, None, None] ** 2) @ rot.T
     return MeanReading(mean, cov, seen, cnt.astype(int))
+
+
+def _stacked(readings: Sequence, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Positions (K, n, 3) of ``readings`` and where each row is seen (visible and finite)."""
+    try:
+        pos = np.array([np.asarray(m.position, dtype=float) for m in readings])
+    except ValueError:
+        pos = None
+    if pos is None or pos.shape[1:] != (n, 3):
+        for m in readings:
+            shape = np.shape(m.position)
+            if shape != (n, 3):
+                raise ValueError(f"every reading must have {n} rows, got shape {shape}")
+    vis = np.array([np.asarray(m.visible, dtype=bool) for m in readings]) & np.all(np.isfinite(pos), axis=2)
+    return pos, vis
 
 
 def deflection_covariance(
@@ -141,32 +152,41 @@ def deflection_covariance(
     rows = np.asarray(rows, dtype=int)
     m = len(rows)
     out = np.zeros((m, 3, m, 3))
-    pts, tms, coef, row_of = [], [], [], []
+    terms, pts, tms, coef, row_of = [], [], [], [], []
     for sign, reads, tt in (
         (-1.0, unloaded, None if times is None else times[0]),
         (1.0, loaded, None if times is None else times[1]),
     ):
-        seen = [
-            np.asarray(r.visible, bool) & np.all(np.isfinite(np.asarray(r.position, float)), axis=1)
-            for r in reads
-        ]
-        count = np.sum([s[rows] for s in seen], axis=0) if reads else np.zeros(m)
-        for k, (r, s) in enumerate(zip(reads, seen)):
-            for j, i in enumerate(rows):
-                if s[i]:
-                    out[j, :, j, :] += np.asarray(r.covariance, float)[i] / count[j] ** 2
-                    pts.append(np.asarray(r.position, float)[i])
-                    tms.append(np.nan if tt is None else float(tt[k]))
-                    coef.append(sign / count[j])
-                    row_of.append(j)
+        if not len(reads):
+            continue
+        n = len(reads[0].visible)
+        pos, seen = _stacked(reads, n)
+        seen = seen[:, rows]  # (K, m)
+        count = seen.sum(axis=0)
+        cov = np.array([np.asarray(r.covariance, dtype=float)[rows] for r in reads])  # (K, m, 3, 3)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            terms.append(np.where(seen[..., None, None], cov / (count[:, None, None] ** 2), 0.0))
+        k, j = np.nonzero(seen)  # reading by reading, row by row: the order of the sum below
+        pts.append(pos[k, rows[j]])
+        tms.append(np.full(len(k), np.nan) if tt is None else np.asarray(tt, dtype=float)[k])
+        coef.append(sign / count[j])
+        row_of.append(j)
+    if terms:
+        # every reading's own covariance, summed in order (cumsum is sequential; 0.0 where a row
+        # is not seen changes nothing): sum C / N^2 per state
+        own = np.cumsum(np.concatenate(terms), axis=0)[-1]  # (m, 3, 3)
+        out[np.arange(m), :, np.arange(m), :] = own
+    pts = np.concatenate(pts) if pts else np.zeros((0, 3))
+    tms = np.concatenate(tms) if tms else np.zeros(0)
+    coef = np.concatenate(coef) if coef else np.zeros(0)
+    row_of = np.concatenate(row_of) if row_of else np.zeros(0, int)
     model = spec.error_model
-    if not model.correlated or not pts:
+    if not model.correlated or not len(pts):
         return out
     if times is None and model.uses_times:
         raise ValueError(f"the {model.name} tracker model needs the readings' times")
-    pts, tms = np.array(pts), np.array(tms)
     w = np.zeros((m, len(pts)))
-    w[np.array(row_of), np.arange(len(pts))] = coef
+    w[row_of, np.arange(len(pts))] = coef
     c = model.correlated_covariance(spec, pts, tms, pts, tms)
     return out + np.einsum("rk,kilj,sl->risj", w, c, w)
 

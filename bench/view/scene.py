@@ -116,10 +116,13 @@ def mean_measurements(log: CampaignLog, names: list[str]) -> dict[tuple[int, str
     """(pose, state) -> the mean of its readings in the world frame
     (:func:`bench.tracker.mean_reading`), rows in ``names`` order (matched by reflector name)."""
     spec = log.tracker_spec()
-    groups: dict[tuple[int, str], list] = {}
-    for m in log.measurements:
-        groups.setdefault((m.pose, m.state), []).append(m.in_order(names))
-    return {key: mean_reading(spec, readings) for key, readings in groups.items()}
+    out = {}
+    for p in log.complete_poses:  # a pose at a time: a log of any size
+        for s in STATES:
+            readings = [m.in_order(names) for m in log.readings(p, s)]
+            if readings:
+                out[(p, s)] = mean_reading(spec, readings)
+    return out
 
 
 def command_of(log: CampaignLog, pose: int, n_joints: int) -> np.ndarray:

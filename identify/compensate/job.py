@@ -8,6 +8,7 @@ is in the wrong units, a tool body the robot does not have.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -79,9 +80,9 @@ def _point(p: Table) -> JobPoint:
             raise p.fail("payload", f"a mass in kg, at most {MAX_PAYLOAD:g} (is it in grams?)", m)
         return JobPoint(q, payload=m)
     w = p.vector("wrench", 6)
-    if np.linalg.norm(w[:3]) > MAX_FORCE:
+    if math.hypot(*w[:3]) > MAX_FORCE:  # hypot: no overflow warning for a 1e300 typo
         raise p.fail("wrench", f"a force of at most {MAX_FORCE:g} N (is it in the wrong units?)", w.tolist())
-    if np.linalg.norm(w[3:]) > MAX_MOMENT:
+    if math.hypot(*w[3:]) > MAX_MOMENT:
         raise p.fail("wrench", f"a moment of at most {MAX_MOMENT:g} N*m (is it in N*mm?)", w.tolist())
     return JobPoint(q, wrench=frozen_array(w))
 

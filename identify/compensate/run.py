@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.core import InputError
+from calbench.bench.core import InputError, check_memory
 from calbench.bench.model import MODEL_FLAG, Robot, load_robot
 from calbench.bench.scenario import Scenario, load_scenario
 
@@ -145,12 +145,19 @@ def _rms(xs) -> float | None:
     return float(math.sqrt(sum(x * x for x in xs) / len(xs))) if xs else None
 
 
+POINT_BYTES = 16_000  # memory per job point (budget; ~12 kB measured)
+
+
 def run_compensate(req: CompensationRequest) -> Compensation:
     """Read, check, compensate every job point and (with ``truth``) apply the commands to the
     scenario's true robot. InputError on any bad input, before any work."""
     if req.target not in TARGETS:
         raise InputError("--target", "target", "one of " + ", ".join(TARGETS), req.target)
     job = load_job(req.job)
+    # memory: each point's command, solution, predictions and covariances, ~12 kB measured
+    # (benchmarks/sizes_bench.py: +121 MB for 10^4 points; docs/reliability.md "Memory budgets")
+    n = len(job.points)
+    check_memory(n * POINT_BYTES, job.path, "point", f"{n:,} points at {POINT_BYTES} B each")
     robot = (
         load_robot(*MODEL_FLAG, path=req.model)
         if req.model is not None

@@ -201,8 +201,9 @@ def from_log(log: CampaignLog) -> Observations:
     path = log.path
     spec = log.tracker_spec()
     poses: list[PoseObservation] = []
-    timed = bool(log.measurements) and all(m.time is not None for m in log.measurements)
-    t0 = min(m.time for m in log.measurements) if timed else 0
+    first = log.first_reading_time  # a pose at a time below: a log of any size
+    timed = first is not None
+    t0 = first if first is not None else 0
     for p in log.complete_poses:
         q = log.poses[p].unloaded
         u = log.readings(p, "unloaded")

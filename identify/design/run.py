@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from calbench.bench.core import InputError, ProgressSink, atomic_path, check_outputs, sink
+from calbench.bench.core import InputError, ProgressSink, atomic_path, check_memory, check_outputs, sink
 from calbench.identify.compensate import job_design_jacobian
 from calbench.identify.runtime import Executor, InProcess
 
@@ -103,6 +103,8 @@ class DesignOutcome:
 
 
 PROBE_CANDIDATES = 200  # candidates generated first, timed, to announce the rest
+# memory per candidate at the peak of their batched statics (budget; 6.1 kB of RSS measured)
+CANDIDATE_BYTES = 7000
 
 
 def _in_process(
@@ -188,6 +190,11 @@ def _generate(
             f"at most the {n} candidates (more --candidates give more)",
             req.configs,
         )
+    # memory: the batched statics of the candidates hold ~6 kB each at their peak (measured:
+    # benchmarks/sizes_bench.py, 706 MB for 10^5; docs/reliability.md "Memory budgets")
+    check_memory(
+        n * CANDIDATE_BYTES, "--candidates", "candidates", f"{n:,} candidates at {CANDIDATE_BYTES} B each"
+    )
     t0 = time.perf_counter()
     # the cost per feasible candidate, measured here on the first PROBE_CANDIDATES (the same
     # draws the full set starts with): the announced duration is this machine's, now

@@ -122,8 +122,8 @@ def in_priority(names: Sequence[str], indices: Sequence[int]) -> list[int]:
 
 def rank_rule(model) -> dict:
     """The base set's rank tolerance and column floor of a model (extend_base's ``tol`` and
-    ``floor``): the defaults for model.py's exact Jacobian; statics.py's differences pass theirs."""
-    return {"tol": getattr(model, "rank_tol", None), "floor": getattr(model, "column_floor", None)}
+    ``column_floor``): the defaults for model.py's exact Jacobian; statics.py's differences pass theirs."""
+    return {"tol": getattr(model, "rank_tol", None), "column_floor": getattr(model, "column_floor", None)}
 
 
 def extend_base(
@@ -131,7 +131,7 @@ def extend_base(
     chosen: Sequence[int],
     candidates: Sequence[int],
     tol: float | None = None,
-    floor: float | None = None,
+    column_floor: float | None = None,
 ) -> tuple[int, ...]:
     """A base set ``chosen`` grown by each of ``candidates``, taken in the order given, that raises
     the rank of the column-scaled Jacobian (module docstring); the grown set, in its order.
@@ -140,7 +140,7 @@ def extend_base(
     factor [[R, Q^T c], [0, |c - Q Q^T c|]] of their QR (Q^T c twice: re-orthogonalised), so each
     test is an SVD of a (k + 1)-square matrix, not of the tall Jacobian. ``tol``: the rank
     tolerance (default RANK_TOL; a model whose columns are differences passes its own);
-    ``floor``: the column norm at or below which a column is none (default ``tol`` times the
+    ``column_floor``: the column norm at or below which a column is none (default ``tol`` times the
     median column's, which compares columns of different units: a model that zeroes its own
     noise columns passes 0)."""
     tol = RANK_TOL if tol is None else tol
@@ -152,7 +152,7 @@ def extend_base(
     else:
         q, r = np.zeros((a.shape[0], 0)), np.zeros((0, 0))
     rank = len(out)
-    floor = tol * np.median(scale) if floor is None else floor
+    floor = tol * np.median(scale) if column_floor is None else column_floor
     for i in candidates:
         # a column of rounding noise only (a rotation about an axis through the probe) is
         # no parameter: it would enter with any scaling

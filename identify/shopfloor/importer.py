@@ -19,7 +19,7 @@ import hashlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from calbench.bench.core import InputError, atomic_path
+from calbench.bench.core import InputError, ProgressSink, atomic_path
 from calbench.bench.model import MODEL_FLAG, Robot, load_robot
 from calbench.bench.scenario import Plan, check_joint_limits, check_plan, load_plan, start_ns
 from calbench.bench.shopfloor import (
@@ -60,24 +60,34 @@ def plan_robot(plan: Plan, model: Path | None) -> tuple[Robot, Path]:
     return robot, path
 
 
+def file_sha256(path: Path) -> str:
+    """The SHA-256 of a file, read a MB at a time (the readings file may be gigabytes)."""
+    try:
+        with open(path, "rb") as f:
+            return hashlib.file_digest(f, "sha256").hexdigest()
+    except OSError as exc:
+        raise InputError(path, "(file)", "a readable file", exc.strerror or str(exc)) from None
+
+
 def import_readings(
     csv_path: str | Path,
     plan_path: str | Path,
     out: str | Path,
     units: str = "mm",
     model: str | Path | None = None,
+    read_progress: ProgressSink | None = None,
+    write_progress: ProgressSink | None = None,
 ) -> ImportResult:
-    """Import ``csv_path`` taken along ``plan_path`` into the log ``out`` (module docstring)."""
+    """Import ``csv_path`` taken along ``plan_path`` into the log ``out`` (module docstring).
+    ``read_progress`` is shown the file's MB as they are read, ``write_progress`` the poses as
+    they are written."""
     csv_path, out = Path(csv_path), Path(out)
     plan = load_plan(plan_path)
     robot, model_path = plan_robot(plan, None if model is None else Path(model))
     fmt = FORMATS.for_path(csv_path)  # by the file's name; CSV unless a format claims it
-    try:
-        raw = csv_path.read_bytes()
-    except OSError as exc:
-        raise InputError(csv_path, "(file)", f"a readable {fmt.name.upper()} file", exc.strerror) from None
     names = list(robot.reflector_names)
-    table = fmt.read(csv_path, raw, len(plan.poses), names, units)
+    table = fmt.read_file(csv_path, len(plan.poses), names, units, progress=read_progress)
+    digest = file_sha256(csv_path)
     readings = campaign_readings(table, names, plan.tracker)
     registration = None
     if plan.tracker_placed:
@@ -88,16 +98,16 @@ def import_readings(
         tracker = plan.tracker.placed(registration.fit.position, registration.fit.rotation)
     imported = {
         "source": csv_path.name,
-        "sha256": hashlib.sha256(raw).hexdigest(),
+        "sha256": digest,
         "units": units,
-        "rows": len(table.readings),
+        "rows": len(table),
         "tracker_pose": "plan" if registration is None else "registered",
         "registration": None if registration is None else registration.as_dict(),
     }
     origin = None if not table.has_time else 0 if table.absolute_time else start_ns(plan.start_time)
     with atomic_path(out) as tmp:
         summary = write_imported_log(
-            plan, readings, tracker, model_path, tmp, imported, len(table.readings), origin
+            plan, readings, tracker, model_path, tmp, imported, len(table), origin, progress=write_progress
         )
     return ImportResult(
         out,

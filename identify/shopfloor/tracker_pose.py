@@ -58,7 +58,7 @@ from calbench.bench.campaign import pose_load
 from calbench.bench.core import InputError
 from calbench.bench.model import Robot, load_robot
 from calbench.bench.scenario import Plan
-from calbench.bench.shopfloor import ImportedReadings, ReadingsTable
+from calbench.bench.shopfloor import ImportedReadings, ReadingsTable, first_time
 from calbench.bench.tracker import TrackerSpec, mean_reading, tracker_rotation
 from calbench.identify.core import (
     RANK_TOL,
@@ -160,7 +160,7 @@ def point_data(
     absolute positions, error like any other)."""
     at_origin = tracker.placed(np.zeros(3), np.eye(3))
     error_model = tracker.error_model
-    t_first = min((r.time for reps in readings.values() for r in reps), default=0.0)
+    t_first = first_time(readings)
 
     def mean(reps):
         m = mean_reading(at_origin, reps)
@@ -173,9 +173,11 @@ def point_data(
             m = replace(m, covariance=c)
         return m
 
-    first_line: dict[tuple[int, str, str], int] = {}
-    for r in table.readings:
-        first_line.setdefault((r.pose, r.state, r.point), r.line)
+    def first_line(p: int, name: str) -> int:
+        """The file's first unloaded row of ``name`` in pose ``p``."""
+        rows = table.rows(p, "unloaded")
+        return int(table.line[rows][np.array(table.points)[table.point[rows]] == name].min())
+
     poses, ys, covs, lines = [], [], [], []
     u_keys, u_y, u_c, u_lines = [], [], [], []
     for p in dict.fromkeys(p for p, _ in readings):
@@ -186,7 +188,7 @@ def point_data(
                 u_keys.append((p, names[i]))
                 u_y.append(m0.position[i])
                 u_c.append(m0.covariance[i])
-                u_lines.append(first_line[(p, "unloaded", names[i])])
+                u_lines.append(first_line(p, names[i]))
         if not u or not ld:
             continue
         load, _ = pose_load(robot, plan, plan.poses[p])
@@ -209,7 +211,7 @@ def point_data(
         rows = [names.index(r) for r in ob.reflectors]
         ys.append(np.stack([m0.position[rows], m1.position[rows]]))
         covs.append(np.stack([m0.covariance[rows], m1.covariance[rows]]))
-        lines += [first_line[(p, "unloaded", r)] for r in ob.reflectors]
+        lines += [first_line(p, r) for r in ob.reflectors]
     obs = Observations(poses, at_origin, float(tracker.sigma), len(plan.poses)) if poses else None
     y = np.concatenate(ys, axis=1) if ys else np.zeros((2, 0, 3))
     cov = np.concatenate(covs, axis=1) if covs else np.zeros((2, 0, 3, 3))

@@ -357,6 +357,16 @@ def _apply(doc: dict, campaign: dict, plan: list, path: Path, where: str, key: s
     set_key(doc, parts, value, path, where, key)
 
 
+def _finite(path: Path, doc: Any, key: str = "") -> None:
+    """No NaN or infinity anywhere in a study file (TOML allows nan and inf): InputError naming
+    the key. Every number of a study ends up in a scenario or a setting, none of which takes one."""
+    if isinstance(doc, float) and not math.isfinite(doc):
+        raise InputError(path, key, "a finite number", doc)
+    items = doc.items() if isinstance(doc, dict) else enumerate(doc) if isinstance(doc, list) else ()
+    for k, v in items:
+        _finite(path, v, f"{key}[{k}]" if isinstance(k, int) else f"{key}.{k}" if key else str(k))
+
+
 def load_study(path: str | Path) -> Study:
     """Read and validate a study file and every cell of its grid (InputError naming file and key)."""
     path = Path(path)
@@ -370,6 +380,7 @@ def load_study(path: str | Path) -> Study:
     for k in top:
         if k not in TOP_KEYS:
             raise InputError(path, k, "no such key; allowed keys here: " + ", ".join(TOP_KEYS))
+    _finite(path, top)
     if not isinstance(top.get("scenario"), str):
         raise InputError(
             path, "scenario", "the base scenario file, relative to the study", top.get("scenario")
