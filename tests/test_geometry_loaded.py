@@ -168,13 +168,8 @@ def test_loads_shrink_the_compliances_std_and_leave_them_unbiased(tmp_path, monk
         lines += ["[[pose]]", "q = [" + ", ".join(f"{v:.3f}" for v in q) + "]"]
     (tmp_path / "load.toml").write_text("\n".join(lines) + "\n")
     assert main(["simulate", str(tmp_path / "load.toml"), "--out", str(tmp_path / "load.mcap")]) == 0
-    calls = []
-    real = log_face.read_log
-
-    def spy(path, *args, **kwargs):
-        calls.append(kwargs.get("include_truth", True if not args else args[0]))
-        return real(path, *args, **kwargs)
-
+    calls, real = [], log_face.read_log  # every read_log of run.py: its include_truth (True if unsaid)
+    spy = lambda path, *a, **kw: calls.append(kw.get("include_truth", not a or a[0])) or real(path, *a, **kw)  # noqa: E731
     monkeypatch.setattr("calbench.identify.geometry.run.read_log", spy)
     both = run_geometry(tmp_path / "load.mcap")
     alone = run_geometry(tmp_path / "load.mcap", states=("unloaded",))
