@@ -9,9 +9,10 @@ the compliances come from the loaded/unloaded pairs and from the robot's own wei
 Each reflector is its own point (three ``tool_frame`` numbers each). The robot is the log's MJCF
 or ``--model``: a serial arm whose last joint carries the reflectors and the load (model.py), or
 any calbench robot through its statics (statics.py). The fit is :func:`fit.calibrate` for the
-three models of :data:`fit.MODELS`; the report is the complete one's. ``--validate`` predicts
-another log's readings of the same points (same robot and tracker station); ``--out-model``
-writes the calibrated robot as a calbench MJCF (a serial arm as :func:`mjcf.chain_mjcf`: the
+three models of :data:`fit.MODELS`; the report is the complete one's, whose fit is repeated
+with the torques at its own deflected pose (:func:`fit.refresh_torques`; a serial arm's only).
+``--validate`` predicts another log's readings of the same points (same robot and tracker
+station); ``--out-model`` writes the calibrated robot as a calbench MJCF (a serial arm as :func:`mjcf.chain_mjcf`: the
 chain, its masses, the points and the load site; the original's geoms are not carried over).
 
 Units: SI in the JSON (m, rad, rad/(N*m)).
@@ -29,7 +30,7 @@ from calbench.bench.core import STATES, InputError, write_text
 from calbench.bench.log import read_log
 from calbench.bench.model import Robot
 
-from .fit import MODELS, GeometryFit, calibrate, initial_model, validate
+from .fit import MODELS, GeometryFit, calibrate, initial_model, refresh_torques, validate
 from .mjcf import load_arm, write_chain_mjcf
 from .model import GeometricModel, Rows, kind
 from .statics import StaticsModel, calibrated_xml, statics_model
@@ -236,6 +237,9 @@ def run_geometry(
     robot = complete_model(model, log.mjcf_text, where, data.points, data.rows, data.y)
     start = robot.model
     fits = {name: calibrate(start, data.rows, data.y, effects) for name, effects in MODELS.items()}
+    # the serial arm's torques at its own deflected pose (the weight and the loads at q + c tau:
+    # what the bench's statics solves); statics.py's are its equilibria already
+    fits["geometry+compliance"], _ = refresh_torques(fits["geometry+compliance"], data.rows, data.y)
     fit = fits["geometry+compliance"]
     report: dict = {
         "method": "geometry",
