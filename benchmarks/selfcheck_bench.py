@@ -21,7 +21,7 @@ bending (discover_speed_bench.py's one effect: a named model with effects) and, 
 ../shared/data holds it, the converted IRB 6640 with its hidden link_2 bending (the case of
 issue 22), seeds 2-4. Prints JSON.
 
-    python benchmarks/selfcheck_bench.py [--irb-seeds 2,3,4] [--repeats 1] [--no-fanuc]
+    python benchmarks/selfcheck_bench.py [--irb-seeds 2,3,4] [--repeats 1] [--no-fanuc] [--quick]
 """
 
 from __future__ import annotations
@@ -169,7 +169,10 @@ def main() -> int:
     ap.add_argument("--irb-seeds", default="2,3,4", help="IRB 6640 case seeds (default: %(default)s)")
     ap.add_argument("--repeats", type=int, default=1, help="self-checks of each kind per case")
     ap.add_argument("--no-fanuc", action="store_true", help="leave out the FANUC paper plan")
+    ap.add_argument("--quick", action="store_true", help="the FANUC cases only, no IRB 6640")
     args = ap.parse_args()
+    if args.quick:
+        args.irb_seeds = ""
     tmp = Path(tempfile.mkdtemp())
     from calbench.bench.scenario import scenario_variant
 

@@ -1,7 +1,7 @@
 # The public face of calbench.identify.geometry: what code outside this room may import. At run time
 # calbench.bench.core.face reads these lines and loads each name on first use.
 
-from .chain import GRAVITY, UR10_DH, UR10_JOINTS, Chain, gravity_torques, rot, translation, ur10
+from .chain import GRAVITY, UR10_DH, UR10_JOINTS, Chain, gravity_torques, load_torques, rot, translation, ur10
 from .fit import (
     MODELS,
     PRIORITY,
@@ -19,11 +19,12 @@ from .fit import (
     validate,
 )
 from .mjcf import Arm, chain_from_mjcf, chain_mjcf, load_arm, write_chain_mjcf
-from .model import GeometricModel, kind, parameter_names
+from .model import GeometricModel, Rows, as_rows, kind, parameter_names
 from .run import (
     AbsoluteReadings,
     Complete,
     absolute_readings,
+    campaign_readings,
     complete_model,
     format_geometry,
     geometry_json,
@@ -34,6 +35,10 @@ from .statics import StaticsModel, calibrated_xml, statics_model
 
 __all__ = [
     "AbsoluteReadings",
+    "Rows",
+    "as_rows",
+    "campaign_readings",
+    "load_torques",
     "Complete",
     "StaticsModel",
     "calibrated_xml",

@@ -144,6 +144,22 @@ def gravity_torques(
     return tau
 
 
+def load_torques(
+    chain: Chain, q: np.ndarray, force: np.ndarray, moment: np.ndarray, at: np.ndarray
+) -> np.ndarray:
+    """Generalised forces (n_poses, dof), N*m, of an external wrench on the flange: a force (n, 3)
+    N at the point ``at`` (n, 3; flange frame) and a moment (n, 3) N*m, both in the chain's base
+    frame: tau_k = u_k . ((p - o_k) x F + M), the transposed Jacobian of the point times the
+    wrench (Klimchik et al. 2016, eq. (3): tau = J^T W). A payload's weight is such a force."""
+    frames, flange = chain.joint_frames(q)
+    at = np.asarray(at, float)
+    p = np.einsum("nij,nj->ni", flange[:, :3, :3], at) + flange[:, :3, 3]
+    f, m = np.asarray(force, float), np.asarray(moment, float)
+    lever = p[:, None, :] - frames[:, :, :3, 3]  # (n, dof, 3)
+    w = np.cross(lever, f[:, None, :]) + m[:, None, :]
+    return np.einsum("nki,nki->nk", frames[:, :, :3, 2], w)
+
+
 def ur10() -> Chain:
     """The UR10 from its published DH table and masses."""
     return Chain.from_dh(UR10_DH, UR10_JOINTS, UR10_MASS, UR10_COM)

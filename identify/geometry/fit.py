@@ -16,7 +16,7 @@ Units: SI (m, rad, N*m).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -26,7 +26,7 @@ from calbench.identify.core import GEOMETRY_RANK_TOL as RANK_TOL  # identify/cor
 from calbench.identify.core import fit_rigid
 
 from .chain import Chain
-from .model import GeometricModel, kind
+from .model import GeometricModel, as_rows, kind
 
 # the models a validation compares, by the effects each one fits
 MODELS = {
@@ -81,17 +81,28 @@ class GeometryFit:
         return self.model.calibrated(self.theta)
 
 
-def initial_model(chain: Chain, q: np.ndarray, y: np.ndarray, tool: np.ndarray) -> GeometricModel:
+def initial_model(
+    chain: Chain,
+    q,
+    y: np.ndarray,
+    tool: np.ndarray,
+    points: Sequence[str] = (),
+    sites: Mapping[str, np.ndarray] | None = None,
+) -> GeometricModel:
     """The nominal model registered on the readings (closed-form rigid fit, Horn/Kabsch) as start.
 
     ``tool``: the probe in the flange frame (e.g. :func:`tool_from_transform` of the dataset's
-    probe-to-flange transform)."""
-    p = chain.flange_point(q, tool)
+    probe-to-flange transform), or (m, 3) the points ``points`` (several reflectors), which ``q``
+    (:class:`~.model.Rows`) indexes; ``sites``: where loads act (flange frame, by site name)."""
+    rows = as_rows(q)
+    tools = np.atleast_2d(np.asarray(tool, float))
+    _, flange = chain.joint_frames(rows.q)
+    p = np.einsum("nij,nj->ni", flange[:, :3, :3], tools[rows.point]) + flange[:, :3, 3]
     reg = fit_rigid(y, p, np.broadcast_to(np.eye(3) * 1e-8, (len(y), 3, 3)))
     base0 = np.eye(4)
     base0[:3, :3] = reg.rotation.T  # tracker from robot: y = R^T (p - t)
     base0[:3, 3] = -reg.rotation.T @ reg.position
-    return GeometricModel(chain, base0, np.asarray(tool, float))
+    return GeometricModel(chain, base0, np.asarray(tool, float), tuple(points), dict(sites or {}))
 
 
 def tool_from_transform(probe_to_flange: np.ndarray) -> np.ndarray:
@@ -233,9 +244,13 @@ def calibrate(
         sol = least_squares(resid, theta[idx] * scale, jac=jac, method="lm", xtol=1e-12, ftol=1e-12)
     else:
         lo, hi = bounds[0][idx] * scale, bounds[1][idx] * scale
-        x0 = np.clip(theta[idx] * scale, lo, hi)
-        sol = least_squares(resid, x0, jac=jac, method="trf", bounds=(lo, hi), xtol=1e-12, ftol=1e-12)
-        _method = "trf"
+        x0 = gauss_newton_start(resid, jac, np.clip(theta[idx] * scale, lo, hi), lo, hi)
+        # dogbox, not trf: near the solution trf held its trust region at a fixed size along the
+        # weakly determined directions (a balancer's K_C against its preload, condition ~4e4) and
+        # crept down the last 10 % of chi2 in ~100 Jacobians of fresh equilibria; dogbox takes 7
+        # to the same minimum (the paper's FANUC campaign, docs/geometry.md)
+        sol = least_squares(resid, x0, jac=jac, method="dogbox", bounds=(lo, hi), xtol=1e-12, ftol=1e-12)
+        _method = "dogbox"
     theta = full(sol.x)
     rw = sol.fun
     r = (rw / wf).reshape(-1, 3)
@@ -243,14 +258,34 @@ def calibrate(
     s2 = 1.0 if sigma is not None else float(rw @ rw) / dof
     # in x = theta * scale, whose columns are of one size (theta's span 1e10 in units: a spring's
     # N/m against a compliance's rad/(N*m), beyond pinv's 1e-15), then back: cov_theta = cov_x /
-    # (scale scale^T). With bounds, trf's jac is scaled by the variables' distance to them
-    # (Coleman-Li), not the model's: taken again at the solution.
+    # (scale scale^T). With bounds, the Jacobian is taken again at the solution (the solver's last
+    # one may be an earlier iterate's).
     jx = sol.jac if _method == "lm" else jac(sol.x)
     cov = s2 * np.linalg.pinv(jx.T @ jx) / np.outer(scale, scale)  # pinv: the rank may drop far off
     rms = float(np.sqrt(np.mean(np.sum(r**2, 1))))
     return GeometryFit(
         model, theta, tuple(int(i) for i in idx), cov, rms, len(y), rw if sigma is not None else None
     )
+
+
+def gauss_newton_start(resid, jac, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """A start for the bounded fit: one Gauss-Newton step from x0, kept inside the bounds (a tenth
+    of the way from a bound it would cross), where it lowers the residual; else x0.
+
+    Why: a spring starts at K_C = 0, on its bound, and a balancer's is 1e5-1e6 N/m; a bounded
+    solver's trust region grows to it over many Jacobians of fresh equilibria (scipy's ``trf``
+    scales each step by the variable's distance to its bound: a factor ~2 per iteration).
+    Compliances and springs act nearly linearly on the readings, so one linear step lands near
+    the solution: measured on the paper's FANUC campaign with loads, 7 Jacobians with it, 40
+    without (dogbox), to the same minimum."""
+    r0 = resid(x0)
+    j0 = jac(x0)
+    step = np.linalg.lstsq(j0, -r0, rcond=None)[0]
+    x1 = x0 + step
+    inside_lo = np.where(x1 < lo, x0 + 0.9 * (lo - x0), x1)
+    x1 = np.where(x1 > hi, x0 + 0.9 * (hi - x0), inside_lo)
+    r1 = resid(x1)
+    return x1 if float(r1 @ r1) < float(r0 @ r0) else x0
 
 
 def refresh_torques(

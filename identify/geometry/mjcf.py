@@ -17,6 +17,7 @@ Units: SI (m, kg).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,8 +43,18 @@ def _vec(v) -> str:
     return " ".join(f"{float(x):.17g}" for x in v)
 
 
-def chain_mjcf(chain: Chain, tool: np.ndarray, name: str = "arm", compliance=None) -> str:
-    """The chain as a calbench MJCF text, the probe at ``tool`` (flange frame)."""
+def chain_mjcf(
+    chain: Chain,
+    tool: np.ndarray,
+    name: str = "arm",
+    compliance=None,
+    sites: Mapping[str, np.ndarray] | None = None,
+    payload: tuple[str, np.ndarray] | None = None,
+) -> str:
+    """The chain as a calbench MJCF text, the probe at ``tool`` (flange frame). ``sites``: named
+    flange points (a calibration's reflectors) in place of the probe and its two auxiliary points
+    (two such are added off the first where fewer than three are given); ``payload``: the load's
+    site (name, flange point), by default the probe (or the first of ``sites``)."""
     stiff = [PLACEHOLDER_STIFFNESS] * chain.dof
     if compliance is not None:
         stiff = [1.0 / c if c > 0 else PLACEHOLDER_STIFFNESS for c in compliance]
@@ -63,12 +74,19 @@ def chain_mjcf(chain: Chain, tool: np.ndarray, name: str = "arm", compliance=Non
     f = chain.frames[-1]
     ind = "  " * (chain.dof + 3)
     t = np.asarray(tool, float)
+    points = dict(sites) if sites else {"probe": t}
+    first, t0 = next(iter(points.items()))
+    for axis, off in (("x", [AUX, 0, 0]), ("y", [0, AUX, 0])):
+        if len(points) < 3:
+            points.setdefault(f"{first}_aux_{axis}", np.asarray(t0, float) + off)
+    reflectors = list(points)
+    load = payload or (first, t0)
+    if load[0] not in points:
+        points[load[0]] = load[1]
     body += [
         f'{ind}<body name="flange" pos="{_vec(f[:3, 3])}" quat="{_quat(f[:3, :3])}">',
         f'{ind}  <site name="flange" pos="0 0 0"/>',
-        f'{ind}  <site name="probe" pos="{_vec(t)}"/>',
-        f'{ind}  <site name="probe_aux_x" pos="{_vec(t + [AUX, 0, 0])}"/>',
-        f'{ind}  <site name="probe_aux_y" pos="{_vec(t + [0, AUX, 0])}"/>',
+        *(f'{ind}  <site name="{n}" pos="{_vec(v)}"/>' for n, v in points.items()),
         f"{ind}</body>",
     ]
     return "\n".join(
@@ -77,8 +95,8 @@ def chain_mjcf(chain: Chain, tool: np.ndarray, name: str = "arm", compliance=Non
             '  <compiler angle="degree" autolimits="true" inertiafromgeom="false"/>',
             "  <custom>",
             f'    <text name="calbench:actuated" data="{" ".join(chain.joints)}"/>',
-            '    <text name="calbench:reflectors" data="probe probe_aux_x probe_aux_y"/>',
-            '    <text name="calbench:payload" data="probe"/>',
+            f'    <text name="calbench:reflectors" data="{" ".join(reflectors)}"/>',
+            f'    <text name="calbench:payload" data="{load[0]}"/>',
             '    <text name="calbench:flange" data="flange"/>',
             "  </custom>",
             '  <default><geom contype="0" conaffinity="0"/></default>',

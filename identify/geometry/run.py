@@ -1,17 +1,19 @@
 """`calbench identify LOG --geometry`: the complete model from a campaign's absolute readings.
 
 What it reads (never a ``/truth/`` topic: the log is read with ``include_truth=False``): every
-complete pose's commanded angles and the mean of its unloaded readings of one reflector (the
-first the log lists that every such pose saw, e.g. ``probe`` of a probe series imported with
-``calbench import``), in the tracker's frame. The robot is the log's MJCF or ``--model``; it must
-be a serial arm whose last joint carries that reflector. The fit is :func:`fit.calibrate` for the
-three models of :data:`fit.MODELS`; the report is the complete one's. ``--validate`` predicts
-another log's readings of the same point (same robot and tracker station); ``--out-model`` writes
-the calibrated arm as a calbench MJCF (:func:`mjcf.chain_mjcf`: the chain, its masses and the
-probe; the original's geoms are not carried over).
-
-Loaded readings are not used yet: a plan's load, seen from absolute readings, is a second
-gravity term this slice does not model.
+complete pose's commanded angles and, for each load state (unloaded and loaded) and each
+reflector seen, the mean of its readings, in the tracker's frame (:func:`campaign_readings`).
+A loaded reading carries its pose's load (``/campaign/wrench``: a mass's weight or a wrench at a
+site): a known second force term in the model's statics (model.py :class:`~.model.Rows`), so
+the compliances come from the loaded/unloaded pairs and from the robot's own weight across poses.
+Each reflector is its own point (three ``tool_frame`` numbers each). The robot is the log's MJCF
+or ``--model``: a serial arm whose last joint carries the reflectors and the load (model.py), or
+any calbench robot through its statics (statics.py). The fit is :func:`fit.calibrate` for the
+three models of :data:`fit.MODELS`; the report is the complete one's, whose fit is repeated
+with the torques at its own deflected pose (:func:`fit.refresh_torques`; a serial arm's only).
+``--validate`` predicts another log's readings of the same points (same robot and tracker
+station); ``--out-model`` writes the calibrated robot as a calbench MJCF (a serial arm as :func:`mjcf.chain_mjcf`: the
+chain, its masses, the points and the load site; the original's geoms are not carried over).
 
 Units: SI in the JSON (m, rad, rad/(N*m)).
 """
@@ -24,13 +26,13 @@ from pathlib import Path
 
 import numpy as np
 
-from calbench.bench.core import InputError, write_text
+from calbench.bench.core import STATES, InputError, write_text
 from calbench.bench.log import read_log
 from calbench.bench.model import Robot
 
-from .fit import MODELS, GeometryFit, calibrate, initial_model, validate
+from .fit import MODELS, GeometryFit, calibrate, initial_model, refresh_torques, validate
 from .mjcf import load_arm, write_chain_mjcf
-from .model import GeometricModel, kind
+from .model import GeometricModel, Rows, kind
 from .statics import StaticsModel, calibrated_xml, statics_model
 
 
@@ -44,6 +46,17 @@ class AbsoluteReadings:
     y: np.ndarray  # (n, 3) m, tracker frame, the mean of the pose's repeats
     sigma: float  # m per axis, the tracker's nominal
     std: np.ndarray | None = None  # (n, 3) m, each mean reading's std per axis, from the log's covariances
+    rows: Rows | None = None  # each reading's point and load (campaign_readings); None: q, unloaded, point
+    points: tuple[str, ...] = ()  # the points rows.point indexes
+
+    @property
+    def design(self) -> Rows | np.ndarray:
+        """What the model reads besides theta: ``rows`` where there are, else ``q``."""
+        return self.q if self.rows is None else self.rows
+
+    @property
+    def n_loaded(self) -> int:
+        return 0 if self.rows is None else int(np.sum(self.rows.loaded))
 
 
 def absolute_readings(log, point: str | None = None) -> AbsoluteReadings:
@@ -82,6 +95,60 @@ def absolute_readings(log, point: str | None = None) -> AbsoluteReadings:
     )
 
 
+def campaign_readings(log, points: tuple[str, ...] | None = None, states=STATES) -> AbsoluteReadings:
+    """Every complete pose's readings in each of ``states`` of each of ``points`` (default: every
+    reflector seen in at least 3 readings, in the log's order), one reading per pose, state and
+    point (the mean of its repeats, its std from the log's covariances), with the pose's load on
+    its loaded readings (``/campaign/wrench``, world frame: the robot base's)."""
+    rec: list[tuple[int, str, str]] = []  # (pose, state, point)
+    pos: dict[tuple[int, str, str], list[np.ndarray]] = {}
+    var: dict[tuple[int, str, str], list[np.ndarray]] = {}
+    names: list[str] = []
+    for p in log.complete_poses:
+        for state in states:
+            if state == "loaded" and p not in log.wrenches:
+                continue
+            for m in log.readings(p, state):
+                for i, name in enumerate(m.reflectors):
+                    if not m.visible[i]:
+                        continue
+                    key = (p, state, name)
+                    if key not in pos:
+                        rec.append(key)
+                        pos[key], var[key] = [], []
+                    pos[key].append(m.position[i])
+                    var[key].append(np.diagonal(m.covariance[i]))
+                    if name not in names:
+                        names.append(name)
+    if points is None:
+        points = tuple(n for n in names if sum(k[2] == n for k in rec) >= 3)
+    rec = [k for k in rec if k[2] in points]
+    if len({k[0] for k in rec}) < 10:
+        raise InputError(
+            log.path,
+            "/tracker/measurement",
+            f"readings of {', '.join(points) or 'a reflector'} in at least 10 poses",
+            len({k[0] for k in rec}),
+        )
+    n = len(rec)
+    q = np.array([log.poses[p].get(state) for p, state, _ in rec])
+    force, moment, mass = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n)
+    sites = []
+    for i, (p, state, _) in enumerate(rec):
+        w = log.wrenches.get(p) if state == "loaded" else None
+        if w is not None:
+            force[i], moment[i], mass[i] = w.force, w.moment, w.mass or 0.0
+        sites.append(w.site if w is not None else "")
+    rows = Rows(q, np.array([points.index(k[2]) for k in rec]), force, moment, tuple(sites), mass)
+    y = np.array([np.mean(pos[k], axis=0) for k in rec])
+    std = np.array([np.sqrt(np.mean(var[k], axis=0) / len(var[k])) for k in rec])
+    ok = bool(np.all(np.isfinite(std)) and np.all(std > 0))
+    return AbsoluteReadings(
+        points[0], np.array([k[0] for k in rec]), q, y, float(log.tracker_spec().sigma),
+        std if ok else None, rows, tuple(points),
+    )  # fmt: skip
+
+
 @dataclass(frozen=True)
 class Complete:
     """The complete model of one robot registered on a point's readings, and what names it."""
@@ -91,19 +158,25 @@ class Complete:
     name: str  # the MJCF's model name
 
 
-def complete_model(path, xml: str | None, where: str, point: str, q: np.ndarray, y: np.ndarray) -> Complete:
+def complete_model(path, xml: str | None, where: str, point, q, y: np.ndarray) -> Complete:
     """A serial arm's numpy chain (model.py), or, for a robot with a kinematic loop or a
-    compensator spring, the statics model (statics.py), registered on readings y at q."""
+    compensator spring, the statics model (statics.py), registered on readings y at q (an array,
+    or :class:`~.model.Rows` of several points and loads). ``point``: one point's name, or the
+    points ``q`` indexes."""
+    points = (point,) if isinstance(point, str) else tuple(point)
     try:
         robot = Robot.from_file(path) if path is not None else Robot.from_xml(xml, where)
     except ValueError as e:
         raise InputError(where, "MJCF", "a model MuJoCo compiles", str(e).splitlines()[0]) from None
     name = bytes(robot.model.names).split(b"\0")[0].decode()
     if robot.loops or len(robot.tendons):
-        m = statics_model(path, xml, point, q, y, where)
+        m = statics_model(path, xml, points, q, y, where)
         return Complete(m, m.bodies, name)
     arm = load_arm(path, xml, where)
-    return Complete(initial_model(arm.chain, q, y, arm.point(point)), arm.bodies, name)
+    sites = {s: arm.point(s) for s in sorted(set(getattr(q, "site", ()))) if s}  # where loads act
+    tools = np.array([arm.point(p) for p in points])
+    tool = tools[0] if isinstance(point, str) else tools
+    return Complete(initial_model(arm.chain, q, y, tool, points, sites), arm.bodies, name)
 
 
 def value(model, i: int, theta: np.ndarray) -> float:
@@ -127,7 +200,20 @@ def write_calibrated(path: str | Path, fit: GeometryFit, name: str) -> np.ndarra
         write_text(Path(path), calibrated_xml(fit.model, fit.theta))
         return fit.model.base(fit.theta)
     chain, tool, base, comp = fit.calibrated()
-    write_chain_mjcf(path, chain, tool, name=name + "_calibrated", compliance=comp)
+    m = fit.model
+    points = dict(zip(m.points, np.atleast_2d(tool), strict=True)) if m.points else None
+    load = next(iter(m.sites.items()), None)
+    if load is not None and points and load[0] in points:
+        load = (load[0], points[load[0]])  # the load hangs at a reflector: its calibrated place
+    write_chain_mjcf(
+        path,
+        chain,
+        np.atleast_2d(tool)[0],
+        name=name + "_calibrated",
+        compliance=comp,
+        sites=points,
+        payload=load,
+    )
     return base
 
 
@@ -136,24 +222,32 @@ def run_geometry(
     model: str | Path | None = None,
     validate_path: str | Path | None = None,
     out_model: str | Path | None = None,
+    states: tuple[str, ...] = STATES,
 ) -> dict:
-    """Fit the three models to the log; the report as a JSON-ready dict (see the module docstring)."""
+    """Fit the three models to the log; the report as a JSON-ready dict (see the module docstring).
+    ``states``: the load states whose readings it reads (default both; ``("unloaded",)``: the
+    robot's own weight alone, as benchmarks/geometry_loaded_bench.py compares)."""
     log = read_log(log_path, include_truth=False)
     if model is None and not log.mjcf_text:
         raise InputError(
             log.path, "robot model", "an MJCF attachment in the log (or --model ROBOT.xml)", "none"
         )
-    data = absolute_readings(log)
+    data = campaign_readings(log, states=states)
     where = str(model) if model is not None else f"{log.path} (MJCF attachment)"
-    robot = complete_model(model, log.mjcf_text, where, data.point, data.q, data.y)
+    robot = complete_model(model, log.mjcf_text, where, data.points, data.rows, data.y)
     start = robot.model
-    fits = {name: calibrate(start, data.q, data.y, effects) for name, effects in MODELS.items()}
+    fits = {name: calibrate(start, data.rows, data.y, effects) for name, effects in MODELS.items()}
+    # the serial arm's torques at its own deflected pose (the weight and the loads at q + c tau:
+    # what the bench's statics solves); statics.py's are its equilibria already
+    fits["geometry+compliance"], _ = refresh_torques(fits["geometry+compliance"], data.rows, data.y)
     fit = fits["geometry+compliance"]
     report: dict = {
         "method": "geometry",
         "log": str(log.path),
         "point": data.point,
+        "points": list(data.points),
         "n": len(data.q),
+        "n_loaded": data.n_loaded,
         "models": {name: {"fit_rms": f.rms, "parameters": len(f.free)} for name, f in fits.items()},
         "parameters": [
             {"name": n, "effect": kind(n), "value": value(start, i, fit.theta), "std": float(sd)}
@@ -164,12 +258,12 @@ def run_geometry(
         "tracker_sigma": data.sigma,
     }
     if validate_path is not None:
-        held = absolute_readings(read_log(validate_path, include_truth=False), data.point)
+        held = campaign_readings(read_log(validate_path, include_truth=False), data.points, states)
         if held.q.shape[1] != data.q.shape[1]:
             raise InputError(
                 validate_path, "poses", f"{data.q.shape[1]} joint angles per pose", held.q.shape[1]
             )
-        by_model = {name: validate(f, held.q, held.y) for name, f in fits.items()}
+        by_model = {name: validate(f, held.rows, held.y) for name, f in fits.items()}
         report["validation"] = {
             "position_rms": by_model["geometry+compliance"].rms,
             "max": by_model["geometry+compliance"].max,
@@ -185,7 +279,10 @@ def run_geometry(
 
 def format_geometry(rep: dict) -> str:
     """The report as a person reads it: the models' errors in mm, the parameters in um and urad."""
-    lines = [f"geometry from {rep['n']} unloaded readings of {rep['point']} ({rep['log']})"]
+    loaded = rep.get("n_loaded", 0)
+    kinds = f"{rep['n'] - loaded} unloaded and {loaded} loaded" if loaded else f"{rep['n']} unloaded"
+    points = ", ".join(rep.get("points") or [rep["point"]])
+    lines = [f"geometry from {kinds} readings of {points} ({rep['log']})"]
     lines.append(f"{'model':<22}{'params':>7}{'fit RMS':>12}{'held-out RMS':>15}{'max':>10}")
     held = rep.get("validation", {}).get("by_model", {})
     for name, m in rep["models"].items():

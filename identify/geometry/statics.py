@@ -23,8 +23,14 @@ on the user's MJCF with the geometric parameters written into the compiled model
   identify/methods/onestep.py iterates), starting at no spring (0, 0): a strong spring guessed
   wrong makes the arm buckle at some poses (no equilibrium), a spring grown from none does not.
   A K_C below 1e-3 N/m is held there, with s0 = P / K_C, so that P alone is a constant force;
-* ``t`` (``tool_frame``): the reflector's place in its body, a delta from the drawing;
+* ``t`` (``tool_frame``): each reflector's place in its body, a delta from the drawing (three
+  numbers per reflector: several reflectors are several points);
 * ``B``: the robot base in the tracker frame (``base_frame``, the registration), as in model.py.
+
+A reading may be loaded (model.py :class:`~.model.Rows`): its equilibrium is then solved under
+the load as well (a mass's weight or a wrench at its site, bench/statics' ``Load``), as the bench
+solves a campaign's loaded state, so the load is a second known force term in the statics. The
+readings of one command and load share one equilibrium, whatever reflectors they read.
 
 q_eq is the equilibrium of the commanded pose under the robot's own weight with the joint springs
 1/c_k at rest at the command (a compliance is held at 1e-10 rad/(N*m) or more: stiffer, the
@@ -57,6 +63,7 @@ Units: SI (m, rad, rad/(N*m), N/m).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -66,11 +73,11 @@ import numpy as np
 from calbench.bench.core import InputError
 from calbench.bench.model import Robot
 from calbench.bench.model.effects import body_quat, frame_error, load_spec, turned_frame
-from calbench.bench.statics import StaticsError, StaticsSolver
+from calbench.bench.statics import Load, StaticsError, StaticsSolver
 from calbench.identify.core import fit_rigid
 
 from .chain import rot, translation
-from .model import BASE, LINK, TOOL
+from .model import BASE, LINK, Rows, as_rows, tool_names
 
 RIGID = 1e-10  # rad/(N*m): the least compliance written (stiffer would not converge)
 MIN_COMPLIANCE = 1e-9  # rad/(N*m): the fit's bound (bounds)
@@ -88,23 +95,34 @@ class _Layout:
 
     n: int  # actuated joints
     springs: int  # compensator tendons
+    points: int = 1  # reflectors, three numbers each
+
+    @property
+    def tool(self) -> slice:
+        return slice(6, 6 + 3 * self.points)
 
     @property
     def offset(self) -> slice:
-        return slice(9, 9 + self.n)
+        s = self.tool.stop
+        return slice(s, s + self.n)
 
     @property
     def compliance(self) -> slice:
-        return slice(9 + self.n, 9 + 2 * self.n)
+        s = self.offset.stop
+        return slice(s, s + self.n)
 
     @property
     def spring(self) -> slice:
-        s = 9 + 2 * self.n
+        s = self.compliance.stop
         return slice(s, s + 2 * self.springs)
 
     @property
     def link(self) -> slice:
-        return slice(9 + 2 * self.n + 2 * self.springs, None)
+        return slice(self.spring.stop, None)
+
+    @property
+    def size(self) -> int:
+        return self.link.start + 6 * self.n
 
 
 def _loop_bodies(model: mujoco.MjModel, robot: Robot) -> set[int]:
@@ -133,28 +151,31 @@ class StaticsModel:
     rank_tol = RANK_TOL
     column_floor = 0.0  # its noise columns are zeroed (jacobian), and its units differ by 1e10
 
-    def __init__(self, robot: Robot, point: str, q: np.ndarray, base0: np.ndarray | None = None, where=""):
+    def __init__(
+        self, robot: Robot, point: str | Sequence[str], q, base0: np.ndarray | None = None, where=""
+    ):
         m = robot.model
-        self.robot, self.where, self.point = robot, where, point
+        self.points = (point,) if isinstance(point, str) else tuple(point)
+        self.robot, self.where, self.point = robot, where, self.points[0]
         self.source: Path | str | None = None  # the MJCF (path or text): calibrated_xml edits it
-        self.site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, point)
-        if self.site < 0:
-            raise InputError(where, f"site {point}", "a site of the robot", None)
+        self.sites = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, p) for p in self.points]
+        for p, sid in zip(self.points, self.sites, strict=True):
+            if sid < 0:
+                raise InputError(where, f"site {p}", "a site of the robot", None)
         self.joints = tuple(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, int(j)) for j in robot.act_joint)
         self.body_ids = [int(m.jnt_bodyid[j]) for j in robot.act_joint]
         self.bodies = tuple(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b) for b in self.body_ids)
         self.tendons = tuple(robot.description.compensators)
-        self.lay = _Layout(len(self.joints), len(self.tendons))
+        self.lay = _Layout(len(self.joints), len(self.tendons), len(self.points))
         self._pos0 = m.body_pos[self.body_ids].copy()
         self._quat0 = m.body_quat[self.body_ids].copy()
-        self._site0 = m.site_pos[self.site].copy()
+        self._site0 = m.site_pos[self.sites].copy()  # (points, 3)
         self._jpos = m.jnt_pos[robot.act_joint].copy()
         self._axis = m.jnt_axis[robot.act_joint].copy()
         self.solver = StaticsSolver(robot)
         self.layout = robot.layout
-        q = np.atleast_2d(np.asarray(q, float))
         self.compliance0 = self.layout.generic_start()[: self.lay.n]
-        self._last: dict[bytes, np.ndarray] = {}  # the last equilibrium of each command seen
+        self._last: dict[bytes, np.ndarray] = {}  # the last equilibrium of each command and load
         # link rotations that would tilt a loop out of its plane: not parameters (zero columns)
         inside = _loop_bodies(m, robot)
         self._frozen = set()
@@ -173,12 +194,12 @@ class StaticsModel:
                         self._frozen.add(self.lay.link.start + 6 * k + i)
                     if abs(axis[i]) < 1.0 - 1e-9:  # a turn about another axis
                         self._frozen.add(self.lay.link.start + 6 * k + 3 + i)
-        self.base0 = self._register(q) if base0 is None else np.asarray(base0, float)
+        self.base0 = np.eye(4) if base0 is None else np.asarray(base0, float)  # see registered()
 
     # -- the vector ------------------------------------------------------------------------------
     @property
     def names(self) -> list[str]:
-        names = [f"base.{s}" for s in BASE] + [f"tool.{s}" for s in TOOL]
+        names = [f"base.{s}" for s in BASE] + tool_names(self.points)
         names += [f"{j}.offset" for j in self.joints] + [f"{j}.compliance" for j in self.joints]
         names += [f"{t}.spring_{s}" for t in self.tendons for s in ("stiffness", "force")]
         names += [f"{j}.link_{s}" for j in self.joints for s in LINK]
@@ -186,7 +207,7 @@ class StaticsModel:
 
     @property
     def size(self) -> int:
-        return 9 + 2 * self.lay.n + 2 * self.lay.springs + 6 * self.lay.n
+        return self.lay.size
 
     @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -205,11 +226,11 @@ class StaticsModel:
             return float(self.compliance0[i - self.lay.compliance.start] + theta[i])
         return float(theta[i])
 
-    def torques(self, q: np.ndarray) -> np.ndarray:
+    def torques(self, q) -> np.ndarray:
         """No input torques: each reading is its own equilibrium (placeholder of model.py's)."""
-        return np.zeros((len(np.atleast_2d(q)), self.lay.n))
+        return np.zeros((len(as_rows(q)), self.lay.n))
 
-    def torques_at(self, q: np.ndarray, theta: np.ndarray, **kw) -> np.ndarray:
+    def torques_at(self, q, theta: np.ndarray, **kw) -> np.ndarray:
         return self.torques(q)
 
     def springs(self, theta: np.ndarray) -> np.ndarray:
@@ -228,7 +249,7 @@ class StaticsModel:
         for k, b in enumerate(self.body_ids):
             pos, quat = turned_frame(self._pos0[k], self._quat0[k], self._jpos[k], self._axis[k], off[k])
             m.body_pos[b], m.body_quat[b] = frame_error(pos, quat, link[k])
-        m.site_pos[self.site] = self._site0 + theta[6:9]
+        m.site_pos[self.sites] = self._site0 + theta[self.lay.tool].reshape(-1, 3)
         if self.robot.loops:
             # the robot's loop closure map is taken from its frames when it is built (a
             # parallelogram's elbow = q3 - q2 exactly): built again on the edited frames, or its
@@ -238,39 +259,66 @@ class StaticsModel:
         comp = np.maximum(self.compliance0 + theta[self.lay.compliance], RIGID)
         self.robot.set_params(self.layout.params(np.concatenate([comp, self.springs(theta)])))
 
-    def equilibria(self, q: np.ndarray, theta: np.ndarray) -> np.ndarray:
-        """The reflector's world position (n, 3) at each command's equilibrium under theta."""
+    def equilibria(self, q, theta: np.ndarray) -> np.ndarray:
+        """Each reading's reflector, world position (n, 3), at its command's equilibrium under its
+        load and theta."""
+        return self._frames(as_rows(q), theta)[0]
+
+    def _load(self, rows: Rows, i: int) -> Load | None:
+        if not rows.site[i] or not (np.any(rows.force[i]) or np.any(rows.moment[i])):
+            return None
+        sid = mujoco.mj_name2id(self.robot.model, mujoco.mjtObj.mjOBJ_SITE, rows.site[i])
+        if sid < 0:
+            raise InputError(self.where, f"load site {rows.site[i]}", "a site of the robot", None)
+        return Load(rows.force[i].copy(), rows.moment[i].copy(), sid)
+
+    def _frames(self, rows: Rows, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(positions (n, 3), orientations (n, 3, 3)) of each reading's reflector in the world at
+        its equilibrium; one solve per distinct command and load."""
         self.write(theta)
         rb = self.robot
         d = rb.data
-        out = np.empty((len(q), 3))
-        for i, row in enumerate(q):
-            key = row.tobytes()
-            eq = self._solve(row, None)
-            if eq is None and key in self._last:  # from the last equilibrium of this command
-                eq = self._solve(row, self._last[key])
+        n = len(rows)
+        pos, rot_ = np.empty((n, 3)), np.empty((n, 3, 3))
+        states: dict[bytes, list[int]] = {}
+        for i in range(n):
+            key = (
+                rows.q[i].tobytes()
+                + rows.force[i].tobytes()
+                + rows.moment[i].tobytes()
+                + rows.site[i].encode()
+            )
+            states.setdefault(key, []).append(i)
+        for key, members in states.items():
+            i = members[0]
+            load = self._load(rows, i)
+            eq = self._solve(rows.q[i], load, None)
+            if eq is None and key in self._last:  # from the last equilibrium of this state
+                eq = self._solve(rows.q[i], load, self._last[key])
             if eq is None:
+                what = "loaded " if load is not None else ""
                 raise ValueError(
-                    f"no static equilibrium at pose {i} (command {np.degrees(row).round(3)} deg)"
+                    f"no static equilibrium at {what}reading {i} (command {np.degrees(rows.q[i]).round(3)} deg)"
                 )
             self._last[key] = eq.qpos.copy()
             d.qpos[:] = eq.qpos
             mujoco.mj_kinematics(rb.model, d)
-            out[i] = d.site_xpos[self.site]
-        return out
+            for j in members:
+                s = self.sites[rows.point[j]]
+                pos[j] = d.site_xpos[s]
+                rot_[j] = d.site_xmat[s].reshape(3, 3)
+        return pos, rot_
 
-    def _solve(self, q: np.ndarray, qpos0: np.ndarray | None):
-        """The statics' equilibrium at command q (from the rigid pose, or from qpos0), or None."""
+    def _solve(self, q: np.ndarray, load: Load | None, qpos0: np.ndarray | None):
+        """The statics' equilibrium at command q under the load (from the rigid pose, or from
+        qpos0), or None."""
         try:
-            eq = self.solver.solve(q, qpos0=qpos0)
+            eq = self.solver.solve(q, load, qpos0=qpos0)
         except StaticsError:
             return None
         return eq if eq.acceptable else None
 
-    def _register(self, q: np.ndarray) -> np.ndarray:
-        return np.eye(4)  # replaced by registered() once readings are known
-
-    def registered(self, q: np.ndarray, y: np.ndarray) -> StaticsModel:
+    def registered(self, q, y: np.ndarray) -> StaticsModel:
         """The same model with B_0 the closed-form rigid registration of the nominal model's
         equilibria (theta = 0) on the readings (fit.py initial_model's)."""
         p = self.equilibria(q, np.zeros(self.size))
@@ -289,39 +337,46 @@ class StaticsModel:
         return translation(b[:3]) @ rot(0, b[3]) @ rot(1, b[4]) @ rot(2, b[5]) @ self.base0
 
     # -- the model.GeometricModel interface ----------------------------------------------------
-    def predict(self, q: np.ndarray, theta: np.ndarray, tau=None) -> np.ndarray:
-        q = np.atleast_2d(np.asarray(q, float))
+    def predict(self, q, theta: np.ndarray, tau=None) -> np.ndarray:
         theta = np.asarray(theta, float)
         b = self._base(theta)
         return self.equilibria(q, theta) @ b[:3, :3].T + b[:3, 3]
 
-    def jacobian(self, q: np.ndarray, theta: np.ndarray, tau=None, columns=None):
+    def jacobian(self, q, theta: np.ndarray, tau=None, columns=None):
         """(prediction (n, 3), dy/dtheta (n, 3, size)); ``columns``: only these are computed (the
-        others are zero)."""
-        q = np.atleast_2d(np.asarray(q, float))
+        others are zero). A reflector's own columns are exact where no load acts at it (its
+        place moves no equilibrium); the rest are forward differences of fresh equilibria."""
+        rows = as_rows(q)
         theta = np.asarray(theta, float)
         cols = range(self.size) if columns is None else [int(c) for c in columns]
-        x = self.equilibria(q, theta)
+        x, frames = self._frames(rows, theta)
         b = self._base(theta)
         y = x @ b[:3, :3].T + b[:3, 3]
-        jac = np.zeros((len(q), 3, self.size))
+        jac = np.zeros((len(rows), 3, self.size))
         turned = np.eye(4)
         for i in range(3):
             jac[:, i, i] = 1.0
             jac[:, :, 3 + i] = np.cross(turned[:3, i], y - theta[:3])
             turned = turned @ rot(i, theta[3 + i])
+        loaded_at = {s for s, f in zip(rows.site, rows.loaded, strict=True) if f}
         noise = 10.0 * SOLVE_NOISE * np.sqrt(x.size)
         for c in cols:
             if c < 6 or c in self._frozen:
                 continue
+            if self.lay.tool.start <= c < self.lay.tool.stop:
+                j, axis = divmod(c - self.lay.tool.start, 3)
+                if self.points[j] not in loaded_at:
+                    mine = (rows.point == j)[:, None]
+                    jac[:, :, c] = (frames[:, :, axis] * mine) @ b[:3, :3].T
+                    continue
             h = self._step(c, theta)
             th = theta.copy()
             th[c] += h
             try:
-                d = self.equilibria(q, th) - x
+                d = self.equilibria(rows, th) - x
             except ValueError:  # the forward step leaves some equilibrium: the backward one
                 th[c], h = theta[c] - h, -h
-                d = self.equilibria(q, th) - x
+                d = self.equilibria(rows, th) - x
             if np.linalg.norm(d) > noise:  # else: the solves' scatter, no motion
                 jac[:, :, c] = (d / h) @ b[:3, :3].T
         self.write(theta)
@@ -335,9 +390,11 @@ class StaticsModel:
         return STEP
 
 
-def statics_model(path: str | Path | None, xml: str | None, point: str, q, y, where: str) -> StaticsModel:
+def statics_model(
+    path: str | Path | None, xml: str | None, point: str | Sequence[str], q, y, where: str
+) -> StaticsModel:
     """The statics model of the MJCF at ``path`` (or the text ``xml``) registered on readings y at
-    commands q."""
+    commands q (an array, or :class:`~.model.Rows`: loads and several reflectors)."""
     robot = Robot.from_file(path) if path is not None else Robot.from_xml(xml, where)
     model = StaticsModel(robot, point, q, where=where)
     model.source = Path(path) if path is not None else xml
@@ -368,8 +425,9 @@ def calibrated_xml(model: StaticsModel, theta: np.ndarray) -> str:
         pos, quat = turned_frame(body.pos, body_quat(spec, body), j.pos, j.axis, off[k])
         body.pos, body.quat = frame_error(pos, quat, link[k])
         j.stiffness = _stiffness(j.stiffness, 1.0 / comp[k])
-    site = spec.site(model.point)
-    site.pos = np.asarray(site.pos, float) + theta[6:9]
+    for name, t in zip(model.points, theta[lay.tool].reshape(-1, 3), strict=True):
+        site = spec.site(name)
+        site.pos = np.asarray(site.pos, float) + t
     for name, (kc, s0) in zip(model.tendons, model.springs(theta).reshape(-1, 2), strict=True):
         ten = spec.tendon(name)
         ten.stiffness, ten.springlength = _stiffness(ten.stiffness, kc), [float(s0), float(s0)]
