@@ -29,7 +29,7 @@ JSON (per parameter: mean error, RMS error, mean reported std, mean and std of z
 stderr. The geometric error's size is the scale's unloaded readings against scale 0's, after a
 rigid registration (3-D RMS and max, m).
 
-Usage: nice -n 10 python benchmarks/geometry_loaded_bench.py [--seeds N] [--scales 0,1,2] [--complete-scale 1]
+Usage: nice -n 10 python benchmarks/geometry_loaded_bench.py [--seeds N] [--scales 0,1,2] [--complete-scale 1] [--quick]
        nice -n 10 python benchmarks/geometry_loaded_bench.py --ur10 N [--mass KG]
 """
 
@@ -224,7 +224,10 @@ def main() -> None:
     ap.add_argument("--complete-scale", type=float, default=1.0)
     ap.add_argument("--ur10", type=int, default=0, help="seeds of the serial-arm check instead")
     ap.add_argument("--mass", type=float, default=20.0, help="kg at the UR10's probe (--ur10)")
+    ap.add_argument("--quick", action="store_true", help="one seed, geometry scales 0 and 1")
     a = ap.parse_args()
+    if a.quick:
+        a.seeds, a.scales = 1, "0,1"
     if a.ur10:
         print(
             json.dumps(

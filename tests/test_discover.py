@@ -424,7 +424,9 @@ def test_effect_force_columns_match_finite_differences(logs, effect):
     obs = obs.subset([lab for lab in obs.labels if lab[0] == 12])  # a lateral pull: every joint loaded
     start, _, _, size = effect_priors(effect)
     p = np.where(start != 0, 3 * start, 0.5 * size)
-    src = without_compensator(MJCF) if effect.name == "compensator" else MJCF
+    src = MJCF
+    if effect.name == "compensator":
+        src, p = without_compensator(MJCF), np.array([2.6e6, 0.83])
     _, fm = build(src, [(effect, p)], obs)
     base = np.r_[[0.25e-6, 0.12e-6, 0.07e-6, 0.35e-6, 0.40e-6, 0.60e-6], 2.6e6, 0.83]
     theta = np.r_[base[: fm.n_base], p]
@@ -435,6 +437,91 @@ def test_effect_force_columns_match_finite_differences(logs, effect):
         analytic = fm._dforce(theta)[:, NP:]
         fd = fm._dforce_fd(theta)[:, NP:]
     np.testing.assert_allclose(analytic, fd, rtol=1e-7, atol=1e-7 * max(np.abs(fd).max(), 1e-300))
+
+
+@pytest.mark.parametrize("effect", library(Robot.from_file(MJCF)), ids=lambda e: e.name + e.detail)
+def test_augmented_model_batched_as_pose_by_pose(logs, effect):
+    """A model with effects runs its warm evaluations stacked on bench/statics/batched.py (every
+    spring value synced into the batch, S and dg/dtheta stacked) and gets what it gets pose by
+    pose: the deflections to the statics' precision (~3e-11 m at a reflector: 1e-10 m), the
+    Jacobian in relative coordinates (columns times |theta|) to 1e-5 of each column's largest
+    entry (A_base is a forward difference of step 1e-7 rad, re-taken where a solution moved
+    1e-3 rad: the two paths' Jacobians differ by ~5e-7 where they re-take it; the Jacobian's own
+    accuracy is 1e-3, forward.py), a column 1e6 times weaker than the strongest (k1 on these
+    poses: round-off) to 1e-5 of 1e-6 of that, along a path of parameters that moves every
+    equilibrium (re-takes included, but for j2, whose stiff cubic keeps it within KKT_QTOL).
+    Both paths do the same work (Newton iterations, re-takes), the batched one none of it
+    through the scalar fallbacks. The compensator effect is given the shipped spring (2.6e6
+    N/m, 0.83 m): at three times its prior start (s0 = 3 m) no warm start holds and every row
+    falls back to a cold solve in both paths, which would leave the stacked Newton untested."""
+    from calbench.identify.core import from_log
+    from calbench.identify.discover import build, effect_priors
+
+    obs = from_log(read_log(logs["none"]))
+    obs = obs.subset(obs.labels[:9])
+    start, _, _, size = effect_priors(effect)
+    p = np.where(start != 0, 3 * start, 0.5 * size)
+    src = MJCF
+    if effect.name == "compensator":
+        src, p = without_compensator(MJCF), np.array([2.6e6, 0.83])
+    base = np.r_[[0.25e-6, 0.12e-6, 0.07e-6, 0.35e-6, 0.40e-6, 0.60e-6], 2.6e6, 0.83]
+    runs, stats = [], []
+    for batched in (False, True):
+        _, fm = build(src, [(effect, p)], obs)
+        fm.batched = batched
+        theta = np.r_[base[: fm.n_base], p]
+        runs.append([fm.evaluate(theta * s) for s in (1.0, 1.05, 0.9, 1.0)])
+        assert (fm._batch is not None) == batched  # the stacked path was taken
+        stats.append(fm.stats)
+    assert stats[1]["fallbacks"] == 0
+    assert stats[1] == stats[0]
+    for (dp_a, jac_a), (dp_b, jac_b) in zip(*runs):
+        np.testing.assert_allclose(dp_b, dp_a, rtol=0, atol=1e-10)
+        rel_a, rel_b = jac_a * np.abs(theta), jac_b * np.abs(theta)
+        col = np.abs(rel_a).max(axis=(0, 1))
+        assert np.all(np.abs(rel_b - rel_a) <= 1e-5 * np.maximum(col, 1e-6 * col.max()))
+
+
+def test_self_check_replicas_batched_as_pose_by_pose(logs, monkeypatch):
+    """The self-check's replicas refitted on the batched statics come out where they do pose by
+    pose: each replica's estimate within its stopping tolerance (REPLICA_STEP_TOL = 1e-2 of
+    each reported std; the statics agree to ~1e-15 m), the verdict the same."""
+    import copy
+
+    from calbench.bench.model.effects import link_compliance
+    from calbench.identify.core import Whitener, from_log
+    from calbench.identify.discover import (
+        build,
+        determination,
+        effect_priors,
+        fit_augmented,
+        self_check,
+        uncertainty,
+    )
+
+    monkeypatch.setattr(uncertainty, "REPLICAS", 8)  # the same replicas both ways: 8 are enough
+    obs = from_log(read_log(logs["forearm"]))
+    white = Whitener.from_observations(obs)
+    eff = link_compliance("forearm")
+    _, lo_e, hi_e, _ = effect_priors(eff)
+    _, fm = build(MJCF, [(eff, [1e-7, 0.0, 1e-7])], obs)
+    lo, hi = np.r_[fm.layout.lower, lo_e], np.r_[fm.layout.upper, hi_e]
+    start = np.r_[[0.25e-6, 0.12e-6, 0.07e-6, 0.35e-6, 0.40e-6, 0.60e-6], 2.6e6, 0.83, 1e-7, 0.0, 1e-7]
+    hold = np.zeros(start.size, bool)
+    f = fit_augmented(fm, obs.dp, white, start, lo, hi, hold)
+    f.extra["bounds"] = (lo, hi, hold)
+    det = determination(f, f.extra["jw"])
+    out = []
+    for batched in (False, True):
+        fm.batched = batched
+        est: list = []
+        rec = self_check(f, obs, white, copy.deepcopy(det), estimates=est)
+        out.append((np.array(est), rec))
+    (a, rec_a), (b, rec_b) = out
+    assert a.shape == (8, start.size) and np.all(np.isfinite(a))
+    std = np.where(det.determined, det.std, np.nan)
+    assert np.nanmax(np.abs(b - a) / std) <= uncertainty.REPLICA_STEP_TOL
+    assert rec_a["failed"] == rec_b["failed"]
 
 
 def test_a_split_the_data_do_not_fix_gets_no_dishonest_std(tmp_path):

@@ -70,11 +70,24 @@ def test_stacked_evaluations_equal_the_scalar_loop(paper):
     assert fast.stats == slow.stats and slow.stats["refreshes"] > 0 and slow.stats["fallbacks"] > 0
 
 
-def test_models_with_their_own_parameters_stay_scalar(paper):
-    """Discovery's augmented model writes effects the batch's copy of the model would not see."""
+def test_which_models_run_stacked(paper):
+    """The base model runs stacked unless its A_base must be re-taken (``refresh``); discovery's
+    augmented model runs stacked whenever its springs' part S is analytic (its A_base never
+    depends on a parameter, and every spring value is synced into the batch: tested against its
+    scalar loop in tests/test_discover.py), and pose by pose where a spring is outside the
+    analytic S (a dead band, an elasto-plastic spring) or the batch is switched off."""
     scn, obs = paper
     robot = Robot.from_file(scn.robot)
     design = design_from_observations(robot, obs)
     assert _model(scn, obs, True)._stacked(False)
-    assert not _model(scn, obs, True)._stacked(True)  # effects' springs changed: A_base re-taken
-    assert not AugmentedForward(robot, design, [])._stacked(False)  # even with no effect yet
+    assert not _model(scn, obs, True)._stacked(True)
+    assert not _model(scn, obs, False)._stacked(False)
+    assert AugmentedForward(robot, design, [])._stacked(False)
+    assert AugmentedForward(robot, design, [])._stacked(True)
+    assert not AugmentedForward(robot, design, [], batched=False)._stacked(False)
+    band = Robot.from_file(scn.robot)
+    band.model.tendon_lengthspring[band.tendons[0], 1] += 0.01  # a dead band of 1 cm
+    assert not AugmentedForward(band, design, [])._stacked(False)
+    yielding = Robot.from_file(scn.robot)
+    yielding.model.jnt_springyield[yielding.act_joint[0]] = 1e3  # an elasto-plastic joint spring
+    assert not AugmentedForward(yielding, design, [])._stacked(False)

@@ -31,11 +31,13 @@ stiffness, the loop's constraint curvature), taken once by finite differences an
 Convergence is judged on the exact residual, so the reuse only affects the convergence rate,
 never the solution. These warm evaluations run for all (pose, state) equilibria at once on
 bench/statics/batched.py (the same Newton, stacked; a row it cannot converge goes through the
-scalar fallbacks), unless the model holds more than Robot.set_params writes (discovery's
-effects), which the batch's copy of the model would not see. The Jacobian dq/dtheta
-(``bench.statics.ift_tangent``) uses the same KKT matrix at the solution, so A_base must be
-taken near it: where the solution has moved more than KKT_QTOL from where A_base was taken,
-A_base (and H_L) is re-taken at the solution before the tangent (about two evaluations' time).
+scalar fallbacks; the re-takes below stacked too), unless the model holds more than
+Robot.set_params writes and the batch's copy of the model would not see it (a subclass that
+syncs what it writes and stacks its own springs and force columns runs stacked too: discovery's
+effects, identify/discover/fit.py). The Jacobian dq/dtheta (``bench.statics.ift_tangent``)
+uses the same KKT matrix at the solution, so A_base must be taken near it: where the solution
+has moved more than KKT_QTOL from where A_base was taken, A_base (and H_L) is re-taken at the
+solution before the tangent (about two evaluations' time).
 Without that, a fit that wandered far (a far-off start) left A_base taken there, and later
 Jacobians were wrong: on a designed 7-pose KR 270 plan, 170 % in the balancer's columns after
 the noise-free fit's excursion, so every Monte Carlo run converged to a point ~1 sigma from the
@@ -67,6 +69,7 @@ from calbench.bench.statics import (
     ift_tangent,
     kkt_matrix,
     statics_options,
+    take_load,
 )
 
 from .observations import Observations
@@ -395,10 +398,16 @@ class ForwardModel:
         return dp, jac
 
     # -- every (pose, state) at once --------------------------------------------------------------
+    # model fields the batch's copy must be given after each write (a subclass writing more
+    # adds them: discovery's effects write every spring value)
+    sync_fields: tuple[str, ...] = Robot.PARAM_FIELDS
+
     def _stacked(self, refresh: bool) -> bool:
         """Warm evaluations run stacked on bench/statics/batched.py, unless the model holds more than
-        Robot.set_params writes (a subclass's own parameters and write: discovery's effects),
-        which the batch's copy of the model would not see."""
+        Robot.set_params writes (a subclass's own parameters and write), which the batch's copy
+        of the model would not see; a subclass that syncs what it writes (``sync_fields``) and
+        stacks its springs and force columns (``_springs_stack``, ``_dforce_stack``) says so
+        here (discovery's AugmentedForward)."""
         return (
             self.batched
             and not refresh
@@ -407,10 +416,44 @@ class ForwardModel:
             and type(self)._dforce is ForwardModel._dforce
         )
 
+    def _springs_stack(self, theta, bs: BatchStatics, ids: np.ndarray, qpos, q, h_len) -> np.ndarray:
+        """S(theta) (n, nv, nv) at the poses the batch holds for simulations ids (qpos, commands
+        q, the tendons' length Hessians h_len)."""
+        robot = self.robot
+        return self._springs(
+            theta, self._moments_stack(bs.ten_j[ids]), bs.ten_length[ids][:, robot.tendons], h_len
+        )
+
+    def _moments_stack(self, ten_j: np.ndarray) -> np.ndarray:
+        """:meth:`_moments` of n configurations (n, C, nv) from their stacked ten_J."""
+        return self.robot.tendon_moments_stack(ten_j)
+
+    def _kkt_fd_stack(self, theta, bs: BatchStatics, ids, qpos, q, load, lam, basis):
+        """:meth:`_kkt_fd` of the batch's simulations ids at once (commands set, the same
+        forward differences as bench/statics' stiffness_at, the tendon moments differenced at
+        the same points); the batch is left at qpos."""
+        h, nv = self.statics.fd_step, self.nv
+        r0 = bs.residual(ids, qpos, load, lam, basis).r
+        t0 = self._moments_stack(bs.ten_j[ids])
+        a = np.empty((len(ids), nv, nv))
+        h_len = np.empty((*t0.shape, nv))
+        for j in range(nv):
+            qp = qpos.copy()
+            qp[:, j] += h
+            a[:, :, j] = (bs.residual(ids, qp, load, lam, basis).r - r0) / h
+            h_len[..., j] = (self._moments_stack(bs.ten_j[ids]) - t0) / h
+        h_len = 0.5 * (h_len + h_len.transpose(0, 1, 3, 2))
+        bs.forward(ids, qpos)  # the batch back at qpos for S
+        return a - self._springs_stack(theta, bs, ids, qpos, q, h_len), h_len
+
+    def _dforce_stack(self, theta, bs: BatchStatics, ids: np.ndarray, qpos, q) -> np.ndarray:
+        """d g / d theta at fixed q (n, nv, n_params) of the solutions the batch holds."""
+        return self.robot.dforce_dtheta_stack(self._params, qpos, q, bs.ten_j[ids], bs.ten_length[ids])
+
     def _evaluate_stacked(self, theta, jacobian: bool):
         """evaluate()'s loop for all (pose, state) equilibria at once: the same warm Newton (the
         cached solution moved by its tangent, A = A_base + S(theta), giving up on a row that
-        still stalls after two steps), rows it did not converge through the scalar _solve (its
+        still stalls after ``stall_limit`` steps), rows it did not converge through the scalar _solve (its
         re-taken A_base and cold fallbacks), then the same IFT tangents, stacked. Inside
         statics_options, the cache initialised."""
         robot, nv = self.robot, self.nv
@@ -423,7 +466,7 @@ class ForwardModel:
         if self._batch is None:
             self._batch = BatchStatics(self.statics, nsim=n, nthread=1)
         bs = self._batch
-        bs.sync(*Robot.PARAM_FIELDS)
+        bs.sync(*self.sync_fields)
         q = np.array([des.q for des, _, _ in rows])
         zero = np.zeros(3)
         load = Load(
@@ -433,26 +476,25 @@ class ForwardModel:
         )
         qpos = np.array([eq.qpos for *_, eq in rows])
         lam = np.array([eq.lam for *_, eq in rows])
-        for i, (*_, eq) in enumerate(rows):
-            if eq.tangent is not None and eq.theta is not None:  # first-order prediction
-                step = eq.tangent @ (theta - eq.theta)
-                qpos[i] += step[:nv]
-                lam[i] += step[nv:]
+        pred = [i for i, (*_, eq) in enumerate(rows) if eq.tangent is not None and eq.theta is not None]
+        if pred:  # first-order prediction from the cached tangents
+            step = np.einsum(
+                "kij,kj->ki",
+                np.array([rows[i][2].tangent for i in pred]),
+                theta - np.array([rows[i][2].theta for i in pred]),
+            )
+            qpos[pred] += step[:, :nv]
+            lam[pred] += step[:, nv:]
         basis = np.array([eq.basis for *_, eq in rows])
         a_base = np.array([eq.a_base for *_, eq in rows])
         h_len = np.array([eq.h_len for *_, eq in rows])
 
-        def springs(ids) -> np.ndarray:
-            """S(theta) at the poses the batch holds for simulations ids."""
-            return self._springs(
-                theta,
-                robot.tendon_moments_stack(bs.ten_j[ids]),
-                bs.ten_length[ids][:, robot.tendons],
-                h_len[ids],
-            )
+        def springs(ids, qp) -> np.ndarray:
+            """S(theta) at the poses qp the batch holds for simulations ids."""
+            return self._springs_stack(theta, bs, ids, qp, q[ids], h_len[ids])
 
         def stiffness(idx, qp, lm, r, stalled, iteration):
-            return a_base[idx] + springs(idx), stalled & (iteration > 2)
+            return a_base[idx] + springs(idx, qp), stalled & (iteration > self.stall_limit)
 
         sol = bs.newton(q, qpos, basis, load, lam=lam, stiffness=stiffness, max_iter=self.max_iter)
         self.stats["newton_iterations"] += int(sol.iterations[sol.converged].sum())
@@ -463,13 +505,20 @@ class ForwardModel:
             one = self._solve(des, ld, eq, theta, False)
             qpos[i], lam[i] = one.qpos, one.lam
             a_base[i], h_len[i], basis[i] = eq.a_base, eq.h_len, eq.basis
-        for i, (des, ld, eq) in enumerate(rows):
+        for i, (*_, eq) in enumerate(rows):
             eq.qpos, eq.lam, eq.theta, eq.tangent = qpos[i], lam[i], theta.copy(), None
-            if jacobian and self._stale(eq, qpos[i]):  # the tangent needs A_base at the solution
-                self.stats["retakes"] += 1
-                robot.set_command(des.q)
-                self._retake(eq, qpos[i], ld, lam[i], basis[i], theta)
-                a_base[i], h_len[i] = eq.a_base, eq.h_len
+        # the tangent needs A_base at the solution: _stale's test, every row at once
+        moved = np.abs(qpos - np.array([eq.q_kkt for *_, eq in rows])).max(axis=1) > KKT_QTOL
+        stale = np.flatnonzero(moved) if jacobian else np.zeros(0, int)
+        if len(stale):  # _retake of every stale row at once
+            self.stats["retakes"] += len(stale)
+            ids = stale
+            a_base[ids], h_len[ids] = self._kkt_fd_stack(
+                theta, bs, ids, qpos[ids], q[ids], take_load(load, ids), lam[ids], basis[ids]
+            )
+            for i in stale:
+                eq = rows[i][2]
+                eq.a_base, eq.h_len, eq.q_kkt = a_base[i].copy(), h_len[i].copy(), np.array(qpos[i])
         # the solutions' forward pass (positions, tendon, J_c), then the tangents
         res = bs.residual(np.arange(n), qpos, load, lam, basis)
         ids = np.arange(n)
@@ -477,10 +526,8 @@ class ForwardModel:
         dp = np.empty((self.n_obs, 3))
         jac = None
         if jacobian:
-            kkt = kkt_matrix(a_base + springs(ids), res.jc_r)
-            tangent = ift_tangent(
-                kkt, robot.dforce_dtheta_stack(self._params, qpos, q, bs.ten_j[ids], bs.ten_length[ids])
-            )
+            kkt = kkt_matrix(a_base + springs(ids, qpos), res.jc_r)
+            tangent = ift_tangent(kkt, self._dforce_stack(theta, bs, ids, qpos, q))
             for i, (*_, eq) in enumerate(rows):
                 eq.tangent = tangent[i]
             used = np.unique(np.concatenate([des.sites for des in self.design]))

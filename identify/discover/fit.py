@@ -71,6 +71,15 @@ from calbench.identify.core import (
 # --------------------------------------------------------------------------- the library
 
 COST_TOL = 1e-3  # chi2 units: a step gaining (or promising) less ends the fit
+# every spring value of a model: what Robot.set_params and the effects may write (bench/model/effects/'s
+# rule), synced into the batched statics' copy of the model after each write
+SPRING_FIELDS = (
+    "jnt_stiffness",
+    "jnt_stiffnesspoly",
+    "tendon_stiffness",
+    "tendon_stiffnesspoly",
+    "tendon_lengthspring",
+)
 STALL_LIMIT = 8  # Newton iterations a stalling step may re-assemble A_base + S (analytic S)
 # the base parameters' bounds: ParamLayout.lower / .upper (bench/model/params.py)
 
@@ -119,7 +128,14 @@ class AugmentedForward(ForwardModel):
     * measurement-side effects add their deflection term and its Jacobian (central
       differences of the term: exact for the linear ones) after the statics, and contribute
       nothing to dg/dtheta.
+
+    Its warm evaluations run stacked on bench/statics/batched.py as the base model's do (every
+    spring value synced into the batch's copy of the model, S and dg/dtheta by the same
+    formulas over all (pose, state) rows at once), unless a spring is outside the analytic S
+    (an elasto-plastic spring, a dead band): then pose by pose.
     """
+
+    sync_fields = SPRING_FIELDS
 
     def __init__(
         self,
@@ -202,6 +218,75 @@ class AugmentedForward(ForwardModel):
         compensators' rows of the all-tendon moments: the rest stays in A_base, re-taken."""
         idx = [int(np.flatnonzero(self._spring_tendons == tid)[0]) for tid in self.robot.tendons]
         return super()._spring_part(theta, t[idx], h_len[idx])
+
+    def _stacked(self, refresh: bool) -> bool:
+        """Stacked whenever S is analytic: A_base then never depends on a parameter (``refresh``
+        is moot), and the batch sees every spring value (``sync_fields``)."""
+        if not (self.batched and self._analytic and not self._deadband()):
+            return False
+        self.stall_limit = STALL_LIMIT  # as _solve: S is exact at every iterate
+        return True
+
+    def _moments_stack(self, ten_j: np.ndarray) -> np.ndarray:
+        """:meth:`_moments` of n configurations (n, T, nv) from their stacked ten_J."""
+        m = self.robot.model
+        out = np.zeros((len(ten_j), len(self._spring_tendons), self.nv))
+        for i, (adr, nnz) in enumerate(self._ten_rows):
+            out[:, i, m.ten_J_colind[adr : adr + nnz]] = ten_j[:, adr : adr + nnz]
+        return out
+
+    def _joint_offsets(self, qpos: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """(n, J) every hinge's and slide's position less its spring reference (the commands q
+        on the actuated joints, Robot.set_command) for n configurations."""
+        m, robot = self.robot.model, self.robot
+        ref = np.repeat(m.qpos_spring[None], len(qpos), axis=0)
+        ref[:, robot.act_qpos] = q
+        return qpos[:, self._jnt_qpos] - ref[:, self._jnt_qpos]
+
+    def _springs_stack(self, theta, bs, ids, qpos, q, h_len) -> np.ndarray:
+        """:meth:`_spring_part` of n configurations at once (the batch holds their forward pass)."""
+        m, tt = self.robot.model, self._spring_tendons
+        t = self._moments_stack(bs.ten_j[ids])
+        k, (b, c) = m.tendon_stiffness[tt], m.tendon_stiffnesspoly[tt].T
+        x = bs.ten_length[ids][:, tt] - m.tendon_lengthspring[tt][:, 0]
+        s = -np.einsum("nc,nci,ncj->nij", k + 2 * b * x + 3 * c * x * x, t, t)
+        s -= np.einsum("nc,ncij->nij", k * x + b * x * x + c * x**3, h_len)
+        xj = self._joint_offsets(qpos, q)
+        poly = m.jnt_stiffnesspoly[self._jnt]
+        dof = m.jnt_dofadr[self._jnt]
+        s[:, dof, dof] -= m.jnt_stiffness[self._jnt] + 2 * poly[:, 0] * xj + 3 * poly[:, 1] * xj * xj
+        return s
+
+    def _dforce_stack(self, theta, bs, ids, qpos, q) -> np.ndarray:
+        """:meth:`_dforce` of n configurations at once (n, nv, n_params), the same formulas."""
+        m, nb, nv = self.robot.model, self.n_base, self.nv
+        n = len(ids)
+        out = np.zeros((n, nv, self.n_params))
+        out[:, :, :nb] = super()._dforce_stack(theta, bs, ids, qpos, q)
+        out[:, :, np.flatnonzero(self._base_overridden(theta))] = 0.0
+        if self.n_params == nb:
+            return out
+        nj, nt = m.njnt, len(self._spring_tendons)
+        dsp = np.zeros((n, nv, self._spring_values().size))
+        x = self._joint_offsets(qpos, q)
+        dof, jnt = m.jnt_dofadr[self._jnt], self._jnt
+        dsp[:, dof, jnt] = -x
+        dsp[:, dof, nj + 2 * jnt] = -x * x
+        dsp[:, dof, nj + 2 * jnt + 1] = -(x**3)
+        if nt:
+            tt = self._spring_tendons
+            t = self._moments_stack(bs.ten_j[ids]).transpose(0, 2, 1)  # (n, nv, T)
+            k, (b, c) = m.tendon_stiffness[tt], m.tendon_stiffnesspoly[tt].T
+            xt = (bs.ten_length[ids][:, tt] - m.tendon_lengthspring[tt][:, 0])[:, None, :]
+            base, i = 3 * nj, np.arange(nt)
+            dsp[:, :, base + i] = -(xt * t)
+            dsp[:, :, base + nt + 2 * i] = -(xt * xt * t)
+            dsp[:, :, base + nt + 2 * i + 1] = -(xt**3 * t)
+            half = 0.5 * (k + 2 * b * xt + 3 * c * xt * xt) * t
+            dsp[:, :, base + 3 * nt + 2 * i] = half
+            dsp[:, :, base + 3 * nt + 2 * i + 1] = half
+        out[:, :, nb:] = dsp @ self._spring_jacobian(theta)
+        return out
 
     def _solve(self, des, load, eq, theta, refresh: bool):
         analytic = self._analytic and not self._deadband()

@@ -305,7 +305,7 @@ def unit_checks(names, std: np.ndarray) -> dict[str, tuple[np.ndarray, float]]:
     return out
 
 
-def self_check(f: Fit, obs, white: Whitener, det: Determination) -> dict:
+def self_check(f: Fit, obs, white: Whitener, det: Determination, *, estimates: list | None = None) -> dict:
     """The self-check of a discovery fit ``f`` (the named model): :func:`bootstrap` of every
     parameter ``det`` determines and of every determined combination (named "combination i"),
     each replica refitted as the final fit is made (identify/core/leastsq.py's Levenberg-Marquardt
@@ -317,7 +317,8 @@ def self_check(f: Fit, obs, white: Whitener, det: Determination) -> dict:
     instead (fit.py's rule) took 17 evaluations a replica on the IRB 6640's named model, 22 s
     for the check, where the model's valley along the directions it does not determine is flat.
     A parameter or combination that fails is made not determined in ``det`` (its std was not
-    what the campaign shows) and named in ``failed``; returns the record."""
+    what the campaign shows) and named in ``failed``; returns the record. ``estimates``: a list
+    the replicas' refitted parameter vectors are appended to, in replica order (benchmarks)."""
     from calbench.identify.core import levenberg_marquardt
 
     from .fit import COST_TOL, DISCOVER_RANK_TOL, whitened
@@ -327,21 +328,27 @@ def self_check(f: Fit, obs, white: Whitener, det: Determination) -> dict:
     scale = np.where(np.abs(f.values) > 0, np.abs(f.values), f.model._fd_size)
 
     def refit(o: Observations) -> np.ndarray:
-        return levenberg_marquardt(
-            lambda th: whitened(f.model, white, th),
-            white.vec(o.dp),
-            f.values,
-            scale,
-            lower=lo,
-            upper=hi,
-            hold=hold,
-            step_tol=REPLICA_STEP_TOL,
-            cost_tol=COST_TOL,
-            rank_tol=DISCOVER_RANK_TOL,
-            max_iter=REPLICA_MAX_ITER,
-            final_eval=False,
-            start_eval=first,
-        ).x
+        x = np.full(f.values.size, np.nan)  # a replica the fit cannot finish: missing
+        try:
+            x = levenberg_marquardt(
+                lambda th: whitened(f.model, white, th),
+                white.vec(o.dp),
+                f.values,
+                scale,
+                lower=lo,
+                upper=hi,
+                hold=hold,
+                step_tol=REPLICA_STEP_TOL,
+                cost_tol=COST_TOL,
+                rank_tol=DISCOVER_RANK_TOL,
+                max_iter=REPLICA_MAX_ITER,
+                final_eval=False,
+                start_eval=first,
+            ).x
+        finally:  # bootstrap counts a replica that raised as missing
+            if estimates is not None:
+                estimates.append(x)
+        return x
 
     checks = unit_checks(f.names, np.where(det.determined, det.std, np.nan))
     for k, c in enumerate(det.combinations):
