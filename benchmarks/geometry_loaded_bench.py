@@ -10,11 +10,13 @@ seed is the geometry's effect alone. Per seed:
 * (a) `identify --geometry`'s complete model on the unloaded readings only (the compliances from
   the robot's own weight across poses);
 * (b) the complete model on the loaded and unloaded readings (what `identify --geometry` does);
+* (d) the same readings as (b) with the geometry held at the truth's, only the registration, the
+  compliances and the balancer fitted: the reference of (b)'s sigma price (its std over (d)'s);
 * (c) the classic loaded-minus-unloaded path (`calbench identify LOG`, one-step, the nominal
   geometry), at every scale: its bias from the uncalibrated geometry is the paired difference
   est(scale) - est(scale 0), over its reported std.
 
-(a) and (b) run at scale 1 (--complete-scale).
+(a), (b) and (d) run at scale 1 (--complete-scale).
 
 ``--ur10 N``: instead, N seeds of a serial arm (model.py): a UR10 MJCF from its DH table
 (write_chain_mjcf) with hidden joint offsets, 60 random poses each unloaded and under --mass kg at
@@ -48,10 +50,12 @@ from calbench.bench.log import read_log
 from calbench.identify.core import fit_rigid
 from calbench.identify.geometry import (
     MODELS,
+    base_set,
     calibrate,
     campaign_readings,
     complete_model,
     kind,
+    rank_rule,
     refresh_torques,
     ur10,
     write_chain_mjcf,
@@ -88,18 +92,32 @@ def classic(log: Path, work: Path) -> dict[str, tuple[float, float]]:
     return {names.get(p["name"], p["name"]): (p["estimate"], p["std"]) for p in rep["parameters"]}
 
 
-def complete(log: Path, states: tuple[str, ...]) -> tuple[dict[str, tuple[float, float]], float, float]:
-    """(estimates and stds, fit RMS (m), seconds) of identify --geometry's complete model."""
+def complete(
+    log: Path, states: tuple[str, ...], known: float | None = None
+) -> tuple[dict[str, tuple[float, float]], float, float]:
+    """(estimates and stds, fit RMS (m), seconds) of identify --geometry's complete model;
+    ``known``: the geometry held at the truth's (this scale), only the registration, the
+    compliances and the balancer fitted (the reference of the sigma price)."""
     lg = read_log(log, include_truth=False)
     data = campaign_readings(lg, states=states)
     robot = complete_model(None, lg.mjcf_text, str(log), data.points, data.rows, data.y)
+    m = robot.model
     t0 = time.perf_counter()
-    fit = calibrate(robot.model, data.rows, data.y, MODELS["geometry+compliance"])
+    if known is None:
+        fit = calibrate(m, data.rows, data.y, MODELS["geometry+compliance"])
+    else:
+        start = np.zeros(m.size)
+        start[m.lay.offset] = known * OFFSETS
+        k = m.bodies.index("link4")
+        start[m.lay.link.start + 6 * k : m.lay.link.start + 6 * k + 6] = known * FRAME
+        _, jac = m.jacobian(data.rows, start)
+        free = base_set(jac, m.names, ("base_frame", "joint_compliance", "compensator"), rank_rule(m))
+        fit = calibrate(m, data.rows, data.y, free=free, theta0=start)
     seconds = time.perf_counter() - t0
     out = {}
     for nm, i, sd in zip(fit.names, fit.free, fit.std, strict=True):
         if kind(nm) == "joint_compliance":
-            out["k" + nm.split(".")[0].lstrip("j")] = (robot.model.value(i, fit.theta), float(sd))
+            out["k" + nm.split(".")[0].lstrip("j")] = (m.value(i, fit.theta), float(sd))
         elif nm.endswith("spring_stiffness"):
             out["K_C"] = (float(fit.theta[i]), float(sd))
     return out, fit.rms, seconds
@@ -221,10 +239,10 @@ def main() -> None:
     if 0.0 not in scales:
         scales.insert(0, 0.0)
     true = truth()
-    runs: dict = {"a": [], "b": [], **{f"c{s:g}": [] for s in scales}}
+    runs: dict = {"a": [], "b": [], "d": [], **{f"c{s:g}": [] for s in scales}}
     sizes: dict = {f"{s:g}": [] for s in scales if s}
-    seconds: dict = {"a": [], "b": []}
-    rms: dict = {"a": [], "b": []}
+    seconds: dict = {"a": [], "b": [], "d": []}
+    rms: dict = {"a": [], "b": [], "d": []}
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         for seed in range(a.seeds):
@@ -242,8 +260,12 @@ def main() -> None:
                 else:
                     sizes[f"{s:g}"].append(geometric_error(y, y0))
                 if s == a.complete_scale:
-                    for key, states in (("a", ("unloaded",)), ("b", ("unloaded", "loaded"))):
-                        est, r, sec = complete(log, states)
+                    for key, states, known in (
+                        ("a", ("unloaded",), None),
+                        ("b", ("unloaded", "loaded"), None),
+                        ("d", ("unloaded", "loaded"), s),
+                    ):
+                        est, r, sec = complete(log, states, known)
                         runs[key].append(est)
                         rms[key].append(r)
                         seconds[key].append(sec)
@@ -266,6 +288,16 @@ def main() -> None:
             "fit_rms_m": rms["b"],
             "seconds": seconds["b"],
             "params": summary(runs["b"], true),
+        },
+        "d_geometry_known": {
+            "fit_rms_m": rms["d"],
+            "seconds": seconds["d"],
+            "params": summary(runs["d"], true),
+            "std_price": {
+                p: float(np.mean([b[p][1] / d[p][1] for b, d in zip(runs["b"], runs["d"], strict=True)]))
+                for p in true
+                if all(p in b and p in d for b, d in zip(runs["b"], runs["d"], strict=True)) and runs["d"]
+            },
         },
         "c_classic": {
             f"scale {s:g}": summary(runs[f"c{s:g}"], true, None if s == 0 else runs["c0"]) for s in scales
