@@ -402,19 +402,21 @@ def one_campaign(study_path: str, cell_index: int, replicate: int, without: tupl
         expected=expected,
         self_check_failed=rep["self_check"]["failed"],
         exposure_growth=exposure_growth(rep),
+        nonlinear_growth=exposure_growth(rep, "bias_first_order"),
         seconds=time.perf_counter() - t0,
     )
     return rec
 
 
-def exposure_growth(rep: dict) -> list[float]:
+def exposure_growth(rep: dict, against: str = "bias_at_estimate") -> list[float]:
     """Per determined parameter: its exposure over the region (identify/discover/exposure.py)
-    over its exposure at the estimate alone: what evaluating across the valley costs in words."""
+    over its exposure at the estimate alone (``against="bias_first_order"``: over the region's
+    first-order exposure, what the nonlinear SIZE check adds): what it costs in words."""
     out = []
     for p in rep["parameters"]:
         ex = p.get("exposure") or {}
-        if p["determined"] and ex.get("bias_at_estimate"):
-            out.append(ex["bias"] / ex["bias_at_estimate"])
+        if p["determined"] and ex.get(against):
+            out.append(ex["bias"] / ex[against])
     return out
 
 
@@ -449,6 +451,9 @@ def summarise(rows: list[dict]) -> dict:
         growth = [g for r in ok for g in r.get("exposure_growth", [])]
         row["exposure_growth_median"] = float(np.median(growth)) if growth else None
         row["exposure_growth_p90"] = float(np.percentile(growth, 90)) if growth else None
+        growth = [g for r in ok for g in r.get("nonlinear_growth", [])]
+        row["nonlinear_growth_median"] = float(np.median(growth)) if growth else None
+        row["nonlinear_growth_p90"] = float(np.percentile(growth, 90)) if growth else None
         row["seconds_median"] = float(np.median([r["seconds"] for r in rs])) if rs else 0.0
         cells.append(row)
     hidden = [r for r in rows if r["kind"] == "hidden" and "error" not in r]

@@ -3,7 +3,16 @@
 
 from .aliasing import UNEXCITED, VISIBLE_SHARE_MIN, aliasing_report, regress
 from .decide import ALPHA_EFFECT, MIN_EXPLAINED, compare, lr_spread, lr_threshold, near_ties
-from .exposure import UNBOUNDED_SIGMA, absorbed_sizes, effect_exposure, exposure_report, worst_case
+from .exposure import (
+    NONLINEAR_CHI2_TOL,
+    NONLINEAR_TOL,
+    UNBOUNDED_SIGMA,
+    absorbed_sizes,
+    effect_exposure,
+    exposure_report,
+    truth_consistent,
+    worst_case,
+)
 from .fit import (
     DISCOVERY_EFFECTS,
     AugmentedForward,
@@ -133,6 +142,9 @@ __all__ = [
     "effect_priors",
     "exposure_report",
     "worst_case",
+    "truth_consistent",
+    "NONLINEAR_TOL",
+    "NONLINEAR_CHI2_TOL",
     "fit_augmented",
     "fit_candidate",
     "label",

@@ -303,13 +303,15 @@ def discover_observations(
     aliasing = aliasing_report(final, final.extra["jw"], det.std, fresh_cols, obs, white, max(len(last), 1))
     own = {label(c.fit.effects[-1]) for c in last if c.fit is not None and owns_base(c.fit)}
     exposed = [(e, b) for e, b in fresh_cols if label(e) not in own]
+    models = _effect_models(src, obs, final, [e for e, _ in exposed])
     exposure = exposure_report(
         final,
         final.extra["jw"],
         det.std,
         exposed,
         len(last) or 1,
-        region_columns(src, obs, white, final, [e for e, _ in exposed]),
+        region_columns(src, obs, white, final, [e for e, _ in exposed], models),
+        refit_response(src, obs, white, final, models),
     )
     final.model.evaluate(final.values, jacobian=False)  # the model back at the estimate
     diag_before = diagnose(base, obs, sigma)
@@ -377,20 +379,21 @@ def base_exposure(src, obs: Observations, std: np.ndarray) -> list[dict]:
         _, fm = build(src, [(e, effect_priors(e)[0])], obs)
         if not fm._base_overridden(np.concatenate([base.values, effect_priors(e)[0]])).any():
             cols.append((e, block))
+    models = _effect_models(src, obs, base, [e for e, _ in cols])
     return exposure_report(
         base,
         base.extra["jw"],
         np.asarray(std, float),
         cols,
         len(lib) or 1,
-        region_columns(src, obs, white, base, [e for e, _ in cols]),
+        region_columns(src, obs, white, base, [e for e, _ in cols], models),
+        refit_response(src, obs, white, base, models),
     )
 
 
-def region_columns(src, obs, white, final: Fit, effects: list):
-    """theta -> (chi2, whitened Jacobian of ``final``'s model, [(effect, its whitened columns)])
-    at theta, for each of ``effects`` added to ``final``'s model at its prior start (each model
-    built once): the exposure's evaluation away from the estimate (exposure.py's region)."""
+def _effect_models(src, obs, final: Fit, effects: list) -> list[tuple]:
+    """(effect, ``final``'s model with it added at its prior start, that start) for each of
+    ``effects`` that builds (each model built once)."""
     models = []
     for e in effects:
         start = effect_priors(e)[0]
@@ -398,6 +401,15 @@ def region_columns(src, obs, white, final: Fit, effects: list):
             models.append((e, build(src, final.effect_params() + [(e, start)], obs)[1], start))
         except (ValueError, RuntimeError, NotImplementedError, np.linalg.LinAlgError):
             continue
+    return models
+
+
+def region_columns(src, obs, white, final: Fit, effects: list, models: list | None = None):
+    """theta -> (chi2, whitened Jacobian of ``final``'s model, [(effect, its whitened columns)])
+    at theta, for each of ``effects`` added to ``final``'s model at its prior start (each model
+    built once; ``models``: :func:`_effect_models`' if built): the exposure's evaluation away from
+    the estimate (exposure.py's region)."""
+    models = _effect_models(src, obs, final, effects) if models is None else models
     yw = white.vec(obs.dp)
 
     def at(theta: np.ndarray):
@@ -411,6 +423,57 @@ def region_columns(src, obs, white, final: Fit, effects: list):
         return float(np.sum((yw - fw) ** 2)), jw, cols
 
     return at
+
+
+def refit_response(src, obs, white, final: Fit, models: list):
+    """(effect, theta, d) -> (``final``'s model refitted from theta to the noise-free readings
+    ``final``'s model plus the effect at size d predict at theta, the chi2 it leaves): the
+    exposure's nonlinear worst case (exposure.py's SIZE). The effect's part is differenced
+    against the effect at its prior start (where its columns are taken: a compliance's start is
+    not 0), so d = 0 is the model itself (chi2 0). ``models``: :func:`_effect_models`'.
+    The refits run on their own copy of ``final``'s model, and a model whose statics failed on
+    the way (no equilibrium far from the estimate) is rebuilt: the forward models keep each
+    pose's last equilibrium as the next one's start, and one left half-updated broke the
+    estimate's own evaluation afterwards (FANUC with its compensator). Raises ValueError for an
+    effect without a model, and what the statics raise."""
+    from calbench.identify.core import levenberg_marquardt
+
+    from .fit import COST_TOL, DISCOVER_RANK_TOL
+    from .uncertainty import REPLICA_STEP_TOL
+
+    by = {label(e): (e, fm, start) for e, fm, start in models}
+    own = [build(src, final.effect_params(), obs)[1]]
+    lo, hi, hold = final.extra["bounds"]
+    scale = np.where(np.abs(final.values) > 0, np.abs(final.values), final.model._fd_size)
+
+    def respond(effect, theta: np.ndarray, d: np.ndarray):
+        if label(effect) not in by:
+            raise ValueError(f"no model with {label(effect)}")
+        e, fm, start = by[label(effect)]
+        try:
+            f, _ = fm.evaluate(np.concatenate([theta, np.asarray(d, float) + start]), jacobian=False)
+            f0, _ = fm.evaluate(np.concatenate([theta, start]), jacobian=False)
+            f1, _ = own[0].evaluate(theta, jacobian=False)
+            sol = levenberg_marquardt(
+                lambda th: whitened(own[0], white, th),
+                white.vec(f1 + (f - f0)),
+                np.asarray(theta, float),
+                scale,
+                lower=lo,
+                upper=hi,
+                hold=hold,
+                step_tol=REPLICA_STEP_TOL,
+                cost_tol=COST_TOL * 1e-3,
+                rank_tol=DISCOVER_RANK_TOL,
+                max_iter=30,
+            )
+        except (ValueError, RuntimeError, np.linalg.LinAlgError):
+            own[0] = build(src, final.effect_params(), obs)[1]
+            by[label(effect)] = (e, build(src, final.effect_params() + [(e, start)], obs)[1], start)
+            raise
+        return sol.x, float(sol.cost)
+
+    return respond
 
 
 def owns_base(f: Fit) -> bool:
