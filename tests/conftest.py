@@ -5,7 +5,9 @@ The tests folder is put on sys.path so that tests can import these constants
 (tests/rerun_cli.py).
 """
 
+import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -60,7 +62,19 @@ def fanuc_truth(scn):
 MUJOCO_WARNINGS: list[str] = []
 
 
-def pytest_sessionstart(session):
+def wait_for_lock(out: Path, proc: subprocess.Popen, seconds: float = 60.0) -> None:
+    """Wait until the calbench run ``proc`` holds the lock of its output ``out`` (the lock file
+    ``.NAME.lock`` beside it names the run's PID: bench/core/outputs.py); kill it and fail when
+    it has not within ``seconds``."""
+    lock = out.with_name(f".{out.name}.lock")
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        if lock.exists() and lock.read_text().strip() == str(proc.pid):
+            return
+        time.sleep(0.05)
+    proc.kill()
+    pytest.fail(f"the first run never took its lock {lock.name}")
+
     import mujoco
 
     mujoco.set_mju_user_warning(MUJOCO_WARNINGS.append)

@@ -16,12 +16,11 @@ import resource
 import shutil
 import subprocess
 import sys
-import time
 import uuid
 from pathlib import Path
 
 import pytest
-from conftest import PAPER
+from conftest import PAPER, wait_for_lock
 
 from calbench.bench.core import WriteError, atomic_path
 from calbench.bench.log import read_log
@@ -241,14 +240,7 @@ def test_a_second_run_on_the_same_output_is_refused_while_the_first_writes(work,
         str(out),
     ]
     first = subprocess.Popen([*argv, "--runs", "60"], stderr=subprocess.PIPE, text=True)
-    lock = tmp_path / ".mc.json.lock"
-    for _ in range(600):  # the first has taken its lock once the file exists with its PID
-        if lock.exists() and lock.read_text().strip() == str(first.pid):
-            break
-        time.sleep(0.05)
-    else:
-        first.kill()
-        pytest.fail("the first run never took its lock")
+    wait_for_lock(out, first)
     second = subprocess.run([*argv, "--runs", "2"], capture_output=True, text=True)
     assert first.wait(timeout=300) == 0, first.stderr.read()
     assert second.returncode == 2

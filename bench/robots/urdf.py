@@ -204,8 +204,9 @@ def check_urdf(tree: UrdfTree) -> None:
         raise InputError(
             tree.path,
             ("link " if len(missing) == 1 else "links ") + ", ".join(map(repr, missing)),
-            "an <inertial> on every moving link (calbench takes masses from the URDF and "
-            "never infers them from geometry)",
+            "an <inertial> on every moving link, or its mass in the overlay: [inertials.LINK] "
+            "mass = kg, com, inertia (measured or from the maker), or assumed_density = kg/m^3 "
+            "(a guess from the meshes, marked assumed: docs/your-robot.md)",
             "none",
         )
 
