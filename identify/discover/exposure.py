@@ -10,11 +10,17 @@ For a library effect not in the model, with whitened columns J_e (3M, k) at the 
 regressed on the estimated parameters' columns J_b: J_e = J_b B + P (B: the bias per unit of
 each effect parameter, P: what no estimated parameter absorbs). An effect of size d biases the
 estimate by B d, and its likelihood-ratio test sees |P d|^2 (the chi2 it leaves, to first
-order). It goes UNDETECTED while |P d|^2 < T, T its threshold at the family-wise level
-(identify/discover/decide.py's lr_threshold with its k), so the largest bias it can cause on
-parameter j unseen is
+order). Its test compares the LR with T, its threshold at the family-wise level
+(identify/discover/decide.py's lr_threshold with its k); the LR is that |P d|^2 plus the noise,
+noncentral chi2 with k dof, so an effect leaving |P d|^2 = T is still missed half the time. It
+counts as UNDETECTED while the test misses it at least MISS_RATE (1 in 20) of the time: while
+|P d|^2 < T_u, the noncentrality whose noncentral chi2 stays below T with probability MISS_RATE
+(:func:`unseen_chi2`; T_u = 31 for T = 15.3 and k = 1, (sqrt(T) + 1.645)^2 there). Sizing at T
+instead left two KUKA KR 270 campaigns confidently wrong (J3 cubic at 3x, module docstring's SIZE:
+the truth left chi2 18.9 > T = 15.3 noise-free and was missed, k3 38 std off where the exposure
+said 33). The largest bias it can cause on parameter j unseen is
 
-    exposure_j = sqrt(T) * sqrt(b_j^T (P^T P)^-1 b_j),     b_j = row j of B,
+    exposure_j = sqrt(T_u) * sqrt(b_j^T (P^T P)^-1 b_j),     b_j = row j of B,
 
 the maximum of b_j . d over that ellipsoid. Where P^T P is singular along a direction b_j has a
 component on (the effect absorbed exactly there: VISIBLE_SHARE_MIN of its signature or less),
@@ -68,8 +74,8 @@ that biased, lies outside the region above), :func:`nonlinear_exposure` checks i
 statics: the user's model is refitted to the noise-free readings the model plus the effect at a
 size s d* predict (d* the first-order worst case, both signs) at a truth theta_t, and
 (theta_t, s) are solved (:func:`truth_consistent`, Broyden's method from the first-order
-Jacobian) so that the refit lands on the estimate and leaves chi2 = T: the bias there is what the
-effect can do unseen with the estimate where it is. Where the truth-to-estimate map is not one for
+Jacobian) so that the refit lands on the estimate and leaves chi2 = T_u (above): the bias
+there is what the effect can do unseen with the estimate where it is. Where the truth-to-estimate map is not one for
 one, the estimate moved REGION_SIGMAS std along the parameter's covariance column (the noise's
 likeliest way there) is solved too. The larger of the first-order and nonlinear bias is
 reported (``by_effect``; the nonlinear one alone in ``by_effect_nonlinear``). A solve that does
@@ -90,6 +96,7 @@ import math
 from collections.abc import Callable
 
 import numpy as np
+from scipy import optimize, stats
 
 from calbench.identify.core import PROFILE_SIGMAS
 
@@ -97,6 +104,7 @@ from .aliasing import UNEXCITED, VISIBLE_SHARE_MIN, regress
 from .decide import lr_threshold
 from .fit import effect_priors, label
 
+MISS_RATE = 0.05  # an effect the naming test misses at least this often counts as undetected
 REGION_SIGMAS = PROFILE_SIGMAS  # the exposure is evaluated this many std along each principal axis too
 NONLINEAR_ITER = 10  # Broyden steps of a nonlinear worst case (truth_consistent)
 NONLINEAR_TOL = 0.25  # std: the nonlinear worst case's landing tolerance on the estimate
@@ -104,6 +112,18 @@ NONLINEAR_CHI2_TOL = 0.02  # its tolerance on log(chi2 / threshold) / 2 (the siz
 REGION_SHIFT = 0.5  # std: a truth-to-estimate map moving the bias this much over the region is walked
 UNBOUNDED_SIGMA = 0.5  # an exactly absorbed effect that moves a parameter this much (std) at its
 # largest size (absorbed_sizes) is named as one that could bias it by any amount unseen
+
+
+def unseen_chi2(k: int, n_candidates: int) -> float:
+    """T_u: the largest chi2 |P d|^2 (noise-free) that an effect of k parameters can leave and
+    still be missed by its naming test (LR > lr_threshold) at least MISS_RATE of the time: the
+    noncentrality lambda with P(noncentral chi2(k, lambda) < T) = MISS_RATE (module docstring)."""
+    t = lr_threshold(k, n_candidates)
+    if not math.isfinite(t):
+        return t
+    return float(
+        optimize.brentq(lambda lam: stats.ncx2.cdf(t, k, lam) - MISS_RATE, 1e-9, (math.sqrt(t) + 8.0) ** 2)
+    )
 
 
 def _decompose(jw: np.ndarray, est: np.ndarray, block: np.ndarray, size: np.ndarray):
@@ -190,7 +210,7 @@ def _exposure_arrays(final, jw: np.ndarray, std: np.ndarray, columns: list[tuple
     out["reach"] = [{} for _ in idx]
     for effect, block in columns:
         _, lower, upper, size = effect_priors(effect)
-        thr = lr_threshold(len(effect.param_names), n_candidates)
+        thr = unseen_chi2(len(effect.param_names), n_candidates)
         cap = np.maximum(np.abs(lower), np.abs(upper))
         bounded, unbounded, at_reach = effect_exposure(jw, est, block, size, thr, floor, cap)
         lab = label(effect)
@@ -299,7 +319,7 @@ def exposure_report(
         sd = np.asarray(std, float)[idx]
         for effect, block in columns:
             lab = label(effect)
-            thr = lr_threshold(len(effect.param_names), n_candidates)
+            thr = unseen_chi2(len(effect.param_names), n_candidates)
             for k in range(idx.size):
                 if not (np.isfinite(sd[k]) and got["each"][k].get(lab, 0.0) > REGION_SIGMAS * sd[k]):
                     continue  # a truth that near is inside the region the first order was made over
