@@ -84,9 +84,9 @@ statics' equilibrium, leaves the first-order statement alone. A one-parameter ef
 shared by the parameters it exposes. Cost: ~90-110 refits, 1.5-2 s on a KR 270 campaign (the
 exposure otherwise 0.6 s), 4 s on the FANUC's (its compensator's statics; otherwise 1 s).
 Measured with it (benchmarks/honest_bench.py, 10 campaigns a cell): KR 270 J5 cubic at 3x,
-confidently wrong 4 -> 0 of 10; J3 cubic 3 -> 2 (what is left: the truth leaves chi2 18.9 > T
-= 15.3 noise-free, missed by the test's own noise, module docstring's threshold says nothing of
-that); FANUC J2 cubic 0 of 10, no errors; the exposures grow by a median factor 1.0 (90th
+confidently wrong 4 -> 0 of 10; J3 cubic 3 -> 2 (the two left: the truth leaves chi2 18.9 > T
+= 15.3 noise-free, missed by the test's own noise; sized at T_u, top of this docstring, 2 -> 0);
+FANUC J2 cubic 0 of 10, no errors; the exposures grow by a median factor 1.0 (90th
 percentile 1.2-2.1, ``nonlinear_growth`` in the benchmark).
 """
 
