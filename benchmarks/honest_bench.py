@@ -403,6 +403,11 @@ def one_campaign(study_path: str, cell_index: int, replicate: int, without: tupl
         self_check_failed=rep["self_check"]["failed"],
         exposure_growth=exposure_growth(rep),
         nonlinear_growth=exposure_growth(rep, "bias_first_order"),
+        unconfirmed={
+            p["name"]: (p.get("exposure") or {}).get("unconfirmed_by", [])
+            for p in rep["parameters"]
+            if p["determined"] and (p.get("exposure") or {}).get("unconfirmed_by")
+        },
         seconds=time.perf_counter() - t0,
     )
     return rec

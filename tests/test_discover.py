@@ -214,6 +214,13 @@ def test_effect_outside_the_library_is_unexplained(logs):
     best = max((c for c in rep["candidates"] if c["score"] is not None), key=lambda c: c["explained"])
     assert best["explained"] < MIN_EXPLAINED and best["p_fit"] < 1e-3
     assert rep["augmented_model"] is None
+    # issue 22: a model the readings reject determines nothing (every std would assume it); the
+    # std it would have had, scaled by the Birge ratio, is kept apart, as a lower bound
+    assert not any(p["determined"] or p["std"] is not None for p in rep["parameters"])
+    assert rep["combinations"] == []
+    mis = rep["unexplained_misfit"]
+    assert mis["birge_ratio"] == pytest.approx((rep["chi2_after"] / rep["dof_after"]) ** 0.5)
+    assert mis["birge_ratio"] > 1 and mis["std_if_the_model_were_right"]
 
 
 def test_tracker_drift_null_with_spec_noise_names_nothing(logs):

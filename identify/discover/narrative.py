@@ -313,7 +313,13 @@ def story(rep: dict) -> str:
         if s["effect"] == "unexplained":
             lines.append(
                 f"Named: unexplained: a significant disagreement remains that no candidate of the "
-                f"library explains (RMS {s['rms_before'] * UM:.1f} um)."
+                f"library explains (RMS {s['rms_before'] * UM:.1f} um). No parameter is reported as "
+                "determined: every std would assume a model the readings reject"
+                + (
+                    f" (chi2/dof {rep['unexplained_misfit']['birge_ratio'] ** 2:.2f})."
+                    if rep.get("unexplained_misfit")
+                    else "."
+                )
             )
             continue
         if s["effect"] == "ambiguous":

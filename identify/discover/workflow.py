@@ -63,7 +63,14 @@ from .fit import Fit, build, effect_priors, label, library, whitened
 from .narrative import clean, plot_residuals, story, view_report
 from .search import fit_candidate, polish
 from .stats import ALPHA_FIT, chi2_p, diagnose, expected_rms, rms
-from .uncertainty import MAX_RELATIVE_STD, checked, determination, self_check, split_by_ties
+from .uncertainty import (
+    MAX_RELATIVE_STD,
+    checked,
+    determination,
+    self_check,
+    split_by_ties,
+    unexplained_misfit,
+)
 
 MAX_ROUNDS = 3
 UNEXPLAINED = "unexplained"
@@ -289,6 +296,7 @@ def discover_observations(
     if tie_fits:  # ambiguous: what the tied candidates disagree on is not determined under either
         split = split_by_ties(final, det, [(lab, f, checked(f, obs, white)) for lab, f in tie_fits])
     check = self_check(final, obs, white, det)  # what fails is not determined
+    misfit = unexplained_misfit(final, det, final.chi2, final.dof) if UNEXPLAINED in named else None
     for s, (e, _) in zip(
         [s for s in steps if s["effect"] not in (UNEXPLAINED, AMBIGUOUS)], final.effect_params()
     ):
@@ -351,6 +359,7 @@ def discover_observations(
         "hints": hints,
         "parameters": with_exposure(_params(final, det, split=split, check=check), exposure),
         "self_check": check,
+        **({"unexplained_misfit": misfit} if misfit else {}),
         "combinations": det.combinations,
         "combinations_not_quadratic": det.rejected,
         "n_observations": obs.n_obs(),
