@@ -320,6 +320,7 @@ def discover_observations(
         len(last) or 1,
         region_columns(src, obs, white, final, [e for e, _ in exposed], models),
         refit_response(src, obs, white, final, models),
+        fitted_ends(final, [c for c in last if c.label not in own]),
     )
     final.model.evaluate(final.values, jacobian=False)  # the model back at the estimate
     diag_before = diagnose(base, obs, sigma)
@@ -374,6 +375,21 @@ def discover_observations(
         "seconds": time.perf_counter() - t0,
     }
     return (rep, final, base) if with_base else (rep, final)
+
+
+def fitted_ends(final: Fit, cands: list[Candidate]) -> list[tuple[str, np.ndarray]]:
+    """(label, the values of ``final``'s parameters) of every start of every candidate fitted on
+    top of ``final`` whose fit explains the readings at least as well as ``final`` (and of each
+    candidate's best fit): truths with the effect that the data favour over the model
+    (identify/discover/exposure.py, FITTED)."""
+    out = []
+    n = final.values.size
+    for c in cands:
+        if c.fit is None or c.fit.extra.get("warm_of") is not final:
+            continue
+        out.append((c.label, c.fit.values[:n]))
+        out += [(c.label, v[:n]) for chi2, v in c.fit.extra.get("ends", []) if chi2 <= final.chi2]
+    return out
 
 
 def base_exposure(src, obs: Observations, std: np.ndarray) -> list[dict]:
