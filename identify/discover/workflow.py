@@ -59,7 +59,7 @@ from .decide import (
     near_ties,
 )
 from .exposure import exposure_report, with_exposure
-from .fit import Fit, build, effect_priors, label, library, whitened
+from .fit import Fit, build, effect_priors, fit_augmented, label, library, whitened
 from .narrative import clean, plot_residuals, story, view_report
 from .search import fit_candidate, polish
 from .stats import ALPHA_FIT, chi2_p, diagnose, expected_rms, rms
@@ -321,6 +321,8 @@ def discover_observations(
         region_columns(src, obs, white, final, [e for e, _ in exposed], models),
         refit_response(src, obs, white, final, models),
         fitted_ends(final, [c for c in last if c.label not in own]),
+        candidate_profiles(obs, white, final, [c for c in last if c.label not in own]),
+        springs_of(final),
     )
     final.model.evaluate(final.values, jacobian=False)  # the model back at the estimate
     diag_before = diagnose(base, obs, sigma)
@@ -390,6 +392,39 @@ def fitted_ends(final: Fit, cands: list[Candidate]) -> list[tuple[str, np.ndarra
         out.append((c.label, c.fit.values[:n]))
         out += [(c.label, v[:n]) for chi2, v in c.fit.extra.get("ends", []) if chi2 <= final.chi2]
     return out
+
+
+def springs_of(f: Fit) -> np.ndarray:
+    """(P,) bool: the compensator springs' stiffness and free length among ``f``'s parameters."""
+    out = np.zeros(f.values.size, bool)
+    lay = f.robot.layout
+    out[lay.stiffness_index] = True
+    out[lay.preload_index] = True
+    return out
+
+
+def candidate_profiles(obs, white, final: Fit, cands: list[Candidate]):
+    """(label, parameter index, its std, chi2 level) -> exposure.py's :func:`profile_reach` in
+    that candidate's fit on top of ``final`` (None: no such fit)."""
+    from .exposure import PROFILE_ITER, profile_reach
+
+    by = {c.label: c.fit for c in cands if c.fit is not None and c.fit.extra.get("warm_of") is final}
+
+    def reach(lab: str, i: int, sigma: float, thr: float) -> float | None:
+        f = by.get(lab)
+        if f is None:
+            return None
+        lo, hi, hold = f.extra["bounds"]
+
+        def held(v: np.ndarray):
+            h = np.array(hold, bool).copy()
+            h[i] = True
+            g = fit_augmented(f.model, obs.dp, white, v, lo, hi, h, max_iter=PROFILE_ITER)
+            return g.chi2, g.values
+
+        return profile_reach(held, f.values, f.chi2, i, float(final.values[i]), sigma, thr, lo[i], hi[i])
+
+    return reach
 
 
 def base_exposure(src, obs: Observations, std: np.ndarray) -> list[dict]:
