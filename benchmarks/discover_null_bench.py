@@ -23,7 +23,7 @@ identify/core's from_campaign) and runs the whole discovery on the observations 
 stderr as it finishes (progress, and what a run cut short has measured).
 
     python benchmarks/discover_null_bench.py [--seeds 300] [--spec-seeds 100] [--processes 2]
-                                             [--scheduler ADDR] [--quick]
+                                             [--scheduler ADDR] [--scenario PATH] [--quick]
 
 The seeds run as pieces on calbench's executors (identify/runtime/executor.py, issue 15: no pool of our
 own): in this process, on a local Dask cluster of ``--processes`` workers, or on the cluster at
@@ -52,25 +52,27 @@ SEEDS_PER_TASK = 5  # ~5-10 s of discovery per piece
 _STATE: dict = {}
 
 
-def _setup(model: str) -> None:
-    """Per process: the solved campaign of the paper scenario with the tracker model."""
+def _setup(model: str, scenario: str = str(PAPER)) -> None:
+    """Per process: the solved campaign of ``scenario`` (default the paper's) with the tracker
+    model."""
     import tempfile
 
     from calbench.bench.campaign import simulate
     from calbench.bench.scenario import load_scenario, scenario_variant
 
     tmp = Path(tempfile.mkdtemp())
-    path = scenario_variant(PAPER, tmp / "null.toml")
+    path = scenario_variant(scenario, tmp / "null.toml")
     if model == "spec":
         path.write_text(path.read_text().replace("[tracker]\n", '[tracker]\nmodel = "spec"\n', 1))
     scn = load_scenario(path)
-    _STATE.update(scn=scn, campaign=simulate(scn, None), model=model)
+    _STATE.update(scn=scn, campaign=simulate(scn, None), model=model, scenario=scenario)
 
 
-def one_seed(args: tuple[str, int]) -> dict:
-    model, seed = args
-    if _STATE.get("model") != model:
-        _setup(model)
+def one_seed(args: tuple) -> dict:
+    model, seed, *rest = args
+    scenario = rest[0] if rest else str(PAPER)
+    if _STATE.get("model") != model or _STATE.get("scenario") != scenario:
+        _setup(model, scenario)
     from calbench.bench.campaign import remeasure
     from calbench.identify.core import from_campaign
     from calbench.identify.discover import discover_observations
@@ -95,10 +97,10 @@ def one_seed(args: tuple[str, int]) -> dict:
     }
 
 
-def seed_block(model: str, seeds: list[int]) -> list[dict]:
+def seed_block(model: str, seeds: list[int], scenario: str = str(PAPER)) -> list[dict]:
     """One piece: a block of seeds, so that a worker solves the campaign once per block (a
     script's function travels by value to Dask workers, its _STATE with it)."""
-    return [one_seed((model, s)) for s in seeds]
+    return [one_seed((model, s, scenario)) for s in seeds]
 
 
 def clopper_pearson_upper(k: int, n: int, conf: float = 0.95) -> float:
@@ -158,22 +160,33 @@ def main() -> int:
     )
     ap.add_argument("--scheduler", default=None, help="a Dask scheduler's address (tcp:// or tls://)")
     ap.add_argument(
+        "--scenario",
+        default=str(PAPER),
+        help="the plan and robot, its hidden effects kept (default: %(default)s; e.g. a third-party "
+        "robot's scenario without [truth.effects])",
+    )
+    ap.add_argument(
         "--quick", action="store_true", help="10 isotropic and 5 spec seeds (to see that it works)"
     )
     args = ap.parse_args()
+    from calbench.bench.scenario import load_scenario
+
     if args.quick:
         args.seeds, args.spec_seeds = 10, 5
     t0 = time.perf_counter()
     res = {
-        "plan": "scenarios/paper_table5.toml",
-        "tracker_sigma_um": 20,
+        "plan": args.scenario,
+        "tracker_sigma_um": load_scenario(args.scenario).tracker.sigma * 1e6,
         "alpha_familywise": 1e-3,
         "models": {},
     }
     for model, n in (("isotropic", args.seeds), ("spec", args.spec_seeds)):
         if n <= 0:
             continue
-        blocks = [(model, list(range(a, min(a + SEEDS_PER_TASK, n)))) for a in range(0, n, SEEDS_PER_TASK)]
+        blocks = [
+            (model, list(range(a, min(a + SEEDS_PER_TASK, n))), args.scenario)
+            for a in range(0, n, SEEDS_PER_TASK)
+        ]
         where = args.scheduler or ("local" if args.processes > 1 else "in-process")
         with open_executor(choose(where, 0.0, len(blocks), workers=args.processes)) as ex:
             done = {}
