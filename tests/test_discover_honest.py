@@ -707,3 +707,21 @@ def test_a_spring_bent_into_a_drives_cubic_is_exposed_by_the_candidates_fit(tmp_
         assert ex["by_effect_fitted"][j2] >= gap
     else:
         assert ex["by_effect_profile"][j2] >= gap > ex["by_effect_fitted"].get(j2, 0.0)
+
+
+def test_exposure_lines_say_which_statement_gave_the_largest_bias():
+    """The text names where a parameter's largest exposure comes from when it is not the first
+    order: the effect's candidate chi2 profile (a spring) or the candidate's own fit."""
+    from calbench.identify.discover.narrative import exposure_lines
+
+    j2 = "joint_nonlinearity[j2]"
+    ex = {"effect": j2, "bias": 5.5, "sigma": 500.0, "percent": 935.0, "unbounded_by": []}
+    p = {"name": "balancer_preload", "estimate": 0.588, "std": 0.011, "unit": "m", "determined": True}
+    line = exposure_lines([dict(p, exposure=dict(ex, by_effect_profile={j2: 5.5}))])[1]
+    assert "chi2 profile" in line and "own fit" not in line
+    line = exposure_lines(
+        [dict(p, exposure=dict(ex, by_effect_fitted={j2: 5.5}, by_effect_profile={j2: 1.0}))]
+    )[1]
+    assert "own fit" in line and "profile" not in line
+    line = exposure_lines([dict(p, exposure=ex)])[1]
+    assert "own fit" not in line and "profile" not in line

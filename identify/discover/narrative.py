@@ -273,6 +273,10 @@ def exposure_lines(params: list[dict]) -> list[str]:
             if e["sigma"] is not None:
                 row += f" ({e['sigma']:.2g} std"
                 row += f", {e['percent']:.2g} %)" if e["percent"] is not None else ")"
+            if e.get("by_effect_profile", {}).get(e["effect"]) == e["bias"]:
+                row += ", as far as its candidate's chi2 profile reaches"
+            elif e.get("by_effect_fitted", {}).get(e["effect"]) == e["bias"]:
+                row += ", where its candidate's own fit puts it"
         if e["unbounded_by"]:
             row += "; by any amount, along a direction this plan cannot see: " + ", ".join(e["unbounded_by"])
         out.append(row)
@@ -281,7 +285,8 @@ def exposure_lines(params: list[dict]) -> list[str]:
             0,
             "Exposure of each determined parameter to the library's effects not named (the largest "
             "bias one could cause while its test stays silent, first order, at the estimate and "
-            "+-2 std along each principal axis of its covariance):",
+            "+-2 std along each principal axis of its covariance; further where the effect's own "
+            "candidate fit, or for a spring its chi2 profile, reaches further):",
         )
     return out
 

@@ -442,7 +442,10 @@ def discovery_section(disc: dict, path: str | os.PathLike = "--discover") -> dic
     if not named:
         verdict = "The model explains the measurements to the noise level: no missing effect is named."
     elif "unexplained" in named:
-        verdict = "A disagreement remains that no candidate of the library explains."
+        verdict = (
+            "A disagreement remains that no candidate of the library explains. No parameter is "
+            "reported as determined: every std would assume a model the readings reject."
+        )
     else:
         verdict = (
             "Named: "
