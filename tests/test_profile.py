@@ -48,6 +48,33 @@ def _campaigns(scn, n):
         yield one_step(robot, obs, check_profile=True)
 
 
+def test_a_spring_is_checked_where_the_report_s_claim_ends_too():
+    """FAR: a profile quadratic to +-2 std that flattens beyond (a spring's curved valley: chi2 =
+    d^2 up to d = 2, then 4 + 0.1 (d^2 - 4)) passes the +-2 std check and fails at +-FAR_SIGMAS
+    (rise 5.6 < PROFILE_LOW x 20.25) when named ``far``; a quadratic passes both (rise 20.25); a
+    far point past a bound is skipped (the parameter cannot be there), not failed."""
+    from calbench.identify.core.profile import FAR_SIGMAS, PROFILE_LOW
+
+    x0, sd = np.array([1.0, 2.0]), np.array([0.1, 0.2])
+
+    def bent(v, i):
+        d2 = ((v[i] - x0[i]) / sd[i]) ** 2
+        return d2 if d2 <= 4 + 1e-9 else 4 + 0.1 * (d2 - 4)
+
+    near = profile_check(bent, x0, 0.0, sd, x0 - 10, x0 + 10, [0])
+    assert not near.bad[0] and not near.rises_far
+    far = profile_check(bent, x0, 0.0, sd, x0 - 10, x0 + 10, [0], far=[0])
+    assert far.bad[0] and all(r < PROFILE_LOW * FAR_SIGMAS**2 for r in far.rises_far[0])
+    quad = profile_check(
+        lambda v, i: ((v[i] - x0[i]) / sd[i]) ** 2, x0, 0.0, sd, x0 - 10, x0 + 10, [0, 1], far=[0, 1]
+    )
+    assert not quad.bad.any() and np.allclose(quad.rises_far[1], FAR_SIGMAS**2)
+    edge = profile_check(
+        lambda v, i: ((v[i] - x0[i]) / sd[i]) ** 2, x0, 0.0, sd, x0 - 0.3, x0 + 10, [0], far=[0]
+    )
+    assert not edge.bad[0] and edge.rises_far[0][1] is None
+
+
 def test_identification_flags_the_profile_where_the_fisher_std_is_wrong(tmp_path):
     scn = load_scenario(WEAK)
     preload = Robot.from_file(scn.robot).layout.names.index("balancer_preload")

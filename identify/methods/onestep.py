@@ -254,7 +254,10 @@ def profile(est: OneStep, f: Fit, dp: np.ndarray, white: Whitener) -> Profile:
         return sol.cost
 
     sd = np.sqrt(np.where(np.isfinite(np.diag(f.cov)), np.diag(f.cov), np.nan))
-    out = profile_check(refit, f.values, f.chi2, sd, lay.lower, lay.upper, np.flatnonzero(f.identifiable))
+    springs = np.r_[lay.stiffness_index, lay.preload_index].astype(int)  # checked far too (FAR)
+    out = profile_check(
+        refit, f.values, f.chi2, sd, lay.lower, lay.upper, np.flatnonzero(f.identifiable), far=springs
+    )
     model.evaluate(f.values, jacobian=False)  # the model back at the estimate
     return out
 
@@ -353,10 +356,13 @@ def profile_report(pr: Profile, names) -> dict:
     carries it: chi2's rise at +-2 Fisher std (None: past a bound, or no fit there) and whether
     it is the quadratic's (4, within a factor 2); a parameter that fails keeps its Fisher std
     (module docstring)."""
-    return {
+    out = {
         names[i]: {"rise_plus": _num(r[0]), "rise_minus": _num(r[1]), "quadratic": not bool(pr.bad[i])}
         for i, r in sorted(pr.rises.items())
     }
+    for i, r in pr.rises_far.items():  # a spring's, at +-FAR_SIGMAS (identify/core/profile.py, FAR)
+        out[names[i]].update(rise_plus_far=_num(r[0]), rise_minus_far=_num(r[1]))
+    return out
 
 
 def one_step_result(fit: Fit, details: dict | None = None) -> MethodResult:
