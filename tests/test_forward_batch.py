@@ -91,3 +91,39 @@ def test_which_models_run_stacked(paper):
     yielding = Robot.from_file(scn.robot)
     yielding.model.jnt_springyield[yielding.act_joint[0]] = 1e3  # an elasto-plastic joint spring
     assert not AugmentedForward(yielding, design, [])._stacked(False)
+
+
+@pytest.mark.parametrize("batched", [True, False])
+def test_a_warm_evaluation_that_finds_no_equilibrium_is_retried_from_cold(paper, batched):
+    """Cached equilibria far from the parameters asked (a profile or a soft-spring fit took the
+    model there) can fail Newton where an equilibrium exists: the evaluation is retried once
+    from cold, and gives what a fresh model gives (within the solver's 1e-10 m above). A cold
+    evaluation's NoEquilibrium is final."""
+    from calbench.identify.core import NoEquilibrium
+
+    scn, obs = paper
+    model, fresh = _model(scn, obs, batched), _model(scn, obs, batched)
+    th = true_theta(scn, model.robot)
+    model.evaluate(th * 1.5)
+    real, calls = type(model)._solve, []
+
+    def fails_once(self, des, load, eq, theta, refresh):
+        if not calls:
+            calls.append(1)
+            raise NoEquilibrium(self.robot, des, theta)
+        return real(self, des, load, eq, theta, refresh)
+
+    model._solve = fails_once.__get__(model)
+    dp, jac = model.evaluate(th)
+    assert model.stats["cold_retries"] == 1 and calls
+    dp0, jac0 = fresh.evaluate(th)
+    assert np.abs(dp - dp0).max() < 1e-10
+    assert np.allclose(jac, jac0, rtol=0, atol=1e-5 * np.abs(jac0).max())
+
+    def never(theta, jacobian=True):
+        raise NoEquilibrium(model.robot, model.design[0], theta)
+
+    model._evaluate = never  # no equilibrium warm, nor cold
+    with pytest.raises(NoEquilibrium):
+        model.evaluate(th * 1.2)
+    assert model.stats["cold_retries"] == 2

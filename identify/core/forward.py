@@ -184,7 +184,14 @@ class ForwardModel:
         self._cache: list[tuple[_Eq, _Eq]] | None = None
         self.n_obs = int(sum(len(d.sites) for d in design))
         self.act_dof = robot.act_dof
-        self.stats = {"evaluations": 0, "newton_iterations": 0, "refreshes": 0, "fallbacks": 0, "retakes": 0}
+        self.stats = {
+            "evaluations": 0,
+            "newton_iterations": 0,
+            "refreshes": 0,
+            "fallbacks": 0,
+            "retakes": 0,
+            "cold_retries": 0,
+        }
         self.layout = robot.layout
         self.n_base = self.layout.n
         # a subclass appending parameters (identify/discover/fit.py) sets a larger n_params
@@ -341,7 +348,25 @@ class ForwardModel:
     def evaluate(self, theta, jacobian: bool = True):
         """dp (M,3) and, with ``jacobian``, d dp / d theta (M,3,P): P = n_params, the robot's
         parameters plus any a subclass appends (discovery's effects). Parameters beyond the
-        robot's enter the stiffness matrix A_base, so it is re-taken when they change."""
+        robot's enter the stiffness matrix A_base, so it is re-taken when they change.
+
+        Warm evaluations start from the equilibria cached at the last parameters. Where those are
+        far (a profile or a fit from springs 100 times softer took the model there), Newton from
+        them can fail where the parameters do have an equilibrium: met on the FANUC, the model
+        evaluated back at its estimate after its spring's profile at +-4.5 std. So a warm
+        evaluation that finds no equilibrium is retried once from cold (the bench's solver from
+        the rigid configuration, as the first evaluation); only a cold one's NoEquilibrium is
+        final."""
+        try:
+            return self._evaluate(theta, jacobian)
+        except NoEquilibrium:
+            if self._cache is None:
+                raise
+            self.stats["cold_retries"] += 1
+            self._cache, self._p_kkt = None, None
+            return self._evaluate(theta, jacobian)
+
+    def _evaluate(self, theta, jacobian: bool = True):
         theta = np.asarray(theta, dtype=float)
         npar = self.n_params
         nb = self.n_base
