@@ -712,7 +712,7 @@ def test_a_spring_bent_into_a_drives_cubic_is_exposed_by_the_candidates_fit(tmp_
 def test_exposure_lines_say_which_statement_gave_the_largest_bias():
     """The text names where a parameter's largest exposure comes from when it is not the first
     order: the effect's candidate chi2 profile (a spring) or the candidate's own fit."""
-    from calbench.identify.discover.narrative import exposure_lines
+    from calbench.identify.discover import exposure_lines
 
     j2 = "joint_nonlinearity[j2]"
     ex = {"effect": j2, "bias": 5.5, "sigma": 500.0, "percent": 935.0, "unbounded_by": []}

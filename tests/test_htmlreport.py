@@ -396,7 +396,7 @@ def test_a_certificate_of_a_criterion_to_minimise_is_labelled_a_lower_bound():
 def test_an_unexplained_verdict_says_nothing_is_determined():
     """Issue 22: a discovery left `unexplained` reports no parameter as determined, and the
     report's verdict says why."""
-    from calbench.identify.report.html import discovery_section
+    from calbench.identify.report import discovery_section
 
     steps = [{"effect": "unexplained", "rms_before": 1e-4, "rms_after": 1e-4}]
     verdict = discovery_section({"named_effects": ["unexplained"], "steps": steps})["verdict"]

@@ -53,7 +53,7 @@ def test_a_spring_is_checked_where_the_report_s_claim_ends_too():
     d^2 up to d = 2, then 4 + 0.1 (d^2 - 4)) passes the +-2 std check and fails at +-FAR_SIGMAS
     (rise 5.6 < PROFILE_LOW x 20.25) when named ``far``; a quadratic passes both (rise 20.25); a
     far point past a bound is skipped (the parameter cannot be there), not failed."""
-    from calbench.identify.core.profile import FAR_SIGMAS, PROFILE_LOW
+    from calbench.identify.core import FAR_SIGMAS, PROFILE_LOW
 
     x0, sd = np.array([1.0, 2.0]), np.array([0.1, 0.2])
 

@@ -14,7 +14,7 @@ from .identifiability import (
 from .leastsq import Fit, at_bounds, covariance, levenberg_marquardt, svd_step
 from .model import check_sites
 from .observations import Observations, PoseObservation, from_campaign, from_log, pose_observation
-from .profile import PROFILE_SIGMAS, Profile, profile_check, quadratic
+from .profile import FAR_SIGMAS, PROFILE_LOW, PROFILE_SIGMAS, Profile, profile_check, quadratic
 from .rigid import RigidFit, fit_rigid, non_collinear, rotation_exp
 from .tolerances import (
     DISCOVER_RANK_TOL,
@@ -41,6 +41,8 @@ __all__ = [
     "OUTLIER_SIGMA",
     "Observations",
     "PROFILE_SIGMAS",
+    "PROFILE_LOW",
+    "FAR_SIGMAS",
     "PoseDesign",
     "PoseObservation",
     "Profile",

@@ -1,7 +1,7 @@
 # The public face of calbench.identify.report: what code outside this room may import. At run time
 # calbench.bench.core.face reads these lines and loads each name on first use.
 
-from .html import Z95, design_section, html_report, profile_interval, write_report
+from .html import Z95, design_section, discovery_section, html_report, profile_interval, write_report
 from .identification import (
     Z_CHECK,
     check_failed,
@@ -15,6 +15,7 @@ from .selfcheck import self_check
 
 __all__ = [
     "html_report",
+    "discovery_section",
     "profile_interval",
     "identification_report",
     "Z95",
