@@ -119,6 +119,12 @@ class ParamLayout:
         """Indices of the springs' s0 in theta (each right after its K_C)."""
         return self.stiffness_index + 1
 
+    @property
+    def spring_index(self) -> np.ndarray:
+        """Indices of every spring parameter (each K_C, then each s0) in theta: the least linear
+        ones, which identify's and discover's profile check walk further (identify/core/profile.py)."""
+        return np.r_[self.stiffness_index, self.preload_index].astype(int)
+
     def spring_of(self, index: int) -> int | None:
         """The compensator (position in ``compensators``) that theta[index] belongs to."""
         return None if index < self.n_joints else (index - self.n_joints) // 2

@@ -140,9 +140,7 @@ def not_quadratic(f: Fit, obs, white: Whitener, det: Determination, indices) -> 
         return fit_model(f.model, obs.dp, white, v, lo, hi, held, cost_tol=0.01, max_iter=12).chi2
 
     std = np.where(det.determined, det.std, np.nan)
-    lay = f.robot.layout
-    springs = np.r_[lay.stiffness_index, lay.preload_index].astype(int)
-    out = profile_check(refit, f.values, f.chi2, std, lo, hi, indices, far=springs)
+    out = profile_check(refit, f.values, f.chi2, std, lo, hi, indices, far=f.robot.layout.spring_index)
     f.model.evaluate(f.values, jacobian=False)  # the model back at the estimate
     return out.bad, out.rises
 

@@ -397,9 +397,7 @@ def fitted_ends(final: Fit, cands: list[Candidate]) -> list[tuple[str, np.ndarra
 def springs_of(f: Fit) -> np.ndarray:
     """(P,) bool: the compensator springs' stiffness and free length among ``f``'s parameters."""
     out = np.zeros(f.values.size, bool)
-    lay = f.robot.layout
-    out[lay.stiffness_index] = True
-    out[lay.preload_index] = True
+    out[f.robot.layout.spring_index] = True
     return out
 
 

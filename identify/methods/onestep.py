@@ -254,9 +254,15 @@ def profile(est: OneStep, f: Fit, dp: np.ndarray, white: Whitener) -> Profile:
         return sol.cost
 
     sd = np.sqrt(np.where(np.isfinite(np.diag(f.cov)), np.diag(f.cov), np.nan))
-    springs = np.r_[lay.stiffness_index, lay.preload_index].astype(int)  # checked far too (FAR)
     out = profile_check(
-        refit, f.values, f.chi2, sd, lay.lower, lay.upper, np.flatnonzero(f.identifiable), far=springs
+        refit,
+        f.values,
+        f.chi2,
+        sd,
+        lay.lower,
+        lay.upper,
+        np.flatnonzero(f.identifiable),
+        far=lay.spring_index,
     )
     model.evaluate(f.values, jacobian=False)  # the model back at the estimate
     return out
