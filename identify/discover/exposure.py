@@ -102,7 +102,8 @@ least as well as the final model counts, not only the best: on replicate 7 the J
 chi2 148.0 in the stiff basin (free length 0.57 m) and 148.5 from the soft start (0.33 m; the
 truth's basin, 148.05 at its own minimum) against the user's model's 160.0: the data cannot tell
 the two apart, and the exposure says so (0.25 m). ``bias_before_fits`` is the exposure without
-them: what `calbench identify --exposure` reports, which fits no candidate.
+them and without PROFILE (below): what `calbench identify --exposure` reports, which fits no
+candidate.
 
 PROFILE. A compensator spring's stiffness and free length are where the user's model is least
 linear: a stiffer spring with a moved free length bends its torque over a plan's few joint-2
@@ -266,6 +267,14 @@ def _exposure_arrays(final, jw: np.ndarray, std: np.ndarray, columns: list[tuple
     return out
 
 
+def _raise_to(got: dict, k: int, lab: str, bias: float) -> None:
+    """Raise parameter k's exposure to ``lab`` and its largest exposure to ``bias`` where larger."""
+    if bias > got["each"][k].get(lab, 0.0):
+        got["each"][k][lab] = bias
+    if bias > got["best"][k]:
+        got["best"][k], got["by"][k] = bias, lab
+
+
 def _merge(a: dict, b: dict) -> dict:
     """The larger of two points' exposures, parameter by parameter and effect by effect (the
     effects that bias a parameter by any amount: at either point)."""
@@ -393,10 +402,8 @@ def exposure_report(
                 nonlinear[k][lab] = bias
                 if failed:
                     unconfirmed[k].append(lab)
-                if bias > got["each"][k][lab]:
-                    got["each"][k][lab] = bias
-                if bias > got["best"][k]:
-                    got["best"][k], got["by"][k] = bias, lab
+                _raise_to(got, k, lab, bias)
+    modelled = got["best"].copy()  # what identify --exposure reports: no candidate fitted
     profiles: list[dict] = [{} for _ in idx]
     if profile is not None and profiled is not None:
         sd = np.asarray(std, float)[idx]
@@ -415,11 +422,7 @@ def exposure_report(
                     continue
                 beyond = max(0.0, reach - math.sqrt(thr) * float(sd[k]))
                 profiles[k][lab] = beyond
-                if beyond > got["each"][k][lab]:
-                    got["each"][k][lab] = beyond
-                if beyond > got["best"][k]:
-                    got["best"][k], got["by"][k] = beyond, lab
-    modelled = got["best"].copy()
+                _raise_to(got, k, lab, beyond)
     shifts: list[dict] = [{} for _ in idx]
     for lab, values in fitted or []:
         for k, i in enumerate(idx):
@@ -427,10 +430,7 @@ def exposure_report(
             if lab not in got["each"][k] or not np.isfinite(shift):
                 continue  # an effect the exposure does not weigh (it owns a base quantity)
             shifts[k][lab] = max(shifts[k].get(lab, 0.0), shift)
-            if shift > got["each"][k][lab]:
-                got["each"][k][lab] = shift
-            if shift > got["best"][k]:
-                got["best"][k], got["by"][k] = shift, lab
+            _raise_to(got, k, lab, shift)
     out = []
     for k, i in enumerate(idx):
         v, sd, best = float(final.values[i]), float(std[i]), float(got["best"][k])
