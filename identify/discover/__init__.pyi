@@ -1,7 +1,17 @@
 # The public face of calbench.identify.discover: what code outside this room may import. At run time
 # calbench.bench.core.face reads these lines and loads each name on first use.
 
-from .aliasing import UNEXCITED, VISIBLE_SHARE_MIN, aliasing_report, regress
+from .aliasing import (
+    EXACT_BISECT,
+    EXACT_STEPS,
+    UNEXCITED,
+    VISIBLE_SHARE_MIN,
+    aliasing_report,
+    exact_detection,
+    noncentrality,
+    regress,
+    with_exact,
+)
 from .decide import ALPHA_EFFECT, MIN_EXPLAINED, compare, lr_spread, lr_threshold, near_ties
 from .exposure import (
     NONLINEAR_CHI2_TOL,
@@ -129,6 +139,11 @@ __all__ = [
     "self_check_failures",
     "tie_lines",
     "aliasing_report",
+    "exact_detection",
+    "EXACT_BISECT",
+    "EXACT_STEPS",
+    "noncentrality",
+    "with_exact",
     "augmented_mjcf",
     "base_exposure",
     "base_fit",

@@ -25,6 +25,22 @@ differences of the exact model with the weights scaled by 1 +- LOAD_STEP. It is 
 the bias per per-cent of mass: deflections alone can never tell a mass error from compliances,
 so it is never named; its ``detectable_magnitude`` is the error from which the sliver of its
 signature the parameters cannot absorb leaves a significant misfit.
+
+EXACT. A parameter the deflections are not linear in (a joint cubic: bench/model/effects/'s
+Prior.linear) is named from another size than its column says: the cubic's stiffening 3 c
+theta^2 saturates its deflection. :func:`exact_detection` checks the first-order
+detectable_magnitude on the exact statics, each sign within the prior's bounds: the effect's
+noise-free signature at the size, off the estimated parameters' columns, |P (f(s) - f(0))|^2,
+is the test's noncentrality lambda (exact in the effect's response, first order in what the fit
+absorbs; the refit of the final model to those readings, checked in tests/test_aliasing_exact.py,
+agrees within a few per cent). Where lambda at the first-order size is off the threshold by more
+than EXACT_RTOL, the size is walked (EXACT_STEPS times it, up where lambda is short of T, down
+where it is past it or the statics have no equilibrium: a softening cubic loses it) and bisected
+on log size to lambda = T; a sign whose lambda never reaches T up to the largest step (or before
+its statics lose equilibrium) is never named at any size, and says so with its largest lambda. Measured on
+the KUKA KR 270 paper plan: a J6 cubic's first-order size (1.6e12 N*m/rad^3) leaves lambda 1.4
+against T = 15.3; stiffening, lambda saturates at 2.1 (never named); a J3 cubic reaches T at 3.6x
+its first-order size. The benchmark's "just detectable" magnitudes use the same function.
 """
 
 from __future__ import annotations
@@ -43,6 +59,9 @@ from .fit import AugmentedForward, effect_priors
 VISIBLE_SHARE_MIN = 1e-3  # below: absorbed exactly (no magnitude of it can be seen)
 UNEXCITED = 1e-6  # sigma: a signature this small at the parameter's typical size is not excited
 LOAD_STEP = 1e-3  # relative step of the weights for d dp / d s
+EXACT_RTOL = 0.25  # |lambda / T - 1| at the first-order size beyond which the size is solved for
+EXACT_STEPS = (1.0, 3.0, 10.0, 30.0, 100.0)  # multiples of the first-order size walked up
+EXACT_BISECT = 6  # halvings of the log-size bracket (size within a factor 1.04)
 
 
 def _regress(jw: np.ndarray, est: np.ndarray, col: np.ndarray) -> tuple[np.ndarray, float, float]:
@@ -122,6 +141,156 @@ def alias_record(
         "reference_magnitude": float(ref),
         "biases": biases,
     }
+
+
+def noncentrality(
+    fm: AugmentedForward, white: Whitener, values: np.ndarray, f0w: np.ndarray, jb: np.ndarray
+) -> float:
+    """lambda of a hidden effect (module docstring, EXACT): the whitened noise-free signature the
+    model ``fm`` (final model plus the effect) predicts at ``values`` against ``f0w`` (the final
+    model's whitened prediction), off the estimated parameters' whitened columns ``jb``."""
+    dp, _ = fm.evaluate(values, jacobian=False)
+    _, perp = regress(jb, white.vec(dp) - f0w)
+    return float(perp @ perp)
+
+
+def _bracket(
+    at, first: float, threshold: float, inside
+) -> tuple[float | None, float | None, list, float | None]:
+    """(lo, hi, lambdas met, the smallest size met without an equilibrium) for :func:`exact_detection`:
+    lambda(lo) < T <= lambda(hi), walking EXACT_STEPS from the first-order size, down where it is
+    named or has no equilibrium, up where it is not; hi None: never named within the walk."""
+    l1 = at(first)
+    seen, lost = ([] if l1 is None else [l1]), (first if l1 is None else None)
+    if l1 is not None and l1 < threshold:  # up
+        lo = first
+        for k in EXACT_STEPS[1:]:
+            m = k * first
+            if not inside(m):
+                break
+            lk = at(m)
+            if lk is None:
+                return lo, None, seen, m
+            seen.append(lk)
+            if lk >= threshold:
+                return lo, m, seen, lost
+            lo = m
+        return lo, None, seen, lost
+    hi = None if l1 is None else first  # down
+    for k in EXACT_STEPS[1:]:
+        m = first / k
+        lk = at(m)
+        if lk is None:
+            lost = m
+            continue
+        seen.append(lk)
+        if lk < threshold:
+            return m, hi, seen, lost
+        hi = m
+    return None, hi, seen, lost
+
+
+def exact_detection(
+    effect,
+    fm: AugmentedForward,
+    white: Whitener,
+    final,
+    jw: np.ndarray,
+    est: np.ndarray,
+    i: int,
+    first: float,
+    threshold: float,
+) -> list[dict]:
+    """Per sign within the prior's bounds, the size of the effect's ``i``-th parameter from which
+    the plan names it on the exact statics (module docstring, EXACT), from its first-order
+    detectable magnitude ``first``: {sign, magnitude (None: never), lambda_first_order (lambda at
+    ``first``), lambda_max (the largest met), never_named, no_equilibrium_from (the smallest size
+    met without a static equilibrium, else None)}. Sizes count from the prior's start, where the
+    columns are taken."""
+    start, lower, upper, _ = effect_priors(effect)
+    f0, _ = fm.evaluate(np.concatenate([final.values, start]), jacobian=False)  # the columns' point
+    f0w = white.vec(f0)
+    jb = jw[:, est]
+
+    def lam(value: float) -> float | None:
+        v = start.copy()
+        v[i] = value
+        try:
+            return noncentrality(fm, white, np.concatenate([final.values, v]), f0w, jb)
+        except (ValueError, RuntimeError, np.linalg.LinAlgError):  # no equilibrium there
+            return None
+
+    out = []
+    for sign in (1.0, -1.0):
+
+        def inside(m: float, sign=sign) -> bool:
+            return bool(lower[i] <= start[i] + sign * m <= upper[i])
+
+        if not inside(first):
+            continue
+
+        def at(m: float, sign=sign) -> float | None:
+            return lam(start[i] + sign * m)
+
+        l1 = at(first)
+        rec = {
+            "sign": sign,
+            "magnitude": first,
+            "lambda_first_order": l1,
+            "lambda_max": l1,
+            "never_named": False,
+            "no_equilibrium_from": None,
+        }
+        if l1 is None or abs(l1 / threshold - 1.0) > EXACT_RTOL:
+            lo, hi, seen, lost = _bracket(at, first, threshold, inside)
+            rec.update(lambda_max=max(seen) if seen else None, no_equilibrium_from=lost)
+            if hi is None:
+                rec.update(magnitude=None, never_named=True)
+            else:
+                lo = hi / EXACT_STEPS[-1] if lo is None else lo  # named below the walk: its floor
+                for _ in range(EXACT_BISECT):
+                    mid = math.sqrt(lo * hi)
+                    lm = at(mid)
+                    if lm is not None and lm >= threshold:
+                        hi = mid
+                    else:
+                        lo = mid
+                rec["magnitude"] = hi
+        out.append(rec)
+    fm.evaluate(np.concatenate([final.values, start]), jacobian=False)  # the model back at its start
+    return out
+
+
+def with_exact(
+    aliasing: list[dict], models: list[tuple], white: Whitener, final, jw: np.ndarray, n_candidates: int
+) -> list[dict]:
+    """``aliasing`` (:func:`aliasing_report`) with every visible parameter the deflections are not
+    linear in checked on the exact statics (module docstring, EXACT): ``exact`` holds
+    :func:`exact_detection`'s record per sign, ``detectable_magnitude`` becomes the smallest size
+    named over the signs (``detectable_magnitude_first_order`` keeps the column's), None when no
+    sign is ever named (``never_named``). models: (effect, its forward model, start) per effect."""
+    from calbench.bench.model.effects import priors
+
+    est = np.asarray(final.free, bool) | np.asarray(final.at_bound, bool)
+    thr = lr_threshold(1, n_candidates)
+    by = {(e.name, e.detail): (e, fm) for e, fm, _ in models}
+    for a in aliasing:
+        got = by.get((a["effect"], a["detail"]))
+        if got is None or not a.get("visible") or a.get("detectable_magnitude") is None:
+            continue
+        e, fm = got
+        i = list(e.param_names).index(a["parameter"])
+        if priors(e)[i].linear:
+            continue
+        exact = exact_detection(e, fm, white, final, jw, est, i, a["detectable_magnitude"], thr)
+        if not exact:  # no sign of the first-order size within the prior's bounds: as it was
+            continue
+        named = [r["magnitude"] for r in exact if r["magnitude"] is not None]
+        a["exact"] = exact
+        a["detectable_magnitude_first_order"] = a["detectable_magnitude"]
+        a["detectable_magnitude"] = min(named) if named else None
+        a["never_named"] = not named
+    return aliasing
 
 
 def effect_aliasing(
@@ -218,5 +387,8 @@ __all__ = [
     "effect_aliasing",
     "load_scale_column",
     "aliasing_report",
+    "exact_detection",
     "is_weight",
+    "noncentrality",
+    "with_exact",
 ]

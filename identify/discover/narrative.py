@@ -145,6 +145,30 @@ def _biases(a: dict, n: int = 2) -> str:
     )
 
 
+def _exact_parts(r: dict) -> tuple[str | None, str | None]:
+    """(from which size a visible effect parameter is named, why a sign of it never is): the
+    column's size, or, where the deflections are not linear in it and the exact statics
+    disagree, per sign (aliasing.py, EXACT)."""
+    first = r.get("detectable_magnitude_first_order")
+    if "exact" not in r or all(x["magnitude"] == first for x in r["exact"]):
+        return f"{r['parameter']} from {r['detectable_magnitude']:.2g} {r['unit']}", None
+    named, never = [], []
+    for x in r["exact"]:
+        sign = "+" if x["sign"] > 0 else "-"
+        if x["never_named"]:
+            top, lost = x["lambda_max"], x.get("no_equilibrium_from")
+            why = [f"its LR reaches {top:.2g} at most"] if top is not None else []
+            why += [f"no static equilibrium from {sign}{lost:.2g}"] if lost is not None else []
+            never.append(f"{r['parameter']} {sign} ({'; '.join(why)})")
+        else:
+            named.append(f"{sign}{x['magnitude']:.2g}")
+    said = f"(exact statics; first order said {first:.2g})"
+    return (
+        (f"{r['parameter']} from {' or '.join(named)} {r['unit']} {said}" if named else None),
+        ("; ".join(never) + ("" if named else f" {said}") if never else None),
+    )
+
+
 def alias_lines(aliasing: list[dict]) -> list[str]:
     """One line per effect: what this plan cannot see of it and what that would bias."""
     groups: dict[tuple, list[dict]] = {}
@@ -177,16 +201,18 @@ def alias_lines(aliasing: list[dict]) -> list[str]:
         if not any(r.get("excited", True) for r in rows):
             out.append(f"  {name}: not excited by this plan (no load moves it)")
             continue
-        seen = [
-            f"{r['parameter']} from {r['detectable_magnitude']:.2g} {r['unit']}" for r in rows if r["visible"]
-        ]
+        exact = [_exact_parts(r) for r in rows if r["visible"]]
+        seen = [a for a, _ in exact if a]
+        never = [b for _, b in exact if b]
         hidden = [
             f"{r['parameter']} (at {r['reference_magnitude']:.2g} {r['unit']}: {_biases(r)})"
             for r in rows
             if not r["visible"] and r.get("excited", True)
         ]
-        parts = (["named " + ", ".join(seen)] if seen else []) + (
-            ["absorbed exactly, never seen: " + "; ".join(hidden)] if hidden else []
+        parts = (
+            (["named " + ", ".join(seen)] if seen else [])
+            + (["never named at any size: " + "; ".join(never)] if never else [])
+            + (["absorbed exactly, never seen: " + "; ".join(hidden)] if hidden else [])
         )
         out.append(f"  {name}: " + "; ".join(parts))
     return out

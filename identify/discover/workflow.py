@@ -47,7 +47,7 @@ from calbench.bench.model.effects import augmented_xml, load_spec
 from calbench.bench.view import Discovery, write_discovery_recording
 from calbench.identify.core import Observations, Whitener, check_sites, from_log
 
-from .aliasing import aliasing_report
+from .aliasing import aliasing_report, with_exact
 from .basefit import base_fit, base_record, hold_mask
 from .decide import (
     ALPHA_EFFECT,
@@ -312,6 +312,15 @@ def discover_observations(
     own = {label(c.fit.effects[-1]) for c in last if c.fit is not None and owns_base(c.fit)}
     exposed = [(e, b) for e, b in fresh_cols if label(e) not in own]
     models = _effect_models(src, obs, final, [e for e, _ in exposed])
+    have = {label(e) for e, _, _ in models}
+    aliasing = with_exact(
+        aliasing,
+        models + _effect_models(src, obs, final, [e for e, _ in fresh_cols if label(e) not in have]),
+        white,
+        final,
+        final.extra["jw"],
+        max(len(last), 1),
+    )
     exposure = exposure_report(
         final,
         final.extra["jw"],
