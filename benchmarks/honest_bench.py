@@ -23,7 +23,12 @@ reference magnitude), the vector scaled so that what the user's model cannot abs
 to first order, is the candidate's likelihood-ratio threshold T_k (identify/discover/decide.py):
 about half the campaigns should name it, 3x (|P d|^2 = 9 T_k) nearly all. An effect the plan
 absorbs exactly (no visible part: no size of it is ever named) is hidden at its reference
-magnitude and 3x, and marked ``absorbed``. The IRB 6640 also runs the issue's own case (link_2
+magnitude and 3x, and marked ``absorbed``. A joint cubic's deflection is not linear in its size
+(its stiffening saturates, its softening nears a loss of equilibrium), so its sizes are solved on
+the exact statics instead (:func:`exact_sizes`: lambda = T_1 and 9 T_1, the noncentrality of
+identify/discover/aliasing.py's EXACT); a cubic no size of which is named is labelled ``never``
+(1x) or ``saturates`` (3x) and hidden at its first-order sizes. Before stop 31 the cubics were
+hidden at their first-order sizes: on the KR 270 a J6 cubic "at 3x" left lambda 2.1, not 138. The IRB 6640 also runs the issue's own case (link_2
 bending [0, 3e-7, 3e-7] rad/(N*m)). NULL campaigns: the base scenario, ``--nulls`` seeds.
 
 PER CAMPAIGN. Simulate in memory (identify/study's simulate_in_memory, the observations a log
@@ -165,6 +170,46 @@ def hidden_size(jw_base: np.ndarray, est: np.ndarray, block: np.ndarray, size: n
     return d * math.sqrt(k_thr / lam), False
 
 
+def exact_sizes(pilot, white, base, eff, first: float, thr1: float) -> dict:
+    """A joint cubic's just-detectable and 3x sizes on the exact statics (module docstring): the
+    size whose noise-free signature leaves lambda = T_1 and 9 T_1 (identify/discover/aliasing.py's
+    exact_detection, each sign). A size no sign reaches is
+    marked: the first-order size is kept, the cell labelled ``never`` (1x) or ``saturates`` (3x).
+    The sign: stiffening (+) where it is named, 3x on 1x's sign where it is.
+    Returns {"d": (1,), "d3": (1,), "tags": (1x tag, 3x tag), "lambda": {...}}."""
+    from calbench.identify.discover import build, effect_priors, exact_detection
+
+    start = effect_priors(eff)[0]
+    fm = build(pilot.mjcf, [(eff, start)], pilot.obs)[1]
+    est = base.free | base.at_bound
+    out, lam = {}, {}
+    for key, size, thr in (("d", first, thr1), ("d3", 3 * first, 9 * thr1)):
+        recs = exact_detection(eff, fm, white, base, base.extra["jw"], est, 0, size, thr)
+        lam[key] = [
+            {k: r[k] for k in ("sign", "magnitude", "lambda_first_order", "lambda_max")} for r in recs
+        ]
+        named = [r for r in recs if r["magnitude"] is not None]
+        if named:  # stiffening first (its statics always have an equilibrium), 3x as 1x if it can
+            prefer = np.sign(out["d"][0]) if key == "d3" else 1.0
+            r = max(named, key=lambda r: r["sign"] == prefer)
+            out[key] = np.array([r["sign"] * r["magnitude"]])
+        else:
+            out[key] = np.array([size])
+            out[f"{key}_tag"] = "never" if key == "d" else "saturates"
+    return {
+        "d": out["d"],
+        "d3": out["d3"],
+        "tags": (out.get("d_tag", "exact"), out.get("d3_tag", "exact")),
+        "lambda": lam,
+    }
+
+
+def first_order(m: dict) -> str:
+    """The first-order just-detectable size of a cubic sized on the exact statics (for the log)."""
+    lam = m["lambda"]["d"]
+    return f"{lam[0]['magnitude'] if lam and lam[0]['lambda_first_order'] is not None else '-'}"
+
+
 def magnitudes(scn_path: Path, robot: str) -> list[dict]:
     """Each library effect's hidden value at just detectable (module docstring), on a pilot
     campaign; the FANUC's compensator (K_C at the scenario's s0) from the model without it."""
@@ -204,6 +249,8 @@ def magnitudes(scn_path: Path, robot: str) -> list[dict]:
         )
         if got is not None:
             out.append({"label": label(eff), "effect": eff, "d": got[0], "absorbed": got[1]})
+            if eff.name == "joint_nonlinearity" and not got[1]:
+                out[-1].update(exact_sizes(pilot, white, base, eff, float(got[0][0]), thr1))
     if robot == "fanuc":  # the compensator the user's model lacks (studies/discovery_power.toml)
         src = without_compensator(pilot.mjcf)
         nb = base_fit(src, pilot.obs, white)
@@ -259,6 +306,9 @@ def cases_for(robot: str, mags: list[dict]) -> list[dict]:
     for m in mags:
         for factor, tag in ((1.0, "1x"), (3.0, "3x")):
             d = m["d"] * factor
+            if "d3" in m:  # a cubic sized on the exact statics (exact_sizes)
+                d = m["d"] if factor == 1.0 else m["d3"]
+                tag = f"{tag}|{m['tags'][0 if factor == 1.0 else 1]}"
             if m["label"] == "compensator":
                 sets = {
                     "truth.compensator.stiffness": float(d[0]),
@@ -606,6 +656,12 @@ def run(args, jsonl: Path, log) -> None:
             log(
                 f"  {m['label']}: {np.array2string(m['d'], precision=3)}"
                 + (" (absorbed exactly)" if m["absorbed"] else "")
+                + (
+                    f" on the exact statics ({m['tags'][0]}), 3x: {np.array2string(m['d3'], precision=3)} "
+                    f"({m['tags'][1]}); first order said {first_order(m)}"
+                    if "d3" in m
+                    else ""
+                )
             )
         cases = cases_for(robot, mags)
         if args.effects:
