@@ -199,15 +199,10 @@ def exact_sizes(pilot, white, base, eff, first: float, thr1: float) -> dict:
     return {
         "d": out["d"],
         "d3": out["d3"],
+        "first_order": first,
         "tags": (out.get("d_tag", "exact"), out.get("d3_tag", "exact")),
         "lambda": lam,
     }
-
-
-def first_order(m: dict) -> str:
-    """The first-order just-detectable size of a cubic sized on the exact statics (for the log)."""
-    lam = m["lambda"]["d"]
-    return f"{lam[0]['magnitude'] if lam and lam[0]['lambda_first_order'] is not None else '-'}"
 
 
 def magnitudes(scn_path: Path, robot: str) -> list[dict]:
@@ -658,7 +653,7 @@ def run(args, jsonl: Path, log) -> None:
                 + (" (absorbed exactly)" if m["absorbed"] else "")
                 + (
                     f" on the exact statics ({m['tags'][0]}), 3x: {np.array2string(m['d3'], precision=3)} "
-                    f"({m['tags'][1]}); first order said {first_order(m)}"
+                    f"({m['tags'][1]}); first order said {m['first_order']:.3g}"
                     if "d3" in m
                     else ""
                 )
