@@ -175,7 +175,8 @@ def exact_sizes(pilot, white, base, eff, first: float, thr1: float) -> dict:
     size whose noise-free signature leaves lambda = T_1 and 9 T_1 (identify/discover/aliasing.py's
     exact_detection, each sign). A size no sign reaches is
     marked: the first-order size is kept, the cell labelled ``never`` (1x) or ``saturates`` (3x).
-    The sign: stiffening (+) where it is named, 3x on 1x's sign where it is.
+    Stiffening (+) only: a softening cubic's statics lose their equilibrium close to the size it
+    is named from (KR 270 J4: LR 3.3 at 6.3e11, none from 8.9e11).
     Returns {"d": (1,), "d3": (1,), "tags": (1x tag, 3x tag), "lambda": {...}}."""
     from calbench.identify.discover import build, effect_priors, exact_detection
 
@@ -188,11 +189,11 @@ def exact_sizes(pilot, white, base, eff, first: float, thr1: float) -> dict:
         lam[key] = [
             {k: r[k] for k in ("sign", "magnitude", "lambda_first_order", "lambda_max")} for r in recs
         ]
-        named = [r for r in recs if r["magnitude"] is not None]
-        if named:  # stiffening first (its statics always have an equilibrium), 3x as 1x if it can
-            prefer = np.sign(out["d"][0]) if key == "d3" else 1.0
-            r = max(named, key=lambda r: r["sign"] == prefer)
-            out[key] = np.array([r["sign"] * r["magnitude"]])
+        # stiffening only: its statics have one equilibrium at every size; a softening cubic's
+        # lose it close to where it is named, and which branch a solve finds there is the solver's
+        named = [r for r in recs if r["magnitude"] is not None and r["sign"] > 0]
+        if named:
+            out[key] = np.array([named[0]["magnitude"]])
         else:
             out[key] = np.array([size])
             out[f"{key}_tag"] = "never" if key == "d" else "saturates"

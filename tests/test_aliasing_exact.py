@@ -35,7 +35,12 @@ from calbench.identify.discover import (
 from calbench.identify.study import simulate_in_memory
 
 KR270 = ROOT / "scenarios" / "kr270_paper.toml"
-WANT = ("link_compliance[link_arm]", "joint_nonlinearity[j3]", "joint_nonlinearity[j6]")
+WANT = (
+    "link_compliance[link_arm]",
+    "joint_nonlinearity[j3]",
+    "joint_nonlinearity[j4]",
+    "joint_nonlinearity[j6]",
+)
 
 
 @pytest.fixture(scope="module")
@@ -144,3 +149,34 @@ def test_exact_detection_skips_a_sign_outside_the_prior(kr270):
     got = exact_detection(e, fm, white, base, base.extra["jw"], est, 0, 1e-7, lr_threshold(1, len(lib)))
     # a compliance cannot be negative: only the + sign is walked
     assert [r["sign"] for r in got] == [1.0]
+
+
+def test_each_size_is_solved_from_rest_whatever_came_before(kr270):
+    """A softening cubic's statics have other branches: warm starts from the sizes walked before
+    found one (the KR 270's J4 cubic, softening, was "named from 4.3e10", where a model solved
+    from rest leaves LR 0.0; the KR 210's "from 6e8", 100 times below its linear size). Every size
+    is solved cold: a fresh model at each reported size agrees, and the answer does not depend on
+    what the model was evaluated at before."""
+    sim, white, base, lib, models, first, exact = kr270
+    thr = lr_threshold(1, len(lib))
+    est = base.free | base.at_bound
+    jb = base.extra["jw"][:, est]
+    for lab, det in (("joint_nonlinearity[j3]", "j3"), ("joint_nonlinearity[j4]", "j4")):
+        e, fm, start = next(m for m in models if label(m[0]) == lab)
+        a = _row(exact, "joint_nonlinearity", det, "cubic")
+        for rec in a["exact"]:
+            if rec["magnitude"] is None:
+                continue
+            fresh = build(sim.mjcf, [(e, start)], sim.obs)[1]
+            ref = white.vec(fresh.evaluate(np.r_[base.values, start], jacobian=False)[0])
+            fresh = build(sim.mjcf, [(e, start)], sim.obs)[1]
+            at = np.r_[base.values, start + rec["sign"] * rec["magnitude"]]
+            assert noncentrality(fresh, white, at, ref, jb) >= thr
+        first_size = _row(first, "joint_nonlinearity", det, "cubic")["detectable_magnitude"]
+        once = exact_detection(e, fm, white, base, base.extra["jw"], est, 0, first_size, thr)
+        for far in (-3e11, 5e13):  # near the softening edge, deep in the stiffening saturation
+            try:
+                fm.evaluate(np.r_[base.values, far], jacobian=False)
+            except (ValueError, RuntimeError):
+                pass
+            assert exact_detection(e, fm, white, base, base.extra["jw"], est, 0, first_size, thr) == once

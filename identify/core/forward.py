@@ -363,8 +363,15 @@ class ForwardModel:
             if self._cache is None:
                 raise
             self.stats["cold_retries"] += 1
-            self._cache, self._p_kkt = None, None
+            self.forget()
             return self._evaluate(theta, jacobian)
+
+    def forget(self) -> None:
+        """Forget the cached equilibria: the next evaluation solves from the rigid configuration,
+        as the first does. Where the statics have more than one equilibrium (a softening joint
+        cubic), a warm start from far parameters can land on another branch than the one the
+        loads reach from rest: identify/discover/aliasing.py's EXACT evaluates every size cold."""
+        self._cache, self._p_kkt = None, None
 
     def _evaluate(self, theta, jacobian: bool = True):
         theta = np.asarray(theta, dtype=float)

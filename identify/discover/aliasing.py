@@ -35,9 +35,13 @@ is the test's noncentrality lambda (exact in the effect's response, first order 
 absorbs; the refit of the final model to those readings, checked in tests/test_aliasing_exact.py,
 agrees within a few per cent). Where lambda at the first-order size is off the threshold by more
 than EXACT_RTOL, the size is walked (EXACT_STEPS times it, up where lambda is short of T, down
-where it is past it or the statics have no equilibrium: a softening cubic loses it) and bisected
-on log size to lambda = T; a sign whose lambda never reaches T up to the largest step (or before
-its statics lose equilibrium) is never named at any size, and says so with its largest lambda. Measured on
+where it is past it or the statics have no equilibrium: a softening cubic loses it; each size
+solved cold, from rest, as the campaign loads the robot: a warm start from another size found
+another branch of a softening cubic's equilibria, and a J4 cubic "named from 6e8", 100 times
+below its linear size) and bisected on log size to lambda = T; short of T where the statics lose
+equilibrium, the edge is bisected too. A sign whose lambda never reaches T up to the largest
+step (or before its statics lose equilibrium) is never named at any size, and says so with its
+largest lambda. Measured on
 the KUKA KR 270 paper plan: a J6 cubic's first-order size (1.6e12 N*m/rad^3) leaves lambda 1.4
 against T = 15.3; stiffening, lambda saturates at 2.1 (never named); a J3 cubic reaches T at 3.6x
 its first-order size. The benchmark's "just detectable" magnitudes use the same function.
@@ -208,6 +212,7 @@ def exact_detection(
     met without a static equilibrium, else None)}. Sizes count from the prior's start, where the
     columns are taken."""
     start, lower, upper, _ = effect_priors(effect)
+    fm.forget()
     f0, _ = fm.evaluate(np.concatenate([final.values, start]), jacobian=False)  # the columns' point
     f0w = white.vec(f0)
     jb = jw[:, est]
@@ -215,6 +220,7 @@ def exact_detection(
     def lam(value: float) -> float | None:
         v = start.copy()
         v[i] = value
+        fm.forget()  # from rest, as the campaign loads it: never another size's branch
         try:
             return noncentrality(fm, white, np.concatenate([final.values, v]), f0w, jb)
         except (ValueError, RuntimeError, np.linalg.LinAlgError):  # no equilibrium there
@@ -243,6 +249,20 @@ def exact_detection(
         }
         if l1 is None or abs(l1 / threshold - 1.0) > EXACT_RTOL:
             lo, hi, seen, lost = _bracket(at, first, threshold, inside)
+            if hi is None and lo is not None and lost is not None and lost > lo:
+                # short of T where the statics lose equilibrium: lambda rises steeply towards
+                # the edge (a softening cubic), so the edge is bisected for a size named before it
+                for _ in range(EXACT_BISECT):
+                    mid = math.sqrt(lo * lost)
+                    lm = at(mid)
+                    if lm is None:
+                        lost = mid
+                        continue
+                    seen.append(lm)
+                    if lm >= threshold:
+                        hi = mid
+                        break
+                    lo = mid
             rec.update(lambda_max=max(seen) if seen else None, no_equilibrium_from=lost)
             if hi is None:
                 rec.update(magnitude=None, never_named=True)
