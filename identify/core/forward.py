@@ -368,9 +368,9 @@ class ForwardModel:
 
     def forget(self) -> None:
         """Forget the cached equilibria: the next evaluation solves from the rigid configuration,
-        as the first does. Where the statics have more than one equilibrium (a softening joint
-        cubic), a warm start from far parameters can land on another branch than the one the
-        loads reach from rest: identify/discover/aliasing.py's EXACT evaluates every size cold."""
+        as the first does (4-6x a warm evaluation's time). Where the statics have more than one
+        equilibrium (a softening joint cubic), a warm start from far parameters can land on another
+        branch than the one the loads reach from rest (identify/discover/aliasing.py's EXACT)."""
         self._cache, self._p_kkt = None, None
 
     def _evaluate(self, theta, jacobian: bool = True):

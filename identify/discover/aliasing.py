@@ -36,9 +36,9 @@ absorbs; the refit of the final model to those readings, checked in tests/test_a
 agrees within a few per cent). Where lambda at the first-order size is off the threshold by more
 than EXACT_RTOL, the size is walked (EXACT_STEPS times it, up where lambda is short of T, down
 where it is past it or the statics have no equilibrium: a softening cubic loses it; each size
-solved cold, from rest, as the campaign loads the robot: a warm start from another size found
-another branch of a softening cubic's equilibria, and a J4 cubic "named from 6e8", 100 times
-below its linear size) and bisected on log size to lambda = T; short of T where the statics lose
+solved from the equilibrium at the columns' point, which is unique (a warm start from another
+size found another branch of a softening cubic's equilibria, and a J4 cubic "named from 6e8",
+100 times below its linear size; from rest, cold, costs 4x as much)) and bisected on log size to lambda = T; short of T where the statics lose
 equilibrium, the edge is bisected too. A sign whose lambda never reaches T up to the largest
 step (or before its statics lose equilibrium) is never named at any size, and says so with its
 largest lambda. Measured on
@@ -65,7 +65,7 @@ UNEXCITED = 1e-6  # sigma: a signature this small at the parameter's typical siz
 LOAD_STEP = 1e-3  # relative step of the weights for d dp / d s
 EXACT_RTOL = 0.25  # |lambda / T - 1| at the first-order size beyond which the size is solved for
 EXACT_STEPS = (1.0, 3.0, 10.0, 30.0, 100.0)  # multiples of the first-order size walked up
-EXACT_BISECT = 6  # halvings of the log-size bracket (size within a factor 1.04)
+EXACT_BISECT = 5  # halvings of the log-size bracket (size within a factor 1.04 of a 3x step)
 
 
 def _regress(jw: np.ndarray, est: np.ndarray, col: np.ndarray) -> tuple[np.ndarray, float, float]:
@@ -212,15 +212,18 @@ def exact_detection(
     met without a static equilibrium, else None)}. Sizes count from the prior's start, where the
     columns are taken."""
     start, lower, upper, _ = effect_priors(effect)
-    fm.forget()
-    f0, _ = fm.evaluate(np.concatenate([final.values, start]), jacobian=False)  # the columns' point
+    ref = np.concatenate([final.values, start])  # the columns' point
+    f0, _ = fm.evaluate(ref, jacobian=False)
     f0w = white.vec(f0)
     jb = jw[:, est]
 
     def lam(value: float) -> float | None:
         v = start.copy()
         v[i] = value
-        fm.forget()  # from rest, as the campaign loads it: never another size's branch
+        try:  # from the columns' point, whose equilibrium is unique: never another size's branch
+            fm.evaluate(ref, jacobian=False)
+        except (ValueError, RuntimeError, np.linalg.LinAlgError):
+            fm.forget()
         try:
             return noncentrality(fm, white, np.concatenate([final.values, v]), f0w, jb)
         except (ValueError, RuntimeError, np.linalg.LinAlgError):  # no equilibrium there
