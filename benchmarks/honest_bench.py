@@ -28,8 +28,8 @@ magnitude and 3x, and marked ``absorbed``. A joint cubic's deflection is not lin
 the exact statics instead (:func:`exact_sizes`: lambda = T_1 and 9 T_1, the noncentrality of
 identify/discover/aliasing.py's EXACT); a cubic no size of which is named is labelled ``never``
 (1x) or ``saturates`` (3x) and hidden at its first-order sizes. Before stop 31 the cubics were
-hidden at their first-order sizes: on the KR 270 a J6 cubic "at 3x" left lambda 2.1, not 138. The IRB 6640 also runs the issue's own case (link_2
-bending [0, 3e-7, 3e-7] rad/(N*m)). NULL campaigns: the base scenario, ``--nulls`` seeds.
+hidden at their first-order sizes: on the KR 270 a J6 cubic "at 3x" left lambda 2.1, not 138.
+The IRB 6640 also runs the issue's own case (link_2 bending [0, 3e-7, 3e-7] rad/(N*m)). NULL campaigns: the base scenario, ``--nulls`` seeds.
 
 PER CAMPAIGN. Simulate in memory (identify/study's simulate_in_memory, the observations a log
 reader gets), then discover_observations with the user's model; the truth is read only
@@ -173,8 +173,8 @@ def hidden_size(jw_base: np.ndarray, est: np.ndarray, block: np.ndarray, size: n
 def exact_sizes(pilot, white, base, eff, first: float, thr1: float) -> dict:
     """A joint cubic's just-detectable and 3x sizes on the exact statics (module docstring): the
     size whose noise-free signature leaves lambda = T_1 and 9 T_1 (identify/discover/aliasing.py's
-    exact_detection, each sign). A size no sign reaches is
-    marked: the first-order size is kept, the cell labelled ``never`` (1x) or ``saturates`` (3x).
+    exact_detection). A size not reached is marked: the first-order size is kept, the cell
+    labelled ``never`` (1x) or ``saturates`` (3x).
     Stiffening (+) only: a softening cubic's statics lose their equilibrium close to the size it
     is named from (KR 270 J4: LR 3.3 at 6.3e11, none from 8.9e11).
     Returns {"d": (1,), "d3": (1,), "tags": (1x tag, 3x tag), "lambda": {...}}."""

@@ -28,23 +28,24 @@ signature the parameters cannot absorb leaves a significant misfit.
 
 EXACT. A parameter the deflections are not linear in (a joint cubic: bench/model/effects/'s
 Prior.linear) is named from another size than its column says: the cubic's stiffening 3 c
-theta^2 saturates its deflection. :func:`exact_detection` checks the first-order
-detectable_magnitude on the exact statics, each sign within the prior's bounds: the effect's
-noise-free signature at the size, off the estimated parameters' columns, |P (f(s) - f(0))|^2,
-is the test's noncentrality lambda (exact in the effect's response, first order in what the fit
-absorbs; the refit of the final model to those readings, checked in tests/test_aliasing_exact.py,
-agrees within a few per cent). Where lambda at the first-order size is off the threshold by more
-than EXACT_RTOL, the size is walked (EXACT_STEPS times it, up where lambda is short of T, down
-where it is past it or the statics have no equilibrium: a softening cubic loses it; each size
-solved from the equilibrium at the columns' point, which is unique (a warm start from another
-size found another branch of a softening cubic's equilibria, and a J4 cubic "named from 6e8",
-100 times below its linear size; from rest, cold, costs 4x as much)) and bisected on log size to lambda = T; short of T where the statics lose
-equilibrium, the edge is bisected too. A sign whose lambda never reaches T up to the largest
-step (or before its statics lose equilibrium) is never named at any size, and says so with its
-largest lambda. Measured on
-the KUKA KR 270 paper plan: a J6 cubic's first-order size (1.6e12 N*m/rad^3) leaves lambda 1.4
-against T = 15.3; stiffening, lambda saturates at 2.1 (never named); a J3 cubic reaches T at 3.6x
-its first-order size. The benchmark's "just detectable" magnitudes use the same function.
+theta^2 saturates its deflection, its softening heads for a loss of equilibrium.
+:func:`exact_detection` checks the first-order detectable_magnitude on the exact statics, each
+sign within the prior's bounds: the effect's noise-free signature at the size, off the estimated
+parameters' columns, |P (f(s) - f(0))|^2, is the test's noncentrality lambda (exact in the
+effect's response, first order in what the fit absorbs; a refit of the final model to those
+readings, tests/test_aliasing_exact.py, agrees within a few per cent on the KR 270, and leaves
+less where a spring's valley absorbs more: the FANUC's J2 cubic, docs/discovery.md). Where lambda
+at the first-order size is off the threshold by more than EXACT_RTOL, the size is walked
+(EXACT_STEPS times it: up where lambda is short of T, down where it is past it or the statics
+have no equilibrium) and bisected on log size to lambda = T; short of T where the statics lose
+equilibrium, the edge is bisected too. A sign whose lambda never reaches T up to the largest step
+(or before its statics lose equilibrium) is never named at any size, and says so with its
+largest lambda. Each size is solved from the equilibrium at the columns' point, which is unique:
+a warm start from another size found another branch of a softening cubic's equilibria (a J4 cubic
+"named from 6e8", 100 times below its linear size); solving each cold costs 4x as much. Measured
+on the KUKA KR 270 paper plan: a J6 cubic's first-order size (1.6e12 N*m/rad^3) leaves lambda
+1.4 against T = 15.3, a stiffening one never more than 2.1 (never named); a J3 cubic is named from
+2.2x its first-order size. The benchmark's "just detectable" cubics use the same function.
 """
 
 from __future__ import annotations
@@ -280,7 +281,7 @@ def exact_detection(
                         lo = mid
                 rec["magnitude"] = hi
         out.append(rec)
-    fm.evaluate(np.concatenate([final.values, start]), jacobian=False)  # the model back at its start
+    fm.evaluate(ref, jacobian=False)  # the model back at the columns' point
     return out
 
 
