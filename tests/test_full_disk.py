@@ -239,7 +239,9 @@ def test_a_second_run_on_the_same_output_is_refused_while_the_first_writes(work,
         "--json",
         str(out),
     ]
-    first = subprocess.Popen([*argv, "--runs", "60"], stderr=subprocess.PIPE, text=True)
+    # long enough to outlast the second's start-up (imports, ~1-2 s): 60 runs took 0.8 s on an
+    # idle machine, and the first had finished before the second looked at the lock
+    first = subprocess.Popen([*argv, "--runs", "600"], stderr=subprocess.PIPE, text=True)
     wait_for_lock(out, first)
     second = subprocess.run([*argv, "--runs", "2"], capture_output=True, text=True)
     assert first.wait(timeout=300) == 0, first.stderr.read()
@@ -247,5 +249,5 @@ def test_a_second_run_on_the_same_output_is_refused_while_the_first_writes(work,
     err = error_line(second.stderr)
     assert f"calbench pid {first.pid} is writing it" in err and str(out) in err, err
     report = json.loads(out.read_text())
-    assert report["runs"] == 60
+    assert report["runs"] == 600
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mc.json"]  # the lock is gone
