@@ -311,16 +311,9 @@ def discover_observations(
     aliasing = aliasing_report(final, final.extra["jw"], det.std, fresh_cols, obs, white, max(len(last), 1))
     own = {label(c.fit.effects[-1]) for c in last if c.fit is not None and owns_base(c.fit)}
     exposed = [(e, b) for e, b in fresh_cols if label(e) not in own]
-    models = _effect_models(src, obs, final, [e for e, _ in exposed])
-    have = {label(e) for e, _, _ in models}
-    aliasing = with_exact(
-        aliasing,
-        models + _effect_models(src, obs, final, [e for e, _ in fresh_cols if label(e) not in have]),
-        white,
-        final,
-        final.extra["jw"],
-        max(len(last), 1),
-    )
+    every = _effect_models(src, obs, final, [e for e, _ in fresh_cols])  # each built once
+    aliasing = with_exact(aliasing, every, white, final, final.extra["jw"], max(len(last), 1))
+    models = [m for m in every if label(m[0]) not in own]
     exposure = exposure_report(
         final,
         final.extra["jw"],
