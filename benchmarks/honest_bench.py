@@ -447,6 +447,7 @@ def one_campaign(study_path: str, cell_index: int, replicate: int, without: tupl
     rec.update(
         expected=expected,
         self_check_failed=rep["self_check"]["failed"],
+        valley=[p["name"] for p in rep["parameters"] if p.get("valley")],
         exposure_growth=exposure_growth(rep),
         nonlinear_growth=exposure_growth(rep, "bias_first_order"),
         unconfirmed={
@@ -499,6 +500,7 @@ def summarise(rows: list[dict]) -> dict:
         row["confidently_wrong_upper"] = cp_upper(k, n)
         row["wrong_parameters"] = sorted({b["name"] for r in ok for b in r["confidently_wrong"]})
         row["self_check_flags"] = sum(bool(r["self_check_failed"]) for r in ok)
+        row["valley_flags"] = sum(bool(r.get("valley")) for r in ok)  # uncertainty.along_valleys fired
         growth = [g for r in ok for g in r.get("exposure_growth", [])]
         row["exposure_growth_median"] = float(np.median(growth)) if growth else None
         row["exposure_growth_p90"] = float(np.percentile(growth, 90)) if growth else None

@@ -15,6 +15,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from calbench.bench.campaign import remeasure, simulate
 from calbench.bench.model import Robot
@@ -94,3 +95,54 @@ def test_identification_flags_the_profile_where_the_fisher_std_is_wrong(tmp_path
     kc = next(p for p in mc["methods"]["one-step"]["parameters"] if p["name"] == "balancer_stiffness")
     assert abs(kc["empirical_over_reported_std"] - 1) > 4 * np.sqrt(1 / (2 * 399))  # the Fisher std is wrong
     assert any(f.extra["profile"].bad[preload] for f in _campaigns(loud, CAMPAIGNS))
+
+
+def _banana(curvature: float, rise: float):
+    """A determined x (std 1 at the estimate 0) and an undetermined u on a valley x = curvature
+    u^2 along which chi2 rises by ``rise`` u^2: refit_values with u held returns the valley's
+    point, with x held the parabola's minimum over u."""
+
+    def refit_values(v: np.ndarray, i: int) -> tuple[float, np.ndarray]:
+        if i != 1:
+            raise ValueError("only u is walked")
+        u = v[1]
+        return rise * u**2, np.array([curvature * u**2, u])
+
+    return refit_values
+
+
+def test_a_walk_along_a_curved_valley_marks_what_it_carries_far_with_little_rise():
+    """The VALLEY rule (identify/core/profile.py): along x = u^2 a point m std out rises by
+    ``rise`` m, so with rise 0.1 the point at m = 2 rises 0.2 (a quadratic: 4, the check's
+    floor 2) and x is marked; with rise 10 every point rises at least 0.5 min(m, 4.5)^2 (10 m >=
+    10.1 from m = 2 on) and x stands; a valley that does not bend (curvature 0) never moves x."""
+    from calbench.identify.core import valley_check
+
+    x0, sd, det = np.zeros(2), np.array([1.0, np.nan]), np.array([True, False])
+    lo, hi, size = np.full(2, -100.0), np.full(2, 100.0), np.ones(2)
+    flat = valley_check(_banana(1.0, 0.1), x0, 0.0, sd, det, lo, hi, [1], size)
+    assert flat.bad.tolist() == [True, False]
+    m, rise = flat.walks[1]["broke"][0]
+    assert m >= PROFILE_SIGMAS and rise == pytest.approx(0.1 * m)
+    assert flat.walks[1]["moved"][0][1] >= m  # the range x took on the way
+    steep = valley_check(_banana(1.0, 10.0), x0, 0.0, sd, det, lo, hi, [1], size)
+    assert not steep.bad.any() and steep.walks[1]["points"] > 0
+    straight = valley_check(_banana(0.0, 0.1), x0, 0.0, sd, det, lo, hi, [1], size)
+    assert not straight.bad.any() and straight.walks[1]["moved"][0] == [0.0, 0.0]
+
+
+def test_the_story_says_which_walk_left_a_parameter_undetermined():
+    """discover's text (identify/discover/narrative.py) names the walked parameter, the distance,
+    the rise against the quadratic's, and the range, for every record carrying ``valley``."""
+    from calbench.identify.discover import valley_lines
+
+    rec = {"walked": "compensator_preload", "distance_std": 10.0, "chi2_rise": 4.9, "range": [8.8e-8, 1.2e-7]}
+    lines = valley_lines(
+        [
+            {"name": "k2", "unit": "rad/(N*m)", "valley": rec},
+            {"name": "k3", "unit": "rad/(N*m)"},
+        ]
+    )
+    assert len(lines) == 2 and "k3" not in "".join(lines)
+    assert "compensator_preload" in lines[1] and "4.9" in lines[1] and "20.2" in lines[1]
+    assert "8.8e-08 to 1.2e-07" in lines[1]

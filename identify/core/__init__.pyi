@@ -14,7 +14,16 @@ from .identifiability import (
 from .leastsq import Fit, at_bounds, covariance, levenberg_marquardt, svd_step
 from .model import check_sites
 from .observations import Observations, PoseObservation, from_campaign, from_log, pose_observation
-from .profile import FAR_SIGMAS, PROFILE_LOW, PROFILE_SIGMAS, Profile, profile_check, quadratic
+from .profile import (
+    FAR_SIGMAS,
+    PROFILE_LOW,
+    PROFILE_SIGMAS,
+    Profile,
+    Valley,
+    profile_check,
+    quadratic,
+    valley_check,
+)
 from .rigid import RigidFit, fit_rigid, non_collinear, rotation_exp
 from .tolerances import (
     DISCOVER_RANK_TOL,
@@ -63,6 +72,8 @@ __all__ = [
     "outliers",
     "pose_observation",
     "profile_check",
+    "valley_check",
+    "Valley",
     "quadratic",
     "resolve",
     "rotation_exp",

@@ -16,11 +16,13 @@ from .decide import ALPHA_EFFECT, MIN_EXPLAINED, compare, lr_spread, lr_threshol
 from .exposure import (
     NONLINEAR_CHI2_TOL,
     NONLINEAR_TOL,
+    REGION_SIGMAS,
     UNBOUNDED_SIGMA,
     absorbed_sizes,
     effect_exposure,
     exposure_report,
     truth_consistent,
+    unseen_chi2,
     worst_case,
 )
 from .fit import (
@@ -61,6 +63,7 @@ from .narrative import (
     self_check_failures,
     self_check_lines,
     tie_lines,
+    valley_lines,
 )
 from .search import fit_candidate, polish, unabsorbed_norms
 from .stats import ALPHA_FIT
@@ -88,6 +91,7 @@ from .workflow import (
     clean,
     discover,
     discover_observations,
+    sprung_joint_effects,
     story,
 )
 
@@ -138,6 +142,7 @@ __all__ = [
     "self_check_lines",
     "self_check_failures",
     "tie_lines",
+    "valley_lines",
     "aliasing_report",
     "exact_detection",
     "EXACT_BISECT",
@@ -156,6 +161,9 @@ __all__ = [
     "effect_exposure",
     "effect_priors",
     "exposure_report",
+    "REGION_SIGMAS",
+    "unseen_chi2",
+    "sprung_joint_effects",
     "worst_case",
     "truth_consistent",
     "NONLINEAR_TOL",

@@ -254,6 +254,24 @@ def tie_lines(params: list[dict]) -> list[str]:
     return out
 
 
+def valley_lines(params: list[dict]) -> list[str]:
+    """Each parameter a walk along an undetermined one carried beyond its quadratic
+    (identify/core/profile.py's VALLEY): the walked parameter, how far, for what chi2, the range."""
+    out = []
+    for p in params:
+        v = p.get("valley")
+        if v:
+            lo, hi = v["range"]
+            out.append(
+                f"  {p['name']}: with {v['walked']} walked, it goes {v['distance_std']:.3g} of its Fisher std "
+                f"for a chi2 rise of {v['chi2_rise']:.3g} (a quadratic: {min(v['distance_std'], 4.5) ** 2:.3g}); "
+                f"range {lo:.4g} to {hi:.4g} {p['unit']}"
+            )
+    if out:
+        out.insert(0, "Not determined along a valley the Fisher std does not see (so no std is reported):")
+    return out
+
+
 def self_check_lines(check: dict | None) -> list[str]:
     """The verdict of the self-check of the reported model (identify/discover/uncertainty.py's
     self_check): passed, or which parameters and combinations failed (and are reported as not
@@ -381,6 +399,7 @@ def story(rep: dict) -> str:
             + " at +-2 std of its linear combination, 4 if quadratic: its std would be dishonest)"
         )
     lines += tie_lines(rep["parameters"])
+    lines += valley_lines(rep["parameters"])
     lines += self_check_lines(rep.get("self_check"))
     lines += exposure_lines(rep["parameters"])
     if not rep["named_effects"]:
@@ -440,6 +459,7 @@ __all__ = [
     "story",
     "base_lines",
     "tie_lines",
+    "valley_lines",
     "exposure_lines",
     "self_check_lines",
     "self_check_failures",

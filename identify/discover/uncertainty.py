@@ -57,6 +57,7 @@ class Determination:
     combinations: list[dict] = field(default_factory=list)
     profile: dict = field(default_factory=dict)  # index -> chi2 rise at +-2 Fisher std
     rejected: list[dict] = field(default_factory=list)  # combinations whose profile is not quadratic
+    valley: dict = field(default_factory=dict)  # index -> what a walk along an undetermined one broke
 
 
 def sizes(f: Fit) -> np.ndarray:
@@ -188,17 +189,58 @@ def combination_rises(f: Fit, obs, white: Whitener, combo: dict) -> list[float |
     return out
 
 
+def along_valleys(f: Fit, obs, white: Whitener, det: Determination) -> tuple[np.ndarray, dict]:
+    """((P,) bool, {index: record}): the determined parameters that a walk along an undetermined
+    one carries beyond the quadratic their std assumes (identify/core/profile.py's VALLEY; the
+    rest refitted by identify/discover/fit.py as :func:`not_quadratic` refits), and for each
+    the walked parameter, its distance in std, the point's chi2 rise and the range it took."""
+    from calbench.identify.core import valley_check
+
+    from .fit import fit_augmented as fit_model
+
+    lo, hi, hold = f.extra["bounds"]
+    walked = np.flatnonzero(det.estimated & ~det.determined & ~np.asarray(hold, bool))
+    if not walked.size or not det.determined.any():
+        return np.zeros(f.values.size, bool), {}
+
+    def refit(v: np.ndarray, i: int) -> tuple[float, np.ndarray]:
+        held = np.array(hold, bool).copy()
+        held[i] = True
+        g = fit_model(f.model, obs.dp, white, v, lo, hi, held, cost_tol=0.01, max_iter=12)
+        return g.chi2, g.values
+
+    out = valley_check(refit, f.values, f.chi2, det.std, det.determined, lo, hi, walked, sizes(f))
+    f.model.evaluate(f.values, jacobian=False)  # the model back at the estimate
+    why = {}
+    for i, rec in out.walks.items():
+        for j, (m, rise) in rec["broke"].items():
+            if j not in why:
+                why[j] = {
+                    "walked": f.names[i],
+                    "distance_std": m,
+                    "chi2_rise": rise,
+                    "range": rec["moved"][j],
+                }
+    return out.bad, why
+
+
 def checked(f: Fit, obs, white: Whitener) -> Determination:
     """What ``f`` determines, checked (issue 22: base and effect parameters together): the SVD of
     their Fisher information (:func:`determination`), then the profile check of every parameter
-    it determines (:func:`not_quadratic`: one that fails is not determined) and of every
-    determined combination (:func:`combination_rises`: one that fails is moved to
-    ``rejected``, with its rises, and reported as not determined)."""
+    it determines (:func:`not_quadratic`: one that fails is not determined), the walks along the
+    undetermined ones (:func:`along_valleys`: one they carry beyond its quadratic is not
+    determined either) and the profile check of every determined combination
+    (:func:`combination_rises`: one that fails is moved to ``rejected``, with its rises, and
+    reported as not determined)."""
     det = determination(f, f.extra["jw"])
     bad, rises = not_quadratic(f, obs, white, det, np.flatnonzero(det.determined))
     if bad.any():
         det = determination(f, f.extra["jw"], bad)
+    swept, why = along_valleys(f, obs, white, det)
+    if swept.any():
+        det = determination(f, f.extra["jw"], bad | swept)
     det.profile = rises
+    det.valley = why
     keep = []
     for c in det.combinations:
         r = combination_rises(f, obs, white, c)

@@ -157,6 +157,7 @@ def _params(
             "std": float(det.std[i]) if det.determined[i] else None,
             "determined": bool(det.determined[i]),
             **({"chi2_rise_at_2_fisher_std": profile[i]} if i in profile else {}),
+            **({"valley": det.valley[i]} if i in det.valley else {}),
             **({"under_tied_candidates": split[i]} if i in split else {}),
             **({"self_check": checked_[f.names[i]]} if f.names[i] in checked_ else {}),
         }
@@ -325,6 +326,7 @@ def discover_observations(
         fitted_ends(final, [c for c in last if c.label not in own]),
         candidate_profiles(obs, white, final, [c for c in last if c.label not in own]),
         springs_of(final),
+        sprung_joint_effects(final, [e for e, _ in exposed]),
     )
     final.model.evaluate(final.values, jacobian=False)  # the model back at the estimate
     diag_before = diagnose(base, obs, sigma)
@@ -401,6 +403,18 @@ def springs_of(f: Fit) -> np.ndarray:
     out = np.zeros(f.values.size, bool)
     out[f.robot.layout.spring_index] = True
     return out
+
+
+def sprung_joint_effects(f: Fit, effects: list) -> frozenset[str]:
+    """The labels of ``effects`` acting on a joint a compensator spring spans (exposure.py's
+    SPRUNG JOINT: each profiled for every parameter it exposes)."""
+    joints = set()
+    for c in range(len(f.robot.layout.compensators)):
+        try:
+            joints.add(f.robot.compensator_joint(c) + 1)
+        except ValueError:
+            continue  # a spring across more than one hinge: no single joint to name
+    return frozenset(label(e) for e in effects if e.options.get("joint") in joints)
 
 
 def candidate_profiles(obs, white, final: Fit, cands: list[Candidate]):

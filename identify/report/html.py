@@ -43,7 +43,14 @@ from calbench.bench.core import InputError, check_outputs, unit_display, write_t
 from calbench.bench.log import CampaignLog, IdentificationReport, has_truth, read_log
 from calbench.bench.view import measured_deflections
 from calbench.identify.discover import ALPHA_FIT as MISFIT_P  # chi2 p below which the model is rejected
-from calbench.identify.discover import alias_lines, base_lines, exposure_lines, self_check_lines, tie_lines
+from calbench.identify.discover import (
+    alias_lines,
+    base_lines,
+    exposure_lines,
+    self_check_lines,
+    tie_lines,
+    valley_lines,
+)
 
 from . import htmlplots
 from .identification import noise_source
@@ -414,6 +421,7 @@ def honesty_lines(disc: dict, path) -> list[str]:
         lines = (
             base_lines(disc.get("base_fit"))
             + tie_lines(params)
+            + valley_lines(params)
             + self_check_lines(disc.get("self_check"))
             + exposure_lines(params)
         )
