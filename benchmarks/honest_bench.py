@@ -35,14 +35,16 @@ PER CAMPAIGN. Simulate in memory (identify/study's simulate_in_memory, the obser
 reader gets), then discover_observations with the user's model; the truth is read only
 afterwards. Outcome (by the first step): the right effect named; ambiguous including it; nothing
 named; unexplained; a wrong effect (or an ambiguous verdict without it). CONFIDENTLY WRONG: a
-parameter reported as determined (after the profile check and the self-check) with
+parameter reported as determined (after the profile check, the valley walks and the self-check) with
 |estimate - truth| > 4.5 std, unless the hidden effect was not named and the exposure report
 predicted it (the hidden effect among the parameter's ``unbounded_by``, or the gap within
 4.5 std plus its exposure to that effect), and any determined combination beyond 4.5 std. The
 truth of a named effect's parameter is the hidden one's where it is that effect, else 0.
 
 PER CELL: the shares with one-sided 95 % Clopper-Pearson upper bounds; on the nulls the
-false-alarm rate (anything named, ambiguous or unexplained) with its bound. Writes
+false-alarm rate (anything named, ambiguous or unexplained) with its bound; ``valley_flags``:
+the campaigns where a walk along an undetermined parameter left another one undetermined
+(identify/discover/uncertainty.py's along_valleys; the record's ``valley`` names them). Writes
 OUT/campaigns.jsonl (one line per campaign; a rerun skips what is there), OUT/honest.json,
 OUT/honest_table.md and OUT/honest.png (docs/discovery.md shows them). Progress: one line per
 campaign on stderr with the counts so far and the expected remaining time.
