@@ -1,6 +1,7 @@
 """The exposure's SPRUNG JOINT rule (identify/discover/exposure.py): on the joint a compensator
-spring acts on, every parameter an effect exposes beyond REGION_SIGMAS std is profiled in that
-effect's candidate fit, not only the springs. Here the exposure is taken on a synthetic whitened
+spring acts on, the parameters ``coupled`` names for an effect (the workflow: that joint's
+compliance) are profiled in its candidate fit where it exposes them beyond REGION_SIGMAS std, not
+only the springs. Here the exposure is taken on a synthetic whitened
 Jacobian (two base columns, one effect column half absorbed) with a stand-in profile, so what is
 checked is the gate and what the reach becomes: the profile's reach beyond the parameter's own
 spread at that level (sqrt(T_u) std) is its exposure to the effect, and the effects not named in
@@ -33,9 +34,8 @@ def test_the_effects_on_a_sprung_joint_are_the_j2_cubic_on_both_shipped_robots()
     compensator_joint): of their library, only the J2 cubic acts on it."""
     for path in (MJCF, KR270):
         robot = Robot.from_file(path)
-        assert sprung_joint_effects(SimpleNamespace(robot=robot), library(robot)) == {
-            "joint_nonlinearity[j2]"
-        }
+        got = sprung_joint_effects(SimpleNamespace(robot=robot), library(robot))
+        assert got == {"joint_nonlinearity[j2]": {1}}  # and k2 its compliance
 
 
 def _case():
@@ -55,7 +55,7 @@ def _case():
     return final, jb, std, [(effect, col)]
 
 
-def test_a_sprung_effect_profiles_every_parameter_it_exposes_beyond_two_std():
+def test_a_sprung_effect_profiles_its_coupled_parameters_it_exposes_beyond_two_std():
     final, jw, std, cols = _case()
     lab = label(cols[0][0])
     plain = exposure_report(final, jw, std, cols, 1)
@@ -63,14 +63,14 @@ def test_a_sprung_effect_profiles_every_parameter_it_exposes_beyond_two_std():
     assert np.any(first > REGION_SIGMAS * std)  # the case exposes some parameter beyond the gate
     calls = []
 
-    def profile(lab_, i, sigma, thr):
+    def profile(lab_, i, sigma, thr, **walk):
         calls.append((lab_, i))
         return 100.0 * sigma  # the candidate's profile reaches 100 std
 
     thr = unseen_chi2(1, 1)
     springs = np.zeros(2, bool)
     got = exposure_report(
-        final, jw, std, cols, 1, profile=profile, profiled=springs, coupled=frozenset({lab})
+        final, jw, std, cols, 1, profile=profile, profiled=springs, coupled={lab: frozenset({0, 1})}
     )
     gated = [i for i in range(2) if first[i] > REGION_SIGMAS * std[i]]
     assert sorted(i for _, i in calls) == gated
@@ -78,6 +78,10 @@ def test_a_sprung_effect_profiles_every_parameter_it_exposes_beyond_two_std():
         beyond = (100.0 - math.sqrt(thr)) * std[i]
         assert got[i]["by_effect_profile"][lab] == beyond
         assert got[i]["bias"] >= beyond
+    # only the parameters the effect is coupled to
+    calls.clear()
+    exposure_report(final, jw, std, cols, 1, profile=profile, profiled=springs, coupled={lab: frozenset({9})})
+    assert calls == []
     # not coupled and not a spring: the profile is not walked, the first order stands
     calls.clear()
     same = exposure_report(final, jw, std, cols, 1, profile=profile, profiled=springs)

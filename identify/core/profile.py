@@ -54,7 +54,7 @@ FAR_SIGMAS = 4.5  # the ``far`` parameters are checked this far too (module docs
 VALLEY_FIRST = 1 / 16  # a VALLEY walk's first step, in the walked parameter's size
 VALLEY_MIN_STEP = 1 / 1024  # its smallest step (halved where the determined ones move fast)
 VALLEY_MOVE = 1.0  # std: a step that moves a determined parameter further is halved
-VALLEY_POINTS = 24  # points a walk takes at most, each way
+VALLEY_POINTS = 12  # points a walk takes at most, each way
 
 # refit(start, i) -> chi2 of the fit with parameter i held at start[i] and the others refitted
 # from start; it may raise ValueError, RuntimeError or LinAlgError (no fit there)

@@ -189,9 +189,29 @@ def combination_rises(f: Fit, obs, white: Whitener, combo: dict) -> list[float |
     return out
 
 
+VALLEY_ITER = 6  # iterations of a valley walk's refit (warm from the point before)
+COMPLIANCE_UNIT = "rad/(N*m)"
+
+
+def far_from_linear(f: Fit) -> np.ndarray:
+    """(P,) bool: the parameters the deflections are far from linear in, whose valleys can bend:
+    the compensator springs' (K_C (L - s0) over the spring's triangle) and the named effects'
+    that are neither compliances (linear to first order: a valley along one is as straight as
+    the Fisher std assumes) nor marked linear (the measurement side). Walking every undetermined
+    parameter instead, compliances included, took 4-13 s a discovery on the test suite's
+    two-effect FANUC cases (5 walks, 73-89 refits) and marked nothing there."""
+    out = np.array([u != COMPLIANCE_UNIT for u in f.units], bool)
+    off = f.values.size - sum(len(e.param_names) for e in f.effects)
+    for e in f.effects:
+        for k, p in enumerate(priors(e)):
+            out[off + k] &= not p.linear
+        off += len(e.param_names)
+    return out
+
+
 def along_valleys(f: Fit, obs, white: Whitener, det: Determination) -> tuple[np.ndarray, dict]:
     """((P,) bool, {index: record}): the determined parameters that a walk along an undetermined
-    one carries beyond the quadratic their std assumes (identify/core/profile.py's VALLEY; the
+    one (:func:`far_from_linear`) carries beyond the quadratic their std assumes (identify/core/profile.py's VALLEY; the
     rest refitted by identify/discover/fit.py as :func:`not_quadratic` refits), and for each
     the walked parameter, its distance in std, the point's chi2 rise and the range it took."""
     from calbench.identify.core import valley_check
@@ -199,14 +219,14 @@ def along_valleys(f: Fit, obs, white: Whitener, det: Determination) -> tuple[np.
     from .fit import fit_augmented as fit_model
 
     lo, hi, hold = f.extra["bounds"]
-    walked = np.flatnonzero(det.estimated & ~det.determined & ~np.asarray(hold, bool))
+    walked = np.flatnonzero(det.estimated & ~det.determined & ~np.asarray(hold, bool) & far_from_linear(f))
     if not walked.size or not det.determined.any():
         return np.zeros(f.values.size, bool), {}
 
     def refit(v: np.ndarray, i: int) -> tuple[float, np.ndarray]:
         held = np.array(hold, bool).copy()
         held[i] = True
-        g = fit_model(f.model, obs.dp, white, v, lo, hi, held, cost_tol=0.01, max_iter=12)
+        g = fit_model(f.model, obs.dp, white, v, lo, hi, held, cost_tol=0.01, max_iter=VALLEY_ITER)
         return g.chi2, g.values
 
     out = valley_check(refit, f.values, f.chi2, det.std, det.determined, lo, hi, walked, sizes(f))

@@ -405,26 +405,28 @@ def springs_of(f: Fit) -> np.ndarray:
     return out
 
 
-def sprung_joint_effects(f: Fit, effects: list) -> frozenset[str]:
-    """The labels of ``effects`` acting on a joint a compensator spring spans (exposure.py's
-    SPRUNG JOINT: each profiled for every parameter it exposes)."""
+def sprung_joint_effects(f: Fit, effects: list) -> dict[str, frozenset[int]]:
+    """{label: (the index of that joint's compliance,)} for each of ``effects`` acting on a joint
+    a compensator spring spans (exposure.py's SPRUNG JOINT)."""
     joints = set()
     for c in range(len(f.robot.layout.compensators)):
         try:
             joints.add(f.robot.compensator_joint(c) + 1)
         except ValueError:
             continue  # a spring across more than one hinge: no single joint to name
-    return frozenset(label(e) for e in effects if e.options.get("joint") in joints)
+    return {
+        label(e): frozenset({e.options["joint"] - 1}) for e in effects if e.options.get("joint") in joints
+    }
 
 
 def candidate_profiles(obs, white, final: Fit, cands: list[Candidate]):
-    """(label, parameter index, its std, chi2 level) -> exposure.py's :func:`profile_reach` in
-    that candidate's fit on top of ``final`` (None: no such fit)."""
+    """(label, parameter index, its std, chi2 level, its keywords) -> exposure.py's
+    :func:`profile_reach` in that candidate's fit on top of ``final`` (None: no such fit)."""
     from .exposure import PROFILE_ITER, profile_reach
 
     by = {c.label: c.fit for c in cands if c.fit is not None and c.fit.extra.get("warm_of") is final}
 
-    def reach(lab: str, i: int, sigma: float, thr: float) -> float | None:
+    def reach(lab: str, i: int, sigma: float, thr: float, **walk) -> float | None:
         f = by.get(lab)
         if f is None:
             return None
@@ -436,7 +438,9 @@ def candidate_profiles(obs, white, final: Fit, cands: list[Candidate]):
             g = fit_augmented(f.model, obs.dp, white, v, lo, hi, h, max_iter=PROFILE_ITER)
             return g.chi2, g.values
 
-        return profile_reach(held, f.values, f.chi2, i, float(final.values[i]), sigma, thr, lo[i], hi[i])
+        return profile_reach(
+            held, f.values, f.chi2, i, float(final.values[i]), sigma, thr, lo[i], hi[i], **walk
+        )
 
     return reach
 
