@@ -63,7 +63,7 @@ def test_a_sprung_effect_profiles_its_coupled_parameters_it_exposes_beyond_two_s
     assert np.any(first > REGION_SIGMAS * std)  # the case exposes some parameter beyond the gate
     calls = []
 
-    def profile(lab_, i, sigma, thr, **walk):
+    def profile(lab_, i, sigma, thr):
         calls.append((lab_, i))
         return 100.0 * sigma  # the candidate's profile reaches 100 std
 

@@ -431,18 +431,12 @@ def exposure_report(
             lab = label(effect)
             thr = unseen_chi2(len(effect.param_names), n_candidates)
             for k, i in enumerate(idx):
-                known = got["each"][k].get(lab, 0.0)
                 gate = (
                     PROFILE_SIGMA if profiled[i] else REGION_SIGMAS if i in coupled.get(lab, ()) else np.inf
                 )
-                if not (np.isfinite(sd[k]) and known > gate * sd[k]):
+                if not (np.isfinite(sd[k]) and got["each"][k].get(lab, 0.0) > gate * sd[k]):
                     continue  # an effect whose first order hardly moves the parameter
-                if profiled[i]:
-                    reach = profile(lab, int(i), float(sd[k]), thr)
-                elif int(i) in coupled[lab]:  # SPRUNG JOINT: the joint's own compliance
-                    reach = profile(lab, int(i), float(sd[k]), thr)
-                else:
-                    continue
+                reach = profile(lab, int(i), float(sd[k]), thr)  # a spring, or SPRUNG JOINT's compliance
                 if reach is None:
                     continue
                 beyond = max(0.0, reach - math.sqrt(thr) * float(sd[k]))
@@ -616,20 +610,17 @@ def profile_reach(
     thr: float,
     lo,
     hi,
-    first: float | None = None,
-    bisect: int = PROFILE_BISECT,
 ) -> float:
     """How far from ``center`` (the user's estimate of parameter ``i``) its chi2 profile in a
     candidate's augmented model stays within ``thr`` of the lowest chi2 met (the module
-    docstring's PROFILE): the parameter held at points stepping away from center by 2 sigma
-    (``first``: another first step), doubling (up to 2^PROFILE_STEPS sigma and its bounds ``lo``,
-    ``hi``), the rest refitted warm from the previous point by ``held(values) -> (chi2, values)``,
-    from the candidate's fit ``start`` (chi2 ``chi2_min``); where a point rises beyond ``thr`` or
-    has no equilibrium, the step is halved (``bisect`` times) from the last point within."""
+    docstring's PROFILE): the parameter held at points stepping away from center by 2 sigma,
+    doubling (up to 2^PROFILE_STEPS sigma and its bounds ``lo``, ``hi``), the rest refitted warm
+    from the previous point by ``held(values) -> (chi2, values)``, from the candidate's fit
+    ``start`` (chi2 ``chi2_min``); where a point rises beyond ``thr`` or has no equilibrium, the
+    step is halved (PROFILE_BISECT times) from the last point within."""
     far = 0.0
     for side in (1.0, -1.0):
-        v, best, good = np.array(start, float), chi2_min, 0.0
-        step = 2.0 * sigma if first is None else first
+        v, best, good, step = np.array(start, float), chi2_min, 0.0, 2.0 * sigma
         halvings = 0
         while step > 0 and abs(good) < sigma * 2.0**PROFILE_STEPS:
             x = center + side * (good + step)
@@ -641,7 +632,7 @@ def profile_reach(
             except (ValueError, RuntimeError, np.linalg.LinAlgError):
                 chi2, w = np.inf, None
             if chi2 - min(best, chi2) > thr or w is None:
-                if halvings >= bisect:
+                if halvings >= PROFILE_BISECT:
                     break
                 step, halvings = step / 2, halvings + 1  # the edge lies within this step
                 continue

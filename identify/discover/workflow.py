@@ -420,13 +420,13 @@ def sprung_joint_effects(f: Fit, effects: list) -> dict[str, frozenset[int]]:
 
 
 def candidate_profiles(obs, white, final: Fit, cands: list[Candidate]):
-    """(label, parameter index, its std, chi2 level, its keywords) -> exposure.py's
-    :func:`profile_reach` in that candidate's fit on top of ``final`` (None: no such fit)."""
+    """(label, parameter index, its std, chi2 level) -> exposure.py's :func:`profile_reach` in
+    that candidate's fit on top of ``final`` (None: no such fit)."""
     from .exposure import PROFILE_ITER, profile_reach
 
     by = {c.label: c.fit for c in cands if c.fit is not None and c.fit.extra.get("warm_of") is final}
 
-    def reach(lab: str, i: int, sigma: float, thr: float, **walk) -> float | None:
+    def reach(lab: str, i: int, sigma: float, thr: float) -> float | None:
         f = by.get(lab)
         if f is None:
             return None
@@ -438,9 +438,7 @@ def candidate_profiles(obs, white, final: Fit, cands: list[Candidate]):
             g = fit_augmented(f.model, obs.dp, white, v, lo, hi, h, max_iter=PROFILE_ITER)
             return g.chi2, g.values
 
-        return profile_reach(
-            held, f.values, f.chi2, i, float(final.values[i]), sigma, thr, lo[i], hi[i], **walk
-        )
+        return profile_reach(held, f.values, f.chi2, i, float(final.values[i]), sigma, thr, lo[i], hi[i])
 
     return reach
 
