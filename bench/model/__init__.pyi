@@ -15,6 +15,7 @@ from .loop import (
     motor_jacobians,
 )
 from .params import (
+    COMPLIANCE_UNIT,
     LEGACY_COMPENSATOR,
     MAX_COMPLIANCE,
     ParamLayout,
@@ -41,6 +42,7 @@ __all__ = [
     "LOOP_TOL",
     "MAX_COMPLIANCE",
     "ParamLayout",
+    "COMPLIANCE_UNIT",
     "Params",
     "ReflectorPost",
     "Robot",

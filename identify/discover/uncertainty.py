@@ -33,6 +33,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from calbench.bench.model import COMPLIANCE_UNIT
 from calbench.bench.model.effects import priors
 from calbench.identify.core import (
     MAX_RELATIVE_STD,
@@ -190,7 +191,6 @@ def combination_rises(f: Fit, obs, white: Whitener, combo: dict) -> list[float |
 
 
 VALLEY_ITER = 6  # iterations of a valley walk's refit (warm from the point before)
-COMPLIANCE_UNIT = "rad/(N*m)"
 
 
 def far_from_linear(f: Fit) -> np.ndarray:
