@@ -24,6 +24,11 @@ stderr as it finishes (progress, and what a run cut short has measured).
 
     python benchmarks/discover_null_bench.py [--seeds 300] [--spec-seeds 100] [--processes 2]
                                              [--scheduler ADDR] [--scenario PATH] [--quick]
+                                             [--first-seed N] [--rows ERR ...]
+
+``--first-seed`` starts the seeds further on, so that a run adds seeds to an earlier one;
+``--rows`` reads the rows earlier runs printed on stderr (the same plan, no other seed twice)
+and summarises them together with this run's (``--seeds 0 --spec-seeds 0``: only them).
 
 The seeds run as pieces on calbench's executors (identify/runtime/executor.py, issue 15: no pool of our
 own): in this process, on a local Dask cluster of ``--processes`` workers, or on the cluster at
@@ -103,6 +108,22 @@ def seed_block(model: str, seeds: list[int], scenario: str = str(PAPER)) -> list
     return [one_seed((model, s, scenario)) for s in seeds]
 
 
+def earlier_rows(paths: list[str]) -> dict[str, list[dict]]:
+    """Rows an earlier run printed on stderr (one JSON object per seed, with its model), by
+    model; summary lines and anything else are skipped."""
+    out: dict[str, list[dict]] = {}
+    for path in paths:
+        for line in Path(path).read_text().splitlines():
+            try:
+                row = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            if isinstance(row, dict) and "seed" in row and "model" in row:
+                model = row.pop("model")
+                out.setdefault(model, []).append(row)
+    return out
+
+
 def clopper_pearson_upper(k: int, n: int, conf: float = 0.95) -> float:
     return 1.0 if k >= n else float(stats.beta.ppf(conf, k + 1, n - k))
 
@@ -168,6 +189,13 @@ def main() -> int:
     ap.add_argument(
         "--quick", action="store_true", help="10 isotropic and 5 spec seeds (to see that it works)"
     )
+    ap.add_argument("--first-seed", type=int, default=0, help="the first seed (default: %(default)s)")
+    ap.add_argument(
+        "--rows",
+        nargs="*",
+        default=[],
+        help="stderr files of earlier runs of this plan: their seeds' rows join this run's summary",
+    )
     args = ap.parse_args()
     from calbench.bench.scenario import load_scenario
 
@@ -180,21 +208,28 @@ def main() -> int:
         "alpha_familywise": 1e-3,
         "models": {},
     }
+    earlier = earlier_rows(args.rows)
     for model, n in (("isotropic", args.seeds), ("spec", args.spec_seeds)):
-        if n <= 0:
+        rows = earlier.get(model, [])
+        if n > 0:
+            first, last = args.first_seed, args.first_seed + n
+            blocks = [
+                (model, list(range(a, min(a + SEEDS_PER_TASK, last))), args.scenario)
+                for a in range(first, last, SEEDS_PER_TASK)
+            ]
+            where = args.scheduler or ("local" if args.processes > 1 else "in-process")
+            with open_executor(choose(where, 0.0, len(blocks), workers=args.processes)) as ex:
+                done = {}
+                for i, block_rows in ex.run(seed_block, blocks):
+                    done[i] = block_rows
+                    for r in block_rows:  # progress, and what a cut-short run has measured
+                        print(json.dumps({"model": model, **r}), file=sys.stderr, flush=True)
+            rows = rows + [r for i in range(len(blocks)) for r in done[i]]
+        if not rows:
             continue
-        blocks = [
-            (model, list(range(a, min(a + SEEDS_PER_TASK, n))), args.scenario)
-            for a in range(0, n, SEEDS_PER_TASK)
-        ]
-        where = args.scheduler or ("local" if args.processes > 1 else "in-process")
-        with open_executor(choose(where, 0.0, len(blocks), workers=args.processes)) as ex:
-            done = {}
-            for i, block_rows in ex.run(seed_block, blocks):
-                done[i] = block_rows
-                for r in block_rows:  # progress, and what a cut-short run has measured
-                    print(json.dumps({"model": model, **r}), file=sys.stderr, flush=True)
-        rows = [r for i in range(len(blocks)) for r in done[i]]
+        seeds = [r["seed"] for r in rows]
+        if len(set(seeds)) != len(seeds):
+            sys.exit(f"--rows/--first-seed: a {model} seed is counted twice; seeds must not overlap")
         res["models"][model] = summarise(rows)
         print(
             json.dumps({model: {k: v for k, v in res["models"][model].items() if k != "alarms"}}),
