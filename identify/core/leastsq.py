@@ -128,14 +128,19 @@ class Fit:
     def dof(self) -> int:
         return int(self.n_res - self.rank)
 
-    def effect_params(self) -> list[tuple[Any, np.ndarray]]:
-        """(effect, its parameter values) for every appended effect, in order."""
+    def effect_slices(self) -> list[tuple[Any, slice]]:
+        """(effect, where its parameters sit in ``values``) for every appended effect, in order:
+        the effects' parameters follow the base ones, each effect's in its own order."""
         out, off = [], self.values.size - sum(len(e.param_names) for e in self.effects)
         for e in self.effects:
             n = len(e.param_names)
-            out.append((e, self.values[off : off + n].copy()))
+            out.append((e, slice(off, off + n)))
             off += n
         return out
+
+    def effect_params(self) -> list[tuple[Any, np.ndarray]]:
+        """(effect, its parameter values) for every appended effect, in order."""
+        return [(e, self.values[s].copy()) for e, s in self.effect_slices()]
 
 
 # --------------------------------------------------------------------------- the core

@@ -64,11 +64,8 @@ class Determination:
 def sizes(f: Fit) -> np.ndarray:
     """Each parameter's size for relative coordinates: |value|, not below its prior size."""
     out = np.abs(np.asarray(f.values, dtype=float))
-    off = f.values.size - sum(len(e.param_names) for e in f.effects)
-    for e in f.effects:
-        n = len(e.param_names)
-        out[off : off + n] = np.maximum(out[off : off + n], [p.size for p in priors(e)])
-        off += n
+    for e, s in f.effect_slices():
+        out[s] = np.maximum(out[s], [p.size for p in priors(e)])
     return np.where(out > 0, out, 1.0)
 
 
@@ -201,11 +198,8 @@ def far_from_linear(f: Fit) -> np.ndarray:
     parameter instead, compliances included, took 4-13 s a discovery on the test suite's
     two-effect FANUC cases (5 walks, 73-89 refits) and marked nothing there."""
     out = np.array([u != COMPLIANCE_UNIT for u in f.units], bool)
-    off = f.values.size - sum(len(e.param_names) for e in f.effects)
-    for e in f.effects:
-        for k, p in enumerate(priors(e)):
-            out[off + k] &= not p.linear
-        off += len(e.param_names)
+    for e, s in f.effect_slices():
+        out[s] &= [not p.linear for p in priors(e)]
     return out
 
 

@@ -167,12 +167,9 @@ def _params(
 
 def _effect_params(f: Fit, det, effect) -> list[dict]:
     """The records of ``effect``'s parameters in f, named as the effect names them."""
-    off = f.values.size - sum(len(e.param_names) for e in f.effects)
-    for e, _ in f.effect_params():
-        n = len(e.param_names)
+    for e, s in f.effect_slices():
         if e is effect:
-            return [dict(r, name=pn) for r, pn in zip(_params(f, det, off, off + n), e.param_names)]
-        off += n
+            return [dict(r, name=pn) for r, pn in zip(_params(f, det, s.start, s.stop), e.param_names)]
     raise KeyError(effect.name)
 
 
