@@ -102,3 +102,24 @@ def test_the_readme_robot_passes(tmp_path):
     (tmp_path / "my_arm.xml").write_text(xml)
     res = check_robot(tmp_path / "my_arm.xml")
     assert res.parameters == ("k1", "k2", "k3") and res.poses == 27
+
+
+def test_a_payload_on_the_last_axis_is_warned_about(tmp_path):
+    """A payload hung on J6's own axis (the tests' arm, link_6's x axis) has no lever arm about
+    it at any pose: check-robot says so, names the joint and the fix, before design refuses. The
+    arm as shipped, with its payload 0.15 m off the axis, gets no warning, nor does any joint
+    whose axis the payload only crosses at some poses."""
+    from urdf_robots import arm_overlay, arm_urdf, convert_arm
+
+    on_axis = (
+        '[payload]\nlink = "tool0"\npos = [0.35, 0.0, -0.15]',
+        '[payload]\nlink = "link_6"\npos = [0.35, 0.0, 0.0]',
+    )
+    assert on_axis[0] in arm_overlay()
+    _, off = convert_arm(tmp_path / "off", arm_urdf(), arm_overlay())
+    _, on = convert_arm(tmp_path / "on", arm_urdf(), arm_overlay().replace(*on_axis))
+    assert check_robot(off).payload_on_axis == ()
+    res = check_robot(on)
+    assert res.payload_on_axis == ("joint_6",)
+    line = next(x for x in res.lines() if "WARNING" in x)
+    assert "on joint_6's axis at every grid pose" in line and "[payload] pos" in line

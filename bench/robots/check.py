@@ -19,6 +19,10 @@ Checks, in order, each failure an InputError naming the element (exit status 2):
    margin of a degenerate loop (bench.robot.LOOP_MARGIN) are skipped, as a campaign rejects
    them; each other pose must reach an acceptable equilibrium (bench.statics).
 
+And one warning, not a failure (a scenario's wrench can still carry a torque): an actuated joint
+whose axis the payload site sits on (within MIN_SPREAD) at every grid pose, about which no hung
+weight or pull has a lever arm (:func:`payload_levers`).
+
 On success :func:`check_robot` returns a :class:`RobotCheck`, a short summary of what calbench
 derived from the model.
 """
@@ -67,6 +71,7 @@ class RobotCheck:
     mass: float = DEFAULT_MASS  # kg, the payload of the loaded grid
     optional: dict[str, tuple[str, ...]] = field(default_factory=dict)
     frames: list[LinkFrame] = field(default_factory=list)
+    payload_on_axis: tuple[str, ...] = ()  # actuated joints whose axis the payload sits on
 
     def lines(self) -> list[str]:
         """The summary, for people."""
@@ -97,6 +102,13 @@ class RobotCheck:
             f"[{', '.join(f'{x:.2f}' for x in self.tracker)}] m at the reference pose)"
         )
         out.append(f"  payload site: {self.payload}" + (f"; flange: {self.flange}" if self.flange else ""))
+        for j in self.payload_on_axis:
+            out.append(
+                f"  WARNING: the payload site is on {j}'s axis at every grid pose (within "
+                f"{MIN_SPREAD * 100:.0f} cm): a force there puts no torque on {j}, so no plan of "
+                f"weights and pulls calibrates its compliance (design refuses). Move calbench:payload "
+                f"(from-urdf: the overlay's [payload] pos) off that axis, by tens of cm."
+            )
         for key, names in self.optional.items():
             if key == "assumed_masses":
                 out.append(
@@ -328,6 +340,7 @@ def check_robot(
         frames=link_frames(robot),
         mass=mass,
     )
+    lever = np.zeros(robot.n_act)  # per actuated joint, the payload's largest distance from its axis
     for q in grid(robot, per_joint):
         try:
             qpos = robot.rigid_qpos(q)
@@ -335,6 +348,7 @@ def check_robot(
             raise InputError(
                 path, "calbench:loops", f"loops that close at every pose (command {_deg(q)} deg)", str(exc)
             ) from None
+        lever = np.maximum(lever, payload_levers(robot, d, qpos))
         if robot.loops:
             d.qpos[:] = qpos
             mujoco.mj_kinematics(m, d)
@@ -369,7 +383,20 @@ def check_robot(
         out.poses += 1
     if out.poses == 0:
         raise InputError(path, "calbench:loops", "a grid pose away from a degenerate loop", "none")
+    out.payload_on_axis = tuple(n for n, r in zip(desc.actuated, lever) if r < MIN_SPREAD)
     return out
+
+
+def payload_levers(robot: Robot, d: mujoco.MjData, qpos: np.ndarray) -> np.ndarray:
+    """(n_act,) m: the payload site's distance from each actuated joint's axis at ``qpos``: the
+    lever arm any force hung there has about that joint."""
+    m = robot.model
+    d.qpos[:] = qpos
+    mujoco.mj_kinematics(m, d)
+    p = d.site_xpos[robot.payload_site]
+    r = p - d.xanchor[robot.act_joint]
+    a = d.xaxis[robot.act_joint]
+    return np.linalg.norm(r - (r * a).sum(axis=1, keepdims=True) * a, axis=1)
 
 
 __all__ = [

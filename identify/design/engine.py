@@ -36,7 +36,6 @@ from calbench.bench.tracker import (
 from calbench.identify.core import analyze, explain, resolve
 
 from .feasibility import Feasibility
-from .optimal import inverse_information
 from .settings import DesignSettings, nominal_robot
 
 # --------------------------------------------------------------------------- information
@@ -198,9 +197,7 @@ def unseen_parameters(engine: InfoEngine, F: np.ndarray, q: np.ndarray, wrench: 
     jw = (vec * np.sqrt(np.clip(lam, 0.0, None))) @ vec.T  # any factor of F has its rank and columns
     rb = engine.robot
     ident = analyze(jw, rb.layout.names)
-    cov = inverse_information(F) if ident.identifiable.all() else None
-    if cov is not None:
-        resolve(ident, np.ones(len(F)), cov)
+    resolve(ident, np.ones(len(F)), held_covariance(F, ident.identifiable))
     if ident.identifiable.all():
         return {}
     facts = _plan_facts(rb, np.atleast_2d(q), np.atleast_2d(wrench))
@@ -209,11 +206,36 @@ def unseen_parameters(engine: InfoEngine, F: np.ndarray, q: np.ndarray, wrench: 
         j = i if i < rb.n_act else -1
         if name in reasons and j >= 0 and ident.unresolved is not None and ident.unresolved[i]:
             if not facts["motor_torque_seen"][j]:
+                rel = 100 * ident.relative_std[i]
                 reasons[name] = (
                     f"no pose's load puts a torque on motor {j + 1} (the plan sees k{j + 1} only through "
-                    f"the links' own weights moved by the load: to +-{100 * ident.relative_std[i]:,.0f} %)"
+                    f"the links' own weights moved by the load: to +-{rel:,.0f} %)"
+                    if rel < 1e6
+                    else f"no pose's load puts a torque on motor {j + 1} (the plan sees k{j + 1} only through "
+                    f"the links' own weights moved by the load: to +-{rel:.1e} %)"
                 )
     return reasons
+
+
+def held_covariance(F: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """(p, p): F^-1 over the ``keep`` parameters with the others held (NaN there), from F's
+    eigen-decomposition, so that a direction F sees only to working precision (a payload on a
+    wrist axis: 1e-10 of the others) gets its honest, enormous variance, and one it does not see
+    at all an infinite one. (A Cholesky inverse gives no answer for either, and taking no answer
+    for "determined" let design write a plan that leaves k6 unseen.)"""
+    p = len(F)
+    cov = np.full((p, p), np.nan)
+    idx = np.flatnonzero(keep)
+    if idx.size == 0:
+        return cov
+    lam, vec = np.linalg.eigh(0.5 * (F + F.T)[np.ix_(idx, idx)])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = np.where(lam > 0, 1.0 / np.where(lam > 0, lam, 1.0), np.inf)
+        sub = (vec * inv) @ vec.T
+        v2 = vec**2
+        sub[np.diag_indices(idx.size)] = np.where(v2 > 0, v2 * inv, 0.0).sum(axis=1)
+    cov[np.ix_(idx, idx)] = sub
+    return cov
 
 
 def _plan_facts(rb, q: np.ndarray, wrench: np.ndarray) -> dict:
