@@ -12,7 +12,17 @@ from .aliasing import (
     regress,
     with_exact,
 )
-from .decide import ALPHA_EFFECT, MIN_EXPLAINED, compare, lr_spread, lr_threshold, near_ties
+from .decide import (
+    ALPHA_DISCOVERY,
+    ALPHA_EFFECT,
+    ALPHA_MISFIT,
+    MIN_EXPLAINED,
+    compare,
+    lr_spread,
+    lr_threshold,
+    near_ties,
+    score_statistic,
+)
 from .exposure import (
     NONLINEAR_CHI2_TOL,
     NONLINEAR_TOL,
@@ -109,8 +119,10 @@ __all__ = [
     "checked",
     "unit_checks",
     "with_deflections",
+    "ALPHA_DISCOVERY",
     "ALPHA_EFFECT",
     "ALPHA_FIT",
+    "ALPHA_MISFIT",
     "ALPHA_GEOMETRY",
     "ALPHA_NAMING",
     "ALPHA_UNEXPLAINED",
@@ -175,6 +187,7 @@ __all__ = [
     "lr_spread",
     "lr_threshold",
     "near_ties",
+    "score_statistic",
     "polish",
     "split_by_ties",
     "story",

@@ -254,6 +254,25 @@ def tie_lines(params: list[dict]) -> list[str]:
     return out
 
 
+def hint_line(h: dict) -> str:
+    """One hint: a candidate the readings lean towards but that is not named, and why (its LR
+    below the family-wise level, or past it only with what the current model leaves undetermined
+    moved along its valley: its first-order score below it; identify/discover/decide.py)."""
+    what = f"  Hint: adding {h['effect']} {h['detail']} would lower chi2 by {h['lr']:.1f} for {h['k']} parameter(s)"
+    if h["p_lr"] < h["alpha"] and h.get("p_score") is not None:
+        return (
+            f"{what} (p = {h['p_lr']:.1g}, past the family-wise {h['alpha']:.1g}), but only with "
+            f"parameters your model leaves undetermined moved along their valley: at your model's "
+            f"estimate, to first order, it explains {h['score_statistic']:.1f} (p = {h['p_score']:.1g}). "
+            "Not named: a null campaign does this more often than the level allows. A plan that "
+            "determines those parameters would tell."
+        )
+    return (
+        f"{what} (p = {h['p_lr']:.1g}, below the family-wise threshold: needs < {h['alpha']:.1g}): more "
+        "or better-placed measurements would tell."
+    )
+
+
 def valley_lines(params: list[dict]) -> list[str]:
     """Each parameter a walk along an undetermined one carried beyond its quadratic
     (identify/core/profile.py's VALLEY): the walked parameter, how far, for what chi2, the range."""
@@ -408,11 +427,7 @@ def story(rep: dict) -> str:
             "the data to the noise level."
         )
         for h in rep.get("hints", []):
-            lines.append(
-                f"  Hint below the family-wise threshold: adding {h['effect']} {h['detail']} would lower "
-                f"chi2 by {h['lr']:.1f} for {h['k']} parameter(s) (p = {h['p_lr']:.1g}, needs < "
-                f"{h['alpha']:.1g}): more or better-placed measurements would tell."
-            )
+            lines.append(hint_line(h))
     if rep.get("aliasing"):
         lines.append(
             "What a model that fits does not tell you (aliasing of every effect not named: the "

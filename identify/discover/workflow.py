@@ -16,7 +16,8 @@
    level on every run (identify/discover/decide.py: no global chi2 gate). The best accepted
    candidate is added and the loop repeats while a candidate is still accepted; a near-tie that
    the next round does not resolve is `ambiguous` (both named in ``ambiguous``); a residual that
-   is not noise with no candidate accepted is `unexplained`.
+   is not noise (chi2 p below decide.py's ALPHA_MISFIT) with no candidate accepted is
+   `unexplained`.
 4. ADD it: the augmented MJCF (every parameter of the final joint refit in it), loadable with
    MuJoCo; the text prints the same final values (a step's values when it was named are kept
    as ``parameters_at_naming``).
@@ -50,13 +51,16 @@ from calbench.identify.core import Observations, Whitener, check_sites, from_log
 from .aliasing import aliasing_report, with_exact
 from .basefit import base_fit, base_record, hold_mask
 from .decide import (
+    ALPHA_DISCOVERY,
     ALPHA_EFFECT,
+    ALPHA_MISFIT,
     AMBIGUOUS_BIC,
     AMBIGUOUS_SPREAD,
     MIN_EXPLAINED,
     compare,
     lr_threshold,
     near_ties,
+    score_statistic,
 )
 from .exposure import exposure_report, with_exposure
 from .fit import Fit, build, effect_priors, fit_augmented, label, library, whitened
@@ -111,10 +115,11 @@ def run_round(
             out.append(c)
             bar.update(f"{name}: {label(e)}")
             continue
-        st = compare(current, c.fit, len(cands))
+        score = score_statistic(current, c.fit, white)  # at the current model: the fit does not move it
+        st = compare(current, c.fit, len(cands), score)
         if st["k"] > 0 and st["lr"] >= POLISH_SHARE * lr_threshold(st["k"], len(cands)):
             c.fit = polish(c.fit, obs, white)  # near or past its threshold: the exact LR
-            st = compare(current, c.fit, len(cands))
+            st = compare(current, c.fit, len(cands), score)
         c.stats = st
         c.record.update(
             {
@@ -122,6 +127,7 @@ def run_round(
                 "lr": st["lr"],
                 "k": st["k"],
                 "p_lr": st["p_lr"],
+                **{k: st[k] for k in ("score_statistic", "score_rank", "p_score") if k in st},
                 "alpha": st["alpha"],
                 "explained": st["explained"],
                 "p_fit": st["p_fit"],
@@ -204,7 +210,7 @@ def _ties_resolved(
         except (ValueError, RuntimeError, NotImplementedError, np.linalg.LinAlgError):
             keep.append(t)
             continue
-        st = compare(with_best, both, n_tests)
+        st = compare(with_best, both, n_tests, score_statistic(with_best, both, white))
         t["lr_on_top_of_best"] = st["lr"]
         if not st["accept"]:
             keep.append(t)
@@ -246,11 +252,25 @@ def discover_observations(
         )
         if not ok:
             hints = [
-                {k: c.record[k] for k in ("effect", "detail", "lr", "k", "p_lr", "alpha", "score")}
+                {
+                    k: c.record[k]
+                    for k in (
+                        "effect",
+                        "detail",
+                        "lr",
+                        "k",
+                        "p_lr",
+                        "alpha",
+                        "score",
+                        "score_statistic",
+                        "p_score",
+                    )
+                    if k in c.record
+                }
                 for c in cands
                 if c.stats is not None and c.stats["k"] > 0 and c.stats["p_lr"] < HINT_P
             ]
-            if chi2_p(current.chi2, current.dof) < ALPHA_FIT:
+            if chi2_p(current.chi2, current.dof) < ALPHA_MISFIT:
                 named.append(UNEXPLAINED)
                 steps.append(
                     {
@@ -347,9 +367,12 @@ def discover_observations(
         "dof_after": final.dof,
         "p_after": chi2_p(final.chi2, final.dof),
         "decision_rule": {
+            "alpha_discovery": ALPHA_DISCOVERY,
             "alpha_effect_familywise": ALPHA_EFFECT,
             "bonferroni_over": "the round's candidates",
+            "first_order_confirmation": "Rao's score at the current model passes alpha too",
             "global_gate": None,
+            "alpha_misfit": ALPHA_MISFIT,
             "alpha_fit": ALPHA_FIT,
             "min_explained_share": MIN_EXPLAINED,
             "score": "BIC gain = LR - k ln n",

@@ -169,13 +169,16 @@ class Prior:
     """What a fit assumes of one effect parameter: where it starts (its "absent" value, or a
     generic size where absent makes the others meaningless), its bounds, a typical size
     (finite-difference steps at zero) and whether the deflections are linear in it (then a
-    candidate fit needs no multi-start, identify/discover/search.py). SI units."""
+    candidate fit needs no multi-start, identify/discover/search.py) and whether discovery's
+    first-order (score) test is defined at its start (identify/discover/decide.py: not for a new
+    spring, whose free length means nothing while its rate is zero). SI units."""
 
     start: float
     lower: float
     upper: float
     size: float
     linear: bool = False  # the deflections are linear in it: one start finds the optimum
+    first_order: bool = True  # a score test at the current model, the effect at its start, is defined
 
 
 # Per physical UNIT: the default priors of any effect parameter with that unit. A new effect with
@@ -186,6 +189,6 @@ UNIT_PRIORS: dict[str, Prior] = {
     # only move together (upper-arm x and z, braced by the coupler rod) are not locked
     "rad/(N*m)": Prior(start=1e-8, lower=1e-12, upper=1e-6, size=1e-8),
     "N*m/rad^3": Prior(start=0.0, lower=-np.inf, upper=np.inf, size=1e12),  # cubic: none
-    "N/m": Prior(start=1e6, lower=1.0, upper=1e9, size=1e6),  # spring rate
-    "m": Prior(start=1.0, lower=1e-3, upper=10.0, size=1.0),  # free length
+    "N/m": Prior(start=1e6, lower=1.0, upper=1e9, size=1e6, first_order=False),  # spring rate
+    "m": Prior(start=1.0, lower=1e-3, upper=10.0, size=1.0, first_order=False),  # free length
 }
