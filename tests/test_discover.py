@@ -35,7 +35,7 @@ from calbench.bench.model import Robot
 from calbench.bench.model.effects import REGISTRY, apply_effects, without_compensator
 from calbench.bench.scenario import load_scenario, scenario_variant
 from calbench.identify.cli import main as cli_main
-from calbench.identify.discover import DISCOVERY_EFFECTS, UNEXPLAINED, discover, library, story
+from calbench.identify.discover import ALPHA_EFFECT, DISCOVERY_EFFECTS, UNEXPLAINED, discover, library, story
 
 HIDDEN = {
     "forearm": (
@@ -295,7 +295,7 @@ def test_compensator_missing_from_the_user_model(logs):
     assert (
         rep["steps"][0]["p_lr"]
         < rep["steps"][0]["alpha"]
-        == pytest.approx(1e-3 / len(library(Robot.from_file(MJCF))))
+        == pytest.approx(ALPHA_EFFECT / len(library(Robot.from_file(MJCF))))
     )
 
 

@@ -111,6 +111,19 @@ def test_a_candidate_whose_first_order_score_fails_is_not_significant():
     assert high["significant"] and high["accept"] and high["score_statistic"] == pytest.approx(1.1 * thr)
 
 
+def test_a_hint_says_why_it_is_not_named():
+    """A hint past the LR level but not the score's says both numbers and why it is not named; one
+    below the level says what it needs (the text the story prints when nothing is named)."""
+    from calbench.identify.discover import hint_line
+
+    h = {"effect": "joint_nonlinearity", "detail": "j2", "lr": 18.9, "k": 1, "p_lr": 1.4e-5}
+    past = hint_line(h | {"alpha": 4.5e-5, "score_statistic": 15.3, "p_score": 9.1e-5})
+    assert "lower chi2 by 18.9" in past and "not at first order" in past and "15.3 (p = 9e-05)" in past
+    assert "Not named" in past
+    below = hint_line(h | {"p_lr": 0.007, "alpha": 4.5e-5, "score_statistic": 7.0, "p_score": 0.008})
+    assert "below the family-wise threshold: needs < 5e-05" in below and "first order" not in below
+
+
 def test_a_candidate_that_only_nibbles_at_a_misfit_is_not_named():
     """Significant, but removes 10 % of a large excess and leaves a rejected fit: unexplained."""
     base = fit_stats(1124.0, 124, 8)

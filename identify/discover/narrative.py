@@ -261,11 +261,12 @@ def hint_line(h: dict) -> str:
     what = f"  Hint: adding {h['effect']} {h['detail']} would lower chi2 by {h['lr']:.1f} for {h['k']} parameter(s)"
     if h["p_lr"] < h["alpha"] and h.get("p_score") is not None:
         return (
-            f"{what} (p = {h['p_lr']:.1g}, past the family-wise {h['alpha']:.1g}), but only with "
-            f"parameters your model leaves undetermined moved along their valley: at your model's "
-            f"estimate, to first order, it explains {h['score_statistic']:.1f} (p = {h['p_score']:.1g}). "
-            "Not named: a null campaign does this more often than the level allows. A plan that "
-            "determines those parameters would tell."
+            f"{what} (p = {h['p_lr']:.1g}, past the family-wise {h['alpha']:.1g}), but not at first "
+            f"order: at your model's estimate the readings give it {h['score_statistic']:.1f} "
+            f"(p = {h['p_score']:.1g}); the rest of the gain needs the model moved far from there (a "
+            "weakly determined spring along its valley, typically), where a campaign with nothing "
+            "missing gains this much more often than the level allows. Not named; a plan that "
+            "determines your model's parameters better would tell."
         )
     return (
         f"{what} (p = {h['p_lr']:.1g}, below the family-wise threshold: needs < {h['alpha']:.1g}): more "
