@@ -375,7 +375,13 @@ def story(rep: dict) -> str:
                 continue
             lines.append(
                 f"  {c['effect']:<20}{c['detail']:<11} score {c['score']:9.1f}  LR {c['lr']:8.1f} "
-                f"(k={c['k']}, p={c['p_lr']:.1g})  explains {100 * c['explained']:5.1f} % of the excess  "
+                f"(k={c['k']}, p={c['p_lr']:.1g})"
+                + (
+                    f"  first order {c['score_statistic']:6.1f} (p={c['p_score']:.1g})"
+                    if "p_score" in c
+                    else ""
+                )
+                + f"  explains {100 * c['explained']:5.1f} % of the excess  "
                 f"RMS after {c['rms_after'] * UM:6.1f} um" + ("  ACCEPTED" if c["accepted"] else "")
             )
     for s in rep["steps"]:
@@ -390,6 +396,7 @@ def story(rep: dict) -> str:
                     else "."
                 )
             )
+            lines += [hint_line(h) for h in rep.get("hints", [])]
             continue
         if s["effect"] == "ambiguous":
             lines.append(
@@ -424,7 +431,7 @@ def story(rep: dict) -> str:
     lines += exposure_lines(rep["parameters"])
     if not rep["named_effects"]:
         lines.append(
-            "Named: nothing. No candidate passes its likelihood-ratio test; the user's model explains "
+            "Named: nothing. No candidate passes its tests (likelihood ratio and first-order score); the user's model explains "
             "the data to the noise level."
         )
         for h in rep.get("hints", []):
