@@ -76,7 +76,7 @@ from .narrative import (
     tie_lines,
     valley_lines,
 )
-from .search import fit_candidate, polish, unabsorbed_norms
+from .search import WarmPoint, fit_candidate, polish, unabsorbed_norms, warm_point
 from .stats import ALPHA_FIT
 from .uncertainty import (
     BIAS_SIGMA,
@@ -184,6 +184,8 @@ __all__ = [
     "NONLINEAR_CHI2_TOL",
     "fit_augmented",
     "fit_candidate",
+    "warm_point",
+    "WarmPoint",
     "label",
     "library",
     "lr_spread",

@@ -174,6 +174,36 @@ def start_eval(
             object.__setattr__(st, "values", v)
 
 
+@dataclass(frozen=True)
+class WarmPoint:
+    """A candidate's model and bounds, and its warm start with the whitened model and Jacobian
+    there (:func:`warm_point`)."""
+
+    model: object
+    lower: np.ndarray
+    upper: np.ndarray
+    values: np.ndarray
+    fw: np.ndarray
+    jw: np.ndarray
+    start: np.ndarray  # the effect's prior start
+    applied: list  # the current model's effects and their values
+
+
+def warm_point(src, obs, white: Whitener, current: Fit, effect: Effect) -> WarmPoint:
+    """Where a candidate fit starts: the current model's values with ``effect`` appended at its
+    prior start, within every bound; :func:`fit_candidate` starts there and decide.py's
+    score_statistic linearises there (its Jacobian is the fit's ``warm_jw``)."""
+    start, lower, upper, _ = effect_priors(effect)
+    applied = current.effect_params()
+    _, fm = build(src, applied + [(effect, start)], obs)
+    lay = fm.layout
+    lo = np.concatenate([lay.lower] + [effect_priors(e)[1] for e, _ in applied] + [lower])
+    hi = np.concatenate([lay.upper] + [effect_priors(e)[2] for e, _ in applied] + [upper])
+    warm = np.clip(np.concatenate([current.values, start]), lo, hi)
+    fw, jw = whitened(fm, white, warm)
+    return WarmPoint(fm, lo, hi, warm, fw, jw, start, applied)
+
+
 def fit_candidate(
     src,
     obs,
@@ -189,15 +219,11 @@ def fit_candidate(
     exposure weighs each (identify/discover/exposure.py, FITTED). Raises what :func:`build` raises when the effect does not
     apply to the model, RuntimeError when no start has an equilibrium."""
     t0 = time.perf_counter()
-    start, lower, upper, _ = effect_priors(effect)
-    applied = current.effect_params()
-    _, fm = build(src, applied + [(effect, start)], obs)
+    w = warm_point(src, obs, white, current, effect)
+    fm, lo, hi, warm = w.model, w.lower, w.upper, w.values
+    fw, jw, start, applied = w.fw, w.jw, w.start, w.applied
     lay = fm.layout
-    lo = np.concatenate([lay.lower] + [effect_priors(e)[1] for e, _ in applied] + [lower])
-    hi = np.concatenate([lay.upper] + [effect_priors(e)[2] for e, _ in applied] + [upper])
     hold = np.concatenate([hold_base, np.zeros(lo.size - lay.n, bool)])
-    warm = np.clip(np.concatenate([current.values, start]), lo, hi)
-    fw, jw = whitened(fm, white, warm)
     base_free = np.r_[current.free, np.zeros(start.size, bool)]
     fresh = None if fresh_base is None else np.clip(fresh_base, lay.lower, lay.upper)
     yw = white.vec(obs.dp)
