@@ -43,7 +43,6 @@ import statistics
 import sys
 import time
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 from scipy import stats
@@ -115,60 +114,14 @@ def first_order_seed(args: tuple) -> dict:
     if _STATE.get("model") != model or _STATE.get("scenario") != scenario:
         _setup(model, scenario)
     from calbench.bench.campaign import remeasure
-    from calbench.bench.model.effects import priors
-    from calbench.identify.core import Whitener, from_campaign
-    from calbench.identify.discover import (
-        ALPHA_EFFECT,
-        ALPHA_MISFIT,
-        base_fit,
-        compare,
-        fit_candidate,
-        library,
-        lr_threshold,
-        polish,
-        score_statistic,
-        warm_point,
-    )
-    from calbench.identify.discover.basefit import hold_mask
-    from calbench.identify.discover.stats import chi2_p
-    from calbench.identify.discover.workflow import POLISH_SHARE
+    from calbench.identify.core import from_campaign
+    from calbench.identify.discover import first_round_events
 
     scn = _STATE["scn"]
     obs = from_campaign(remeasure(_STATE["campaign"], np.random.default_rng([20261, seed])))
     t, c = time.perf_counter(), time.process_time()
-    src = Path(scn.robot)
-    white = Whitener.from_observations(obs)
-    base = base_fit(src, obs, white)
-    lib = library(base.robot)
-    alpha = ALPHA_EFFECT / len(lib)
-    p_score, p_lr = {}, {}
-    for e in lib:
-        label = e.name + (f"[{e.detail}]" if e.detail else "")
-        if all(p.first_order for p in priors(e)):
-            w = warm_point(src, obs, white, base, e)
-            s, rank = score_statistic(base, SimpleNamespace(effects=[e], extra={"warm_jw": w.jw}), white)
-            p_score[label] = float(stats.chi2.sf(s, rank)) if rank else 1.0
-            continue
-        f = fit_candidate(src, obs, white, base, hold_mask(base), e, base.extra["fresh_start"])
-        st = compare(base, f, len(lib))
-        if st["k"] > 0 and st["lr"] >= POLISH_SHARE * lr_threshold(st["k"], len(lib)):
-            st = compare(base, polish(f, obs, white), len(lib))
-        p_lr[label] = st["p_lr"]
-    p_before = chi2_p(base.chi2, base.dof)
-    return {
-        "seed": seed,
-        "event": bool(
-            min(p_score.values(), default=1.0) < alpha
-            or min(p_lr.values(), default=1.0) < alpha
-            or p_before < ALPHA_MISFIT
-        ),
-        "p_score": p_score,
-        "p_lr_no_first_order": p_lr,
-        "p_before": p_before,
-        "alpha": alpha,
-        "wall_s": time.perf_counter() - t,
-        "cpu_s": time.process_time() - c,
-    }
+    out = first_round_events(obs, Path(scn.robot))
+    return {"seed": seed, **out, "wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c}
 
 
 def first_order_block(model: str, seeds: list[int], scenario: str = str(PAPER)) -> list[dict]:

@@ -298,3 +298,30 @@ def test_the_payload_mass_line_says_what_the_record_says(exact_fits):
             assert f"{100 * a['detectable_magnitude']:.2g} %" in line
             assert a["detectable_magnitude"] > 0.2
         assert f"{100 * (1 - a['visible_share']):.3g} %" in line
+
+
+def test_first_round_events_are_discoverys_own_and_bound_its_verdict():
+    """first_round_events (the false-alarm bound of benchmarks/discover_null_bench.py
+    --first-order) reads the same first-order scores, misfit p and level as the whole discovery
+    on the same readings, and where it finds no event discovery names nothing: the paper plan
+    with nothing hidden, one noise draw."""
+    from calbench.bench.campaign import remeasure
+    from calbench.identify.discover import discover_observations, first_round_events
+
+    text = PAPER.read_text().replace('robot = "../mjcf/m900ib700.xml"', f'robot = "{MJCF}"')
+    campaign = simulate(parse_scenario(text, Path("/tmp/null_bound.toml")), None)
+    for seed in (1,):
+        obs = from_campaign(remeasure(campaign, np.random.default_rng([20261, seed])))
+        ev = first_round_events(obs, MJCF)
+        rep, _ = discover_observations(obs, MJCF)
+        first = {
+            c["effect"] + (f"[{c['detail']}]" if c["detail"] else ""): c
+            for c in rep["rounds"][0]["candidates"]
+        }
+        assert set(ev["p_score"]) == {k for k, c in first.items() if "p_score" in c}
+        for k, p in ev["p_score"].items():
+            assert p == pytest.approx(first[k]["p_score"], rel=1e-9, abs=1e-300)
+        assert ev["p_before"] == pytest.approx(rep["p_before"], rel=1e-12)
+        assert ev["alpha"] == pytest.approx(first[next(iter(first))]["alpha"], rel=1e-12)
+        if not ev["event"]:
+            assert rep["named_effects"] == []

@@ -102,6 +102,7 @@ from .workflow import (
     clean,
     discover,
     discover_observations,
+    first_round_events,
     sprung_joint_effects,
     story,
 )
@@ -172,6 +173,7 @@ __all__ = [
     "determination",
     "discover",
     "discover_observations",
+    "first_round_events",
     "effect_exposure",
     "effect_priors",
     "exposure_report",

@@ -81,7 +81,7 @@ def compare(base, cand, n_candidates: int, score: tuple[float, int] | None = Non
     rao = {}
     if score is not None:
         s, rank = score
-        p_score = float(stats.chi2.sf(s, rank)) if rank > 0 else 1.0
+        p_score = score_p(s, rank)
         rao = {"score_statistic": float(s), "score_rank": int(rank), "p_score": p_score}
         significant = significant and p_score < alpha
     return {
@@ -98,6 +98,12 @@ def compare(base, cand, n_candidates: int, score: tuple[float, int] | None = Non
         "significant": significant,
         "accept": bool(significant and bic > 0 and (p_fit >= ALPHA_FIT or explained >= MIN_EXPLAINED)),
     }
+
+
+def score_p(statistic: float, rank: int) -> float:
+    """The score statistic's p-value: chi2(rank) under the null at the current model (1 for no
+    direction left)."""
+    return float(stats.chi2.sf(statistic, rank)) if rank > 0 else 1.0
 
 
 def score_statistic(current, cand, white) -> tuple[float, int] | None:
@@ -183,6 +189,7 @@ __all__ = [
     "ALPHA_DISCOVERY",
     "ALPHA_EFFECT",
     "ALPHA_MISFIT",
+    "score_p",
     "score_statistic",
     "MIN_EXPLAINED",
     "AMBIGUOUS_BIC",

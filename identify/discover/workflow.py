@@ -44,7 +44,7 @@ import numpy as np
 from calbench.bench.core import sink, write_text
 from calbench.bench.log import read_log
 from calbench.bench.model import Robot, log_robot, set_spec_names, spec_names
-from calbench.bench.model.effects import augmented_xml, load_spec
+from calbench.bench.model.effects import augmented_xml, load_spec, priors
 from calbench.bench.view import Discovery, write_discovery_recording
 from calbench.identify.core import Observations, Whitener, check_sites, from_log
 
@@ -60,12 +60,13 @@ from .decide import (
     compare,
     lr_threshold,
     near_ties,
+    score_p,
     score_statistic,
 )
 from .exposure import exposure_report, with_exposure
 from .fit import Fit, build, effect_priors, fit_augmented, label, library, whitened
 from .narrative import clean, plot_residuals, story, view_report
-from .search import fit_candidate, polish
+from .search import fit_candidate, polish, warm_point
 from .stats import ALPHA_FIT, chi2_p, diagnose, expected_rms, rms
 from .uncertainty import (
     MAX_RELATIVE_STD,
@@ -215,6 +216,58 @@ def _ties_resolved(
         if not st["accept"]:
             keep.append(t)
     return keep if len(keep) > 1 else []
+
+
+def first_round_events(obs: Observations, src) -> dict:
+    """The first round's events that any verdict of :func:`discover_observations` needs
+    (decide.py): a candidate whose first-order score passes its Bonferroni level, a candidate
+    without a first-order test (a new spring) whose LR does, or the user's model's chi2 below
+    ALPHA_MISFIT. An effect is named only with its LR and its score past the level, `ambiguous`
+    only with one named, `unexplained` only with the misfit, so where ``event`` is False,
+    discovery names nothing: on campaigns with nothing hidden the share of events bounds the
+    false-alarm rate from above, for the user's model's fit and one candidate fit per spring
+    instead of every candidate's (benchmarks/discover_null_bench.py --first-order). Returns
+    {event, p_score (by candidate), p_lr_no_first_order (by candidate), p_before, alpha}."""
+    white = Whitener.from_observations(obs)
+    base = base_fit(src, obs, white)
+    lib = library(base.robot)
+    alpha = ALPHA_EFFECT / max(len(lib), 1)
+    p_score, p_lr = {}, {}
+    for e in lib:
+        try:
+            if all(p.first_order for p in priors(e)):
+                w = warm_point(src, obs, white, base, e)
+                s, rank = score_statistic(base, _WarmOnly([e], {"warm_jw": w.jw}), white)
+                p_score[label(e)] = score_p(s, rank)
+                continue
+            f = fit_candidate(src, obs, white, base, hold_mask(base), e, base.extra["fresh_start"])
+        except (ValueError, RuntimeError, NotImplementedError, np.linalg.LinAlgError):
+            continue  # run_round records the error: no statistic, no verdict
+        st = compare(base, f, len(lib))
+        if st["k"] > 0 and st["lr"] >= POLISH_SHARE * lr_threshold(st["k"], len(lib)):
+            st = compare(base, polish(f, obs, white), len(lib))
+        p_lr[label(e)] = st["p_lr"]
+    p_before = chi2_p(base.chi2, base.dof)
+    event = (
+        min(p_score.values(), default=1.0) < alpha
+        or min(p_lr.values(), default=1.0) < alpha
+        or p_before < ALPHA_MISFIT
+    )
+    return {
+        "event": bool(event),
+        "p_score": p_score,
+        "p_lr_no_first_order": p_lr,
+        "p_before": p_before,
+        "alpha": alpha,
+    }
+
+
+@dataclass
+class _WarmOnly:
+    """What decide.score_statistic reads of a candidate fit: its effects and warm Jacobian."""
+
+    effects: list
+    extra: dict
 
 
 def discover_observations(
@@ -694,6 +747,7 @@ def discover(
 __all__ = [
     "discover",
     "discover_observations",
+    "first_round_events",
     "base_fit",
     "run_round",
     "story",
