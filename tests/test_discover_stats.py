@@ -56,7 +56,7 @@ def test_every_candidate_is_tested_without_a_global_gate():
 
 def _linear_score(rng, effect, n=120, p=4, m=None):
     """A linear model y = A b + C c + e (whitened, unit noise): the current fit on A alone and a
-    candidate fit on [A C], as discovery's Fits carry them (warm_jw, free, at_bound, residual)."""
+    candidate on [A C], as discovery passes them (the warm Jacobian; the current free, at_bound, residual)."""
 
     m = m or len(effect.param_names)
     A, C = rng.normal(size=(n, p)), rng.normal(size=(n, m))
@@ -67,10 +67,10 @@ def _linear_score(rng, effect, n=120, p=4, m=None):
     cur = SimpleNamespace(
         values=b, free=np.ones(p, bool), at_bound=np.zeros(p, bool), residual=(y - A @ b).reshape(-1, 3)
     )
-    cand = SimpleNamespace(effects=[effect], extra={"warm_jw": np.c_[A, C]})
+    jw = np.c_[A, C]
     lr = float((y - A @ b) @ (y - A @ b) - (y - np.c_[A, C] @ full) @ (y - np.c_[A, C] @ full))
     white = SimpleNamespace(vec=lambda x: np.asarray(x, float).reshape(-1))
-    return cur, cand, white, lr
+    return cur, effect, jw, white, lr
 
 
 def test_the_score_is_the_linear_models_lr_and_chi2_under_the_null():
@@ -82,17 +82,14 @@ def test_the_score_is_the_linear_models_lr_and_chi2_under_the_null():
 
     drift = REGISTRY["tracker_drift"]()
     rng = np.random.default_rng(7)
-    cur, cand, white, lr = _linear_score(rng, drift)
-    s, rank = score_statistic(cur, cand, white)
+    cur, eff, jw, white, lr = _linear_score(rng, drift)
+    s, rank = score_statistic(cur, eff, jw, white)
     assert rank == 3 and s == pytest.approx(lr, rel=1e-9)
-    draws = np.array([score_statistic(*_linear_score(rng, drift)[:3])[0] for _ in range(4000)])
+    draws = np.array([score_statistic(*_linear_score(rng, drift)[:4])[0] for _ in range(4000)])
     for a in (0.05, 0.01):
         share = np.mean(draws > stats.chi2.isf(a, 3))
         assert abs(share - a) < 3 * np.sqrt(a * (1 - a) / draws.size), (a, share)
-    assert (
-        score_statistic(cur, SimpleNamespace(effects=[REGISTRY["compensator"]()], extra=cand.extra), white)
-        is None
-    )
+    assert score_statistic(cur, REGISTRY["compensator"](), jw, white) is None
 
 
 def test_a_candidate_whose_first_order_score_fails_is_not_significant():

@@ -106,19 +106,17 @@ def score_p(statistic: float, rank: int) -> float:
     return float(stats.chi2.sf(statistic, rank)) if rank > 0 else 1.0
 
 
-def score_statistic(current, cand, white) -> tuple[float, int] | None:
-    """(S, rank): Rao's score statistic of the candidate fit ``cand`` (its effect appended last)
-    at the current model (module docstring, THE FIRST-ORDER CONFIRMATION). The whitened Jacobian
-    at the candidate's warm start (identify/discover/search.py: the current values, the effect at
-    its prior start) gives the effect's columns; every column the current model estimates (free
-    or at a bound) is projected off them and off the current whitened residual r; S = |U^T r|^2
-    over the left singular vectors U of the projected columns above RANK_TOL of their largest
-    column, rank their number. For a model linear near the current estimate, S is the LR and
-    chi2(rank) without the effect. None when the effect has a parameter without a first-order
-    test (Prior.first_order) or the fit kept no warm Jacobian."""
-    eff = cand.effects[-1]
-    jw = cand.extra.get("warm_jw")
-    if jw is None or not all(p.first_order for p in priors(eff)):
+def score_statistic(current, effect, jw: np.ndarray | None, white) -> tuple[float, int] | None:
+    """(S, rank): Rao's score statistic of the candidate ``effect`` at the current model (module
+    docstring, THE FIRST-ORDER CONFIRMATION). ``jw``: the whitened Jacobian at the candidate's
+    warm start (search.warm_point: the current values, the effect appended last at its prior
+    start; a candidate fit's ``warm_jw``) gives the effect's columns; every column the current
+    model estimates (free or at a bound) is projected off them and off the current whitened
+    residual r; S = |U^T r|^2 over the left singular vectors U of the projected columns above
+    RANK_TOL of their largest column, rank their number. For a model linear near the current
+    estimate, S is the LR and chi2(rank) without the effect. None when the effect has a
+    parameter without a first-order test (Prior.first_order) or there is no Jacobian."""
+    if jw is None or not all(p.first_order for p in priors(effect)):
         return None
     n = current.values.size
     est = np.asarray(current.free, bool)

@@ -116,7 +116,8 @@ def run_round(
             out.append(c)
             bar.update(f"{name}: {label(e)}")
             continue
-        score = score_statistic(current, c.fit, white)  # at the current model: the fit does not move it
+        # at the current model, with the Jacobian the fit started from: the fit does not move it
+        score = score_statistic(current, e, c.fit.extra.get("warm_jw"), white)
         st = compare(current, c.fit, len(cands), score)
         if st["k"] > 0 and st["lr"] >= POLISH_SHARE * lr_threshold(st["k"], len(cands)):
             c.fit = polish(c.fit, obs, white)  # near or past its threshold: the exact LR
@@ -211,7 +212,9 @@ def _ties_resolved(
         except (ValueError, RuntimeError, NotImplementedError, np.linalg.LinAlgError):
             keep.append(t)
             continue
-        st = compare(with_best, both, n_tests, score_statistic(with_best, both, white))
+        st = compare(
+            with_best, both, n_tests, score_statistic(with_best, eff, both.extra.get("warm_jw"), white)
+        )
         t["lr_on_top_of_best"] = st["lr"]
         if not st["accept"]:
             keep.append(t)
@@ -237,7 +240,7 @@ def first_round_events(obs: Observations, src) -> dict:
         try:
             if all(p.first_order for p in priors(e)):
                 w = warm_point(src, obs, white, base, e)
-                s, rank = score_statistic(base, _WarmOnly([e], {"warm_jw": w.jw}), white)
+                s, rank = score_statistic(base, e, w.jw, white)
                 p_score[label(e)] = score_p(s, rank)
                 continue
             f = fit_candidate(src, obs, white, base, hold_mask(base), e, base.extra["fresh_start"])
@@ -260,14 +263,6 @@ def first_round_events(obs: Observations, src) -> dict:
         "p_before": p_before,
         "alpha": alpha,
     }
-
-
-@dataclass
-class _WarmOnly:
-    """What decide.score_statistic reads of a candidate fit: its effects and warm Jacobian."""
-
-    effects: list
-    extra: dict
 
 
 def discover_observations(
