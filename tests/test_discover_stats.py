@@ -299,26 +299,31 @@ def test_the_payload_mass_line_says_what_the_record_says(exact_fits):
 
 def test_first_round_events_are_discoverys_own_and_bound_its_verdict():
     """first_round_events (the false-alarm bound of benchmarks/discover_null_bench.py
-    --first-order) reads the same first-order scores, misfit p and level as the whole discovery
-    on the same readings, and where it finds no event discovery names nothing: the paper plan
-    with nothing hidden, one noise draw."""
+    --first-order) reads the same first-order scores, misfit p and level as discovery's own first
+    round (workflow.run_round, on the same readings and user's model), and where it finds no
+    event no candidate of that round is significant and the misfit test passes, so discovery
+    names nothing: the paper plan with nothing hidden, one noise draw."""
     from calbench.bench.campaign import remeasure
-    from calbench.identify.discover import discover_observations, first_round_events
+    from calbench.identify.discover import first_round_events
+    from calbench.identify.discover.basefit import hold_mask
+    from calbench.identify.discover.stats import chi2_p
+    from calbench.identify.discover.workflow import run_round
 
     text = PAPER.read_text().replace('robot = "../mjcf/m900ib700.xml"', f'robot = "{MJCF}"')
     campaign = simulate(parse_scenario(text, Path("/tmp/null_bound.toml")), None)
-    for seed in (1,):
-        obs = from_campaign(remeasure(campaign, np.random.default_rng([20261, seed])))
-        ev = first_round_events(obs, MJCF)
-        rep, _ = discover_observations(obs, MJCF)
-        first = {
-            c["effect"] + (f"[{c['detail']}]" if c["detail"] else ""): c
-            for c in rep["rounds"][0]["candidates"]
-        }
-        assert set(ev["p_score"]) == {k for k, c in first.items() if "p_score" in c}
-        for k, p in ev["p_score"].items():
-            assert p == pytest.approx(first[k]["p_score"], rel=1e-9, abs=1e-300)
-        assert ev["p_before"] == pytest.approx(rep["p_before"], rel=1e-12)
-        assert ev["alpha"] == pytest.approx(first[next(iter(first))]["alpha"], rel=1e-12)
-        if not ev["event"]:
-            assert rep["named_effects"] == []
+    obs = from_campaign(remeasure(campaign, np.random.default_rng([20261, 1])))
+    ev = first_round_events(obs, MJCF)
+    white = Whitener.from_observations(obs)
+    base = base_fit(MJCF, obs, white)
+    cands = run_round(MJCF, obs, white, base, hold_mask(base), base.extra["fresh_start"], library(base.robot))
+    first = {c.label: c for c in cands if c.stats is not None}
+    assert set(ev["p_score"]) == {k for k, c in first.items() if "p_score" in c.stats}
+    for k, p in ev["p_score"].items():
+        assert p == pytest.approx(first[k].stats["p_score"], rel=1e-9, abs=1e-300)
+    for k, p in ev["p_lr_no_first_order"].items():
+        assert p == pytest.approx(first[k].stats["p_lr"], rel=1e-6, abs=1e-12)
+    assert ev["p_before"] == pytest.approx(chi2_p(base.chi2, base.dof), rel=1e-12)
+    assert all(ev["alpha"] == pytest.approx(c.stats["alpha"], rel=1e-12) for c in first.values())
+    if not ev["event"]:
+        assert not any(c.stats["significant"] for c in first.values())
+        assert ev["p_before"] >= ALPHA_MISFIT
