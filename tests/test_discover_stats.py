@@ -304,10 +304,7 @@ def test_first_round_events_are_discoverys_own_and_bound_its_verdict():
     event no candidate of that round is significant and the misfit test passes, so discovery
     names nothing: the paper plan with nothing hidden, one noise draw."""
     from calbench.bench.campaign import remeasure
-    from calbench.identify.discover import first_round_events
-    from calbench.identify.discover.basefit import hold_mask
-    from calbench.identify.discover.stats import chi2_p
-    from calbench.identify.discover.workflow import run_round
+    from calbench.identify.discover import first_round_events, hold_mask, run_round
 
     text = PAPER.read_text().replace('robot = "../mjcf/m900ib700.xml"', f'robot = "{MJCF}"')
     campaign = simulate(parse_scenario(text, Path("/tmp/null_bound.toml")), None)
@@ -322,7 +319,7 @@ def test_first_round_events_are_discoverys_own_and_bound_its_verdict():
         assert p == pytest.approx(first[k].stats["p_score"], rel=1e-9, abs=1e-300)
     for k, p in ev["p_lr_no_first_order"].items():
         assert p == pytest.approx(first[k].stats["p_lr"], rel=1e-6, abs=1e-12)
-    assert ev["p_before"] == pytest.approx(chi2_p(base.chi2, base.dof), rel=1e-12)
+    assert ev["p_before"] == pytest.approx(stats.chi2.sf(base.chi2, base.dof), rel=1e-12)
     assert all(ev["alpha"] == pytest.approx(c.stats["alpha"], rel=1e-12) for c in first.values())
     if not ev["event"]:
         assert not any(c.stats["significant"] for c in first.values())

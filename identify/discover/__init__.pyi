@@ -12,6 +12,7 @@ from .aliasing import (
     regress,
     with_exact,
 )
+from .basefit import hold_mask
 from .decide import (
     ALPHA_DISCOVERY,
     ALPHA_EFFECT,
@@ -103,6 +104,7 @@ from .workflow import (
     discover,
     discover_observations,
     first_round_events,
+    run_round,
     sprung_joint_effects,
     story,
 )
@@ -174,6 +176,8 @@ __all__ = [
     "discover",
     "discover_observations",
     "first_round_events",
+    "hold_mask",
+    "run_round",
     "effect_exposure",
     "effect_priors",
     "exposure_report",
