@@ -6,7 +6,7 @@ every field and bit, and the robot is the log's MJCF text; the truth enters only
 error columns, after the estimate, equal to the log's. (2) Small studies run both ways (the log
 path forced through ``needs_log``) give bit-identical Parquet rows, timing columns aside, for
 the cell kinds the shipped studies use: isotropic, spec and iso10360 trackers, one-step and
-two-step, a hidden tracker drift, and discover (a hidden effect, a model without the compensator).
+two-step, a hidden tracker drift, and discover (a model without the compensator).
 """
 
 from __future__ import annotations
